@@ -1,0 +1,8 @@
+//! bead: constrained particle dynamics.
+pub mod expr;
+
+
+/// A number type the engine can differentiate through: `f64` and num-dual's dual numbers.
+/// Constraints written as Rust types are generic over it (see [`model::Holonomic`]).
+pub trait Scalar: num_dual::DualNum<Primitive = f64> + Copy {}
+impl<T: num_dual::DualNum<Primitive = f64> + Copy> Scalar for T {}
