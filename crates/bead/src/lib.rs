@@ -1,6 +1,11 @@
 //! bead: constrained particle dynamics.
 pub mod expr;
-
+pub mod formulation;
+pub mod integrate;
+pub mod linalg;
+pub mod model;
+pub mod scene;
+pub mod simulate;
 
 /// A number type the engine can differentiate through: `f64` and num-dual's dual numbers.
 /// Constraints written as Rust types are generic over it (see [`model::Holonomic`]).

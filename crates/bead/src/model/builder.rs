@@ -1,0 +1,496 @@
+//! Building and checking a [`System`].
+
+use std::sync::Arc;
+
+use super::constraint::{ConstraintInfo, ConstraintSet, CustomRow, ExprRow};
+use super::holonomic::{Erased, SharedHolonomic};
+use super::{Endpoint, Force, Holonomic, ParametricMap, Particle, ParticleId, System};
+use crate::expr::{parse, Expr, ExprError, Resolved};
+
+/// Slot that stands for time while a system is being built; replaced by the real time slot
+/// (2 n) when the system is compiled, because n is known only then.
+const TIME_PLACEHOLDER: usize = 1 << 40;
+const AXES: [&str; 3] = ["x", "y", "z"];
+/// Names a parameter may not take.
+const RESERVED: [&str; 6] = ["t", "pi", "e", "x", "y", "z"];
+
+/// A model that cannot be built, with what is wrong in words.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum ModelError {
+    #[error("gravity must have 2 or 3 components (it sets the dimension), got {0}")]
+    BadDimension(usize),
+    #[error("{what} must have {expected} components (the scene is {expected}D), got {got}")]
+    DimensionMismatch { what: String, expected: usize, got: usize },
+    #[error("duplicate {kind} name `{name}`")]
+    Duplicate { kind: &'static str, name: String },
+    #[error("`{0}` is reserved and cannot name a parameter or coordinate")]
+    Reserved(String),
+    #[error("particle `{name}`: mass must be positive and finite, got {mass}")]
+    BadMass { name: String, mass: f64 },
+    #[error("{what} must be finite, got {value}")]
+    NotFinite { what: String, value: f64 },
+    #[error("{what} must be positive, got {value}")]
+    NotPositive { what: String, value: f64 },
+    #[error("unknown particle `{0}`")]
+    UnknownParticle(String),
+    #[error("a system needs at least one particle")]
+    NoParticles,
+    #[error("{0}")]
+    Parametric(String),
+    #[error("in `{source_text}`: {error}")]
+    Expression { source_text: String, error: ExprError },
+}
+
+#[derive(Clone)]
+enum ConstraintSpec {
+    Expression(Expr, String),
+    Distance { a: ParticleId, b: Endpoint, length: f64 },
+    Pin { particle: ParticleId, anchor: Vec<f64> },
+    Custom(SharedHolonomic, Vec<ParticleId>),
+}
+
+struct ParametricSpec {
+    coordinates: Vec<String>,
+    initial: Vec<f64>,
+    rates: Vec<f64>,
+    positions: Vec<Option<Vec<Expr>>>,
+}
+
+/// Builds a [`System`] from particles, forces, constraints and an optional parametric map.
+///
+/// ```
+/// use bead::model::SystemBuilder;
+/// let mut b = SystemBuilder::new(&[0.0, 500.0]);
+/// b.particle("bead", 1.0, &[150.0, -225.0], &[0.0, 0.0]).unwrap();
+/// b.constraint_expr("bead.x^2 + 100*bead.y").unwrap();
+/// b.parametric(&["q"], &[150.0], &[0.0]).unwrap();
+/// b.parametric_position_exprs("bead", &["q", "-q^2/100"]).unwrap();
+/// let system = b.build().unwrap();
+/// assert_eq!(system.degrees_of_freedom(), 1);
+/// ```
+pub struct SystemBuilder {
+    gravity: Vec<f64>,
+    params: Vec<(String, f64)>,
+    particles: Vec<Particle>,
+    forces: Vec<Force>,
+    constraints: Vec<(String, ConstraintSpec)>,
+    parametric: Option<ParametricSpec>,
+}
+
+impl SystemBuilder {
+    /// A builder for a world with gravitational acceleration `gravity`; its length (2 or 3)
+    /// sets the dimension.
+    pub fn new(gravity: &[f64]) -> Self {
+        SystemBuilder {
+            gravity: gravity.to_vec(),
+            params: Vec::new(),
+            particles: Vec::new(),
+            forces: Vec::new(),
+            constraints: Vec::new(),
+            parametric: None,
+        }
+    }
+
+    /// Spatial dimension (the length of gravity).
+    pub fn dim(&self) -> usize {
+        self.gravity.len()
+    }
+
+    /// A named number usable in expressions.
+    pub fn param(&mut self, name: &str, value: f64) -> Result<&mut Self, ModelError> {
+        if RESERVED.contains(&name) {
+            return Err(ModelError::Reserved(name.into()));
+        }
+        finite(&format!("parameter `{name}`"), value)?;
+        if self.params.iter().any(|(n, _)| n == name) {
+            return Err(ModelError::Duplicate { kind: "parameter", name: name.into() });
+        }
+        self.params.push((name.into(), value));
+        Ok(self)
+    }
+
+    /// The value of parameter `name`.
+    pub fn param_value(&self, name: &str) -> Option<f64> {
+        self.params.iter().find(|(n, _)| n == name).map(|(_, v)| *v)
+    }
+
+    /// Add a particle.
+    pub fn particle(&mut self, name: &str, mass: f64, position: &[f64], velocity: &[f64]) -> Result<ParticleId, ModelError> {
+        if name.is_empty() || !name.chars().all(|c| c.is_alphanumeric() || c == '_') || name.starts_with(|c: char| c.is_ascii_digit()) {
+            return Err(ModelError::Parametric(format!(
+                "particle name `{name}` must be a letter or `_` followed by letters, digits or `_`"
+            )));
+        }
+        if self.particles.iter().any(|p| p.name == name) {
+            return Err(ModelError::Duplicate { kind: "particle", name: name.into() });
+        }
+        if !(mass.is_finite() && mass > 0.0) {
+            return Err(ModelError::BadMass { name: name.into(), mass });
+        }
+        self.vector(&format!("particle `{name}` position"), position)?;
+        self.vector(&format!("particle `{name}` velocity"), velocity)?;
+        self.particles.push(Particle { name: name.into(), mass, position: position.to_vec(), velocity: velocity.to_vec() });
+        Ok(ParticleId(self.particles.len() - 1))
+    }
+
+    /// Look a particle up by name.
+    pub fn particle_id(&self, name: &str) -> Result<ParticleId, ModelError> {
+        self.particles
+            .iter()
+            .position(|p| p.name == name)
+            .map(ParticleId)
+            .ok_or_else(|| ModelError::UnknownParticle(name.into()))
+    }
+
+    /// Add an applied force (checked for dimension and finiteness here).
+    pub fn force(&mut self, force: Force) -> Result<&mut Self, ModelError> {
+        match &force {
+            Force::Constant { particle, vector } => {
+                self.check_particle(*particle)?;
+                self.vector("constant force vector", vector)?;
+            }
+            Force::Spring { a, b, stiffness, rest_length } => {
+                self.check_particle(*a)?;
+                self.endpoint("spring anchor", b)?;
+                finite("spring stiffness", *stiffness)?;
+                finite("spring rest_length", *rest_length)?;
+                if *rest_length < 0.0 {
+                    return Err(ModelError::NotPositive { what: "spring rest_length".into(), value: *rest_length });
+                }
+            }
+            Force::Drag { particle, coefficient } => {
+                if let Some(p) = particle {
+                    self.check_particle(*p)?;
+                }
+                finite("drag coefficient", *coefficient)?;
+            }
+        }
+        self.forces.push(force);
+        Ok(self)
+    }
+
+    /// Resolve a name in a constraint expression: `t`, a parameter, `NAME.x|y|z`, or with a
+    /// single particle plain `x y z`.
+    pub fn resolve_constraint_name(&self, name: &str) -> Result<Resolved, String> {
+        if name == "t" {
+            return Ok(Resolved::Var(TIME_PLACEHOLDER));
+        }
+        if let Some(v) = self.param_value(name) {
+            return Ok(Resolved::Value(v));
+        }
+        let dim = self.dim();
+        let coordinate = |p: usize, axis: &str| {
+            AXES[..dim.min(3)].iter().position(|a| *a == axis).map(|a| Resolved::Var(p * dim + a))
+        };
+        if let Some((particle, axis)) = name.split_once('.') {
+            if let Some(p) = self.particles.iter().position(|q| q.name == particle) {
+                return coordinate(p, axis).ok_or_else(|| {
+                    format!("`{particle}` has no coordinate `{axis}`; in {dim}D use {}", self.axis_list())
+                });
+            }
+            return Err(format!("unknown particle `{particle}`; particles: {}", self.particle_list()));
+        }
+        if self.particles.len() == 1 {
+            if let Some(r) = coordinate(0, name) {
+                return Ok(r);
+            }
+        }
+        Err(format!(
+            "unknown name `{name}`; expressions may use t, pi, e, parameters ({}) and particle coordinates like {}",
+            self.param_list(),
+            self.particles.first().map(|p| format!("{}.x", p.name)).unwrap_or_else(|| "NAME.x".into())
+        ))
+    }
+
+    /// Parse a constraint expression in this builder's names.
+    pub fn parse_constraint_expr(&self, source: &str) -> Result<Expr, ExprError> {
+        parse(source, &|name| self.resolve_constraint_name(name))
+    }
+
+    /// Add the constraint `source = 0`, an expression over particle coordinates, t and params.
+    pub fn constraint_expr(&mut self, source: &str) -> Result<&mut Self, ModelError> {
+        let expr = self
+            .parse_constraint_expr(source)
+            .map_err(|error| ModelError::Expression { source_text: source.into(), error })?;
+        let name = format!("constraint {}", self.constraints.len() + 1);
+        Ok(self.add_constraint_expr(&name, expr, source))
+    }
+
+    /// Add an already parsed constraint expression (from [`Self::parse_constraint_expr`]).
+    pub fn add_constraint_expr(&mut self, name: &str, expr: Expr, source: &str) -> &mut Self {
+        self.constraints.push((name.into(), ConstraintSpec::Expression(expr, source.into())));
+        self
+    }
+
+    /// A rigid rod |x_a - x_b| = length.
+    pub fn distance(&mut self, name: &str, a: ParticleId, b: Endpoint, length: f64) -> Result<&mut Self, ModelError> {
+        self.check_particle(a)?;
+        self.endpoint("distance anchor", &b)?;
+        finite("distance length", length)?;
+        if length <= 0.0 {
+            return Err(ModelError::NotPositive { what: "distance length".into(), value: length });
+        }
+        self.constraints.push((name.into(), ConstraintSpec::Distance { a, b, length }));
+        Ok(self)
+    }
+
+    /// Pin a particle at a fixed point (one constraint row per axis).
+    pub fn pin(&mut self, name: &str, particle: ParticleId, anchor: &[f64]) -> Result<&mut Self, ModelError> {
+        self.check_particle(particle)?;
+        self.vector("pin anchor", anchor)?;
+        self.constraints.push((name.into(), ConstraintSpec::Pin { particle, anchor: anchor.to_vec() }));
+        Ok(self)
+    }
+
+    /// A constraint written as a Rust type, differentiated automatically.
+    pub fn holonomic<H: Holonomic>(&mut self, name: &str, constraint: H) -> &mut Self {
+        let particles = constraint.particles();
+        self.constraints.push((name.into(), ConstraintSpec::Custom(Arc::new(Erased(constraint)), particles)));
+        self
+    }
+
+    /// Declare the parametric form: generalized coordinates with initial values and rates.
+    pub fn parametric(&mut self, coordinates: &[&str], initial: &[f64], rates: &[f64]) -> Result<&mut Self, ModelError> {
+        if coordinates.is_empty() {
+            return Err(ModelError::Parametric("the parametric form needs at least one coordinate".into()));
+        }
+        for (i, c) in coordinates.iter().enumerate() {
+            if RESERVED.contains(c) || self.param_value(c).is_some() || c.contains('.') {
+                return Err(ModelError::Reserved((*c).into()));
+            }
+            if coordinates[..i].contains(c) {
+                return Err(ModelError::Duplicate { kind: "coordinate", name: (*c).into() });
+            }
+        }
+        for (what, values) in [("parametric initial", initial), ("parametric rates", rates)] {
+            if values.len() != coordinates.len() {
+                return Err(ModelError::Parametric(format!(
+                    "{what} has {} values for {} coordinates",
+                    values.len(),
+                    coordinates.len()
+                )));
+            }
+            for v in values {
+                finite(what, *v)?;
+            }
+        }
+        self.parametric = Some(ParametricSpec {
+            coordinates: coordinates.iter().map(|c| c.to_string()).collect(),
+            initial: initial.to_vec(),
+            rates: rates.to_vec(),
+            positions: Vec::new(),
+        });
+        Ok(self)
+    }
+
+    /// Resolve a name in a parametric position expression: a coordinate, `t` or a parameter.
+    pub fn resolve_parametric_name(&self, name: &str) -> Result<Resolved, String> {
+        let coordinates = self.parametric.as_ref().map(|p| p.coordinates.as_slice()).unwrap_or(&[]);
+        if name == "t" {
+            return Ok(Resolved::Var(TIME_PLACEHOLDER));
+        }
+        if let Some(j) = coordinates.iter().position(|c| c == name) {
+            return Ok(Resolved::Var(j));
+        }
+        if let Some(v) = self.param_value(name) {
+            return Ok(Resolved::Value(v));
+        }
+        Err(format!(
+            "unknown name `{name}`; parametric positions may use the coordinates ({}), t, pi, e and parameters ({})",
+            coordinates.join(", "),
+            self.param_list()
+        ))
+    }
+
+    /// Parse a parametric position expression.
+    pub fn parse_parametric_expr(&self, source: &str) -> Result<Expr, ExprError> {
+        parse(source, &|name| self.resolve_parametric_name(name))
+    }
+
+    /// Set particle `name`'s position as expressions of q and t (one per axis).
+    pub fn parametric_position(&mut self, name: &str, exprs: Vec<Expr>) -> Result<&mut Self, ModelError> {
+        let p = self.particle_id(name)?.0;
+        if exprs.len() != self.dim() {
+            return Err(ModelError::DimensionMismatch {
+                what: format!("parametric position of `{name}`"),
+                expected: self.dim(),
+                got: exprs.len(),
+            });
+        }
+        let n_particles = self.particles.len();
+        let spec = self
+            .parametric
+            .as_mut()
+            .ok_or_else(|| ModelError::Parametric("declare the parametric coordinates first".into()))?;
+        spec.positions.resize(n_particles, None);
+        if spec.positions[p].is_some() {
+            return Err(ModelError::Duplicate { kind: "parametric position for particle", name: name.into() });
+        }
+        spec.positions[p] = Some(exprs);
+        Ok(self)
+    }
+
+    /// Parse and set particle `name`'s parametric position.
+    pub fn parametric_position_exprs(&mut self, name: &str, sources: &[&str]) -> Result<&mut Self, ModelError> {
+        let exprs = sources
+            .iter()
+            .map(|s| {
+                self.parse_parametric_expr(s)
+                    .map_err(|error| ModelError::Expression { source_text: (*s).into(), error })
+            })
+            .collect::<Result<Vec<_>, _>>()?;
+        self.parametric_position(name, exprs)
+    }
+
+    /// Check everything and compile the constraints and the parametric map.
+    pub fn build(self) -> Result<System, ModelError> {
+        let dim = self.dim();
+        if !(2..=3).contains(&dim) {
+            return Err(ModelError::BadDimension(dim));
+        }
+        for g in &self.gravity {
+            finite("gravity", *g)?;
+        }
+        if self.particles.is_empty() {
+            return Err(ModelError::NoParticles);
+        }
+        let n = self.particles.len() * dim;
+        let time = |k: usize| if k == TIME_PLACEHOLDER { Expr::var(2 * n) } else { Expr::var(k) };
+        let mut infos = Vec::new();
+        let mut expr_rows = Vec::new();
+        let mut custom = Vec::new();
+        // Rust rows go after all expression rows; remember which info they belong to.
+        let mut custom_infos = Vec::new();
+        for (name, spec) in &self.constraints {
+            let start = expr_rows.len();
+            let description = match spec {
+                ConstraintSpec::Expression(expr, source) => {
+                    expr_rows.push(ExprRow::new(expr.substitute(&time), n));
+                    format!("{source} = 0")
+                }
+                ConstraintSpec::Distance { a, b, length } => {
+                    // C = (|d|^2 - L^2) / (2 L): zero on the rod, |grad C| = |d|/L = 1 there,
+                    // and smooth even where |d| = 0.
+                    let squared = (0..dim)
+                        .map(|axis| {
+                            let d = Expr::var(a.0 * dim + axis) - endpoint_expr(b, dim, axis);
+                            &d * &d
+                        })
+                        .fold(Expr::constant(0.0), |acc, s| acc + s);
+                    let c = (squared - length * length) / (2.0 * length);
+                    expr_rows.push(ExprRow::new(c, n));
+                    format!("distance({}, {}) = {length}", self.particles[a.0].name, self.endpoint_name(b))
+                }
+                ConstraintSpec::Pin { particle, anchor } => {
+                    for (axis, value) in anchor.iter().enumerate() {
+                        expr_rows.push(ExprRow::new(Expr::var(particle.0 * dim + axis) - *value, n));
+                    }
+                    format!("pin({}) at {anchor:?}", self.particles[particle.0].name)
+                }
+                ConstraintSpec::Custom(constraint, particles) => {
+                    let mut coords = Vec::new();
+                    for p in particles {
+                        self.check_particle(*p)?;
+                        coords.extend((0..dim).map(|axis| p.0 * dim + axis));
+                    }
+                    custom.push(CustomRow { constraint: constraint.clone(), coords });
+                    custom_infos.push(ConstraintInfo {
+                        name: name.clone(),
+                        description: "Rust constraint (derivatives by dual numbers)".into(),
+                        rows: 0..0,
+                    });
+                    continue;
+                }
+            };
+            infos.push(ConstraintInfo { name: name.clone(), description, rows: start..expr_rows.len() });
+        }
+        let n_expr = expr_rows.len();
+        for (i, mut info) in custom_infos.into_iter().enumerate() {
+            info.rows = n_expr + i..n_expr + i + 1;
+            infos.push(info);
+        }
+        let constraints = ConstraintSet::new(n, infos, expr_rows, custom);
+
+        let parametric = match self.parametric {
+            None => None,
+            Some(spec) => {
+                let n_q = spec.coordinates.len();
+                let time = |k: usize| if k == TIME_PLACEHOLDER { Expr::var(2 * n_q) } else { Expr::var(k) };
+                let mut positions = Vec::with_capacity(n);
+                for (p, particle) in self.particles.iter().enumerate() {
+                    let exprs = spec.positions.get(p).and_then(|e| e.as_ref()).ok_or_else(|| {
+                        ModelError::Parametric(format!(
+                            "the parametric form gives no position for particle `{}`; every particle needs one",
+                            particle.name
+                        ))
+                    })?;
+                    positions.extend(exprs.iter().map(|e| e.substitute(&time)));
+                }
+                Some(ParametricMap::new(spec.coordinates, spec.initial, spec.rates, positions))
+            }
+        };
+        let inverse_mass = self.particles.iter().flat_map(|p| std::iter::repeat_n(1.0 / p.mass, dim)).collect();
+        Ok(System { dim, particles: self.particles, gravity: self.gravity, forces: self.forces, constraints, parametric, inverse_mass })
+    }
+
+    fn check_particle(&self, p: ParticleId) -> Result<(), ModelError> {
+        if p.0 < self.particles.len() {
+            Ok(())
+        } else {
+            Err(ModelError::UnknownParticle(format!("#{}", p.0)))
+        }
+    }
+
+    fn endpoint(&self, what: &str, e: &Endpoint) -> Result<(), ModelError> {
+        match e {
+            Endpoint::Particle(p) => self.check_particle(*p),
+            Endpoint::Fixed(point) => self.vector(what, point),
+        }
+    }
+
+    fn endpoint_name(&self, e: &Endpoint) -> String {
+        match e {
+            Endpoint::Particle(p) => self.particles[p.0].name.clone(),
+            Endpoint::Fixed(point) => format!("{point:?}"),
+        }
+    }
+
+    fn vector(&self, what: &str, v: &[f64]) -> Result<(), ModelError> {
+        if v.len() != self.dim() {
+            return Err(ModelError::DimensionMismatch { what: what.into(), expected: self.dim(), got: v.len() });
+        }
+        for c in v {
+            finite(what, *c)?;
+        }
+        Ok(())
+    }
+
+    fn particle_list(&self) -> String {
+        self.particles.iter().map(|p| p.name.as_str()).collect::<Vec<_>>().join(", ")
+    }
+    fn param_list(&self) -> String {
+        if self.params.is_empty() {
+            "none".into()
+        } else {
+            self.params.iter().map(|(n, _)| n.as_str()).collect::<Vec<_>>().join(", ")
+        }
+    }
+    fn axis_list(&self) -> String {
+        AXES[..self.dim().min(3)].join(", ")
+    }
+}
+
+fn endpoint_expr(e: &Endpoint, dim: usize, axis: usize) -> Expr {
+    match e {
+        Endpoint::Particle(p) => Expr::var(p.0 * dim + axis),
+        Endpoint::Fixed(point) => Expr::constant(point[axis]),
+    }
+}
+
+fn finite(what: &str, value: f64) -> Result<(), ModelError> {
+    if value.is_finite() {
+        Ok(())
+    } else {
+        Err(ModelError::NotFinite { what: what.into(), value })
+    }
+}

@@ -1,0 +1,272 @@
+//! Holonomic constraints compiled for evaluation: values C, velocity Cdot, Jacobian J and the
+//! acceleration bias, all exact.
+//!
+//! For a constraint C(x, t) = 0 on positions x (n_coords) with velocities v:
+//!
+//! ```text
+//! Cdot  = J v + C_t                                   J = dC/dx
+//! Cddot = J a + bias,   bias = v^T H v + 2 C_xt v + C_tt   (H = d2C/dx2)
+//! ```
+//!
+//! Expression constraints get these symbolically at build time (bias as the total time
+//! derivative of the Cdot expression with the accelerations left out) and run as one compiled
+//! [`Tape`]; Rust [`super::Holonomic`] constraints get them from dual numbers.
+
+use std::ops::Range;
+
+use super::holonomic::{DualScratch, SharedHolonomic};
+use crate::expr::{Expr, Tape};
+
+/// What a user named: one declared constraint, which may own several rows (a pin has one per
+/// axis).
+#[derive(Clone, Debug, PartialEq)]
+pub struct ConstraintInfo {
+    /// Label used in messages, e.g. `constraint 1`.
+    pub name: String,
+    /// What it is, e.g. `bead.x^2 + 100*bead.y = 0` or `distance(a, b) = 1`.
+    pub description: String,
+    /// Its rows in the stacked constraint vector.
+    pub rows: Range<usize>,
+}
+
+/// One scalar constraint row written as an expression over slots [x (n), v (n), t].
+#[derive(Clone, Debug)]
+pub(crate) struct ExprRow {
+    pub(crate) value: Expr,
+    /// (coordinate, dC/dx_coordinate) for every coordinate C depends on.
+    pub(crate) gradient: Vec<(usize, Expr)>,
+    pub(crate) velocity: Expr,
+    pub(crate) bias: Expr,
+}
+
+impl ExprRow {
+    /// Differentiate `value` (slots: x = 0..n, v = n..2n, t = 2n) once, at build time.
+    pub(crate) fn new(value: Expr, n_coords: usize) -> ExprRow {
+        let time = 2 * n_coords;
+        let velocity_of = |k: usize| Expr::var(n_coords + k);
+        // Total time derivative along the motion, accelerations excluded:
+        // d/dt f(x, v, t) = sum_k df/dx_k v_k + df/dt.
+        let total_derivative = |f: &Expr| {
+            f.vars()
+                .into_iter()
+                .filter(|&k| k < n_coords)
+                .fold(f.derivative(time), |acc, k| acc + f.derivative(k) * velocity_of(k))
+        };
+        let gradient: Vec<(usize, Expr)> = value
+            .vars()
+            .into_iter()
+            .filter(|&k| k < n_coords)
+            .map(|k| (k, value.derivative(k)))
+            .collect();
+        let velocity = total_derivative(&value);
+        let bias = total_derivative(&velocity);
+        ExprRow { value, gradient, velocity, bias }
+    }
+}
+
+/// A Rust constraint row and the coordinates it reads.
+#[derive(Clone)]
+pub(crate) struct CustomRow {
+    pub(crate) constraint: SharedHolonomic,
+    pub(crate) coords: Vec<usize>,
+}
+
+/// All implicit constraints of a system, compiled. Rows are stacked expression rows first,
+/// then Rust rows.
+#[derive(Clone)]
+pub struct ConstraintSet {
+    n_coords: usize,
+    infos: Vec<ConstraintInfo>,
+    expr_rows: Vec<ExprRow>,
+    custom_rows: Vec<CustomRow>,
+    /// Outputs: C (expression rows).
+    value_tape: Tape,
+    /// Outputs: C | Cdot | bias (expression rows) | gradient entries in row order.
+    full_tape: Tape,
+    /// Sparse row structure of J: row i owns entries row_start[i]..row_start[i+1] of `columns`.
+    row_start: Vec<usize>,
+    columns: Vec<usize>,
+}
+
+impl std::fmt::Debug for ConstraintSet {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("ConstraintSet")
+            .field("infos", &self.infos)
+            .field("n_rows", &self.n_rows())
+            .finish()
+    }
+}
+
+/// Results and scratch space of [`ConstraintSet::evaluate`], sized once.
+#[derive(Clone, Debug)]
+pub struct ConstraintEval {
+    /// C (n_rows)
+    pub value: Vec<f64>,
+    /// Cdot = J v + C_t (n_rows)
+    pub velocity: Vec<f64>,
+    /// Cddot - J a (n_rows)
+    pub bias: Vec<f64>,
+    /// Nonzero entries of J in the row structure of [`ConstraintSet::row_columns`] (nnz)
+    pub jacobian: Vec<f64>,
+    vars: Vec<f64>,
+    scratch: Vec<f64>,
+    tape_out: Vec<f64>,
+    local_x: Vec<f64>,
+    local_v: Vec<f64>,
+    duals: DualScratch,
+}
+
+impl ConstraintSet {
+    pub(crate) fn new(n_coords: usize, infos: Vec<ConstraintInfo>, expr_rows: Vec<ExprRow>, custom_rows: Vec<CustomRow>) -> Self {
+        let values: Vec<Expr> = expr_rows.iter().map(|r| r.value.clone()).collect();
+        let mut outputs = values.clone();
+        outputs.extend(expr_rows.iter().map(|r| r.velocity.clone()));
+        outputs.extend(expr_rows.iter().map(|r| r.bias.clone()));
+        let mut row_start = vec![0];
+        let mut columns = Vec::new();
+        for row in &expr_rows {
+            for (k, d) in &row.gradient {
+                columns.push(*k);
+                outputs.push(d.clone());
+            }
+            row_start.push(columns.len());
+        }
+        for row in &custom_rows {
+            columns.extend(&row.coords);
+            row_start.push(columns.len());
+        }
+        ConstraintSet {
+            n_coords,
+            infos,
+            value_tape: Tape::compile(&values),
+            full_tape: Tape::compile(&outputs),
+            expr_rows,
+            custom_rows,
+            row_start,
+            columns,
+        }
+    }
+
+    /// Number of scalar constraint rows m.
+    pub fn n_rows(&self) -> usize {
+        self.expr_rows.len() + self.custom_rows.len()
+    }
+    /// The declared constraints.
+    pub fn infos(&self) -> &[ConstraintInfo] {
+        &self.infos
+    }
+    /// The declared constraint that owns `row`.
+    pub fn info_of_row(&self, row: usize) -> &ConstraintInfo {
+        self.infos.iter().find(|i| i.rows.contains(&row)).unwrap_or(&self.infos[0])
+    }
+    /// Coordinates of the nonzero entries of J in `row`.
+    pub fn row_columns(&self, row: usize) -> &[usize] {
+        &self.columns[self.row_start[row]..self.row_start[row + 1]]
+    }
+    /// Range of `row`'s entries in [`ConstraintEval::jacobian`].
+    pub fn row_entries(&self, row: usize) -> Range<usize> {
+        self.row_start[row]..self.row_start[row + 1]
+    }
+    /// Total number of nonzero Jacobian entries.
+    pub fn n_nonzeros(&self) -> usize {
+        self.columns.len()
+    }
+    /// Size of the compiled code (instructions in the full tape).
+    pub fn n_instructions(&self) -> usize {
+        self.full_tape.n_instructions()
+    }
+    /// Symbolic value, gradient, Cdot and bias of expression row `row` (None for Rust rows).
+    pub fn symbolic_row(&self, row: usize) -> Option<(&Expr, &[(usize, Expr)], &Expr, &Expr)> {
+        self.expr_rows.get(row).map(|r| (&r.value, r.gradient.as_slice(), &r.velocity, &r.bias))
+    }
+
+    /// A workspace sized for this set.
+    pub fn workspace(&self) -> ConstraintEval {
+        let m = self.n_rows();
+        let widest = self.custom_rows.iter().map(|r| r.coords.len()).max().unwrap_or(0);
+        ConstraintEval {
+            value: vec![0.0; m],
+            velocity: vec![0.0; m],
+            bias: vec![0.0; m],
+            jacobian: vec![0.0; self.columns.len()],
+            vars: vec![0.0; 2 * self.n_coords + 1],
+            scratch: vec![0.0; self.full_tape.n_slots().max(self.value_tape.n_slots())],
+            tape_out: vec![0.0; self.full_tape.n_outputs()],
+            local_x: vec![0.0; widest],
+            local_v: vec![0.0; widest],
+            duals: DualScratch::with_capacity(widest),
+        }
+    }
+
+    fn load_vars(&self, t: f64, x: &[f64], v: Option<&[f64]>, ws: &mut ConstraintEval) {
+        let n = self.n_coords;
+        ws.vars[..n].copy_from_slice(x);
+        if let Some(v) = v {
+            ws.vars[n..2 * n].copy_from_slice(v);
+        }
+        ws.vars[2 * n] = t;
+    }
+
+    /// Evaluate C, Cdot, bias and J at (t, x, v) into `ws`. Allocation-free.
+    pub fn evaluate(&self, t: f64, x: &[f64], v: &[f64], ws: &mut ConstraintEval) {
+        let n_expr = self.expr_rows.len();
+        if n_expr > 0 {
+            self.load_vars(t, x, Some(v), ws);
+            self.full_tape.eval(&ws.vars, &mut ws.scratch, &mut ws.tape_out);
+            let out = &ws.tape_out;
+            ws.value[..n_expr].copy_from_slice(&out[..n_expr]);
+            ws.velocity[..n_expr].copy_from_slice(&out[n_expr..2 * n_expr]);
+            ws.bias[..n_expr].copy_from_slice(&out[2 * n_expr..3 * n_expr]);
+            let nnz_expr = self.row_start[n_expr];
+            ws.jacobian[..nnz_expr].copy_from_slice(&out[3 * n_expr..3 * n_expr + nnz_expr]);
+        }
+        for (i, row) in self.custom_rows.iter().enumerate() {
+            let r = n_expr + i;
+            let len = row.coords.len();
+            for (j, &k) in row.coords.iter().enumerate() {
+                ws.local_x[j] = x[k];
+                ws.local_v[j] = v[k];
+            }
+            let entries = self.row_entries(r);
+            let (c, cdot, bias) = row.constraint.derivatives(
+                &ws.local_x[..len],
+                &ws.local_v[..len],
+                t,
+                &mut ws.duals,
+                &mut ws.jacobian[entries],
+            );
+            ws.value[r] = c;
+            ws.velocity[r] = cdot;
+            ws.bias[r] = bias;
+        }
+    }
+
+    /// C(x, t) into `ws.value`, nothing else. Allocation-free.
+    pub fn residuals<'w>(&self, t: f64, x: &[f64], ws: &'w mut ConstraintEval) -> &'w [f64] {
+        let n_expr = self.expr_rows.len();
+        if n_expr > 0 {
+            self.load_vars(t, x, None, ws);
+            self.value_tape.eval(&ws.vars, &mut ws.scratch, &mut ws.value[..n_expr]);
+        }
+        for (i, row) in self.custom_rows.iter().enumerate() {
+            let len = row.coords.len();
+            for (j, &k) in row.coords.iter().enumerate() {
+                ws.local_x[j] = x[k];
+            }
+            ws.value[n_expr + i] = row.constraint.value(&ws.local_x[..len], t);
+        }
+        &ws.value
+    }
+
+    /// max_i |C_i(x, t)|, or 0 without constraints.
+    pub fn max_abs_residual(&self, t: f64, x: &[f64], ws: &mut ConstraintEval) -> f64 {
+        // NaN propagates: a non-finite residual must not hide behind max().
+        self.residuals(t, x, ws).iter().fold(0.0, |m: f64, c| {
+            if m.is_nan() || c.is_nan() {
+                f64::NAN
+            } else {
+                m.max(c.abs())
+            }
+        })
+    }
+}

@@ -1,0 +1,104 @@
+//! Constraints written as Rust types. Derivatives come from forward-mode automatic
+//! differentiation with num-dual's dual numbers, so a user writes only C(x, t).
+
+use std::sync::Arc;
+
+use num_dual::{Dual2_64, Dual64};
+
+use super::ParticleId;
+use crate::Scalar;
+
+/// A holonomic constraint C(x, t) = 0 written in Rust, generic over the number type so that
+/// the engine differentiates it exactly (forward-mode dual numbers, not finite differences).
+///
+/// `x` holds the coordinates of [`Holonomic::particles`], concatenated, `dim` entries each.
+///
+/// ```
+/// use bead::model::{Holonomic, ParticleId, SystemBuilder};
+/// use bead::Scalar;
+///
+/// /// The article's parabola x^2 + 100 y = 0.
+/// struct Parabola(ParticleId);
+/// impl Holonomic for Parabola {
+///     fn particles(&self) -> Vec<ParticleId> { vec![self.0] }
+///     fn value<T: Scalar>(&self, x: &[T], _t: T) -> T { x[0] * x[0] + x[1] * 100.0 }
+/// }
+///
+/// let mut b = SystemBuilder::new(&[0.0, 500.0]);
+/// let bead = b.particle("bead", 1.0, &[150.0, -225.0], &[0.0, 0.0]).unwrap();
+/// b.holonomic("parabola", Parabola(bead));
+/// let system = b.build().unwrap();
+/// assert_eq!(system.constraints().n_rows(), 1);
+/// ```
+pub trait Holonomic: Send + Sync + 'static {
+    /// The particles whose coordinates the constraint reads, in the order of `x`.
+    fn particles(&self) -> Vec<ParticleId>;
+    /// C(x, t).
+    fn value<T: Scalar>(&self, x: &[T], t: T) -> T;
+}
+
+/// Object-safe face of a [`Holonomic`]: value, gradient and the acceleration bias by
+/// dual numbers.
+pub(crate) trait ErasedHolonomic: Send + Sync {
+    fn value(&self, x: &[f64], t: f64) -> f64;
+    /// Fills `gradient` (local coordinates) with dC/dx and returns (C, Cdot, bias) where
+    /// Cdot = J v + C_t and bias = v^T H v + 2 C_xt v + C_tt, the second derivative of
+    /// s -> C(x + s v, t + s) at s = 0: one Dual2 pass along (v, 1), plus one Dual64 pass per
+    /// coordinate for the gradient.
+    fn derivatives(
+        &self,
+        x: &[f64],
+        v: &[f64],
+        t: f64,
+        scratch: &mut DualScratch,
+        gradient: &mut [f64],
+    ) -> (f64, f64, f64);
+}
+
+/// Dual-number buffers reused across evaluations (sized for the largest custom constraint).
+#[derive(Clone, Debug, Default)]
+pub(crate) struct DualScratch {
+    first: Vec<Dual64>,
+    second: Vec<Dual2_64>,
+}
+
+impl DualScratch {
+    pub(crate) fn with_capacity(n: usize) -> Self {
+        DualScratch { first: vec![Dual64::from(0.0); n], second: vec![Dual2_64::from(0.0); n] }
+    }
+}
+
+pub(crate) struct Erased<H>(pub(crate) H);
+
+impl<H: Holonomic> ErasedHolonomic for Erased<H> {
+    fn value(&self, x: &[f64], t: f64) -> f64 {
+        self.0.value(x, t)
+    }
+
+    fn derivatives(
+        &self,
+        x: &[f64],
+        v: &[f64],
+        t: f64,
+        scratch: &mut DualScratch,
+        gradient: &mut [f64],
+    ) -> (f64, f64, f64) {
+        let n = x.len();
+        let first = &mut scratch.first[..n];
+        for k in 0..n {
+            for (j, d) in first.iter_mut().enumerate() {
+                *d = Dual64::new(x[j], if j == k { 1.0 } else { 0.0 });
+            }
+            gradient[k] = self.0.value(first, Dual64::from(t)).eps;
+        }
+        let second = &mut scratch.second[..n];
+        for (j, d) in second.iter_mut().enumerate() {
+            *d = Dual2_64::new(x[j], v[j], 0.0);
+        }
+        let c = self.0.value(second, Dual2_64::new(t, 1.0, 0.0));
+        (c.re, c.v1, c.v2)
+    }
+}
+
+/// A shared, type-erased Rust constraint.
+pub(crate) type SharedHolonomic = Arc<dyn ErasedHolonomic>;

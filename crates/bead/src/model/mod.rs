@@ -1,0 +1,150 @@
+//! The model: particles, forces and constraints as data, and the compiled [`System`] that both
+//! formulations read.
+//!
+//! A [`SystemBuilder`] collects particles, forces, holonomic constraints and (optionally) a
+//! parametric map x_i(q, t); [`SystemBuilder::build`] checks it and compiles every constraint
+//! once, with its exact derivatives, into straight-line code.
+//!
+//! Coordinates are numbered globally: particle p, axis a is coordinate `p * dim + a`; the
+//! configuration vector x has `n_coords = n_particles * dim` entries.
+
+mod builder;
+mod constraint;
+mod force;
+mod holonomic;
+mod parametric;
+
+pub use builder::{ModelError, SystemBuilder};
+pub use constraint::{ConstraintEval, ConstraintInfo, ConstraintSet};
+pub use force::{Endpoint, Force};
+pub use holonomic::Holonomic;
+pub use parametric::{ParametricEval, ParametricMap};
+
+/// Index of a particle in its system.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct ParticleId(pub usize);
+
+/// A point mass with its initial state.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Particle {
+    pub name: String,
+    pub mass: f64,
+    /// Initial position (dim).
+    pub position: Vec<f64>,
+    /// Initial velocity (dim).
+    pub velocity: Vec<f64>,
+}
+
+/// An immutable, compiled system: what the formulations advance.
+#[derive(Clone, Debug)]
+pub struct System {
+    pub(crate) dim: usize,
+    pub(crate) particles: Vec<Particle>,
+    /// Gravitational acceleration (dim).
+    pub(crate) gravity: Vec<f64>,
+    pub(crate) forces: Vec<Force>,
+    pub(crate) constraints: ConstraintSet,
+    pub(crate) parametric: Option<ParametricMap>,
+    /// Inverse masses per coordinate (n_coords): W = M^-1 as a diagonal.
+    pub(crate) inverse_mass: Vec<f64>,
+}
+
+impl System {
+    /// Spatial dimension, 2 or 3.
+    pub fn dim(&self) -> usize {
+        self.dim
+    }
+    /// The particles with their initial states.
+    pub fn particles(&self) -> &[Particle] {
+        &self.particles
+    }
+    /// Number of particle coordinates, n_particles * dim.
+    pub fn n_coords(&self) -> usize {
+        self.particles.len() * self.dim
+    }
+    /// Gravitational acceleration.
+    pub fn gravity(&self) -> &[f64] {
+        &self.gravity
+    }
+    /// The applied forces (gravity excluded).
+    pub fn forces(&self) -> &[Force] {
+        &self.forces
+    }
+    /// The implicit constraints, compiled.
+    pub fn constraints(&self) -> &ConstraintSet {
+        &self.constraints
+    }
+    /// The parametric form, when the system has one.
+    pub fn parametric(&self) -> Option<&ParametricMap> {
+        self.parametric.as_ref()
+    }
+    /// Look a particle up by name.
+    pub fn particle_id(&self, name: &str) -> Option<ParticleId> {
+        self.particles.iter().position(|p| p.name == name).map(ParticleId)
+    }
+    /// Initial particle positions and velocities as flat coordinate vectors (n_coords each).
+    pub fn initial_particle_state(&self) -> (Vec<f64>, Vec<f64>) {
+        let x = self.particles.iter().flat_map(|p| p.position.iter().copied()).collect();
+        let v = self.particles.iter().flat_map(|p| p.velocity.iter().copied()).collect();
+        (x, v)
+    }
+    /// Degrees of freedom: n_coords minus the number of independent constraint rows (assumed
+    /// independent; a dependent set is reported as singular when the system is solved).
+    pub fn degrees_of_freedom(&self) -> isize {
+        self.n_coords() as isize - self.constraints.n_rows() as isize
+    }
+
+    /// Accumulate every applied force, gravity included, into `force` (n_coords), which is
+    /// overwritten: F = sum over forces at positions x and velocities v.
+    pub fn accumulate_forces(&self, x: &[f64], v: &[f64], force: &mut [f64]) {
+        let dim = self.dim;
+        for (p, particle) in self.particles.iter().enumerate() {
+            for a in 0..dim {
+                force[p * dim + a] = particle.mass * self.gravity[a];
+            }
+        }
+        for f in &self.forces {
+            f.accumulate(dim, x, v, force);
+        }
+    }
+
+    /// Kinetic energy T = 1/2 sum m_i |v_i|^2.
+    pub fn kinetic_energy(&self, v: &[f64]) -> f64 {
+        let dim = self.dim;
+        self.particles
+            .iter()
+            .enumerate()
+            .map(|(p, particle)| {
+                let s: f64 = v[p * dim..(p + 1) * dim].iter().map(|c| c * c).sum();
+                0.5 * particle.mass * s
+            })
+            .sum()
+    }
+
+    /// Potential energy of the conservative forces: gravity -sum m_i g.x_i, constant forces
+    /// -F.x, springs k (|d| - L)^2 / 2. Drag has none.
+    pub fn potential_energy(&self, x: &[f64]) -> f64 {
+        let dim = self.dim;
+        let gravity: f64 = self
+            .particles
+            .iter()
+            .enumerate()
+            .map(|(p, particle)| {
+                let gx: f64 = (0..dim).map(|a| self.gravity[a] * x[p * dim + a]).sum();
+                -particle.mass * gx
+            })
+            .sum();
+        gravity + self.forces.iter().map(|f| f.potential(dim, x)).sum::<f64>()
+    }
+
+    /// Total mechanical energy E = T + V.
+    pub fn energy(&self, x: &[f64], v: &[f64]) -> f64 {
+        self.kinetic_energy(v) + self.potential_energy(x)
+    }
+
+    /// Name of coordinate k, e.g. `bead.y`.
+    pub fn coordinate_name(&self, k: usize) -> String {
+        const AXES: [&str; 3] = ["x", "y", "z"];
+        format!("{}.{}", self.particles[k / self.dim].name, AXES[k % self.dim])
+    }
+}

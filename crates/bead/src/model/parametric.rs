@@ -1,0 +1,143 @@
+//! The parametric form's map from generalized coordinates to particle positions,
+//! x_i = x_i(q, t), compiled with its exact derivatives.
+//!
+//! ```text
+//! xdot = J qdot + x_t                                        J = dx/dq   (n_coords x n_q)
+//! xddot = J qddot + h,   h = sum_jk x_qj_qk qdot_j qdot_k + 2 x_qt qdot + x_tt
+//! ```
+//!
+//! h is built as the total time derivative of the xdot expression with qddot left out.
+
+use crate::expr::{Expr, Tape};
+
+/// Generalized coordinates and the compiled map x(q, t). Expression slots: q = 0..n_q,
+/// qdot = n_q..2 n_q, t = 2 n_q.
+#[derive(Clone, Debug)]
+pub struct ParametricMap {
+    pub(crate) coordinates: Vec<String>,
+    pub(crate) initial: Vec<f64>,
+    pub(crate) rates: Vec<f64>,
+    /// x_k(q, t) for every particle coordinate k (n_coords).
+    pub(crate) positions: Vec<Expr>,
+    pub(crate) velocities: Vec<Expr>,
+    pub(crate) accelerations: Vec<Expr>,
+    /// J row-major: dx_k/dq_j at k * n_q + j.
+    pub(crate) jacobian: Vec<Expr>,
+    /// Outputs: x (n) | xdot (n) | h (n) | J (n * n_q).
+    tape: Tape,
+    /// Outputs: x (n).
+    position_tape: Tape,
+}
+
+/// Results and scratch of [`ParametricMap::evaluate`], sized once.
+#[derive(Clone, Debug)]
+pub struct ParametricEval {
+    /// x(q, t) (n_coords)
+    pub position: Vec<f64>,
+    /// xdot (n_coords)
+    pub velocity: Vec<f64>,
+    /// h = xddot - J qddot (n_coords)
+    pub bias: Vec<f64>,
+    /// J row-major (n_coords x n_q)
+    pub jacobian: Vec<f64>,
+    vars: Vec<f64>,
+    scratch: Vec<f64>,
+    out: Vec<f64>,
+}
+
+impl ParametricMap {
+    pub(crate) fn new(coordinates: Vec<String>, initial: Vec<f64>, rates: Vec<f64>, positions: Vec<Expr>) -> Self {
+        let n_q = coordinates.len();
+        let time = 2 * n_q;
+        let total_derivative = |f: &Expr| {
+            f.vars()
+                .into_iter()
+                .filter(|&j| j < n_q)
+                .fold(f.derivative(time), |acc, j| acc + f.derivative(j) * Expr::var(n_q + j))
+        };
+        let velocities: Vec<Expr> = positions.iter().map(total_derivative).collect();
+        let accelerations: Vec<Expr> = velocities.iter().map(total_derivative).collect();
+        let jacobian: Vec<Expr> = positions
+            .iter()
+            .flat_map(|x| (0..n_q).map(move |j| x.derivative(j)))
+            .collect();
+        let mut outputs = positions.clone();
+        outputs.extend(velocities.iter().cloned());
+        outputs.extend(accelerations.iter().cloned());
+        outputs.extend(jacobian.iter().cloned());
+        ParametricMap {
+            tape: Tape::compile(&outputs),
+            position_tape: Tape::compile(&positions),
+            coordinates,
+            initial,
+            rates,
+            positions,
+            velocities,
+            accelerations,
+            jacobian,
+        }
+    }
+
+    /// Names of the generalized coordinates.
+    pub fn coordinates(&self) -> &[String] {
+        &self.coordinates
+    }
+    /// Number of generalized coordinates n_q.
+    pub fn n_q(&self) -> usize {
+        self.coordinates.len()
+    }
+    /// Initial q.
+    pub fn initial(&self) -> &[f64] {
+        &self.initial
+    }
+    /// Initial qdot.
+    pub fn rates(&self) -> &[f64] {
+        &self.rates
+    }
+    /// The symbolic x_k(q, t), its xdot, h and row k of J, for `bead check`.
+    pub fn symbolic(&self, k: usize) -> (&Expr, &Expr, &Expr, &[Expr]) {
+        let n_q = self.n_q();
+        (&self.positions[k], &self.velocities[k], &self.accelerations[k], &self.jacobian[k * n_q..(k + 1) * n_q])
+    }
+    /// Size of the compiled code.
+    pub fn n_instructions(&self) -> usize {
+        self.tape.n_instructions()
+    }
+
+    /// A workspace sized for this map.
+    pub fn workspace(&self) -> ParametricEval {
+        let n = self.positions.len();
+        ParametricEval {
+            position: vec![0.0; n],
+            velocity: vec![0.0; n],
+            bias: vec![0.0; n],
+            jacobian: vec![0.0; n * self.n_q()],
+            vars: vec![0.0; 2 * self.n_q() + 1],
+            scratch: vec![0.0; self.tape.n_slots().max(self.position_tape.n_slots())],
+            out: vec![0.0; self.tape.n_outputs()],
+        }
+    }
+
+    /// Evaluate x, xdot, h and J at (t, q, qdot). Allocation-free.
+    pub fn evaluate(&self, t: f64, q: &[f64], qdot: &[f64], ws: &mut ParametricEval) {
+        let n_q = self.n_q();
+        let n = self.positions.len();
+        ws.vars[..n_q].copy_from_slice(q);
+        ws.vars[n_q..2 * n_q].copy_from_slice(qdot);
+        ws.vars[2 * n_q] = t;
+        self.tape.eval(&ws.vars, &mut ws.scratch, &mut ws.out);
+        ws.position.copy_from_slice(&ws.out[..n]);
+        ws.velocity.copy_from_slice(&ws.out[n..2 * n]);
+        ws.bias.copy_from_slice(&ws.out[2 * n..3 * n]);
+        ws.jacobian.copy_from_slice(&ws.out[3 * n..]);
+    }
+
+    /// Particle positions x(q, t) only, into `ws.position`.
+    pub fn positions_at<'w>(&self, t: f64, q: &[f64], ws: &'w mut ParametricEval) -> &'w [f64] {
+        let n_q = self.n_q();
+        ws.vars[..n_q].copy_from_slice(q);
+        ws.vars[2 * n_q] = t;
+        self.position_tape.eval(&ws.vars, &mut ws.scratch, &mut ws.position);
+        &ws.position
+    }
+}
