@@ -1,9 +1,11 @@
 //! bead: constrained particle dynamics.
+#![forbid(unsafe_code)]
 pub mod expr;
 pub mod formulation;
 pub mod integrate;
 pub mod linalg;
 pub mod model;
+pub mod output;
 pub mod scene;
 pub mod simulate;
 

@@ -30,7 +30,10 @@ pub struct DenseCholesky {
 
 impl Default for DenseCholesky {
     fn default() -> Self {
-        DenseCholesky { relative_pivot_tolerance: 1e-10, diagonal: Vec::new() }
+        DenseCholesky {
+            relative_pivot_tolerance: 1e-10,
+            diagonal: Vec::new(),
+        }
     }
 }
 
@@ -77,13 +80,19 @@ mod tests {
     fn names_the_dependent_row() {
         let mut a = DMatrix::from_row_slice(3, 3, &[2.0, 0.0, 2.0, 0.0, 1.0, 0.0, 2.0, 0.0, 2.0]);
         let mut b = DVector::from_row_slice(&[1.0, 1.0, 1.0]);
-        assert_eq!(DenseCholesky::default().solve(&mut a, &mut b), Err(Singular { row: 2 }));
+        assert_eq!(
+            DenseCholesky::default().solve(&mut a, &mut b),
+            Err(Singular { row: 2 })
+        );
     }
 
     #[test]
     fn zero_row_is_singular() {
         let mut a = DMatrix::from_row_slice(2, 2, &[1.0, 0.0, 0.0, 0.0]);
         let mut b = DVector::from_row_slice(&[1.0, 1.0]);
-        assert_eq!(DenseCholesky::default().solve(&mut a, &mut b), Err(Singular { row: 1 }));
+        assert_eq!(
+            DenseCholesky::default().solve(&mut a, &mut b),
+            Err(Singular { row: 1 })
+        );
     }
 }

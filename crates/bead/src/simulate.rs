@@ -96,8 +96,13 @@ impl RunStats {
 pub enum RunError {
     #[error("{0}")]
     Step(StepError),
-    #[error("diverged at t = {t} (step {step}): {quantity} is {value}")]
-    Diverged { t: f64, step: u64, quantity: String, value: f64 },
+    #[error("diverged at t = {t} (step {step}): {quantity} is {}", readable(*value))]
+    Diverged {
+        t: f64,
+        step: u64,
+        quantity: String,
+        value: f64,
+    },
     #[error("writing output failed: {0}")]
     Io(#[from] std::io::Error),
 }
@@ -108,6 +113,16 @@ pub enum RunError {
 pub struct RunFailure {
     pub error: RunError,
     pub stats: Box<RunStats>,
+}
+
+/// `value` in plain notation, or in exponent notation when it is very large or very small.
+pub fn readable(value: f64) -> String {
+    let magnitude = value.abs();
+    if magnitude != 0.0 && magnitude.is_finite() && !(1e-4..1e16).contains(&magnitude) {
+        format!("{value:e}")
+    } else {
+        format!("{value}")
+    }
 }
 
 /// Values beyond this magnitude count as a blow-up.
@@ -131,7 +146,10 @@ impl Monitor {
         formulation.particle_state(t, q, qdot, &mut self.x, &mut self.xdot);
         let system = formulation.system();
         self.energy = system.energy(&self.x, &self.xdot);
-        self.constraint_error = system.constraints().max_abs_residual(t, &self.x, &mut self.constraints);
+        self.constraint_error =
+            system
+                .constraints()
+                .max_abs_residual(t, &self.x, &mut self.constraints);
         let rel = (self.energy - self.energy_initial).abs() / self.energy_scale;
         self.energy_rel_error_max = max_nan(self.energy_rel_error_max, rel);
         self.constraint_error_max = max_nan(self.constraint_error_max, self.constraint_error);
@@ -148,7 +166,11 @@ fn max_nan(a: f64, b: f64) -> f64 {
 }
 
 /// Run `formulation` from its initial state. The step loop allocates nothing.
-pub fn run(formulation: &mut dyn Formulation, options: &RunOptions, sink: &mut dyn Sink) -> Result<RunStats, RunFailure> {
+pub fn run(
+    formulation: &mut dyn Formulation,
+    options: &RunOptions,
+    sink: &mut dyn Sink,
+) -> Result<RunStats, RunFailure> {
     let start = Instant::now();
     let mut state = formulation.initial_state();
     let mut integrator = options.integrator.build(state.q.len());
@@ -164,10 +186,19 @@ pub fn run(formulation: &mut dyn Formulation, options: &RunOptions, sink: &mut d
         constraint_error: 0.0,
         constraint_error_max: 0.0,
     };
-    formulation.particle_state(state.t, &state.q, &state.qdot, &mut monitor.x, &mut monitor.xdot);
+    formulation.particle_state(
+        state.t,
+        &state.q,
+        &state.qdot,
+        &mut monitor.x,
+        &mut monitor.xdot,
+    );
     {
         let system = formulation.system();
-        let (kinetic, potential) = (system.kinetic_energy(&monitor.xdot), system.potential_energy(&monitor.x));
+        let (kinetic, potential) = (
+            system.kinetic_energy(&monitor.xdot),
+            system.potential_energy(&monitor.x),
+        );
         monitor.energy_initial = kinetic + potential;
         let scale = monitor.energy_initial.abs().max(kinetic + potential.abs());
         monitor.energy_scale = if scale > 0.0 { scale } else { 1.0 };
@@ -204,7 +235,12 @@ pub fn run(formulation: &mut dyn Formulation, options: &RunOptions, sink: &mut d
         // Time from the step count, so that it does not accumulate rounding.
         state.t = step as f64 * options.dt;
         if let Some((quantity, value)) = non_finite(formulation, &state.q, &state.qdot) {
-            failure = Some(RunError::Diverged { t: state.t, step, quantity, value });
+            failure = Some(RunError::Diverged {
+                t: state.t,
+                step,
+                quantity,
+                value,
+            });
             break;
         }
         monitor.observe(formulation, state.t, &state.q, &state.qdot);
@@ -214,7 +250,12 @@ pub fn run(formulation: &mut dyn Formulation, options: &RunOptions, sink: &mut d
             } else {
                 ("the energy".to_string(), monitor.energy)
             };
-            failure = Some(RunError::Diverged { t: state.t, step, quantity, value });
+            failure = Some(RunError::Diverged {
+                t: state.t,
+                step,
+                quantity,
+                value,
+            });
             break;
         }
         if step % every == 0 || step == options.steps {
@@ -236,7 +277,11 @@ pub fn run(formulation: &mut dyn Formulation, options: &RunOptions, sink: &mut d
 
     let last_good = if failure.is_some() && !matches!(failure, Some(RunError::Io(_))) {
         // The state before the failing step is the last good one; make sure the sink has it.
-        let good_step = if matches!(failure, Some(RunError::Step(_))) { step } else { step - 1 };
+        let good_step = if matches!(failure, Some(RunError::Step(_))) {
+            step
+        } else {
+            step - 1
+        };
         monitor.observe_quiet(formulation, &previous);
         if good_step != recorded_step {
             let _ = sink.record(&Sample {
@@ -274,19 +319,32 @@ pub fn run(formulation: &mut dyn Formulation, options: &RunOptions, sink: &mut d
         qdot: last_good.qdot,
     };
     match (failure, finish) {
-        (Some(error), _) => Err(RunFailure { error, stats: Box::new(stats) }),
-        (None, Err(e)) => Err(RunFailure { error: RunError::Io(e), stats: Box::new(stats) }),
+        (Some(error), _) => Err(RunFailure {
+            error,
+            stats: Box::new(stats),
+        }),
+        (None, Err(e)) => Err(RunFailure {
+            error: RunError::Io(e),
+            stats: Box::new(stats),
+        }),
         (None, Ok(())) => Ok(stats),
     }
 }
 
 impl Monitor {
     /// Particle state, energy and constraint error of `state` without touching the maxima.
-    fn observe_quiet(&mut self, formulation: &mut dyn Formulation, state: &crate::formulation::State) {
+    fn observe_quiet(
+        &mut self,
+        formulation: &mut dyn Formulation,
+        state: &crate::formulation::State,
+    ) {
         formulation.particle_state(state.t, &state.q, &state.qdot, &mut self.x, &mut self.xdot);
         let system = formulation.system();
         self.energy = system.energy(&self.x, &self.xdot);
-        self.constraint_error = system.constraints().max_abs_residual(state.t, &self.x, &mut self.constraints);
+        self.constraint_error =
+            system
+                .constraints()
+                .max_abs_residual(state.t, &self.x, &mut self.constraints);
     }
 }
 
@@ -294,7 +352,11 @@ impl Monitor {
 fn non_finite(formulation: &dyn Formulation, q: &[f64], qdot: &[f64]) -> Option<(String, f64)> {
     let name = |k: usize, rate: bool| {
         let names = formulation.coordinate_names();
-        let base = if names.is_empty() { formulation.system().coordinate_name(k) } else { format!("q.{}", names[k]) };
+        let base = if names.is_empty() {
+            formulation.system().coordinate_name(k)
+        } else {
+            format!("q.{}", names[k])
+        };
         if rate {
             format!("the velocity of {base}")
         } else {

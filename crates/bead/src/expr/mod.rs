@@ -35,5 +35,8 @@ mod parse;
 mod tape;
 
 pub use ast::{Expr, Func};
-pub use parse::{parse, ExprError, Resolved, Span};
+pub use parse::{parse, ExprError, Resolved, Span, MAX_DEPTH};
 pub use tape::Tape;
+
+#[cfg(test)]
+pub(crate) mod testutil;

@@ -1,20 +1,738 @@
-//! Straight-line compiled form. (Skeleton.)
-use super::Expr;
+//! Straight-line compiled form.
+//!
+//! [`Tape::compile`] hash-conses the expression DAGs of all outputs (structural equality:
+//! same operation, same operand slots, constants compared by bit pattern; `+` and `*` with
+//! their operands sorted), so a subexpression that occurs several times — within one output
+//! or across outputs, shared or built separately — is computed once. It then emits SSA
+//! code: instruction `i` writes scratch slot `i` and reads only slots `< i`.
+//!
+//! Specialized instructions: constant operands are folded into the instruction
+//! (`c + x`, `c * x`, `c - x`, `x / c`, `c / x`), `x*x` and `x^2` become a square,
+//! `x^n` for a constant integer `|n| <= 16` becomes `powi`, another constant exponent `powf`,
+//! and a product used only by one addition or subtraction is fused into it (`a*b + c`,
+//! `a*b - c`, `c - a*b`, rounded twice exactly like the separate operations).
+use super::ast::{int_exponent, sign_f64, topo, FastMap, Node};
+use super::{Expr, Func};
+
+/// One instruction. Operands are scratch slots (`u32`); the result goes to the slot whose
+/// index is the instruction's position. 16 bytes, `Copy`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Instr {
+    Var(u32),
+    Const(f64),
+    Neg(u32),
+    Add(u32, u32),
+    Sub(u32, u32),
+    Mul(u32, u32),
+    Div(u32, u32),
+    /// `a + c`
+    AddC(u32, f64),
+    /// `c - a`
+    CSub(u32, f64),
+    /// `c * a`
+    MulC(u32, f64),
+    /// `a / c`
+    DivC(u32, f64),
+    /// `c / a`
+    CDiv(u32, f64),
+    /// `a * a`
+    Square(u32),
+    /// `a.powi(n)`
+    Powi(u32, i32),
+    /// `a.powf(c)`
+    Powf(u32, f64),
+    /// `a.powf(b)`
+    Pow(u32, u32),
+    Sin(u32),
+    Cos(u32),
+    Tan(u32),
+    Asin(u32),
+    Acos(u32),
+    Atan(u32),
+    Sinh(u32),
+    Cosh(u32),
+    Tanh(u32),
+    Exp(u32),
+    Ln(u32),
+    Log10(u32),
+    Sqrt(u32),
+    Abs(u32),
+    Sign(u32),
+    /// `atan2(y, x)`
+    Atan2(u32, u32),
+    /// `a*b + c` (two roundings, like the unfused pair)
+    MulAdd(u32, u32, u32),
+    /// `a*b - c`
+    MulSub(u32, u32, u32),
+    /// `c - a*b`
+    SubMul(u32, u32, u32),
+}
+
+const _: () = assert!(std::mem::size_of::<Instr>() == 16);
+
+/// Hash-consing key: (opcode, operand, operand, constant bits).
+type Key = (u8, u32, u32, u64);
+
+impl Instr {
+    fn key(self) -> Key {
+        use Instr::*;
+        let c = |v: f64| v.to_bits();
+        match self {
+            Var(k) => (0, k, 0, 0),
+            Const(v) => (1, 0, 0, c(v)),
+            Neg(a) => (2, a, 0, 0),
+            Add(a, b) => (3, a, b, 0),
+            Sub(a, b) => (4, a, b, 0),
+            Mul(a, b) => (5, a, b, 0),
+            Div(a, b) => (6, a, b, 0),
+            AddC(a, v) => (7, a, 0, c(v)),
+            CSub(a, v) => (8, a, 0, c(v)),
+            MulC(a, v) => (9, a, 0, c(v)),
+            DivC(a, v) => (10, a, 0, c(v)),
+            CDiv(a, v) => (11, a, 0, c(v)),
+            Square(a) => (12, a, 0, 0),
+            Powi(a, n) => (13, a, n as u32, 0),
+            Powf(a, v) => (14, a, 0, c(v)),
+            Pow(a, b) => (15, a, b, 0),
+            Sin(a) => (16, a, 0, 0),
+            Cos(a) => (17, a, 0, 0),
+            Tan(a) => (18, a, 0, 0),
+            Asin(a) => (19, a, 0, 0),
+            Acos(a) => (20, a, 0, 0),
+            Atan(a) => (21, a, 0, 0),
+            Sinh(a) => (22, a, 0, 0),
+            Cosh(a) => (23, a, 0, 0),
+            Tanh(a) => (24, a, 0, 0),
+            Exp(a) => (25, a, 0, 0),
+            Ln(a) => (26, a, 0, 0),
+            Log10(a) => (27, a, 0, 0),
+            Sqrt(a) => (28, a, 0, 0),
+            Abs(a) => (29, a, 0, 0),
+            Sign(a) => (30, a, 0, 0),
+            Atan2(a, b) => (31, a, b, 0),
+            // Fused instructions are created after hash-consing and never looked up.
+            MulAdd(a, b, c) => (32, a, b, u64::from(c)),
+            MulSub(a, b, c) => (33, a, b, u64::from(c)),
+            SubMul(a, b, c) => (34, a, b, u64::from(c)),
+        }
+    }
+
+    /// The operand slots this instruction reads, mutably (for renumbering).
+    fn operands_mut(&mut self) -> [Option<&mut u32>; 3] {
+        use Instr::*;
+        match self {
+            Var(_) | Const(_) => [None, None, None],
+            MulAdd(a, b, c) | MulSub(a, b, c) | SubMul(a, b, c) => [Some(a), Some(b), Some(c)],
+            Add(a, b) | Sub(a, b) | Mul(a, b) | Div(a, b) | Pow(a, b) | Atan2(a, b) => {
+                [Some(a), Some(b), None]
+            }
+            Neg(a)
+            | AddC(a, _)
+            | CSub(a, _)
+            | MulC(a, _)
+            | DivC(a, _)
+            | CDiv(a, _)
+            | Square(a)
+            | Powi(a, _)
+            | Powf(a, _)
+            | Sin(a)
+            | Cos(a)
+            | Tan(a)
+            | Asin(a)
+            | Acos(a)
+            | Atan(a)
+            | Sinh(a)
+            | Cosh(a)
+            | Tanh(a)
+            | Exp(a)
+            | Ln(a)
+            | Log10(a)
+            | Sqrt(a)
+            | Abs(a)
+            | Sign(a) => [Some(a), None, None],
+        }
+    }
+
+    /// The operand slots this instruction reads.
+    fn operands(mut self) -> [Option<u32>; 3] {
+        self.operands_mut().map(|o| o.map(|s| *s))
+    }
+}
+
+/// Fuse each product used only once, by an addition or subtraction, into that instruction
+/// (`a*b + c`, `a*b - c`, `c - a*b`: the same two roundings as before), then renumber.
+fn fuse(code: Vec<Instr>, outputs: &mut [u32]) -> Vec<Instr> {
+    let mut uses = vec![0u32; code.len()];
+    for ins in &code {
+        for s in ins.operands().into_iter().flatten() {
+            uses[s as usize] += 1;
+        }
+    }
+    for &o in outputs.iter() {
+        uses[o as usize] += 1;
+    }
+    let mut code = code;
+    let mut dead = vec![false; code.len()];
+    for i in 0..code.len() {
+        let single_mul = |s: u32, code: &[Instr]| match code[s as usize] {
+            Instr::Mul(a, b) if uses[s as usize] == 1 => Some((a, b)),
+            _ => None,
+        };
+        let fused = match code[i] {
+            Instr::Add(x, y) => match (single_mul(x, &code), single_mul(y, &code)) {
+                (Some((a, b)), _) => Some((Instr::MulAdd(a, b, y), x)),
+                (None, Some((a, b))) => Some((Instr::MulAdd(a, b, x), y)),
+                _ => None,
+            },
+            Instr::Sub(x, y) => match (single_mul(x, &code), single_mul(y, &code)) {
+                (Some((a, b)), _) => Some((Instr::MulSub(a, b, y), x)),
+                (None, Some((a, b))) => Some((Instr::SubMul(a, b, x), y)),
+                _ => None,
+            },
+            _ => None,
+        };
+        if let Some((ins, gone)) = fused {
+            code[i] = ins;
+            dead[gone as usize] = true;
+        }
+    }
+    let mut new_index = vec![u32::MAX; code.len()];
+    let mut out = Vec::with_capacity(code.len());
+    for (i, mut ins) in code.into_iter().enumerate() {
+        if dead[i] {
+            continue;
+        }
+        for s in ins.operands_mut().into_iter().flatten() {
+            *s = new_index[*s as usize];
+        }
+        new_index[i] = out.len() as u32;
+        out.push(ins);
+    }
+    for o in outputs.iter_mut() {
+        *o = new_index[*o as usize];
+    }
+    out
+}
+
+/// The value of a compiled node: a constant not yet materialized, or a slot.
+#[derive(Clone, Copy)]
+enum Val {
+    Const(f64),
+    Slot(u32),
+}
+
+struct Builder {
+    code: Vec<Instr>,
+    memo: FastMap<Key, u32>,
+}
+
+impl Builder {
+    fn emit(&mut self, ins: Instr) -> Val {
+        let next = self.code.len() as u32;
+        let slot = *self.memo.entry(ins.key()).or_insert(next);
+        if slot == next {
+            self.code.push(ins);
+        }
+        Val::Slot(slot)
+    }
+
+    fn slot(&mut self, v: Val) -> u32 {
+        match v {
+            Val::Slot(s) => s,
+            Val::Const(c) => match self.emit(Instr::Const(c)) {
+                Val::Slot(s) => s,
+                Val::Const(_) => unreachable!("emit returns a slot"),
+            },
+        }
+    }
+
+    fn unary(&mut self, f: Func, a: Val) -> Val {
+        let a = self.slot(a);
+        self.emit(match f {
+            Func::Sin => Instr::Sin(a),
+            Func::Cos => Instr::Cos(a),
+            Func::Tan => Instr::Tan(a),
+            Func::Asin => Instr::Asin(a),
+            Func::Acos => Instr::Acos(a),
+            Func::Atan => Instr::Atan(a),
+            Func::Sinh => Instr::Sinh(a),
+            Func::Cosh => Instr::Cosh(a),
+            Func::Tanh => Instr::Tanh(a),
+            Func::Exp => Instr::Exp(a),
+            Func::Ln => Instr::Ln(a),
+            Func::Log10 => Instr::Log10(a),
+            Func::Sqrt => Instr::Sqrt(a),
+            Func::Abs => Instr::Abs(a),
+            Func::Sign => Instr::Sign(a),
+            Func::Atan2 | Func::Pow => Instr::Const(f64::NAN), // never unary nodes
+        })
+    }
+
+    fn node(&mut self, n: &Node, a: Val, b: Val) -> Val {
+        use Val::{Const as C, Slot as S};
+        match n {
+            Node::Const(c) => C(*c),
+            Node::Var(k) => self.emit(Instr::Var(*k as u32)),
+            Node::Neg(_) => match a {
+                C(x) => C(-x),
+                S(a) => self.emit(Instr::Neg(a)),
+            },
+            Node::Add(..) => match (a, b) {
+                (C(x), C(y)) => C(x + y),
+                (C(c), S(s)) | (S(s), C(c)) => self.emit(Instr::AddC(s, c)),
+                (S(x), S(y)) => self.emit(Instr::Add(x.min(y), x.max(y))),
+            },
+            Node::Sub(..) => match (a, b) {
+                (C(x), C(y)) => C(x - y),
+                (C(c), S(s)) => self.emit(Instr::CSub(s, c)),
+                // a - c = a + (-c) exactly
+                (S(s), C(c)) => self.emit(Instr::AddC(s, -c)),
+                (S(x), S(y)) => self.emit(Instr::Sub(x, y)),
+            },
+            Node::Mul(..) => match (a, b) {
+                (C(x), C(y)) => C(x * y),
+                (C(c), S(s)) | (S(s), C(c)) => self.emit(Instr::MulC(s, c)),
+                (S(x), S(y)) if x == y => self.emit(Instr::Square(x)),
+                (S(x), S(y)) => self.emit(Instr::Mul(x.min(y), x.max(y))),
+            },
+            Node::Div(..) => match (a, b) {
+                (C(x), C(y)) => C(x / y),
+                (C(c), S(s)) => self.emit(Instr::CDiv(s, c)),
+                (S(s), C(c)) => self.emit(Instr::DivC(s, c)),
+                (S(x), S(y)) => self.emit(Instr::Div(x, y)),
+            },
+            Node::Pow(..) => match (a, b) {
+                (_, C(c)) => {
+                    let s = self.slot(a);
+                    match int_exponent(c) {
+                        Some(2) => self.emit(Instr::Square(s)),
+                        Some(n) => self.emit(Instr::Powi(s, n)),
+                        None => self.emit(Instr::Powf(s, c)),
+                    }
+                }
+                (_, S(e)) => {
+                    let s = self.slot(a);
+                    self.emit(Instr::Pow(s, e))
+                }
+            },
+            Node::Unary(f, _) => self.unary(*f, a),
+            Node::Atan2(..) => {
+                let (y, x) = (self.slot(a), self.slot(b));
+                self.emit(Instr::Atan2(y, x))
+            }
+        }
+    }
+}
 
 /// Straight-line code for several outputs with common subexpressions shared.
 #[derive(Clone, Debug)]
-pub struct Tape {}
+pub struct Tape {
+    code: Vec<Instr>,
+    outputs: Vec<u32>,
+    /// One more than the largest variable slot read (0 if none).
+    n_vars: usize,
+}
 
 impl Tape {
     /// Compile `outputs`; equal subexpressions (structurally) are computed once.
-    pub fn compile(outputs: &[Expr]) -> Tape { let _ = outputs; todo!() }
+    ///
+    /// # Panics
+    /// If the tape would need more than `u32::MAX` slots or a variable slot exceeds
+    /// `u32::MAX`.
+    pub fn compile(outputs: &[Expr]) -> Tape {
+        let t = topo(outputs);
+        let mut b = Builder {
+            code: Vec::new(),
+            memo: FastMap::default(),
+        };
+        let mut vals: Vec<Val> = Vec::with_capacity(t.nodes.len());
+        for (e, &[ia, ib]) in t.nodes.iter().zip(&t.kids) {
+            let get = |i: u32| vals.get(i as usize).copied().unwrap_or(Val::Const(0.0));
+            let (a, bv) = (get(ia), get(ib));
+            if let Node::Var(k) = *e.0 {
+                assert!(
+                    u32::try_from(k).is_ok(),
+                    "variable slot {k} too large for a tape"
+                );
+            }
+            let v = b.node(&e.0, a, bv);
+            vals.push(v);
+        }
+        let mut out: Vec<u32> = t.roots.iter().map(|&r| b.slot(vals[r as usize])).collect();
+        let code = fuse(b.code, &mut out);
+        assert!(u32::try_from(code.len()).is_ok(), "tape too long");
+        let n_vars = code
+            .iter()
+            .filter_map(|i| match *i {
+                Instr::Var(k) => Some(k as usize + 1),
+                _ => None,
+            })
+            .max()
+            .unwrap_or(0);
+        debug_assert!(code.iter().enumerate().all(|(i, ins)| ins
+            .operands()
+            .into_iter()
+            .flatten()
+            .all(|s| (s as usize) < i)));
+        Tape {
+            code,
+            outputs: out,
+            n_vars,
+        }
+    }
+
     /// Length of the scratch buffer [`Tape::eval`] needs.
-    pub fn n_slots(&self) -> usize { todo!() }
+    pub fn n_slots(&self) -> usize {
+        self.code.len()
+    }
+
     /// Number of outputs.
-    pub fn n_outputs(&self) -> usize { todo!() }
+    pub fn n_outputs(&self) -> usize {
+        self.outputs.len()
+    }
+
     /// Number of instructions (for `bead check` and benchmarks).
-    pub fn n_instructions(&self) -> usize { todo!() }
+    pub fn n_instructions(&self) -> usize {
+        self.code.len()
+    }
+
+    /// The length `vars` must at least have: one more than the largest slot read.
+    pub fn n_vars(&self) -> usize {
+        self.n_vars
+    }
+
     /// Evaluate all outputs. Allocation-free. `vars` must cover every slot the outputs read,
     /// `scratch.len() >= n_slots()`, `out.len() == n_outputs()`.
-    pub fn eval(&self, vars: &[f64], scratch: &mut [f64], out: &mut [f64]) { let _ = (vars, scratch, out); todo!() }
+    ///
+    /// The arithmetic is exactly that of [`Expr::eval`]: the results agree bit for bit
+    /// (up to structural sharing, which never changes a value).
+    ///
+    /// # Panics
+    /// If one of the length requirements above is violated.
+    pub fn eval(&self, vars: &[f64], scratch: &mut [f64], out: &mut [f64]) {
+        assert!(
+            vars.len() >= self.n_vars,
+            "tape reads {} variable slots, got {}",
+            self.n_vars,
+            vars.len()
+        );
+        assert_eq!(out.len(), self.outputs.len(), "wrong number of outputs");
+        let code = &self.code[..];
+        let s = &mut scratch[..code.len()];
+        for i in 0..code.len() {
+            let v = match code[i] {
+                Instr::Var(k) => vars[k as usize],
+                Instr::Const(c) => c,
+                Instr::Neg(a) => -s[a as usize],
+                Instr::Add(a, b) => s[a as usize] + s[b as usize],
+                Instr::Sub(a, b) => s[a as usize] - s[b as usize],
+                Instr::Mul(a, b) => s[a as usize] * s[b as usize],
+                Instr::Div(a, b) => s[a as usize] / s[b as usize],
+                Instr::AddC(a, c) => c + s[a as usize],
+                Instr::CSub(a, c) => c - s[a as usize],
+                Instr::MulC(a, c) => c * s[a as usize],
+                Instr::DivC(a, c) => s[a as usize] / c,
+                Instr::CDiv(a, c) => c / s[a as usize],
+                Instr::Square(a) => {
+                    let x = s[a as usize];
+                    x * x
+                }
+                Instr::Powi(a, n) => s[a as usize].powi(n),
+                Instr::Powf(a, c) => s[a as usize].powf(c),
+                Instr::Pow(a, b) => s[a as usize].powf(s[b as usize]),
+                Instr::Sin(a) => s[a as usize].sin(),
+                Instr::Cos(a) => s[a as usize].cos(),
+                Instr::Tan(a) => s[a as usize].tan(),
+                Instr::Asin(a) => s[a as usize].asin(),
+                Instr::Acos(a) => s[a as usize].acos(),
+                Instr::Atan(a) => s[a as usize].atan(),
+                Instr::Sinh(a) => s[a as usize].sinh(),
+                Instr::Cosh(a) => s[a as usize].cosh(),
+                Instr::Tanh(a) => s[a as usize].tanh(),
+                Instr::Exp(a) => s[a as usize].exp(),
+                Instr::Ln(a) => s[a as usize].ln(),
+                Instr::Log10(a) => s[a as usize].log10(),
+                Instr::Sqrt(a) => s[a as usize].sqrt(),
+                Instr::Abs(a) => s[a as usize].abs(),
+                Instr::Sign(a) => sign_f64(s[a as usize]),
+                Instr::Atan2(a, b) => s[a as usize].atan2(s[b as usize]),
+                Instr::MulAdd(a, b, c) => s[a as usize] * s[b as usize] + s[c as usize],
+                Instr::MulSub(a, b, c) => s[a as usize] * s[b as usize] - s[c as usize],
+                Instr::SubMul(a, b, c) => s[c as usize] - s[a as usize] * s[b as usize],
+            };
+            s[i] = v;
+        }
+        for (o, &slot) in out.iter_mut().zip(&self.outputs) {
+            *o = s[slot as usize];
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::expr::testutil::{random_expr, Rng};
+    use crate::expr::{parse, Resolved};
+
+    fn p(src: &str) -> Expr {
+        let r = |n: &str| match n {
+            "x" => Ok(Resolved::Var(0)),
+            "y" => Ok(Resolved::Var(1)),
+            "z" => Ok(Resolved::Var(2)),
+            _ => Err(format!("unknown name `{n}`")),
+        };
+        parse(src, &r).unwrap()
+    }
+
+    fn run(tape: &Tape, vars: &[f64]) -> Vec<f64> {
+        let mut scratch = vec![f64::NAN; tape.n_slots()];
+        let mut out = vec![0.0; tape.n_outputs()];
+        tape.eval(vars, &mut scratch, &mut out);
+        out
+    }
+
+    fn close(a: f64, b: f64) -> bool {
+        a == b || (a.is_nan() && b.is_nan()) || (a - b).abs() <= 1e-14 * a.abs().max(b.abs())
+    }
+
+    #[test]
+    fn instruction_is_small() {
+        assert_eq!(std::mem::size_of::<Instr>(), 16);
+    }
+
+    #[test]
+    fn specialized_instructions() {
+        let c = p("x^2 + 100*y");
+        let t = Tape::compile(&[c.clone(), c.derivative(0)]);
+        assert_eq!(
+            t.code,
+            [
+                Instr::Var(0),
+                Instr::Square(0),
+                Instr::Var(1),
+                Instr::MulC(2, 100.0),
+                Instr::Add(1, 3),
+                Instr::MulC(0, 2.0),
+            ]
+        );
+        assert_eq!(run(&t, &[3.0, -0.09]), [9.0 - 9.0, 6.0]);
+        // x*x written with two separate variable nodes is still a square; x^3 is powi;
+        // x^2.5 powf; constants fold into the instruction.
+        let t = Tape::compile(&[
+            p("x*x"),
+            p("x^3"),
+            p("x^2.5"),
+            p("1 - x"),
+            p("x - 1"),
+            p("2/x"),
+            p("x/2"),
+            p("x^y"),
+            p("2^x"),
+        ]);
+        assert_eq!(
+            t.code,
+            [
+                Instr::Var(0),
+                Instr::Square(0),
+                Instr::Powi(0, 3),
+                Instr::Powf(0, 2.5),
+                Instr::CSub(0, 1.0),
+                Instr::AddC(0, -1.0),
+                Instr::CDiv(0, 2.0),
+                Instr::DivC(0, 2.0),
+                Instr::Var(1),
+                Instr::Pow(0, 8),
+                Instr::Const(2.0),
+                Instr::Pow(10, 0),
+            ]
+        );
+        let x: f64 = 1.7;
+        let want = [
+            x * x,
+            x.powi(3),
+            x.powf(2.5),
+            1.0 - x,
+            x - 1.0,
+            2.0 / x,
+            x / 2.0,
+            x.powf(0.3),
+            2f64.powf(x),
+        ];
+        assert_eq!(run(&t, &[x, 0.3]), want);
+    }
+
+    #[test]
+    fn single_use_products_fuse_into_add_and_sub() {
+        let t = Tape::compile(&[p("x*y + z"), p("x*z - y"), p("y - z*(2*x)")]);
+        assert_eq!(
+            t.code,
+            [
+                Instr::Var(0),
+                Instr::Var(1),
+                Instr::Var(2),
+                Instr::MulAdd(0, 1, 2),
+                Instr::MulSub(0, 2, 1),
+                Instr::MulC(0, 2.0),
+                Instr::SubMul(2, 5, 1),
+            ]
+        );
+        let v = [0.3, -1.7, 2.9];
+        let want: Vec<f64> = ["x*y + z", "x*z - y", "y - z*(2*x)"]
+            .iter()
+            .map(|s| p(s).eval(&v))
+            .collect();
+        assert_eq!(run(&t, &v), want);
+        // A product that is also used elsewhere (or is an output) is kept.
+        let t = Tape::compile(&[p("x*y + z"), p("x*y")]);
+        assert_eq!(
+            t.code,
+            [
+                Instr::Var(0),
+                Instr::Var(1),
+                Instr::Mul(0, 1),
+                Instr::Var(2),
+                Instr::Add(2, 3),
+            ]
+        );
+        assert_eq!(run(&t, &v), [0.3 * -1.7 + 2.9, 0.3 * -1.7]);
+    }
+
+    #[test]
+    fn common_subexpressions_are_shared_across_outputs() {
+        // Built separately (no shared nodes), but structurally equal.
+        let a = p("sin(x*y) + 1");
+        let b = p("sin(y*x) * 2"); // commutative operands are sorted
+        let t = Tape::compile(&[a.clone(), b.clone()]);
+        // x, y, x*y, sin, +1, *2
+        assert_eq!(t.n_instructions(), 6);
+        let v = [0.4, 1.3];
+        assert_eq!(run(&t, &v), [a.eval(&v), b.eval(&v)]);
+    }
+
+    #[test]
+    fn constant_and_variable_outputs() {
+        let t = Tape::compile(&[
+            Expr::constant(3.5),
+            Expr::var(2),
+            Expr::var(2),
+            Expr::constant(3.5),
+        ]);
+        assert_eq!(t.n_instructions(), 2);
+        assert_eq!(t.n_outputs(), 4);
+        assert_eq!(t.n_vars(), 3);
+        assert_eq!(run(&t, &[0.0, 0.0, -1.25]), [3.5, -1.25, -1.25, 3.5]);
+        // No outputs at all.
+        let t = Tape::compile(&[]);
+        assert_eq!((t.n_instructions(), t.n_outputs(), t.n_vars()), (0, 0, 0));
+        assert_eq!(run(&t, &[]), Vec::<f64>::new());
+        // Non-finite constants (never folded into `Expr` constants) still work.
+        let t = Tape::compile(&[p("1/0"), p("0/0 + x"), p("-(1/0)")]);
+        let out = run(&t, &[1.0]);
+        assert_eq!(out[0], f64::INFINITY);
+        assert!(out[1].is_nan());
+        assert_eq!(out[2], f64::NEG_INFINITY);
+    }
+
+    #[test]
+    fn every_function_matches_eval() {
+        let srcs = [
+            "sin(x)",
+            "cos(x)",
+            "tan(x)",
+            "asin(x)",
+            "acos(x)",
+            "atan(x)",
+            "sinh(x)",
+            "cosh(x)",
+            "tanh(x)",
+            "exp(x)",
+            "ln(x)",
+            "log10(x)",
+            "sqrt(x)",
+            "abs(x)",
+            "sign(x)",
+            "atan2(x, y)",
+            "pow(x, y)",
+            "-x",
+            "x + y",
+            "x - y",
+            "x*y",
+            "x/y",
+            "x^-2",
+            "x^16",
+            "x^17",
+            "x^0.5",
+            "sign(x - x)",
+            "abs(x - x)",
+        ];
+        let exprs: Vec<Expr> = srcs.iter().map(|s| p(s)).collect();
+        let t = Tape::compile(&exprs);
+        for v in [[0.3, 1.7], [-0.8, 0.2], [0.0, -1.0], [2.5, -3.0]] {
+            let out = run(&t, &v);
+            for ((e, s), o) in exprs.iter().zip(srcs).zip(out) {
+                let want = e.eval(&v);
+                assert!(
+                    o.to_bits() == want.to_bits() || (o.is_nan() && want.is_nan()),
+                    "{s} at {v:?}: {o} vs {want}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn random_expressions_match_eval() {
+        let mut rng = Rng::new(1);
+        for round in 0..60 {
+            // Several outputs drawn from one pool, so they share subexpressions, plus their
+            // derivatives (which share with the originals).
+            let mut pool = Vec::new();
+            let mut outs: Vec<Expr> = (0..4)
+                .map(|_| random_expr(&mut rng, 3, 4 + round % 3, &mut pool))
+                .collect();
+            let ds: Vec<Expr> = outs.iter().map(|e| e.derivative(round % 3)).collect();
+            outs.extend(ds);
+            let t = Tape::compile(&outs);
+            let distinct: usize = super::topo(&outs).nodes.len();
+            assert!(t.n_instructions() <= distinct);
+            for _ in 0..5 {
+                let v = [
+                    rng.uniform(-2.0, 2.0),
+                    rng.uniform(-2.0, 2.0),
+                    rng.uniform(-2.0, 2.0),
+                ];
+                let got = run(&t, &v);
+                for (e, g) in outs.iter().zip(got) {
+                    let want = e.eval(&v);
+                    assert!(close(g, want), "{g} vs {want}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn heavy_sharing_compiles_linearly() {
+        let mut e = Expr::var(0);
+        for _ in 0..40 {
+            e = (&e * &e.sin()) + &e.cos();
+        }
+        let d = e.derivative(0);
+        let t = Tape::compile(&[e.clone(), d.clone()]);
+        assert!(t.n_instructions() < 20 * 41);
+        let out = run(&t, &[0.1]);
+        assert!(close(out[0], e.eval(&[0.1])) && close(out[1], d.eval(&[0.1])));
+    }
+
+    #[test]
+    #[should_panic(expected = "tape reads 3 variable slots, got 2")]
+    fn too_few_variables_panics() {
+        let t = Tape::compile(&[Expr::var(2)]);
+        run(&t, &[0.0, 0.0]);
+    }
+
+    #[test]
+    #[should_panic]
+    fn too_small_scratch_panics() {
+        let t = Tape::compile(&[p("x + y")]);
+        t.eval(&[1.0, 2.0], &mut [0.0; 2], &mut [0.0]);
+    }
 }

@@ -32,7 +32,10 @@ impl Feedback {
     /// kd = 2 zeta omega. Stable with explicit integrators while omega dt stays well below 1.
     pub fn from_frequency(frequency: f64, damping_ratio: f64) -> Feedback {
         let omega = 2.0 * std::f64::consts::PI * frequency;
-        Feedback { ks: omega * omega, kd: 2.0 * damping_ratio * omega }
+        Feedback {
+            ks: omega * omega,
+            kd: 2.0 * damping_ratio * omega,
+        }
     }
 }
 
@@ -59,7 +62,11 @@ impl Implicit {
     }
 
     /// As [`Implicit::new`] with another linear solver.
-    pub fn with_solver(system: Arc<System>, feedback: Feedback, solver: Box<dyn SpdSolver>) -> Self {
+    pub fn with_solver(
+        system: Arc<System>,
+        feedback: Feedback,
+        solver: Box<dyn SpdSolver>,
+    ) -> Self {
         let n = system.n_coords();
         let m = system.constraints().n_rows();
         Implicit {
@@ -86,7 +93,13 @@ impl SecondOrderSystem for Implicit {
         self.system.n_coords()
     }
 
-    fn acceleration(&mut self, t: f64, x: &[f64], v: &[f64], a: &mut [f64]) -> Result<(), StepError> {
+    fn acceleration(
+        &mut self,
+        t: f64,
+        x: &[f64],
+        v: &[f64],
+        a: &mut [f64],
+    ) -> Result<(), StepError> {
         let system = &*self.system;
         let set = system.constraints();
         let w = &system.inverse_mass;
@@ -97,7 +110,11 @@ impl SecondOrderSystem for Implicit {
             let ce = &self.constraints;
             // Dense copy of J's sparse rows.
             for i in 0..m {
-                for (&k, &value) in set.row_columns(i).iter().zip(&ce.jacobian[set.row_entries(i)]) {
+                for (&k, &value) in set
+                    .row_columns(i)
+                    .iter()
+                    .zip(&ce.jacobian[set.row_entries(i)])
+                {
                     self.jacobian[(i, k)] = value;
                 }
             }
@@ -113,9 +130,15 @@ impl SecondOrderSystem for Implicit {
                     self.matrix[(i, j)] = sum;
                     self.matrix[(j, i)] = sum;
                 }
-                let jwf: f64 = columns.iter().zip(row).map(|(&k, &jik)| jik * w[k] * self.force[k]).sum();
-                self.lambda[i] =
-                    -ce.bias[i] - jwf - self.feedback.ks * ce.value[i] - self.feedback.kd * ce.velocity[i];
+                let jwf: f64 = columns
+                    .iter()
+                    .zip(row)
+                    .map(|(&k, &jik)| jik * w[k] * self.force[k])
+                    .sum();
+                self.lambda[i] = -ce.bias[i]
+                    - jwf
+                    - self.feedback.ks * ce.value[i]
+                    - self.feedback.kd * ce.velocity[i];
             }
             if let Err(singular) = self.solver.solve(&mut self.matrix, &mut self.lambda) {
                 let info = set.info_of_row(singular.row);
@@ -127,7 +150,11 @@ impl SecondOrderSystem for Implicit {
             }
             // F += J^T lambda, and clear the dense J for the next call.
             for i in 0..m {
-                for (&k, &jik) in set.row_columns(i).iter().zip(&ce.jacobian[set.row_entries(i)]) {
+                for (&k, &jik) in set
+                    .row_columns(i)
+                    .iter()
+                    .zip(&ce.jacobian[set.row_entries(i)])
+                {
                     self.force[k] += jik * self.lambda[i];
                     self.jacobian[(i, k)] = 0.0;
                 }
@@ -154,7 +181,14 @@ impl Formulation for Implicit {
     fn coordinate_names(&self) -> &[String] {
         &[]
     }
-    fn particle_state(&mut self, _t: f64, q: &[f64], qdot: &[f64], x: &mut [f64], xdot: &mut [f64]) {
+    fn particle_state(
+        &mut self,
+        _t: f64,
+        q: &[f64],
+        qdot: &[f64],
+        x: &mut [f64],
+        xdot: &mut [f64],
+    ) {
         x.copy_from_slice(q);
         xdot.copy_from_slice(qdot);
     }

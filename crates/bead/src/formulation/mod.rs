@@ -25,14 +25,24 @@ pub trait SecondOrderSystem {
     /// Number of coordinates n.
     fn n_coords(&self) -> usize;
     /// Write qddot = f(t, q, qdot) into `a` (n). Must not allocate.
-    fn acceleration(&mut self, t: f64, q: &[f64], qdot: &[f64], a: &mut [f64]) -> Result<(), StepError>;
+    fn acceleration(
+        &mut self,
+        t: f64,
+        q: &[f64],
+        qdot: &[f64],
+        a: &mut [f64],
+    ) -> Result<(), StepError>;
 }
 
 /// Why an acceleration could not be computed.
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
 pub enum StepError {
     #[error("at t = {t}: the constraints are singular at {constraint} (`{description}`): its gradient vanishes there or it duplicates other constraints")]
-    SingularConstraints { t: f64, constraint: String, description: String },
+    SingularConstraints {
+        t: f64,
+        constraint: String,
+        description: String,
+    },
     #[error("at t = {t}: the mass matrix M(q) is singular in coordinate `{coordinate}`: the parametric map x(q) does not depend on it there")]
     SingularMassMatrix { t: f64, coordinate: String },
     #[error("at t = {t}: {quantity} is not finite")]
@@ -91,7 +101,11 @@ pub trait Formulation: SecondOrderSystem {
 }
 
 /// Build the formulation `method` of `system`.
-pub fn formulate(system: Arc<System>, method: Method, feedback: Feedback) -> Result<Box<dyn Formulation + Send>, String> {
+pub fn formulate(
+    system: Arc<System>,
+    method: Method,
+    feedback: Feedback,
+) -> Result<Box<dyn Formulation + Send>, String> {
     match method {
         Method::Implicit => Ok(Box::new(Implicit::new(system, feedback))),
         Method::Parametric => {

@@ -35,7 +35,9 @@ pub struct Parametric {
 impl Parametric {
     /// The parametric form of `system`; an error when the system has none.
     pub fn new(system: Arc<System>) -> Result<Self, String> {
-        let map = system.parametric().ok_or("the scene defines no parametric form ([parametric])")?;
+        let map = system
+            .parametric()
+            .ok_or("the scene defines no parametric form ([parametric])")?;
         let n_q = map.n_q();
         Ok(Parametric {
             solver: Box::new(DenseCholesky::default()),
@@ -48,7 +50,9 @@ impl Parametric {
     }
 
     fn parametric_map(&self) -> &ParametricMap {
-        self.system.parametric().expect("checked in Parametric::new")
+        self.system
+            .parametric()
+            .expect("checked in Parametric::new")
     }
 }
 
@@ -57,7 +61,13 @@ impl SecondOrderSystem for Parametric {
         self.parametric_map().n_q()
     }
 
-    fn acceleration(&mut self, t: f64, q: &[f64], qdot: &[f64], qddot: &mut [f64]) -> Result<(), StepError> {
+    fn acceleration(
+        &mut self,
+        t: f64,
+        q: &[f64],
+        qdot: &[f64],
+        qddot: &mut [f64],
+    ) -> Result<(), StepError> {
         let system = &*self.system;
         let map = system.parametric().expect("checked in Parametric::new");
         let n_q = map.n_q();
@@ -82,7 +92,10 @@ impl SecondOrderSystem for Parametric {
             }
         }
         if let Err(singular) = self.solver.solve(&mut self.matrix, &mut self.rhs) {
-            return Err(StepError::SingularMassMatrix { t, coordinate: map.coordinates()[singular.row].clone() });
+            return Err(StepError::SingularMassMatrix {
+                t,
+                coordinate: map.coordinates()[singular.row].clone(),
+            });
         }
         qddot.copy_from_slice(self.rhs.as_slice());
         Ok(())
@@ -98,13 +111,20 @@ impl Formulation for Parametric {
     }
     fn initial_state(&self) -> State {
         let map = self.parametric_map();
-        State { t: 0.0, q: map.initial().to_vec(), qdot: map.rates().to_vec() }
+        State {
+            t: 0.0,
+            q: map.initial().to_vec(),
+            qdot: map.rates().to_vec(),
+        }
     }
     fn coordinate_names(&self) -> &[String] {
         self.parametric_map().coordinates()
     }
     fn particle_state(&mut self, t: f64, q: &[f64], qdot: &[f64], x: &mut [f64], xdot: &mut [f64]) {
-        let map = self.system.parametric().expect("checked in Parametric::new");
+        let map = self
+            .system
+            .parametric()
+            .expect("checked in Parametric::new");
         map.evaluate(t, q, qdot, &mut self.map);
         x.copy_from_slice(&self.map.position);
         xdot.copy_from_slice(&self.map.velocity);

@@ -12,14 +12,25 @@ pub struct Euler {
 
 impl Euler {
     pub fn new(n: usize) -> Self {
-        Euler { acceleration: vec![0.0; n] }
+        Euler {
+            acceleration: vec![0.0; n],
+        }
     }
 }
 
 impl Integrator for Euler {
-    fn step(&mut self, system: &mut dyn SecondOrderSystem, s: &mut State, dt: f64) -> Result<(), StepError> {
+    fn step(
+        &mut self,
+        system: &mut dyn SecondOrderSystem,
+        s: &mut State,
+        dt: f64,
+    ) -> Result<(), StepError> {
         system.acceleration(s.t, &s.q, &s.qdot, &mut self.acceleration)?;
-        for ((q, v), a) in s.q.iter_mut().zip(s.qdot.iter_mut()).zip(&self.acceleration) {
+        for ((q, v), a) in
+            s.q.iter_mut()
+                .zip(s.qdot.iter_mut())
+                .zip(&self.acceleration)
+        {
             *q += dt * *v;
             *v += dt * a;
         }

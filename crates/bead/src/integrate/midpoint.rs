@@ -18,16 +18,30 @@ pub struct Midpoint {
 
 impl Midpoint {
     pub fn new(n: usize) -> Self {
-        Midpoint { acceleration: vec![0.0; n], q_mid: vec![0.0; n], qdot_mid: vec![0.0; n] }
+        Midpoint {
+            acceleration: vec![0.0; n],
+            q_mid: vec![0.0; n],
+            qdot_mid: vec![0.0; n],
+        }
     }
 }
 
 impl Integrator for Midpoint {
-    fn step(&mut self, system: &mut dyn SecondOrderSystem, s: &mut State, dt: f64) -> Result<(), StepError> {
+    fn step(
+        &mut self,
+        system: &mut dyn SecondOrderSystem,
+        s: &mut State,
+        dt: f64,
+    ) -> Result<(), StepError> {
         system.acceleration(s.t, &s.q, &s.qdot, &mut self.acceleration)?;
         axpy_into(&mut self.q_mid, &s.q, 0.5 * dt, &s.qdot);
         axpy_into(&mut self.qdot_mid, &s.qdot, 0.5 * dt, &self.acceleration);
-        system.acceleration(s.t + 0.5 * dt, &self.q_mid, &self.qdot_mid, &mut self.acceleration)?;
+        system.acceleration(
+            s.t + 0.5 * dt,
+            &self.q_mid,
+            &self.qdot_mid,
+            &mut self.acceleration,
+        )?;
         for (q, v) in s.q.iter_mut().zip(&self.qdot_mid) {
             *q += dt * v;
         }

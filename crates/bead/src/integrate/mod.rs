@@ -24,7 +24,12 @@ use crate::formulation::{SecondOrderSystem, State, StepError};
 /// and nothing in [`Integrator::step`].
 pub trait Integrator: Send {
     /// Advance `state` from t to t + dt.
-    fn step(&mut self, system: &mut dyn SecondOrderSystem, state: &mut State, dt: f64) -> Result<(), StepError>;
+    fn step(
+        &mut self,
+        system: &mut dyn SecondOrderSystem,
+        state: &mut State,
+        dt: f64,
+    ) -> Result<(), StepError>;
 }
 
 /// The integrators by name, as used in scenes and on the command line.
@@ -37,8 +42,12 @@ pub enum IntegratorKind {
 }
 
 impl IntegratorKind {
-    pub const ALL: [IntegratorKind; 4] =
-        [IntegratorKind::Euler, IntegratorKind::SymplecticEuler, IntegratorKind::Midpoint, IntegratorKind::Rk4];
+    pub const ALL: [IntegratorKind; 4] = [
+        IntegratorKind::Euler,
+        IntegratorKind::SymplecticEuler,
+        IntegratorKind::Midpoint,
+        IntegratorKind::Rk4,
+    ];
 
     /// Name in scene files and on the command line.
     pub fn name(self) -> &'static str {
@@ -68,7 +77,11 @@ impl IntegratorKind {
             "{}: order {}, {}",
             self.name(),
             self.order(),
-            if self.symplectic() { "symplectic" } else { "not symplectic" }
+            if self.symplectic() {
+                "symplectic"
+            } else {
+                "not symplectic"
+            }
         )
     }
     /// A ready integrator for n coordinates.
@@ -85,10 +98,13 @@ impl IntegratorKind {
 impl std::str::FromStr for IntegratorKind {
     type Err = String;
     fn from_str(s: &str) -> Result<Self, String> {
-        IntegratorKind::ALL.into_iter().find(|k| k.name() == s).ok_or_else(|| {
-            let names: Vec<_> = IntegratorKind::ALL.iter().map(|k| k.name()).collect();
-            format!("unknown integrator `{s}`; use one of {}", names.join(", "))
-        })
+        IntegratorKind::ALL
+            .into_iter()
+            .find(|k| k.name() == s)
+            .ok_or_else(|| {
+                let names: Vec<_> = IntegratorKind::ALL.iter().map(|k| k.name()).collect();
+                format!("unknown integrator `{s}`; use one of {}", names.join(", "))
+            })
     }
 }
 

@@ -23,12 +23,21 @@ pub struct Rk4 {
 impl Rk4 {
     pub fn new(n: usize) -> Self {
         let buffers = || [vec![0.0; n], vec![0.0; n], vec![0.0; n], vec![0.0; n]];
-        Rk4 { velocity: buffers(), acceleration: buffers(), q_stage: vec![0.0; n] }
+        Rk4 {
+            velocity: buffers(),
+            acceleration: buffers(),
+            q_stage: vec![0.0; n],
+        }
     }
 }
 
 impl Integrator for Rk4 {
-    fn step(&mut self, system: &mut dyn SecondOrderSystem, s: &mut State, dt: f64) -> Result<(), StepError> {
+    fn step(
+        &mut self,
+        system: &mut dyn SecondOrderSystem,
+        s: &mut State,
+        dt: f64,
+    ) -> Result<(), StepError> {
         let [v1, v2, v3, v4] = &mut self.velocity;
         let [a1, a2, a3, a4] = &mut self.acceleration;
         let q = &mut self.q_stage;

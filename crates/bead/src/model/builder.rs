@@ -20,7 +20,11 @@ pub enum ModelError {
     #[error("gravity must have 2 or 3 components (it sets the dimension), got {0}")]
     BadDimension(usize),
     #[error("{what} must have {expected} components (the scene is {expected}D), got {got}")]
-    DimensionMismatch { what: String, expected: usize, got: usize },
+    DimensionMismatch {
+        what: String,
+        expected: usize,
+        got: usize,
+    },
     #[error("duplicate {kind} name `{name}`")]
     Duplicate { kind: &'static str, name: String },
     #[error("`{0}` is reserved and cannot name a parameter or coordinate")]
@@ -38,14 +42,24 @@ pub enum ModelError {
     #[error("{0}")]
     Parametric(String),
     #[error("in `{source_text}`: {error}")]
-    Expression { source_text: String, error: ExprError },
+    Expression {
+        source_text: String,
+        error: ExprError,
+    },
 }
 
 #[derive(Clone)]
 enum ConstraintSpec {
     Expression(Expr, String),
-    Distance { a: ParticleId, b: Endpoint, length: f64 },
-    Pin { particle: ParticleId, anchor: Vec<f64> },
+    Distance {
+        a: ParticleId,
+        b: Endpoint,
+        length: f64,
+    },
+    Pin {
+        particle: ParticleId,
+        anchor: Vec<f64>,
+    },
     Custom(SharedHolonomic, Vec<ParticleId>),
 }
 
@@ -103,7 +117,10 @@ impl SystemBuilder {
         }
         finite(&format!("parameter `{name}`"), value)?;
         if self.params.iter().any(|(n, _)| n == name) {
-            return Err(ModelError::Duplicate { kind: "parameter", name: name.into() });
+            return Err(ModelError::Duplicate {
+                kind: "parameter",
+                name: name.into(),
+            });
         }
         self.params.push((name.into(), value));
         Ok(self)
@@ -115,21 +132,41 @@ impl SystemBuilder {
     }
 
     /// Add a particle.
-    pub fn particle(&mut self, name: &str, mass: f64, position: &[f64], velocity: &[f64]) -> Result<ParticleId, ModelError> {
-        if name.is_empty() || !name.chars().all(|c| c.is_alphanumeric() || c == '_') || name.starts_with(|c: char| c.is_ascii_digit()) {
+    pub fn particle(
+        &mut self,
+        name: &str,
+        mass: f64,
+        position: &[f64],
+        velocity: &[f64],
+    ) -> Result<ParticleId, ModelError> {
+        if name.is_empty()
+            || !name.chars().all(|c| c.is_alphanumeric() || c == '_')
+            || name.starts_with(|c: char| c.is_ascii_digit())
+        {
             return Err(ModelError::Parametric(format!(
                 "particle name `{name}` must be a letter or `_` followed by letters, digits or `_`"
             )));
         }
         if self.particles.iter().any(|p| p.name == name) {
-            return Err(ModelError::Duplicate { kind: "particle", name: name.into() });
+            return Err(ModelError::Duplicate {
+                kind: "particle",
+                name: name.into(),
+            });
         }
         if !(mass.is_finite() && mass > 0.0) {
-            return Err(ModelError::BadMass { name: name.into(), mass });
+            return Err(ModelError::BadMass {
+                name: name.into(),
+                mass,
+            });
         }
         self.vector(&format!("particle `{name}` position"), position)?;
         self.vector(&format!("particle `{name}` velocity"), velocity)?;
-        self.particles.push(Particle { name: name.into(), mass, position: position.to_vec(), velocity: velocity.to_vec() });
+        self.particles.push(Particle {
+            name: name.into(),
+            mass,
+            position: position.to_vec(),
+            velocity: velocity.to_vec(),
+        });
         Ok(ParticleId(self.particles.len() - 1))
     }
 
@@ -149,16 +186,27 @@ impl SystemBuilder {
                 self.check_particle(*particle)?;
                 self.vector("constant force vector", vector)?;
             }
-            Force::Spring { a, b, stiffness, rest_length } => {
+            Force::Spring {
+                a,
+                b,
+                stiffness,
+                rest_length,
+            } => {
                 self.check_particle(*a)?;
                 self.endpoint("spring anchor", b)?;
                 finite("spring stiffness", *stiffness)?;
                 finite("spring rest_length", *rest_length)?;
                 if *rest_length < 0.0 {
-                    return Err(ModelError::NotPositive { what: "spring rest_length".into(), value: *rest_length });
+                    return Err(ModelError::NotPositive {
+                        what: "spring rest_length".into(),
+                        value: *rest_length,
+                    });
                 }
             }
-            Force::Drag { particle, coefficient } => {
+            Force::Drag {
+                particle,
+                coefficient,
+            } => {
                 if let Some(p) = particle {
                     self.check_particle(*p)?;
                 }
@@ -180,15 +228,24 @@ impl SystemBuilder {
         }
         let dim = self.dim();
         let coordinate = |p: usize, axis: &str| {
-            AXES[..dim.min(3)].iter().position(|a| *a == axis).map(|a| Resolved::Var(p * dim + a))
+            AXES[..dim.min(3)]
+                .iter()
+                .position(|a| *a == axis)
+                .map(|a| Resolved::Var(p * dim + a))
         };
         if let Some((particle, axis)) = name.split_once('.') {
             if let Some(p) = self.particles.iter().position(|q| q.name == particle) {
                 return coordinate(p, axis).ok_or_else(|| {
-                    format!("`{particle}` has no coordinate `{axis}`; in {dim}D use {}", self.axis_list())
+                    format!(
+                        "`{particle}` has no coordinate `{axis}`; in {dim}D use {}",
+                        self.axis_list()
+                    )
                 });
             }
-            return Err(format!("unknown particle `{particle}`; particles: {}", self.particle_list()));
+            return Err(format!(
+                "unknown particle `{particle}`; particles: {}",
+                self.particle_list()
+            ));
         }
         if self.particles.len() == 1 {
             if let Some(r) = coordinate(0, name) {
@@ -211,55 +268,93 @@ impl SystemBuilder {
     pub fn constraint_expr(&mut self, source: &str) -> Result<&mut Self, ModelError> {
         let expr = self
             .parse_constraint_expr(source)
-            .map_err(|error| ModelError::Expression { source_text: source.into(), error })?;
+            .map_err(|error| ModelError::Expression {
+                source_text: source.into(),
+                error,
+            })?;
         let name = format!("constraint {}", self.constraints.len() + 1);
         Ok(self.add_constraint_expr(&name, expr, source))
     }
 
     /// Add an already parsed constraint expression (from [`Self::parse_constraint_expr`]).
     pub fn add_constraint_expr(&mut self, name: &str, expr: Expr, source: &str) -> &mut Self {
-        self.constraints.push((name.into(), ConstraintSpec::Expression(expr, source.into())));
+        self.constraints
+            .push((name.into(), ConstraintSpec::Expression(expr, source.into())));
         self
     }
 
     /// A rigid rod |x_a - x_b| = length.
-    pub fn distance(&mut self, name: &str, a: ParticleId, b: Endpoint, length: f64) -> Result<&mut Self, ModelError> {
+    pub fn distance(
+        &mut self,
+        name: &str,
+        a: ParticleId,
+        b: Endpoint,
+        length: f64,
+    ) -> Result<&mut Self, ModelError> {
         self.check_particle(a)?;
         self.endpoint("distance anchor", &b)?;
         finite("distance length", length)?;
         if length <= 0.0 {
-            return Err(ModelError::NotPositive { what: "distance length".into(), value: length });
+            return Err(ModelError::NotPositive {
+                what: "distance length".into(),
+                value: length,
+            });
         }
-        self.constraints.push((name.into(), ConstraintSpec::Distance { a, b, length }));
+        self.constraints
+            .push((name.into(), ConstraintSpec::Distance { a, b, length }));
         Ok(self)
     }
 
     /// Pin a particle at a fixed point (one constraint row per axis).
-    pub fn pin(&mut self, name: &str, particle: ParticleId, anchor: &[f64]) -> Result<&mut Self, ModelError> {
+    pub fn pin(
+        &mut self,
+        name: &str,
+        particle: ParticleId,
+        anchor: &[f64],
+    ) -> Result<&mut Self, ModelError> {
         self.check_particle(particle)?;
         self.vector("pin anchor", anchor)?;
-        self.constraints.push((name.into(), ConstraintSpec::Pin { particle, anchor: anchor.to_vec() }));
+        self.constraints.push((
+            name.into(),
+            ConstraintSpec::Pin {
+                particle,
+                anchor: anchor.to_vec(),
+            },
+        ));
         Ok(self)
     }
 
     /// A constraint written as a Rust type, differentiated automatically.
     pub fn holonomic<H: Holonomic>(&mut self, name: &str, constraint: H) -> &mut Self {
         let particles = constraint.particles();
-        self.constraints.push((name.into(), ConstraintSpec::Custom(Arc::new(Erased(constraint)), particles)));
+        self.constraints.push((
+            name.into(),
+            ConstraintSpec::Custom(Arc::new(Erased(constraint)), particles),
+        ));
         self
     }
 
     /// Declare the parametric form: generalized coordinates with initial values and rates.
-    pub fn parametric(&mut self, coordinates: &[&str], initial: &[f64], rates: &[f64]) -> Result<&mut Self, ModelError> {
+    pub fn parametric(
+        &mut self,
+        coordinates: &[&str],
+        initial: &[f64],
+        rates: &[f64],
+    ) -> Result<&mut Self, ModelError> {
         if coordinates.is_empty() {
-            return Err(ModelError::Parametric("the parametric form needs at least one coordinate".into()));
+            return Err(ModelError::Parametric(
+                "the parametric form needs at least one coordinate".into(),
+            ));
         }
         for (i, c) in coordinates.iter().enumerate() {
             if RESERVED.contains(c) || self.param_value(c).is_some() || c.contains('.') {
                 return Err(ModelError::Reserved((*c).into()));
             }
             if coordinates[..i].contains(c) {
-                return Err(ModelError::Duplicate { kind: "coordinate", name: (*c).into() });
+                return Err(ModelError::Duplicate {
+                    kind: "coordinate",
+                    name: (*c).into(),
+                });
             }
         }
         for (what, values) in [("parametric initial", initial), ("parametric rates", rates)] {
@@ -285,7 +380,11 @@ impl SystemBuilder {
 
     /// Resolve a name in a parametric position expression: a coordinate, `t` or a parameter.
     pub fn resolve_parametric_name(&self, name: &str) -> Result<Resolved, String> {
-        let coordinates = self.parametric.as_ref().map(|p| p.coordinates.as_slice()).unwrap_or(&[]);
+        let coordinates = self
+            .parametric
+            .as_ref()
+            .map(|p| p.coordinates.as_slice())
+            .unwrap_or(&[]);
         if name == "t" {
             return Ok(Resolved::Var(TIME_PLACEHOLDER));
         }
@@ -308,7 +407,11 @@ impl SystemBuilder {
     }
 
     /// Set particle `name`'s position as expressions of q and t (one per axis).
-    pub fn parametric_position(&mut self, name: &str, exprs: Vec<Expr>) -> Result<&mut Self, ModelError> {
+    pub fn parametric_position(
+        &mut self,
+        name: &str,
+        exprs: Vec<Expr>,
+    ) -> Result<&mut Self, ModelError> {
         let p = self.particle_id(name)?.0;
         if exprs.len() != self.dim() {
             return Err(ModelError::DimensionMismatch {
@@ -318,25 +421,34 @@ impl SystemBuilder {
             });
         }
         let n_particles = self.particles.len();
-        let spec = self
-            .parametric
-            .as_mut()
-            .ok_or_else(|| ModelError::Parametric("declare the parametric coordinates first".into()))?;
+        let spec = self.parametric.as_mut().ok_or_else(|| {
+            ModelError::Parametric("declare the parametric coordinates first".into())
+        })?;
         spec.positions.resize(n_particles, None);
         if spec.positions[p].is_some() {
-            return Err(ModelError::Duplicate { kind: "parametric position for particle", name: name.into() });
+            return Err(ModelError::Duplicate {
+                kind: "parametric position for particle",
+                name: name.into(),
+            });
         }
         spec.positions[p] = Some(exprs);
         Ok(self)
     }
 
     /// Parse and set particle `name`'s parametric position.
-    pub fn parametric_position_exprs(&mut self, name: &str, sources: &[&str]) -> Result<&mut Self, ModelError> {
+    pub fn parametric_position_exprs(
+        &mut self,
+        name: &str,
+        sources: &[&str],
+    ) -> Result<&mut Self, ModelError> {
         let exprs = sources
             .iter()
             .map(|s| {
                 self.parse_parametric_expr(s)
-                    .map_err(|error| ModelError::Expression { source_text: (*s).into(), error })
+                    .map_err(|error| ModelError::Expression {
+                        source_text: (*s).into(),
+                        error,
+                    })
             })
             .collect::<Result<Vec<_>, _>>()?;
         self.parametric_position(name, exprs)
@@ -355,7 +467,13 @@ impl SystemBuilder {
             return Err(ModelError::NoParticles);
         }
         let n = self.particles.len() * dim;
-        let time = |k: usize| if k == TIME_PLACEHOLDER { Expr::var(2 * n) } else { Expr::var(k) };
+        let time = |k: usize| {
+            if k == TIME_PLACEHOLDER {
+                Expr::var(2 * n)
+            } else {
+                Expr::var(k)
+            }
+        };
         let mut infos = Vec::new();
         let mut expr_rows = Vec::new();
         let mut custom = Vec::new();
@@ -379,11 +497,16 @@ impl SystemBuilder {
                         .fold(Expr::constant(0.0), |acc, s| acc + s);
                     let c = (squared - length * length) / (2.0 * length);
                     expr_rows.push(ExprRow::new(c, n));
-                    format!("distance({}, {}) = {length}", self.particles[a.0].name, self.endpoint_name(b))
+                    format!(
+                        "distance({}, {}) = {length}",
+                        self.particles[a.0].name,
+                        self.endpoint_name(b)
+                    )
                 }
                 ConstraintSpec::Pin { particle, anchor } => {
                     for (axis, value) in anchor.iter().enumerate() {
-                        expr_rows.push(ExprRow::new(Expr::var(particle.0 * dim + axis) - *value, n));
+                        expr_rows
+                            .push(ExprRow::new(Expr::var(particle.0 * dim + axis) - *value, n));
                     }
                     format!("pin({}) at {anchor:?}", self.particles[particle.0].name)
                 }
@@ -393,7 +516,10 @@ impl SystemBuilder {
                         self.check_particle(*p)?;
                         coords.extend((0..dim).map(|axis| p.0 * dim + axis));
                     }
-                    custom.push(CustomRow { constraint: constraint.clone(), coords });
+                    custom.push(CustomRow {
+                        constraint: constraint.clone(),
+                        coords,
+                    });
                     custom_infos.push(ConstraintInfo {
                         name: name.clone(),
                         description: "Rust constraint (derivatives by dual numbers)".into(),
@@ -402,7 +528,11 @@ impl SystemBuilder {
                     continue;
                 }
             };
-            infos.push(ConstraintInfo { name: name.clone(), description, rows: start..expr_rows.len() });
+            infos.push(ConstraintInfo {
+                name: name.clone(),
+                description,
+                rows: start..expr_rows.len(),
+            });
         }
         let n_expr = expr_rows.len();
         for (i, mut info) in custom_infos.into_iter().enumerate() {
@@ -415,7 +545,13 @@ impl SystemBuilder {
             None => None,
             Some(spec) => {
                 let n_q = spec.coordinates.len();
-                let time = |k: usize| if k == TIME_PLACEHOLDER { Expr::var(2 * n_q) } else { Expr::var(k) };
+                let time = |k: usize| {
+                    if k == TIME_PLACEHOLDER {
+                        Expr::var(2 * n_q)
+                    } else {
+                        Expr::var(k)
+                    }
+                };
                 let mut positions = Vec::with_capacity(n);
                 for (p, particle) in self.particles.iter().enumerate() {
                     let exprs = spec.positions.get(p).and_then(|e| e.as_ref()).ok_or_else(|| {
@@ -426,11 +562,28 @@ impl SystemBuilder {
                     })?;
                     positions.extend(exprs.iter().map(|e| e.substitute(&time)));
                 }
-                Some(ParametricMap::new(spec.coordinates, spec.initial, spec.rates, positions))
+                Some(ParametricMap::new(
+                    spec.coordinates,
+                    spec.initial,
+                    spec.rates,
+                    positions,
+                ))
             }
         };
-        let inverse_mass = self.particles.iter().flat_map(|p| std::iter::repeat_n(1.0 / p.mass, dim)).collect();
-        Ok(System { dim, particles: self.particles, gravity: self.gravity, forces: self.forces, constraints, parametric, inverse_mass })
+        let inverse_mass = self
+            .particles
+            .iter()
+            .flat_map(|p| std::iter::repeat_n(1.0 / p.mass, dim))
+            .collect();
+        Ok(System {
+            dim,
+            particles: self.particles,
+            gravity: self.gravity,
+            forces: self.forces,
+            constraints,
+            parametric,
+            inverse_mass,
+        })
     }
 
     fn check_particle(&self, p: ParticleId) -> Result<(), ModelError> {
@@ -457,7 +610,11 @@ impl SystemBuilder {
 
     fn vector(&self, what: &str, v: &[f64]) -> Result<(), ModelError> {
         if v.len() != self.dim() {
-            return Err(ModelError::DimensionMismatch { what: what.into(), expected: self.dim(), got: v.len() });
+            return Err(ModelError::DimensionMismatch {
+                what: what.into(),
+                expected: self.dim(),
+                got: v.len(),
+            });
         }
         for c in v {
             finite(what, *c)?;
@@ -466,13 +623,21 @@ impl SystemBuilder {
     }
 
     fn particle_list(&self) -> String {
-        self.particles.iter().map(|p| p.name.as_str()).collect::<Vec<_>>().join(", ")
+        self.particles
+            .iter()
+            .map(|p| p.name.as_str())
+            .collect::<Vec<_>>()
+            .join(", ")
     }
     fn param_list(&self) -> String {
         if self.params.is_empty() {
             "none".into()
         } else {
-            self.params.iter().map(|(n, _)| n.as_str()).collect::<Vec<_>>().join(", ")
+            self.params
+                .iter()
+                .map(|(n, _)| n.as_str())
+                .collect::<Vec<_>>()
+                .join(", ")
         }
     }
     fn axis_list(&self) -> String {
@@ -491,6 +656,9 @@ fn finite(what: &str, value: f64) -> Result<(), ModelError> {
     if value.is_finite() {
         Ok(())
     } else {
-        Err(ModelError::NotFinite { what: what.into(), value })
+        Err(ModelError::NotFinite {
+            what: what.into(),
+            value,
+        })
     }
 }

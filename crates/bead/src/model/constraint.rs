@@ -29,19 +29,23 @@ pub struct ConstraintInfo {
     pub rows: Range<usize>,
 }
 
-/// One scalar constraint row written as an expression over slots [x (n), v (n), t].
+/// One scalar constraint row written as an expression over slots [x (n), v (n), t], with
+/// its exact derivatives.
 #[derive(Clone, Debug)]
-pub(crate) struct ExprRow {
-    pub(crate) value: Expr,
-    /// (coordinate, dC/dx_coordinate) for every coordinate C depends on.
-    pub(crate) gradient: Vec<(usize, Expr)>,
-    pub(crate) velocity: Expr,
-    pub(crate) bias: Expr,
+pub struct ExprRow {
+    /// C(x, t)
+    pub value: Expr,
+    /// (coordinate k, dC/dx_k) for every coordinate C depends on.
+    pub gradient: Vec<(usize, Expr)>,
+    /// Cdot = J v + C_t
+    pub velocity: Expr,
+    /// Cddot - J a = v^T H v + 2 C_xt v + C_tt
+    pub bias: Expr,
 }
 
 impl ExprRow {
     /// Differentiate `value` (slots: x = 0..n, v = n..2n, t = 2n) once, at build time.
-    pub(crate) fn new(value: Expr, n_coords: usize) -> ExprRow {
+    pub fn new(value: Expr, n_coords: usize) -> ExprRow {
         let time = 2 * n_coords;
         let velocity_of = |k: usize| Expr::var(n_coords + k);
         // Total time derivative along the motion, accelerations excluded:
@@ -50,7 +54,9 @@ impl ExprRow {
             f.vars()
                 .into_iter()
                 .filter(|&k| k < n_coords)
-                .fold(f.derivative(time), |acc, k| acc + f.derivative(k) * velocity_of(k))
+                .fold(f.derivative(time), |acc, k| {
+                    acc + f.derivative(k) * velocity_of(k)
+                })
         };
         let gradient: Vec<(usize, Expr)> = value
             .vars()
@@ -60,7 +66,12 @@ impl ExprRow {
             .collect();
         let velocity = total_derivative(&value);
         let bias = total_derivative(&velocity);
-        ExprRow { value, gradient, velocity, bias }
+        ExprRow {
+            value,
+            gradient,
+            velocity,
+            bias,
+        }
     }
 }
 
@@ -117,7 +128,12 @@ pub struct ConstraintEval {
 }
 
 impl ConstraintSet {
-    pub(crate) fn new(n_coords: usize, infos: Vec<ConstraintInfo>, expr_rows: Vec<ExprRow>, custom_rows: Vec<CustomRow>) -> Self {
+    pub(crate) fn new(
+        n_coords: usize,
+        infos: Vec<ConstraintInfo>,
+        expr_rows: Vec<ExprRow>,
+        custom_rows: Vec<CustomRow>,
+    ) -> Self {
         let values: Vec<Expr> = expr_rows.iter().map(|r| r.value.clone()).collect();
         let mut outputs = values.clone();
         outputs.extend(expr_rows.iter().map(|r| r.velocity.clone()));
@@ -157,7 +173,10 @@ impl ConstraintSet {
     }
     /// The declared constraint that owns `row`.
     pub fn info_of_row(&self, row: usize) -> &ConstraintInfo {
-        self.infos.iter().find(|i| i.rows.contains(&row)).unwrap_or(&self.infos[0])
+        self.infos
+            .iter()
+            .find(|i| i.rows.contains(&row))
+            .unwrap_or(&self.infos[0])
     }
     /// Coordinates of the nonzero entries of J in `row`.
     pub fn row_columns(&self, row: usize) -> &[usize] {
@@ -175,15 +194,20 @@ impl ConstraintSet {
     pub fn n_instructions(&self) -> usize {
         self.full_tape.n_instructions()
     }
-    /// Symbolic value, gradient, Cdot and bias of expression row `row` (None for Rust rows).
-    pub fn symbolic_row(&self, row: usize) -> Option<(&Expr, &[(usize, Expr)], &Expr, &Expr)> {
-        self.expr_rows.get(row).map(|r| (&r.value, r.gradient.as_slice(), &r.velocity, &r.bias))
+    /// The symbolic form of expression row `row` (None for Rust rows).
+    pub fn symbolic_row(&self, row: usize) -> Option<&ExprRow> {
+        self.expr_rows.get(row)
     }
 
     /// A workspace sized for this set.
     pub fn workspace(&self) -> ConstraintEval {
         let m = self.n_rows();
-        let widest = self.custom_rows.iter().map(|r| r.coords.len()).max().unwrap_or(0);
+        let widest = self
+            .custom_rows
+            .iter()
+            .map(|r| r.coords.len())
+            .max()
+            .unwrap_or(0);
         ConstraintEval {
             value: vec![0.0; m],
             velocity: vec![0.0; m],
@@ -212,7 +236,8 @@ impl ConstraintSet {
         let n_expr = self.expr_rows.len();
         if n_expr > 0 {
             self.load_vars(t, x, Some(v), ws);
-            self.full_tape.eval(&ws.vars, &mut ws.scratch, &mut ws.tape_out);
+            self.full_tape
+                .eval(&ws.vars, &mut ws.scratch, &mut ws.tape_out);
             let out = &ws.tape_out;
             ws.value[..n_expr].copy_from_slice(&out[..n_expr]);
             ws.velocity[..n_expr].copy_from_slice(&out[n_expr..2 * n_expr]);
@@ -246,7 +271,8 @@ impl ConstraintSet {
         let n_expr = self.expr_rows.len();
         if n_expr > 0 {
             self.load_vars(t, x, None, ws);
-            self.value_tape.eval(&ws.vars, &mut ws.scratch, &mut ws.value[..n_expr]);
+            self.value_tape
+                .eval(&ws.vars, &mut ws.scratch, &mut ws.value[..n_expr]);
         }
         for (i, row) in self.custom_rows.iter().enumerate() {
             let len = row.coords.len();

@@ -25,12 +25,23 @@ impl Endpoint {
 #[derive(Clone, Debug, PartialEq)]
 pub enum Force {
     /// A constant force F on one particle; potential V = -F.x.
-    Constant { particle: ParticleId, vector: Vec<f64> },
+    Constant {
+        particle: ParticleId,
+        vector: Vec<f64>,
+    },
     /// Linear spring between `a` and `b`: F_a = -k (|d| - L) d/|d|, d = x_a - x_b, F_b = -F_a;
     /// potential V = k (|d| - L)^2 / 2. At |d| = 0 the direction is undefined and the force is 0.
-    Spring { a: ParticleId, b: Endpoint, stiffness: f64, rest_length: f64 },
+    Spring {
+        a: ParticleId,
+        b: Endpoint,
+        stiffness: f64,
+        rest_length: f64,
+    },
     /// Linear drag F = -c v on one particle, or on all when `particle` is `None`. Dissipative.
-    Drag { particle: Option<ParticleId>, coefficient: f64 },
+    Drag {
+        particle: Option<ParticleId>,
+        coefficient: f64,
+    },
 }
 
 impl Force {
@@ -42,7 +53,12 @@ impl Force {
                     force[particle.0 * dim + a] += f;
                 }
             }
-            Force::Spring { a, b, stiffness, rest_length } => {
+            Force::Spring {
+                a,
+                b,
+                stiffness,
+                rest_length,
+            } => {
                 let mut d = [0.0; 3];
                 for (axis, d) in d.iter_mut().enumerate().take(dim) {
                     *d = x[a.0 * dim + axis] - b.coord(dim, x, axis);
@@ -59,7 +75,10 @@ impl Force {
                     }
                 }
             }
-            Force::Drag { particle, coefficient } => match particle {
+            Force::Drag {
+                particle,
+                coefficient,
+            } => match particle {
                 Some(p) => {
                     for axis in 0..dim {
                         force[p.0 * dim + axis] -= coefficient * v[p.0 * dim + axis];
@@ -77,10 +96,15 @@ impl Force {
     /// Potential energy V(x); 0 for dissipative forces.
     pub(crate) fn potential(&self, dim: usize, x: &[f64]) -> f64 {
         match self {
-            Force::Constant { particle, vector } => {
-                -(0..dim).map(|a| vector[a] * x[particle.0 * dim + a]).sum::<f64>()
-            }
-            Force::Spring { a, b, stiffness, rest_length } => {
+            Force::Constant { particle, vector } => -(0..dim)
+                .map(|a| vector[a] * x[particle.0 * dim + a])
+                .sum::<f64>(),
+            Force::Spring {
+                a,
+                b,
+                stiffness,
+                rest_length,
+            } => {
                 let length = (0..dim)
                     .map(|axis| {
                         let d = x[a.0 * dim + axis] - b.coord(dim, x, axis);

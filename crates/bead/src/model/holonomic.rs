@@ -64,7 +64,10 @@ pub(crate) struct DualScratch {
 
 impl DualScratch {
     pub(crate) fn with_capacity(n: usize) -> Self {
-        DualScratch { first: vec![Dual64::from(0.0); n], second: vec![Dual2_64::from(0.0); n] }
+        DualScratch {
+            first: vec![Dual64::from(0.0); n],
+            second: vec![Dual2_64::from(0.0); n],
+        }
     }
 }
 
@@ -85,11 +88,11 @@ impl<H: Holonomic> ErasedHolonomic for Erased<H> {
     ) -> (f64, f64, f64) {
         let n = x.len();
         let first = &mut scratch.first[..n];
-        for k in 0..n {
+        for (k, g) in gradient.iter_mut().enumerate().take(n) {
             for (j, d) in first.iter_mut().enumerate() {
                 *d = Dual64::new(x[j], if j == k { 1.0 } else { 0.0 });
             }
-            gradient[k] = self.0.value(first, Dual64::from(t)).eps;
+            *g = self.0.value(first, Dual64::from(t)).eps;
         }
         let second = &mut scratch.second[..n];
         for (j, d) in second.iter_mut().enumerate() {

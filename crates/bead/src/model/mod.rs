@@ -15,7 +15,7 @@ mod holonomic;
 mod parametric;
 
 pub use builder::{ModelError, SystemBuilder};
-pub use constraint::{ConstraintEval, ConstraintInfo, ConstraintSet};
+pub use constraint::{ConstraintEval, ConstraintInfo, ConstraintSet, ExprRow};
 pub use force::{Endpoint, Force};
 pub use holonomic::Holonomic;
 pub use parametric::{ParametricEval, ParametricMap};
@@ -80,12 +80,23 @@ impl System {
     }
     /// Look a particle up by name.
     pub fn particle_id(&self, name: &str) -> Option<ParticleId> {
-        self.particles.iter().position(|p| p.name == name).map(ParticleId)
+        self.particles
+            .iter()
+            .position(|p| p.name == name)
+            .map(ParticleId)
     }
     /// Initial particle positions and velocities as flat coordinate vectors (n_coords each).
     pub fn initial_particle_state(&self) -> (Vec<f64>, Vec<f64>) {
-        let x = self.particles.iter().flat_map(|p| p.position.iter().copied()).collect();
-        let v = self.particles.iter().flat_map(|p| p.velocity.iter().copied()).collect();
+        let x = self
+            .particles
+            .iter()
+            .flat_map(|p| p.position.iter().copied())
+            .collect();
+        let v = self
+            .particles
+            .iter()
+            .flat_map(|p| p.velocity.iter().copied())
+            .collect();
         (x, v)
     }
     /// Degrees of freedom: n_coords minus the number of independent constraint rows (assumed
@@ -145,6 +156,10 @@ impl System {
     /// Name of coordinate k, e.g. `bead.y`.
     pub fn coordinate_name(&self, k: usize) -> String {
         const AXES: [&str; 3] = ["x", "y", "z"];
-        format!("{}.{}", self.particles[k / self.dim].name, AXES[k % self.dim])
+        format!(
+            "{}.{}",
+            self.particles[k / self.dim].name,
+            AXES[k % self.dim]
+        )
     }
 }

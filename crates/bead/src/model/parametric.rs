@@ -46,14 +46,21 @@ pub struct ParametricEval {
 }
 
 impl ParametricMap {
-    pub(crate) fn new(coordinates: Vec<String>, initial: Vec<f64>, rates: Vec<f64>, positions: Vec<Expr>) -> Self {
+    pub(crate) fn new(
+        coordinates: Vec<String>,
+        initial: Vec<f64>,
+        rates: Vec<f64>,
+        positions: Vec<Expr>,
+    ) -> Self {
         let n_q = coordinates.len();
         let time = 2 * n_q;
         let total_derivative = |f: &Expr| {
             f.vars()
                 .into_iter()
                 .filter(|&j| j < n_q)
-                .fold(f.derivative(time), |acc, j| acc + f.derivative(j) * Expr::var(n_q + j))
+                .fold(f.derivative(time), |acc, j| {
+                    acc + f.derivative(j) * Expr::var(n_q + j)
+                })
         };
         let velocities: Vec<Expr> = positions.iter().map(total_derivative).collect();
         let accelerations: Vec<Expr> = velocities.iter().map(total_derivative).collect();
@@ -97,7 +104,12 @@ impl ParametricMap {
     /// The symbolic x_k(q, t), its xdot, h and row k of J, for `bead check`.
     pub fn symbolic(&self, k: usize) -> (&Expr, &Expr, &Expr, &[Expr]) {
         let n_q = self.n_q();
-        (&self.positions[k], &self.velocities[k], &self.accelerations[k], &self.jacobian[k * n_q..(k + 1) * n_q])
+        (
+            &self.positions[k],
+            &self.velocities[k],
+            &self.accelerations[k],
+            &self.jacobian[k * n_q..(k + 1) * n_q],
+        )
     }
     /// Size of the compiled code.
     pub fn n_instructions(&self) -> usize {
@@ -137,7 +149,8 @@ impl ParametricMap {
         let n_q = self.n_q();
         ws.vars[..n_q].copy_from_slice(q);
         ws.vars[2 * n_q] = t;
-        self.position_tape.eval(&ws.vars, &mut ws.scratch, &mut ws.position);
+        self.position_tape
+            .eval(&ws.vars, &mut ws.scratch, &mut ws.position);
         &ws.position
     }
 }

@@ -1,0 +1,300 @@
+//! Command-line flags as parsed by clap, before they meet a scene. Every value is checked
+//! here (a bad value is a usage error, exit code 2); combining flags with the scene's `[run]`
+//! defaults happens in [`crate::plan`].
+
+use std::path::PathBuf;
+
+use bead::formulation::{Feedback, Method};
+use bead::integrate::IntegratorKind;
+use clap::builder::PossibleValue;
+use clap::{Args, Parser, Subcommand, ValueEnum};
+
+/// Constrained particle dynamics from scene files: the same constrained system simulated by
+/// constraint forces (implicit form) or in generalized coordinates (parametric form).
+#[derive(Debug, Parser)]
+#[command(name = "bead", version, propagate_version = true)]
+pub struct Cli {
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+/// The subcommands.
+#[derive(Debug, Subcommand)]
+pub enum Command {
+    /// Run a scene with one formulation; report energy and constraint error.
+    #[command(after_long_help = AFTER_RUN)]
+    Run(RunArgs),
+    /// Run every formulation the scene defines with the same integrator and dt, side by side.
+    ///
+    /// The implicit form runs when the scene has at least one [[constraint]] or no
+    /// [parametric] section; the parametric form runs when it has a [parametric] section.
+    #[command(after_long_help = AFTER_RUN)]
+    Compare(CompareArgs),
+    /// Validate a scene and describe it, with the derivatives the engine will use.
+    Check(CheckArgs),
+}
+
+const AFTER_RUN: &str = "\
+Options given here override the scene's [run] table. Without either: the implicit method when the
+scene has constraints or no parametric form (else parametric), rk4, dt = 1/60 s, duration 10 s.
+The number of steps is duration/dt when that is within 1e-9 of an integer, else rounded up (the
+run then ends slightly after the duration, and the summary says so).
+
+Exit status: 0 on success, 1 when the scene is invalid or the run fails (the trace keeps every
+finished row and --summary is still written, with completed: false), 2 on a usage error.";
+
+/// `bead run`.
+#[derive(Debug, Args)]
+pub struct RunArgs {
+    /// The scene file (TOML).
+    pub scene: PathBuf,
+
+    /// Formulation [default: the scene's [run] method, else implicit when the scene has
+    /// constraints or no parametric form, else parametric]
+    #[arg(long, value_name = "METHOD")]
+    pub method: Option<MethodArg>,
+
+    #[command(flatten)]
+    pub sim: SimArgs,
+
+    /// Write a CSV trace: t, each particle's position and velocity, energy, constraint_error
+    /// and, for the parametric form, q.NAME and qdot.NAME per coordinate.
+    #[arg(long, value_name = "FILE.csv")]
+    pub trace: Option<PathBuf>,
+
+    #[command(flatten)]
+    pub output: OutputArgs,
+}
+
+/// `bead compare`.
+#[derive(Debug, Args)]
+pub struct CompareArgs {
+    /// The scene file (TOML).
+    pub scene: PathBuf,
+
+    #[command(flatten)]
+    pub sim: SimArgs,
+
+    /// Write one CSV trace per method, named by inserting the method before the extension:
+    /// --trace out.csv writes out.implicit.csv and out.parametric.csv.
+    #[arg(long, value_name = "FILE.csv")]
+    pub trace: Option<PathBuf>,
+
+    #[command(flatten)]
+    pub output: OutputArgs,
+}
+
+/// `bead check`.
+#[derive(Debug, Args)]
+pub struct CheckArgs {
+    /// The scene file (TOML).
+    pub scene: PathBuf,
+
+    /// Override a scene parameter from [params] (repeatable).
+    #[arg(long = "set", value_name = "NAME=VALUE", value_parser = parse_set)]
+    pub set: Vec<(String, f64)>,
+}
+
+/// How to simulate: shared by `run` and `compare`.
+#[derive(Debug, Args)]
+pub struct SimArgs {
+    /// Time integrator [default: the scene's, else rk4]
+    #[arg(long, value_name = "INTEGRATOR")]
+    pub integrator: Option<IntegratorArg>,
+
+    /// Step size in seconds, > 0 [default: the scene's, else 1/60]
+    #[arg(long, value_name = "SECONDS", value_parser = parse_positive)]
+    pub dt: Option<f64>,
+
+    /// Simulated time in seconds, > 0 [default: the scene's, else 10]
+    #[arg(long, value_name = "SECONDS", value_parser = parse_positive, conflicts_with = "steps")]
+    pub duration: Option<f64>,
+
+    /// Number of steps, >= 1 (instead of --duration)
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..))]
+    pub steps: Option<u64>,
+
+    /// Constraint stabilization for the implicit form: Cddot = -KS C - KD Cdot, two finite
+    /// numbers >= 0 (units 1/s^2 and 1/s); compare applies it to the implicit run only
+    /// [default: the scene's, else 0,0]
+    #[arg(long, value_name = "KS,KD", value_parser = parse_stabilize)]
+    pub stabilize: Option<Feedback>,
+
+    /// Override a scene parameter from [params] with a number (repeatable)
+    #[arg(long = "set", value_name = "NAME=VALUE", value_parser = parse_set)]
+    pub set: Vec<(String, f64)>,
+
+    /// Record every K-th step in the trace (the first and last states are always recorded)
+    #[arg(long, value_name = "K", default_value_t = 1, value_parser = clap::value_parser!(u64).range(1..))]
+    pub every: u64,
+}
+
+/// Where the report goes: shared by `run` and `compare`.
+#[derive(Debug, Args)]
+pub struct OutputArgs {
+    /// Also write the summary as JSON to FILE (for compare: an array, one per method)
+    #[arg(long, value_name = "FILE.json")]
+    pub summary: Option<PathBuf>,
+
+    /// Print the summary as JSON on stdout instead of text (for compare: an array)
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// `--integrator`: an [`IntegratorKind`] whose help lists each method's order and whether it
+/// is symplectic.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct IntegratorArg(pub IntegratorKind);
+
+impl ValueEnum for IntegratorArg {
+    fn value_variants<'a>() -> &'a [Self] {
+        const ALL: [IntegratorArg; 4] = [
+            IntegratorArg(IntegratorKind::ALL[0]),
+            IntegratorArg(IntegratorKind::ALL[1]),
+            IntegratorArg(IntegratorKind::ALL[2]),
+            IntegratorArg(IntegratorKind::ALL[3]),
+        ];
+        &ALL
+    }
+
+    fn to_possible_value(&self) -> Option<PossibleValue> {
+        let name = self.0.name();
+        let described = self.0.describe();
+        // `describe` reads "NAME: order k, ..."; clap prints the name itself.
+        let help = described
+            .strip_prefix(&format!("{name}: "))
+            .unwrap_or(&described)
+            .to_string();
+        Some(PossibleValue::new(name).help(help))
+    }
+}
+
+/// `--method`: a [`Method`] with a one-line description.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct MethodArg(pub Method);
+
+impl ValueEnum for MethodArg {
+    fn value_variants<'a>() -> &'a [Self] {
+        &[MethodArg(Method::Implicit), MethodArg(Method::Parametric)]
+    }
+
+    fn to_possible_value(&self) -> Option<PossibleValue> {
+        let help = match self.0 {
+            Method::Implicit => "particle coordinates kept on the constraints by constraint forces",
+            Method::Parametric => "generalized coordinates of the scene's [parametric] map",
+        };
+        Some(PossibleValue::new(self.0.name()).help(help))
+    }
+}
+
+/// A finite number > 0.
+fn parse_positive(s: &str) -> Result<f64, String> {
+    let x: f64 = s
+        .trim()
+        .parse()
+        .map_err(|_| format!("`{s}` is not a number"))?;
+    if !x.is_finite() {
+        return Err(format!("must be finite, got {s}"));
+    }
+    if x <= 0.0 {
+        return Err(format!("must be positive, got {s}"));
+    }
+    Ok(x)
+}
+
+/// `KS,KD`: two finite numbers >= 0.
+fn parse_stabilize(s: &str) -> Result<Feedback, String> {
+    let usage = || format!("expected KS,KD (two finite numbers >= 0, e.g. 100,20), got `{s}`");
+    let (ks, kd) = s.split_once(',').ok_or_else(usage)?;
+    let number = |part: &str| -> Result<f64, String> {
+        let x: f64 = part.trim().parse().map_err(|_| usage())?;
+        if x.is_finite() && x >= 0.0 {
+            Ok(x)
+        } else {
+            Err(usage())
+        }
+    };
+    Ok(Feedback {
+        ks: number(ks)?,
+        kd: number(kd)?,
+    })
+}
+
+/// `NAME=VALUE` with a finite number.
+fn parse_set(s: &str) -> Result<(String, f64), String> {
+    let (name, value) = s
+        .split_once('=')
+        .ok_or_else(|| format!("expected NAME=VALUE, got `{s}`"))?;
+    let name = name.trim();
+    if name.is_empty() {
+        return Err(format!(
+            "expected NAME=VALUE, got `{s}` (the name is empty)"
+        ));
+    }
+    let x: f64 = value.trim().parse().map_err(|_| {
+        format!(
+            "the value of `{name}` must be a number, got `{}`",
+            value.trim()
+        )
+    })?;
+    if !x.is_finite() {
+        return Err(format!(
+            "the value of `{name}` must be finite, got `{}`",
+            value.trim()
+        ));
+    }
+    Ok((name.to_string(), x))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::CommandFactory;
+
+    #[test]
+    fn clap_definition_is_consistent() {
+        Cli::command().debug_assert();
+    }
+
+    #[test]
+    fn stabilize_takes_two_non_negative_numbers() {
+        assert_eq!(
+            parse_stabilize("100, 20"),
+            Ok(Feedback {
+                ks: 100.0,
+                kd: 20.0
+            })
+        );
+        for bad in ["100", "1,2,3", "-1,0", "0,nan", "inf,0", "a,b", ""] {
+            assert!(parse_stabilize(bad).is_err(), "{bad}");
+        }
+    }
+
+    #[test]
+    fn set_takes_a_name_and_a_finite_number() {
+        assert_eq!(parse_set("k=2.5"), Ok(("k".to_string(), 2.5)));
+        for bad in ["k", "=1", "k=", "k=x", "k=NaN", "k=inf"] {
+            assert!(parse_set(bad).is_err(), "{bad}");
+        }
+    }
+
+    #[test]
+    fn positive_rejects_zero_negative_and_non_finite() {
+        assert_eq!(parse_positive("0.01"), Ok(0.01));
+        for bad in ["0", "-1", "nan", "inf", "x", ""] {
+            assert!(parse_positive(bad).is_err(), "{bad}");
+        }
+    }
+
+    #[test]
+    fn integrator_help_comes_from_the_library() {
+        let rk4 = IntegratorArg(IntegratorKind::Rk4)
+            .to_possible_value()
+            .unwrap();
+        assert_eq!(rk4.get_name(), "rk4");
+        assert_eq!(
+            rk4.get_help().map(|h| h.to_string()).as_deref(),
+            Some("order 4, not symplectic")
+        );
+    }
+}

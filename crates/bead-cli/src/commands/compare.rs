@@ -1,0 +1,95 @@
+//! `bead compare`: every formulation of a scene with the same integrator and dt.
+
+use std::ffi::OsString;
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Result};
+use bead::formulation::{Feedback, Method};
+
+use super::{json, load_scene, print, report_error, run_method, write_file};
+use crate::args::CompareArgs;
+use crate::plan::{compare_methods, Plan};
+use crate::report;
+
+/// `bead compare`: run every formulation of the scene and print them side by side.
+pub fn compare(args: &CompareArgs) -> Result<()> {
+    let scene = load_scene(&args.scene, &args.sim.set)?;
+    let plan = Plan::resolve(&scene, &args.sim)?;
+    let methods = compare_methods(&scene);
+    let mut summaries = Vec::new();
+    let mut failures = Vec::new();
+    for &method in &methods {
+        let trace = args.trace.as_deref().map(|path| trace_path(path, method));
+        // --stabilize and the scene's stabilize apply to the implicit run only.
+        let feedback = match method {
+            Method::Implicit => plan.feedback,
+            Method::Parametric => Feedback::default(),
+        };
+        let outcome = run_method(&scene, &plan, method, feedback, trace.as_deref())?;
+        if let Err(failure) = &outcome.result {
+            failures.push(format!("{}: {}", method.name(), failure.error));
+        }
+        summaries.push(outcome.summary);
+    }
+    let summary_json = json(&summaries)?;
+    if let Some(path) = &args.output.summary {
+        write_file(path, &summary_json)?;
+    }
+    let printed = if args.output.json {
+        print(&summary_json)
+    } else {
+        print(&report::compare_text(&scene, &plan, &summaries))
+    };
+    // Failed runs are the errors to report, even when stdout is gone.
+    match failures.split_last() {
+        None => printed,
+        Some((last, others)) => {
+            for failure in others {
+                report_error(failure);
+            }
+            bail!("{last}")
+        }
+    }
+}
+
+/// `trace.csv` -> `trace.implicit.csv`; `trace` -> `trace.implicit`.
+fn trace_path(path: &Path, method: Method) -> PathBuf {
+    let mut name = OsString::new();
+    match (path.file_stem(), path.extension()) {
+        (Some(stem), Some(extension)) => {
+            name.push(stem);
+            name.push(".");
+            name.push(method.name());
+            name.push(".");
+            name.push(extension);
+        }
+        (Some(stem), None) => {
+            name.push(stem);
+            name.push(".");
+            name.push(method.name());
+        }
+        (None, _) => name.push(format!("trace.{}.csv", method.name())),
+    }
+    path.with_file_name(name)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn trace_names_insert_the_method_before_the_extension() {
+        assert_eq!(
+            trace_path(Path::new("out/t.csv"), Method::Implicit),
+            PathBuf::from("out/t.implicit.csv")
+        );
+        assert_eq!(
+            trace_path(Path::new("t"), Method::Parametric),
+            PathBuf::from("t.parametric")
+        );
+        assert_eq!(
+            trace_path(Path::new("a.b.csv"), Method::Parametric),
+            PathBuf::from("a.b.parametric.csv")
+        );
+    }
+}

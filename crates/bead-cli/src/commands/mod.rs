@@ -1,0 +1,103 @@
+//! The subcommands, and what they share: loading a scene, running one formulation, writing
+//! files and stdout.
+
+mod check;
+mod compare;
+mod run;
+
+use std::fs::File;
+use std::io::{self, Write};
+use std::path::Path;
+use std::sync::Arc;
+
+use anyhow::{Context, Result};
+use bead::formulation::{formulate, Feedback, Method};
+use bead::output::{CsvTrace, Summary};
+use bead::scene::Scene;
+use bead::simulate::{self, NullSink, RunFailure, RunStats, Sink};
+
+use crate::args::Command;
+use crate::plan::Plan;
+
+/// Run a parsed command line.
+pub fn dispatch(command: Command) -> Result<()> {
+    match command {
+        Command::Run(args) => run::run(&args),
+        Command::Compare(args) => compare::compare(&args),
+        Command::Check(args) => check::check(&args),
+    }
+}
+
+/// Load a scene and print its warnings to stderr.
+fn load_scene(path: &Path, overrides: &[(String, f64)]) -> Result<Scene> {
+    // The scene error renders as `file:line:column: message` and a caret snippet.
+    let scene = Scene::load(path, overrides)?;
+    for warning in scene.warnings() {
+        warn(&warning);
+    }
+    Ok(scene)
+}
+
+/// Print `warning: MESSAGE` to stderr (a closed stderr is not worth a panic).
+fn warn(message: &str) {
+    let _ = writeln!(io::stderr(), "warning: {message}");
+}
+
+/// Print `error: MESSAGE` to stderr, for errors beyond the one `main` reports.
+fn report_error(message: &str) {
+    let _ = writeln!(io::stderr(), "error: {message}");
+}
+
+/// One finished (or failed) run of one formulation.
+struct Outcome {
+    result: Result<RunStats, RunFailure>,
+    summary: Summary,
+}
+
+/// Run `method` of `scene` as planned with constraint feedback `feedback` (implicit form
+/// only), with an optional CSV trace.
+fn run_method(
+    scene: &Scene,
+    plan: &Plan,
+    method: Method,
+    feedback: Feedback,
+    trace: Option<&Path>,
+) -> Result<Outcome> {
+    let mut formulation =
+        formulate(Arc::clone(&scene.system), method, feedback).map_err(anyhow::Error::msg)?;
+    let coordinates = formulation.coordinate_names().to_vec();
+    let mut sink: Box<dyn Sink> = match trace {
+        Some(path) => {
+            let file = File::create(path)
+                .with_context(|| format!("cannot create trace file `{}`", path.display()))?;
+            let trace = CsvTrace::for_formulation(file, &*formulation)
+                .with_context(|| format!("cannot write trace file `{}`", path.display()))?;
+            Box::new(trace)
+        }
+        None => Box::new(NullSink),
+    };
+    let result = simulate::run(&mut *formulation, &plan.options(), &mut *sink);
+    let summary = Summary::from_result(&scene.file, &scene.system, &coordinates, &result);
+    Ok(Outcome { result, summary })
+}
+
+/// Write `text` to a file.
+fn write_file(path: &Path, text: &str) -> Result<()> {
+    std::fs::write(path, text).with_context(|| format!("cannot write `{}`", path.display()))
+}
+
+/// Write `text` to stdout. A closed pipe (`bead run ... | head`) is reported as
+/// [`io::ErrorKind::BrokenPipe`], which `main` treats as a quiet exit.
+fn print(text: &str) -> Result<()> {
+    let mut out = io::stdout().lock();
+    out.write_all(text.as_bytes())?;
+    out.flush()?;
+    Ok(())
+}
+
+/// JSON of one or more summaries, pretty-printed, with a final newline.
+fn json<T: serde::Serialize + ?Sized>(value: &T) -> Result<String> {
+    let mut text = serde_json::to_string_pretty(value).context("cannot serialize the summary")?;
+    text.push('\n');
+    Ok(text)
+}

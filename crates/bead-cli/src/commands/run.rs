@@ -1,0 +1,34 @@
+//! `bead run`: one formulation, a summary, optionally a trace and a JSON summary.
+
+use anyhow::{bail, Result};
+
+use super::{json, load_scene, print, run_method, warn, write_file};
+use crate::args::RunArgs;
+use crate::plan::{run_method as resolve_method, Plan};
+use crate::report;
+
+/// `bead run`: resolve the method and plan, run, write the trace and summary, report.
+pub fn run(args: &RunArgs) -> Result<()> {
+    let scene = load_scene(&args.scene, &args.sim.set)?;
+    let plan = Plan::resolve(&scene, &args.sim)?;
+    let method = resolve_method(&scene, args.method.map(|m| m.0))?;
+    if plan.ignores_scene_feedback(method) {
+        warn("the scene's [run] stabilize applies only to the implicit form; not used for this parametric run");
+    }
+    let feedback = plan.feedback_for(method)?;
+    let outcome = run_method(&scene, &plan, method, feedback, args.trace.as_deref())?;
+    let summary_json = json(&outcome.summary)?;
+    if let Some(path) = &args.output.summary {
+        write_file(path, &summary_json)?;
+    }
+    let printed = if args.output.json {
+        print(&summary_json)
+    } else {
+        print(&report::run_text(&scene, &plan, &outcome.summary))
+    };
+    // A failed run is the error to report, even when stdout is gone.
+    match outcome.result {
+        Ok(_) => printed,
+        Err(failure) => bail!("{}", failure.error),
+    }
+}

@@ -1,0 +1,588 @@
+//! Human-readable reports: the run summary, the comparison table and the scene description.
+//! Everything here returns text; printing happens in the commands.
+
+use std::fmt::Write as _;
+
+use bead::expr::Expr;
+use bead::formulation::Method;
+use bead::integrate::IntegratorKind;
+use bead::model::{Endpoint, ExprRow, Force, System};
+use bead::output::Summary;
+use bead::scene::Scene;
+
+use crate::plan::Plan;
+
+/// `x` with `sig` significant digits, in the shorter of fixed and exponent notation
+/// (like C's `%g`): `0.0166667`, `1.234e-08` is `1.234e-8`, `-112500`.
+pub fn g(x: f64, sig: usize) -> String {
+    if !x.is_finite() {
+        return format!("{x}");
+    }
+    if x == 0.0 {
+        return "0".into();
+    }
+    let sig = sig.max(1);
+    // Round first, so that 9.9999 → 10 picks its notation from the rounded value.
+    let rounded: f64 = format!("{:.*e}", sig - 1, x).parse().unwrap_or(x);
+    let exponent = rounded.abs().log10().floor() as i32;
+    if exponent < -4 || exponent >= sig as i32 {
+        let s = format!("{:.*e}", sig - 1, rounded);
+        match s.split_once('e') {
+            Some((mantissa, exp)) => format!("{}e{exp}", trim_zeros(mantissa)),
+            None => s,
+        }
+    } else {
+        let decimals = (sig as i32 - 1 - exponent).max(0) as usize;
+        trim_zeros(&format!("{:.*}", decimals, rounded)).to_string()
+    }
+}
+
+/// `x` exactly (shortest round-trip), in exponent notation below 1e-5 and from 1e16 on in
+/// magnitude so that extreme values stay short: `0.016666666666666666`, `1e300`.
+pub fn exact(x: f64) -> String {
+    let magnitude = x.abs();
+    if x.is_finite() && x != 0.0 && !(1e-5..1e16).contains(&magnitude) {
+        format!("{x:e}")
+    } else {
+        format!("{x}")
+    }
+}
+
+fn trim_zeros(s: &str) -> &str {
+    if s.contains('.') {
+        s.trim_end_matches('0').trim_end_matches('.')
+    } else {
+        s
+    }
+}
+
+/// A list of numbers as `[a, b]`, exact.
+fn vector(v: &[f64]) -> String {
+    let parts: Vec<String> = v.iter().map(|x| exact(*x)).collect();
+    format!("[{}]", parts.join(", "))
+}
+
+/// The scene's title, or its file name when it has none.
+pub fn title(scene: &Scene) -> &str {
+    if scene.title.trim().is_empty() {
+        &scene.file
+    } else {
+        &scene.title
+    }
+}
+
+/// `rk4 (order 4, not symplectic)`.
+pub fn integrator_text(kind: IntegratorKind) -> String {
+    let described = kind.describe();
+    let prefix = format!("{}: ", kind.name());
+    match described.strip_prefix(&prefix) {
+        Some(rest) => format!("{} ({rest})", kind.name()),
+        None => described,
+    }
+}
+
+fn method_blurb(method: Method) -> &'static str {
+    match method {
+        Method::Implicit => "constraint forces on the particle coordinates",
+        Method::Parametric => "generalized coordinates",
+    }
+}
+
+/// The human summary of one run.
+pub fn run_text(scene: &Scene, plan: &Plan, summary: &Summary) -> String {
+    let mut s = String::new();
+    let _ = writeln!(s, "{}", title(scene));
+    let row = |s: &mut String, key: &str, value: String| {
+        let _ = writeln!(s, "  {key:<12} {value}");
+    };
+    row(&mut s, "scene", scene.file.clone());
+    row(
+        &mut s,
+        "method",
+        format!(
+            "{} ({})",
+            summary.method.name(),
+            method_blurb(summary.method)
+        ),
+    );
+    if summary.method == Method::Implicit && plan.feedback != Default::default() {
+        row(
+            &mut s,
+            "stabilize",
+            format!(
+                "ks = {}, kd = {}",
+                exact(plan.feedback.ks),
+                exact(plan.feedback.kd)
+            ),
+        );
+    }
+    row(&mut s, "integrator", integrator_text(summary.integrator));
+    row(&mut s, "dt", format!("{} s", exact(summary.dt)));
+    let steps = if summary.completed {
+        format!("{}", summary.steps)
+    } else {
+        format!("{} of {} (stopped early)", summary.steps, plan.steps)
+    };
+    row(&mut s, "steps", steps);
+    row(&mut s, "t_final", format!("{} s", exact(summary.t_final)));
+    if let (Some(duration), true) = (plan.duration, plan.overshoot) {
+        let _ = writeln!(
+            s,
+            "  {:<12} duration {} s is not a whole number of steps of dt = {} s; the run goes on to t = {} s",
+            "note",
+            exact(duration),
+            exact(plan.dt),
+            exact(plan.t_end())
+        );
+    }
+    row(
+        &mut s,
+        "energy",
+        format!(
+            "initial {}, final {}, max relative error {}",
+            g(summary.energy_initial, 10),
+            g(summary.energy_final, 10),
+            g(summary.energy_rel_error_max, 4)
+        ),
+    );
+    row(
+        &mut s,
+        "constraint",
+        format!(
+            "max error {}, final error {}",
+            g(summary.constraint_error_max, 4),
+            g(summary.constraint_error_final, 4)
+        ),
+    );
+    row(
+        &mut s,
+        "speed",
+        format!(
+            "{} steps/s (wall time {} s)",
+            g(summary.steps_per_second, 4),
+            g(summary.wall_seconds, 4)
+        ),
+    );
+    s
+}
+
+/// The header line and aligned table of `bead compare`.
+pub fn compare_text(scene: &Scene, plan: &Plan, summaries: &[Summary]) -> String {
+    let mut s = String::new();
+    let _ = writeln!(s, "{}", title(scene));
+    let _ = writeln!(
+        s,
+        "  scene {}; integrator {}; dt {} s; {} steps to t = {} s",
+        scene.file,
+        integrator_text(plan.integrator),
+        exact(plan.dt),
+        plan.steps,
+        exact(plan.t_end())
+    );
+    if let (Some(duration), true) = (plan.duration, plan.overshoot) {
+        let _ = writeln!(
+            s,
+            "  note: duration {} s is not a whole number of steps; the runs go on to t = {} s",
+            exact(duration),
+            exact(plan.t_end())
+        );
+    }
+    if plan.feedback != Default::default() {
+        let _ = writeln!(
+            s,
+            "  implicit form stabilized with ks = {}, kd = {}",
+            exact(plan.feedback.ks),
+            exact(plan.feedback.kd)
+        );
+    }
+    s.push('\n');
+    let any_failed = summaries.iter().any(|r| !r.completed);
+    let mut header = vec![
+        "method",
+        "final constraint error",
+        "max constraint error",
+        "max rel energy error",
+        "final energy",
+        "steps/s",
+    ];
+    if any_failed {
+        header.push("status");
+    }
+    let mut rows: Vec<Vec<String>> = vec![header.iter().map(|h| h.to_string()).collect()];
+    for r in summaries {
+        let mut row = vec![
+            r.method.name().to_string(),
+            g(r.constraint_error_final, 4),
+            g(r.constraint_error_max, 4),
+            g(r.energy_rel_error_max, 4),
+            g(r.energy_final, 10),
+            g(r.steps_per_second, 4),
+        ];
+        if any_failed {
+            row.push(if r.completed {
+                "ok".into()
+            } else {
+                format!("stopped at t = {}", exact(r.t_final))
+            });
+        }
+        rows.push(row);
+    }
+    s.push_str(&table(&rows));
+    s
+}
+
+/// Rows of cells as an aligned table: the first column left-aligned, numbers right-aligned,
+/// a rule under the header.
+fn table(rows: &[Vec<String>]) -> String {
+    let n_columns = rows.iter().map(Vec::len).max().unwrap_or(0);
+    let widths: Vec<usize> = (0..n_columns)
+        .map(|c| {
+            rows.iter()
+                .filter_map(|r| r.get(c))
+                .map(|cell| cell.chars().count())
+                .max()
+                .unwrap_or(0)
+        })
+        .collect();
+    let mut s = String::new();
+    for (i, row) in rows.iter().enumerate() {
+        let mut line = String::new();
+        for (c, cell) in row.iter().enumerate() {
+            let width = widths[c];
+            if c == 0 {
+                let _ = write!(line, "{cell:<width$}");
+            } else if c + 1 == n_columns && rows[0].get(c).is_some_and(|h| h == "status") {
+                let _ = write!(line, "   {cell:<width$}");
+            } else {
+                let _ = write!(line, "   {cell:>width$}");
+            }
+        }
+        let _ = writeln!(s, "{}", line.trim_end());
+        if i == 0 {
+            let total: usize = widths.iter().sum::<usize>() + 3 * n_columns.saturating_sub(1);
+            let _ = writeln!(s, "{}", "-".repeat(total));
+        }
+    }
+    s
+}
+
+/// Name of a slot of a constraint expression: x (n), v (n), t.
+fn constraint_slot_name(system: &System, slot: usize) -> String {
+    let n = system.n_coords();
+    if slot < n {
+        system.coordinate_name(slot)
+    } else if slot < 2 * n {
+        // `bead.x` -> `bead.vx`
+        let name = system.coordinate_name(slot - n);
+        match name.rsplit_once('.') {
+            Some((particle, axis)) => format!("{particle}.v{axis}"),
+            None => format!("{name}'"),
+        }
+    } else if slot == 2 * n {
+        "t".into()
+    } else {
+        format!("slot{slot}")
+    }
+}
+
+/// Name of a slot of a parametric map expression: q (n_q), qdot (n_q), t.
+fn parametric_slot_name(coordinates: &[String], slot: usize) -> String {
+    let n_q = coordinates.len();
+    if slot < n_q {
+        coordinates[slot].clone()
+    } else if slot < 2 * n_q {
+        format!("{}'", coordinates[slot - n_q])
+    } else if slot == 2 * n_q {
+        "t".into()
+    } else {
+        format!("slot{slot}")
+    }
+}
+
+fn particle_name(system: &System, id: usize) -> String {
+    system
+        .particles()
+        .get(id)
+        .map(|p| p.name.clone())
+        .unwrap_or_else(|| format!("#{id}"))
+}
+
+fn describe_force(system: &System, force: &Force) -> String {
+    match force {
+        Force::Constant {
+            particle,
+            vector: v,
+        } => {
+            format!(
+                "constant force {} on {}",
+                vector(v),
+                particle_name(system, particle.0)
+            )
+        }
+        Force::Spring {
+            a,
+            b,
+            stiffness,
+            rest_length,
+        } => {
+            let other = match b {
+                Endpoint::Particle(p) => particle_name(system, p.0),
+                Endpoint::Fixed(point) => format!("the point {}", vector(point)),
+            };
+            format!(
+                "spring {} to {other}: stiffness {}, rest length {}",
+                particle_name(system, a.0),
+                exact(*stiffness),
+                exact(*rest_length)
+            )
+        }
+        Force::Drag {
+            particle,
+            coefficient,
+        } => match particle {
+            Some(p) => format!(
+                "drag on {}: coefficient {}",
+                particle_name(system, p.0),
+                exact(*coefficient)
+            ),
+            None => format!(
+                "drag on every particle: coefficient {}",
+                exact(*coefficient)
+            ),
+        },
+    }
+}
+
+fn plural(n: usize, one: &str, many: &str) -> String {
+    format!("{n} {}", if n == 1 { one } else { many })
+}
+
+/// The description printed by `bead check`.
+pub fn check_text(scene: &Scene) -> String {
+    let system = &*scene.system;
+    let mut s = String::new();
+    let _ = writeln!(s, "{}", title(scene));
+    let _ = writeln!(s, "  scene        {}", scene.file);
+    let _ = writeln!(
+        s,
+        "  dimension    {}D, gravity {}",
+        system.dim(),
+        vector(system.gravity())
+    );
+    if !scene.params.is_empty() {
+        let params: Vec<String> = scene
+            .params
+            .iter()
+            .map(|(n, v)| format!("{n} = {}", exact(*v)))
+            .collect();
+        let _ = writeln!(s, "  parameters   {}", params.join(", "));
+    }
+
+    let _ = writeln!(s, "\nparticles ({})", system.particles().len());
+    let width = system
+        .particles()
+        .iter()
+        .map(|p| p.name.chars().count())
+        .max()
+        .unwrap_or(0);
+    for p in system.particles() {
+        let _ = writeln!(
+            s,
+            "  {:<width$}  mass {}, position {}, velocity {}",
+            p.name,
+            exact(p.mass),
+            vector(&p.position),
+            vector(&p.velocity)
+        );
+    }
+
+    let _ = writeln!(s, "\nforces");
+    let _ = writeln!(s, "  gravity {}", vector(system.gravity()));
+    for force in system.forces() {
+        let _ = writeln!(s, "  {}", describe_force(system, force));
+    }
+
+    let set = system.constraints();
+    let infos = set.infos();
+    let _ = writeln!(
+        s,
+        "\nconstraints ({}, {})",
+        infos.len(),
+        plural(set.n_rows(), "row", "rows")
+    );
+    let name = |slot: usize| constraint_slot_name(system, slot);
+    let (x0, v0) = system.initial_particle_state();
+    let mut eval = set.workspace();
+    if set.n_rows() > 0 {
+        set.evaluate(0.0, &x0, &v0, &mut eval);
+    }
+    for info in infos {
+        let rows = if info.rows.len() == 1 {
+            format!("row {}", info.rows.start)
+        } else {
+            format!(
+                "rows {}..{}",
+                info.rows.start,
+                info.rows.end.saturating_sub(1)
+            )
+        };
+        let _ = writeln!(s, "  {}: {} ({rows})", info.name, info.description);
+        for row in info.rows.clone() {
+            let initial = |v: &Vec<f64>| v.get(row).map(|x| g(*x, 6)).unwrap_or_else(|| "?".into());
+            match set.symbolic_row(row) {
+                Some(symbolic) => {
+                    let ExprRow {
+                        value,
+                        gradient,
+                        velocity,
+                        bias,
+                    } = symbolic;
+                    let _ = writeln!(s, "    row {row}: C = {}", value.display_with(&name));
+                    for (k, d) in gradient {
+                        let _ = writeln!(s, "      dC/d({}) = {}", name(*k), d.display_with(&name));
+                    }
+                    let _ = writeln!(s, "      Cdot = {}", velocity.display_with(&name));
+                    let _ = writeln!(
+                        s,
+                        "      bias = {}   (Cddot = J a + bias)",
+                        bias.display_with(&name)
+                    );
+                }
+                None => {
+                    let columns: Vec<String> =
+                        set.row_columns(row).iter().map(|k| name(*k)).collect();
+                    let _ = writeln!(
+                        s,
+                        "    row {row}: a Rust constraint on {}; derivatives by dual numbers",
+                        columns.join(", ")
+                    );
+                }
+            }
+            let _ = writeln!(
+                s,
+                "      at t = 0: C = {}, Cdot = {}",
+                initial(&eval.value),
+                initial(&eval.velocity)
+            );
+        }
+    }
+    if set.n_rows() > 0 {
+        let _ = writeln!(
+            s,
+            "  compiled: {} Jacobian nonzeros, {} tape instructions",
+            set.n_nonzeros(),
+            set.n_instructions()
+        );
+    }
+    let _ = writeln!(s, "\ndegrees of freedom: {}", system.degrees_of_freedom());
+
+    match system.parametric() {
+        None => {
+            let _ = writeln!(s, "\nparametric form: none");
+        }
+        Some(map) => {
+            let coordinates = map.coordinates();
+            let described: Vec<String> = coordinates
+                .iter()
+                .zip(map.initial().iter().zip(map.rates()))
+                .map(|(c, (q, r))| format!("{c} = {} ({c}' = {})", exact(*q), exact(*r)))
+                .collect();
+            let _ = writeln!(
+                s,
+                "\nparametric form: {}",
+                plural(coordinates.len(), "coordinate", "coordinates")
+            );
+            let _ = writeln!(s, "  initial      {}", described.join(", "));
+            let qname = |slot: usize| parametric_slot_name(coordinates, slot);
+            for k in 0..system.n_coords() {
+                let (x, xdot, h, jacobian): (&Expr, &Expr, &Expr, &[Expr]) = map.symbolic(k);
+                let coordinate = system.coordinate_name(k);
+                let _ = writeln!(s, "  {coordinate} = {}", x.display_with(&qname));
+                for (j, d) in jacobian.iter().enumerate() {
+                    let _ = writeln!(
+                        s,
+                        "    d({coordinate})/d{} = {}",
+                        coordinates[j],
+                        d.display_with(&qname)
+                    );
+                }
+                let _ = writeln!(s, "    velocity = {}", xdot.display_with(&qname));
+                let _ = writeln!(
+                    s,
+                    "    h = {}   (acceleration = J q'' + h)",
+                    h.display_with(&qname)
+                );
+            }
+            let _ = writeln!(s, "  compiled: {} tape instructions", map.n_instructions());
+        }
+    }
+
+    let run = &scene.run;
+    let mut defaults = Vec::new();
+    if let Some(m) = run.method {
+        defaults.push(format!("method {}", m.name()));
+    }
+    if let Some(i) = run.integrator {
+        defaults.push(format!("integrator {}", i.name()));
+    }
+    if let Some(dt) = run.dt {
+        defaults.push(format!("dt {}", exact(dt)));
+    }
+    if let Some(d) = run.duration {
+        defaults.push(format!("duration {}", exact(d)));
+    }
+    if let Some(n) = run.steps {
+        defaults.push(format!("steps {n}"));
+    }
+    if let Some(f) = run.stabilize {
+        defaults.push(format!("stabilize {},{}", exact(f.ks), exact(f.kd)));
+    }
+    let _ = writeln!(
+        s,
+        "\nrun defaults: {}",
+        if defaults.is_empty() {
+            "none".to_string()
+        } else {
+            defaults.join(", ")
+        }
+    );
+    s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn g_picks_fixed_or_exponent_notation() {
+        assert_eq!(g(0.0, 4), "0");
+        assert_eq!(g(-112500.0, 10), "-112500");
+        assert_eq!(g(1.0 / 60.0, 6), "0.0166667");
+        assert_eq!(g(1.234e-8, 4), "1.234e-8");
+        assert_eq!(g(2.5e12, 4), "2.5e12");
+        assert_eq!(g(9.99999, 3), "10");
+        assert_eq!(g(f64::NAN, 3), "NaN");
+    }
+
+    #[test]
+    fn exact_is_shortest_round_trip_and_short_at_the_extremes() {
+        assert_eq!(exact(1.0 / 60.0), "0.016666666666666666");
+        assert_eq!(exact(10.0), "10");
+        assert_eq!(exact(1e300), "1e300");
+        assert_eq!(exact(-2.5e-7), "-2.5e-7");
+        assert_eq!(exact(0.0), "0");
+    }
+
+    #[test]
+    fn table_aligns_columns() {
+        let rows = vec![
+            vec!["method".to_string(), "x".to_string()],
+            vec!["implicit".to_string(), "12".to_string()],
+            vec!["p".to_string(), "3".to_string()],
+        ];
+        assert_eq!(
+            table(&rows),
+            "method      x\n-------------\nimplicit   12\np           3\n"
+        );
+    }
+}

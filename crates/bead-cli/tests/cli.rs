@@ -1,0 +1,923 @@
+//! The `bead` binary, run for real in temporary directories: output formats, traces, and
+//! every error a user can cause, with its message and exit code.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+/// A fresh directory under the system's temp dir, removed on drop.
+struct TempDir(PathBuf);
+
+impl TempDir {
+    fn new(name: &str) -> TempDir {
+        static COUNTER: AtomicUsize = AtomicUsize::new(0);
+        let n = COUNTER.fetch_add(1, Ordering::Relaxed);
+        let dir =
+            std::env::temp_dir().join(format!("bead-cli-test-{}-{n}-{name}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).expect("create temp dir");
+        TempDir(dir)
+    }
+
+    fn path(&self, file: &str) -> PathBuf {
+        self.0.join(file)
+    }
+
+    /// Write `text` to `file` in this directory and return its path.
+    fn write(&self, file: &str, text: &str) -> PathBuf {
+        let path = self.path(file);
+        std::fs::write(&path, text).expect("write scene");
+        path
+    }
+}
+
+impl Drop for TempDir {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
+fn parabola() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes/parabola.toml")
+}
+
+/// Run `bead` with `args` in `dir`.
+fn bead_in(dir: &Path, args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_bead"))
+        .args(args)
+        .current_dir(dir)
+        .output()
+        .expect("run bead")
+}
+
+fn bead(args: &[&str]) -> Output {
+    bead_in(&std::env::temp_dir(), args)
+}
+
+fn stdout(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stdout).into_owned()
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+/// Assert success and return stdout.
+fn ok(o: Output) -> String {
+    assert!(
+        o.status.success(),
+        "bead failed ({:?}):\n{}",
+        o.status.code(),
+        stderr(&o)
+    );
+    stdout(&o)
+}
+
+/// Assert exit code `code` and return stderr.
+fn fails(o: Output, code: i32) -> String {
+    assert_eq!(
+        o.status.code(),
+        Some(code),
+        "stdout:\n{}\nstderr:\n{}",
+        stdout(&o),
+        stderr(&o)
+    );
+    stderr(&o)
+}
+
+fn p(path: &Path) -> &str {
+    path.to_str().expect("utf-8 path")
+}
+
+const SUMMARY_KEYS: [&str; 16] = [
+    "scene",
+    "method",
+    "integrator",
+    "dt",
+    "steps",
+    "t_final",
+    "wall_seconds",
+    "steps_per_second",
+    "energy_initial",
+    "energy_final",
+    "energy_rel_error_max",
+    "constraint_error_max",
+    "constraint_error_final",
+    "particles",
+    "coordinates",
+    "completed",
+];
+
+/// A one-particle 2D scene with `extra` appended.
+fn bead_scene(extra: &str) -> String {
+    format!(
+        r#"title = "test bead"
+[world]
+gravity = [0.0, 9.81]
+
+[[particle]]
+name = "bead"
+mass = 1.0
+position = [1.0, 0.0]
+velocity = [0.0, 0.0]
+{extra}"#
+    )
+}
+
+// ---------------------------------------------------------------------------------------
+// run
+
+#[test]
+fn run_prints_a_human_summary_with_method_and_speed() {
+    let out = ok(bead(&["run", p(&parabola()), "--steps", "100"]));
+    assert!(out.contains("Bead on a parabola"), "{out}");
+    assert!(out.contains("method       implicit"), "{out}");
+    assert!(
+        out.contains("integrator   rk4 (order 4, not symplectic)"),
+        "{out}"
+    );
+    assert!(out.contains("steps        100\n"), "{out}");
+    assert!(out.contains("steps/s"), "{out}");
+    assert!(out.contains("max relative error"), "{out}");
+}
+
+#[test]
+fn run_json_prints_only_the_summary_with_every_key() {
+    let out = ok(bead(&[
+        "run",
+        p(&parabola()),
+        "--steps",
+        "100",
+        "--method",
+        "parametric",
+        "--json",
+    ]));
+    let value: serde_json::Value = serde_json::from_str(&out).expect("stdout is JSON only");
+    for key in SUMMARY_KEYS {
+        assert!(value.get(key).is_some(), "missing {key} in {out}");
+    }
+    assert!(value.get("error").is_none());
+    assert_eq!(value["method"], "parametric");
+    assert_eq!(value["integrator"], "rk4");
+    assert_eq!(value["steps"], 100);
+    assert_eq!(value["completed"], true);
+    assert_eq!(
+        value["particles"]["bead"]["position"]
+            .as_array()
+            .map(Vec::len),
+        Some(2)
+    );
+    assert_eq!(value["coordinates"]["q"].as_array().map(Vec::len), Some(2));
+}
+
+#[test]
+fn implicit_json_has_no_coordinates() {
+    let out = ok(bead(&["run", p(&parabola()), "--steps", "10", "--json"]));
+    let value: serde_json::Value = serde_json::from_str(&out).expect("JSON");
+    assert_eq!(value["method"], "implicit");
+    assert!(value.get("coordinates").is_none());
+}
+
+#[test]
+fn trace_has_the_header_and_one_row_per_step() {
+    let dir = TempDir::new("trace");
+    ok(bead_in(
+        &dir.0,
+        &["run", p(&parabola()), "--steps", "100", "--trace", "t.csv"],
+    ));
+    let text = std::fs::read_to_string(dir.path("t.csv")).expect("trace");
+    let lines: Vec<&str> = text.lines().collect();
+    assert_eq!(
+        lines[0],
+        "t,bead.x,bead.y,bead.vx,bead.vy,energy,constraint_error"
+    );
+    assert_eq!(lines.len(), 1 + 101);
+    assert!(lines[1].starts_with("0,150,-225,0,0,"), "{}", lines[1]);
+    for line in &lines[1..] {
+        assert_eq!(line.split(',').count(), 7, "{line}");
+    }
+}
+
+#[test]
+fn parametric_trace_adds_q_and_qdot() {
+    let dir = TempDir::new("ptrace");
+    ok(bead_in(
+        &dir.0,
+        &[
+            "run",
+            p(&parabola()),
+            "--steps",
+            "5",
+            "--method",
+            "parametric",
+            "--trace",
+            "t.csv",
+        ],
+    ));
+    let text = std::fs::read_to_string(dir.path("t.csv")).expect("trace");
+    assert_eq!(
+        text.lines().next(),
+        Some("t,bead.x,bead.y,bead.vx,bead.vy,energy,constraint_error,q.q,qdot.q")
+    );
+    assert_eq!(text.lines().count(), 1 + 6);
+}
+
+#[test]
+fn every_10_records_11_rows_of_100_steps() {
+    let dir = TempDir::new("every");
+    ok(bead_in(
+        &dir.0,
+        &[
+            "run",
+            p(&parabola()),
+            "--steps",
+            "100",
+            "--every",
+            "10",
+            "--trace",
+            "t.csv",
+        ],
+    ));
+    let text = std::fs::read_to_string(dir.path("t.csv")).expect("trace");
+    assert_eq!(text.lines().count(), 1 + 11);
+    let times: Vec<f64> = text
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').next().unwrap().parse().unwrap())
+        .collect();
+    assert_eq!(times[0], 0.0);
+    assert_eq!(times[10], 100.0 * 0.016666666666666666);
+}
+
+#[test]
+fn two_runs_give_byte_identical_traces() {
+    let dir = TempDir::new("determinism");
+    for name in ["a.csv", "b.csv"] {
+        ok(bead_in(
+            &dir.0,
+            &[
+                "run",
+                p(&parabola()),
+                "--steps",
+                "200",
+                "--integrator",
+                "midpoint",
+                "--trace",
+                name,
+            ],
+        ));
+    }
+    let a = std::fs::read(dir.path("a.csv")).expect("a");
+    let b = std::fs::read(dir.path("b.csv")).expect("b");
+    assert!(!a.is_empty());
+    assert_eq!(a, b);
+}
+
+#[test]
+fn summary_file_is_the_json_summary() {
+    let dir = TempDir::new("summary");
+    let out = ok(bead_in(
+        &dir.0,
+        &[
+            "run",
+            p(&parabola()),
+            "--steps",
+            "20",
+            "--summary",
+            "s.json",
+        ],
+    ));
+    assert!(out.contains("method"), "human text still on stdout");
+    let text = std::fs::read_to_string(dir.path("s.json")).expect("summary");
+    let value: serde_json::Value = serde_json::from_str(&text).expect("JSON");
+    assert_eq!(value["steps"], 20);
+    assert_eq!(value["completed"], true);
+}
+
+#[test]
+fn duration_not_a_whole_number_of_steps_rounds_up_and_says_so() {
+    let out = ok(bead(&[
+        "run",
+        p(&parabola()),
+        "--dt",
+        "0.3",
+        "--duration",
+        "1",
+    ]));
+    assert!(out.contains("steps        4\n"), "{out}");
+    assert!(
+        out.contains("duration 1 s is not a whole number of steps"),
+        "{out}"
+    );
+}
+
+#[test]
+fn set_overrides_a_parameter() {
+    let a = ok(bead(&["run", p(&parabola()), "--steps", "10", "--json"]));
+    let b = ok(bead(&[
+        "run",
+        p(&parabola()),
+        "--steps",
+        "10",
+        "--json",
+        "--set",
+        "g=100",
+    ]));
+    let a: serde_json::Value = serde_json::from_str(&a).unwrap();
+    let b: serde_json::Value = serde_json::from_str(&b).unwrap();
+    assert_ne!(a["energy_initial"], b["energy_initial"]);
+}
+
+#[test]
+fn stabilize_is_reported() {
+    let out = ok(bead(&[
+        "run",
+        p(&parabola()),
+        "--steps",
+        "10",
+        "--stabilize",
+        "100,20",
+    ]));
+    assert!(out.contains("stabilize    ks = 100, kd = 20"), "{out}");
+}
+
+// ---------------------------------------------------------------------------------------
+// compare and check
+
+#[test]
+fn compare_prints_both_methods_in_a_table() {
+    let out = ok(bead(&["compare", p(&parabola()), "--steps", "100"]));
+    assert!(out.contains("final constraint error"), "{out}");
+    assert!(out.contains("steps/s"), "{out}");
+    let implicit = out
+        .lines()
+        .find(|l| l.starts_with("implicit"))
+        .expect("implicit row");
+    let parametric = out
+        .lines()
+        .find(|l| l.starts_with("parametric"))
+        .expect("parametric row");
+    assert_eq!(implicit.split_whitespace().count(), 6, "{implicit}");
+    assert_eq!(parametric.split_whitespace().count(), 6, "{parametric}");
+}
+
+#[test]
+fn compare_json_is_an_array_of_summaries() {
+    let out = ok(bead(&[
+        "compare",
+        p(&parabola()),
+        "--steps",
+        "50",
+        "--json",
+        "--integrator",
+        "symplectic-euler",
+    ]));
+    let value: serde_json::Value = serde_json::from_str(&out).expect("JSON only");
+    let runs = value.as_array().expect("array");
+    assert_eq!(runs.len(), 2);
+    assert_eq!(runs[0]["method"], "implicit");
+    assert_eq!(runs[1]["method"], "parametric");
+    for run in runs {
+        assert_eq!(run["integrator"], "symplectic-euler");
+        assert_eq!(run["steps"], 50);
+    }
+}
+
+#[test]
+fn compare_writes_one_trace_per_method() {
+    let dir = TempDir::new("compare-trace");
+    ok(bead_in(
+        &dir.0,
+        &[
+            "compare",
+            p(&parabola()),
+            "--steps",
+            "10",
+            "--trace",
+            "t.csv",
+        ],
+    ));
+    for (file, columns) in [("t.implicit.csv", 7), ("t.parametric.csv", 9)] {
+        let text = std::fs::read_to_string(dir.path(file)).unwrap_or_else(|_| panic!("{file}"));
+        assert_eq!(text.lines().count(), 1 + 11, "{file}");
+        assert_eq!(
+            text.lines().next().map(|h| h.split(',').count()),
+            Some(columns),
+            "{file}"
+        );
+    }
+    assert!(!dir.path("t.csv").exists());
+}
+
+#[test]
+fn check_prints_the_derivatives() {
+    let out = ok(bead(&["check", p(&parabola())]));
+    assert!(out.contains("dimension    2D"), "{out}");
+    assert!(
+        out.contains("bead  mass 1, position [150, -225], velocity [0, 0]"),
+        "{out}"
+    );
+    assert!(out.contains("gravity"), "{out}");
+    assert!(
+        out.contains("constraint 1: bead.x^2 + 100*bead.y = 0"),
+        "{out}"
+    );
+    assert!(out.contains("dC/d(bead.x) = 2*bead.x"), "{out}");
+    assert!(out.contains("dC/d(bead.y) = 100"), "{out}");
+    assert!(out.contains("Cdot = "), "{out}");
+    assert!(out.contains("bias = "), "{out}");
+    assert!(out.contains("degrees of freedom: 1"), "{out}");
+    assert!(out.contains("d(bead.y)/dq = "), "{out}");
+    assert!(out.contains("tape instructions"), "{out}");
+}
+
+#[test]
+fn help_describes_every_integrator_and_flag() {
+    let out = ok(bead(&["run", "--help"]));
+    for line in [
+        "euler:            order 1, not symplectic",
+        "symplectic-euler: order 1, symplectic",
+        "midpoint:         order 2, not symplectic",
+        "rk4:              order 4, not symplectic",
+    ] {
+        assert!(out.contains(line), "{line} in\n{out}");
+    }
+    for flag in [
+        "--method",
+        "--integrator",
+        "--dt",
+        "--duration",
+        "--steps",
+        "--stabilize",
+        "--set",
+        "--trace",
+        "--every",
+        "--summary",
+        "--json",
+    ] {
+        assert!(out.contains(flag), "{flag}");
+    }
+    let compare = ok(bead(&["compare", "--help"]));
+    assert!(compare.contains("out.implicit.csv"), "{compare}");
+    assert!(compare.contains("order 4, not symplectic"), "{compare}");
+}
+
+#[test]
+fn version_is_printed() {
+    let out = ok(bead(&["--version"]));
+    assert_eq!(out.trim(), format!("bead {}", env!("CARGO_PKG_VERSION")));
+}
+
+// ---------------------------------------------------------------------------------------
+// errors in scene files (exit code 1, located)
+
+#[test]
+fn missing_file() {
+    let err = fails(bead(&["run", "no-such-scene.toml"]), 1);
+    assert!(
+        err.starts_with("error: no-such-scene.toml: cannot read the scene file"),
+        "{err}"
+    );
+}
+
+#[test]
+fn bad_toml_names_line_and_column() {
+    let dir = TempDir::new("bad-toml");
+    let scene = dir.write("bad.toml", "title = \"x\"\n[world\ngravity = [0.0, 1.0]\n");
+    let err = fails(bead_in(&dir.0, &["run", p(&scene)]), 1);
+    assert!(
+        err.starts_with(&format!("error: {}:2:7: ", p(&scene))),
+        "{err}"
+    );
+    assert!(err.contains("[world\n"), "{err}");
+    assert!(err.contains('^'), "{err}");
+}
+
+#[test]
+fn bad_expression_shows_a_caret() {
+    let dir = TempDir::new("bad-expr");
+    let scene = dir.write(
+        "s.toml",
+        &bead_scene("[[constraint]]\nexpr = \"bead.x^2 + * bead.y\"\n"),
+    );
+    let err = fails(bead_in(&dir.0, &["check", "s.toml"]), 1);
+    assert_eq!(
+        err,
+        "error: s.toml:11:20: constraint 1: expected a number, name or `(`, found `*`\n  \
+         expr = \"bead.x^2 + * bead.y\"\n                     ^\n"
+    );
+    let _ = scene;
+}
+
+#[test]
+fn unknown_particle() {
+    let dir = TempDir::new("unknown-particle");
+    dir.write(
+        "s.toml",
+        &bead_scene("[[constraint]]\nexpr = \"ghost.x - 1\"\n"),
+    );
+    let err = fails(bead_in(&dir.0, &["run", "s.toml"]), 1);
+    assert!(err.starts_with("error: s.toml:11:9: "), "{err}");
+    assert!(err.contains("unknown particle `ghost`"), "{err}");
+    assert!(err.contains("^^^^^^^"), "{err}");
+}
+
+#[test]
+fn duplicate_particle_names() {
+    let dir = TempDir::new("duplicate");
+    let second =
+        "[[particle]]\nname = \"bead\"\nmass = 1.0\nposition = [0.0, 0.0]\nvelocity = [0.0, 0.0]\n";
+    dir.write("s.toml", &bead_scene(second));
+    let err = fails(bead_in(&dir.0, &["run", "s.toml"]), 1);
+    assert!(err.starts_with("error: s.toml:11:8: "), "{err}");
+    assert!(err.contains("duplicate particle name `bead`"), "{err}");
+}
+
+#[test]
+fn dimension_mismatch() {
+    let dir = TempDir::new("dimension");
+    dir.write(
+        "s.toml",
+        &bead_scene("").replace("position = [1.0, 0.0]", "position = [1.0, 0.0, 2.0]"),
+    );
+    let err = fails(bead_in(&dir.0, &["run", "s.toml"]), 1);
+    assert!(err.starts_with("error: s.toml:8:12: "), "{err}");
+    assert!(err.contains("3 components but the scene is 2D"), "{err}");
+}
+
+#[test]
+fn mass_must_be_positive() {
+    let dir = TempDir::new("mass");
+    dir.write(
+        "s.toml",
+        &bead_scene("").replace("mass = 1.0", "mass = -2.0"),
+    );
+    let err = fails(bead_in(&dir.0, &["run", "s.toml"]), 1);
+    assert!(err.starts_with("error: s.toml:7:8: "), "{err}");
+    assert!(err.contains("`mass` must be positive, got -2"), "{err}");
+}
+
+#[test]
+fn nan_in_the_file() {
+    let dir = TempDir::new("nan");
+    dir.write(
+        "s.toml",
+        &bead_scene("").replace("velocity = [0.0, 0.0]", "velocity = [nan, 0.0]"),
+    );
+    let err = fails(bead_in(&dir.0, &["run", "s.toml"]), 1);
+    assert!(err.starts_with("error: s.toml:9:13: "), "{err}");
+    assert!(err.contains("must be finite, got NaN"), "{err}");
+}
+
+#[test]
+fn scene_dt_must_be_positive() {
+    let dir = TempDir::new("scene-dt");
+    dir.write("s.toml", &bead_scene("[run]\ndt = 0.0\n"));
+    let err = fails(bead_in(&dir.0, &["run", "s.toml"]), 1);
+    assert!(err.starts_with("error: s.toml:11:6: "), "{err}");
+    assert!(err.contains("`dt` must be positive, got 0"), "{err}");
+}
+
+#[test]
+fn unknown_set_parameter() {
+    let err = fails(bead(&["run", p(&parabola()), "--set", "nope=1"]), 1);
+    assert!(err.contains("unknown parameter `nope`"), "{err}");
+}
+
+// ---------------------------------------------------------------------------------------
+// usage errors (exit code 2, clap's message)
+
+#[test]
+fn dt_flag_must_be_positive() {
+    for dt in ["0", "-0.1", "nan", "inf"] {
+        let err = fails(bead(&["run", p(&parabola()), &format!("--dt={dt}")]), 2);
+        assert!(
+            err.contains(&format!("invalid value '{dt}' for '--dt <SECONDS>'")),
+            "{err}"
+        );
+    }
+}
+
+#[test]
+fn duration_steps_and_every_must_be_positive() {
+    let err = fails(bead(&["run", p(&parabola()), "--duration", "0"]), 2);
+    assert!(err.contains("must be positive, got 0"), "{err}");
+    let err = fails(bead(&["run", p(&parabola()), "--steps", "0"]), 2);
+    assert!(err.contains("invalid value '0' for '--steps <N>'"), "{err}");
+    let err = fails(bead(&["run", p(&parabola()), "--every", "0"]), 2);
+    assert!(err.contains("invalid value '0' for '--every <K>'"), "{err}");
+}
+
+#[test]
+fn unknown_integrator() {
+    let err = fails(
+        bead(&["run", p(&parabola()), "--integrator", "leapfrog"]),
+        2,
+    );
+    assert!(
+        err.contains("invalid value 'leapfrog' for '--integrator <INTEGRATOR>'"),
+        "{err}"
+    );
+    assert!(
+        err.contains("euler, symplectic-euler, midpoint, rk4"),
+        "{err}"
+    );
+}
+
+#[test]
+fn unknown_method() {
+    let err = fails(bead(&["run", p(&parabola()), "--method", "lagrange"]), 2);
+    assert!(
+        err.contains("invalid value 'lagrange' for '--method <METHOD>'"),
+        "{err}"
+    );
+}
+
+#[test]
+fn steps_conflict_with_duration() {
+    let err = fails(
+        bead(&["run", p(&parabola()), "--steps", "10", "--duration", "1"]),
+        2,
+    );
+    assert!(
+        err.contains("'--steps <N>' cannot be used with '--duration <SECONDS>'"),
+        "{err}"
+    );
+}
+
+#[test]
+fn bad_set() {
+    for (set, message) in [
+        ("g", "expected NAME=VALUE, got `g`"),
+        ("g=abc", "the value of `g` must be a number, got `abc`"),
+        ("g=inf", "the value of `g` must be finite, got `inf`"),
+        ("=1", "the name is empty"),
+    ] {
+        let err = fails(bead(&["run", p(&parabola()), "--set", set]), 2);
+        assert!(err.contains(message), "{set}: {err}");
+    }
+}
+
+#[test]
+fn bad_stabilize() {
+    for value in ["1", "-1,0", "1,nan", "a,b"] {
+        let err = fails(
+            bead(&["run", p(&parabola()), &format!("--stabilize={value}")]),
+            2,
+        );
+        assert!(
+            err.contains("expected KS,KD (two finite numbers >= 0"),
+            "{value}: {err}"
+        );
+    }
+}
+
+// ---------------------------------------------------------------------------------------
+// errors that depend on the scene or happen during the run (exit code 1)
+
+#[test]
+fn parametric_without_a_parametric_form() {
+    let dir = TempDir::new("no-parametric");
+    dir.write(
+        "s.toml",
+        &bead_scene("[[constraint]]\nexpr = \"bead.x - 1\"\n"),
+    );
+    let err = fails(
+        bead_in(&dir.0, &["run", "s.toml", "--method", "parametric"]),
+        1,
+    );
+    assert_eq!(
+        err,
+        "error: --method parametric needs a parametric form, and the scene defines none (add a [parametric] section)\n"
+    );
+}
+
+#[test]
+fn stabilize_with_parametric() {
+    let err = fails(
+        bead(&[
+            "run",
+            p(&parabola()),
+            "--method",
+            "parametric",
+            "--stabilize",
+            "10,1",
+        ]),
+        1,
+    );
+    assert_eq!(
+        err,
+        "error: --stabilize applies only to the implicit form; the parametric form stays on its constraints by construction\n"
+    );
+}
+
+#[test]
+fn two_identical_constraints_are_singular() {
+    let dir = TempDir::new("singular-duplicate");
+    let twice = "[[constraint]]\nexpr = \"bead.x^2 + bead.y^2 - 1\"\n".repeat(2);
+    dir.write("s.toml", &bead_scene(&twice));
+    let err = fails(bead_in(&dir.0, &["run", "s.toml", "--steps", "10"]), 1);
+    assert_eq!(
+        err,
+        "error: at t = 0: the constraints are singular at constraint 2 (`bead.x^2 + bead.y^2 - 1 = 0`): \
+         its gradient vanishes there or it duplicates other constraints\n"
+    );
+}
+
+#[test]
+fn a_vanishing_gradient_is_singular() {
+    let dir = TempDir::new("singular-origin");
+    let scene = bead_scene("[[constraint]]\nname = \"ring\"\nexpr = \"bead.x^2 + bead.y^2\"\n")
+        .replace("position = [1.0, 0.0]", "position = [0.0, 0.0]");
+    dir.write("s.toml", &scene);
+    let err = fails(bead_in(&dir.0, &["run", "s.toml", "--steps", "10"]), 1);
+    assert_eq!(
+        err,
+        "error: at t = 0: the constraints are singular at ring (`bead.x^2 + bead.y^2 = 0`): \
+         its gradient vanishes there or it duplicates other constraints\n"
+    );
+}
+
+#[test]
+fn divergence_names_the_time_and_keeps_the_trace_and_summary() {
+    let dir = TempDir::new("diverge");
+    let spring = "[[force]]\nkind = \"spring\"\nparticle = \"bead\"\nanchor = [0.0, 0.0]\nstiffness = 1e6\nrest_length = 0.0\n";
+    dir.write("s.toml", &bead_scene(spring));
+    let out = bead_in(
+        &dir.0,
+        &[
+            "run",
+            "s.toml",
+            "--integrator",
+            "euler",
+            "--dt",
+            "0.1",
+            "--steps",
+            "1000",
+            "--trace",
+            "t.csv",
+            "--summary",
+            "s.json",
+        ],
+    );
+    let err = fails(out, 1);
+    assert!(err.starts_with("error: diverged at t = "), "{err}");
+    let step: u64 = err
+        .split("(step ")
+        .nth(1)
+        .and_then(|rest| rest.split(')').next())
+        .and_then(|n| n.parse().ok())
+        .expect("step in message");
+    let trace = std::fs::read_to_string(dir.path("t.csv")).expect("trace kept");
+    // The header, then steps 0 ..= step - 1 (the last good state).
+    assert_eq!(trace.lines().count() as u64, 1 + step);
+    assert!(trace.lines().skip(1).all(|l| l.split(',').count() == 7));
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.path("s.json")).expect("summary kept"))
+            .expect("JSON");
+    assert_eq!(summary["completed"], false);
+    assert_eq!(summary["steps"], step - 1);
+    assert!(
+        summary["error"]
+            .as_str()
+            .is_some_and(|e| e.starts_with("diverged at t = ")),
+        "{summary}"
+    );
+}
+
+#[test]
+fn a_failed_run_still_prints_json() {
+    let dir = TempDir::new("fail-json");
+    dir.write(
+        "s.toml",
+        &bead_scene(&"[[constraint]]\nexpr = \"bead.x - 1\"\n".repeat(2)),
+    );
+    let out = bead_in(&dir.0, &["run", "s.toml", "--json"]);
+    let value: serde_json::Value = serde_json::from_str(&stdout(&out)).expect("JSON on stdout");
+    assert_eq!(value["completed"], false);
+    assert!(value["error"]
+        .as_str()
+        .is_some_and(|e| e.contains("singular")));
+    fails(out, 1);
+}
+
+#[test]
+fn compare_applies_stabilize_to_the_implicit_run_only() {
+    let plain = ok(bead(&[
+        "compare",
+        p(&parabola()),
+        "--steps",
+        "300",
+        "--json",
+    ]));
+    let stable = ok(bead(&[
+        "compare",
+        p(&parabola()),
+        "--steps",
+        "300",
+        "--json",
+        "--stabilize",
+        "100,20",
+    ]));
+    let plain: serde_json::Value = serde_json::from_str(&plain).expect("JSON");
+    let stable: serde_json::Value = serde_json::from_str(&stable).expect("JSON");
+    let drift = |v: &serde_json::Value| v[0]["constraint_error_final"].as_f64().expect("number");
+    assert!(
+        drift(&stable) < drift(&plain),
+        "feedback reduces the implicit drift"
+    );
+    assert_eq!(
+        plain[1]["particles"], stable[1]["particles"],
+        "the parametric run is unchanged"
+    );
+}
+
+/// A stiff spring on a bead, with a parametric form and (optionally) a constraint.
+fn stiff_spring_scene(constraint: bool) -> String {
+    let mut extra = String::from(
+        "[[force]]\nkind = \"spring\"\nparticle = \"bead\"\nanchor = [0.0, 0.0]\nstiffness = 1e6\nrest_length = 0.0\n",
+    );
+    if constraint {
+        extra.push_str("[[constraint]]\nexpr = \"bead.y\"\n");
+    }
+    extra.push_str("[parametric]\ncoordinates = [\"s\"]\ninitial = [1.0]\nrates = [0.0]\n");
+    extra.push_str("[parametric.positions]\nbead = [\"s\", \"0\"]\n");
+    bead_scene(&extra).replace("gravity = [0.0, 9.81]", "gravity = [0.0, 0.0]")
+}
+
+#[test]
+fn compare_reports_every_failed_method_and_keeps_the_table() {
+    let dir = TempDir::new("compare-fail");
+    dir.write("s.toml", &stiff_spring_scene(true));
+    let out = bead_in(
+        &dir.0,
+        &[
+            "compare",
+            "s.toml",
+            "--integrator",
+            "euler",
+            "--dt",
+            "0.1",
+            "--steps",
+            "1000",
+        ],
+    );
+    let text = stdout(&out);
+    assert!(text.contains("status"), "{text}");
+    assert!(
+        text.lines()
+            .any(|l| l.starts_with("implicit") && l.contains("stopped at t = ")),
+        "{text}"
+    );
+    let err = fails(out, 1);
+    assert!(err.contains("error: implicit: diverged at t = "), "{err}");
+    assert!(err.contains("error: parametric: diverged at t = "), "{err}");
+}
+
+#[test]
+fn without_constraints_the_default_is_parametric_and_compare_runs_only_it() {
+    let dir = TempDir::new("parametric-only");
+    dir.write(
+        "s.toml",
+        &stiff_spring_scene(false).replace("stiffness = 1e6", "stiffness = 1.0"),
+    );
+    let out = ok(bead_in(
+        &dir.0,
+        &["run", "s.toml", "--steps", "10", "--json"],
+    ));
+    let value: serde_json::Value = serde_json::from_str(&out).expect("JSON");
+    assert_eq!(value["method"], "parametric");
+    let out = ok(bead_in(
+        &dir.0,
+        &["compare", "s.toml", "--steps", "10", "--json"],
+    ));
+    let value: serde_json::Value = serde_json::from_str(&out).expect("JSON");
+    assert_eq!(value.as_array().map(Vec::len), Some(1));
+}
+
+#[test]
+fn without_a_parametric_form_compare_runs_only_implicit() {
+    let dir = TempDir::new("implicit-only");
+    dir.write(
+        "s.toml",
+        &bead_scene("[[constraint]]\nexpr = \"bead.x^2 + bead.y^2 - 1\"\n"),
+    );
+    let out = ok(bead_in(&dir.0, &["compare", "s.toml", "--steps", "10"]));
+    assert!(out.lines().any(|l| l.starts_with("implicit")), "{out}");
+    assert!(!out.lines().any(|l| l.starts_with("parametric")), "{out}");
+}
+
+#[test]
+fn scene_warnings_go_to_stderr_and_json_stays_clean() {
+    let dir = TempDir::new("warning");
+    let text = std::fs::read_to_string(parabola()).expect("parabola");
+    dir.write(
+        "s.toml",
+        &text.replace("initial = [150.0]", "initial = [100.0]"),
+    );
+    let out = bead_in(&dir.0, &["run", "s.toml", "--steps", "5", "--json"]);
+    let err = stderr(&out);
+    assert!(err.starts_with("warning: particle `bead`: "), "{err}");
+    let value: serde_json::Value = serde_json::from_str(&ok(out)).expect("stdout is JSON only");
+    assert_eq!(value["completed"], true);
+}

@@ -1,0 +1,330 @@
+//! One RK4 step of the article's bead on the parabola x^2 + 100 y = 0 (+y down, g = 500),
+//! through the engine and by hand:
+//!
+//! - engine, scene loaded from TOML text (`Scene::parse`): implicit form (the constraint as an
+//!   expression, compiled to a tape) and parametric form (x = (q, -q^2/100));
+//! - engine, system built in Rust with the constraint as a `Holonomic` type (dual numbers);
+//! - hand-written closed forms, the floor: RK4 on (x, y, vx, vy) with the article's constraint
+//!   force Fc.y = (-50 m vx^2 - 2500 Fy) / (x^2 + 2500), Fc.x = Fc.y x / 50 (gravity only, so
+//!   Fx = 0), and RK4 on (q, qdot) with qddot = (-q qdot^2 - 50 g q) / (2500 + q^2).
+//!
+//! Every step starts from the same state (a 4-float copy, done on both sides), so that the
+//! implicit form's drift cannot change what is measured. After the criterion groups, the
+//! engine/hand-written ratios are measured with plain `Instant` loops and printed as a table.
+
+use std::hint::black_box;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use bead::formulation::{Feedback, Formulation, Implicit, Parametric, State};
+use bead::integrate::{Integrator, IntegratorKind};
+use bead::model::{Holonomic, ParticleId, System, SystemBuilder};
+use bead::scene::Scene;
+use bead::Scalar;
+use criterion::Criterion;
+
+const M: f64 = 1.0;
+const G: f64 = 500.0;
+const DT: f64 = 1.0 / 60.0;
+/// A state on the parabola, moving: x = 120, y = -144, v = vx (1, -2x/100).
+const X0: f64 = 120.0;
+const VX0: f64 = -250.0;
+
+const SCENE: &str = r#"
+title = "The article's bead on a parabola"
+
+[params]
+g = 500.0
+
+[world]
+gravity = [0.0, "g"]
+
+[[particle]]
+name = "bead"
+mass = 1.0
+position = [120.0, -144.0]
+velocity = [-250.0, 600.0]
+
+[[constraint]]
+expr = "bead.x^2 + 100*bead.y"
+
+[parametric]
+coordinates = ["q"]
+initial = [120.0]
+rates = [-250.0]
+
+[parametric.positions]
+bead = ["q", "-q^2/100"]
+"#;
+
+/// The article's parabola as a Rust type.
+struct Parabola(ParticleId);
+
+impl Holonomic for Parabola {
+    fn particles(&self) -> Vec<ParticleId> {
+        vec![self.0]
+    }
+    fn value<T: Scalar>(&self, x: &[T], _t: T) -> T {
+        x[0] * x[0] + x[1] * 100.0
+    }
+}
+
+fn scene_system() -> Arc<System> {
+    Scene::parse(SCENE, "parabola.toml", &[])
+        .unwrap_or_else(|e| panic!("{e}"))
+        .system
+}
+
+fn holonomic_system() -> Arc<System> {
+    let mut b = SystemBuilder::new(&[0.0, G]);
+    let bead = b
+        .particle(
+            "bead",
+            M,
+            &[X0, -X0 * X0 / 100.0],
+            &[VX0, -2.0 * X0 * VX0 / 100.0],
+        )
+        .unwrap();
+    b.holonomic("parabola", Parabola(bead));
+    Arc::new(b.build().unwrap())
+}
+
+/// An engine formulation with its RK4 and a fixed start state.
+struct EngineStep<F: Formulation> {
+    formulation: F,
+    integrator: Box<dyn Integrator>,
+    start: State,
+    state: State,
+}
+
+impl<F: Formulation> EngineStep<F> {
+    fn new(formulation: F) -> Self {
+        let start = formulation.initial_state();
+        let integrator = IntegratorKind::Rk4.build(start.q.len());
+        EngineStep {
+            formulation,
+            integrator,
+            state: start.clone(),
+            start,
+        }
+    }
+    fn step(&mut self) -> f64 {
+        self.state.t = self.start.t;
+        self.state.q.copy_from_slice(&self.start.q);
+        self.state.qdot.copy_from_slice(&self.start.qdot);
+        self.integrator
+            .step(&mut self.formulation, &mut self.state, black_box(DT))
+            .unwrap();
+        self.state.q[0]
+    }
+}
+
+/// The article's implicit equations by hand: a = (F + Fc)/m with F = (0, m g).
+#[inline(always)]
+fn article_implicit_acceleration(s: [f64; 4]) -> [f64; 2] {
+    let [x, _y, vx, _vy] = s;
+    let fy = M * G;
+    let fcy = (-50.0 * M * vx * vx - 2500.0 * fy) / (x * x + 2500.0);
+    let fcx = fcy * x / 50.0;
+    [fcx / M, (fy + fcy) / M]
+}
+
+/// Classic RK4 on (x, y, vx, vy).
+#[inline(never)]
+fn hand_implicit_rk4(s: [f64; 4], dt: f64) -> [f64; 4] {
+    let f = |s: [f64; 4]| {
+        let a = article_implicit_acceleration(s);
+        [s[2], s[3], a[0], a[1]]
+    };
+    let add = |s: [f64; 4], h: f64, k: [f64; 4]| {
+        [
+            s[0] + h * k[0],
+            s[1] + h * k[1],
+            s[2] + h * k[2],
+            s[3] + h * k[3],
+        ]
+    };
+    let k1 = f(s);
+    let k2 = f(add(s, 0.5 * dt, k1));
+    let k3 = f(add(s, 0.5 * dt, k2));
+    let k4 = f(add(s, dt, k3));
+    let h = dt / 6.0;
+    std::array::from_fn(|i| s[i] + h * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i]))
+}
+
+/// Classic RK4 on (q, qdot) with the article's qddot.
+#[inline(never)]
+fn hand_parametric_rk4(s: [f64; 2], dt: f64) -> [f64; 2] {
+    let f = |[q, qd]: [f64; 2]| [qd, (-q * qd * qd - 50.0 * G * q) / (2500.0 + q * q)];
+    let add = |s: [f64; 2], h: f64, k: [f64; 2]| [s[0] + h * k[0], s[1] + h * k[1]];
+    let k1 = f(s);
+    let k2 = f(add(s, 0.5 * dt, k1));
+    let k3 = f(add(s, 0.5 * dt, k2));
+    let k4 = f(add(s, dt, k3));
+    let h = dt / 6.0;
+    [
+        s[0] + h * (k1[0] + 2.0 * k2[0] + 2.0 * k3[0] + k4[0]),
+        s[1] + h * (k1[1] + 2.0 * k2[1] + 2.0 * k3[1] + k4[1]),
+    ]
+}
+
+const IMPLICIT_START: [f64; 4] = [X0, -X0 * X0 / 100.0, VX0, -2.0 * X0 * VX0 / 100.0];
+const PARAMETRIC_START: [f64; 2] = [X0, VX0];
+
+/// The benchmarked variants, each a closure doing one step from the fixed start state.
+struct Variants {
+    implicit_toml: EngineStep<Implicit>,
+    parametric_toml: EngineStep<Parametric>,
+    implicit_holonomic: EngineStep<Implicit>,
+}
+
+impl Variants {
+    fn new() -> Self {
+        let system = scene_system();
+        let mut v = Variants {
+            implicit_toml: EngineStep::new(Implicit::new(system.clone(), Feedback::default())),
+            parametric_toml: EngineStep::new(Parametric::new(system).unwrap()),
+            implicit_holonomic: EngineStep::new(Implicit::new(
+                holonomic_system(),
+                Feedback::default(),
+            )),
+        };
+        v.check_same_work();
+        v
+    }
+
+    /// The engine and the hand-written steps compute the same thing (else the ratio would be
+    /// meaningless): same start state, same result to rounding.
+    fn check_same_work(&mut self) {
+        let close = |got: &[f64], want: &[f64]| {
+            for (g, w) in got.iter().zip(want) {
+                assert!(
+                    (g - w).abs() <= 1e-9 * w.abs().max(1.0),
+                    "engine {got:?} vs hand-written {want:?}"
+                );
+            }
+        };
+        let hand = hand_implicit_rk4(IMPLICIT_START, DT);
+        for engine in [&mut self.implicit_toml, &mut self.implicit_holonomic] {
+            assert_eq!(
+                [engine.start.q.as_slice(), &engine.start.qdot].concat(),
+                IMPLICIT_START
+            );
+            engine.step();
+            close(
+                &[engine.state.q.as_slice(), &engine.state.qdot].concat(),
+                &hand,
+            );
+        }
+        let engine = &mut self.parametric_toml;
+        assert_eq!([engine.start.q[0], engine.start.qdot[0]], PARAMETRIC_START);
+        engine.step();
+        close(
+            &[engine.state.q[0], engine.state.qdot[0]],
+            &hand_parametric_rk4(PARAMETRIC_START, DT),
+        );
+    }
+}
+
+fn bench_steps(c: &mut Criterion) {
+    let mut v = Variants::new();
+    let mut group = c.benchmark_group("rk4 step, article parabola");
+    group.bench_function("implicit, engine from TOML", |b| {
+        b.iter(|| black_box(v.implicit_toml.step()))
+    });
+    group.bench_function("implicit, engine with Holonomic type", |b| {
+        b.iter(|| black_box(v.implicit_holonomic.step()))
+    });
+    group.bench_function("implicit, hand-written", |b| {
+        b.iter(|| black_box(hand_implicit_rk4(black_box(IMPLICIT_START), black_box(DT))))
+    });
+    group.bench_function("parametric, engine from TOML", |b| {
+        b.iter(|| black_box(v.parametric_toml.step()))
+    });
+    group.bench_function("parametric, hand-written", |b| {
+        b.iter(|| {
+            black_box(hand_parametric_rk4(
+                black_box(PARAMETRIC_START),
+                black_box(DT),
+            ))
+        })
+    });
+    group.finish();
+}
+
+/// Mean time per call of `f` in ns, from plain `Instant` loops: the best of several rounds of
+/// `n` calls (the minimum filters out interruptions).
+fn mean_ns(n: u32, mut f: impl FnMut()) -> f64 {
+    let mut best = f64::INFINITY;
+    for _ in 0..7 {
+        let start = Instant::now();
+        for _ in 0..n {
+            f();
+        }
+        best = best.min(start.elapsed().as_secs_f64() * 1e9 / n as f64);
+    }
+    best
+}
+
+/// Ratios engine / hand-written, printed as a table.
+fn print_ratios(quick: bool) {
+    let mut v = Variants::new();
+    let n = if quick { 10 } else { 200_000 };
+    let implicit_toml = mean_ns(n, || {
+        black_box(v.implicit_toml.step());
+    });
+    let implicit_holonomic = mean_ns(n, || {
+        black_box(v.implicit_holonomic.step());
+    });
+    let parametric_toml = mean_ns(n, || {
+        black_box(v.parametric_toml.step());
+    });
+    let hand_implicit = mean_ns(n, || {
+        black_box(hand_implicit_rk4(black_box(IMPLICIT_START), black_box(DT)));
+    });
+    let hand_parametric = mean_ns(n, || {
+        black_box(hand_parametric_rk4(
+            black_box(PARAMETRIC_START),
+            black_box(DT),
+        ));
+    });
+    println!();
+    println!("One RK4 step of the article's parabola (best of 7 rounds of {n} steps):");
+    println!("  {:<40} {:>10}", "variant", "ns/step");
+    for (name, ns) in [
+        ("implicit, engine from TOML", implicit_toml),
+        ("implicit, engine with Holonomic type", implicit_holonomic),
+        ("implicit, hand-written", hand_implicit),
+        ("parametric, engine from TOML", parametric_toml),
+        ("parametric, hand-written", hand_parametric),
+    ] {
+        println!("  {name:<40} {ns:>10.1}");
+    }
+    println!();
+    println!(
+        "  implicit TOML / hand-written      = {:.1}x",
+        implicit_toml / hand_implicit
+    );
+    println!(
+        "  implicit Holonomic / hand-written = {:.1}x",
+        implicit_holonomic / hand_implicit
+    );
+    println!(
+        "  parametric TOML / hand-written    = {:.1}x",
+        parametric_toml / hand_parametric
+    );
+}
+
+fn main() {
+    // `cargo bench` passes --bench; without it (cargo test --benches) criterion runs each
+    // benchmark once as a smoke test, and so does the ratio table.
+    let benchmarking = std::env::args().any(|a| a == "--bench");
+    let mut criterion = Criterion::default()
+        .warm_up_time(Duration::from_millis(500))
+        .measurement_time(Duration::from_secs(2))
+        .sample_size(20)
+        .configure_from_args();
+    bench_steps(&mut criterion);
+    criterion.final_summary();
+    print_ratios(!benchmarking);
+}

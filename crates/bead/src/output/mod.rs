@@ -1,0 +1,16 @@
+//! Output sinks and run reports: what a run leaves behind.
+//!
+//! - [`CsvTrace`]: a [`Sink`](crate::simulate::Sink) that writes one CSV row per recorded
+//!   sample (time, particle positions and velocities, energy, constraint error and, for the
+//!   parametric form, q and qdot).
+//! - [`Summary`]: the figures of a run ([`RunStats`](crate::simulate::RunStats)) as a
+//!   serializable record with a fixed set of keys, written as JSON by `bead run --json`.
+//!
+//! Both format numbers exactly: a CSV field or JSON number reads back to the same `f64`, so
+//! two runs of the same scene give byte-identical files.
+
+mod csv;
+mod summary;
+
+pub use csv::{trace_header, CsvTrace};
+pub use summary::{CoordinateStates, ParticleState, ParticleStates, Summary};

@@ -1,0 +1,378 @@
+//! The summary of a run as a serializable record.
+
+use serde::ser::{SerializeMap, SerializeSeq};
+use serde::{Serialize, Serializer};
+
+use crate::formulation::Method;
+use crate::integrate::IntegratorKind;
+use crate::model::System;
+use crate::simulate::{RunFailure, RunStats};
+
+/// The figures of one run, complete or stopped early, as written by `bead run --json`.
+///
+/// Serialized (e.g. with `serde_json`) it has exactly these keys, in this order:
+///
+/// | key | value |
+/// |---|---|
+/// | `scene` | the scene file as given |
+/// | `method` | `"implicit"` or `"parametric"` |
+/// | `integrator` | e.g. `"rk4"` |
+/// | `dt` | step size (s) |
+/// | `steps` | steps completed |
+/// | `t_final` | time of the last good state (s) |
+/// | `wall_seconds`, `steps_per_second` | wall time and speed |
+/// | `energy_initial`, `energy_final` | total mechanical energy T + V |
+/// | `energy_rel_error_max` | max relative energy error (see [`RunStats`]) |
+/// | `constraint_error_max`, `constraint_error_final` | max_i \|C_i\| over the run and at the end |
+/// | `particles` | `{NAME: {"position": [..], "velocity": [..]}}` at the end, in particle order |
+/// | `coordinates` | parametric runs only: `{NAME: [q, qdot]}` at the end, in coordinate order |
+/// | `error` | only when the run stopped early: why |
+/// | `completed` | whether every requested step ran |
+///
+/// Numbers are written exactly (shortest round-trip). JSON has no NaN or infinity, so a
+/// non-finite number (e.g. the energy of a run that blew up) is written as `null`, whatever
+/// the serializer.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Summary {
+    /// The scene file as given.
+    pub scene: String,
+    /// The formulation that ran.
+    pub method: Method,
+    #[serde(serialize_with = "integrator_name")]
+    /// The integrator that ran (serialized by name).
+    pub integrator: IntegratorKind,
+    /// Step size (s).
+    #[serde(serialize_with = "number")]
+    pub dt: f64,
+    /// Steps completed.
+    pub steps: u64,
+    #[serde(serialize_with = "number")]
+    /// Time of the last good state (s).
+    pub t_final: f64,
+    #[serde(serialize_with = "number")]
+    /// Wall time of the run (s).
+    pub wall_seconds: f64,
+    #[serde(serialize_with = "number")]
+    /// Steps per second of wall time.
+    pub steps_per_second: f64,
+    #[serde(serialize_with = "number")]
+    /// Total mechanical energy T + V at t = 0.
+    pub energy_initial: f64,
+    #[serde(serialize_with = "number")]
+    /// Total mechanical energy at the end.
+    pub energy_final: f64,
+    #[serde(serialize_with = "number")]
+    /// Max relative energy error over the run (see [`RunStats::energy_rel_error_max`]).
+    pub energy_rel_error_max: f64,
+    #[serde(serialize_with = "number")]
+    /// max_i |C_i| over the run.
+    pub constraint_error_max: f64,
+    #[serde(serialize_with = "number")]
+    /// max_i |C_i| at the end.
+    pub constraint_error_final: f64,
+    /// Final particle states, in particle order.
+    pub particles: ParticleStates,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    /// Final generalized coordinates of a parametric run.
+    pub coordinates: Option<CoordinateStates>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    /// Why the run stopped early, if it did.
+    pub error: Option<String>,
+    /// Whether every requested step ran.
+    pub completed: bool,
+}
+
+/// Final position and velocity of one particle (dim each).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct ParticleState {
+    /// Position (dim).
+    #[serde(serialize_with = "numbers")]
+    pub position: Vec<f64>,
+    /// Velocity (dim).
+    #[serde(serialize_with = "numbers")]
+    pub velocity: Vec<f64>,
+}
+
+/// Particle states by name, serialized as a map in particle order.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ParticleStates(pub Vec<(String, ParticleState)>);
+
+/// Generalized coordinates by name with their value and rate `[q, qdot]`, serialized as a map
+/// in coordinate order.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct CoordinateStates(pub Vec<(String, [f64; 2])>);
+
+impl Summary {
+    /// The summary of a completed run of `system` from scene file `scene`. `coordinates` are
+    /// the generalized coordinates' names of a parametric run (matching `stats.q`), empty for
+    /// the implicit form.
+    pub fn new(scene: &str, system: &System, coordinates: &[String], stats: &RunStats) -> Summary {
+        let dim = system.dim().max(1);
+        let particles = system
+            .particles()
+            .iter()
+            .zip(stats.x.chunks(dim).zip(stats.xdot.chunks(dim)))
+            .map(|(p, (x, v))| {
+                (
+                    p.name.clone(),
+                    ParticleState {
+                        position: x.to_vec(),
+                        velocity: v.to_vec(),
+                    },
+                )
+            })
+            .collect();
+        let coordinates = (!coordinates.is_empty()).then(|| {
+            CoordinateStates(
+                coordinates
+                    .iter()
+                    .zip(stats.q.iter().zip(&stats.qdot))
+                    .map(|(name, (&q, &qdot))| (name.clone(), [q, qdot]))
+                    .collect(),
+            )
+        });
+        Summary {
+            scene: scene.to_string(),
+            method: stats.method,
+            integrator: stats.integrator,
+            dt: stats.dt,
+            steps: stats.steps,
+            t_final: stats.t_final,
+            wall_seconds: stats.wall_seconds,
+            steps_per_second: stats.steps_per_second(),
+            energy_initial: stats.energy_initial,
+            energy_final: stats.energy_final,
+            energy_rel_error_max: stats.energy_rel_error_max,
+            constraint_error_max: stats.constraint_error_max,
+            constraint_error_final: stats.constraint_error_final,
+            particles: ParticleStates(particles),
+            coordinates,
+            error: None,
+            completed: true,
+        }
+    }
+
+    /// The summary of a run's outcome: complete, or stopped early with the figures up to the
+    /// last good state, `completed: false` and the reason in `error`.
+    pub fn from_result(
+        scene: &str,
+        system: &System,
+        coordinates: &[String],
+        result: &Result<RunStats, RunFailure>,
+    ) -> Summary {
+        match result {
+            Ok(stats) => Summary::new(scene, system, coordinates, stats),
+            Err(failure) => {
+                let mut summary = Summary::new(scene, system, coordinates, &failure.stats);
+                summary.error = Some(failure.error.to_string());
+                summary.completed = false;
+                summary
+            }
+        }
+    }
+
+    /// Pretty-printed JSON.
+    pub fn to_json_pretty(&self) -> serde_json::Result<String> {
+        serde_json::to_string_pretty(self)
+    }
+}
+
+impl Serialize for ParticleStates {
+    fn serialize<S: Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        let mut map = serializer.serialize_map(Some(self.0.len()))?;
+        for (name, state) in &self.0 {
+            map.serialize_entry(name, state)?;
+        }
+        map.end()
+    }
+}
+
+impl Serialize for CoordinateStates {
+    fn serialize<S: Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        let mut map = serializer.serialize_map(Some(self.0.len()))?;
+        for (name, pair) in &self.0 {
+            map.serialize_entry(name, &Numbers(pair))?;
+        }
+        map.end()
+    }
+}
+
+/// A number, or `null` when it is not finite.
+struct Number(f64);
+
+impl Serialize for Number {
+    fn serialize<S: Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        if self.0.is_finite() {
+            serializer.serialize_f64(self.0)
+        } else {
+            serializer.serialize_none()
+        }
+    }
+}
+
+/// A list of [`Number`]s.
+struct Numbers<'a>(&'a [f64]);
+
+impl Serialize for Numbers<'_> {
+    fn serialize<S: Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        let mut seq = serializer.serialize_seq(Some(self.0.len()))?;
+        for &x in self.0 {
+            seq.serialize_element(&Number(x))?;
+        }
+        seq.end()
+    }
+}
+
+fn number<S: Serializer>(x: &f64, serializer: S) -> Result<S::Ok, S::Error> {
+    Number(*x).serialize(serializer)
+}
+
+fn numbers<S: Serializer>(x: &[f64], serializer: S) -> Result<S::Ok, S::Error> {
+    Numbers(x).serialize(serializer)
+}
+
+fn integrator_name<S: Serializer>(kind: &IntegratorKind, serializer: S) -> Result<S::Ok, S::Error> {
+    serializer.serialize_str(kind.name())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::model::SystemBuilder;
+    use crate::simulate::RunError;
+
+    const KEYS: [&str; 14] = [
+        "scene",
+        "method",
+        "integrator",
+        "dt",
+        "steps",
+        "t_final",
+        "wall_seconds",
+        "steps_per_second",
+        "energy_initial",
+        "energy_final",
+        "energy_rel_error_max",
+        "constraint_error_max",
+        "constraint_error_final",
+        "particles",
+    ];
+
+    fn system() -> System {
+        let mut b = SystemBuilder::new(&[0.0, -9.81]);
+        b.particle("b", 1.0, &[0.0, 0.0], &[0.0, 0.0]).unwrap();
+        b.particle("a", 2.0, &[1.0, 0.0], &[0.0, 0.0]).unwrap();
+        b.build().unwrap()
+    }
+
+    fn stats(method: Method) -> RunStats {
+        RunStats {
+            method,
+            integrator: IntegratorKind::Rk4,
+            dt: 0.5,
+            steps: 4,
+            t_final: 2.0,
+            wall_seconds: 0.5,
+            energy_initial: -1.0,
+            energy_final: -1.5,
+            energy_rel_error_max: 0.5,
+            constraint_error_max: 1e-3,
+            constraint_error_final: 1e-4,
+            x: vec![1.0, 2.0, 3.0, 4.0],
+            xdot: vec![5.0, 6.0, 7.0, 8.0],
+            q: vec![0.25, 0.75],
+            qdot: vec![-1.0, -2.0],
+        }
+    }
+
+    fn keys(json: &str) -> Vec<String> {
+        // Top-level keys in written order (serde_json::Value would sort them).
+        json.lines()
+            .filter(|l| l.starts_with("  \"") && !l.starts_with("   "))
+            .map(|l| {
+                l.trim_start()
+                    .trim_start_matches('"')
+                    .split('"')
+                    .next()
+                    .unwrap_or("")
+                    .to_string()
+            })
+            .collect()
+    }
+
+    #[test]
+    fn implicit_summary_has_exactly_the_documented_keys_in_order() {
+        let summary = Summary::new("s.toml", &system(), &[], &stats(Method::Implicit));
+        let json = summary.to_json_pretty().unwrap();
+        let mut expected: Vec<String> = KEYS.iter().map(|k| k.to_string()).collect();
+        expected.push("completed".into());
+        assert_eq!(keys(&json), expected);
+        let value: serde_json::Value = serde_json::from_str(&json).unwrap();
+        assert_eq!(value["method"], "implicit");
+        assert_eq!(value["integrator"], "rk4");
+        assert_eq!(value["steps_per_second"], 8.0);
+        assert_eq!(value["completed"], true);
+        assert_eq!(
+            value["particles"]["a"]["position"],
+            serde_json::json!([3.0, 4.0])
+        );
+        assert_eq!(
+            value["particles"]["b"]["velocity"],
+            serde_json::json!([5.0, 6.0])
+        );
+    }
+
+    #[test]
+    fn particles_keep_their_order() {
+        let json = Summary::new("s.toml", &system(), &[], &stats(Method::Implicit))
+            .to_json_pretty()
+            .unwrap();
+        let b = json.find("\"b\"").unwrap();
+        let a = json.find("\"a\"").unwrap();
+        assert!(b < a, "{json}");
+    }
+
+    #[test]
+    fn parametric_summary_adds_coordinates() {
+        let names = vec!["u".to_string(), "w".to_string()];
+        let json = Summary::new("s.toml", &system(), &names, &stats(Method::Parametric))
+            .to_json_pretty()
+            .unwrap();
+        let mut expected: Vec<String> = KEYS.iter().map(|k| k.to_string()).collect();
+        expected.push("coordinates".into());
+        expected.push("completed".into());
+        assert_eq!(keys(&json), expected);
+        let value: serde_json::Value = serde_json::from_str(&json).unwrap();
+        assert_eq!(value["coordinates"]["u"], serde_json::json!([0.25, -1.0]));
+        assert_eq!(value["coordinates"]["w"], serde_json::json!([0.75, -2.0]));
+    }
+
+    #[test]
+    fn a_failed_run_has_error_and_is_not_completed_and_non_finite_numbers_are_null() {
+        let mut s = stats(Method::Implicit);
+        s.energy_final = f64::NAN;
+        s.energy_rel_error_max = f64::INFINITY;
+        s.x[0] = f64::NEG_INFINITY;
+        let failure = RunFailure {
+            error: RunError::Diverged {
+                t: 1.5,
+                step: 3,
+                quantity: "b.y".into(),
+                value: f64::NAN,
+            },
+            stats: Box::new(s),
+        };
+        let summary = Summary::from_result("s.toml", &system(), &[], &Err(failure));
+        let json = summary.to_json_pretty().unwrap();
+        let mut expected: Vec<String> = KEYS.iter().map(|k| k.to_string()).collect();
+        expected.push("error".into());
+        expected.push("completed".into());
+        assert_eq!(keys(&json), expected);
+        let value: serde_json::Value = serde_json::from_str(&json).unwrap();
+        assert_eq!(value["completed"], false);
+        assert_eq!(value["error"], "diverged at t = 1.5 (step 3): b.y is NaN");
+        assert!(value["energy_final"].is_null());
+        assert!(value["energy_rel_error_max"].is_null());
+        assert!(value["particles"]["b"]["position"][0].is_null());
+    }
+}

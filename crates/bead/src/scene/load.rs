@@ -1,0 +1,891 @@
+//! From the deserialized file to a [`Scene`]: evaluate numbers, check everything, feed the
+//! [`SystemBuilder`], and turn every failure into a located [`SceneError`].
+
+use std::collections::HashSet;
+use std::ops::Range;
+use std::sync::Arc;
+
+use toml::Spanned;
+
+use super::file::{
+    span_of, ConstraintDef, Entries, ForceDef, Names, Num, NumVec, ParametricDef, ParticleDef,
+    RunDef, SceneFile, Stabilize,
+};
+use super::location::Source;
+use super::{RunDefaults, Scene, SceneError};
+use crate::expr::{parse, Expr, Func, Resolved};
+use crate::formulation::{Feedback, Method};
+use crate::integrate::IntegratorKind;
+use crate::model::{Endpoint, Force, ModelError, ParticleId, SystemBuilder};
+
+/// Names a parameter may not take (the model's reserved names).
+const RESERVED: [&str; 6] = ["t", "pi", "e", "x", "y", "z"];
+
+type Result<T> = std::result::Result<T, SceneError>;
+
+pub(super) fn load(text: &str, file: &str, overrides: &[(String, f64)]) -> Result<Scene> {
+    let src = Source { text, file };
+    let doc: SceneFile = toml::from_str(text).map_err(|e| src.toml_error(&e))?;
+    let mut loader = Loader {
+        src,
+        params: Vec::new(),
+    };
+
+    let params = loader.params(doc.params.as_ref(), overrides)?;
+    let title = match &doc.title {
+        Some(t) => t.get_ref().clone(),
+        None => std::path::Path::new(file)
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_default(),
+    };
+
+    // [world]
+    let world = doc.world.as_ref().ok_or_else(|| {
+        src.error_at_start(
+            "missing table `[world]` with `gravity` (its length, 2 or 3, sets the dimension)",
+        )
+    })?;
+    let gravity_def = world.get_ref().gravity.as_ref().ok_or_else(|| {
+        src.error(
+            world.span(),
+            "world: missing `gravity` (its length, 2 or 3, sets the dimension)",
+        )
+    })?;
+    let gravity = loader.vector(gravity_def, "world", "`gravity`")?;
+    if !(2..=3).contains(&gravity.len()) {
+        return Err(src.error(
+            gravity_def.span(),
+            format!(
+                "world: `gravity` must have 2 or 3 components (it sets the dimension), got {}",
+                gravity.len()
+            ),
+        ));
+    }
+    let dim = gravity.len();
+    let mut b = SystemBuilder::new(&gravity);
+    for ((name, value), (key, _)) in params
+        .iter()
+        .zip(doc.params.iter().flat_map(|p| p.get_ref().0.iter()))
+    {
+        b.param(name, *value)
+            .map_err(|e| loader.model(key.span(), &format!("parameter `{name}`"), e))?;
+    }
+    let mut l = Builder {
+        loader: &loader,
+        b,
+        dim,
+        particles: Vec::new(),
+    };
+
+    // [[particle]]
+    if doc.particle.0.is_empty() {
+        return Err(
+            src.error_at_start("the scene has no particles; add at least one `[[particle]]` table")
+        );
+    }
+    for (i, p) in doc.particle.0.iter().enumerate() {
+        l.particle(i, p)?;
+    }
+    for (i, f) in doc.force.0.iter().enumerate() {
+        l.force(i, f)?;
+    }
+    let mut names: HashSet<String> = HashSet::new();
+    for (i, c) in doc.constraint.0.iter().enumerate() {
+        l.constraint(i, c, &mut names)?;
+    }
+    if let Some(p) = &doc.parametric {
+        l.parametric(p)?;
+    }
+    let run = loader.run(doc.run.as_ref(), doc.parametric.is_some())?;
+    let system = l.b.build().map_err(|e| src.error_at_start(e.to_string()))?;
+    Ok(Scene {
+        title,
+        file: file.to_string(),
+        system: Arc::new(system),
+        params,
+        run,
+    })
+}
+
+struct Loader<'a> {
+    src: Source<'a>,
+    /// Parameters evaluated so far, in file order.
+    params: Vec<(String, f64)>,
+}
+
+impl Loader<'_> {
+    /// Evaluate `[params]` in file order, applying `overrides`.
+    fn params(
+        &mut self,
+        table: Option<&Spanned<Entries<Num>>>,
+        overrides: &[(String, f64)],
+    ) -> Result<Vec<(String, f64)>> {
+        let entries: &[(Spanned<String>, Spanned<Num>)] =
+            table.map(|t| t.get_ref().0.as_slice()).unwrap_or(&[]);
+        let known: Vec<&str> = entries.iter().map(|(k, _)| k.get_ref().as_str()).collect();
+        for (name, value) in overrides {
+            if !known.contains(&name.as_str()) {
+                let list = if known.is_empty() {
+                    "the scene has no parameters".to_string()
+                } else {
+                    format!("the scene's parameters are {}", known.join(", "))
+                };
+                return Err(self.src.error_unplaced(format!(
+                    "--set {name}={value}: unknown parameter `{name}`; {list}"
+                )));
+            }
+            if !value.is_finite() {
+                return Err(self
+                    .src
+                    .error_unplaced(format!("--set {name}={value}: the value must be finite")));
+            }
+        }
+        for (i, (key, value)) in entries.iter().enumerate() {
+            let name = key.get_ref();
+            let ctx = format!("parameter `{name}`");
+            if !is_identifier(name) {
+                return Err(self.src.error(
+                    key.span(),
+                    format!("{ctx}: a parameter name must be a letter or `_` followed by letters, digits or `_`"),
+                ));
+            }
+            if RESERVED.contains(&name.as_str()) {
+                return Err(self.src.error(
+                    key.span(),
+                    format!("{ctx}: `{name}` is reserved (t, pi, e, x, y, z)"),
+                ));
+            }
+            if Func::from_name(name).is_some() {
+                return Err(self.src.error(
+                    key.span(),
+                    format!("{ctx}: `{name}` is a built-in function"),
+                ));
+            }
+            let overridden = overrides
+                .iter()
+                .rev()
+                .find(|(n, _)| n == name)
+                .map(|(_, v)| *v);
+            let later: Vec<&str> = known[i + 1..].to_vec();
+            let v = match overridden {
+                Some(v) => v,
+                None => self.number_with(value, &ctx, "the value", &later)?,
+            };
+            self.params.push((name.clone(), v));
+        }
+        Ok(self.params.clone())
+    }
+
+    /// A number: a TOML number, or an expression of parameters, pi and e. Must be finite.
+    fn number(&self, value: &Spanned<Num>, ctx: &str, what: &str) -> Result<f64> {
+        self.number_with(value, ctx, what, &[])
+    }
+
+    fn number_with(
+        &self,
+        value: &Spanned<Num>,
+        ctx: &str,
+        what: &str,
+        later: &[&str],
+    ) -> Result<f64> {
+        let v = match value.get_ref() {
+            Num::Value(v) => *v,
+            Num::Expr(source) => {
+                let resolve = |name: &str| {
+                    if let Some((_, v)) = self.params.iter().find(|(n, _)| n == name) {
+                        return Ok(Resolved::Value(*v));
+                    }
+                    if later.contains(&name) {
+                        return Err(format!(
+                            "parameter `{name}` is defined after this one; a parameter may use only the ones before it"
+                        ));
+                    }
+                    let list = if self.params.is_empty() {
+                        "none".to_string()
+                    } else {
+                        self.params
+                            .iter()
+                            .map(|(n, _)| n.as_str())
+                            .collect::<Vec<_>>()
+                            .join(", ")
+                    };
+                    Err(format!("unknown name `{name}`; numbers in a scene may use pi, e and parameters ({list})"))
+                };
+                let expr = parse(source, &resolve).map_err(|e| {
+                    self.src
+                        .expr_error(value.span(), source, &e, format!("{ctx}: {}", e.message))
+                })?;
+                constant_value(&expr)
+            }
+        };
+        if !v.is_finite() {
+            return Err(self.src.error(
+                value.span(),
+                format!("{ctx}: {what} must be finite, got {v}"),
+            ));
+        }
+        Ok(v)
+    }
+
+    /// A number that must be > 0.
+    fn positive(&self, value: &Spanned<Num>, ctx: &str, what: &str) -> Result<f64> {
+        let v = self.number(value, ctx, what)?;
+        if v <= 0.0 {
+            return Err(self.src.error(
+                value.span(),
+                format!("{ctx}: {what} must be positive, got {v}"),
+            ));
+        }
+        Ok(v)
+    }
+
+    /// A number that must be >= 0.
+    fn non_negative(&self, value: &Spanned<Num>, ctx: &str, what: &str) -> Result<f64> {
+        let v = self.number(value, ctx, what)?;
+        if v < 0.0 {
+            return Err(self.src.error(
+                value.span(),
+                format!("{ctx}: {what} must not be negative, got {v}"),
+            ));
+        }
+        Ok(v)
+    }
+
+    /// An array of numbers, any length.
+    fn vector(&self, value: &Spanned<NumVec>, ctx: &str, what: &str) -> Result<Vec<f64>> {
+        value
+            .get_ref()
+            .0
+            .iter()
+            .enumerate()
+            .map(|(i, c)| self.number(c, ctx, &format!("component {} of {what}", i + 1)))
+            .collect()
+    }
+
+    /// A located model error.
+    fn model(&self, span: Range<usize>, ctx: &str, e: ModelError) -> SceneError {
+        self.src.error(span, format!("{ctx}: {e}"))
+    }
+
+    fn required<'v, T>(
+        &self,
+        value: &'v Option<Spanned<T>>,
+        table: Range<usize>,
+        ctx: &str,
+        key: &str,
+    ) -> Result<&'v Spanned<T>> {
+        value
+            .as_ref()
+            .ok_or_else(|| self.src.error(table, format!("{ctx}: missing `{key}`")))
+    }
+
+    /// `[run]`.
+    fn run(&self, run: Option<&Spanned<RunDef>>, has_parametric: bool) -> Result<RunDefaults> {
+        let Some(run) = run else {
+            return Ok(RunDefaults::default());
+        };
+        let r = run.get_ref();
+        let ctx = "run";
+        let mut out = RunDefaults::default();
+        if let Some(m) = &r.method {
+            let method: Method = m
+                .get_ref()
+                .parse()
+                .map_err(|e| self.src.error(m.span(), format!("{ctx}: {e}")))?;
+            if method == Method::Parametric && !has_parametric {
+                return Err(self.src.error(
+                    m.span(),
+                    format!("{ctx}: method `parametric` needs a `[parametric]` table, and the scene has none"),
+                ));
+            }
+            out.method = Some(method);
+        }
+        if let Some(i) = &r.integrator {
+            let kind: IntegratorKind = i
+                .get_ref()
+                .parse()
+                .map_err(|e| self.src.error(i.span(), format!("{ctx}: {e}")))?;
+            out.integrator = Some(kind);
+        }
+        if let Some(dt) = &r.dt {
+            out.dt = Some(self.positive(dt, ctx, "`dt`")?);
+        }
+        if let Some(d) = &r.duration {
+            out.duration = Some(self.positive(d, ctx, "`duration`")?);
+        }
+        if let Some(s) = &r.steps {
+            let v = self.number(s, ctx, "`steps`")?;
+            if !(v >= 1.0 && v.fract() == 0.0 && v <= 9_007_199_254_740_992.0) {
+                return Err(self.src.error(
+                    s.span(),
+                    format!("{ctx}: `steps` must be a positive integer, got {v}"),
+                ));
+            }
+            out.steps = Some(v as u64);
+        }
+        if let (Some(_), Some(s)) = (&r.duration, &r.steps) {
+            return Err(self.src.error(
+                s.span(),
+                format!("{ctx}: give `duration` or `steps`, not both"),
+            ));
+        }
+        if let Some(s) = &r.stabilize {
+            let feedback = match s.get_ref() {
+                Stabilize::Gains(gains) => {
+                    if gains.len() != 2 {
+                        return Err(self.src.error(
+                            s.span(),
+                            format!(
+                                "{ctx}: `stabilize` must be `[ks, kd]` or `{{ frequency = f, damping = zeta }}`, got {} number{}",
+                                gains.len(),
+                                if gains.len() == 1 { "" } else { "s" }
+                            ),
+                        ));
+                    }
+                    Feedback {
+                        ks: self.non_negative(&gains[0], ctx, "`stabilize` ks")?,
+                        kd: self.non_negative(&gains[1], ctx, "`stabilize` kd")?,
+                    }
+                }
+                Stabilize::Frequency(t) => {
+                    let f = t.frequency.as_ref().ok_or_else(|| {
+                        self.src.error(
+                            s.span(),
+                            format!("{ctx}: `stabilize` table: missing `frequency`"),
+                        )
+                    })?;
+                    let frequency = self.positive(f, ctx, "`stabilize` frequency")?;
+                    let damping = match &t.damping {
+                        Some(d) => self.non_negative(d, ctx, "`stabilize` damping")?,
+                        None => 1.0,
+                    };
+                    Feedback::from_frequency(frequency, damping)
+                }
+            };
+            if out.method == Some(Method::Parametric) && feedback != Feedback::default() {
+                return Err(self.src.error(
+                    s.span(),
+                    format!("{ctx}: `stabilize` applies to the implicit method only, and `method` is parametric"),
+                ));
+            }
+            out.stabilize = Some(feedback);
+        }
+        Ok(out)
+    }
+}
+
+/// The value of an expression without variables.
+fn constant_value(expr: &Expr) -> f64 {
+    match expr.as_constant() {
+        Some(v) => v,
+        None if expr.vars().is_empty() => expr.eval(&[]),
+        None => f64::NAN,
+    }
+}
+
+fn is_identifier(name: &str) -> bool {
+    let mut chars = name.chars();
+    matches!(chars.next(), Some(c) if c.is_ascii_alphabetic() || c == '_')
+        && chars.all(|c| c.is_ascii_alphanumeric() || c == '_')
+}
+
+/// The system being built, with the particles' names and initial positions.
+struct Builder<'a, 'b> {
+    loader: &'a Loader<'b>,
+    b: SystemBuilder,
+    dim: usize,
+    particles: Vec<(String, Vec<f64>)>,
+}
+
+impl Builder<'_, '_> {
+    fn src(&self) -> &Source<'_> {
+        &self.loader.src
+    }
+
+    /// A vector of this scene's dimension.
+    fn vector(&self, value: &Spanned<NumVec>, ctx: &str, key: &str) -> Result<Vec<f64>> {
+        let v = self.loader.vector(value, ctx, &format!("`{key}`"))?;
+        if v.len() != self.dim {
+            return Err(self.src().error(
+                value.span(),
+                format!(
+                    "{ctx}: `{key}` has {} components but the scene is {}D (set by the length of `gravity`)",
+                    v.len(),
+                    self.dim
+                ),
+            ));
+        }
+        Ok(v)
+    }
+
+    fn particle_list(&self) -> String {
+        self.particles
+            .iter()
+            .map(|(n, _)| n.as_str())
+            .collect::<Vec<_>>()
+            .join(", ")
+    }
+
+    /// Look up a particle named by a string value.
+    fn lookup(&self, name: &Spanned<String>, ctx: &str) -> Result<ParticleId> {
+        self.b.particle_id(name.get_ref()).map_err(|_| {
+            self.src().error(
+                name.span(),
+                format!(
+                    "{ctx}: unknown particle `{}`; particles: {}",
+                    name.get_ref(),
+                    self.particle_list()
+                ),
+            )
+        })
+    }
+
+    fn particle(&mut self, i: usize, p: &Spanned<ParticleDef>) -> Result<()> {
+        let ctx = format!("particle {}", i + 1);
+        let def = p.get_ref();
+        let l = self.loader;
+        let name = l.required(&def.name, p.span(), &ctx, "name")?;
+        let mass_def = l.required(&def.mass, p.span(), &ctx, "mass")?;
+        let position_def = l.required(&def.position, p.span(), &ctx, "position")?;
+        if self.b.particle_id(name.get_ref()).is_ok() {
+            return Err(self.src().error(
+                name.span(),
+                format!("{ctx}: duplicate particle name `{}`", name.get_ref()),
+            ));
+        }
+        let mass = l.positive(mass_def, &ctx, "`mass`")?;
+        let position = self.vector(position_def, &ctx, "position")?;
+        let velocity = match &def.velocity {
+            Some(v) => self.vector(v, &ctx, "velocity")?,
+            None => vec![0.0; self.dim],
+        };
+        self.b
+            .particle(name.get_ref(), mass, &position, &velocity)
+            .map_err(|e| l.model(name.span(), &ctx, e))?;
+        self.particles.push((name.get_ref().clone(), position));
+        Ok(())
+    }
+
+    /// Reject keys that do not belong to `kind`.
+    fn reject(&self, ctx: &str, kind: &str, keys: &[(&str, Option<Range<usize>>)]) -> Result<()> {
+        for (key, span) in keys {
+            if let Some(span) = span {
+                return Err(self.src().error(
+                    span.clone(),
+                    format!("{ctx}: `{key}` does not apply to {kind}"),
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    /// `between = ["a", "b"]` or `particle = "a", anchor = [..]`: the first particle and the
+    /// other end. `anchor_default` supplies a missing anchor (None: the anchor is required).
+    fn endpoints(
+        &self,
+        ctx: &str,
+        table: Range<usize>,
+        between: &Option<Spanned<Names>>,
+        particle: &Option<Spanned<String>>,
+        anchor: &Option<Spanned<NumVec>>,
+        what: &str,
+    ) -> Result<(ParticleId, Endpoint)> {
+        match (between, particle) {
+            (Some(between), None) => {
+                if let Some(a) = anchor {
+                    return Err(self.src().error(
+                        a.span(),
+                        format!("{ctx}: `anchor` goes with `particle`, not with `between`"),
+                    ));
+                }
+                let names = &between.get_ref().0;
+                if names.len() != 2 {
+                    return Err(self.src().error(
+                        between.span(),
+                        format!("{ctx}: `between` must name 2 particles, got {}", names.len()),
+                    ));
+                }
+                let a = self.lookup(&names[0], ctx)?;
+                let b = self.lookup(&names[1], ctx)?;
+                if a == b {
+                    return Err(self.src().error(between.span(), format!("{ctx}: `between` names the same particle twice")));
+                }
+                Ok((a, Endpoint::Particle(b)))
+            }
+            (None, Some(p)) => {
+                let a = self.lookup(p, ctx)?;
+                let anchor = anchor.as_ref().ok_or_else(|| {
+                    self.src().error(table.clone(), format!("{ctx}: missing `anchor` (the fixed end of the {what})"))
+                })?;
+                Ok((a, Endpoint::Fixed(self.vector(anchor, ctx, "anchor")?)))
+            }
+            (Some(between), Some(_)) => Err(self.src().error(
+                between.span(),
+                format!("{ctx}: give either `between` or `particle` and `anchor`, not both"),
+            )),
+            (None, None) => Err(self.src().error(
+                table,
+                format!("{ctx}: missing `between` (two particles) or `particle` and `anchor` (a fixed end)"),
+            )),
+        }
+    }
+
+    fn force(&mut self, i: usize, f: &Spanned<ForceDef>) -> Result<()> {
+        let ctx = format!("force {}", i + 1);
+        let d = f.get_ref();
+        let l = self.loader;
+        let kind = l.required(&d.kind, f.span(), &ctx, "kind")?;
+        let force = match kind.get_ref().as_str() {
+            "constant" => {
+                self.reject(
+                    &ctx,
+                    "a constant force",
+                    &[
+                        ("between", span_of(&d.between)),
+                        ("anchor", span_of(&d.anchor)),
+                        ("stiffness", span_of(&d.stiffness)),
+                        ("rest_length", span_of(&d.rest_length)),
+                        ("coefficient", span_of(&d.coefficient)),
+                    ],
+                )?;
+                let particle =
+                    self.lookup(l.required(&d.particle, f.span(), &ctx, "particle")?, &ctx)?;
+                let vector = self.vector(
+                    l.required(&d.vector, f.span(), &ctx, "vector")?,
+                    &ctx,
+                    "vector",
+                )?;
+                Force::Constant { particle, vector }
+            }
+            "spring" => {
+                self.reject(
+                    &ctx,
+                    "a spring",
+                    &[
+                        ("vector", span_of(&d.vector)),
+                        ("coefficient", span_of(&d.coefficient)),
+                    ],
+                )?;
+                let (a, b) =
+                    self.endpoints(&ctx, f.span(), &d.between, &d.particle, &d.anchor, "spring")?;
+                let stiffness = l.non_negative(
+                    l.required(&d.stiffness, f.span(), &ctx, "stiffness")?,
+                    &ctx,
+                    "`stiffness`",
+                )?;
+                let rest_length = match &d.rest_length {
+                    Some(r) => l.non_negative(r, &ctx, "`rest_length`")?,
+                    None => 0.0,
+                };
+                Force::Spring {
+                    a,
+                    b,
+                    stiffness,
+                    rest_length,
+                }
+            }
+            "drag" => {
+                self.reject(
+                    &ctx,
+                    "drag",
+                    &[
+                        ("between", span_of(&d.between)),
+                        ("anchor", span_of(&d.anchor)),
+                        ("vector", span_of(&d.vector)),
+                        ("stiffness", span_of(&d.stiffness)),
+                        ("rest_length", span_of(&d.rest_length)),
+                    ],
+                )?;
+                let particle = d
+                    .particle
+                    .as_ref()
+                    .map(|p| self.lookup(p, &ctx))
+                    .transpose()?;
+                let coefficient = l.non_negative(
+                    l.required(&d.coefficient, f.span(), &ctx, "coefficient")?,
+                    &ctx,
+                    "`coefficient`",
+                )?;
+                Force::Drag {
+                    particle,
+                    coefficient,
+                }
+            }
+            other => {
+                return Err(self.src().error(
+                    kind.span(),
+                    format!("{ctx}: unknown kind `{other}`; use constant, spring or drag"),
+                ))
+            }
+        };
+        self.b
+            .force(force)
+            .map_err(|e| l.model(f.span(), &ctx, e))?;
+        Ok(())
+    }
+
+    fn constraint(
+        &mut self,
+        i: usize,
+        c: &Spanned<ConstraintDef>,
+        names: &mut HashSet<String>,
+    ) -> Result<()> {
+        let ctx = format!("constraint {}", i + 1);
+        let d = c.get_ref();
+        let l = self.loader;
+        let name = match &d.name {
+            Some(n) => {
+                if n.get_ref().trim().is_empty() {
+                    return Err(self
+                        .src()
+                        .error(n.span(), format!("{ctx}: `name` must not be empty")));
+                }
+                if names.contains(n.get_ref()) {
+                    return Err(self.src().error(
+                        n.span(),
+                        format!("{ctx}: duplicate constraint name `{}`", n.get_ref()),
+                    ));
+                }
+                n.get_ref().clone()
+            }
+            None => {
+                let default = format!("constraint {}", i + 1);
+                if names.contains(&default) {
+                    return Err(self.src().error(
+                        c.span(),
+                        format!("{ctx}: its default name `{default}` is taken by an earlier constraint; give it a `name`"),
+                    ));
+                }
+                default
+            }
+        };
+        names.insert(name.clone());
+        let kind = d
+            .kind
+            .as_ref()
+            .map(|k| k.get_ref().as_str())
+            .unwrap_or("expression");
+        match kind {
+            "expression" => {
+                self.reject(
+                    &ctx,
+                    "an expression constraint",
+                    &[
+                        ("particle", span_of(&d.particle)),
+                        ("between", span_of(&d.between)),
+                        ("anchor", span_of(&d.anchor)),
+                        ("length", span_of(&d.length)),
+                    ],
+                )?;
+                let e = l.required(&d.expr, c.span(), &ctx, "expr")?;
+                let source = e.get_ref();
+                let expr = self.b.parse_constraint_expr(source).map_err(|err| {
+                    self.src()
+                        .expr_error(e.span(), source, &err, format!("{ctx}: {}", err.message))
+                })?;
+                let n = self.particles.len() * self.dim;
+                if !expr.vars().iter().any(|&k| k < n) {
+                    return Err(self.src().error(
+                        e.span(),
+                        format!("{ctx}: the expression does not depend on any particle coordinate"),
+                    ));
+                }
+                self.b.add_constraint_expr(&name, expr, source);
+            }
+            "distance" => {
+                self.reject(&ctx, "a distance constraint", &[("expr", span_of(&d.expr))])?;
+                let (a, b) =
+                    self.endpoints(&ctx, c.span(), &d.between, &d.particle, &d.anchor, "rod")?;
+                let length = match &d.length {
+                    Some(len) => l.positive(len, &ctx, "`length`")?,
+                    None => {
+                        // The initial distance.
+                        let pa = &self.position(a);
+                        let pb = match &b {
+                            Endpoint::Particle(p) => self.position(*p),
+                            Endpoint::Fixed(point) => point.clone(),
+                        };
+                        let len = pa
+                            .iter()
+                            .zip(&pb)
+                            .map(|(x, y)| (x - y) * (x - y))
+                            .sum::<f64>()
+                            .sqrt();
+                        if len <= 0.0 {
+                            return Err(self.src().error(
+                                c.span(),
+                                format!("{ctx}: missing `length`, and the initial distance is 0"),
+                            ));
+                        }
+                        len
+                    }
+                };
+                self.b
+                    .distance(&name, a, b, length)
+                    .map_err(|e| l.model(c.span(), &ctx, e))?;
+            }
+            "pin" => {
+                self.reject(
+                    &ctx,
+                    "a pin",
+                    &[
+                        ("expr", span_of(&d.expr)),
+                        ("between", span_of(&d.between)),
+                        ("length", span_of(&d.length)),
+                    ],
+                )?;
+                let p = self.lookup(l.required(&d.particle, c.span(), &ctx, "particle")?, &ctx)?;
+                let anchor = match &d.anchor {
+                    Some(a) => self.vector(a, &ctx, "anchor")?,
+                    None => self.position(p),
+                };
+                self.b
+                    .pin(&name, p, &anchor)
+                    .map_err(|e| l.model(c.span(), &ctx, e))?;
+            }
+            other => {
+                let span = d.kind.as_ref().map(|k| k.span()).unwrap_or(c.span());
+                return Err(self.src().error(
+                    span,
+                    format!("{ctx}: unknown kind `{other}`; use expression (the default), distance or pin"),
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    /// A particle's initial position as given.
+    fn position(&self, p: ParticleId) -> Vec<f64> {
+        self.particles[p.0].1.clone()
+    }
+
+    fn parametric(&mut self, p: &Spanned<ParametricDef>) -> Result<()> {
+        let ctx = "parametric";
+        let d = p.get_ref();
+        let l = self.loader;
+        let coords_def = l.required(&d.coordinates, p.span(), ctx, "coordinates")?;
+        let coords = &coords_def.get_ref().0;
+        if coords.is_empty() {
+            return Err(self.src().error(
+                coords_def.span(),
+                format!("{ctx}: `coordinates` must name at least one coordinate"),
+            ));
+        }
+        for (i, c) in coords.iter().enumerate() {
+            let name = c.get_ref();
+            if !is_identifier(name) {
+                return Err(self.src().error(
+                    c.span(),
+                    format!("{ctx}: coordinate name `{name}` must be a letter or `_` followed by letters, digits or `_`"),
+                ));
+            }
+            if RESERVED.contains(&name.as_str()) || Func::from_name(name).is_some() {
+                return Err(self.src().error(
+                    c.span(),
+                    format!("{ctx}: `{name}` is reserved and cannot name a coordinate"),
+                ));
+            }
+            if self.b.param_value(name).is_some() {
+                return Err(self.src().error(
+                    c.span(),
+                    format!("{ctx}: coordinate `{name}` has the name of a parameter; rename one of them"),
+                ));
+            }
+            if coords[..i].iter().any(|o| o.get_ref() == name) {
+                return Err(self
+                    .src()
+                    .error(c.span(), format!("{ctx}: duplicate coordinate `{name}`")));
+            }
+        }
+        let n_q = coords.len();
+        let counted = |what: &str, v: &Spanned<NumVec>| -> Result<Vec<f64>> {
+            let values = l.vector(v, ctx, &format!("`{what}`"))?;
+            if values.len() != n_q {
+                return Err(self.src().error(
+                    v.span(),
+                    format!(
+                        "{ctx}: `{what}` has {} values for {n_q} coordinate{} ({})",
+                        values.len(),
+                        if n_q == 1 { "" } else { "s" },
+                        coords
+                            .iter()
+                            .map(|c| c.get_ref().as_str())
+                            .collect::<Vec<_>>()
+                            .join(", ")
+                    ),
+                ));
+            }
+            Ok(values)
+        };
+        let initial = counted("initial", l.required(&d.initial, p.span(), ctx, "initial")?)?;
+        let rates = match &d.rates {
+            Some(r) => counted("rates", r)?,
+            None => vec![0.0; n_q],
+        };
+        let names: Vec<&str> = coords.iter().map(|c| c.get_ref().as_str()).collect();
+        self.b
+            .parametric(&names, &initial, &rates)
+            .map_err(|e| l.model(p.span(), ctx, e))?;
+
+        let positions = d.positions.as_ref().ok_or_else(|| {
+            self.src().error(
+                p.span(),
+                format!("{ctx}: missing `positions` (a table giving each particle's position as expressions of the coordinates)"),
+            )
+        })?;
+        let mut given = vec![false; self.particles.len()];
+        for (key, value) in &positions.get_ref().0 {
+            let pctx = format!("{ctx}: position of `{}`", key.get_ref());
+            let id = self.lookup(key, ctx)?;
+            let components = &value.get_ref().0;
+            if components.len() != self.dim {
+                return Err(self.src().error(
+                    value.span(),
+                    format!(
+                        "{pctx} has {} components but the scene is {}D (set by the length of `gravity`)",
+                        components.len(),
+                        self.dim
+                    ),
+                ));
+            }
+            let mut exprs = Vec::with_capacity(self.dim);
+            for c in components {
+                let expr = match c.get_ref() {
+                    Num::Value(v) => {
+                        if !v.is_finite() {
+                            return Err(self.src().error(
+                                c.span(),
+                                format!("{pctx}: components must be finite, got {v}"),
+                            ));
+                        }
+                        Expr::constant(*v)
+                    }
+                    Num::Expr(source) => self.b.parse_parametric_expr(source).map_err(|err| {
+                        self.src().expr_error(
+                            c.span(),
+                            source,
+                            &err,
+                            format!("{pctx}: {}", err.message),
+                        )
+                    })?,
+                };
+                exprs.push(expr);
+            }
+            self.b
+                .parametric_position(key.get_ref(), exprs)
+                .map_err(|e| l.model(key.span(), ctx, e))?;
+            given[id.0] = true;
+        }
+        if let Some(missing) = given.iter().position(|g| !g) {
+            return Err(self.src().error(
+                positions.span(),
+                format!(
+                    "{ctx}: no position for particle `{}`; every particle needs one",
+                    self.particles[missing].0
+                ),
+            ));
+        }
+        Ok(())
+    }
+}

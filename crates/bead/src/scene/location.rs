@@ -1,0 +1,131 @@
+//! Byte spans of the scene text to line, column and a caret snippet.
+
+use std::ops::Range;
+
+use super::SceneError;
+use crate::expr::ExprError;
+
+/// The scene text and its name, for locating errors.
+#[derive(Clone, Copy)]
+pub(super) struct Source<'a> {
+    pub text: &'a str,
+    pub file: &'a str,
+}
+
+impl<'a> Source<'a> {
+    /// An error at byte range `span` of the text, with a caret snippet.
+    pub fn error(&self, span: Range<usize>, message: impl Into<String>) -> SceneError {
+        let text = self.text;
+        let start = floor_boundary(text, span.start);
+        let end = floor_boundary(text, span.end.max(start));
+        let line_start = text[..start].rfind('\n').map_or(0, |i| i + 1);
+        let line_end = text[start..].find('\n').map_or(text.len(), |i| start + i);
+        let line_text = text[line_start..line_end].trim_end_matches('\r');
+        let line = text[..start].matches('\n').count() + 1;
+        let prefix = &text[line_start..start];
+        let column = prefix.chars().count() + 1;
+        let pad: String = prefix
+            .chars()
+            .map(|c| if c == '\t' { '\t' } else { ' ' })
+            .collect();
+        let width = text[start..end.min(line_end)]
+            .trim_end_matches('\r')
+            .chars()
+            .count()
+            .max(1);
+        let caret = format!("{pad}{}", "^".repeat(width));
+        SceneError {
+            file: self.file.to_string(),
+            line,
+            column,
+            message: one_line(&message.into()),
+            snippet: Some(format!("{line_text}\n{caret}")),
+        }
+    }
+
+    /// An error about the file as a whole: located at its start, without a snippet.
+    pub fn error_at_start(&self, message: impl Into<String>) -> SceneError {
+        SceneError {
+            file: self.file.to_string(),
+            line: 1,
+            column: 1,
+            message: one_line(&message.into()),
+            snippet: None,
+        }
+    }
+
+    /// An error with no place in the file (a command-line override, say).
+    pub fn error_unplaced(&self, message: impl Into<String>) -> SceneError {
+        SceneError {
+            file: self.file.to_string(),
+            line: 0,
+            column: 0,
+            message: one_line(&message.into()),
+            snippet: None,
+        }
+    }
+
+    /// A TOML syntax or type error.
+    pub fn toml_error(&self, e: &toml::de::Error) -> SceneError {
+        let mut message = e.message().replace("unknown field", "unknown key");
+        match e.span() {
+            Some(span) => {
+                if message == "duplicate key" {
+                    if let Some(key) = self.text.get(span.clone()) {
+                        message = format!("duplicate key `{key}`");
+                    }
+                }
+                self.error(span, message)
+            }
+            None => self.error_at_start(message),
+        }
+    }
+
+    /// An error in the expression `source`, written as the TOML string at `string_span`: the
+    /// caret goes under `error.span` inside the string when the string's text in the file is
+    /// its value (a one-line literal string, or a basic string without escapes), else under
+    /// the whole string.
+    pub fn expr_error(
+        &self,
+        string_span: Range<usize>,
+        source: &str,
+        error: &ExprError,
+        message: String,
+    ) -> SceneError {
+        let raw = self.text.get(string_span.clone()).unwrap_or("");
+        let content = if raw.starts_with("\"\"\"") || raw.starts_with("'''") {
+            None
+        } else if let Some(inner) = raw.strip_prefix('"').and_then(|r| r.strip_suffix('"')) {
+            (!inner.contains('\\')).then_some(inner)
+        } else {
+            raw.strip_prefix('\'').and_then(|r| r.strip_suffix('\''))
+        };
+        match content {
+            Some(inner) if inner == source => {
+                let start = error.span.start.min(source.len());
+                let end = error.span.end.clamp(start, source.len());
+                let base = string_span.start + 1;
+                self.error(base + start..base + end, message)
+            }
+            _ => self.error(string_span, message),
+        }
+    }
+}
+
+/// The largest char boundary <= `i` (and <= len).
+fn floor_boundary(text: &str, i: usize) -> usize {
+    let mut i = i.min(text.len());
+    while !text.is_char_boundary(i) {
+        i -= 1;
+    }
+    i
+}
+
+fn one_line(message: &str) -> String {
+    message
+        .lines()
+        .map(str::trim)
+        .filter(|l| !l.is_empty())
+        .collect::<Vec<_>>()
+        .join(" ")
+}

@@ -1,0 +1,260 @@
+//! The step loop allocates nothing.
+//!
+//! Property checked: after warm-up, `Integrator::step` of every integrator on both
+//! formulations, and `simulate::run`'s loop with a `NullSink`, make no heap allocation, so
+//! their cost per step is pure arithmetic (and a real-time caller may run them on a thread that
+//! must not allocate). A counting global allocator wraps the system allocator.
+//!
+//! The counter is per thread: the test harness runs tests on several threads at once, and a
+//! process-wide counter would see their allocations too. Each thread counts only while it has
+//! switched counting on, and only its own calls.
+
+// The workspace denies unsafe code and the library forbids it; this test alone needs
+// `unsafe impl GlobalAlloc` to count allocations.
+#![allow(unsafe_code)]
+
+use std::alloc::{GlobalAlloc, Layout, System as SystemAllocator};
+use std::cell::Cell;
+use std::sync::Arc;
+
+use bead::formulation::{formulate, Feedback, Formulation, Implicit, Method, Parametric};
+use bead::integrate::IntegratorKind;
+use bead::model::{Endpoint, Force, Holonomic, ParticleId, System, SystemBuilder};
+use bead::simulate::{run, NullSink, RunOptions};
+use bead::Scalar;
+
+thread_local! {
+    static COUNTING: Cell<bool> = const { Cell::new(false) };
+    static CALLS: Cell<usize> = const { Cell::new(0) };
+}
+
+/// Counts allocator calls (alloc, alloc_zeroed, realloc, dealloc) of the threads that have
+/// switched counting on. The thread-locals are const-initialized `Cell`s without destructors,
+/// so touching them never allocates or registers anything.
+struct CountingAllocator;
+
+fn note_call() {
+    let _ = COUNTING.try_with(|counting| {
+        if counting.get() {
+            let _ = CALLS.try_with(|calls| calls.set(calls.get() + 1));
+        }
+    });
+}
+
+// SAFETY: every method forwards to the system allocator with the caller's arguments unchanged;
+// the counting touches only thread-local `Cell<usize>`/`Cell<bool>` values, which neither
+// allocate nor unwind.
+unsafe impl GlobalAlloc for CountingAllocator {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        note_call();
+        // SAFETY: forwarded contract of GlobalAlloc::alloc.
+        unsafe { SystemAllocator.alloc(layout) }
+    }
+    unsafe fn alloc_zeroed(&self, layout: Layout) -> *mut u8 {
+        note_call();
+        // SAFETY: forwarded contract of GlobalAlloc::alloc_zeroed.
+        unsafe { SystemAllocator.alloc_zeroed(layout) }
+    }
+    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
+        note_call();
+        // SAFETY: forwarded contract of GlobalAlloc::realloc.
+        unsafe { SystemAllocator.realloc(ptr, layout, new_size) }
+    }
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        note_call();
+        // SAFETY: forwarded contract of GlobalAlloc::dealloc.
+        unsafe { SystemAllocator.dealloc(ptr, layout) }
+    }
+}
+
+#[global_allocator]
+static ALLOCATOR: CountingAllocator = CountingAllocator;
+
+/// Allocator calls made by this thread while `f` runs.
+fn allocator_calls<R>(f: impl FnOnce() -> R) -> (usize, R) {
+    CALLS.with(|c| c.set(0));
+    COUNTING.with(|c| c.set(true));
+    let result = f();
+    COUNTING.with(|c| c.set(false));
+    (CALLS.with(|c| c.get()), result)
+}
+
+// The counter itself must see allocations, or every zero below would be vacuous.
+#[test]
+fn the_counter_sees_allocations() {
+    let (calls, v) = allocator_calls(|| std::hint::black_box(vec![1.0f64; 16]));
+    assert!(calls >= 1, "a Vec allocation was not counted");
+    drop(v);
+    let (calls, _) = allocator_calls(|| std::hint::black_box(3.0f64).sqrt());
+    assert_eq!(calls, 0);
+}
+
+/// The article's parabola as a Rust type, for the dual-number path.
+struct Parabola(ParticleId);
+
+impl Holonomic for Parabola {
+    fn particles(&self) -> Vec<ParticleId> {
+        vec![self.0]
+    }
+    fn value<T: Scalar>(&self, x: &[T], _t: T) -> T {
+        x[0] * x[0] + x[1] * 100.0
+    }
+}
+
+/// The article's bead: expression constraint and parametric map, plus a spring and drag so
+/// that every force kind is evaluated.
+fn parabola() -> Arc<System> {
+    let mut b = SystemBuilder::new(&[0.0, 500.0]);
+    let bead = b
+        .particle("bead", 1.0, &[150.0, -225.0], &[0.0, 0.0])
+        .unwrap();
+    b.force(Force::Constant {
+        particle: bead,
+        vector: vec![300.0, 0.0],
+    })
+    .unwrap();
+    b.force(Force::Spring {
+        a: bead,
+        b: Endpoint::Fixed(vec![0.0, -50.0]),
+        stiffness: 2.0,
+        rest_length: 10.0,
+    })
+    .unwrap();
+    b.force(Force::Drag {
+        particle: None,
+        coefficient: 0.01,
+    })
+    .unwrap();
+    b.constraint_expr("bead.x^2 + 100*bead.y").unwrap();
+    b.parametric(&["q"], &[150.0], &[0.0]).unwrap();
+    b.parametric_position_exprs("bead", &["q", "-q^2/100"])
+        .unwrap();
+    Arc::new(b.build().unwrap())
+}
+
+/// The same wire as a Rust `Holonomic` type (implicit form only).
+fn parabola_rust_type() -> Arc<System> {
+    let mut b = SystemBuilder::new(&[0.0, 500.0]);
+    let bead = b
+        .particle("bead", 1.0, &[150.0, -225.0], &[0.0, 0.0])
+        .unwrap();
+    b.holonomic("parabola", Parabola(bead));
+    Arc::new(b.build().unwrap())
+}
+
+/// A double pendulum: two distance constraints (a 2 x 2 solve) and a two-angle map.
+fn double_pendulum() -> Arc<System> {
+    let mut b = SystemBuilder::new(&[0.0, 9.81]);
+    let (s1, c1, s2, c2) = (0.9f64.sin(), 0.9f64.cos(), 0.3f64.sin(), 0.3f64.cos());
+    let a = b.particle("a", 1.0, &[s1, c1], &[0.0, 0.0]).unwrap();
+    let bob = b
+        .particle("b", 2.0, &[s1 + s2, c1 + c2], &[0.0, 0.0])
+        .unwrap();
+    b.distance("upper", a, Endpoint::Fixed(vec![0.0, 0.0]), 1.0)
+        .unwrap();
+    b.distance("lower", bob, Endpoint::Particle(a), 1.0)
+        .unwrap();
+    b.parametric(&["u", "w"], &[0.9, 0.3], &[0.0, 0.0]).unwrap();
+    b.parametric_position_exprs("a", &["sin(u)", "cos(u)"])
+        .unwrap();
+    b.parametric_position_exprs("b", &["sin(u) + sin(w)", "cos(u) + cos(w)"])
+        .unwrap();
+    Arc::new(b.build().unwrap())
+}
+
+const STEPS: usize = 1000;
+
+/// Allocator calls during STEPS steps after one warm-up step.
+fn calls_while_stepping<F: Formulation>(
+    mut formulation: F,
+    kind: IntegratorKind,
+    dt: f64,
+) -> usize {
+    let mut state = formulation.initial_state();
+    let mut integrator = kind.build(state.q.len());
+    integrator.step(&mut formulation, &mut state, dt).unwrap();
+    let (calls, ()) = allocator_calls(|| {
+        for _ in 0..STEPS {
+            integrator.step(&mut formulation, &mut state, dt).unwrap();
+        }
+    });
+    assert!(state.q.iter().all(|q| q.is_finite()));
+    calls
+}
+
+#[test]
+fn every_integrator_steps_the_implicit_form_without_allocating() {
+    let systems = [
+        ("parabola", parabola(), 1.0 / 600.0),
+        ("Holonomic parabola", parabola_rust_type(), 1.0 / 600.0),
+        ("double pendulum", double_pendulum(), 1e-3),
+    ];
+    for (name, system, dt) in systems {
+        for kind in IntegratorKind::ALL {
+            let feedback = Feedback::from_frequency(2.0, 1.0);
+            let calls = calls_while_stepping(Implicit::new(system.clone(), feedback), kind, dt);
+            assert_eq!(
+                calls,
+                0,
+                "implicit {name}, {}: {calls} allocator calls in {STEPS} steps",
+                kind.name()
+            );
+        }
+    }
+}
+
+#[test]
+fn every_integrator_steps_the_parametric_form_without_allocating() {
+    for (name, system, dt) in [
+        ("parabola", parabola(), 1.0 / 600.0),
+        ("double pendulum", double_pendulum(), 1e-3),
+    ] {
+        for kind in IntegratorKind::ALL {
+            let calls = calls_while_stepping(Parametric::new(system.clone()).unwrap(), kind, dt);
+            assert_eq!(
+                calls,
+                0,
+                "parametric {name}, {}: {calls} allocator calls in {STEPS} steps",
+                kind.name()
+            );
+        }
+    }
+}
+
+// run() allocates its buffers once (integrator, monitor, state copies, the final statistics);
+// the loop itself must add nothing, so a 10-step and a 10000-step run make the same number of
+// allocator calls.
+#[test]
+fn run_loop_allocation_count_does_not_depend_on_the_number_of_steps() {
+    for (name, system, dt) in [
+        ("parabola", parabola(), 1.0 / 600.0),
+        ("double pendulum", double_pendulum(), 1e-4),
+    ] {
+        for method in [Method::Implicit, Method::Parametric] {
+            for kind in IntegratorKind::ALL {
+                let calls = |steps: u64| {
+                    let mut formulation =
+                        formulate(system.clone(), method, Feedback::default()).unwrap();
+                    let options = RunOptions {
+                        integrator: kind,
+                        dt,
+                        steps,
+                        every: 1,
+                    };
+                    let (calls, result) =
+                        allocator_calls(|| run(&mut *formulation, &options, &mut NullSink));
+                    assert_eq!(result.unwrap().steps, steps);
+                    calls
+                };
+                let (short, long) = (calls(10), calls(10_000));
+                assert_eq!(
+                    short,
+                    long,
+                    "{name} {} {}: {short} allocator calls in 10 steps, {long} in 10000",
+                    method.name(),
+                    kind.name()
+                );
+            }
+        }
+    }
+}
