@@ -1,8 +1,6 @@
 //! Linear solves behind one interface, so that a sparse or linear-time solver can replace the
 //! dense one without touching the formulations.
 
-use nalgebra::{Cholesky, DMatrix, DVector};
-
 /// A symmetric positive-definite system A z = b that could not be solved because pivot `row`
 /// vanished (relative to A's own diagonal): the row is linearly dependent on earlier ones, or
 /// its own gradient vanishes.
@@ -11,55 +9,78 @@ pub struct Singular {
     pub row: usize,
 }
 
-/// Solves A z = b for symmetric positive-definite A (n x n, both triangles filled).
+/// Solves A z = b for a symmetric positive-definite A.
 pub trait SpdSolver: Send {
-    /// Overwrites `b` with the solution; `a` may be overwritten. Allocation-free after the
-    /// first call at a given size.
-    fn solve(&mut self, a: &mut DMatrix<f64>, b: &mut DVector<f64>) -> Result<(), Singular>;
+    /// `a` is n x n, row-major, both triangles filled; it may be overwritten. `b` (n) is
+    /// overwritten with z. Must not allocate.
+    fn solve(&mut self, n: usize, a: &mut [f64], b: &mut [f64]) -> Result<(), Singular>;
 }
 
-/// Dense Cholesky A = L L^T (nalgebra), about n^3/3 flops, with a relative pivot test:
-/// row j is singular when its pivot L_jj^2 <= eps * A_jj (or A_jj = 0). nalgebra alone only
-/// rejects exactly non-positive pivots and does not say which row, so the test is ours.
-#[derive(Clone, Debug)]
+/// Dense Cholesky A = L L^T in place (left-looking, row-major lower triangle), then forward
+/// and back substitution: n^3/6 multiply-adds plus n square roots.
+///
+/// Pivot test: row j is singular when its pivot d_j = A_jj - sum_k L_jk^2 is not above
+/// `relative_pivot_tolerance * A_jj` (or A_jj <= 0, or d_j is NaN). d_j / A_jj is the squared
+/// sine of the angle between row j of J W^(1/2) and the span of the earlier rows, so the test
+/// is scale-free and names the first dependent row.
+///
+/// ```
+/// use bead::linalg::{DenseCholesky, SpdSolver};
+/// let mut a = [4.0, 1.0, 1.0, 3.0];
+/// let mut b = [1.0, 2.0];
+/// DenseCholesky::default().solve(2, &mut a, &mut b).unwrap();
+/// assert!((b[0] - 1.0 / 11.0).abs() < 1e-15 && (b[1] - 7.0 / 11.0).abs() < 1e-15);
+/// ```
+#[derive(Clone, Copy, Debug)]
 pub struct DenseCholesky {
     /// Pivots below this fraction of the original diagonal count as zero.
     pub relative_pivot_tolerance: f64,
-    diagonal: Vec<f64>,
 }
 
 impl Default for DenseCholesky {
     fn default() -> Self {
         DenseCholesky {
             relative_pivot_tolerance: 1e-10,
-            diagonal: Vec::new(),
         }
     }
 }
 
 impl SpdSolver for DenseCholesky {
-    fn solve(&mut self, a: &mut DMatrix<f64>, b: &mut DVector<f64>) -> Result<(), Singular> {
-        let n = a.nrows();
-        self.diagonal.clear();
-        self.diagonal.extend((0..n).map(|i| a[(i, i)]));
-        // Move the matrix through the factorization and back: no allocation.
-        let matrix = std::mem::replace(a, DMatrix::zeros(0, 0));
-        let factor = Cholesky::new_unchecked(matrix);
-        let l = factor.unpack_dirty();
-        let singular = (0..n).find(|&j| {
-            let pivot = l[(j, j)];
-            let d = self.diagonal[j];
-            !(d > 0.0 && pivot.is_finite() && pivot * pivot > self.relative_pivot_tolerance * d)
-        });
-        let factor = Cholesky::pack_dirty(l);
-        if singular.is_none() {
-            factor.solve_mut(b);
+    fn solve(&mut self, n: usize, a: &mut [f64], b: &mut [f64]) -> Result<(), Singular> {
+        let a = &mut a[..n * n];
+        let b = &mut b[..n];
+        for j in 0..n {
+            // Row j of L: entries k < j from the rows above, then the pivot.
+            for i in 0..j {
+                let mut sum = a[j * n + i];
+                for k in 0..i {
+                    sum -= a[j * n + k] * a[i * n + k];
+                }
+                a[j * n + i] = sum / a[i * n + i];
+            }
+            let diagonal = a[j * n + j];
+            let pivot = diagonal - (0..j).map(|k| a[j * n + k] * a[j * n + k]).sum::<f64>();
+            if !(diagonal > 0.0 && pivot > self.relative_pivot_tolerance * diagonal) {
+                return Err(Singular { row: j });
+            }
+            a[j * n + j] = pivot.sqrt();
         }
-        *a = factor.unpack_dirty();
-        match singular {
-            Some(row) => Err(Singular { row }),
-            None => Ok(()),
+        // L y = b, then L^T z = y.
+        for i in 0..n {
+            let mut sum = b[i];
+            for k in 0..i {
+                sum -= a[i * n + k] * b[k];
+            }
+            b[i] = sum / a[i * n + i];
         }
+        for i in (0..n).rev() {
+            let mut sum = b[i];
+            for k in i + 1..n {
+                sum -= a[k * n + i] * b[k];
+            }
+            b[i] = sum / a[i * n + i];
+        }
+        Ok(())
     }
 }
 
@@ -67,32 +88,70 @@ impl SpdSolver for DenseCholesky {
 mod tests {
     use super::*;
 
+    /// A z = b with a random SPD A = B B^T + I: the residual is at round-off.
     #[test]
-    fn solves_spd_system() {
-        let mut a = DMatrix::from_row_slice(2, 2, &[4.0, 1.0, 1.0, 3.0]);
-        let mut b = DVector::from_row_slice(&[1.0, 2.0]);
-        DenseCholesky::default().solve(&mut a, &mut b).unwrap();
-        // Hand solution: z = [1/11, 7/11].
-        assert!((b[0] - 1.0 / 11.0).abs() < 1e-15 && (b[1] - 7.0 / 11.0).abs() < 1e-15);
+    fn solves_random_spd_systems() {
+        let mut seed = 0x9e3779b97f4a7c15_u64;
+        let mut random = || {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (seed >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+        };
+        for n in 1..8 {
+            let b_matrix: Vec<f64> = (0..n * n).map(|_| random()).collect();
+            let mut a = vec![0.0; n * n];
+            for i in 0..n {
+                for j in 0..n {
+                    a[i * n + j] = (0..n)
+                        .map(|k| b_matrix[i * n + k] * b_matrix[j * n + k])
+                        .sum::<f64>()
+                        + if i == j { 1.0 } else { 0.0 };
+                }
+            }
+            let rhs: Vec<f64> = (0..n).map(|_| random()).collect();
+            let (mut factor, mut z) = (a.clone(), rhs.clone());
+            DenseCholesky::default()
+                .solve(n, &mut factor, &mut z)
+                .unwrap();
+            for i in 0..n {
+                let az: f64 = (0..n).map(|j| a[i * n + j] * z[j]).sum();
+                assert!(
+                    (az - rhs[i]).abs() < 1e-13,
+                    "n = {n}, row {i}: {az} vs {}",
+                    rhs[i]
+                );
+            }
+        }
     }
 
     #[test]
     fn names_the_dependent_row() {
-        let mut a = DMatrix::from_row_slice(3, 3, &[2.0, 0.0, 2.0, 0.0, 1.0, 0.0, 2.0, 0.0, 2.0]);
-        let mut b = DVector::from_row_slice(&[1.0, 1.0, 1.0]);
+        let mut a = [2.0, 0.0, 2.0, 0.0, 1.0, 0.0, 2.0, 0.0, 2.0];
+        let mut b = [1.0, 1.0, 1.0];
         assert_eq!(
-            DenseCholesky::default().solve(&mut a, &mut b),
+            DenseCholesky::default().solve(3, &mut a, &mut b),
             Err(Singular { row: 2 })
         );
     }
 
     #[test]
     fn zero_row_is_singular() {
-        let mut a = DMatrix::from_row_slice(2, 2, &[1.0, 0.0, 0.0, 0.0]);
-        let mut b = DVector::from_row_slice(&[1.0, 1.0]);
+        let mut a = [1.0, 0.0, 0.0, 0.0];
+        let mut b = [1.0, 1.0];
         assert_eq!(
-            DenseCholesky::default().solve(&mut a, &mut b),
+            DenseCholesky::default().solve(2, &mut a, &mut b),
             Err(Singular { row: 1 })
+        );
+    }
+
+    #[test]
+    fn nan_is_singular_not_propagated() {
+        let mut a = [f64::NAN];
+        let mut b = [1.0];
+        assert_eq!(
+            DenseCholesky::default().solve(1, &mut a, &mut b),
+            Err(Singular { row: 0 })
         );
     }
 }

@@ -14,8 +14,6 @@
 
 use std::sync::Arc;
 
-use nalgebra::{DMatrix, DVector};
-
 use super::{Formulation, Method, SecondOrderSystem, State, StepError};
 use crate::linalg::{DenseCholesky, SpdSolver};
 use crate::model::{ConstraintEval, System};
@@ -47,12 +45,12 @@ pub struct Implicit {
     /// F (n)
     force: Vec<f64>,
     constraints: ConstraintEval,
-    /// J dense (m x n), zero outside the sparse structure
-    jacobian: DMatrix<f64>,
-    /// J W J^T (m x m)
-    matrix: DMatrix<f64>,
+    /// J dense, row-major (m x n); entries outside the sparse structure stay 0
+    jacobian: Vec<f64>,
+    /// J W J^T, row-major (m x m)
+    matrix: Vec<f64>,
     /// rhs, then lambda (m)
-    lambda: DVector<f64>,
+    lambda: Vec<f64>,
 }
 
 impl Implicit {
@@ -74,17 +72,16 @@ impl Implicit {
             solver,
             force: vec![0.0; n],
             constraints: system.constraints().workspace(),
-            jacobian: DMatrix::zeros(m, n),
-            matrix: DMatrix::zeros(m, m),
-            lambda: DVector::zeros(m),
+            jacobian: vec![0.0; m * n],
+            matrix: vec![0.0; m * m],
+            lambda: vec![0.0; m],
             system,
         }
     }
 
-    /// The constraint force J^T lambda of the last evaluation is `a * m - F`; exposed for tests:
-    /// the last multipliers lambda (m).
+    /// The multipliers lambda (m) of the last evaluation; the constraint force is J^T lambda.
     pub fn multipliers(&self) -> &[f64] {
-        self.lambda.as_slice()
+        &self.lambda
     }
 }
 
@@ -105,17 +102,19 @@ impl SecondOrderSystem for Implicit {
         let w = &system.inverse_mass;
         system.accumulate_forces(x, v, &mut self.force);
         let m = set.n_rows();
+        let n = x.len();
         if m > 0 {
             set.evaluate(t, x, v, &mut self.constraints);
             let ce = &self.constraints;
-            // Dense copy of J's sparse rows.
+            // Dense copy of J's sparse rows. The structure is fixed, so every structural entry
+            // is overwritten on each call and the others stay 0.
             for i in 0..m {
                 for (&k, &value) in set
                     .row_columns(i)
                     .iter()
                     .zip(&ce.jacobian[set.row_entries(i)])
                 {
-                    self.jacobian[(i, k)] = value;
+                    self.jacobian[i * n + k] = value;
                 }
             }
             // A = J W J^T (symmetric), rhs = -bias - J W F - ks C - kd Cdot.
@@ -125,10 +124,10 @@ impl SecondOrderSystem for Implicit {
                 for j in 0..=i {
                     let mut sum = 0.0;
                     for (&k, &jik) in columns.iter().zip(row) {
-                        sum += jik * w[k] * self.jacobian[(j, k)];
+                        sum += jik * w[k] * self.jacobian[j * n + k];
                     }
-                    self.matrix[(i, j)] = sum;
-                    self.matrix[(j, i)] = sum;
+                    self.matrix[i * m + j] = sum;
+                    self.matrix[j * m + i] = sum;
                 }
                 let jwf: f64 = columns
                     .iter()
@@ -140,7 +139,7 @@ impl SecondOrderSystem for Implicit {
                     - self.feedback.ks * ce.value[i]
                     - self.feedback.kd * ce.velocity[i];
             }
-            if let Err(singular) = self.solver.solve(&mut self.matrix, &mut self.lambda) {
+            if let Err(singular) = self.solver.solve(m, &mut self.matrix, &mut self.lambda) {
                 let info = set.info_of_row(singular.row);
                 return Err(StepError::SingularConstraints {
                     t,
@@ -148,7 +147,7 @@ impl SecondOrderSystem for Implicit {
                     description: info.description.clone(),
                 });
             }
-            // F += J^T lambda, and clear the dense J for the next call.
+            // F += J^T lambda.
             for i in 0..m {
                 for (&k, &jik) in set
                     .row_columns(i)
@@ -156,7 +155,6 @@ impl SecondOrderSystem for Implicit {
                     .zip(&ce.jacobian[set.row_entries(i)])
                 {
                     self.force[k] += jik * self.lambda[i];
-                    self.jacobian[(i, k)] = 0.0;
                 }
             }
         }

@@ -13,8 +13,6 @@
 
 use std::sync::Arc;
 
-use nalgebra::{DMatrix, DVector};
-
 use super::{Formulation, Method, SecondOrderSystem, State, StepError};
 use crate::linalg::{DenseCholesky, SpdSolver};
 use crate::model::{ParametricEval, ParametricMap, System};
@@ -26,10 +24,10 @@ pub struct Parametric {
     map: ParametricEval,
     /// F (n_coords)
     force: Vec<f64>,
-    /// M (n_q x n_q)
-    matrix: DMatrix<f64>,
+    /// M, row-major (n_q x n_q)
+    matrix: Vec<f64>,
     /// rhs, then qddot (n_q)
-    rhs: DVector<f64>,
+    rhs: Vec<f64>,
 }
 
 impl Parametric {
@@ -43,8 +41,8 @@ impl Parametric {
             solver: Box::new(DenseCholesky::default()),
             map: map.workspace(),
             force: vec![0.0; system.n_coords()],
-            matrix: DMatrix::zeros(n_q, n_q),
-            rhs: DVector::zeros(n_q),
+            matrix: vec![0.0; n_q * n_q],
+            rhs: vec![0.0; n_q],
             system,
         })
     }
@@ -87,17 +85,17 @@ impl SecondOrderSystem for Parametric {
                 for (k, w) in inverse_mass.iter().enumerate() {
                     mass += ws.jacobian[k * n_q + j] * ws.jacobian[k * n_q + l] / w;
                 }
-                self.matrix[(j, l)] = mass;
-                self.matrix[(l, j)] = mass;
+                self.matrix[j * n_q + l] = mass;
+                self.matrix[l * n_q + j] = mass;
             }
         }
-        if let Err(singular) = self.solver.solve(&mut self.matrix, &mut self.rhs) {
+        if let Err(singular) = self.solver.solve(n_q, &mut self.matrix, &mut self.rhs) {
             return Err(StepError::SingularMassMatrix {
                 t,
                 coordinate: map.coordinates()[singular.row].clone(),
             });
         }
-        qddot.copy_from_slice(self.rhs.as_slice());
+        qddot.copy_from_slice(&self.rhs);
         Ok(())
     }
 }
