@@ -210,16 +210,7 @@ pub fn run(
     let mut failure = None;
     let mut step = 0;
 
-    if let Err(e) = sink.record(&Sample {
-        step: 0,
-        t: state.t,
-        x: &monitor.x,
-        xdot: &monitor.xdot,
-        energy: monitor.energy,
-        constraint_error: monitor.constraint_error,
-        q: &state.q,
-        qdot: &state.qdot,
-    }) {
+    if let Err(e) = sink.record(&monitor.sample(0, &state)) {
         failure = Some(RunError::Io(e));
     }
 
@@ -260,16 +251,7 @@ pub fn run(
         }
         if step % every == 0 || step == options.steps {
             recorded_step = step;
-            if let Err(e) = sink.record(&Sample {
-                step,
-                t: state.t,
-                x: &monitor.x,
-                xdot: &monitor.xdot,
-                energy: monitor.energy,
-                constraint_error: monitor.constraint_error,
-                q: &state.q,
-                qdot: &state.qdot,
-            }) {
+            if let Err(e) = sink.record(&monitor.sample(step, &state)) {
                 failure = Some(RunError::Io(e));
             }
         }
@@ -284,16 +266,8 @@ pub fn run(
         };
         monitor.observe_quiet(formulation, &previous);
         if good_step != recorded_step {
-            let _ = sink.record(&Sample {
-                step: good_step,
-                t: previous.t,
-                x: &monitor.x,
-                xdot: &monitor.xdot,
-                energy: monitor.energy,
-                constraint_error: monitor.constraint_error,
-                q: &previous.q,
-                qdot: &previous.qdot,
-            });
+            // Best effort: the run has already failed, and that error is the one to report.
+            let _ = sink.record(&monitor.sample(good_step, &previous));
         }
         step = good_step;
         previous
@@ -332,6 +306,20 @@ pub fn run(
 }
 
 impl Monitor {
+    /// The sample of `state` at `step`, with the particle state and diagnostics last observed.
+    fn sample<'a>(&'a self, step: u64, state: &'a crate::formulation::State) -> Sample<'a> {
+        Sample {
+            step,
+            t: state.t,
+            x: &self.x,
+            xdot: &self.xdot,
+            energy: self.energy,
+            constraint_error: self.constraint_error,
+            q: &state.q,
+            qdot: &state.qdot,
+        }
+    }
+
     /// Particle state, energy and constraint error of `state` without touching the maxima.
     fn observe_quiet(
         &mut self,
