@@ -123,7 +123,7 @@ impl Formulation for Parametric {
             .system
             .parametric()
             .expect("checked in Parametric::new");
-        map.evaluate(t, q, qdot, &mut self.map);
+        map.state_at(t, q, qdot, &mut self.map);
         x.copy_from_slice(&self.map.position);
         xdot.copy_from_slice(&self.map.velocity);
     }

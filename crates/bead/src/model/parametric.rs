@@ -25,8 +25,8 @@ pub struct ParametricMap {
     pub(crate) jacobian: Vec<Expr>,
     /// Outputs: x (n) | xdot (n) | h (n) | J (n * n_q).
     tape: Tape,
-    /// Outputs: x (n).
-    position_tape: Tape,
+    /// Outputs: x (n) | xdot (n), for mapping states back to particles.
+    state_tape: Tape,
 }
 
 /// Results and scratch of [`ParametricMap::evaluate`], sized once.
@@ -74,7 +74,7 @@ impl ParametricMap {
         outputs.extend(jacobian.iter().cloned());
         ParametricMap {
             tape: Tape::compile(&outputs),
-            position_tape: Tape::compile(&positions),
+            state_tape: Tape::compile(&[positions.as_slice(), velocities.as_slice()].concat()),
             coordinates,
             initial,
             rates,
@@ -125,7 +125,7 @@ impl ParametricMap {
             bias: vec![0.0; n],
             jacobian: vec![0.0; n * self.n_q()],
             vars: vec![0.0; 2 * self.n_q() + 1],
-            scratch: vec![0.0; self.tape.n_slots().max(self.position_tape.n_slots())],
+            scratch: vec![0.0; self.tape.n_slots().max(self.state_tape.n_slots())],
             out: vec![0.0; self.tape.n_outputs()],
         }
     }
@@ -144,13 +144,17 @@ impl ParametricMap {
         ws.jacobian.copy_from_slice(&ws.out[3 * n..]);
     }
 
-    /// Particle positions x(q, t) only, into `ws.position`.
-    pub fn positions_at<'w>(&self, t: f64, q: &[f64], ws: &'w mut ParametricEval) -> &'w [f64] {
+    /// Particle positions and velocities x(q, t), xdot(q, qdot, t) only, into `ws.position`
+    /// and `ws.velocity`. Allocation-free.
+    pub fn state_at(&self, t: f64, q: &[f64], qdot: &[f64], ws: &mut ParametricEval) {
         let n_q = self.n_q();
+        let n = self.positions.len();
         ws.vars[..n_q].copy_from_slice(q);
+        ws.vars[n_q..2 * n_q].copy_from_slice(qdot);
         ws.vars[2 * n_q] = t;
-        self.position_tape
-            .eval(&ws.vars, &mut ws.scratch, &mut ws.position);
-        &ws.position
+        self.state_tape
+            .eval(&ws.vars, &mut ws.scratch, &mut ws.out[..2 * n]);
+        ws.position.copy_from_slice(&ws.out[..n]);
+        ws.velocity.copy_from_slice(&ws.out[n..2 * n]);
     }
 }
