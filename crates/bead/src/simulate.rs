@@ -4,7 +4,7 @@
 use std::time::Instant;
 
 use crate::formulation::{Formulation, Method, StepError};
-use crate::integrate::IntegratorKind;
+use crate::integrate::{Dopri5, IntegratorKind, IntegratorSettings};
 use crate::model::ConstraintEval;
 
 /// How to run.
@@ -17,6 +17,60 @@ pub struct RunOptions {
     pub steps: u64,
     /// Record every K-th step to the sink (the first and last state are always recorded).
     pub every: u64,
+    /// Tolerances and iteration limits of the integrators that have them.
+    pub settings: IntegratorSettings,
+    /// After every step, project the positions onto C(q, t) = 0 (to
+    /// `settings.constraint_tolerance`, at most `settings.constraint_max_iterations`
+    /// Gauss-Newton iterations) and the velocities onto J qdot + C_t = 0, through
+    /// [`crate::formulation::ConstrainedSystem`]. Implicit form only; not with dopri5.
+    pub project: bool,
+}
+
+impl Default for RunOptions {
+    /// rk4, dt = 1/60 s, 600 steps, every step recorded, default settings, no projection.
+    fn default() -> Self {
+        RunOptions {
+            integrator: IntegratorKind::Rk4,
+            dt: 1.0 / 60.0,
+            steps: 600,
+            every: 1,
+            settings: IntegratorSettings::default(),
+            project: false,
+        }
+    }
+}
+
+/// An absolute tolerance on max_i |C_i| for `system`, in the units of its constraints:
+/// `relative` times max_i |J_i| L at the initial state, where |J_i| is the norm of row i's
+/// gradient and L the largest initial coordinate magnitude (the scene's length scale; 1 when
+/// every coordinate is 0). For the article's parabola C = x^2 + 100 y at (150, -225) this is
+/// relative * 316 * 225 ~ relative * 7e4 (the scale of C, length^2). `relative` itself when
+/// the system has no constraints.
+pub fn constraint_tolerance(system: &crate::model::System, relative: f64) -> f64 {
+    let set = system.constraints();
+    let (x, v) = system.initial_particle_state();
+    let length = x.iter().fold(0.0, |l: f64, c| l.max(c.abs()));
+    let length = if length > 0.0 && length.is_finite() {
+        length
+    } else {
+        1.0
+    };
+    let mut ws = set.workspace();
+    set.evaluate(0.0, &x, &v, &mut ws);
+    let gradient = (0..set.n_rows())
+        .map(|i| {
+            ws.jacobian[set.row_entries(i)]
+                .iter()
+                .map(|j| j * j)
+                .sum::<f64>()
+                .sqrt()
+        })
+        .fold(0.0, f64::max);
+    if gradient > 0.0 && gradient.is_finite() {
+        relative * gradient * length
+    } else {
+        relative
+    }
 }
 
 /// One recorded state, in particle space and in the formulation's own coordinates.
@@ -78,6 +132,15 @@ pub struct RunStats {
     /// Final formulation coordinates and rates.
     pub q: Vec<f64>,
     pub qdot: Vec<f64>,
+    /// Adaptive runs only (dopri5): integrator steps accepted and rejected. For these runs
+    /// `dt` is the output interval and `steps` counts output intervals (t = steps * dt).
+    pub accepted_steps: Option<u64>,
+    pub rejected_steps: Option<u64>,
+    /// Whether positions and velocities were projected onto the constraints after every step.
+    pub projected: bool,
+    /// The most Newton iterations any step needed, over the integrator's own solve (rattle)
+    /// and the projection; `None` when neither ran.
+    pub newton_iterations_max: Option<usize>,
 }
 
 impl RunStats {
@@ -105,6 +168,8 @@ pub enum RunError {
     },
     #[error("writing output failed: {0}")]
     Io(#[from] std::io::Error),
+    #[error("{0}")]
+    Unsupported(String),
 }
 
 /// A run that stopped early, with the figures up to the last good state.
@@ -165,50 +230,53 @@ fn max_nan(a: f64, b: f64) -> f64 {
     }
 }
 
+/// Told how far a run has got, for progress bars. Called at most about 100 times per run
+/// (every `max(1, total / 100)` steps, or output intervals for adaptive runs), from the step
+/// loop, which allocates nothing: implementations should not allocate either.
+pub trait Progress {
+    /// `step` of `total` steps done.
+    fn advance(&mut self, step: u64, total: u64);
+}
+
+/// A [`Progress`] that ignores everything.
+pub struct NoProgress;
+impl Progress for NoProgress {
+    fn advance(&mut self, _: u64, _: u64) {}
+}
+
 /// Run `formulation` from its initial state. The step loop allocates nothing.
 pub fn run(
     formulation: &mut dyn Formulation,
     options: &RunOptions,
     sink: &mut dyn Sink,
 ) -> Result<RunStats, RunFailure> {
+    run_with_progress(formulation, options, sink, &mut NoProgress)
+}
+
+/// [`run`], telling `progress` how far it has got (see [`Progress`]).
+pub fn run_with_progress(
+    formulation: &mut dyn Formulation,
+    options: &RunOptions,
+    sink: &mut dyn Sink,
+    progress: &mut dyn Progress,
+) -> Result<RunStats, RunFailure> {
     let start = Instant::now();
-    let mut state = formulation.initial_state();
-    let mut integrator = options.integrator.build(state.q.len());
-    let n = formulation.system().n_coords();
-    let mut monitor = Monitor {
-        constraints: formulation.system().constraints().workspace(),
-        x: vec![0.0; n],
-        xdot: vec![0.0; n],
-        energy_initial: 0.0,
-        energy_scale: 1.0,
-        energy: 0.0,
-        energy_rel_error_max: 0.0,
-        constraint_error: 0.0,
-        constraint_error_max: 0.0,
-    };
-    formulation.particle_state(
-        state.t,
-        &state.q,
-        &state.qdot,
-        &mut monitor.x,
-        &mut monitor.xdot,
-    );
-    {
-        let system = formulation.system();
-        let (kinetic, potential) = (
-            system.kinetic_energy(&monitor.xdot),
-            system.potential_energy(&monitor.x),
-        );
-        monitor.energy_initial = kinetic + potential;
-        let scale = monitor.energy_initial.abs().max(kinetic + potential.abs());
-        monitor.energy_scale = if scale > 0.0 { scale } else { 1.0 };
+    let unsupported = unsupported(formulation, options);
+    let progress_every = (options.steps / 100).max(1);
+    if options.integrator.is_adaptive() && unsupported.is_none() {
+        return run_adaptive(formulation, options, sink, start, progress);
     }
-    monitor.observe(formulation, state.t, &state.q, &state.qdot);
+    let mut state = formulation.initial_state();
+    let mut integrator = options
+        .integrator
+        .build_with(state.q.len(), &options.settings);
+    let mut monitor = start_monitor(formulation, &state);
     let every = options.every.max(1);
     let mut previous = state.clone();
     let mut recorded_step = 0;
-    let mut failure = None;
+    let mut failure = unsupported;
     let mut step = 0;
+    let mut projection_iterations_max = None;
 
     if let Err(e) = sink.record(&monitor.sample(0, &state)) {
         failure = Some(RunError::Io(e));
@@ -222,9 +290,24 @@ pub fn run(
             failure = Some(RunError::Step(e));
             break;
         }
-        step += 1;
         // Time from the step count, so that it does not accumulate rounding.
-        state.t = step as f64 * options.dt;
+        state.t = (step + 1) as f64 * options.dt;
+        if options.project {
+            match project(formulation, &mut state, &options.settings) {
+                Ok(iterations) => {
+                    projection_iterations_max =
+                        Some(projection_iterations_max.unwrap_or(0).max(iterations));
+                }
+                Err(e) => {
+                    failure = Some(RunError::Step(e));
+                    break;
+                }
+            }
+        }
+        step += 1;
+        if step % progress_every == 0 {
+            progress.advance(step, options.steps);
+        }
         if let Some((quantity, value)) = non_finite(formulation, &state.q, &state.qdot) {
             failure = Some(RunError::Diverged {
                 t: state.t,
@@ -259,7 +342,7 @@ pub fn run(
 
     let last_good = if failure.is_some() && !matches!(failure, Some(RunError::Io(_))) {
         // The state before the failing step is the last good one; make sure the sink has it.
-        let good_step = if matches!(failure, Some(RunError::Step(_))) {
+        let good_step = if matches!(failure, Some(RunError::Step(_) | RunError::Unsupported(_))) {
             step
         } else {
             step - 1
@@ -291,6 +374,16 @@ pub fn run(
         xdot: monitor.xdot.clone(),
         q: last_good.q,
         qdot: last_good.qdot,
+        accepted_steps: None,
+        rejected_steps: None,
+        projected: options.project,
+        newton_iterations_max: match (
+            integrator.newton_iterations_max(),
+            projection_iterations_max,
+        ) {
+            (Some(a), Some(b)) => Some(a.max(b)),
+            (a, b) => a.or(b),
+        },
     };
     match (failure, finish) {
         (Some(error), _) => Err(RunFailure {
@@ -336,6 +429,48 @@ impl Monitor {
     }
 }
 
+/// Why `options` cannot run on `formulation` at all: an integrator or a projection that needs
+/// constraints on a form without them, or a projection with the adaptive integrator.
+fn unsupported(formulation: &mut dyn Formulation, options: &RunOptions) -> Option<RunError> {
+    let constrained = formulation.as_constrained().is_some();
+    if options.integrator.needs_constraints() && !constrained {
+        return Some(RunError::Step(StepError::NeedsConstraints {
+            what: options.integrator.name().into(),
+        }));
+    }
+    if options.project && !constrained {
+        return Some(RunError::Step(StepError::NeedsConstraints {
+            what: "projection (--project)".into(),
+        }));
+    }
+    if options.project && options.integrator.is_adaptive() {
+        return Some(RunError::Unsupported(format!(
+            "projection (--project) is not available with {}: it would invalidate the adaptive integrator's step control and dense output; use a fixed-step integrator",
+            options.integrator.name()
+        )));
+    }
+    None
+}
+
+/// Project `state` onto C = 0 and J qdot + C_t = 0; returns the position iterations.
+fn project(
+    formulation: &mut dyn Formulation,
+    state: &mut crate::formulation::State,
+    settings: &IntegratorSettings,
+) -> Result<usize, StepError> {
+    let Some(constrained) = formulation.as_constrained() else {
+        return Ok(0);
+    };
+    let iterations = constrained.project_positions(
+        state.t,
+        &mut state.q,
+        settings.constraint_tolerance,
+        settings.constraint_max_iterations,
+    )?;
+    constrained.project_velocities(state.t, &state.q, &mut state.qdot)?;
+    Ok(iterations)
+}
+
 /// The first non-finite or blown-up coordinate, named.
 fn non_finite(formulation: &dyn Formulation, q: &[f64], qdot: &[f64]) -> Option<(String, f64)> {
     let name = |k: usize, rate: bool| {
@@ -362,4 +497,178 @@ fn non_finite(formulation: &dyn Formulation, q: &[f64], qdot: &[f64]) -> Option<
         }
     }
     None
+}
+
+/// A monitor at the initial state, with the energy scale fixed there.
+fn start_monitor(formulation: &mut dyn Formulation, state: &crate::formulation::State) -> Monitor {
+    let n = formulation.system().n_coords();
+    let mut monitor = Monitor {
+        constraints: formulation.system().constraints().workspace(),
+        x: vec![0.0; n],
+        xdot: vec![0.0; n],
+        energy_initial: 0.0,
+        energy_scale: 1.0,
+        energy: 0.0,
+        energy_rel_error_max: 0.0,
+        constraint_error: 0.0,
+        constraint_error_max: 0.0,
+    };
+    formulation.particle_state(
+        state.t,
+        &state.q,
+        &state.qdot,
+        &mut monitor.x,
+        &mut monitor.xdot,
+    );
+    let system = formulation.system();
+    let (kinetic, potential) = (
+        system.kinetic_energy(&monitor.xdot),
+        system.potential_energy(&monitor.x),
+    );
+    monitor.energy_initial = kinetic + potential;
+    let scale = monitor.energy_initial.abs().max(kinetic + potential.abs());
+    monitor.energy_scale = if scale > 0.0 { scale } else { 1.0 };
+    monitor.observe(formulation, state.t, &state.q, &state.qdot);
+    monitor
+}
+
+/// The adaptive path (dopri5): integrate to t_final = steps * dt with the integrator's own
+/// steps; dt is the output interval. Samples at every `every * dt` (and t_final) come from the
+/// dense output; the energy and constraint maxima are taken over those samples and over the
+/// end of every accepted step. The last step is shortened to end exactly at t_final; no other
+/// step is shortened for output. The loop allocates nothing.
+fn run_adaptive(
+    formulation: &mut dyn Formulation,
+    options: &RunOptions,
+    sink: &mut dyn Sink,
+    start: Instant,
+    progress: &mut dyn Progress,
+) -> Result<RunStats, RunFailure> {
+    let progress_every = (options.steps / 100).max(1);
+    let mut state = formulation.initial_state();
+    let mut integrator = Dopri5::new(state.q.len(), &options.settings);
+    let mut monitor = start_monitor(formulation, &state);
+    let every = options.every.max(1);
+    let t_final = options.steps as f64 * options.dt;
+    let mut sample = state.clone();
+    let mut previous = state.clone();
+    let mut failure = None;
+    // Output intervals completed: samples lie at interval * dt.
+    let mut interval = 0;
+    let mut recorded = 0;
+
+    if let Err(e) = sink.record(&monitor.sample(0, &state)) {
+        failure = Some(RunError::Io(e));
+    }
+
+    'steps: while failure.is_none() && interval < options.steps {
+        previous.t = state.t;
+        previous.q.copy_from_slice(&state.q);
+        previous.qdot.copy_from_slice(&state.qdot);
+        if let Err(e) = integrator.advance(&mut *formulation, &mut state, t_final) {
+            failure = Some(RunError::Step(e));
+            break;
+        }
+        if let Some((quantity, value)) = non_finite(formulation, &state.q, &state.qdot) {
+            failure = Some(RunError::Diverged {
+                t: state.t,
+                step: interval,
+                quantity,
+                value,
+            });
+            break;
+        }
+        monitor.observe(formulation, state.t, &state.q, &state.qdot);
+        if !monitor.energy.is_finite() || !monitor.constraint_error.is_finite() {
+            let (quantity, value) = if monitor.energy.is_finite() {
+                ("the constraint error".to_string(), monitor.constraint_error)
+            } else {
+                ("the energy".to_string(), monitor.energy)
+            };
+            failure = Some(RunError::Diverged {
+                t: state.t,
+                step: interval,
+                quantity,
+                value,
+            });
+            break;
+        }
+        // Every output time inside this step.
+        loop {
+            let next = interval + 1;
+            let t_sample = if next == options.steps {
+                t_final
+            } else {
+                next as f64 * options.dt
+            };
+            if next > options.steps || t_sample > state.t {
+                break;
+            }
+            interval = next;
+            if interval % progress_every == 0 {
+                progress.advance(interval, options.steps);
+            }
+            if interval % every == 0 || interval == options.steps {
+                integrator.interpolate(t_sample, &mut sample.q, &mut sample.qdot);
+                sample.t = t_sample;
+                monitor.observe(formulation, t_sample, &sample.q, &sample.qdot);
+                recorded = interval;
+                if let Err(e) = sink.record(&monitor.sample(interval, &sample)) {
+                    failure = Some(RunError::Io(e));
+                    break 'steps;
+                }
+            }
+        }
+    }
+
+    let last_good = match &failure {
+        Some(RunError::Io(_)) | None => state,
+        Some(error) => {
+            // A failed step leaves the state as it was; a diverged one is dropped.
+            let good = if matches!(error, RunError::Step(_)) {
+                state
+            } else {
+                previous
+            };
+            monitor.observe_quiet(formulation, &good);
+            if good.t != recorded as f64 * options.dt {
+                // Best effort: the run has already failed, and that error is the one to report.
+                let _ = sink.record(&monitor.sample(interval, &good));
+            }
+            good
+        }
+    };
+    let finish = sink.finish();
+    let stats = RunStats {
+        method: formulation.method(),
+        integrator: options.integrator,
+        dt: options.dt,
+        steps: interval,
+        t_final: last_good.t,
+        wall_seconds: start.elapsed().as_secs_f64(),
+        energy_initial: monitor.energy_initial,
+        energy_final: monitor.energy,
+        energy_rel_error_max: monitor.energy_rel_error_max,
+        constraint_error_max: monitor.constraint_error_max,
+        constraint_error_final: monitor.constraint_error,
+        x: monitor.x.clone(),
+        xdot: monitor.xdot.clone(),
+        q: last_good.q,
+        qdot: last_good.qdot,
+        accepted_steps: Some(integrator.accepted_steps()),
+        rejected_steps: Some(integrator.rejected_steps()),
+        projected: false,
+        newton_iterations_max: None,
+    };
+    match (failure, finish) {
+        (Some(error), _) => Err(RunFailure {
+            error,
+            stats: Box::new(stats),
+        }),
+        (None, Err(e)) => Err(RunFailure {
+            error: RunError::Io(e),
+            stats: Box::new(stats),
+        }),
+        (None, Ok(())) => Ok(stats),
+    }
 }

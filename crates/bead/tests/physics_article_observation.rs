@@ -70,6 +70,7 @@ fn trace(method: Method, feedback: Feedback, integrator: IntegratorKind, steps: 
         dt: DT,
         steps,
         every: 1,
+        ..Default::default()
     };
     let stats = run(&mut *formulation, &options, &mut trace).unwrap();
     assert_eq!(stats.steps, steps);

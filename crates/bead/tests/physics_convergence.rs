@@ -73,6 +73,7 @@ fn engine_position(system: &Arc<System>, method: Method, kind: IntegratorKind, n
         dt: T_END / n as f64,
         steps: n,
         every: n,
+        ..Default::default()
     };
     let stats = run(&mut *formulation, &options, &mut NullSink).unwrap();
     assert_eq!(stats.steps, n);

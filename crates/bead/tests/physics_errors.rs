@@ -24,6 +24,7 @@ fn run_to_failure(system: Arc<System>, method: Method, dt: f64, steps: u64) -> R
         dt,
         steps,
         every: 1,
+        ..Default::default()
     };
     let failure = run(&mut *formulation, &options, &mut NullSink).expect_err("the run must fail");
     // The figures up to the last good state are finite: nothing was integrated into NaN.

@@ -319,10 +319,19 @@ fn unknown_method_and_integrator() {
         "s.toml:13:10: run: method `parametric` needs a `[parametric]` table, and the scene has none\n  \
          method = \"parametric\"\n           ^^^^^^^^^^^^"
     );
+    // Every integrator is listed, in IntegratorKind::ALL's order.
+    let names: Vec<&str> = bead::integrate::IntegratorKind::ALL
+        .iter()
+        .map(|k| k.name())
+        .collect();
+    assert!(names.starts_with(&["euler", "symplectic-euler", "midpoint", "rk4"]));
     assert_eq!(
         error(&format!("{BASE}[run]\nintegrator = \"rk5\"\n")),
-        "s.toml:13:14: run: unknown integrator `rk5`; use one of euler, symplectic-euler, midpoint, rk4\n  \
-         integrator = \"rk5\"\n               ^^^^^"
+        format!(
+            "s.toml:13:14: run: unknown integrator `rk5`; use one of {}\n  \
+             integrator = \"rk5\"\n               ^^^^^",
+            names.join(", ")
+        )
     );
     assert_eq!(
         error(&format!("{BASE}[run]\nstabilize = [1.0]\n")),

@@ -16,7 +16,7 @@ use std::sync::Arc;
 
 use super::{Formulation, Method, SecondOrderSystem, State, StepError};
 use crate::linalg::{DenseCholesky, SpdSolver};
-use crate::model::{ConstraintEval, System};
+use crate::model::{ConstraintEval, ConstraintSet, System};
 
 /// Constraint stabilization Cddot = -ks C - kd Cdot (units 1/s^2 and 1/s).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -39,9 +39,9 @@ impl Feedback {
 
 /// The implicit (constraint-force) formulation; q = particle coordinates.
 pub struct Implicit {
-    system: Arc<System>,
+    pub(crate) system: Arc<System>,
     feedback: Feedback,
-    solver: Box<dyn SpdSolver>,
+    pub(crate) solver: Box<dyn SpdSolver>,
     /// F (n)
     force: Vec<f64>,
     constraints: ConstraintEval,
@@ -51,6 +51,8 @@ pub struct Implicit {
     matrix: Vec<f64>,
     /// rhs, then lambda (m)
     lambda: Vec<f64>,
+    /// Scratch space of the [`super::ConstrainedSystem`] methods (projections).
+    pub(crate) projection: super::constrained::ProjectionWorkspace,
 }
 
 impl Implicit {
@@ -75,6 +77,7 @@ impl Implicit {
             jacobian: vec![0.0; m * n],
             matrix: vec![0.0; m * m],
             lambda: vec![0.0; m],
+            projection: super::constrained::ProjectionWorkspace::new(&system),
             system,
         }
     }
@@ -102,33 +105,14 @@ impl SecondOrderSystem for Implicit {
         let w = &system.inverse_mass;
         system.accumulate_forces(x, v, &mut self.force);
         let m = set.n_rows();
-        let n = x.len();
         if m > 0 {
             set.evaluate(t, x, v, &mut self.constraints);
             let ce = &self.constraints;
-            // Dense copy of J's sparse rows. The structure is fixed, so every structural entry
-            // is overwritten on each call and the others stay 0.
-            for i in 0..m {
-                for (&k, &value) in set
-                    .row_columns(i)
-                    .iter()
-                    .zip(&ce.jacobian[set.row_entries(i)])
-                {
-                    self.jacobian[i * n + k] = value;
-                }
-            }
-            // A = J W J^T (symmetric), rhs = -bias - J W F - ks C - kd Cdot.
+            assemble_jwjt(set, &ce.jacobian, w, &mut self.jacobian, &mut self.matrix);
+            // rhs = -bias - J W F - ks C - kd Cdot.
             for i in 0..m {
                 let columns = set.row_columns(i);
                 let row = &ce.jacobian[set.row_entries(i)];
-                for j in 0..=i {
-                    let mut sum = 0.0;
-                    for (&k, &jik) in columns.iter().zip(row) {
-                        sum += jik * w[k] * self.jacobian[j * n + k];
-                    }
-                    self.matrix[i * m + j] = sum;
-                    self.matrix[j * m + i] = sum;
-                }
                 let jwf: f64 = columns
                     .iter()
                     .zip(row)
@@ -163,6 +147,10 @@ impl SecondOrderSystem for Implicit {
         }
         Ok(())
     }
+
+    fn as_constrained(&mut self) -> Option<&mut dyn super::ConstrainedSystem> {
+        Some(self)
+    }
 }
 
 impl Formulation for Implicit {
@@ -189,5 +177,35 @@ impl Formulation for Implicit {
     ) {
         x.copy_from_slice(q);
         xdot.copy_from_slice(qdot);
+    }
+}
+
+/// A = J W J^T (m x m, row-major) from J's sparse rows (`entries` in the structure of
+/// `set`), through a dense copy `dense_j` of J (m x n, row-major). J's structure is fixed, so
+/// every structural entry is overwritten on each call and the others stay 0.
+pub(crate) fn assemble_jwjt(
+    set: &ConstraintSet,
+    entries: &[f64],
+    w: &[f64],
+    dense_j: &mut [f64],
+    matrix: &mut [f64],
+) {
+    let (m, n) = (set.n_rows(), w.len());
+    for i in 0..m {
+        for (&k, &value) in set.row_columns(i).iter().zip(&entries[set.row_entries(i)]) {
+            dense_j[i * n + k] = value;
+        }
+    }
+    for i in 0..m {
+        let columns = set.row_columns(i);
+        let row = &entries[set.row_entries(i)];
+        for j in 0..=i {
+            let mut sum = 0.0;
+            for (&k, &jik) in columns.iter().zip(row) {
+                sum += jik * w[k] * dense_j[j * n + k];
+            }
+            matrix[i * m + j] = sum;
+            matrix[j * m + i] = sum;
+        }
     }
 }

@@ -9,11 +9,13 @@
 //! Both implement [`SecondOrderSystem`] (all an integrator sees) and [`Formulation`] (what the
 //! run loop needs: the initial state and the map back to particles).
 
+mod constrained;
 mod implicit;
 mod parametric;
 
 use std::sync::Arc;
 
+pub use constrained::ConstrainedSystem;
 pub use implicit::{Feedback, Implicit};
 pub use parametric::Parametric;
 
@@ -32,6 +34,13 @@ pub trait SecondOrderSystem {
         qdot: &[f64],
         a: &mut [f64],
     ) -> Result<(), StepError>;
+
+    /// The holonomic constraints of this system, for integrators and projections that work
+    /// on them directly (RATTLE, `--project`). `None` (the default) for systems without
+    /// constraints to project onto, such as the parametric form.
+    fn as_constrained(&mut self) -> Option<&mut dyn ConstrainedSystem> {
+        None
+    }
 }
 
 /// Why an acceleration could not be computed.
@@ -47,6 +56,22 @@ pub enum StepError {
     SingularMassMatrix { t: f64, coordinate: String },
     #[error("at t = {t}: {quantity} is not finite")]
     NonFinite { t: f64, quantity: String },
+    #[error("at t = {t}: projection onto the constraints did not converge: max |C| = {residual:e} after {iterations} iterations (raise the tolerance or the iteration limit, or reduce dt)")]
+    ProjectionFailed {
+        t: f64,
+        iterations: usize,
+        residual: f64,
+    },
+    #[error("{what} needs the implicit form; the parametric form has no constraints to project onto — use gauss-legendre or rk4")]
+    NeedsConstraints { what: String },
+    #[error("at t = {t}: the implicit stage equations (gauss-legendre) did not converge in {iterations} fixed-point iterations (last increment {residual:.3e} relative to the stage accelerations); reduce dt: the iteration converges when dt is small against the system's time scales")]
+    ImplicitStageFailed {
+        t: f64,
+        iterations: u32,
+        residual: f64,
+    },
+    #[error("step size underflow at t = {t}: the adaptive step fell to {h:.3e} s, below 1e-14 of the time scale (the system is too stiff or singular there, or the tolerances are too tight)")]
+    StepSizeUnderflow { t: f64, h: f64 },
 }
 
 /// Which formulation.

@@ -7,16 +7,28 @@
 //! | `symplectic-euler` | 1 | yes (for separable Hamiltonians) | 1 |
 //! | `midpoint` | 2 | no | 2 |
 //! | `rk4` | 4 | no | 4 |
+//! | `verlet` | 2 | yes (for separable Hamiltonians) | 2 |
+//! | `rattle` | 2 | yes (constrained; implicit form only) | 2 + 1 per Newton iteration |
+//! | `gauss-legendre` | 4 | yes (implicit; fixed-point stage iteration) | 1 + 2 per iteration |
+//! | `dopri5` | 5 (adaptive, error estimate of order 4) | no | 6 per step (FSAL) |
 
+mod dopri5;
 mod euler;
+mod gauss_legendre;
 mod midpoint;
+mod rattle;
 mod rk4;
 mod symplectic_euler;
+mod verlet;
 
+pub use dopri5::Dopri5;
 pub use euler::Euler;
+pub use gauss_legendre::GaussLegendre;
 pub use midpoint::Midpoint;
+pub use rattle::Rattle;
 pub use rk4::Rk4;
 pub use symplectic_euler::SymplecticEuler;
+pub use verlet::Verlet;
 
 use crate::formulation::{SecondOrderSystem, State, StepError};
 
@@ -30,6 +42,50 @@ pub trait Integrator: Send {
         state: &mut State,
         dt: f64,
     ) -> Result<(), StepError>;
+
+    /// For iterative methods: the most iterations (e.g. Newton steps) any step so far has
+    /// needed; `None` for explicit methods.
+    fn newton_iterations_max(&self) -> Option<usize> {
+        None
+    }
+}
+
+/// Settings of the iterative integrators and of the constraint projection, with defaults.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct IntegratorSettings {
+    /// RATTLE's position solve and `--project`: absolute tolerance on max_i |C_i| (in the
+    /// units of C; the caller scales it to the scene, e.g. 1e-12 times the scene's length
+    /// scale squared for a constraint in length^2, see
+    /// [`crate::simulate::constraint_tolerance`]). Default 1e-10.
+    pub constraint_tolerance: f64,
+    /// RATTLE's position solve and `--project`: Newton iterations allowed per step before
+    /// [`StepError::ProjectionFailed`]. Default 50.
+    pub constraint_max_iterations: usize,
+    /// dopri5: relative tolerance of the local error, > 0. Default 1e-8.
+    pub rtol: f64,
+    /// dopri5: absolute tolerance of the local error (units of q and qdot), >= 0. Default
+    /// 1e-10: below the rtol share for any state of magnitude >= 0.01, so that rtol governs
+    /// and atol only guards components passing through zero.
+    pub atol: f64,
+    /// gauss-legendre: the stage iteration stops when its increment's max norm is at most
+    /// this times the stage accelerations' max norm. Default 1e-14 (round-off).
+    pub implicit_tolerance: f64,
+    /// gauss-legendre: stage iterations allowed per step before
+    /// [`StepError::ImplicitStageFailed`]. Default 50.
+    pub implicit_max_iterations: u32,
+}
+
+impl Default for IntegratorSettings {
+    fn default() -> Self {
+        IntegratorSettings {
+            constraint_tolerance: 1e-10,
+            constraint_max_iterations: 50,
+            rtol: 1e-8,
+            atol: 1e-10,
+            implicit_tolerance: 1e-14,
+            implicit_max_iterations: 50,
+        }
+    }
 }
 
 /// The integrators by name, as used in scenes and on the command line.
@@ -39,14 +95,22 @@ pub enum IntegratorKind {
     SymplecticEuler,
     Midpoint,
     Rk4,
+    Verlet,
+    Rattle,
+    GaussLegendre,
+    Dopri5,
 }
 
 impl IntegratorKind {
-    pub const ALL: [IntegratorKind; 4] = [
+    pub const ALL: [IntegratorKind; 8] = [
         IntegratorKind::Euler,
         IntegratorKind::SymplecticEuler,
         IntegratorKind::Midpoint,
         IntegratorKind::Rk4,
+        IntegratorKind::Verlet,
+        IntegratorKind::Rattle,
+        IntegratorKind::GaussLegendre,
+        IntegratorKind::Dopri5,
     ];
 
     /// Name in scene files and on the command line.
@@ -56,20 +120,41 @@ impl IntegratorKind {
             IntegratorKind::SymplecticEuler => "symplectic-euler",
             IntegratorKind::Midpoint => "midpoint",
             IntegratorKind::Rk4 => "rk4",
+            IntegratorKind::Verlet => "verlet",
+            IntegratorKind::Rattle => "rattle",
+            IntegratorKind::GaussLegendre => "gauss-legendre",
+            IntegratorKind::Dopri5 => "dopri5",
         }
     }
     /// Global order of accuracy.
     pub fn order(self) -> u32 {
         match self {
             IntegratorKind::Euler | IntegratorKind::SymplecticEuler => 1,
-            IntegratorKind::Midpoint => 2,
-            IntegratorKind::Rk4 => 4,
+            IntegratorKind::Midpoint | IntegratorKind::Verlet | IntegratorKind::Rattle => 2,
+            IntegratorKind::Rk4 | IntegratorKind::GaussLegendre => 4,
+            IntegratorKind::Dopri5 => 5,
         }
     }
     /// Whether the method is symplectic (for separable Hamiltonians; on the implicit form's
     /// velocity-dependent constraint forces no explicit method is).
     pub fn symplectic(self) -> bool {
-        matches!(self, IntegratorKind::SymplecticEuler)
+        matches!(
+            self,
+            IntegratorKind::SymplecticEuler
+                | IntegratorKind::Verlet
+                | IntegratorKind::Rattle
+                | IntegratorKind::GaussLegendre
+        )
+    }
+    /// Whether the method works on the constraints directly (through
+    /// [`SecondOrderSystem::as_constrained`]) and so needs the implicit form.
+    pub fn needs_constraints(self) -> bool {
+        matches!(self, IntegratorKind::Rattle)
+    }
+    /// Whether the method chooses its own steps (dopri5): the run loop then treats dt as the
+    /// output interval and drives it through [`Dopri5::advance`] and its dense output.
+    pub fn is_adaptive(self) -> bool {
+        matches!(self, IntegratorKind::Dopri5)
     }
     /// One-line description for help texts.
     pub fn describe(self) -> String {
@@ -82,15 +167,32 @@ impl IntegratorKind {
             } else {
                 "not symplectic"
             }
-        )
+        ) + match self {
+            IntegratorKind::GaussLegendre => ", implicit stages",
+            IntegratorKind::Rattle => ", implicit form only: constraints solved each step",
+            IntegratorKind::Dopri5 => ", adaptive: dt is the output interval, see --rtol, --atol",
+            _ => "",
+        }
+    }
+    /// A ready integrator for n coordinates with default [`IntegratorSettings`].
+    pub fn build(self, n: usize) -> Box<dyn Integrator> {
+        self.build_with(n, &IntegratorSettings::default())
     }
     /// A ready integrator for n coordinates.
-    pub fn build(self, n: usize) -> Box<dyn Integrator> {
+    pub fn build_with(self, n: usize, settings: &IntegratorSettings) -> Box<dyn Integrator> {
         match self {
             IntegratorKind::Euler => Box::new(Euler::new(n)),
             IntegratorKind::SymplecticEuler => Box::new(SymplecticEuler::new(n)),
             IntegratorKind::Midpoint => Box::new(Midpoint::new(n)),
             IntegratorKind::Rk4 => Box::new(Rk4::new(n)),
+            IntegratorKind::Verlet => Box::new(Verlet::new(n)),
+            IntegratorKind::Rattle => Box::new(Rattle::new(
+                n,
+                settings.constraint_tolerance,
+                settings.constraint_max_iterations,
+            )),
+            IntegratorKind::GaussLegendre => Box::new(GaussLegendre::new(n, settings)),
+            IntegratorKind::Dopri5 => Box::new(Dopri5::new(n, settings)),
         }
     }
 }

@@ -18,12 +18,15 @@ use crate::simulate::{RunFailure, RunStats};
 /// | `method` | `"implicit"` or `"parametric"` |
 /// | `integrator` | e.g. `"rk4"` |
 /// | `dt` | step size (s) |
-/// | `steps` | steps completed |
+/// | `steps` | steps completed (adaptive runs: output intervals of `dt` completed) |
+/// | `accepted_steps`, `rejected_steps` | adaptive runs (dopri5) only: the integrator's own steps |
 /// | `t_final` | time of the last good state (s) |
 /// | `wall_seconds`, `steps_per_second` | wall time and speed |
 /// | `energy_initial`, `energy_final` | total mechanical energy T + V |
 /// | `energy_rel_error_max` | max relative energy error (see [`RunStats`]) |
 /// | `constraint_error_max`, `constraint_error_final` | max_i \|C_i\| over the run and at the end |
+/// | `projected` | only when `--project` was on: `true` |
+/// | `newton_iterations_max` | rattle or `--project` only: most Newton iterations of any step |
 /// | `particles` | `{NAME: {"position": [..], "velocity": [..]}}` at the end, in particle order |
 /// | `coordinates` | parametric runs only: `{NAME: [q, qdot]}` at the end, in coordinate order |
 /// | `error` | only when the run stopped early: why |
@@ -46,6 +49,12 @@ pub struct Summary {
     pub dt: f64,
     /// Steps completed.
     pub steps: u64,
+    /// Adaptive runs only: integrator steps accepted.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub accepted_steps: Option<u64>,
+    /// Adaptive runs only: integrator step attempts rejected.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub rejected_steps: Option<u64>,
     #[serde(serialize_with = "number")]
     /// Time of the last good state (s).
     pub t_final: f64,
@@ -70,6 +79,13 @@ pub struct Summary {
     #[serde(serialize_with = "number")]
     /// max_i |C_i| at the end.
     pub constraint_error_final: f64,
+    /// Whether positions and velocities were projected onto the constraints after every step
+    /// (written only when true).
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    pub projected: bool,
+    /// Most Newton iterations any step needed (rattle's position solve, the projection).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub newton_iterations_max: Option<usize>,
     /// Final particle states, in particle order.
     pub particles: ParticleStates,
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -137,6 +153,8 @@ impl Summary {
             integrator: stats.integrator,
             dt: stats.dt,
             steps: stats.steps,
+            accepted_steps: stats.accepted_steps,
+            rejected_steps: stats.rejected_steps,
             t_final: stats.t_final,
             wall_seconds: stats.wall_seconds,
             steps_per_second: stats.steps_per_second(),
@@ -145,6 +163,8 @@ impl Summary {
             energy_rel_error_max: stats.energy_rel_error_max,
             constraint_error_max: stats.constraint_error_max,
             constraint_error_final: stats.constraint_error_final,
+            projected: stats.projected,
+            newton_iterations_max: stats.newton_iterations_max,
             particles: ParticleStates(particles),
             coordinates,
             error: None,
@@ -282,6 +302,10 @@ mod tests {
             xdot: vec![5.0, 6.0, 7.0, 8.0],
             q: vec![0.25, 0.75],
             qdot: vec![-1.0, -2.0],
+            accepted_steps: None,
+            rejected_steps: None,
+            projected: false,
+            newton_iterations_max: None,
         }
     }
 
@@ -320,6 +344,26 @@ mod tests {
             value["particles"]["b"]["velocity"],
             serde_json::json!([5.0, 6.0])
         );
+    }
+
+    #[test]
+    fn adaptive_summary_adds_step_counts_after_steps() {
+        let mut s = stats(Method::Implicit);
+        s.integrator = IntegratorKind::Dopri5;
+        s.accepted_steps = Some(120);
+        s.rejected_steps = Some(3);
+        let json = Summary::new("s.toml", &system(), &[], &s)
+            .to_json_pretty()
+            .unwrap();
+        let mut expected: Vec<String> = KEYS.iter().map(|k| k.to_string()).collect();
+        expected.insert(5, "accepted_steps".into());
+        expected.insert(6, "rejected_steps".into());
+        expected.push("completed".into());
+        assert_eq!(keys(&json), expected);
+        let value: serde_json::Value = serde_json::from_str(&json).unwrap();
+        assert_eq!(value["integrator"], "dopri5");
+        assert_eq!(value["accepted_steps"], 120);
+        assert_eq!(value["rejected_steps"], 3);
     }
 
     #[test]

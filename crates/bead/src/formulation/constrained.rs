@@ -1,0 +1,255 @@
+//! Holonomic constraints as seen by structure-preserving integrators (RATTLE) and by the
+//! run loop's projection (`--project`).
+//!
+//! [`ConstrainedSystem`] extends [`SecondOrderSystem`] with what those need beyond qddot:
+//! the applied acceleration a = W F without the constraint force, the constraint values C and
+//! the Jacobian J, and two mass-weighted projections:
+//!
+//! ```text
+//! positions:  repeat  q <- q - W J(q)^T (J W J^T)^-1 C(q, t)   until max|C| <= tolerance
+//! velocities: qdot <- qdot - W J^T (J W J^T)^-1 (J qdot + C_t)  so that J qdot + C_t = 0
+//! ```
+//!
+//! The position projection is a Gauss-Newton iteration for the point of the constraint
+//! manifold nearest to q in the mass metric (quadratic convergence near the manifold). The
+//! velocity projection is exact (one linear solve): the mass-weighted orthogonal projection
+//! onto the velocities the (possibly moving) constraints allow; for time-dependent
+//! constraints the target is J qdot = -C_t.
+//!
+//! Only [`Implicit`] implements it: integrators reach it through
+//! [`SecondOrderSystem::as_constrained`], which is `None` for the parametric form.
+//! Everything is allocation-free after construction.
+
+use super::implicit::assemble_jwjt;
+use super::{Implicit, SecondOrderSystem, StepError};
+use crate::linalg::SpdSolver;
+use crate::model::{ConstraintEval, ConstraintSet, System};
+
+/// A second-order system with holonomic constraints C(q, t) = 0 (m rows) on its coordinates.
+pub trait ConstrainedSystem: SecondOrderSystem {
+    /// Number of constraint rows m.
+    fn n_constraints(&self) -> usize;
+    /// The diagonal inverse mass matrix W (n).
+    fn inverse_mass(&self) -> &[f64];
+    /// a = W F(t, q, qdot): the applied forces only, without any constraint force.
+    fn unconstrained_acceleration(
+        &mut self,
+        t: f64,
+        q: &[f64],
+        qdot: &[f64],
+        a: &mut [f64],
+    ) -> Result<(), StepError>;
+    /// C(q, t) into `c` (m).
+    fn constraint_values(&mut self, t: f64, q: &[f64], c: &mut [f64]);
+    /// J = dC/dq at (q, t) into `jacobian`: dense, row-major m x n, every entry overwritten.
+    fn constraint_jacobian(&mut self, t: f64, q: &[f64], jacobian: &mut [f64]);
+    /// The error to report when constraint row `row` is singular (vanishing gradient or
+    /// dependent on earlier rows) at time t: names the declared constraint.
+    fn singular_constraint(&self, t: f64, row: usize) -> StepError;
+    /// Move q onto C(q, t) = 0 by mass-weighted Gauss-Newton steps
+    /// dq = -W J^T (J W J^T)^-1 C until max|C| <= `tolerance` (absolute, in the units of C).
+    /// Returns the number of iterations (linear solves) used; 0 when q was already within
+    /// tolerance. More than `max_iterations` needed: [`StepError::ProjectionFailed`].
+    fn project_positions(
+        &mut self,
+        t: f64,
+        q: &mut [f64],
+        tolerance: f64,
+        max_iterations: usize,
+    ) -> Result<usize, StepError>;
+    /// qdot <- qdot - W J^T (J W J^T)^-1 (J qdot + C_t): afterwards J qdot + C_t = 0 (to
+    /// round-off). The smallest change of qdot in the kinetic-energy metric.
+    fn project_velocities(&mut self, t: f64, q: &[f64], qdot: &mut [f64]) -> Result<(), StepError>;
+}
+
+/// Scratch space of the projections, sized once for one system.
+pub(crate) struct ProjectionWorkspace {
+    eval: ConstraintEval,
+    /// Zero velocities (n), for evaluations that need only C and J.
+    zeros: Vec<f64>,
+    /// F (n)
+    force: Vec<f64>,
+    /// J dense, row-major (m x n); entries outside the sparse structure stay 0
+    jacobian: Vec<f64>,
+    /// J W J^T (m x m)
+    matrix: Vec<f64>,
+    /// rhs, then the multipliers (m)
+    rhs: Vec<f64>,
+}
+
+impl ProjectionWorkspace {
+    pub(crate) fn new(system: &System) -> Self {
+        let n = system.n_coords();
+        let m = system.constraints().n_rows();
+        ProjectionWorkspace {
+            eval: system.constraints().workspace(),
+            zeros: vec![0.0; n],
+            force: vec![0.0; n],
+            jacobian: vec![0.0; m * n],
+            matrix: vec![0.0; m * m],
+            rhs: vec![0.0; m],
+        }
+    }
+
+    /// After `set.evaluate`: the dense copy of J and A = J W J^T.
+    fn form_matrix(&mut self, set: &ConstraintSet, w: &[f64]) {
+        assemble_jwjt(
+            set,
+            &self.eval.jacobian,
+            w,
+            &mut self.jacobian,
+            &mut self.matrix,
+        );
+    }
+
+    /// Solve (J W J^T) z = rhs in place and subtract W J^T z from `y`.
+    fn correct(
+        &mut self,
+        set: &ConstraintSet,
+        w: &[f64],
+        solver: &mut dyn SpdSolver,
+        t: f64,
+        y: &mut [f64],
+    ) -> Result<(), StepError> {
+        let m = set.n_rows();
+        if let Err(singular) = solver.solve(m, &mut self.matrix, &mut self.rhs) {
+            return Err(singular_error(set, t, singular.row));
+        }
+        for i in 0..m {
+            let z = self.rhs[i];
+            for (&k, &jik) in set
+                .row_columns(i)
+                .iter()
+                .zip(&self.eval.jacobian[set.row_entries(i)])
+            {
+                y[k] -= w[k] * jik * z;
+            }
+        }
+        Ok(())
+    }
+}
+
+fn singular_error(set: &ConstraintSet, t: f64, row: usize) -> StepError {
+    let info = set.info_of_row(row);
+    StepError::SingularConstraints {
+        t,
+        constraint: info.name.clone(),
+        description: info.description.clone(),
+    }
+}
+
+/// max |c_i|, NaN if any is NaN.
+fn max_abs(c: &[f64]) -> f64 {
+    c.iter().fold(0.0, |m: f64, c| {
+        if m.is_nan() || c.is_nan() {
+            f64::NAN
+        } else {
+            m.max(c.abs())
+        }
+    })
+}
+
+impl ConstrainedSystem for Implicit {
+    fn n_constraints(&self) -> usize {
+        self.system.constraints().n_rows()
+    }
+
+    fn inverse_mass(&self) -> &[f64] {
+        &self.system.inverse_mass
+    }
+
+    fn unconstrained_acceleration(
+        &mut self,
+        _t: f64,
+        q: &[f64],
+        qdot: &[f64],
+        a: &mut [f64],
+    ) -> Result<(), StepError> {
+        let system = &*self.system;
+        let ws = &mut self.projection;
+        system.accumulate_forces(q, qdot, &mut ws.force);
+        for ((a, f), w) in a.iter_mut().zip(&ws.force).zip(&system.inverse_mass) {
+            *a = w * f;
+        }
+        Ok(())
+    }
+
+    fn constraint_values(&mut self, t: f64, q: &[f64], c: &mut [f64]) {
+        let values = self
+            .system
+            .constraints()
+            .residuals(t, q, &mut self.projection.eval);
+        c.copy_from_slice(values);
+    }
+
+    fn constraint_jacobian(&mut self, t: f64, q: &[f64], jacobian: &mut [f64]) {
+        let set = self.system.constraints();
+        let n = q.len();
+        let ws = &mut self.projection;
+        set.evaluate(t, q, &ws.zeros, &mut ws.eval);
+        jacobian.fill(0.0);
+        for i in 0..set.n_rows() {
+            for (&k, &value) in set
+                .row_columns(i)
+                .iter()
+                .zip(&ws.eval.jacobian[set.row_entries(i)])
+            {
+                jacobian[i * n + k] = value;
+            }
+        }
+    }
+
+    fn singular_constraint(&self, t: f64, row: usize) -> StepError {
+        singular_error(self.system.constraints(), t, row)
+    }
+
+    fn project_positions(
+        &mut self,
+        t: f64,
+        q: &mut [f64],
+        tolerance: f64,
+        max_iterations: usize,
+    ) -> Result<usize, StepError> {
+        let system = &*self.system;
+        let set = system.constraints();
+        let w = &system.inverse_mass;
+        let ws = &mut self.projection;
+        if set.n_rows() == 0 {
+            return Ok(0);
+        }
+        let mut iterations = 0;
+        loop {
+            set.evaluate(t, q, &ws.zeros, &mut ws.eval);
+            let residual = max_abs(&ws.eval.value);
+            if residual <= tolerance {
+                return Ok(iterations);
+            }
+            if iterations >= max_iterations || residual.is_nan() {
+                return Err(StepError::ProjectionFailed {
+                    t,
+                    iterations,
+                    residual,
+                });
+            }
+            ws.form_matrix(set, w);
+            ws.rhs.copy_from_slice(&ws.eval.value);
+            ws.correct(set, w, &mut *self.solver, t, q)?;
+            iterations += 1;
+        }
+    }
+
+    fn project_velocities(&mut self, t: f64, q: &[f64], qdot: &mut [f64]) -> Result<(), StepError> {
+        let system = &*self.system;
+        let set = system.constraints();
+        let w = &system.inverse_mass;
+        let ws = &mut self.projection;
+        if set.n_rows() == 0 {
+            return Ok(());
+        }
+        // Cdot = J qdot + C_t: the residual of the velocity constraint J qdot = -C_t.
+        set.evaluate(t, q, qdot, &mut ws.eval);
+        ws.form_matrix(set, w);
+        ws.rhs.copy_from_slice(&ws.eval.velocity);
+        ws.correct(set, w, &mut *self.solver, t, qdot)
+    }
+}
