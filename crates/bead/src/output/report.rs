@@ -1,0 +1,755 @@
+//! Reports of a set of runs: a recording [`Sink`] that keeps every series in bounded memory,
+//! period detection, the comparison table and the HTML report with its plots.
+//!
+//! ```text
+//! Recorder (a Sink, one per run) --finish--> Recording
+//! Recording + RunStats + names ----------->  ReportRun
+//! [ReportRun] + title -------------------->  Report --write_report(dir)--> report.html + plots
+//! ```
+//!
+//! A [`Recorder`] keeps at most a given number of min/max buckets (by default
+//! [`plot::DEFAULT_BUCKETS`], 2000 points) per time series and as many trajectory points, whatever the number of steps, and detects the
+//! period from every sample it sees (not only the kept ones).
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use crate::formulation::Method;
+use crate::integrate::IntegratorKind;
+use crate::model::System;
+use crate::output::plot::{
+    self, Figure, HeadTail, MinMaxDecimator, Panel, PlotError, Series, Style,
+};
+use crate::simulate::{RunStats, Sample, Sink};
+
+/// Detects the period of an oscillating signal from its upward zero crossings (negative to
+/// non-negative), each placed by linear interpolation between the two samples around it.
+///
+/// The period is the mean interval between the first and the last crossing (complete cycles
+/// only); it is reported only with at least two crossings and when the intervals agree to
+/// [`PeriodDetector::REGULARITY`] (relative spread), so that a motion that is not periodic
+/// (chaotic, or accelerating like a bead sliding down a helix) has none.
+#[derive(Clone, Debug, Default)]
+pub struct PeriodDetector {
+    previous: Option<(f64, f64)>,
+    first: f64,
+    last: f64,
+    crossings: u64,
+    min_interval: f64,
+    max_interval: f64,
+    max_abs: f64,
+}
+
+impl PeriodDetector {
+    /// Largest relative spread (max - min) / mean of the cycle lengths of a periodic signal.
+    pub const REGULARITY: f64 = 0.05;
+
+    pub fn new() -> Self {
+        PeriodDetector {
+            min_interval: f64::INFINITY,
+            ..Default::default()
+        }
+    }
+
+    /// Add a sample; t must increase.
+    pub fn push(&mut self, t: f64, v: f64) {
+        if !v.is_finite() || !t.is_finite() {
+            self.previous = None;
+            return;
+        }
+        self.max_abs = self.max_abs.max(v.abs());
+        if let Some((t0, v0)) = self.previous {
+            if v0 < 0.0 && v >= 0.0 {
+                let crossing = t0 + (t - t0) * (-v0) / (v - v0);
+                if self.crossings > 0 {
+                    let interval = crossing - self.last;
+                    self.min_interval = self.min_interval.min(interval);
+                    self.max_interval = self.max_interval.max(interval);
+                } else {
+                    self.first = crossing;
+                }
+                self.last = crossing;
+                self.crossings += 1;
+            }
+        }
+        self.previous = Some((t, v));
+    }
+
+    /// Upward crossings seen.
+    pub fn crossings(&self) -> u64 {
+        self.crossings
+    }
+
+    /// Largest |v| seen.
+    pub fn max_abs(&self) -> f64 {
+        self.max_abs
+    }
+
+    /// The mean period over complete cycles, when the signal is periodic (see the type).
+    pub fn period(&self) -> Option<f64> {
+        if self.crossings < 2 {
+            return None;
+        }
+        let mean = (self.last - self.first) / (self.crossings - 1) as f64;
+        if mean > 0.0 && (self.max_interval - self.min_interval) <= Self::REGULARITY * mean {
+            Some(mean)
+        } else {
+            None
+        }
+    }
+}
+
+/// A [`Sink`] that records a run for a report in bounded memory: the constraint error and the
+/// relative energy error |E - E0| / E_scale (E_scale = max(|E0|, T0 + |V0|), or 1 when both
+/// vanish, as in [`RunStats::energy_rel_error_max`]) as min/max-decimated series, the particle
+/// positions of the first and last samples (see [`HeadTail`]), and the period of each particle velocity
+/// component from every sample.
+pub struct Recorder {
+    system: Arc<System>,
+    constraint: MinMaxDecimator,
+    energy: MinMaxDecimator,
+    trajectory: HeadTail,
+    periods: Vec<PeriodDetector>,
+    energy_initial: f64,
+    energy_scale: f64,
+    samples: u64,
+}
+
+impl Recorder {
+    /// A recorder for runs of `system`, keeping at most `2 * buckets` points per series and
+    /// `2 * buckets` trajectory points.
+    pub fn new(system: Arc<System>, buckets: usize) -> Self {
+        let n = system.n_coords();
+        Recorder {
+            constraint: MinMaxDecimator::new(buckets),
+            energy: MinMaxDecimator::new(buckets),
+            trajectory: HeadTail::new(n + 1, buckets),
+            periods: vec![PeriodDetector::new(); n],
+            system,
+            energy_initial: f64::NAN,
+            energy_scale: 1.0,
+            samples: 0,
+        }
+    }
+
+    /// What was recorded.
+    pub fn recording(&self) -> Recording {
+        // The first velocity component that moves (beyond round-off) and is periodic.
+        let largest = self
+            .periods
+            .iter()
+            .map(PeriodDetector::max_abs)
+            .fold(0.0, f64::max);
+        let period = self
+            .periods
+            .iter()
+            .enumerate()
+            .filter(|(_, p)| p.max_abs() > 1e-6 * largest)
+            .find_map(|(k, p)| {
+                p.period().map(|period| Period {
+                    seconds: period,
+                    cycles: p.crossings() - 1,
+                    signal: velocity_name(&self.system, k),
+                })
+            });
+        Recording {
+            constraint_error: self.constraint.points(),
+            energy_error: self.energy.points(),
+            trajectory: self.trajectory.rows(),
+            period,
+            samples: self.samples,
+        }
+    }
+}
+
+/// `bead.vx` for particle coordinate k.
+fn velocity_name(system: &System, k: usize) -> String {
+    let name = system.coordinate_name(k);
+    match name.rsplit_once('.') {
+        Some((particle, axis)) => format!("{particle}.v{axis}"),
+        None => format!("d({name})/dt"),
+    }
+}
+
+impl Sink for Recorder {
+    fn record(&mut self, sample: &Sample) -> std::io::Result<()> {
+        if self.samples == 0 {
+            let kinetic = self.system.kinetic_energy(sample.xdot);
+            let potential = self.system.potential_energy(sample.x);
+            self.energy_initial = kinetic + potential;
+            let scale = self.energy_initial.abs().max(kinetic + potential.abs());
+            self.energy_scale = if scale > 0.0 && scale.is_finite() {
+                scale
+            } else {
+                1.0
+            };
+        }
+        self.samples += 1;
+        self.constraint.push(sample.t, sample.constraint_error);
+        self.energy.push(
+            sample.t,
+            (sample.energy - self.energy_initial).abs() / self.energy_scale,
+        );
+        // Row: t, then the particle coordinates; a stack buffer keeps this allocation-free
+        // for up to 63 coordinates.
+        let mut row = [0.0; 64];
+        let n = sample.x.len().min(63);
+        row[0] = sample.t;
+        row[1..=n].copy_from_slice(&sample.x[..n]);
+        self.trajectory.push(&row[..=n]);
+        for (detector, &v) in self.periods.iter_mut().zip(sample.xdot) {
+            detector.push(sample.t, v);
+        }
+        Ok(())
+    }
+}
+
+/// A measured period.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Period {
+    /// Mean period over complete cycles (s).
+    pub seconds: f64,
+    /// Complete cycles measured.
+    pub cycles: u64,
+    /// The signal whose upward zero crossings were timed, e.g. `bead.vx`.
+    pub signal: String,
+}
+
+/// The decimated series of one run.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Recording {
+    /// (t, max_i |C_i|)
+    pub constraint_error: Vec<(f64, f64)>,
+    /// (t, |E - E0| / E_scale)
+    pub energy_error: Vec<(f64, f64)>,
+    /// Rows `t, x_0, x_1, ...` (particle coordinates): the first and the last samples at full
+    /// resolution, with a row of NaN between them when samples were dropped.
+    pub trajectory: Vec<Vec<f64>>,
+    pub period: Option<Period>,
+    /// Samples seen.
+    pub samples: u64,
+}
+
+/// One run of a report.
+#[derive(Clone, Debug)]
+pub struct ReportRun {
+    pub method: Method,
+    /// Whether the positions were projected onto the constraints after each step.
+    pub projected: bool,
+    pub integrator: IntegratorKind,
+    pub dt: f64,
+    /// dt as the user wrote it (e.g. `1/60`).
+    pub dt_label: String,
+    pub stats: RunStats,
+    /// Why the run stopped early, if it did.
+    pub error: Option<String>,
+    pub recording: Recording,
+}
+
+impl ReportRun {
+    /// `implicit`, `implicit+project` or `parametric`.
+    pub fn method_label(&self) -> String {
+        if self.projected {
+            format!("{}+project", self.method.name())
+        } else {
+            self.method.name().to_string()
+        }
+    }
+
+    /// `implicit rk4 dt=1/60`.
+    pub fn label(&self) -> String {
+        format!(
+            "{} {} dt={}",
+            self.method_label(),
+            self.integrator.name(),
+            self.dt_label
+        )
+    }
+}
+
+/// A set of runs of one scene.
+#[derive(Clone, Debug)]
+pub struct Report {
+    pub title: String,
+    /// One line about the scene and the runs (file, duration, flags).
+    pub description: String,
+    pub system: Arc<System>,
+    pub runs: Vec<ReportRun>,
+    /// Combinations that were not run, with the reason: `parametric x rattle: ...`.
+    pub skipped: Vec<String>,
+}
+
+/// `x` with `sig` significant digits in the shorter of fixed and exponent notation.
+pub fn sig(x: f64, sig: usize) -> String {
+    if !x.is_finite() {
+        return format!("{x}");
+    }
+    if x == 0.0 {
+        return "0".into();
+    }
+    let sig = sig.max(1);
+    let rounded: f64 = format!("{:.*e}", sig - 1, x).parse().unwrap_or(x);
+    let exponent = rounded.abs().log10().floor() as i32;
+    let trim = |s: &str| -> String {
+        if s.contains('.') {
+            s.trim_end_matches('0').trim_end_matches('.').to_string()
+        } else {
+            s.to_string()
+        }
+    };
+    if exponent < -4 || exponent >= sig as i32 {
+        let s = format!("{:.*e}", sig - 1, rounded);
+        match s.split_once('e') {
+            Some((mantissa, exp)) => format!("{}e{exp}", trim(mantissa)),
+            None => s,
+        }
+    } else {
+        let decimals = (sig as i32 - 1 - exponent).max(0) as usize;
+        trim(&format!("{:.*}", decimals, rounded))
+    }
+}
+
+impl Report {
+    /// The comparison table: a header row, then one row per run. Columns: method,
+    /// integrator, dt, final and max constraint error, max relative energy error, period
+    /// (`-` when the motion is not periodic or shows fewer than two crossings), steps/s, and
+    /// when any run is adaptive its accepted/rejected steps, when any failed its status.
+    pub fn rows(&self) -> Vec<Vec<String>> {
+        let adaptive = self.runs.iter().any(|r| r.stats.accepted_steps.is_some());
+        let failed = self.runs.iter().any(|r| r.error.is_some());
+        let mut header: Vec<String> = [
+            "method",
+            "integrator",
+            "dt",
+            "final constraint error",
+            "max constraint error",
+            "max rel energy error",
+            "period (s)",
+            "steps/s",
+        ]
+        .iter()
+        .map(|s| s.to_string())
+        .collect();
+        if adaptive {
+            header.push("accepted/rejected".into());
+        }
+        if failed {
+            header.push("status".into());
+        }
+        let mut rows = vec![header];
+        for run in &self.runs {
+            let s = &run.stats;
+            let mut row = vec![
+                run.method_label(),
+                run.integrator.name().to_string(),
+                run.dt_label.clone(),
+                sig(s.constraint_error_final, 4),
+                sig(s.constraint_error_max, 4),
+                sig(s.energy_rel_error_max, 4),
+                run.recording
+                    .period
+                    .as_ref()
+                    .map(|p| sig(p.seconds, 6))
+                    .unwrap_or_else(|| "-".into()),
+                sig(s.steps_per_second(), 4),
+            ];
+            if adaptive {
+                row.push(match (s.accepted_steps, s.rejected_steps) {
+                    (Some(a), Some(r)) => format!("{a}/{r}"),
+                    _ => "-".into(),
+                });
+            }
+            if failed {
+                row.push(match &run.error {
+                    None => "ok".into(),
+                    Some(e) => format!("stopped at t = {}: {e}", sig(s.t_final, 6)),
+                });
+            }
+            rows.push(row);
+        }
+        rows
+    }
+
+    /// Constraint error vs time.
+    pub fn constraint_figure(&self) -> Figure {
+        Figure {
+            columns: 0,
+            title: format!("{}: constraint error", self.title),
+            panels: vec![Panel {
+                title: "max_i |C_i| vs time (log scale)".into(),
+                x_label: "t (s)".into(),
+                y_label: "max |C_i| (constraint units)".into(),
+                x_log: false,
+                y_log: true,
+                series: self
+                    .runs
+                    .iter()
+                    .map(|r| Series::line(r.label(), r.recording.constraint_error.clone()))
+                    .collect(),
+            }],
+            size: (960, 540),
+        }
+    }
+
+    /// Relative energy error vs time.
+    pub fn energy_figure(&self) -> Figure {
+        Figure {
+            columns: 0,
+            title: format!("{}: energy error", self.title),
+            panels: vec![Panel {
+                title: "|E - E0| / E_scale vs time (log scale)".into(),
+                x_label: "t (s)".into(),
+                y_label: "relative energy error (1)".into(),
+                x_log: false,
+                y_log: true,
+                series: self
+                    .runs
+                    .iter()
+                    .map(|r| Series::line(r.label(), r.recording.energy_error.clone()))
+                    .collect(),
+            }],
+            size: (960, 540),
+        }
+    }
+
+    /// Trajectories in particle space: the x-y plane in 2D; in 3D two panels, the
+    /// projections onto x-y and x-z. The constraint curve is drawn under them from the
+    /// parametric run with the smallest dt (and of those the highest order) when there is one (it stays on C = 0 to round-off).
+    pub fn trajectory_figure(&self) -> Figure {
+        let dim = self.system.dim();
+        let planes: Vec<(usize, &str)> = if dim == 3 {
+            vec![(1, "y"), (2, "z")]
+        } else {
+            vec![(1, "y")]
+        };
+        let reference = self
+            .runs
+            .iter()
+            .filter(|r| r.method == Method::Parametric && r.error.is_none())
+            .min_by(|a, b| {
+                a.dt.total_cmp(&b.dt)
+                    .then(b.integrator.order().cmp(&a.integrator.order()))
+            });
+        let particles = self.system.particles();
+        let panels = planes
+            .iter()
+            .map(|&(axis, axis_name)| {
+                let mut series = Vec::new();
+                let coords = |row: &[f64], p: usize| {
+                    let base = 1 + p * dim;
+                    (
+                        row.get(base).copied().unwrap_or(f64::NAN),
+                        row.get(base + axis).copied().unwrap_or(f64::NAN),
+                    )
+                };
+                if let Some(reference) = reference {
+                    for p in 0..particles.len() {
+                        series.push(Series {
+                            label: if p == 0 {
+                                format!("constraint curve (from {})", reference.label())
+                            } else {
+                                String::new()
+                            },
+                            points: reference
+                                .recording
+                                .trajectory
+                                .iter()
+                                .map(|r| coords(r, p))
+                                .collect(),
+                            style: Style::Reference,
+                        });
+                    }
+                }
+                for run in &self.runs {
+                    for (p, particle) in particles.iter().enumerate() {
+                        let label = if particles.len() > 1 {
+                            format!("{} {}", run.label(), particle.name)
+                        } else {
+                            run.label()
+                        };
+                        series.push(Series::line(
+                            label,
+                            run.recording
+                                .trajectory
+                                .iter()
+                                .map(|r| coords(r, p))
+                                .collect(),
+                        ));
+                    }
+                }
+                Panel {
+                    title: format!("x-{axis_name} plane"),
+                    x_label: "x (scene length units)".into(),
+                    y_label: format!("{axis_name} (scene length units)"),
+                    x_log: false,
+                    y_log: false,
+                    series,
+                }
+            })
+            .collect();
+        Figure {
+            columns: 0,
+            title: format!("{}: trajectories", self.title),
+            panels,
+            size: if dim == 3 { (1200, 560) } else { (960, 600) },
+        }
+    }
+
+    /// Work-precision: max constraint error and max relative energy error vs wall time, one
+    /// series per method x integrator across the dts.
+    pub fn work_precision_figure(&self) -> Figure {
+        let mut keys: Vec<(String, IntegratorKind)> = Vec::new();
+        for r in &self.runs {
+            let key = (r.method_label(), r.integrator);
+            if !keys.contains(&key) {
+                keys.push(key);
+            }
+        }
+        let series = |error: fn(&RunStats) -> f64| -> Vec<Series> {
+            keys.iter()
+                .map(|(method, integrator)| {
+                    let mut points: Vec<(f64, f64)> = self
+                        .runs
+                        .iter()
+                        .filter(|r| {
+                            &r.method_label() == method
+                                && r.integrator == *integrator
+                                && r.error.is_none()
+                        })
+                        .map(|r| (r.stats.wall_seconds, error(&r.stats)))
+                        .collect();
+                    points.sort_by(|a, b| a.0.total_cmp(&b.0));
+                    Series {
+                        label: format!("{method} {}", integrator.name()),
+                        points,
+                        style: Style::LineAndMarkers,
+                    }
+                })
+                .collect()
+        };
+        Figure {
+            columns: 0,
+            title: format!("{}: work-precision (one point per dt)", self.title),
+            panels: vec![
+                Panel {
+                    title: "max constraint error vs wall time".into(),
+                    x_label: "wall time (s)".into(),
+                    y_label: "max |C_i| (constraint units)".into(),
+                    x_log: true,
+                    y_log: true,
+                    series: series(|s| s.constraint_error_max),
+                },
+                Panel {
+                    title: "max relative energy error vs wall time".into(),
+                    x_label: "wall time (s)".into(),
+                    y_label: "max |E - E0| / E_scale (1)".into(),
+                    x_log: true,
+                    y_log: true,
+                    series: series(|s| s.energy_rel_error_max),
+                },
+            ],
+            size: (1200, 540),
+        }
+    }
+}
+
+/// The files of a written report.
+#[derive(Clone, Debug)]
+pub struct ReportFiles {
+    pub html: PathBuf,
+    /// Every plot file (PNG and SVG).
+    pub plots: Vec<PathBuf>,
+}
+
+/// Why a report could not be written.
+#[derive(Debug, thiserror::Error)]
+pub enum ReportError {
+    #[error(transparent)]
+    Plot(#[from] PlotError),
+    #[error("cannot write `{path}`: {source}")]
+    Io {
+        path: String,
+        source: std::io::Error,
+    },
+}
+
+fn escape(s: &str) -> String {
+    s.replace('&', "&amp;")
+        .replace('<', "&lt;")
+        .replace('>', "&gt;")
+        .replace('"', "&quot;")
+}
+
+const CSS: &str = "body{font-family:sans-serif;max-width:1250px;margin:1.5em auto;padding:0 1em;color:#222}\
+table{border-collapse:collapse;font-size:14px}th,td{border:1px solid #ccc;padding:3px 8px}\
+td{text-align:right;font-variant-numeric:tabular-nums}td:first-child,td:nth-child(2){text-align:left}\
+th{background:#f0f0f0}figure{margin:1.5em 0}figcaption{font-size:14px;color:#444;margin-top:.3em}\
+svg{max-width:100%;height:auto}.skipped{color:#844}";
+
+/// Write `report` into `dir` (created if needed): `report.html` and, per figure, a PNG and an
+/// SVG (`constraint_error`, `energy_error`, `trajectories`, `work_precision`). The HTML is
+/// self-contained: inline CSS, the table, the SVGs inline, and relative links to the PNG and
+/// SVG files beside it.
+pub fn write_report(report: &Report, dir: &Path) -> Result<ReportFiles, ReportError> {
+    let io = |path: &Path| {
+        let path = path.display().to_string();
+        move |source| ReportError::Io { path, source }
+    };
+    std::fs::create_dir_all(dir).map_err(io(dir))?;
+    let figures = [
+        (
+            "constraint_error",
+            report.constraint_figure(),
+            "Constraint error max_i |C_i| against time, per run.",
+        ),
+        (
+            "energy_error",
+            report.energy_figure(),
+            "Relative energy error |E - E0| / E_scale against time, per run (E_scale = max(|E0|, T0 + |V0|)).",
+        ),
+        (
+            "trajectories",
+            report.trajectory_figure(),
+            if report.system.dim() == 3 {
+                "Trajectories in particle space, projected onto the x-y plane (left) and the x-z plane (right); for long runs the first and the last samples of each run (each at full resolution)."
+            } else {
+                "Trajectories in particle space (the x-y plane), over the constraint curve; for long runs the first and the last samples of each run (each at full resolution)."
+            },
+        ),
+        (
+            "work_precision",
+            report.work_precision_figure(),
+            "Work-precision: the largest error of each run against its wall time; one point per dt, one line per method and integrator.",
+        ),
+    ];
+    let mut html = String::new();
+    let _ = write!(
+        html,
+        "<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n<title>{}</title>\n<style>{CSS}</style>\n</head>\n<body>\n<h1>{}</h1>\n<p>{}</p>\n",
+        escape(&report.title),
+        escape(&report.title),
+        escape(&report.description)
+    );
+    html.push_str("<table>\n");
+    for (i, row) in report.rows().iter().enumerate() {
+        let cell = if i == 0 { "th" } else { "td" };
+        html.push_str("<tr>");
+        for c in row {
+            let _ = write!(html, "<{cell}>{}</{cell}>", escape(c));
+        }
+        html.push_str("</tr>\n");
+    }
+    html.push_str("</table>\n");
+    let periods: Vec<String> = report
+        .runs
+        .iter()
+        .filter_map(|r| {
+            r.recording.period.as_ref().map(|p| {
+                format!(
+                    "{}: {} s over {} cycles (upward zero crossings of {})",
+                    r.label(),
+                    sig(p.seconds, 6),
+                    p.cycles,
+                    p.signal
+                )
+            })
+        })
+        .collect();
+    if !periods.is_empty() {
+        html.push_str(
+            "<p>Periods, from linearly interpolated zero crossings of every sample:</p>\n<ul>\n",
+        );
+        for p in periods {
+            let _ = writeln!(html, "<li>{}</li>", escape(&p));
+        }
+        html.push_str("</ul>\n");
+    }
+    if !report.skipped.is_empty() {
+        html.push_str("<p>Not run:</p>\n<ul class=\"skipped\">\n");
+        for s in &report.skipped {
+            let _ = writeln!(html, "<li>skipped: {}</li>", escape(s));
+        }
+        html.push_str("</ul>\n");
+    }
+    let mut plots = Vec::new();
+    for (name, figure, caption) in &figures {
+        let png = dir.join(format!("{name}.png"));
+        let svg_path = dir.join(format!("{name}.svg"));
+        plot::write_figure(figure, &png)?;
+        let svg = plot::svg_string(figure).map_err(|message| PlotError::Draw {
+            path: svg_path.display().to_string(),
+            message,
+        })?;
+        std::fs::write(&svg_path, &svg).map_err(io(&svg_path))?;
+        plots.push(png);
+        plots.push(svg_path);
+        let mut caption = caption.to_string();
+        if let Some(note) = figure.note() {
+            let _ = write!(caption, " Log axes: {note}; NaN points are skipped.");
+        }
+        let _ = write!(
+            html,
+            "<figure>\n{}\n<figcaption>{} Files: <a href=\"{name}.png\">{name}.png</a>, <a href=\"{name}.svg\">{name}.svg</a>.</figcaption>\n</figure>\n",
+            strip_xml_declaration(&svg),
+            escape(&caption)
+        );
+    }
+    let _ = writeln!(
+        html,
+        "<p>Each series is decimated to a bounded number of points (the minimum and maximum of each bucket of consecutive samples, so spikes survive); periods use every sample.</p>\n</body>\n</html>"
+    );
+    let path = dir.join("report.html");
+    std::fs::write(&path, html).map_err(io(&path))?;
+    Ok(ReportFiles { html: path, plots })
+}
+
+fn strip_xml_declaration(svg: &str) -> &str {
+    match svg.find("<svg") {
+        Some(i) => &svg[i..],
+        None => svg,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn period_of_a_sine_from_interpolated_crossings() {
+        let mut d = PeriodDetector::new();
+        let period = 2.153;
+        let dt = 0.01;
+        for i in 0..2000 {
+            let t = i as f64 * dt;
+            d.push(t, (2.0 * std::f64::consts::PI * t / period + 0.3).sin());
+        }
+        let measured = d.period().unwrap();
+        assert!((measured - period).abs() < 1e-4 * period, "{measured}");
+    }
+
+    #[test]
+    fn no_period_without_two_crossings_or_when_irregular() {
+        let mut d = PeriodDetector::new();
+        for i in 0..100 {
+            let t = i as f64 * 0.01;
+            d.push(t, (6.0 * t).sin()); // one upward crossing at most
+        }
+        assert_eq!(d.period(), None);
+        // A chirp: the cycles get shorter.
+        let mut d = PeriodDetector::new();
+        for i in 0..10_000 {
+            let t = i as f64 * 0.01;
+            d.push(t, (t * t).sin());
+        }
+        assert!(d.crossings() > 2);
+        assert_eq!(d.period(), None);
+    }
+
+    #[test]
+    fn sig_formats() {
+        assert_eq!(sig(1.0 / 60.0, 4), "0.01667");
+        assert_eq!(sig(1.234e-8, 4), "1.234e-8");
+        assert_eq!(sig(0.0, 4), "0");
+    }
+}
