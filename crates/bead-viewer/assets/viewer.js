@@ -1,0 +1,593 @@
+// bead viewer: draws what the server streams over /ws (protocol: crates/bead-viewer/src/protocol.rs).
+// Plain modern JavaScript, no build step, no dependencies.
+"use strict";
+
+(function () {
+  const $ = (id) => document.getElementById(id);
+  const TRAIL = 120;        // trail points per particle
+  const HISTORY = 900;      // chart points per panel
+
+  const state = {
+    ws: null,
+    welcome: null,
+    scene: null,
+    panels: new Map(),      // id -> { info, frame, dom, trail, history, view }
+    drags: new Map(),       // panel id -> particle being dragged
+    pendingMoves: new Map(),// panel id -> latest drag_move, sent once per animation frame
+  };
+  window.__viewer = state;  // for the end-to-end tests
+
+  function send(message) {
+    if (state.ws && state.ws.readyState === WebSocket.OPEN) {
+      state.ws.send(JSON.stringify(message));
+    }
+  }
+
+  function showMessage(text) {
+    const box = $("messages");
+    const line = document.createElement("div");
+    line.textContent = text;
+    box.prepend(line);
+    while (box.childElementCount > 4) box.lastElementChild.remove();
+    setTimeout(() => line.remove(), 8000);
+  }
+
+  // ---------- number formatting ----------
+  function fmt(v, digits = 4) {
+    if (!Number.isFinite(v)) return String(v);
+    const a = Math.abs(v);
+    if (a !== 0 && (a < 1e-3 || a >= 1e6)) return v.toExponential(digits - 1);
+    let text = v.toPrecision(digits + 2);
+    if (text.includes(".") && !text.includes("e")) text = text.replace(/0+$/, "").replace(/\.$/, "");
+    return text;
+  }
+
+  function niceStep(range, count) {
+    const raw = range / Math.max(count, 1);
+    const p = Math.pow(10, Math.floor(Math.log10(raw)));
+    const m = raw / p;
+    return (m < 1.5 ? 1 : m < 3.5 ? 2 : m < 7.5 ? 5 : 10) * p;
+  }
+
+  // ---------- connection ----------
+  function connect() {
+    const proto = location.protocol === "https:" ? "wss:" : "ws:";
+    const ws = new WebSocket(`${proto}//${location.host}/ws`);
+    state.ws = ws;
+    ws.onopen = () => { $("connection").textContent = "connected"; };
+    ws.onclose = () => {
+      $("connection").textContent = "disconnected — reload to reconnect";
+    };
+    ws.onmessage = (event) => {
+      let msg;
+      try { msg = JSON.parse(event.data); } catch (e) { return; }
+      handle(msg);
+    };
+  }
+
+  function handle(msg) {
+    switch (msg.type) {
+      case "welcome": onWelcome(msg); break;
+      case "scene": onScene(msg); break;
+      case "panels": onPanels(msg.panels); break;
+      case "frame": onFrame(msg); break;
+      case "error":
+        if (msg.panel != null && state.panels.has(msg.panel)) {
+          const p = state.panels.get(msg.panel);
+          p.dom.configError.textContent = msg.message;
+        } else {
+          showMessage(`${msg.request ? msg.request + ": " : ""}${msg.message}`);
+        }
+        break;
+      case "scene_error":
+        $("scene-error").hidden = false;
+        $("scene-error").textContent = msg.message;
+        break;
+      case "curve_error": onCurveError(msg); break;
+      default: break;
+    }
+  }
+
+  function option(select, value, label, title) {
+    const o = document.createElement("option");
+    o.value = value;
+    o.textContent = label;
+    if (title) o.title = title;
+    select.appendChild(o);
+    return o;
+  }
+
+  function onWelcome(msg) {
+    state.welcome = msg;
+    const picker = $("scene-select");
+    picker.innerHTML = "";
+    for (const name of msg.scenes) option(picker, name, name);
+    for (const sel of [$("new-integrator")]) {
+      sel.innerHTML = "";
+      for (const k of msg.integrators) option(sel, k.name, k.name, k.description);
+      sel.value = "rk4";
+    }
+    $("new-method").innerHTML = "";
+    for (const m of msg.methods) option($("new-method"), m, m);
+    // `?scene=NAME` opens another shipped scene first.
+    const wanted = new URLSearchParams(location.search).get("scene");
+    if (wanted && msg.scenes.includes(wanted) && wanted !== msg.scenes[0]) {
+      send({ type: "load_scene", name: wanted });
+    }
+  }
+
+  function onScene(scene) {
+    state.scene = scene;
+    $("scene-error").hidden = true;
+    $("scene-title").textContent = `${scene.title} (${scene.name})` +
+      (scene.dim === 3 ? " — 3D, drawn projected onto x-y" : "");
+    $("scene-warnings").textContent = scene.warnings.map((w) => "warning: " + w).join("\n");
+    const picker = $("scene-select");
+    if ([...picker.options].some((o) => o.value === scene.name)) picker.value = scene.name;
+    buildCurveEditors(scene);
+    for (const p of state.panels.values()) p.dom.root.remove();
+    state.panels.clear();
+    state.drags.clear();
+    state.pendingMoves.clear();
+  }
+
+  // ---------- curve editor ----------
+  function buildCurveEditors(scene) {
+    const box = $("curves");
+    box.innerHTML = "";
+    scene.constraints.forEach((c, index) => {
+      if (c.expr == null) return;
+      const row = document.createElement("div");
+      row.className = "curve-edit";
+      row.dataset.constraint = String(index);
+      const label = document.createElement("label");
+      label.textContent = `${c.name}: `;
+      const input = document.createElement("input");
+      input.type = "text";
+      input.className = "curve-expr";
+      input.value = c.expr;
+      input.spellcheck = false;
+      const suffix = document.createElement("span");
+      suffix.textContent = " = 0 ";
+      const apply = document.createElement("button");
+      apply.className = "curve-apply";
+      apply.textContent = "Apply to implicit panels";
+      const error = document.createElement("pre");
+      error.className = "curve-error error";
+      error.hidden = true;
+      const submit = () => {
+        error.hidden = true;
+        send({ type: "set_curve", constraint: index, expr: input.value });
+      };
+      apply.onclick = submit;
+      input.addEventListener("keydown", (e) => { if (e.key === "Enter") submit(); });
+      label.append(input, suffix, apply);
+      row.append(label, error);
+      box.appendChild(row);
+    });
+  }
+
+  function onCurveError(msg) {
+    const row = document.querySelector(`#curves .curve-edit[data-constraint="${msg.constraint}"]`);
+    if (!row) { showMessage("set_curve: " + msg.message); return; }
+    const error = row.querySelector(".curve-error");
+    const expr = row.querySelector(".curve-expr").value;
+    let text = msg.message;
+    if (msg.columns) {
+      const [a, b] = msg.columns;
+      text += "\n  " + expr + "\n  " + " ".repeat(a) + "^".repeat(Math.max(1, b - a));
+    }
+    error.textContent = text;
+    error.hidden = false;
+  }
+
+  // ---------- panels ----------
+  function onPanels(list) {
+    const seen = new Set();
+    for (const info of list) {
+      seen.add(info.id);
+      let p = state.panels.get(info.id);
+      if (!p) {
+        p = { info, frame: null, dom: buildPanel(info), trail: [], history: [] };
+        state.panels.set(info.id, p);
+        $("panels").appendChild(p.dom.root);
+      } else {
+        const reset = p.info.method !== info.method || p.info.integrator !== info.integrator ||
+          p.info.dt !== info.dt || JSON.stringify(p.info.exprs) !== JSON.stringify(info.exprs) ||
+          p.info.ks !== info.ks || p.info.kd !== info.kd || p.info.project !== info.project;
+        p.info = info;
+        if (reset) { p.trail = []; p.history = []; }
+      }
+      fillConfig(p);
+      p.dom.configError.textContent = "";
+    }
+    for (const [id, p] of state.panels) {
+      if (!seen.has(id)) { p.dom.root.remove(); state.panels.delete(id); }
+    }
+    // A successful curve edit comes back as a panels message: clear curve errors.
+    for (const e of document.querySelectorAll("#curves .curve-error")) e.hidden = true;
+  }
+
+  function el(tag, cls, text) {
+    const e = document.createElement(tag);
+    if (cls) e.className = cls;
+    if (text != null) e.textContent = text;
+    return e;
+  }
+
+  function buildPanel(info) {
+    const root = el("div", "panel");
+    root.dataset.panel = String(info.id);
+    const title = el("h2");
+    const name = el("span", "panel-title");
+    const remove = el("button", "remove", "×");
+    remove.title = "remove this panel";
+    remove.onclick = () => send({ type: "remove_panel", panel: info.id });
+    title.append(name, remove);
+    const canvas = el("canvas", "view");
+    canvas.width = 920; canvas.height = 680;
+    const note = el("div", "note muted");
+    const readout = el("div", "readout");
+    const fields = {};
+    for (const key of ["t", "energy", "erel", "cerr", "sps", "status"]) {
+      fields[key] = el("span", "r-" + key);
+      readout.appendChild(fields[key]);
+    }
+    const charts = el("div", "charts");
+    const chartE = el("canvas", "chart chart-energy");
+    const chartC = el("canvas", "chart chart-cerr");
+    for (const c of [chartE, chartC]) { c.width = 454; c.height = 180; charts.appendChild(c); }
+    const config = el("div", "config");
+    const method = el("select", "method");
+    for (const m of state.welcome ? state.welcome.methods : ["implicit", "parametric"]) option(method, m, m);
+    const integrator = el("select", "integrator");
+    for (const k of state.welcome ? state.welcome.integrators : []) option(integrator, k.name, k.name, k.description);
+    const dt = el("input", "dt"); dt.type = "text";
+    const ks = el("input", "ks"); ks.type = "text";
+    const kd = el("input", "kd"); kd.type = "text";
+    const project = el("input", "project"); project.type = "checkbox";
+    const apply = el("button", "apply", "Apply");
+    const playOne = el("button", "play-one", "▶/❚❚");
+    playOne.title = "play / pause this panel";
+    const labelled = (text, input) => { const l = el("label", null, text + " "); l.appendChild(input); return l; };
+    config.append(method, integrator, labelled("dt", dt), labelled("ks", ks), labelled("kd", kd),
+      labelled("project", project), apply, playOne);
+    const configError = el("div", "panel-error error");
+    const failure = el("div", "panel-failure error");
+    apply.onclick = () => {
+      const isImplicit = method.value === "implicit";
+      const msg = {
+        type: "configure_panel", panel: info.id, method: method.value, integrator: integrator.value,
+        dt: Number(dt.value), ks: isImplicit ? Number(ks.value) : 0, kd: isImplicit ? Number(kd.value) : 0,
+        project: isImplicit && project.checked,
+      };
+      for (const k of ["dt", "ks", "kd"]) {
+        if (!Number.isFinite(msg[k])) { configError.textContent = `${k} must be a number`; return; }
+      }
+      send(msg);
+    };
+    // Switching the integrator applies at once.
+    integrator.onchange = () => apply.onclick();
+    method.onchange = () => apply.onclick();
+    playOne.onclick = () => {
+      const p = state.panels.get(info.id);
+      const running = p && p.frame && p.frame.status === "running";
+      send({ type: running ? "pause" : "play", panel: info.id });
+    };
+    root.append(title, canvas, note, readout, charts, config, configError, failure);
+    const dom = { root, name, canvas, note, fields, chartE, chartC, method, integrator, dt, ks, kd, project, configError, failure };
+    installDrag(info.id, canvas);
+    return dom;
+  }
+
+  function fillConfig(p) {
+    const { info, dom } = p;
+    dom.name.textContent = `#${info.id} ${info.method} · ${info.integrator} · dt ${fmt(info.dt)}` +
+      (info.ks || info.kd ? ` · ks ${fmt(info.ks)}, kd ${fmt(info.kd)}` : "") + (info.project ? " · projected" : "");
+    dom.method.value = info.method;
+    dom.integrator.value = info.integrator;
+    dom.dt.value = String(info.dt);
+    dom.ks.value = String(info.ks);
+    dom.kd.value = String(info.kd);
+    dom.project.checked = info.project;
+    const scene = state.scene;
+    const notes = [];
+    if (scene && scene.dim === 3) notes.push("3D scene: projected onto x-y");
+    notes.push(info.curve_source === "contour" ? "curve: zero set of C (marching squares)" :
+      info.curve_source === "parametric" ? "curve: x(q) sampled" : "no curve drawn");
+    notes.push("+y down; drag a particle with the mouse");
+    dom.note.textContent = notes.join(" · ");
+  }
+
+  function onFrame(msg) {
+    for (const f of msg.panels) {
+      const p = state.panels.get(f.id);
+      if (!p) continue;
+      const previous = p.frame;
+      p.frame = f;
+      if (previous && f.t < previous.t) { p.trail = []; p.history = []; }
+      if (!previous || f.t !== previous.t || f.steps !== previous.steps) {
+        p.trail.push(f.x.slice());
+        if (p.trail.length > TRAIL) p.trail.shift();
+        p.history.push([f.t, f.energy_rel_error, f.constraint_error]);
+        if (p.history.length > HISTORY) p.history.shift();
+      }
+      const r = p.dom.fields;
+      r.t.textContent = `t = ${fmt(f.t)} s`;
+      r.energy.textContent = `E = ${fmt(f.energy, 7)}`;
+      r.erel.textContent = `|ΔE|/E = ${fmt(f.energy_rel_error)}`;
+      r.cerr.textContent = `|C| = ${fmt(f.constraint_error)}`;
+      r.cerr.dataset.value = String(f.constraint_error);
+      r.sps.textContent = `steps/s = ${fmt(f.steps_per_second, 3)}`;
+      r.status.textContent = f.status + (f.behind ? " (behind real time)" : "");
+      p.dom.failure.textContent = f.error || "";
+    }
+    const anyRunning = msg.panels.some((f) => f.status === "running");
+    $("play").textContent = anyRunning ? "Pause" : "Play";
+  }
+
+  // ---------- drawing ----------
+  function transform(p) {
+    const c = p.dom.canvas;
+    const v = state.scene ? state.scene.view : [-1, -1, 1, 1];
+    const margin = { l: 56, r: 12, t: 12, b: 36 };
+    const w = c.width - margin.l - margin.r, h = c.height - margin.t - margin.b;
+    const s = Math.min(w / (v[2] - v[0]), h / (v[3] - v[1]));
+    const ox = margin.l + (w - s * (v[2] - v[0])) / 2, oy = margin.t + (h - s * (v[3] - v[1])) / 2;
+    return {
+      s, v, margin,
+      x: (x) => ox + (x - v[0]) * s,
+      y: (y) => oy + (y - v[1]) * s, // +y down, like the scenes
+      ix: (px) => v[0] + (px - ox) / s,
+      iy: (py) => v[1] + (py - oy) / s,
+    };
+  }
+
+  function drawAxes(ctx, T, c) {
+    ctx.save();
+    ctx.strokeStyle = "#e6e6e2";
+    ctx.fillStyle = "#6b6b70";
+    ctx.lineWidth = 1;
+    ctx.font = "20px system-ui, sans-serif";
+    const [x0, y0, x1, y1] = T.v;
+    const sx = niceStep(x1 - x0, 6), sy = niceStep(y1 - y0, 5);
+    ctx.textAlign = "center";
+    for (let x = Math.ceil(x0 / sx) * sx; x <= x1; x += sx) {
+      const px = T.x(x);
+      ctx.beginPath(); ctx.moveTo(px, T.y(y0)); ctx.lineTo(px, T.y(y1)); ctx.stroke();
+      ctx.fillText(fmt(x, 3), px, c.height - 10);
+    }
+    ctx.textAlign = "right";
+    for (let y = Math.ceil(y0 / sy) * sy; y <= y1; y += sy) {
+      const py = T.y(y);
+      ctx.beginPath(); ctx.moveTo(T.x(x0), py); ctx.lineTo(T.x(x1), py); ctx.stroke();
+      ctx.fillText(fmt(y, 3), T.margin.l - 6, py + 6);
+    }
+    ctx.strokeStyle = "#9a9a96";
+    if (x0 <= 0 && x1 >= 0) { ctx.beginPath(); ctx.moveTo(T.x(0), T.y(y0)); ctx.lineTo(T.x(0), T.y(y1)); ctx.stroke(); }
+    if (y0 <= 0 && y1 >= 0) { ctx.beginPath(); ctx.moveTo(T.x(x0), T.y(0)); ctx.lineTo(T.x(x1), T.y(0)); ctx.stroke(); }
+    ctx.restore();
+  }
+
+  function drawPanel(p) {
+    const c = p.dom.canvas, ctx = c.getContext("2d");
+    const scene = state.scene;
+    ctx.fillStyle = "#ffffff";
+    ctx.fillRect(0, 0, c.width, c.height);
+    if (!scene) return;
+    const T = transform(p);
+    drawAxes(ctx, T, c);
+    // Curves.
+    ctx.save();
+    ctx.strokeStyle = "#1f6feb";
+    ctx.lineWidth = 2.5;
+    ctx.lineCap = "round";
+    for (const line of p.info.curves) {
+      ctx.beginPath();
+      for (let i = 0; i + 1 < line.length; i += 2) {
+        const px = T.x(line[i]), py = T.y(line[i + 1]);
+        if (i === 0) ctx.moveTo(px, py); else ctx.lineTo(px, py);
+      }
+      ctx.stroke();
+    }
+    ctx.restore();
+    const f = p.frame;
+    if (!f) return;
+    const dim = scene.dim;
+    const n = scene.particles.length;
+    // Trail.
+    ctx.save();
+    ctx.lineWidth = 5;
+    ctx.lineCap = "round";
+    for (let k = 0; k < n; k++) {
+      for (let i = 1; i < p.trail.length; i++) {
+        const a = p.trail[i - 1], b = p.trail[i];
+        ctx.strokeStyle = `rgba(240, 110, 0, ${(i / p.trail.length) * 0.75})`;
+        ctx.beginPath();
+        ctx.moveTo(T.x(a[k * dim]), T.y(a[k * dim + 1]));
+        ctx.lineTo(T.x(b[k * dim]), T.y(b[k * dim + 1]));
+        ctx.stroke();
+      }
+    }
+    ctx.restore();
+    // Rods.
+    ctx.save();
+    ctx.strokeStyle = "#333";
+    ctx.lineWidth = 3;
+    for (const rod of scene.rods) {
+      const ax = f.x[rod.a * dim], ay = f.x[rod.a * dim + 1];
+      let bx, by;
+      if (rod.b != null) { bx = f.x[rod.b * dim]; by = f.x[rod.b * dim + 1]; } else if (rod.anchor) { [bx, by] = rod.anchor; } else continue;
+      ctx.beginPath(); ctx.moveTo(T.x(ax), T.y(ay)); ctx.lineTo(T.x(bx), T.y(by)); ctx.stroke();
+      if (rod.anchor) { ctx.fillStyle = "#333"; ctx.fillRect(T.x(bx) - 5, T.y(by) - 5, 10, 10); }
+    }
+    ctx.restore();
+    // Drag spring.
+    if (f.drag) {
+      const k = f.drag.particle;
+      ctx.save();
+      ctx.strokeStyle = "#b42318";
+      ctx.setLineDash([8, 6]);
+      ctx.lineWidth = 2;
+      ctx.beginPath();
+      ctx.moveTo(T.x(f.x[k * dim]), T.y(f.x[k * dim + 1]));
+      ctx.lineTo(T.x(f.drag.target[0]), T.y(f.drag.target[1]));
+      ctx.stroke();
+      ctx.restore();
+    }
+    // Particles.
+    for (let k = 0; k < n; k++) {
+      const px = T.x(f.x[k * dim]), py = T.y(f.x[k * dim + 1]);
+      ctx.beginPath();
+      ctx.arc(px, py, 11, 0, 2 * Math.PI);
+      ctx.fillStyle = f.status === "failed" ? "#b42318" : "#e67814";
+      ctx.fill();
+      ctx.lineWidth = 2;
+      ctx.strokeStyle = "#222";
+      ctx.stroke();
+    }
+    if (f.status === "failed") {
+      ctx.fillStyle = "rgba(180, 35, 24, 0.9)";
+      ctx.font = "22px system-ui, sans-serif";
+      ctx.textAlign = "left";
+      ctx.fillText("stopped: see the message below", 70, 40);
+    }
+  }
+
+  function drawChart(canvas, history, index, label, color) {
+    const ctx = canvas.getContext("2d");
+    const W = canvas.width, H = canvas.height;
+    ctx.fillStyle = "#fff";
+    ctx.fillRect(0, 0, W, H);
+    // Exact zeros (a parametric panel's |C| is often 0) are gaps: log scale has no 0.
+    const pts = history.filter((h) => Number.isFinite(h[index]));
+    const logs = pts.map((h) => (h[index] > 0 ? Math.log10(h[index]) : null));
+    const finiteLogs = logs.filter((v) => v !== null);
+    let lo = Math.floor(Math.min(-16, ...finiteLogs)), hi = Math.ceil(Math.max(-15, ...finiteLogs));
+    lo = Math.max(lo, hi - 18);
+    if (hi <= lo) hi = lo + 1;
+    const t0 = pts.length ? pts[0][0] : 0, t1 = pts.length ? pts[pts.length - 1][0] : 1;
+    const span = t1 > t0 ? t1 - t0 : 1;
+    const L = 52, R = 6, Tp = 18, B = 22;
+    const px = (t) => L + ((t - t0) / span) * (W - L - R);
+    const py = (v) => Tp + (1 - (v - lo) / (hi - lo)) * (H - Tp - B);
+    ctx.strokeStyle = "#e6e6e2";
+    ctx.fillStyle = "#6b6b70";
+    ctx.font = "16px system-ui, sans-serif";
+    ctx.textAlign = "right";
+    const step = Math.max(1, Math.ceil((hi - lo) / 4));
+    for (let d = hi; d >= lo; d -= step) {
+      ctx.beginPath(); ctx.moveTo(L, py(d)); ctx.lineTo(W - R, py(d)); ctx.stroke();
+      ctx.fillText("1e" + d, L - 4, py(d) + 5);
+    }
+    ctx.textAlign = "left";
+    ctx.fillText(label, L + 4, 14);
+    ctx.textAlign = "right";
+    ctx.fillText(`t ${fmt(t0, 3)}–${fmt(t1, 3)} s`, W - R, H - 4);
+    ctx.strokeStyle = color;
+    ctx.lineWidth = 2;
+    ctx.beginPath();
+    let pen = false;
+    pts.forEach((h, i) => {
+      if (logs[i] === null) { pen = false; return; }
+      const x = px(h[0]), y = py(Math.max(logs[i], lo));
+      if (pen) ctx.lineTo(x, y); else ctx.moveTo(x, y);
+      pen = true;
+    });
+    ctx.stroke();
+  }
+
+  function render() {
+    for (const p of state.panels.values()) {
+      drawPanel(p);
+      drawChart(p.dom.chartE, p.history, 1, "relative energy error", "#1f6feb");
+      drawChart(p.dom.chartC, p.history, 2, "constraint error |C|", "#b42318");
+    }
+    for (const move of state.pendingMoves.values()) send(move);
+    state.pendingMoves.clear();
+    requestAnimationFrame(render);
+  }
+
+  // ---------- dragging ----------
+  function canvasPoint(canvas, event) {
+    const r = canvas.getBoundingClientRect();
+    return [(event.clientX - r.left) * (canvas.width / r.width), (event.clientY - r.top) * (canvas.height / r.height)];
+  }
+
+  function installDrag(id, canvas) {
+    canvas.addEventListener("pointerdown", (event) => {
+      const p = state.panels.get(id);
+      if (!p || !p.frame || !state.scene) return;
+      const T = transform(p);
+      const [cx, cy] = canvasPoint(canvas, event);
+      const dim = state.scene.dim;
+      let best = -1, bestD = 30;
+      for (let k = 0; k < state.scene.particles.length; k++) {
+        const d = Math.hypot(T.x(p.frame.x[k * dim]) - cx, T.y(p.frame.x[k * dim + 1]) - cy);
+        if (d < bestD) { best = k; bestD = d; }
+      }
+      if (best < 0) return;
+      try { canvas.setPointerCapture(event.pointerId); } catch (e) { /* synthetic events */ }
+      state.drags.set(id, best);
+      send({ type: "drag_start", panel: id, particle: best, target: [T.ix(cx), T.iy(cy)] });
+      event.preventDefault();
+    });
+    canvas.addEventListener("pointermove", (event) => {
+      if (!state.drags.has(id)) return;
+      const p = state.panels.get(id);
+      if (!p) return;
+      const T = transform(p);
+      const [cx, cy] = canvasPoint(canvas, event);
+      state.pendingMoves.set(id, { type: "drag_move", panel: id, target: [T.ix(cx), T.iy(cy)] });
+    });
+    const end = () => {
+      if (!state.drags.has(id)) return;
+      const move = state.pendingMoves.get(id);
+      if (move) { send(move); state.pendingMoves.delete(id); }
+      send({ type: "drag_end", panel: id });
+      state.drags.delete(id);
+    };
+    canvas.addEventListener("pointerup", end);
+    canvas.addEventListener("pointercancel", end);
+  }
+
+  // Client coordinates of scene point (x, y) in panel `id` (for tests).
+  state.clientPoint = (id, x, y) => {
+    const p = state.panels.get(id);
+    const T = transform(p);
+    const r = p.dom.canvas.getBoundingClientRect();
+    return [r.left + T.x(x) * (r.width / p.dom.canvas.width), r.top + T.y(y) * (r.height / p.dom.canvas.height)];
+  };
+
+  // ---------- toolbar ----------
+  $("play").onclick = () => {
+    send({ type: $("play").textContent === "Pause" ? "pause" : "play" });
+  };
+  $("step").onclick = () => send({ type: "step" });
+  $("reset").onclick = () => send({ type: "reset" });
+  $("time-scale").onchange = () => send({ type: "set_time_scale", scale: Number($("time-scale").value) });
+  $("scene-select").onchange = () => send({ type: "load_scene", name: $("scene-select").value });
+  $("scene-file").onchange = async () => {
+    const file = $("scene-file").files[0];
+    if (!file) return;
+    if (file.size > 60000) { showMessage("scene file too large (limit 60 kB)"); return; }
+    const text = await file.text();
+    send({ type: "load_scene", toml: text, file_name: file.name });
+    $("scene-file").value = "";
+  };
+  $("add-panel").onclick = () => {
+    const method = $("new-method").value;
+    const msg = { type: "add_panel", method, integrator: $("new-integrator").value };
+    const dt = $("new-dt").value.trim();
+    if (dt) {
+      const v = Number(dt);
+      if (!Number.isFinite(v)) { showMessage("dt must be a number"); return; }
+      msg.dt = v;
+    }
+    if (method === "parametric") { msg.ks = 0; msg.kd = 0; }
+    send(msg);
+  };
+
+  connect();
+  requestAnimationFrame(render);
+})();

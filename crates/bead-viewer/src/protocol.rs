@@ -1,0 +1,384 @@
+//! The viewer's WebSocket protocol, version [`PROTOCOL_VERSION`].
+//!
+//! One WebSocket connection (`GET /ws`) is one session. Every message is one text frame
+//! holding one JSON object with a `"type"` field naming the message; field names are
+//! `snake_case`. Binary frames, frames over [`Limits::max_message_bytes`] and anything that is
+//! not a valid message get an [`ServerMessage::Error`] reply; the connection stays open.
+//!
+//! Conversation:
+//!
+//! 1. On connect the server sends [`ServerMessage::Welcome`] (protocol version, shipped
+//!    scenes, integrators, limits), then [`ServerMessage::Scene`] and
+//!    [`ServerMessage::Panels`] for the initial scene with its default panels (one per
+//!    formulation the scene defines: implicit first, then parametric). A loaded scene's
+//!    panels start running; a panel added later runs when any other panel does.
+//! 2. About 60 times a second the server sends [`ServerMessage::Frame`] with the state of
+//!    every panel (also while paused, so that a fresh page can draw at once).
+//! 3. The client sends [`ClientMessage`]s; after any change of the panel set or of a panel's
+//!    settings the server sends a new [`ServerMessage::Panels`]; after a scene change a new
+//!    [`ServerMessage::Scene`] and [`ServerMessage::Panels`].
+//!
+//! Numbers must be finite JSON numbers. JSON has no NaN or infinity; a string such as
+//! `"NaN"` is a wrong type, and an out-of-range literal like `1e999` is rejected.
+//!
+//! Coordinates are the scene's own: `+y` points down in the shipped 2D scenes (screen
+//! coordinates, as in the article). 3D scenes are drawn projected onto x-y.
+
+use serde::{Deserialize, Serialize};
+
+/// The protocol version; bumped on any incompatible change.
+pub const PROTOCOL_VERSION: u32 = 1;
+
+/// Which panels a message applies to: one panel by id, or all when absent / `null`.
+pub type PanelTarget = Option<u32>;
+
+/// Messages from the page to the server.
+#[derive(Clone, Debug, PartialEq, Deserialize)]
+#[serde(tag = "type", rename_all = "snake_case")]
+pub enum ClientMessage {
+    /// Add a panel for the current scene. `method`: `"implicit"` or `"parametric"`;
+    /// `integrator`: a name from [`Welcome::integrators`]; `dt` > 0 (s); `ks`, `kd` >= 0 the
+    /// Baumgarte feedback (implicit only; must be 0 for parametric); `project`: project
+    /// positions and velocities onto the constraints after every step (implicit only, not
+    /// with adaptive integrators). Missing fields take the scene's defaults.
+    AddPanel(PanelSettingsPatch),
+    /// Remove panel `panel`.
+    RemovePanel { panel: u32 },
+    /// Change some settings of panel `panel` (the fields given); the panel restarts from
+    /// the scene's initial state.
+    ConfigurePanel {
+        panel: u32,
+        #[serde(flatten)]
+        settings: PanelSettingsPatch,
+    },
+    /// Start advancing in real time (one panel, or all).
+    Play {
+        #[serde(default)]
+        panel: PanelTarget,
+    },
+    /// Stop advancing (one panel, or all).
+    Pause {
+        #[serde(default)]
+        panel: PanelTarget,
+    },
+    /// Pause, then advance by exactly one step of dt (one panel, or all).
+    Step {
+        #[serde(default)]
+        panel: PanelTarget,
+    },
+    /// Restart from the scene's initial state (one panel, or all). A failed panel becomes
+    /// usable again.
+    Reset {
+        #[serde(default)]
+        panel: PanelTarget,
+    },
+    /// Simulated seconds per wall-clock second, in `[0, Limits::max_time_scale]`.
+    SetTimeScale { scale: f64 },
+    /// Load a scene: exactly one of `name` (a name from [`Welcome::scenes`]) or `toml` (the
+    /// text of a scene file the user picked; `file_name` names it in messages). On success
+    /// all panels are replaced by the new scene's default panels; on failure the server
+    /// replies [`ServerMessage::SceneError`] and nothing changes.
+    LoadScene {
+        #[serde(default)]
+        name: Option<String>,
+        #[serde(default)]
+        toml: Option<String>,
+        #[serde(default)]
+        file_name: Option<String>,
+    },
+    /// Replace the expression of constraint `constraint` (0-based index into the scene's
+    /// `[[constraint]]` tables; it must be an expression constraint) by `expr`, in one
+    /// implicit panel or in all implicit panels. The panels restart from the scene's initial
+    /// state moved onto the new curve. On error the server replies
+    /// [`ServerMessage::CurveError`] and leaves every panel untouched.
+    SetCurve {
+        #[serde(default)]
+        panel: PanelTarget,
+        constraint: usize,
+        expr: String,
+    },
+    /// Grab particle `particle` (index) of panel `panel`: from now on a spring from the
+    /// particle to `target` (scene coordinates, 2 or 3 numbers; missing z = the particle's)
+    /// acts on it as an applied force.
+    DragStart {
+        panel: u32,
+        particle: usize,
+        target: Vec<f64>,
+    },
+    /// Move the spring's end of the drag in panel `panel`.
+    DragMove { panel: u32, target: Vec<f64> },
+    /// Release: the spring is removed; the energy reference restarts at the current state.
+    DragEnd { panel: u32 },
+}
+
+impl ClientMessage {
+    /// The message's `type` name, for error replies.
+    pub fn kind(&self) -> &'static str {
+        match self {
+            ClientMessage::AddPanel(_) => "add_panel",
+            ClientMessage::RemovePanel { .. } => "remove_panel",
+            ClientMessage::ConfigurePanel { .. } => "configure_panel",
+            ClientMessage::Play { .. } => "play",
+            ClientMessage::Pause { .. } => "pause",
+            ClientMessage::Step { .. } => "step",
+            ClientMessage::Reset { .. } => "reset",
+            ClientMessage::SetTimeScale { .. } => "set_time_scale",
+            ClientMessage::LoadScene { .. } => "load_scene",
+            ClientMessage::SetCurve { .. } => "set_curve",
+            ClientMessage::DragStart { .. } => "drag_start",
+            ClientMessage::DragMove { .. } => "drag_move",
+            ClientMessage::DragEnd { .. } => "drag_end",
+        }
+    }
+}
+
+/// Panel settings as sent by the client; absent fields keep their current (or default)
+/// value.
+#[derive(Clone, Debug, Default, PartialEq, Deserialize)]
+pub struct PanelSettingsPatch {
+    #[serde(default)]
+    pub method: Option<String>,
+    #[serde(default)]
+    pub integrator: Option<String>,
+    #[serde(default)]
+    pub dt: Option<f64>,
+    #[serde(default)]
+    pub ks: Option<f64>,
+    #[serde(default)]
+    pub kd: Option<f64>,
+    #[serde(default)]
+    pub project: Option<bool>,
+}
+
+/// Messages from the server to the page.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+#[serde(tag = "type", rename_all = "snake_case")]
+pub enum ServerMessage {
+    /// First message of every connection.
+    Welcome(Welcome),
+    /// The current scene: what to draw that does not move.
+    Scene(SceneInfo),
+    /// The full list of panels with their settings and static drawing data (curves).
+    Panels { panels: Vec<PanelInfo> },
+    /// The state of every panel, ~60 times a second.
+    Frame {
+        /// Simulated seconds per wall-clock second.
+        time_scale: f64,
+        panels: Vec<PanelFrame>,
+    },
+    /// A request was rejected; nothing changed. `request` is the message type when it could
+    /// be read, `panel` the panel concerned when there is one.
+    Error {
+        message: String,
+        #[serde(skip_serializing_if = "Option::is_none")]
+        request: Option<String>,
+        #[serde(skip_serializing_if = "Option::is_none")]
+        panel: Option<u32>,
+    },
+    /// A `load_scene` failed: the rendered scene error (`file:line:column: message` and a
+    /// caret snippet) and its position (0 when unknown).
+    SceneError {
+        message: String,
+        line: usize,
+        column: usize,
+    },
+    /// A `set_curve` failed. `columns` is the 0-based, end-exclusive character range of the
+    /// offending text within `expr` when known, to underline it under the input.
+    CurveError {
+        constraint: usize,
+        message: String,
+        #[serde(skip_serializing_if = "Option::is_none")]
+        columns: Option<[usize; 2]>,
+    },
+}
+
+/// Contents of [`ServerMessage::Welcome`].
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Welcome {
+    /// [`PROTOCOL_VERSION`].
+    pub protocol: u32,
+    /// Scene names `load_scene` accepts by name (the shipped scenes, plus the one given on
+    /// the command line).
+    pub scenes: Vec<String>,
+    /// Every integrator a panel can use.
+    pub integrators: Vec<IntegratorInfo>,
+    /// `["implicit", "parametric"]`.
+    pub methods: Vec<String>,
+    pub limits: Limits,
+}
+
+/// An integrator as offered in the page.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct IntegratorInfo {
+    pub name: String,
+    pub order: u32,
+    pub symplectic: bool,
+    /// Chooses its own steps; dt is then the output interval.
+    pub adaptive: bool,
+    /// Works on the constraints directly: implicit panels only.
+    pub needs_constraints: bool,
+    /// One-line description.
+    pub description: String,
+}
+
+/// Per-connection limits.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct Limits {
+    pub max_panels: usize,
+    pub max_particles: usize,
+    /// Steps per frame, summed over the connection's panels.
+    pub max_steps_per_frame: u64,
+    pub max_message_bytes: usize,
+    /// Characters of a `set_curve` expression.
+    pub max_expr_chars: usize,
+    pub min_dt: f64,
+    pub max_dt: f64,
+    pub max_feedback: f64,
+    pub max_time_scale: f64,
+}
+
+impl Default for Limits {
+    fn default() -> Self {
+        Limits {
+            max_panels: 8,
+            max_particles: 1000,
+            max_steps_per_frame: 20_000,
+            max_message_bytes: 64 * 1024,
+            max_expr_chars: 2000,
+            min_dt: 1e-6,
+            max_dt: 1.0,
+            max_feedback: 1e9,
+            max_time_scale: 100.0,
+        }
+    }
+}
+
+/// Contents of [`ServerMessage::Scene`].
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct SceneInfo {
+    /// The name it was loaded by (a shipped scene's name or the file name).
+    pub name: String,
+    pub title: String,
+    /// 2 or 3. 3D scenes are drawn projected onto x-y.
+    pub dim: usize,
+    pub particles: Vec<ParticleInfo>,
+    /// The scene's `[[constraint]]` tables, in order.
+    pub constraints: Vec<ConstraintInfo>,
+    /// The region to draw, in scene coordinates: `[x_min, y_min, x_max, y_max]`. Covers the
+    /// initial state, the anchors and the motion of a short trial run.
+    pub view: [f64; 4],
+    /// Distance constraints, drawn as rods.
+    pub rods: Vec<Rod>,
+    pub has_implicit: bool,
+    pub has_parametric: bool,
+    /// Scene warnings (initial state off the constraints, ...).
+    pub warnings: Vec<String>,
+}
+
+/// A `kind = "distance"` constraint: a rod from particle `a` to particle `b` or to the fixed
+/// point `anchor` (x-y; given only when the scene writes it as plain numbers).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Rod {
+    pub a: usize,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub b: Option<usize>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub anchor: Option<[f64; 2]>,
+}
+
+/// A particle of the scene.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct ParticleInfo {
+    pub name: String,
+    pub mass: f64,
+}
+
+/// A `[[constraint]]` of the scene.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct ConstraintInfo {
+    pub name: String,
+    pub description: String,
+    /// The expression text for `kind = "expression"` constraints (editable with
+    /// `set_curve`); `None` for distance and pin constraints.
+    pub expr: Option<String>,
+}
+
+/// A panel's settings and static drawing data.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct PanelInfo {
+    pub id: u32,
+    pub method: String,
+    pub integrator: String,
+    pub dt: f64,
+    pub ks: f64,
+    pub kd: f64,
+    pub project: bool,
+    /// The constraint expressions this panel runs with (index as in
+    /// [`SceneInfo::constraints`]; `None` for non-expression constraints).
+    pub exprs: Vec<Option<String>>,
+    /// The curve(s) to draw, as polylines of x-y points `[x0, y0, x1, y1, ...]` in scene
+    /// coordinates. Implicit 2D constraints on one particle are contoured (marching squares
+    /// over the view box, the other particles at their initial positions); a parametric
+    /// form with one coordinate is sampled along x(q). Empty when neither applies.
+    pub curves: Vec<Vec<f64>>,
+    /// How the curves were made: `"contour"`, `"parametric"` or `"none"`.
+    pub curve_source: String,
+}
+
+/// One panel's state in a [`ServerMessage::Frame`].
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct PanelFrame {
+    pub id: u32,
+    /// Simulated time (s).
+    pub t: f64,
+    /// Steps taken since the last reset (accepted steps for adaptive integrators).
+    pub steps: u64,
+    /// Particle positions, `dim` numbers per particle.
+    pub x: Vec<f64>,
+    /// Total mechanical energy E = T + V (without the drag spring).
+    pub energy: f64,
+    /// |E - E0| / E_scale since the last reset or drag release.
+    pub energy_rel_error: f64,
+    /// max_i |C_i| over the scene's implicit constraints.
+    pub constraint_error: f64,
+    /// Steps per second of compute time (recent average).
+    pub steps_per_second: f64,
+    /// `"running"`, `"paused"` or `"failed"`.
+    pub status: String,
+    /// Why the panel failed (divergence, singular constraints, ...), when it did.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub error: Option<String>,
+    /// The panel could not keep up with real time in the last frame (step or time budget).
+    pub behind: bool,
+    /// The particle being dragged and the spring's end, while dragging.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub drag: Option<DragInfo>,
+}
+
+/// A drag in progress.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct DragInfo {
+    pub particle: usize,
+    pub target: Vec<f64>,
+}
+
+/// Parse one client text frame. Errors are messages for the client (serde's, which name the
+/// field and position).
+pub fn parse_client_message(text: &str, limits: &Limits) -> Result<ClientMessage, String> {
+    if text.len() > limits.max_message_bytes {
+        return Err(format!(
+            "message too large: {} bytes (limit {})",
+            text.len(),
+            limits.max_message_bytes
+        ));
+    }
+    serde_json::from_str(text).map_err(|e| format!("invalid message: {e}"))
+}
+
+/// The `type` of a JSON object, when it has a string one (for error replies to messages that
+/// do not parse).
+pub fn message_type(text: &str) -> Option<String> {
+    let value: serde_json::Value = serde_json::from_str(text).ok()?;
+    let kind = value.get("type")?.as_str()?;
+    Some(kind.chars().take(40).collect())
+}

@@ -1,0 +1,65 @@
+//! The scenes the viewer offers by name: the shipped scenes, embedded in the binary, plus any
+//! scene given on the command line.
+
+/// The shipped scenes (`scenes/*.toml`), embedded at build time.
+pub const SHIPPED: [(&str, &str); 5] = [
+    ("parabola", include_str!("../../../scenes/parabola.toml")),
+    ("circle", include_str!("../../../scenes/circle.toml")),
+    ("cycloid", include_str!("../../../scenes/cycloid.toml")),
+    (
+        "double-pendulum",
+        include_str!("../../../scenes/double-pendulum.toml"),
+    ),
+    ("helix", include_str!("../../../scenes/helix.toml")),
+];
+
+/// A named scene text.
+#[derive(Clone, Debug, PartialEq)]
+pub struct NamedScene {
+    pub name: String,
+    pub text: String,
+}
+
+/// The scenes a server offers, in picker order; the first is loaded on connect.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Catalog {
+    pub scenes: Vec<NamedScene>,
+}
+
+impl Catalog {
+    /// The shipped scenes only (`parabola` first).
+    pub fn shipped() -> Catalog {
+        Catalog {
+            scenes: SHIPPED
+                .iter()
+                .map(|(name, text)| NamedScene {
+                    name: (*name).to_string(),
+                    text: (*text).to_string(),
+                })
+                .collect(),
+        }
+    }
+
+    /// The shipped scenes with `extra` first (it is loaded on connect). A shipped scene of the
+    /// same name is replaced.
+    pub fn with_first(extra: NamedScene) -> Catalog {
+        let mut catalog = Catalog::shipped();
+        catalog.scenes.retain(|s| s.name != extra.name);
+        catalog.scenes.insert(0, extra);
+        catalog
+    }
+
+    /// Look a scene up by name.
+    pub fn get(&self, name: &str) -> Option<&NamedScene> {
+        self.scenes.iter().find(|s| s.name == name)
+    }
+
+    /// The scene loaded on connect.
+    pub fn first(&self) -> Option<&NamedScene> {
+        self.scenes.first()
+    }
+
+    pub fn names(&self) -> Vec<String> {
+        self.scenes.iter().map(|s| s.name.clone()).collect()
+    }
+}

@@ -1,0 +1,230 @@
+//! The HTTP and WebSocket server: `GET /` (the page), `GET /viewer.js`, `GET /viewer.css`,
+//! `GET /ws` (one [`Session`] per connection).
+//!
+//! Each connection runs one task: it waits for either a client message or the next frame tick
+//! (~60/s). Simulation work and message handling run on tokio's blocking pool
+//! (`spawn_blocking`), so that a busy session never stalls the other connections' I/O. A
+//! connection whose client goes away ends its task; nothing is shared between connections
+//! except the read-only scene catalog.
+
+use std::net::SocketAddr;
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use axum::extract::ws::{Message, WebSocket, WebSocketUpgrade};
+use axum::extract::State;
+use axum::http::header;
+use axum::response::{Html, IntoResponse, Response};
+use axum::routing::get;
+use axum::Router;
+use tokio::net::TcpListener;
+
+use crate::protocol::{message_type, parse_client_message, Limits, ServerMessage};
+use crate::scenes::Catalog;
+use crate::session::Session;
+
+/// Frame interval (~60 frames/s).
+pub const FRAME_INTERVAL: Duration = Duration::from_micros(16_667);
+/// A client that does not take a message within this time is dropped.
+const SEND_TIMEOUT: Duration = Duration::from_secs(10);
+
+const INDEX_HTML: &str = include_str!("../assets/index.html");
+const VIEWER_JS: &str = include_str!("../assets/viewer.js");
+const VIEWER_CSS: &str = include_str!("../assets/viewer.css");
+
+/// What a server serves.
+#[derive(Clone, Debug)]
+pub struct ServerConfig {
+    pub catalog: Arc<Catalog>,
+    pub limits: Limits,
+}
+
+impl Default for ServerConfig {
+    fn default() -> Self {
+        ServerConfig {
+            catalog: Arc::new(Catalog::shipped()),
+            limits: Limits::default(),
+        }
+    }
+}
+
+/// The router: page, assets and WebSocket.
+pub fn router(config: ServerConfig) -> Router {
+    Router::new()
+        .route("/", get(index))
+        .route("/index.html", get(index))
+        .route("/viewer.js", get(script))
+        .route("/viewer.css", get(style))
+        .route("/ws", get(websocket))
+        .with_state(Arc::new(config))
+}
+
+async fn index() -> Html<&'static str> {
+    Html(INDEX_HTML)
+}
+
+async fn script() -> Response {
+    (
+        [(header::CONTENT_TYPE, "text/javascript; charset=utf-8")],
+        VIEWER_JS,
+    )
+        .into_response()
+}
+
+async fn style() -> Response {
+    (
+        [(header::CONTENT_TYPE, "text/css; charset=utf-8")],
+        VIEWER_CSS,
+    )
+        .into_response()
+}
+
+async fn websocket(State(config): State<Arc<ServerConfig>>, upgrade: WebSocketUpgrade) -> Response {
+    // Messages up to 16x the protocol limit are read and answered with an error reply; beyond
+    // that the transport gives up on the connection (it cannot skip the rest of a frame).
+    let max = config.limits.max_message_bytes.saturating_mul(16);
+    upgrade
+        .max_message_size(max)
+        .max_frame_size(max)
+        .on_upgrade(move |socket| connection(socket, config))
+}
+
+/// Bind `addr` (port 0: any free port).
+pub async fn bind(addr: SocketAddr) -> std::io::Result<TcpListener> {
+    TcpListener::bind(addr).await
+}
+
+/// Serve on `listener` until the process ends.
+pub async fn serve(listener: TcpListener, config: ServerConfig) -> std::io::Result<()> {
+    axum::serve(listener, router(config)).await
+}
+
+/// Bind `addr`, call `ready` with the bound address, and serve forever on a new multi-thread
+/// runtime (for the CLI, which has no runtime of its own).
+pub fn serve_blocking(
+    addr: SocketAddr,
+    config: ServerConfig,
+    ready: impl FnOnce(SocketAddr),
+) -> std::io::Result<()> {
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .build()?;
+    runtime.block_on(async move {
+        let listener = bind(addr).await?;
+        ready(listener.local_addr()?);
+        serve(listener, config).await
+    })
+}
+
+/// Send one message; false when the client is gone (or too slow).
+async fn send(socket: &mut WebSocket, message: &ServerMessage) -> bool {
+    let Ok(text) = serde_json::to_string(message) else {
+        return true;
+    };
+    matches!(
+        tokio::time::timeout(SEND_TIMEOUT, socket.send(Message::Text(text.into()))).await,
+        Ok(Ok(()))
+    )
+}
+
+/// Run `f` on the session on the blocking pool; a panic becomes an error reply and the
+/// session is kept.
+async fn on_session<T: Send + 'static>(
+    session: Session,
+    f: impl FnOnce(&mut Session) -> T + Send + 'static,
+) -> Option<(Session, Result<T, ()>)> {
+    tokio::task::spawn_blocking(move || {
+        let mut session = session;
+        let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| f(&mut session)))
+            .map_err(|_| ());
+        (session, result)
+    })
+    .await
+    .ok()
+}
+
+fn error_reply(message: String, request: Option<String>) -> ServerMessage {
+    ServerMessage::Error {
+        message,
+        request,
+        panel: None,
+    }
+}
+
+/// One connection, until the client leaves.
+async fn connection(mut socket: WebSocket, config: Arc<ServerConfig>) {
+    let catalog = Arc::clone(&config.catalog);
+    let limits = config.limits;
+    let Some((mut session, greeting)) =
+        on_session(Session::new(catalog, limits), |s| s.greeting()).await
+    else {
+        return;
+    };
+    for message in greeting.unwrap_or_default() {
+        if !send(&mut socket, &message).await {
+            return;
+        }
+    }
+    let mut ticks = tokio::time::interval(FRAME_INTERVAL);
+    ticks.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
+    let mut last = Instant::now();
+    loop {
+        tokio::select! {
+            incoming = socket.recv() => {
+                let replies = match incoming {
+                    None | Some(Err(_)) => return,
+                    Some(Ok(Message::Text(text))) => {
+                        match parse_client_message(text.as_str(), &limits) {
+                            Ok(message) => {
+                                let kind = message.kind();
+                                let Some((s, result)) =
+                                    on_session(session, move |s| s.handle(message)).await
+                                else {
+                                    return;
+                                };
+                                session = s;
+                                result.unwrap_or_else(|()| {
+                                    vec![error_reply(
+                                        "internal error while handling the message".into(),
+                                        Some(kind.into()),
+                                    )]
+                                })
+                            }
+                            Err(e) => vec![error_reply(e, message_type(text.as_str()))],
+                        }
+                    }
+                    Some(Ok(Message::Binary(_))) => vec![error_reply(
+                        "binary messages are not part of the protocol; send JSON text".into(),
+                        None,
+                    )],
+                    Some(Ok(Message::Close(_))) => return,
+                    Some(Ok(_)) => Vec::new(),
+                };
+                for reply in &replies {
+                    if !send(&mut socket, reply).await {
+                        return;
+                    }
+                }
+            }
+            _ = ticks.tick() => {
+                let now = Instant::now();
+                let elapsed = now.duration_since(last).as_secs_f64();
+                last = now;
+                let Some((s, frame)) = on_session(session, move |s| {
+                    s.advance(elapsed);
+                    s.frame()
+                })
+                .await
+                else {
+                    return;
+                };
+                session = s;
+                if let Ok(frame) = frame {
+                    if !send(&mut socket, &frame).await {
+                        return;
+                    }
+                }
+            }
+        }
+    }
+}

@@ -1,0 +1,257 @@
+//! A real server on 127.0.0.1:0 with WebSocket clients (tokio-tungstenite): frames stream,
+//! bad and hostile clients get error replies or are dropped, and the server keeps serving.
+
+use std::net::SocketAddr;
+use std::time::Duration;
+
+use bead_viewer::server::{bind, serve};
+use bead_viewer::ServerConfig;
+use futures_util::{SinkExt, StreamExt};
+use serde_json::Value;
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::net::TcpStream;
+use tokio_tungstenite::tungstenite::Message;
+use tokio_tungstenite::{connect_async, MaybeTlsStream, WebSocketStream};
+
+type Client = WebSocketStream<MaybeTlsStream<TcpStream>>;
+
+async fn start() -> SocketAddr {
+    let listener = bind("127.0.0.1:0".parse().unwrap()).await.unwrap();
+    let addr = listener.local_addr().unwrap();
+    tokio::spawn(serve(listener, ServerConfig::default()));
+    addr
+}
+
+async fn connect(addr: SocketAddr) -> Client {
+    let (client, _) = connect_async(format!("ws://{addr}/ws")).await.unwrap();
+    client
+}
+
+/// The next JSON message, within 5 s.
+async fn next(client: &mut Client) -> Value {
+    loop {
+        let message = tokio::time::timeout(Duration::from_secs(5), client.next())
+            .await
+            .expect("no message within 5 s")
+            .expect("connection ended")
+            .expect("transport error");
+        if let Message::Text(text) = message {
+            return serde_json::from_str(text.as_str()).unwrap();
+        }
+    }
+}
+
+/// The next message of type `kind`, skipping others (frames), within 5 s.
+async fn next_of(client: &mut Client, kind: &str) -> Value {
+    let deadline = tokio::time::Instant::now() + Duration::from_secs(5);
+    loop {
+        assert!(
+            tokio::time::Instant::now() < deadline,
+            "no `{kind}` within 5 s"
+        );
+        let m = next(client).await;
+        if m["type"] == kind {
+            return m;
+        }
+    }
+}
+
+async fn send(client: &mut Client, text: &str) {
+    client.send(Message::text(text)).await.unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn streams_frames_over_a_websocket() {
+    let addr = start().await;
+    let mut c = connect(addr).await;
+    let welcome = next(&mut c).await;
+    assert_eq!(welcome["type"], "welcome");
+    assert_eq!(welcome["protocol"], 1);
+    assert_eq!(next(&mut c).await["type"], "scene");
+    let panels = next(&mut c).await;
+    assert_eq!(panels["type"], "panels");
+    assert_eq!(panels["panels"].as_array().unwrap().len(), 2);
+    let first = next_of(&mut c, "frame").await;
+    tokio::time::sleep(Duration::from_millis(500)).await;
+    // Drain to the newest frame.
+    let mut last = next_of(&mut c, "frame").await;
+    while let Ok(Some(Ok(Message::Text(text)))) =
+        tokio::time::timeout(Duration::from_millis(30), c.next()).await
+    {
+        last = serde_json::from_str(text.as_str()).unwrap();
+    }
+    let t0 = first["panels"][0]["t"].as_f64().unwrap();
+    let t1 = last["panels"][0]["t"].as_f64().unwrap();
+    assert!(t1 > t0 + 0.3, "t went from {t0} to {t1}");
+    assert_eq!(last["panels"][0]["x"].as_array().unwrap().len(), 2);
+    for key in [
+        "energy",
+        "energy_rel_error",
+        "constraint_error",
+        "steps_per_second",
+    ] {
+        assert!(last["panels"][1][key].is_number(), "{key}");
+    }
+    // A request gets its reply.
+    send(&mut c, r#"{"type":"add_panel","integrator":"verlet"}"#).await;
+    let panels = next_of(&mut c, "panels").await;
+    assert_eq!(panels["panels"][2]["integrator"], "verlet");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn serves_the_page_and_assets() {
+    let addr = start().await;
+    for (path, needle) in [
+        ("/", "viewer.js"),
+        ("/viewer.js", "WebSocket"),
+        ("/viewer.css", "canvas"),
+    ] {
+        let mut stream = TcpStream::connect(addr).await.unwrap();
+        stream
+            .write_all(
+                format!("GET {path} HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n").as_bytes(),
+            )
+            .await
+            .unwrap();
+        let mut response = String::new();
+        stream.read_to_string(&mut response).await.unwrap();
+        assert!(
+            response.starts_with("HTTP/1.1 200"),
+            "{path}: {response:.80}"
+        );
+        assert!(response.contains(needle), "{path}");
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn hostile_clients_get_errors_and_the_server_survives() {
+    let addr = start().await;
+    let mut c = connect(addr).await;
+    next_of(&mut c, "panels").await;
+    for (bad, request) in [
+        ("garbage", Value::Null),
+        ("{\"type\":", Value::Null),
+        (r#"{"type":"nonsense"}"#, Value::from("nonsense")),
+        (r#"{"type":"set_time_scale","scale":1e999}"#, Value::Null),
+        (
+            r#"{"type":"set_time_scale","scale":"NaN"}"#,
+            Value::from("set_time_scale"),
+        ),
+        (
+            r#"{"type":"configure_panel","panel":1,"dt":-5}"#,
+            Value::from("configure_panel"),
+        ),
+        (
+            r#"{"type":"remove_panel","panel":123456}"#,
+            Value::from("remove_panel"),
+        ),
+    ] {
+        send(&mut c, bad).await;
+        let error = next_of(&mut c, "error").await;
+        assert!(error["message"].is_string(), "{bad}");
+        if !request.is_null() {
+            assert_eq!(error["request"], request, "{bad}");
+        }
+    }
+    // Binary frames and oversize text get error replies; the connection stays usable.
+    c.send(Message::binary(vec![0u8; 100])).await.unwrap();
+    assert!(next_of(&mut c, "error").await["message"]
+        .as_str()
+        .unwrap()
+        .contains("binary"));
+    let big = format!(
+        r#"{{"type":"set_curve","constraint":0,"expr":"{}"}}"#,
+        "x".repeat(100_000)
+    );
+    send(&mut c, &big).await;
+    assert!(next_of(&mut c, "error").await["message"]
+        .as_str()
+        .unwrap()
+        .contains("too large"));
+    send(&mut c, r#"{"type":"pause"}"#).await;
+    next_of(&mut c, "frame").await;
+
+    // Far beyond the transport limit: this connection is dropped ...
+    let mut d = connect(addr).await;
+    next_of(&mut d, "panels").await;
+    let _ = d.send(Message::text("y".repeat(4 << 20))).await;
+    let dropped = tokio::time::timeout(Duration::from_secs(5), async {
+        loop {
+            match d.next().await {
+                None | Some(Err(_)) | Some(Ok(Message::Close(_))) => return,
+                Some(Ok(_)) => {}
+            }
+        }
+    })
+    .await;
+    assert!(dropped.is_ok(), "oversize connection not closed");
+
+    // ... clients that vanish mid-stream (no close handshake) ...
+    for _ in 0..3 {
+        let mut e = connect(addr).await;
+        next_of(&mut e, "frame").await;
+        drop(e);
+    }
+    let mut raw = TcpStream::connect(addr).await.unwrap();
+    raw.write_all(b"GET /ws HTTP/1.1\r\nHost: x\r\nUpgrade: websocket\r\nConnection: Upgrade\r\nSec-WebSocket-Version: 13\r\nSec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\n\r\n\x81\xff garbage")
+        .await
+        .unwrap();
+    drop(raw);
+
+    // ... and the first client and a new one still work.
+    send(&mut c, r#"{"type":"add_panel"}"#).await;
+    next_of(&mut c, "panels").await;
+    let mut f = connect(addr).await;
+    assert_eq!(next(&mut f).await["type"], "welcome");
+    next_of(&mut f, "frame").await;
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn many_connections_are_independent() {
+    let addr = start().await;
+    let mut clients = Vec::new();
+    for _ in 0..6 {
+        let mut c = connect(addr).await;
+        next_of(&mut c, "panels").await;
+        clients.push(c);
+    }
+    // Each session has its own panels: changing one does not touch the others.
+    send(&mut clients[0], r#"{"type":"load_scene","name":"circle"}"#).await;
+    assert_eq!(next_of(&mut clients[0], "scene").await["name"], "circle");
+    send(&mut clients[1], r#"{"type":"remove_panel","panel":1}"#).await;
+    let panels = next_of(&mut clients[1], "panels").await;
+    assert_eq!(panels["panels"].as_array().unwrap().len(), 1);
+    for c in clients.iter_mut().skip(2) {
+        let frame = next_of(c, "frame").await;
+        assert_eq!(frame["panels"].as_array().unwrap().len(), 2);
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn divergence_in_one_panel_is_reported_in_that_panel() {
+    let addr = start().await;
+    let mut c = connect(addr).await;
+    next_of(&mut c, "panels").await;
+    // Explicit Euler with a huge step on the implicit panel blows up; the other runs on.
+    send(
+        &mut c,
+        r#"{"type":"configure_panel","panel":1,"integrator":"euler","dt":1.0}"#,
+    )
+    .await;
+    next_of(&mut c, "panels").await;
+    send(&mut c, r#"{"type":"set_time_scale","scale":100}"#).await;
+    send(&mut c, r#"{"type":"play"}"#).await;
+    let deadline = tokio::time::Instant::now() + Duration::from_secs(10);
+    loop {
+        assert!(
+            tokio::time::Instant::now() < deadline,
+            "panel 1 never failed"
+        );
+        let frame = next_of(&mut c, "frame").await;
+        if frame["panels"][0]["status"] == "failed" {
+            assert!(frame["panels"][0]["error"].is_string());
+            assert_eq!(frame["panels"][1]["status"], "running");
+            break;
+        }
+    }
+}

@@ -1,0 +1,538 @@
+//! Protocol parsing and validation, limits and the simulation behind a session, without a
+//! network.
+
+use std::sync::Arc;
+
+use bead_viewer::protocol::{
+    parse_client_message, ClientMessage, Limits, PanelFrame, PanelInfo, ServerMessage,
+    PROTOCOL_VERSION,
+};
+use bead_viewer::scenes::{Catalog, SHIPPED};
+use bead_viewer::session::Session;
+
+fn session() -> Session {
+    Session::new(Arc::new(Catalog::shipped()), Limits::default())
+}
+
+/// Parse and handle one JSON message.
+fn send(session: &mut Session, json: &str) -> Vec<ServerMessage> {
+    match parse_client_message(json, &Limits::default()) {
+        Ok(message) => session.handle(message),
+        Err(e) => panic!("{json} did not parse: {e}"),
+    }
+}
+
+fn frames(session: &Session) -> Vec<PanelFrame> {
+    match session.frame() {
+        ServerMessage::Frame { panels, .. } => panels,
+        other => panic!("not a frame: {other:?}"),
+    }
+}
+
+fn panels_of(replies: &[ServerMessage]) -> Option<Vec<PanelInfo>> {
+    replies.iter().find_map(|m| match m {
+        ServerMessage::Panels { panels } => Some(panels.clone()),
+        _ => None,
+    })
+}
+
+fn error_of(replies: &[ServerMessage]) -> Option<String> {
+    replies.iter().find_map(|m| match m {
+        ServerMessage::Error { message, .. } => Some(message.clone()),
+        _ => None,
+    })
+}
+
+/// Advance `seconds` of wall time in frames of 1/60 s.
+fn run(session: &mut Session, seconds: f64) {
+    let frames = (seconds * 60.0).round() as usize;
+    for _ in 0..frames {
+        session.advance(1.0 / 60.0);
+    }
+}
+
+#[test]
+fn greeting_has_welcome_scene_and_default_panels() {
+    let s = session();
+    let greeting = s.greeting();
+    let ServerMessage::Welcome(welcome) = &greeting[0] else {
+        panic!("first message is not welcome: {:?}", greeting[0]);
+    };
+    assert_eq!(welcome.protocol, PROTOCOL_VERSION);
+    assert_eq!(welcome.scenes[0], "parabola");
+    assert!(welcome.integrators.iter().any(|k| k.name == "rk4"));
+    assert!(welcome.integrators.iter().any(|k| k.name == "rattle"));
+    let ServerMessage::Scene(scene) = &greeting[1] else {
+        panic!("second message is not the scene");
+    };
+    assert_eq!(scene.dim, 2);
+    assert_eq!(
+        scene.constraints[0].expr.as_deref(),
+        Some("bead.x^2 + 100*bead.y")
+    );
+    // The view box holds the swing from x = -150 to 150 and the bottom at y = 0.
+    assert!(
+        scene.view[0] <= -150.0 && scene.view[2] >= 150.0,
+        "{:?}",
+        scene.view
+    );
+    assert!(
+        scene.view[1] <= -225.0 && scene.view[3] >= 0.0,
+        "{:?}",
+        scene.view
+    );
+    let panels = panels_of(&greeting).unwrap();
+    assert_eq!(panels.len(), 2);
+    assert_eq!(panels[0].method, "implicit");
+    assert_eq!(panels[1].method, "parametric");
+    assert_eq!(panels[0].curve_source, "contour");
+    assert_eq!(panels[1].curve_source, "parametric");
+    assert!(!panels[0].curves.is_empty() && !panels[1].curves.is_empty());
+    // Every JSON message serializes.
+    for m in &greeting {
+        serde_json::to_string(m).unwrap();
+    }
+}
+
+#[test]
+fn panels_advance_in_real_time() {
+    let mut s = session();
+    run(&mut s, 1.0);
+    for f in frames(&s) {
+        assert_eq!(f.status, "running");
+        assert!((f.t - 1.0).abs() < 0.05, "t = {}", f.t);
+        // RK4 at dt = 1/60 on the implicit form drifts slowly (the article's observation).
+        assert!(f.constraint_error < 0.1, "{f:?}");
+        assert!(f.steps_per_second > 0.0);
+    }
+    send(&mut s, r#"{"type":"set_time_scale","scale":2}"#);
+    run(&mut s, 0.5);
+    assert!((frames(&s)[0].t - 2.0).abs() < 0.05);
+    send(&mut s, r#"{"type":"pause"}"#);
+    let t = frames(&s)[0].t;
+    run(&mut s, 0.5);
+    assert_eq!(frames(&s)[0].t, t);
+    send(&mut s, r#"{"type":"step"}"#);
+    let f = &frames(&s)[0];
+    assert!((f.t - (t + 1.0 / 60.0)).abs() < 1e-9 && f.status == "paused");
+    send(&mut s, r#"{"type":"reset"}"#);
+    assert_eq!(frames(&s)[0].t, 0.0);
+}
+
+#[test]
+fn malformed_messages_are_rejected_with_a_reason() {
+    let limits = Limits::default();
+    for bad in [
+        "",
+        "not json",
+        "{}",
+        "[1,2]",
+        r#"{"type":"launch_missiles"}"#,
+        r#"{"type":"set_time_scale","scale":"NaN"}"#,
+        r#"{"type":"set_time_scale","scale":1e999}"#,
+        r#"{"type":"add_panel","dt":"fast"}"#,
+        r#"{"type":"remove_panel","panel":-1}"#,
+        r#"{"type":"remove_panel","panel":1e20}"#,
+        r#"{"type":"drag_start","panel":1,"particle":0,"target":"here"}"#,
+        r#"{"type":"set_curve","constraint":0}"#,
+    ] {
+        assert!(
+            parse_client_message(bad, &limits).is_err(),
+            "accepted {bad:?}"
+        );
+    }
+    let huge = format!(
+        r#"{{"type":"set_curve","constraint":0,"expr":"{}"}}"#,
+        "x".repeat(70_000)
+    );
+    let e = parse_client_message(&huge, &limits).unwrap_err();
+    assert!(e.contains("too large"), "{e}");
+    assert_eq!(
+        parse_client_message(r#"{"type":"play"}"#, &limits),
+        Ok(ClientMessage::Play { panel: None })
+    );
+}
+
+#[test]
+fn invalid_values_get_error_replies_and_change_nothing() {
+    let mut s = session();
+    let before = s.panel_count();
+    for bad in [
+        r#"{"type":"set_time_scale","scale":-1}"#,
+        r#"{"type":"set_time_scale","scale":1000}"#,
+        r#"{"type":"add_panel","dt":0}"#,
+        r#"{"type":"add_panel","dt":-0.01}"#,
+        r#"{"type":"add_panel","dt":1e300}"#,
+        r#"{"type":"add_panel","integrator":"bogus"}"#,
+        r#"{"type":"add_panel","method":"magic"}"#,
+        r#"{"type":"add_panel","method":"parametric","integrator":"rattle"}"#,
+        r#"{"type":"add_panel","method":"parametric","ks":5}"#,
+        r#"{"type":"add_panel","ks":1e300}"#,
+        r#"{"type":"add_panel","method":"parametric","project":true}"#,
+        r#"{"type":"add_panel","integrator":"dopri5","project":true}"#,
+        r#"{"type":"remove_panel","panel":99}"#,
+        r#"{"type":"configure_panel","panel":99,"dt":0.01}"#,
+        r#"{"type":"configure_panel","panel":1,"dt":-1}"#,
+        r#"{"type":"play","panel":42}"#,
+        r#"{"type":"drag_start","panel":1,"particle":7,"target":[0,0]}"#,
+        r#"{"type":"drag_start","panel":1,"particle":0,"target":[0,0,0,0]}"#,
+        r#"{"type":"drag_start","panel":1,"particle":0,"target":[1e300,0]}"#,
+        r#"{"type":"drag_move","panel":1,"target":[0,0]}"#,
+        r#"{"type":"load_scene","name":"nope"}"#,
+        r#"{"type":"load_scene"}"#,
+        r#"{"type":"load_scene","name":"circle","toml":"x"}"#,
+    ] {
+        let replies = send(&mut s, bad);
+        assert!(
+            error_of(&replies).is_some(),
+            "{bad}: no error in {replies:?}"
+        );
+    }
+    assert_eq!(s.panel_count(), before);
+}
+
+#[test]
+fn panel_limit() {
+    let mut s = session();
+    let limit = Limits::default().max_panels;
+    for _ in s.panel_count()..limit {
+        let replies = send(&mut s, r#"{"type":"add_panel","integrator":"midpoint"}"#);
+        assert!(panels_of(&replies).is_some(), "{replies:?}");
+    }
+    let replies = send(&mut s, r#"{"type":"add_panel"}"#);
+    assert!(error_of(&replies).unwrap().contains("too many panels"));
+    assert_eq!(s.panel_count(), limit);
+    run(&mut s, 0.2);
+    assert!(frames(&s).iter().all(|f| f.status == "running"));
+}
+
+#[test]
+fn steps_per_frame_are_capped() {
+    let mut s = session();
+    let limits = Limits::default();
+    send(
+        &mut s,
+        r#"{"type":"configure_panel","panel":1,"dt":1e-6,"integrator":"euler"}"#,
+    );
+    send(&mut s, r#"{"type":"set_time_scale","scale":100}"#);
+    s.advance(1.0 / 60.0);
+    let f = &frames(&s)[0];
+    assert!(f.steps <= limits.max_steps_per_frame / 2, "{}", f.steps);
+    assert!(f.behind);
+}
+
+#[test]
+fn every_integrator_runs_where_it_applies() {
+    let mut s = session();
+    for kind in [
+        "euler",
+        "symplectic-euler",
+        "midpoint",
+        "rk4",
+        "verlet",
+        "rattle",
+        "gauss-legendre",
+        "dopri5",
+    ] {
+        let replies = send(
+            &mut s,
+            &format!(r#"{{"type":"configure_panel","panel":1,"integrator":"{kind}"}}"#),
+        );
+        assert!(panels_of(&replies).is_some(), "{kind}: {replies:?}");
+        run(&mut s, 0.3);
+        let f = &frames(&s)[0];
+        assert_eq!(f.status, "running", "{kind}: {f:?}");
+        assert!(f.t > 0.2, "{kind}: t = {}", f.t);
+    }
+}
+
+#[test]
+fn shipped_scenes_load_and_run() {
+    let mut s = session();
+    for (name, _) in SHIPPED {
+        let replies = send(
+            &mut s,
+            &format!(r#"{{"type":"load_scene","name":"{name}"}}"#),
+        );
+        let panels = panels_of(&replies).unwrap_or_else(|| panic!("{name}: {replies:?}"));
+        assert!(!panels.is_empty());
+        run(&mut s, 0.5);
+        for f in frames(&s) {
+            assert_eq!(f.status, "running", "{name}: {f:?}");
+            assert!(f.t > 0.4, "{name}: {f:?}");
+        }
+    }
+}
+
+#[test]
+fn scene_errors_are_located() {
+    let mut s = session();
+    let text = SHIPPED[0]
+        .1
+        .replace("bead.x^2 + 100*bead.y", "bead.x^2 + 100*bead.w");
+    let message = serde_json::json!({"type": "load_scene", "toml": text, "file_name": "bad.toml"});
+    let replies = send(&mut s, &message.to_string());
+    let ServerMessage::SceneError { message, line, .. } = &replies[0] else {
+        panic!("{replies:?}");
+    };
+    assert!(message.starts_with("bad.toml:"), "{message}");
+    assert!(
+        message.contains("`bead` has no coordinate `w`"),
+        "{message}"
+    );
+    assert!(*line > 0);
+    // The old scene still runs.
+    assert_eq!(s.panel_count(), 2);
+    let message =
+        serde_json::json!({"type": "load_scene", "toml": SHIPPED[1].1, "file_name": "mine.toml"});
+    let replies = send(&mut s, &message.to_string());
+    assert!(replies
+        .iter()
+        .any(|m| matches!(m, ServerMessage::Scene(info) if info.name == "mine.toml")));
+}
+
+#[test]
+fn curve_edit_errors_point_into_the_expression_and_leave_panels_alone() {
+    let mut s = session();
+    run(&mut s, 0.5);
+    let t = frames(&s)[0].t;
+    let replies = send(
+        &mut s,
+        r#"{"type":"set_curve","constraint":0,"expr":"bead.x^2 + 100*bead.w"}"#,
+    );
+    let ServerMessage::CurveError {
+        message, columns, ..
+    } = &replies[0]
+    else {
+        panic!("{replies:?}");
+    };
+    assert!(message.contains("no coordinate `w`"), "{message}");
+    assert_eq!(*columns, Some([15, 21]), "{message}");
+    for (expr, contains) in [
+        ("bead.x^2 + (", "expected"),
+        ("", "empty"),
+        ("bead.x \" + 1", "unexpected character"),
+    ] {
+        let message = serde_json::json!({"type": "set_curve", "constraint": 0, "expr": expr});
+        let replies = send(&mut s, &message.to_string());
+        match &replies[0] {
+            ServerMessage::CurveError { message, .. } => {
+                assert!(message.contains(contains), "{expr}: {message}")
+            }
+            other => panic!("{expr}: {other:?}"),
+        }
+    }
+    let long = "x+".repeat(2000) + "x";
+    let message = serde_json::json!({"type": "set_curve", "constraint": 0, "expr": long});
+    assert!(matches!(
+        &send(&mut s, &message.to_string())[0],
+        ServerMessage::CurveError { message, .. } if message.contains("too long")
+    ));
+    // Integers are numbers too.
+    let replies = send(
+        &mut s,
+        r#"{"type":"configure_panel","panel":2,"dt":1,"ks":0,"kd":0}"#,
+    );
+    assert_eq!(panels_of(&replies).unwrap()[1].dt, 1.0);
+    send(
+        &mut s,
+        r#"{"type":"configure_panel","panel":2,"dt":0.016666666666666666}"#,
+    );
+    let replies = send(
+        &mut s,
+        r#"{"type":"set_curve","constraint":3,"expr":"bead.x"}"#,
+    );
+    assert!(matches!(&replies[0], ServerMessage::CurveError { .. }));
+    // Untouched: still running from where it was.
+    run(&mut s, 0.1);
+    let f = &frames(&s)[0];
+    assert!(f.t > t && f.status == "running");
+
+    // A valid edit: a flatter parabola; the implicit panel restarts on it.
+    let replies = send(
+        &mut s,
+        r#"{"type":"set_curve","constraint":0,"expr":"bead.x^2 + 200*bead.y"}"#,
+    );
+    let panels = panels_of(&replies).unwrap_or_else(|| panic!("{replies:?}"));
+    assert_eq!(panels[0].exprs[0].as_deref(), Some("bead.x^2 + 200*bead.y"));
+    assert_eq!(panels[1].exprs[0].as_deref(), Some("bead.x^2 + 100*bead.y"));
+    let f = &frames(&s)[0];
+    assert!(f.t < 0.05, "{f:?}");
+    assert!(f.constraint_error < 1e-6, "{f:?}");
+    run(&mut s, 0.5);
+    assert!(frames(&s)[0].constraint_error < 1e-2);
+    // Without implicit panels there is nothing to apply a curve to.
+    send(&mut s, r#"{"type":"remove_panel","panel":1}"#);
+    let replies = send(
+        &mut s,
+        r#"{"type":"set_curve","constraint":0,"expr":"bead.x^2 + 300*bead.y"}"#,
+    );
+    assert!(
+        matches!(&replies[0], ServerMessage::CurveError { message, .. } if message.contains("no implicit panel"))
+    );
+    // Parametric panels cannot take a curve edit.
+    let replies = send(
+        &mut s,
+        r#"{"type":"set_curve","panel":2,"constraint":0,"expr":"bead.x^2 + 200*bead.y"}"#,
+    );
+    assert!(matches!(&replies[0], ServerMessage::CurveError { .. }));
+}
+
+/// A scene whose implicit panel diverges with explicit Euler: a stiff spring.
+const STIFF: &str = r#"
+title = "stiff"
+[world]
+gravity = [0.0, 0.0]
+[[particle]]
+name = "bead"
+mass = 1.0
+position = [1.0, 0.0]
+[[force]]
+kind = "spring"
+particle = "bead"
+anchor = [0.0, 0.0]
+stiffness = 1e6
+[[constraint]]
+expr = "bead.y"
+[parametric]
+coordinates = ["q"]
+initial = [1.0]
+[parametric.positions]
+bead = ["q", "0"]
+[run]
+integrator = "euler"
+dt = 0.01
+"#;
+
+#[test]
+fn divergence_stops_one_panel_only() {
+    let mut s = session();
+    let message =
+        serde_json::json!({"type": "load_scene", "toml": STIFF, "file_name": "stiff.toml"});
+    let replies = send(&mut s, &message.to_string());
+    let panels = panels_of(&replies).unwrap_or_else(|| panic!("{replies:?}"));
+    let (implicit, parametric) = (panels[0].id, panels[1].id);
+    let replies = send(
+        &mut s,
+        &format!(
+            r#"{{"type":"configure_panel","panel":{parametric},"integrator":"rk4","dt":1e-4}}"#
+        ),
+    );
+    assert!(panels_of(&replies).is_some(), "{replies:?}");
+    run(&mut s, 3.0);
+    let f = frames(&s);
+    assert_eq!(f[0].status, "failed", "{:?}", f[0]);
+    let error = f[0].error.as_deref().unwrap();
+    assert!(error.contains("diverged"), "{error}");
+    assert_eq!(f[1].status, "running", "{:?}", f[1]);
+    assert!(f[1].t > 2.5);
+    // Frames stay valid JSON (no NaN) and play does not restart a failed panel.
+    serde_json::to_string(&s.frame()).unwrap();
+    send(&mut s, r#"{"type":"play"}"#);
+    assert_eq!(frames(&s)[0].status, "failed");
+    send(&mut s, &format!(r#"{{"type":"reset","panel":{implicit}}}"#));
+    assert_eq!(frames(&s)[0].status, "paused");
+}
+
+#[test]
+fn dragging_pulls_the_bead_along_the_curve() {
+    let mut s = session();
+    send(
+        &mut s,
+        r#"{"type":"configure_panel","panel":1,"project":true}"#,
+    );
+    send(&mut s, r#"{"type":"reset"}"#);
+    // Hold the bead at the bottom-left: target (-100, -100) is off the curve.
+    for panel in [1, 2] {
+        let replies = send(
+            &mut s,
+            &format!(
+                r#"{{"type":"drag_start","panel":{panel},"particle":0,"target":[-100,-100]}}"#
+            ),
+        );
+        assert!(replies.is_empty(), "{replies:?}");
+    }
+    send(&mut s, r#"{"type":"play"}"#);
+    run(&mut s, 3.0);
+    for f in frames(&s) {
+        let (x, y) = (f.x[0], f.x[1]);
+        assert!(f.drag.is_some());
+        assert!(x < -50.0, "panel {}: x = {x}", f.id);
+        assert!(
+            (x * x + 100.0 * y).abs() < 1e-3,
+            "panel {}: off the curve",
+            f.id
+        );
+        assert!(f.constraint_error < 1e-3, "{f:?}");
+    }
+    for panel in [1, 2] {
+        send(
+            &mut s,
+            &format!(r#"{{"type":"drag_move","panel":{panel},"target":[100,-100]}}"#),
+        );
+    }
+    run(&mut s, 3.0);
+    for f in frames(&s) {
+        assert!(f.x[0] > 50.0, "panel {}: x = {}", f.id, f.x[0]);
+    }
+    for panel in [1, 2] {
+        send(&mut s, &format!(r#"{{"type":"drag_end","panel":{panel}}}"#));
+    }
+    run(&mut s, 1.0);
+    for f in frames(&s) {
+        assert!(f.drag.is_none() && f.status == "running");
+        assert!(f.energy_rel_error < 1e-3, "{f:?}");
+    }
+}
+
+#[test]
+fn large_scenes_stay_responsive() {
+    // 300 beads, each on its own circle: 300 constraint rows, a dense 300 x 300 solve per
+    // evaluation. Loading and every frame must stay bounded in time.
+    let mut text = String::from("title = \"many\"\n[world]\ngravity = [0.0, 9.81]\n");
+    for i in 0..300 {
+        text.push_str(&format!(
+            "[[particle]]\nname = \"p{i}\"\nmass = 1.0\nposition = [{}.0, 1.0]\n",
+            2 * i
+        ));
+    }
+    for i in 0..300 {
+        text.push_str(&format!(
+            "[[constraint]]\nexpr = \"(p{i}.x - {}.0)^2 + p{i}.y^2 - 1\"\n",
+            2 * i
+        ));
+    }
+    assert!(text.len() < Limits::default().max_message_bytes);
+    let mut s = session();
+    let message = serde_json::json!({"type": "load_scene", "toml": text, "file_name": "many.toml"});
+    let start = std::time::Instant::now();
+    let replies = send(&mut s, &message.to_string());
+    assert!(panels_of(&replies).is_some(), "{replies:?}");
+    assert!(
+        start.elapsed().as_secs_f64() < 10.0,
+        "load took {:?}",
+        start.elapsed()
+    );
+    for _ in 0..5 {
+        let start = std::time::Instant::now();
+        s.advance(1.0 / 60.0);
+        assert!(
+            start.elapsed().as_secs_f64() < 2.0,
+            "a frame took {:?}",
+            start.elapsed()
+        );
+    }
+    // Too many particles are refused.
+    let mut text = String::from("title = \"too many\"\n[world]\ngravity = [0.0, 1.0]\n");
+    for i in 0..1001 {
+        text.push_str(&format!(
+            "[[particle]]\nname = \"p{i}\"\nmass = 1\nposition = [0, 0]\n"
+        ));
+    }
+    let message = serde_json::json!({"type": "load_scene", "toml": text});
+    let replies = send(&mut s, &message.to_string());
+    assert!(
+        matches!(&replies[0], ServerMessage::SceneError { message, .. } if message.contains("too many particles")),
+        "{replies:?}"
+    );
+}
