@@ -32,6 +32,31 @@ pub enum Command {
     Compare(CompareArgs),
     /// Validate a scene and describe it, with the derivatives the engine will use.
     Check(CheckArgs),
+    /// Plot columns of a trace CSV against t, as PNG or SVG.
+    Plot(crate::report_args::PlotArgs),
+    /// Start the live browser viewer: a local web server that runs the simulation and streams
+    /// it to a page (panels per formulation, live charts, drag a particle, edit the curve).
+    Serve(ServeArgs),
+}
+
+/// `bead serve`.
+#[derive(Debug, Args)]
+pub struct ServeArgs {
+    /// A scene file (TOML) to show first; the shipped scenes are always available.
+    pub scene: Option<PathBuf>,
+
+    /// Port to listen on (0: any free port).
+    #[arg(long, default_value_t = 8000)]
+    pub port: u16,
+
+    /// Address to listen on. Other than loopback only when given explicitly: the viewer has
+    /// no authentication.
+    #[arg(long, default_value = "127.0.0.1")]
+    pub host: std::net::IpAddr,
+
+    /// Open the page in a browser (xdg-open or open; failure is only a warning).
+    #[arg(long)]
+    pub open: bool,
 }
 
 const AFTER_RUN: &str = "\
@@ -74,6 +99,9 @@ pub struct CompareArgs {
 
     #[command(flatten)]
     pub sim: SimArgs,
+
+    #[command(flatten)]
+    pub grid: crate::report_args::GridArgs,
 
     /// Write one CSV trace per method, named by inserting the method before the extension:
     /// --trace out.csv writes out.implicit.csv and out.parametric.csv.
@@ -127,6 +155,22 @@ pub struct SimArgs {
     /// Record every K-th step in the trace (the first and last states are always recorded)
     #[arg(long, value_name = "K", default_value_t = 1, value_parser = clap::value_parser!(u64).range(1..))]
     pub every: u64,
+
+    /// Relative tolerance of the adaptive integrator (dopri5), a finite number > 0; other
+    /// integrators ignore it [default: 1e-8]
+    #[arg(long, value_name = "RTOL", value_parser = parse_positive)]
+    pub rtol: Option<f64>,
+
+    /// Absolute tolerance of the adaptive integrator (dopri5), a finite number >= 0, in the
+    /// units of q and qdot; other integrators ignore it [default: 1e-10]
+    #[arg(long, value_name = "ATOL", value_parser = parse_non_negative)]
+    pub atol: Option<f64>,
+
+    /// After every step, project positions onto the constraints C = 0 and velocities onto
+    /// J v = -C_t (mass-weighted, to 1e-12 of the constraints' scale); implicit form only,
+    /// not with dopri5; compare applies it to the implicit run only
+    #[arg(long)]
+    pub project: bool,
 }
 
 /// Where the report goes: shared by `run` and `compare`.
@@ -148,12 +192,16 @@ pub struct IntegratorArg(pub IntegratorKind);
 
 impl ValueEnum for IntegratorArg {
     fn value_variants<'a>() -> &'a [Self] {
-        const ALL: [IntegratorArg; 4] = [
-            IntegratorArg(IntegratorKind::ALL[0]),
-            IntegratorArg(IntegratorKind::ALL[1]),
-            IntegratorArg(IntegratorKind::ALL[2]),
-            IntegratorArg(IntegratorKind::ALL[3]),
-        ];
+        // Every kind of IntegratorKind::ALL, in its order, whatever its length.
+        const ALL: [IntegratorArg; IntegratorKind::ALL.len()] = {
+            let mut all = [IntegratorArg(IntegratorKind::ALL[0]); IntegratorKind::ALL.len()];
+            let mut i = 1;
+            while i < all.len() {
+                all[i] = IntegratorArg(IntegratorKind::ALL[i]);
+                i += 1;
+            }
+            all
+        };
         &ALL
     }
 
@@ -198,6 +246,21 @@ fn parse_positive(s: &str) -> Result<f64, String> {
     }
     if x <= 0.0 {
         return Err(format!("must be positive, got {s}"));
+    }
+    Ok(x)
+}
+
+/// A finite number >= 0.
+fn parse_non_negative(s: &str) -> Result<f64, String> {
+    let x: f64 = s
+        .trim()
+        .parse()
+        .map_err(|_| format!("`{s}` is not a number"))?;
+    if !x.is_finite() {
+        return Err(format!("must be finite, got {s}"));
+    }
+    if x < 0.0 {
+        return Err(format!("must be >= 0, got {s}"));
     }
     Ok(x)
 }
@@ -283,6 +346,15 @@ mod tests {
         assert_eq!(parse_positive("0.01"), Ok(0.01));
         for bad in ["0", "-1", "nan", "inf", "x", ""] {
             assert!(parse_positive(bad).is_err(), "{bad}");
+        }
+    }
+
+    #[test]
+    fn non_negative_accepts_zero_and_rejects_negative_and_non_finite() {
+        assert_eq!(parse_non_negative("0"), Ok(0.0));
+        assert_eq!(parse_non_negative("1e-10"), Ok(1e-10));
+        for bad in ["-1e-10", "nan", "inf", "x", ""] {
+            assert!(parse_non_negative(bad).is_err(), "{bad}");
         }
     }
 

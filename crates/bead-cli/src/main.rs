@@ -5,6 +5,7 @@ mod args;
 mod commands;
 mod plan;
 mod report;
+mod report_args;
 
 use std::io::{self, Write};
 use std::process::ExitCode;

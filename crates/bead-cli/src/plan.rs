@@ -3,7 +3,7 @@
 
 use anyhow::{bail, Result};
 use bead::formulation::{Feedback, Method};
-use bead::integrate::IntegratorKind;
+use bead::integrate::{IntegratorKind, IntegratorSettings};
 use bead::scene::Scene;
 use bead::simulate::RunOptions;
 
@@ -35,6 +35,10 @@ pub struct Plan {
     pub feedback_from_flags: bool,
     /// Record every K-th step.
     pub every: u64,
+    /// Integrator tolerances (--rtol, --atol over the library defaults).
+    pub settings: IntegratorSettings,
+    /// Project onto the constraints after every step (--project; implicit form only).
+    pub project: bool,
 }
 
 impl Plan {
@@ -83,6 +87,20 @@ impl Plan {
             feedback,
             feedback_from_flags,
             every: sim.every,
+            settings: {
+                let mut settings = IntegratorSettings::default();
+                if let Some(rtol) = sim.rtol {
+                    settings.rtol = rtol;
+                }
+                if let Some(atol) = sim.atol {
+                    settings.atol = atol;
+                }
+                // rattle and --project: 1e-12 of the scene's constraint scale.
+                settings.constraint_tolerance =
+                    bead::simulate::constraint_tolerance(&scene.system, 1e-12);
+                settings
+            },
+            project: sim.project,
         })
     }
 
@@ -93,7 +111,32 @@ impl Plan {
             dt: self.dt,
             steps: self.steps,
             every: self.every,
+            settings: self.settings,
+            project: self.project,
         }
+    }
+
+    /// Whether the integrator and --project can run on `method`: both rattle and the
+    /// projection work on the implicit form's constraints.
+    pub fn check_method(&self, method: Method) -> Result<()> {
+        if method == Method::Parametric {
+            if self.integrator.needs_constraints() {
+                bail!(
+                    "{} needs the implicit form; the parametric form has no constraints to project onto — use gauss-legendre or rk4",
+                    self.integrator.name()
+                );
+            }
+            if self.project {
+                bail!("--project applies to the implicit form; the parametric form stays on its constraints by construction");
+            }
+        }
+        if self.project && self.integrator.is_adaptive() {
+            bail!(
+                "--project is not available with {}: it would invalidate the adaptive integrator's step control and dense output; use a fixed-step integrator",
+                self.integrator.name()
+            );
+        }
+        Ok(())
     }
 
     /// Time at the end of a complete run (the run loop computes t = step * dt).
@@ -180,7 +223,7 @@ fn scene_positive(what: &str, value: Option<f64>) -> Result<Option<f64>> {
 
 /// Steps covering `duration`: duration/dt when it is within 1e-9 (relative, for large counts)
 /// of an integer, else rounded up; at least one. Returns (steps, Some(duration), overshoot).
-fn steps_for(duration: f64, dt: f64) -> Result<(u64, Option<f64>, bool)> {
+pub fn steps_for(duration: f64, dt: f64) -> Result<(u64, Option<f64>, bool)> {
     let ratio = duration / dt;
     if !ratio.is_finite() || ratio > MAX_STEPS {
         bail!(

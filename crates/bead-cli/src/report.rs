@@ -117,6 +117,23 @@ pub fn run_text(scene: &Scene, plan: &Plan, summary: &Summary) -> String {
         );
     }
     row(&mut s, "integrator", integrator_text(summary.integrator));
+    if summary.projected {
+        row(
+            &mut s,
+            "projection",
+            format!(
+                "on: positions onto C = 0 (tolerance {}) and velocities onto J v = -C_t after every step",
+                g(plan.settings.constraint_tolerance, 4)
+            ),
+        );
+    }
+    if let Some(iterations) = summary.newton_iterations_max {
+        row(
+            &mut s,
+            "newton",
+            format!("at most {iterations} Newton iteration(s) per step"),
+        );
+    }
     row(&mut s, "dt", format!("{} s", exact(summary.dt)));
     let steps = if summary.completed {
         format!("{}", summary.steps)
@@ -124,6 +141,17 @@ pub fn run_text(scene: &Scene, plan: &Plan, summary: &Summary) -> String {
         format!("{} of {} (stopped early)", summary.steps, plan.steps)
     };
     row(&mut s, "steps", steps);
+    if let (Some(accepted), Some(rejected)) = (summary.accepted_steps, summary.rejected_steps) {
+        row(
+            &mut s,
+            "adaptive",
+            format!(
+                "{accepted} accepted steps, {rejected} rejected (rtol {}, atol {}; dt is the output interval)",
+                exact(plan.settings.rtol),
+                exact(plan.settings.atol)
+            ),
+        );
+    }
     row(&mut s, "t_final", format!("{} s", exact(summary.t_final)));
     if let (Some(duration), true) = (plan.duration, plan.overshoot) {
         let _ = writeln!(
@@ -195,6 +223,12 @@ pub fn compare_text(scene: &Scene, plan: &Plan, summaries: &[Summary]) -> String
             exact(plan.feedback.kd)
         );
     }
+    if plan.project {
+        let _ = writeln!(
+            s,
+            "  implicit form projected onto its constraints after every step (--project)"
+        );
+    }
     s.push('\n');
     let any_failed = summaries.iter().any(|r| !r.completed);
     let mut header = vec![
@@ -205,6 +239,11 @@ pub fn compare_text(scene: &Scene, plan: &Plan, summaries: &[Summary]) -> String
         "final energy",
         "steps/s",
     ];
+    // Adaptive runs (dopri5): the integrator's own steps.
+    let adaptive = summaries.iter().any(|r| r.accepted_steps.is_some());
+    if adaptive {
+        header.push("accepted/rejected steps");
+    }
     if any_failed {
         header.push("status");
     }
@@ -218,6 +257,12 @@ pub fn compare_text(scene: &Scene, plan: &Plan, summaries: &[Summary]) -> String
             g(r.energy_final, 10),
             g(r.steps_per_second, 4),
         ];
+        if adaptive {
+            row.push(match (r.accepted_steps, r.rejected_steps) {
+                (Some(accepted), Some(rejected)) => format!("{accepted}/{rejected}"),
+                _ => "-".into(),
+            });
+        }
         if any_failed {
             row.push(if r.completed {
                 "ok".into()
@@ -233,7 +278,7 @@ pub fn compare_text(scene: &Scene, plan: &Plan, summaries: &[Summary]) -> String
 
 /// Rows of cells as an aligned table: the first column left-aligned, numbers right-aligned,
 /// a rule under the header.
-fn table(rows: &[Vec<String>]) -> String {
+pub fn table(rows: &[Vec<String>]) -> String {
     let n_columns = rows.iter().map(Vec::len).max().unwrap_or(0);
     let widths: Vec<usize> = (0..n_columns)
         .map(|c| {

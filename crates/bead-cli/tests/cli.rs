@@ -439,6 +439,10 @@ fn help_describes_every_integrator_and_flag() {
         "symplectic-euler: order 1, symplectic",
         "midpoint:         order 2, not symplectic",
         "rk4:              order 4, not symplectic",
+        "gauss-legendre:   order 4, symplectic, implicit stages",
+        "dopri5:           order 5, not symplectic, adaptive",
+        "verlet:           order 2, symplectic",
+        "rattle:           order 2, symplectic, implicit form only",
     ] {
         assert!(out.contains(line), "{line} in\n{out}");
     }
@@ -454,6 +458,9 @@ fn help_describes_every_integrator_and_flag() {
         "--every",
         "--summary",
         "--json",
+        "--rtol",
+        "--atol",
+        "--project",
     ] {
         assert!(out.contains(flag), "{flag}");
     }
@@ -920,4 +927,423 @@ fn scene_warnings_go_to_stderr_and_json_stays_clean() {
     assert!(err.starts_with("warning: particle `bead`: "), "{err}");
     let value: serde_json::Value = serde_json::from_str(&ok(out)).expect("stdout is JSON only");
     assert_eq!(value["completed"], true);
+}
+
+#[test]
+fn gauss_legendre_runs_the_parametric_form() {
+    let out = ok(bead(&[
+        "run",
+        p(&parabola()),
+        "--method",
+        "parametric",
+        "--integrator",
+        "gauss-legendre",
+        "--steps",
+        "1000",
+        "--json",
+    ]));
+    let value: serde_json::Value = serde_json::from_str(&out).expect("JSON");
+    assert_eq!(value["integrator"], "gauss-legendre");
+    assert_eq!(value["completed"], true);
+    assert_eq!(value["steps"], 1000);
+    // Bounded energy error: ~1e-6 of E0 at dt = 1/60 (rk4 loses 3e-5 over the same run).
+    assert!(
+        value["energy_rel_error_max"].as_f64().unwrap() < 1e-5,
+        "{out}"
+    );
+    assert!(value.get("accepted_steps").is_none(), "{out}");
+    assert!(value.get("rejected_steps").is_none(), "{out}");
+}
+
+#[test]
+fn dopri5_reports_accepted_and_rejected_steps() {
+    let out = ok(bead(&[
+        "run",
+        p(&parabola()),
+        "--integrator",
+        "dopri5",
+        "--rtol",
+        "1e-9",
+        "--json",
+    ]));
+    let value: serde_json::Value = serde_json::from_str(&out).expect("JSON");
+    assert_eq!(value["integrator"], "dopri5");
+    assert_eq!(value["completed"], true);
+    assert_eq!(value["t_final"], 10.0);
+    assert!(value["accepted_steps"].as_u64().unwrap() > 0, "{out}");
+    assert!(value["rejected_steps"].as_u64().is_some(), "{out}");
+    let text = ok(bead(&[
+        "run",
+        p(&parabola()),
+        "--integrator",
+        "dopri5",
+        "--rtol",
+        "1e-9",
+        "--atol",
+        "0",
+    ]));
+    assert!(text.contains("accepted steps"), "{text}");
+    assert!(text.contains("rtol 1e-9, atol 0"), "{text}");
+    for bad in [
+        "--rtol=0",
+        "--rtol=-1",
+        "--rtol=nan",
+        "--atol=-1e-3",
+        "--atol=inf",
+    ] {
+        let err = fails(bead(&["run", p(&parabola()), bad]), 2);
+        let flag = bad.split('=').next().unwrap();
+        assert!(err.contains(flag), "{bad}: {err}");
+    }
+}
+
+#[test]
+fn rattle_keeps_the_parabola_on_its_constraint() {
+    let out = ok(bead(&[
+        "run",
+        p(&parabola()),
+        "--integrator",
+        "rattle",
+        "--steps",
+        "1000",
+        "--json",
+    ]));
+    let value: serde_json::Value = serde_json::from_str(&out).expect("JSON");
+    assert_eq!(value["integrator"], "rattle");
+    assert_eq!(value["completed"], true);
+    // Tolerance 1e-12 of the constraint's scale (~7e4 for C = x^2 + 100 y at x = 150).
+    let c_max = value["constraint_error_max"].as_f64().unwrap();
+    assert!(c_max <= 1e-7, "{out}");
+    let newton = value["newton_iterations_max"].as_u64().unwrap();
+    assert!((1..=5).contains(&newton), "{out}");
+    assert!(value.get("projected").is_none(), "{out}");
+    let text = ok(bead(&[
+        "run",
+        p(&parabola()),
+        "--integrator",
+        "rattle",
+        "--steps",
+        "10",
+    ]));
+    assert!(
+        text.contains("integrator   rattle (order 2, symplectic"),
+        "{text}"
+    );
+}
+
+#[test]
+fn rattle_on_the_parametric_form_is_an_error() {
+    let err = fails(
+        bead(&[
+            "run",
+            p(&parabola()),
+            "--method",
+            "parametric",
+            "--integrator",
+            "rattle",
+        ]),
+        1,
+    );
+    assert_eq!(
+        err,
+        "error: rattle needs the implicit form; the parametric form has no constraints to project onto — use gauss-legendre or rk4\n"
+    );
+}
+
+#[test]
+fn project_keeps_rk4_on_the_constraint_and_says_so() {
+    let out = ok(bead(&[
+        "run",
+        p(&parabola()),
+        "--project",
+        "--steps",
+        "1000",
+        "--json",
+    ]));
+    let value: serde_json::Value = serde_json::from_str(&out).expect("JSON");
+    assert_eq!(value["projected"], true);
+    assert_eq!(value["completed"], true);
+    assert!(
+        value["constraint_error_max"].as_f64().unwrap() <= 1e-7,
+        "{out}"
+    );
+    let text = ok(bead(&[
+        "run",
+        p(&parabola()),
+        "--project",
+        "--steps",
+        "100",
+    ]));
+    assert!(text.contains("projection   on:"), "{text}");
+    let compare = ok(bead(&[
+        "compare",
+        p(&parabola()),
+        "--project",
+        "--steps",
+        "100",
+    ]));
+    assert!(compare.contains("--project"), "{compare}");
+    let err = fails(
+        bead(&["run", p(&parabola()), "--method", "parametric", "--project"]),
+        1,
+    );
+    assert_eq!(
+        err,
+        "error: --project applies to the implicit form; the parametric form stays on its constraints by construction\n"
+    );
+}
+
+// ---- compare over integrators x dts, --report, bead plot ----
+
+fn scene(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../scenes")
+        .join(name)
+}
+
+/// Every `src="..."` and `href="..."` value of an HTML text.
+fn html_references(html: &str) -> Vec<String> {
+    let mut refs = Vec::new();
+    for attribute in ["src=\"", "href=\""] {
+        let mut rest = html;
+        while let Some(i) = rest.find(attribute) {
+            rest = &rest[i + attribute.len()..];
+            let end = rest.find('"').expect("closing quote");
+            refs.push(rest[..end].to_string());
+            rest = &rest[end..];
+        }
+    }
+    refs
+}
+
+/// Decode a PNG; returns (width, height, number of non-white pixels).
+fn decode_png(path: &Path) -> (u32, u32, usize) {
+    let decoder = png::Decoder::new(std::fs::File::open(path).expect("open png"));
+    let mut reader = decoder.read_info().expect("png header");
+    let mut buf = vec![0; reader.output_buffer_size()];
+    let info = reader.next_frame(&mut buf).expect("png data");
+    let channels = info.color_type.samples();
+    let inked = buf[..info.buffer_size()]
+        .chunks(channels)
+        .filter(|p| p.iter().take(3).any(|&c| c < 200))
+        .count();
+    (info.width, info.height, inked)
+}
+
+/// The rows of the grid table below its rule, split on whitespace.
+fn grid_rows(text: &str) -> Vec<Vec<String>> {
+    text.lines()
+        .skip_while(|l| !l.starts_with("---"))
+        .skip(1)
+        .take_while(|l| !l.starts_with("skipped:") && !l.starts_with("report:") && !l.is_empty())
+        .map(|l| l.split_whitespace().map(str::to_string).collect())
+        .collect()
+}
+
+#[test]
+fn compare_grid_writes_a_self_contained_report_with_png_and_svg_plots() {
+    let dir = TempDir::new("report");
+    let report = dir.path("report");
+    let out = ok(bead_in(
+        &dir.0,
+        &[
+            "compare",
+            p(&parabola()),
+            "--integrators",
+            "rk4,euler",
+            "--dts",
+            "1/30,1/60",
+            "--duration",
+            "2",
+            "--report",
+            p(&report),
+        ],
+    ));
+    let rows = grid_rows(&out);
+    assert_eq!(rows.len(), 8, "2 methods x 2 integrators x 2 dts:\n{out}");
+    for method in ["implicit", "parametric"] {
+        for integrator in ["rk4", "euler"] {
+            for dt in ["1/30", "1/60"] {
+                assert!(
+                    rows.iter()
+                        .any(|r| r[0] == method && r[1] == integrator && r[2] == dt),
+                    "missing {method} {integrator} {dt}:\n{out}"
+                );
+            }
+        }
+    }
+    let html = std::fs::read_to_string(report.join("report.html")).expect("report.html");
+    assert_eq!(html.matches("<tr>").count(), 9, "header + 8 rows");
+    let refs = html_references(&html);
+    assert!(!refs.is_empty());
+    for r in &refs {
+        assert!(
+            !r.contains("://") && !r.starts_with('/'),
+            "external reference {r}"
+        );
+        assert!(report.join(r).is_file(), "{r} does not exist");
+    }
+    assert!(html.contains("<svg"), "SVGs are inline");
+    assert!(!html.contains("<script"));
+    for name in [
+        "constraint_error",
+        "energy_error",
+        "trajectories",
+        "work_precision",
+    ] {
+        let svg = std::fs::read_to_string(report.join(format!("{name}.svg"))).expect("svg");
+        let doc = roxmltree::Document::parse(&svg).unwrap_or_else(|e| panic!("{name}.svg: {e}"));
+        assert_eq!(doc.root_element().tag_name().name(), "svg");
+        let (w, h, inked) = decode_png(&report.join(format!("{name}.png")));
+        assert!(w >= 600 && h >= 400, "{name}.png is {w}x{h}");
+        assert!(
+            inked > 1000,
+            "{name}.png looks blank ({inked} inked pixels)"
+        );
+        assert!(
+            refs.contains(&format!("{name}.png")),
+            "{name}.png not linked"
+        );
+    }
+}
+
+#[test]
+fn compare_grid_skips_combinations_that_cannot_run_and_says_why() {
+    let out = ok(bead(&[
+        "compare",
+        p(&parabola()),
+        "--integrators",
+        "rk4,rattle",
+        "--dts",
+        "0.01",
+        "--duration",
+        "0.5",
+    ]));
+    assert_eq!(grid_rows(&out).len(), 3, "{out}");
+    assert!(
+        out.contains("skipped: parametric x rattle: "),
+        "the reason is printed:\n{out}"
+    );
+}
+
+#[test]
+fn compare_period_of_the_circle_matches_the_large_amplitude_pendulum() {
+    // T = 4 sqrt(L/g) K(k), k = sin(theta0/2), theta0 = 60 degrees; K by the AGM.
+    let (mut a, mut b) = (1.0f64, (1.0f64 - 0.25).sqrt());
+    for _ in 0..20 {
+        (a, b) = ((a + b) / 2.0, (a * b).sqrt());
+    }
+    let k = std::f64::consts::PI / (2.0 * a);
+    let expected = 4.0 * (1.0f64 / 9.81).sqrt() * k;
+    assert!((expected - 2.153).abs() < 1e-3, "{expected}");
+    let out = ok(bead(&[
+        "compare",
+        p(&scene("circle.toml")),
+        "--integrators",
+        "rk4",
+        "--dts",
+        "1/1000",
+        "--duration",
+        "10",
+    ]));
+    let rows = grid_rows(&out);
+    assert_eq!(rows.len(), 2, "{out}");
+    for row in rows {
+        let period: f64 = row[6]
+            .parse()
+            .unwrap_or_else(|_| panic!("no period in {row:?}"));
+        assert!(
+            ((period - expected) / expected).abs() < 1e-3,
+            "{}: period {period}, expected {expected}",
+            row[0]
+        );
+    }
+}
+
+#[test]
+fn dts_entries_must_be_positive_numbers_or_fractions() {
+    for (bad, message) in [("1/0", "divides by zero"), ("abc", "not a number")] {
+        let err = fails(
+            bead(&["compare", p(&parabola()), "--dts", &format!("1/60,{bad}")]),
+            2,
+        );
+        assert!(err.contains(message), "{bad}: {err}");
+        assert!(err.contains("--dts"), "{bad}: {err}");
+    }
+}
+
+/// A trace written by `bead run --trace` in `dir`.
+fn run_trace(dir: &TempDir) -> PathBuf {
+    let trace = dir.path("t.csv");
+    ok(bead_in(
+        &dir.0,
+        &[
+            "run",
+            p(&parabola()),
+            "--steps",
+            "300",
+            "--trace",
+            p(&trace),
+        ],
+    ));
+    trace
+}
+
+#[test]
+fn plot_writes_png_by_default_and_svg_by_extension() {
+    let dir = TempDir::new("plot");
+    let trace = run_trace(&dir);
+    ok(bead_in(&dir.0, &["plot", p(&trace)]));
+    let (w, h, inked) = decode_png(&dir.path("t.png"));
+    assert!(w > 0 && h > 0 && inked > 1000, "{w}x{h}, {inked}");
+    let svg = dir.path("cols.svg");
+    ok(bead_in(
+        &dir.0,
+        &[
+            "plot",
+            p(&trace),
+            "--columns",
+            "bead.x,constraint_error",
+            "--log",
+            "-o",
+            p(&svg),
+        ],
+    ));
+    let text = std::fs::read_to_string(&svg).expect("svg");
+    roxmltree::Document::parse(&text).expect("the SVG parses");
+    assert!(text.contains("bead.x") && text.contains("constraint_error"));
+}
+
+#[test]
+fn plot_errors_name_the_problem() {
+    let dir = TempDir::new("plot-errors");
+    let trace = run_trace(&dir);
+    let err = fails(
+        bead_in(&dir.0, &["plot", p(&trace), "--columns", "energy,bogus"]),
+        1,
+    );
+    assert!(err.contains("unknown column `bogus`"), "{err}");
+    assert!(err.contains("bead.x, bead.y"), "lists the columns: {err}");
+
+    let err = fails(
+        bead_in(&dir.0, &["plot", p(&trace), "-o", p(&dir.path("x.jpg"))]),
+        1,
+    );
+    assert!(err.contains("use a .png or .svg"), "{err}");
+
+    let bad = dir.write("bad.csv", "t,energy\n0,1\n0.1,x\n");
+    let err = fails(bead_in(&dir.0, &["plot", p(&bad)]), 1);
+    assert!(err.contains("bad.csv:3:"), "line number: {err}");
+    assert!(err.contains("`x`"), "{err}");
+
+    let short = dir.write("short.csv", "t,energy\n0,1\n0.1\n");
+    let err = fails(bead_in(&dir.0, &["plot", p(&short)]), 1);
+    assert!(
+        err.contains("short.csv:3:") && err.contains("expected 2 fields"),
+        "{err}"
+    );
+
+    let no_t = dir.write("no_t.csv", "x,energy\n0,1\n");
+    let err = fails(bead_in(&dir.0, &["plot", p(&no_t)]), 1);
+    assert!(err.contains("no_t.csv:1:") && err.contains("`t`"), "{err}");
 }

@@ -13,3 +13,8 @@ pub mod simulate;
 /// Constraints written as Rust types are generic over it (see [`model::Holonomic`]).
 pub trait Scalar: num_dual::DualNum<Primitive = f64> + Copy {}
 impl<T: num_dual::DualNum<Primitive = f64> + Copy> Scalar for T {}
+
+/// The README's Rust examples, compiled and run as doctests.
+#[doc = include_str!("../../../README.md")]
+#[cfg(doctest)]
+pub struct ReadmeDoctests;

@@ -13,8 +13,12 @@ use crate::report;
 
 /// `bead compare`: run every formulation of the scene and print them side by side.
 pub fn compare(args: &CompareArgs) -> Result<()> {
+    if args.grid.integrators.is_some() || args.grid.dts.is_some() || args.grid.report.is_some() {
+        return super::grid::compare_grid(args);
+    }
     let scene = load_scene(&args.scene, &args.sim.set)?;
     let plan = Plan::resolve(&scene, &args.sim)?;
+    plan.check_method(Method::Implicit)?;
     let methods = compare_methods(&scene);
     let mut summaries = Vec::new();
     let mut failures = Vec::new();

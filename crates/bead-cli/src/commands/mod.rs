@@ -3,7 +3,11 @@
 
 mod check;
 mod compare;
+mod grid;
+mod plot;
+mod progress;
 mod run;
+mod serve;
 
 use std::fs::File;
 use std::io::{self, Write};
@@ -25,6 +29,8 @@ pub fn dispatch(command: Command) -> Result<()> {
         Command::Run(args) => run::run(&args),
         Command::Compare(args) => compare::compare(&args),
         Command::Check(args) => check::check(&args),
+        Command::Plot(args) => plot::plot(&args),
+        Command::Serve(args) => serve::serve(&args),
     }
 }
 
@@ -63,6 +69,19 @@ fn run_method(
     feedback: Feedback,
     trace: Option<&Path>,
 ) -> Result<Outcome> {
+    run_method_with(scene, plan, method, feedback, trace, None)
+}
+
+/// [`run_method`], also recording into `recorder` (for `compare --report`), with a progress
+/// bar on a terminal for long runs.
+fn run_method_with(
+    scene: &Scene,
+    plan: &Plan,
+    method: Method,
+    feedback: Feedback,
+    trace: Option<&Path>,
+    recorder: Option<&mut dyn Sink>,
+) -> Result<Outcome> {
     let mut formulation =
         formulate(Arc::clone(&scene.system), method, feedback).map_err(anyhow::Error::msg)?;
     let coordinates = formulation.coordinate_names().to_vec();
@@ -76,7 +95,20 @@ fn run_method(
         }
         None => Box::new(NullSink),
     };
-    let result = simulate::run(&mut *formulation, &plan.options(), &mut *sink);
+    let mut options = plan.options();
+    // --project applies to the implicit form only (compare runs the parametric form without).
+    options.project &= method == Method::Implicit;
+    let mut bar = progress::Bar::new(format!("{} {}", method.name(), options.integrator.name()));
+    let result = match recorder {
+        Some(recorder) => simulate::run_with_progress(
+            &mut *formulation,
+            &options,
+            &mut grid::Tee(&mut *sink, recorder),
+            &mut bar,
+        ),
+        None => simulate::run_with_progress(&mut *formulation, &options, &mut *sink, &mut bar),
+    };
+    bar.finish();
     let summary = Summary::from_result(&scene.file, &scene.system, &coordinates, &result);
     Ok(Outcome { result, summary })
 }

@@ -16,6 +16,7 @@ pub fn run(args: &RunArgs) -> Result<()> {
         warn("the scene's [run] stabilize applies only to the implicit form; not used for this parametric run");
     }
     let feedback = plan.feedback_for(method)?;
+    plan.check_method(method)?;
     let outcome = run_method(&scene, &plan, method, feedback, args.trace.as_deref())?;
     let summary_json = json(&outcome.summary)?;
     if let Some(path) = &args.output.summary {

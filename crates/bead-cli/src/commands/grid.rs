@@ -1,0 +1,208 @@
+//! `bead compare` over a grid: every formulation x integrator x dt, with the table and the
+//! optional HTML report (`--integrators`, `--dts`, `--report`).
+
+use std::ffi::OsString;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use anyhow::{bail, Result};
+use bead::formulation::{Feedback, Method};
+use bead::output::report::{write_report, Recorder, Report, ReportRun};
+use bead::simulate::{Sample, Sink};
+
+use super::{json, load_scene, print, report_error, run_method_with, write_file};
+use crate::args::CompareArgs;
+use crate::plan::{compare_methods, steps_for, Plan};
+use crate::report::{exact, integrator_text, table, title};
+
+/// Two sinks fed the same samples.
+pub struct Tee<'a>(pub &'a mut dyn Sink, pub &'a mut dyn Sink);
+
+impl Sink for Tee<'_> {
+    fn record(&mut self, sample: &Sample) -> std::io::Result<()> {
+        self.0.record(sample)?;
+        self.1.record(sample)
+    }
+    fn finish(&mut self) -> std::io::Result<()> {
+        let first = self.0.finish();
+        let second = self.1.finish();
+        first.and(second)
+    }
+}
+
+/// `bead compare` with `--integrators`, `--dts` or `--report`.
+pub fn compare_grid(args: &CompareArgs) -> Result<()> {
+    let scene = load_scene(&args.scene, &args.sim.set)?;
+    let plan = Plan::resolve(&scene, &args.sim)?;
+    let integrators = match &args.grid.integrators {
+        Some(list) => list.0.clone(),
+        None => vec![plan.integrator],
+    };
+    let dts = match &args.grid.dts {
+        Some(list) => list.0.clone(),
+        None => vec![(exact(plan.dt), plan.dt)],
+    };
+    // Every dt covers the same time: the requested duration, else the planned run's.
+    let duration = plan.duration.unwrap_or_else(|| plan.t_end());
+    let methods = compare_methods(&scene);
+    let mut runs = Vec::new();
+    let mut summaries = Vec::new();
+    let mut skipped = Vec::new();
+    let mut failures = Vec::new();
+    // --project applies to the implicit form only; on a grid the implicit form then runs
+    // both without and with the projection, so that the table shows what it changes.
+    let mut variants = Vec::new();
+    for &method in &methods {
+        variants.push((method, false));
+        if plan.project && method == Method::Implicit {
+            variants.push((method, true));
+        }
+    }
+    for &(method, project) in &variants {
+        for &integrator in &integrators {
+            let mut combination = plan.clone();
+            combination.integrator = integrator;
+            combination.project = project;
+            if let Err(reason) = combination.check_method(method) {
+                let name = if project {
+                    format!("{}+project", method.name())
+                } else {
+                    method.name().to_string()
+                };
+                skipped.push(format!("{name} x {}: {reason}", integrator.name()));
+                continue;
+            }
+            for (dt_label, dt) in &dts {
+                let mut planned = combination.clone();
+                if args.grid.dts.is_some() {
+                    let (steps, _, overshoot) = steps_for(duration, *dt)?;
+                    planned.dt = *dt;
+                    planned.steps = steps;
+                    planned.overshoot = overshoot;
+                }
+                let feedback = match method {
+                    Method::Implicit => plan.feedback,
+                    Method::Parametric => Feedback::default(),
+                };
+                let trace = args.trace.as_deref().map(|path| {
+                    trace_path(
+                        path,
+                        &format!(
+                            "{}{}.{}.dt{}",
+                            method.name(),
+                            if project { "-project" } else { "" },
+                            integrator.name(),
+                            dt_label.replace('/', "_")
+                        ),
+                    )
+                });
+                let mut recorder =
+                    Recorder::new(Arc::clone(&scene.system), (args.grid.points / 2) as usize);
+                let outcome = run_method_with(
+                    &scene,
+                    &planned,
+                    method,
+                    feedback,
+                    trace.as_deref(),
+                    Some(&mut recorder),
+                )?;
+                let (stats, error) = match &outcome.result {
+                    Ok(stats) => (stats.clone(), None),
+                    Err(failure) => (*failure.stats.clone(), Some(failure.error.to_string())),
+                };
+                let run = ReportRun {
+                    method,
+                    projected: planned.project,
+                    integrator,
+                    dt: *dt,
+                    dt_label: dt_label.clone(),
+                    stats,
+                    error,
+                    recording: recorder.recording(),
+                };
+                if let Some(error) = &run.error {
+                    failures.push(format!("{}: {error}", run.label()));
+                }
+                runs.push(run);
+                summaries.push(outcome.summary);
+            }
+        }
+    }
+    let mut description = format!("scene {}; t = 0 to {} s", scene.file, exact(duration));
+    if args.grid.integrators.is_none() {
+        description.push_str(&format!(
+            "; integrator {}",
+            integrator_text(plan.integrator)
+        ));
+    }
+    if plan.feedback != Feedback::default() {
+        description.push_str(&format!(
+            "; implicit form stabilized with ks = {}, kd = {}",
+            exact(plan.feedback.ks),
+            exact(plan.feedback.kd)
+        ));
+    }
+    if plan.project {
+        description.push_str(
+            "; implicit+project: the implicit form projected onto its constraints after every step (--project)",
+        );
+    }
+    let report = Report {
+        title: title(&scene).to_string(),
+        description,
+        system: Arc::clone(&scene.system),
+        runs,
+        skipped,
+    };
+    let summary_json = json(&summaries)?;
+    if let Some(path) = &args.output.summary {
+        write_file(path, &summary_json)?;
+    }
+    let written = match &args.grid.report {
+        Some(dir) => Some(write_report(&report, dir)?),
+        None => None,
+    };
+    let printed = if args.output.json {
+        for s in &report.skipped {
+            report_error(&format!("skipped: {s}"));
+        }
+        print(&summary_json)
+    } else {
+        let mut text = format!("{}\n  {}\n\n", report.title, report.description);
+        text.push_str(&table(&report.rows()));
+        for s in &report.skipped {
+            text.push_str(&format!("skipped: {s}\n"));
+        }
+        if let Some(files) = &written {
+            text.push_str(&format!("report: {}\n", files.html.display()));
+        }
+        print(&text)
+    };
+    match failures.split_last() {
+        None => printed,
+        Some((last, others)) => {
+            for failure in others {
+                report_error(failure);
+            }
+            bail!("{last}")
+        }
+    }
+}
+
+/// `trace.csv` -> `trace.TAG.csv`.
+fn trace_path(path: &Path, tag: &str) -> PathBuf {
+    let mut name = OsString::new();
+    match (path.file_stem(), path.extension()) {
+        (Some(stem), Some(extension)) => {
+            name.push(stem);
+            name.push(format!(".{tag}."));
+            name.push(extension);
+        }
+        (Some(stem), None) => {
+            name.push(stem);
+            name.push(format!(".{tag}"));
+        }
+        (None, _) => name.push(format!("trace.{tag}.csv")),
+    }
+    path.with_file_name(name)
+}

@@ -1,0 +1,149 @@
+//! Flags of `bead compare`'s grid and report (`--integrators`, `--dts`, `--report`) and of
+//! `bead plot`.
+
+use std::path::PathBuf;
+
+use bead::integrate::IntegratorKind;
+use clap::Args;
+
+/// `bead compare`: several integrators and step sizes, and the HTML report.
+#[derive(Debug, Args)]
+pub struct GridArgs {
+    /// Compare these integrators (comma-separated names, or `all` for every one); each runs
+    /// with every formulation, and combinations that cannot run are listed as skipped. With
+    /// --integrators, --dts or --report and --project, the implicit form runs both without
+    /// and with the projection (rows `implicit` and `implicit+project`)
+    #[arg(long, value_name = "LIST", value_parser = parse_integrators, conflicts_with = "integrator")]
+    pub integrators: Option<IntegratorList>,
+
+    /// Compare these step sizes (comma-separated, each a number > 0 or a fraction like 1/60)
+    /// over the same duration
+    #[arg(long, value_name = "LIST", value_parser = parse_dts, conflicts_with_all = ["dt", "steps"])]
+    pub dts: Option<DtList>,
+
+    /// Write DIR/report.html with the table and plots (PNG and SVG beside it): constraint and
+    /// energy error vs time, trajectories, work-precision
+    #[arg(long, value_name = "DIR")]
+    pub report: Option<PathBuf>,
+
+    /// Most points per plotted series (min/max per bucket of consecutive samples, so spikes
+    /// survive), >= 10
+    #[arg(long, value_name = "N", default_value_t = 2000, value_parser = clap::value_parser!(u64).range(10..))]
+    pub points: u64,
+}
+
+/// `bead plot`.
+#[derive(Debug, Args)]
+pub struct PlotArgs {
+    /// A trace CSV written by `bead run --trace` or `bead compare --trace` (header row, `t`
+    /// first)
+    pub trace: PathBuf,
+
+    /// Columns to plot against t, comma-separated [default: energy and constraint_error when
+    /// present, else every column]
+    #[arg(long, value_name = "LIST", value_delimiter = ',')]
+    pub columns: Option<Vec<String>>,
+
+    /// Output file, .png or .svg [default: the trace with the extension .png]
+    #[arg(short, long, value_name = "FILE")]
+    pub output: Option<PathBuf>,
+
+    /// Logarithmic y axis (values at or below 1e-17, e.g. zeros, are drawn at 1e-17)
+    #[arg(long)]
+    pub log: bool,
+}
+
+/// `--integrators`: the kinds, in the order given, without repeats.
+#[derive(Clone, Debug, PartialEq)]
+pub struct IntegratorList(pub Vec<IntegratorKind>);
+
+/// `--dts`: each step size with its text as given (e.g. `1/60`).
+#[derive(Clone, Debug, PartialEq)]
+pub struct DtList(pub Vec<(String, f64)>);
+
+fn parse_integrators(s: &str) -> Result<IntegratorList, String> {
+    let mut kinds = Vec::new();
+    for part in s.split(',') {
+        let part = part.trim();
+        if part == "all" {
+            for k in IntegratorKind::ALL {
+                if !kinds.contains(&k) {
+                    kinds.push(k);
+                }
+            }
+            continue;
+        }
+        if part.is_empty() {
+            return Err(format!("empty integrator name in `{s}`"));
+        }
+        let kind: IntegratorKind = part.parse()?;
+        if !kinds.contains(&kind) {
+            kinds.push(kind);
+        }
+    }
+    Ok(IntegratorList(kinds))
+}
+
+/// One step size: a finite number > 0, or a fraction `A/B` of two such numbers.
+pub fn parse_dt(s: &str) -> Result<f64, String> {
+    let s = s.trim();
+    let number = |part: &str| -> Result<f64, String> {
+        part.trim()
+            .parse::<f64>()
+            .map_err(|_| format!("`{s}` is not a number or a fraction like 1/60"))
+    };
+    let value = match s.split_once('/') {
+        Some((a, b)) => {
+            let (a, b) = (number(a)?, number(b)?);
+            if b == 0.0 {
+                return Err(format!("`{s}` divides by zero"));
+            }
+            a / b
+        }
+        None => number(s)?,
+    };
+    if !value.is_finite() || value <= 0.0 {
+        return Err(format!("`{s}` must be a finite step size > 0"));
+    }
+    Ok(value)
+}
+
+fn parse_dts(s: &str) -> Result<DtList, String> {
+    let mut dts = Vec::new();
+    for part in s.split(',') {
+        let dt = parse_dt(part)?;
+        dts.push((part.trim().to_string(), dt));
+    }
+    Ok(DtList(dts))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn dts_take_fractions_and_decimals() {
+        assert_eq!(parse_dt("1/60"), Ok(1.0 / 60.0));
+        assert_eq!(parse_dt(" 0.01 "), Ok(0.01));
+        assert_eq!(parse_dt("1e-3"), Ok(1e-3));
+        for bad in ["1/0", "abc", "0", "-1/60", "1/", "/2", "inf", "1/60/2", ""] {
+            assert!(parse_dt(bad).is_err(), "{bad}");
+        }
+        let list = parse_dts("1/30, 0.01").unwrap();
+        assert_eq!(list.0[0], ("1/30".to_string(), 1.0 / 30.0));
+    }
+
+    #[test]
+    fn integrators_take_names_and_all() {
+        assert_eq!(
+            parse_integrators("rk4,euler,rk4").unwrap().0,
+            vec![IntegratorKind::Rk4, IntegratorKind::Euler]
+        );
+        assert_eq!(
+            parse_integrators("all").unwrap().0,
+            IntegratorKind::ALL.to_vec()
+        );
+        assert!(parse_integrators("rk5").is_err());
+        assert!(parse_integrators("rk4,").is_err());
+    }
+}
