@@ -39,9 +39,7 @@
 
 use super::Integrator;
 use crate::formulation::{ConstrainedSystem, SecondOrderSystem, State, StepError};
-
-/// A pivot below this fraction of its column's largest original entry counts as zero.
-const RELATIVE_PIVOT_TOLERANCE: f64 = 1e-10;
+use crate::linalg::solve_general;
 
 /// RATTLE with a Newton solve for the position multipliers.
 pub struct Rattle {
@@ -169,59 +167,6 @@ fn max_abs(c: &[f64]) -> f64 {
             m.max(c.abs())
         }
     })
-}
-
-/// Solve A z = b (A m x m, row-major, general) by Gaussian elimination with partial pivoting,
-/// in place; `b` becomes z. Err(column) when that column has no usable pivot (relative to the
-/// column's largest original entry): its constraint is dependent on earlier ones or its
-/// gradient vanishes.
-fn solve_general(
-    m: usize,
-    a: &mut [f64],
-    b: &mut [f64],
-    column_scale: &mut [f64],
-) -> Result<(), usize> {
-    for j in 0..m {
-        column_scale[j] = (0..m).fold(0.0, |s: f64, i| s.max(a[i * m + j].abs()));
-    }
-    for j in 0..m {
-        let (mut pivot_row, mut pivot) = (j, 0.0);
-        for i in j..m {
-            let value = a[i * m + j].abs();
-            if value > pivot {
-                (pivot_row, pivot) = (i, value);
-            }
-        }
-        // Written so that NaN counts as singular.
-        let usable = pivot > RELATIVE_PIVOT_TOLERANCE * column_scale[j];
-        if !usable {
-            return Err(j);
-        }
-        if pivot_row != j {
-            for k in 0..m {
-                a.swap(j * m + k, pivot_row * m + k);
-            }
-            b.swap(j, pivot_row);
-        }
-        let diagonal = a[j * m + j];
-        for i in j + 1..m {
-            let factor = a[i * m + j] / diagonal;
-            if factor != 0.0 {
-                for k in j..m {
-                    a[i * m + k] -= factor * a[j * m + k];
-                }
-                b[i] -= factor * b[j];
-            }
-        }
-    }
-    for i in (0..m).rev() {
-        let mut sum = b[i];
-        for k in i + 1..m {
-            sum -= a[i * m + k] * b[k];
-        }
-        b[i] = sum / a[i * m + i];
-    }
-    Ok(())
 }
 
 impl Integrator for Rattle {
