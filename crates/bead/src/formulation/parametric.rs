@@ -24,6 +24,8 @@ pub struct Parametric {
     map: ParametricEval,
     /// F (n_coords)
     force: Vec<f64>,
+    /// The mass of each particle coordinate (n_coords), so the hot loops multiply
+    coordinate_mass: Vec<f64>,
     /// M, row-major (n_q x n_q)
     matrix: Vec<f64>,
     /// rhs, then qddot (n_q)
@@ -41,6 +43,11 @@ impl Parametric {
             solver: Box::new(DenseCholesky::default()),
             map: map.workspace(),
             force: vec![0.0; system.n_coords()],
+            coordinate_mass: system
+                .particles()
+                .iter()
+                .flat_map(|p| std::iter::repeat_n(p.mass, system.dim()))
+                .collect(),
             matrix: vec![0.0; n_q * n_q],
             rhs: vec![0.0; n_q],
             system,
@@ -72,18 +79,18 @@ impl SecondOrderSystem for Parametric {
         let ws = &mut self.map;
         map.evaluate(t, q, qdot, ws);
         system.accumulate_forces(&ws.position, &ws.velocity, &mut self.force);
-        let inverse_mass = &system.inverse_mass;
+        let mass_of = &self.coordinate_mass;
         // Q - sum m J^T h: with per-coordinate mass m_k, rhs_j = sum_k J_kj (F_k - m_k h_k).
         for j in 0..n_q {
             let mut rhs = 0.0;
-            for (k, w) in inverse_mass.iter().enumerate() {
-                rhs += ws.jacobian[k * n_q + j] * (self.force[k] - ws.bias[k] / w);
+            for (k, m) in mass_of.iter().enumerate() {
+                rhs += ws.jacobian[k * n_q + j] * (self.force[k] - m * ws.bias[k]);
             }
             self.rhs[j] = rhs;
             for l in 0..=j {
                 let mut mass = 0.0;
-                for (k, w) in inverse_mass.iter().enumerate() {
-                    mass += ws.jacobian[k * n_q + j] * ws.jacobian[k * n_q + l] / w;
+                for (k, m) in mass_of.iter().enumerate() {
+                    mass += m * ws.jacobian[k * n_q + j] * ws.jacobian[k * n_q + l];
                 }
                 self.matrix[j * n_q + l] = mass;
                 self.matrix[l * n_q + j] = mass;
