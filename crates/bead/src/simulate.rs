@@ -203,9 +203,49 @@ struct Monitor {
     energy_rel_error_max: f64,
     constraint_error: f64,
     constraint_error_max: f64,
+    /// Particle positions beyond this count as a blow-up (see [`BLOW_UP_FACTOR`]).
+    position_limit: f64,
+    /// Particle velocities beyond this count as a blow-up.
+    velocity_limit: f64,
 }
 
+/// A particle farther than this many times the run's length scale, or faster than this many
+/// times its speed scale, has diverged. Over a run of duration T:
+/// L = max(1, max |x0|, max |v0| T, |g| T^2 / 2) and V = max(1, max |v0|, |g| T, sqrt(|g| L)),
+/// the reach of the initial state and of gravity. Legitimate motion stays within a small
+/// multiple of those, while an unstable integration grows geometrically and passes 10^12 of
+/// them within a few steps, long before f64 overflows.
+const BLOW_UP_FACTOR: f64 = 1e12;
+
 impl Monitor {
+    /// Why the last observed state has diverged, if it has: a non-finite energy or constraint
+    /// error, or a particle beyond the position or velocity limit.
+    fn divergence(&self, system: &crate::model::System) -> Option<(String, f64)> {
+        if !self.energy.is_finite() {
+            return Some(("the energy".into(), self.energy));
+        }
+        if !self.constraint_error.is_finite() {
+            return Some(("the constraint error".into(), self.constraint_error));
+        }
+        if let Some(k) = self.x.iter().position(|x| x.abs() > self.position_limit) {
+            let quantity = format!(
+                "{} (limit {:e}, {BLOW_UP_FACTOR:e} times the scene's length scale)",
+                system.coordinate_name(k),
+                self.position_limit
+            );
+            return Some((quantity, self.x[k]));
+        }
+        if let Some(k) = self.xdot.iter().position(|v| v.abs() > self.velocity_limit) {
+            let quantity = format!(
+                "the velocity of {} (limit {:e}, {BLOW_UP_FACTOR:e} times the scene's speed scale)",
+                system.coordinate_name(k),
+                self.velocity_limit
+            );
+            return Some((quantity, self.xdot[k]));
+        }
+        None
+    }
+
     /// Particle state, energy and constraint error at (t, q, qdot).
     fn observe(&mut self, formulation: &mut dyn Formulation, t: f64, q: &[f64], qdot: &[f64]) {
         formulation.particle_state(t, q, qdot, &mut self.x, &mut self.xdot);
@@ -270,7 +310,7 @@ pub fn run_with_progress(
     let mut integrator = options
         .integrator
         .build_with(state.q.len(), &options.settings);
-    let mut monitor = start_monitor(formulation, &state);
+    let mut monitor = start_monitor(formulation, &state, options.steps as f64 * options.dt);
     let every = options.every.max(1);
     let mut previous = state.clone();
     let mut recorded_step = 0;
@@ -318,12 +358,7 @@ pub fn run_with_progress(
             break;
         }
         monitor.observe(formulation, state.t, &state.q, &state.qdot);
-        if !monitor.energy.is_finite() || !monitor.constraint_error.is_finite() {
-            let (quantity, value) = if monitor.energy.is_finite() {
-                ("the constraint error".to_string(), monitor.constraint_error)
-            } else {
-                ("the energy".to_string(), monitor.energy)
-            };
+        if let Some((quantity, value)) = monitor.divergence(formulation.system()) {
             failure = Some(RunError::Diverged {
                 t: state.t,
                 step,
@@ -500,7 +535,11 @@ fn non_finite(formulation: &dyn Formulation, q: &[f64], qdot: &[f64]) -> Option<
 }
 
 /// A monitor at the initial state, with the energy scale fixed there.
-fn start_monitor(formulation: &mut dyn Formulation, state: &crate::formulation::State) -> Monitor {
+fn start_monitor(
+    formulation: &mut dyn Formulation,
+    state: &crate::formulation::State,
+    duration: f64,
+) -> Monitor {
     let n = formulation.system().n_coords();
     let mut monitor = Monitor {
         constraints: formulation.system().constraints().workspace(),
@@ -512,6 +551,8 @@ fn start_monitor(formulation: &mut dyn Formulation, state: &crate::formulation::
         energy_rel_error_max: 0.0,
         constraint_error: 0.0,
         constraint_error_max: 0.0,
+        position_limit: f64::INFINITY,
+        velocity_limit: f64::INFINITY,
     };
     formulation.particle_state(
         state.t,
@@ -521,6 +562,17 @@ fn start_monitor(formulation: &mut dyn Formulation, state: &crate::formulation::
         &mut monitor.xdot,
     );
     let system = formulation.system();
+    let largest = |v: &[f64]| v.iter().fold(0.0_f64, |m, c| m.max(c.abs()));
+    let gravity = system.gravity().iter().map(|g| g * g).sum::<f64>().sqrt();
+    let (x0, v0) = (largest(&monitor.x), largest(&monitor.xdot));
+    let length = [1.0, x0, v0 * duration, 0.5 * gravity * duration * duration]
+        .into_iter()
+        .fold(0.0, f64::max);
+    let speed = [1.0, v0, gravity * duration, (gravity * length).sqrt()]
+        .into_iter()
+        .fold(0.0, f64::max);
+    monitor.position_limit = BLOW_UP_FACTOR * length;
+    monitor.velocity_limit = BLOW_UP_FACTOR * speed;
     let (kinetic, potential) = (
         system.kinetic_energy(&monitor.xdot),
         system.potential_energy(&monitor.x),
@@ -547,7 +599,7 @@ fn run_adaptive(
     let progress_every = (options.steps / 100).max(1);
     let mut state = formulation.initial_state();
     let mut integrator = Dopri5::new(state.q.len(), &options.settings);
-    let mut monitor = start_monitor(formulation, &state);
+    let mut monitor = start_monitor(formulation, &state, options.steps as f64 * options.dt);
     let every = options.every.max(1);
     let t_final = options.steps as f64 * options.dt;
     let mut sample = state.clone();
@@ -579,12 +631,7 @@ fn run_adaptive(
             break;
         }
         monitor.observe(formulation, state.t, &state.q, &state.qdot);
-        if !monitor.energy.is_finite() || !monitor.constraint_error.is_finite() {
-            let (quantity, value) = if monitor.energy.is_finite() {
-                ("the constraint error".to_string(), monitor.constraint_error)
-            } else {
-                ("the energy".to_string(), monitor.energy)
-            };
+        if let Some((quantity, value)) = monitor.divergence(formulation.system()) {
             failure = Some(RunError::Diverged {
                 t: state.t,
                 step: interval,
