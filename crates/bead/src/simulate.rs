@@ -392,48 +392,51 @@ pub fn run_with_progress(
     } else {
         state
     };
-    let finish = sink.finish();
-    let stats = RunStats {
-        method: formulation.method(),
-        integrator: options.integrator,
-        dt: options.dt,
-        steps: step,
-        t_final: last_good.t,
-        wall_seconds: start.elapsed().as_secs_f64(),
-        energy_initial: monitor.energy_initial,
-        energy_final: monitor.energy,
-        energy_rel_error_max: monitor.energy_rel_error_max,
-        constraint_error_max: monitor.constraint_error_max,
-        constraint_error_final: monitor.constraint_error,
-        x: monitor.x.clone(),
-        xdot: monitor.xdot.clone(),
-        q: last_good.q,
-        qdot: last_good.qdot,
-        accepted_steps: None,
-        rejected_steps: None,
-        projected: options.project,
-        newton_iterations_max: match (
-            integrator.newton_iterations_max(),
-            projection_iterations_max,
-        ) {
-            (Some(a), Some(b)) => Some(a.max(b)),
-            (a, b) => a.or(b),
-        },
+    let mut stats = monitor.stats(formulation, options, step, last_good, start);
+    stats.newton_iterations_max = match (
+        integrator.newton_iterations_max(),
+        projection_iterations_max,
+    ) {
+        (Some(a), Some(b)) => Some(a.max(b)),
+        (a, b) => a.or(b),
     };
-    match (failure, finish) {
-        (Some(error), _) => Err(RunFailure {
-            error,
-            stats: Box::new(stats),
-        }),
-        (None, Err(e)) => Err(RunFailure {
-            error: RunError::Io(e),
-            stats: Box::new(stats),
-        }),
-        (None, Ok(())) => Ok(stats),
-    }
+    conclude(failure, sink.finish(), stats)
 }
 
 impl Monitor {
+    /// The figures of a run that ends (or stopped) at `last_good` after `steps` steps or
+    /// output intervals; the integrator-specific fields are left for the caller.
+    fn stats(
+        &self,
+        formulation: &dyn Formulation,
+        options: &RunOptions,
+        steps: u64,
+        last_good: crate::formulation::State,
+        start: Instant,
+    ) -> RunStats {
+        RunStats {
+            method: formulation.method(),
+            integrator: options.integrator,
+            dt: options.dt,
+            steps,
+            t_final: last_good.t,
+            wall_seconds: start.elapsed().as_secs_f64(),
+            energy_initial: self.energy_initial,
+            energy_final: self.energy,
+            energy_rel_error_max: self.energy_rel_error_max,
+            constraint_error_max: self.constraint_error_max,
+            constraint_error_final: self.constraint_error,
+            x: self.x.clone(),
+            xdot: self.xdot.clone(),
+            q: last_good.q,
+            qdot: last_good.qdot,
+            accepted_steps: None,
+            rejected_steps: None,
+            projected: options.project,
+            newton_iterations_max: None,
+        }
+    }
+
     /// The sample of `state` at `step`, with the particle state and diagnostics last observed.
     fn sample<'a>(&'a self, step: u64, state: &'a crate::formulation::State) -> Sample<'a> {
         Sample {
@@ -685,28 +688,18 @@ fn run_adaptive(
             good
         }
     };
-    let finish = sink.finish();
-    let stats = RunStats {
-        method: formulation.method(),
-        integrator: options.integrator,
-        dt: options.dt,
-        steps: interval,
-        t_final: last_good.t,
-        wall_seconds: start.elapsed().as_secs_f64(),
-        energy_initial: monitor.energy_initial,
-        energy_final: monitor.energy,
-        energy_rel_error_max: monitor.energy_rel_error_max,
-        constraint_error_max: monitor.constraint_error_max,
-        constraint_error_final: monitor.constraint_error,
-        x: monitor.x.clone(),
-        xdot: monitor.xdot.clone(),
-        q: last_good.q,
-        qdot: last_good.qdot,
-        accepted_steps: Some(integrator.accepted_steps()),
-        rejected_steps: Some(integrator.rejected_steps()),
-        projected: false,
-        newton_iterations_max: None,
-    };
+    let mut stats = monitor.stats(formulation, options, interval, last_good, start);
+    stats.accepted_steps = Some(integrator.accepted_steps());
+    stats.rejected_steps = Some(integrator.rejected_steps());
+    conclude(failure, sink.finish(), stats)
+}
+
+/// The result of a run from its failure (if any), the sink's `finish` and its figures.
+fn conclude(
+    failure: Option<RunError>,
+    finish: std::io::Result<()>,
+    stats: RunStats,
+) -> Result<RunStats, RunFailure> {
     match (failure, finish) {
         (Some(error), _) => Err(RunFailure {
             error,
