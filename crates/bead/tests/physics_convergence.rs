@@ -17,52 +17,18 @@ use std::sync::Arc;
 
 use bead::formulation::{formulate, Feedback, Method};
 use bead::integrate::IntegratorKind;
-use bead::model::{Endpoint, System, SystemBuilder};
+use bead::model::System;
 use bead::simulate::{run, NullSink, RunOptions};
 
-const G: f64 = 9.81;
-const L: f64 = 1.5;
-const MASS: f64 = 2.0;
-const THETA0: f64 = 1.0;
-const OMEGA0: f64 = 0.5;
+mod common;
+use common::{pendulum, pendulum_reference};
+
 /// End time at which errors are measured.
 const T_END: f64 = 1.0;
 
-fn pendulum() -> Arc<System> {
-    let mut b = SystemBuilder::new(&[0.0, G]);
-    b.param("L", L).unwrap();
-    let (s, c) = THETA0.sin_cos();
-    let bead = b
-        .particle(
-            "bead",
-            MASS,
-            &[L * s, L * c],
-            &[L * OMEGA0 * c, -L * OMEGA0 * s],
-        )
-        .unwrap();
-    b.distance("rod", bead, Endpoint::Fixed(vec![0.0, 0.0]), L)
-        .unwrap();
-    b.parametric(&["theta"], &[THETA0], &[OMEGA0]).unwrap();
-    b.parametric_position_exprs("bead", &["L*sin(theta)", "L*cos(theta)"])
-        .unwrap();
-    Arc::new(b.build().unwrap())
-}
-
-/// theta'' = -(g/L) sin theta by classic RK4 with `n` steps to T_END: the reference, in no
-/// way using the engine. Returns the particle position.
+/// The reference position at T_END after `n` RK4 steps of the exact equation.
 fn reference_position(n: u64) -> [f64; 2] {
-    let f = |theta: f64| -(G / L) * theta.sin();
-    let h = T_END / n as f64;
-    let (mut theta, mut omega) = (THETA0, OMEGA0);
-    for _ in 0..n {
-        let (k1q, k1v) = (omega, f(theta));
-        let (k2q, k2v) = (omega + 0.5 * h * k1v, f(theta + 0.5 * h * k1q));
-        let (k3q, k3v) = (omega + 0.5 * h * k2v, f(theta + 0.5 * h * k2q));
-        let (k4q, k4v) = (omega + h * k3v, f(theta + h * k3q));
-        theta += h / 6.0 * (k1q + 2.0 * k2q + 2.0 * k3q + k4q);
-        omega += h / 6.0 * (k1v + 2.0 * k2v + 2.0 * k3v + k4v);
-    }
-    [L * theta.sin(), L * theta.cos()]
+    pendulum_reference(T_END, n)
 }
 
 /// The engine's particle position at T_END with `n` steps.

@@ -13,59 +13,12 @@ use std::time::Instant;
 
 use bead::formulation::{formulate, Feedback, Method};
 use bead::integrate::{IntegratorKind, IntegratorSettings};
-use bead::model::{Endpoint, System, SystemBuilder};
+use bead::model::{System, SystemBuilder};
 use bead::scene::Scene;
 use bead::simulate::{run, NullSink, RunOptions, RunStats, Sample, Sink};
 
-// ---------------------------------------------------------------------------------------
-// Pendulum: bead on a circle of radius L about the origin, +y down, gravity g along +y.
-// Exact equation theta'' = -(g/L) sin theta (T = m L^2 theta'^2 / 2, V = -m g L cos theta).
-
-const G: f64 = 9.81;
-const L: f64 = 1.5;
-const MASS: f64 = 2.0;
-const THETA0: f64 = 1.0;
-const OMEGA0: f64 = 0.5;
-
-fn pendulum() -> Arc<System> {
-    let mut b = SystemBuilder::new(&[0.0, G]);
-    b.param("L", L).unwrap();
-    let (s, c) = THETA0.sin_cos();
-    let bead = b
-        .particle(
-            "bead",
-            MASS,
-            &[L * s, L * c],
-            &[L * OMEGA0 * c, -L * OMEGA0 * s],
-        )
-        .unwrap();
-    b.distance("rod", bead, Endpoint::Fixed(vec![0.0, 0.0]), L)
-        .unwrap();
-    b.parametric(&["theta"], &[THETA0], &[OMEGA0]).unwrap();
-    b.parametric_position_exprs("bead", &["L*sin(theta)", "L*cos(theta)"])
-        .unwrap();
-    Arc::new(b.build().unwrap())
-}
-
-/// theta'' = -(g/L) sin theta by classic RK4 with step `h`, from t = 0: the pendulum's
-/// position at every multiple of `every` steps (index 0 = t = 0). Uses nothing of the engine.
-fn reference_positions(h: f64, steps: u64, every: u64) -> Vec<[f64; 2]> {
-    let f = |theta: f64| -(G / L) * theta.sin();
-    let (mut theta, mut omega) = (THETA0, OMEGA0);
-    let mut out = vec![[L * theta.sin(), L * theta.cos()]];
-    for k in 1..=steps {
-        let (k1q, k1v) = (omega, f(theta));
-        let (k2q, k2v) = (omega + 0.5 * h * k1v, f(theta + 0.5 * h * k1q));
-        let (k3q, k3v) = (omega + 0.5 * h * k2v, f(theta + 0.5 * h * k2q));
-        let (k4q, k4v) = (omega + h * k3v, f(theta + h * k3q));
-        theta += h / 6.0 * (k1q + 2.0 * k2q + 2.0 * k3q + k4q);
-        omega += h / 6.0 * (k1v + 2.0 * k2v + 2.0 * k3v + k4v);
-        if k % every == 0 {
-            out.push([L * theta.sin(), L * theta.cos()]);
-        }
-    }
-    out
-}
+mod common;
+use common::{pendulum, pendulum_reference_positions as reference_positions, L};
 
 fn options(integrator: IntegratorKind, dt: f64, steps: u64) -> RunOptions {
     RunOptions {

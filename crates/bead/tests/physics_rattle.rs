@@ -56,48 +56,8 @@ fn spring_exact(t: f64) -> [f64; 2] {
     ]
 }
 
-/// Simple pendulum: bead on a rod of length L to the origin (+y down), as a distance
-/// constraint (implicit) and as the angle map (parametric).
-const G: f64 = 9.81;
-const L: f64 = 1.5;
-const THETA0: f64 = 1.0;
-const OMEGA0: f64 = 0.5;
-
-fn pendulum() -> Arc<System> {
-    let mut b = SystemBuilder::new(&[0.0, G]);
-    b.param("L", L).unwrap();
-    let (s, c) = THETA0.sin_cos();
-    let bead = b
-        .particle(
-            "bead",
-            2.0,
-            &[L * s, L * c],
-            &[L * OMEGA0 * c, -L * OMEGA0 * s],
-        )
-        .unwrap();
-    b.distance("rod", bead, Endpoint::Fixed(vec![0.0, 0.0]), L)
-        .unwrap();
-    b.parametric(&["theta"], &[THETA0], &[OMEGA0]).unwrap();
-    b.parametric_position_exprs("bead", &["L*sin(theta)", "L*cos(theta)"])
-        .unwrap();
-    Arc::new(b.build().unwrap())
-}
-
-/// theta'' = -(g/L) sin theta by classic RK4 with `n` steps to `t_end`; the particle position.
-fn pendulum_reference(t_end: f64, n: u64) -> [f64; 2] {
-    let f = |theta: f64| -(G / L) * theta.sin();
-    let h = t_end / n as f64;
-    let (mut theta, mut omega) = (THETA0, OMEGA0);
-    for _ in 0..n {
-        let (k1q, k1v) = (omega, f(theta));
-        let (k2q, k2v) = (omega + 0.5 * h * k1v, f(theta + 0.5 * h * k1q));
-        let (k3q, k3v) = (omega + 0.5 * h * k2v, f(theta + 0.5 * h * k2q));
-        let (k4q, k4v) = (omega + h * k3v, f(theta + h * k3q));
-        theta += h / 6.0 * (k1q + 2.0 * k2q + 2.0 * k3q + k4q);
-        omega += h / 6.0 * (k1v + 2.0 * k2v + 2.0 * k3v + k4v);
-    }
-    [L * theta.sin(), L * theta.cos()]
-}
+mod common;
+use common::{pendulum, pendulum_reference, G};
 
 /// The article's bead on the parabola x^2 + 100 y = 0, g = 500, released at rest at x = 150.
 /// Length scale 150; C has units of length^2.
