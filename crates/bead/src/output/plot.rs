@@ -215,7 +215,7 @@ impl StrideDecimator {
         for (k, slot) in self.last.iter_mut().enumerate() {
             *slot = row.get(k).copied().unwrap_or(f64::NAN);
         }
-        if self.seen % self.stride == 0 {
+        if self.seen.is_multiple_of(self.stride) {
             if self.rows.len() / self.width.max(1) == self.capacity {
                 // Keep rows 0, 2, 4, ...: the kept rows stay at multiples of the new stride.
                 let width = self.width;
@@ -229,7 +229,7 @@ impl StrideDecimator {
                 self.rows.truncate(write * width);
                 self.stride *= 2;
             }
-            if self.seen % self.stride == 0 {
+            if self.seen.is_multiple_of(self.stride) {
                 self.rows.extend_from_slice(&self.last);
                 self.last_kept = true;
             } else {
