@@ -12,30 +12,9 @@ use bead::scene::Scene;
 
 use crate::plan::Plan;
 
-/// `x` with `sig` significant digits, in the shorter of fixed and exponent notation
-/// (like C's `%g`): `0.0166667`, `1.234e-08` is `1.234e-8`, `-112500`.
-pub fn g(x: f64, sig: usize) -> String {
-    if !x.is_finite() {
-        return format!("{x}");
-    }
-    if x == 0.0 {
-        return "0".into();
-    }
-    let sig = sig.max(1);
-    // Round first, so that 9.9999 → 10 picks its notation from the rounded value.
-    let rounded: f64 = format!("{:.*e}", sig - 1, x).parse().unwrap_or(x);
-    let exponent = rounded.abs().log10().floor() as i32;
-    if exponent < -4 || exponent >= sig as i32 {
-        let s = format!("{:.*e}", sig - 1, rounded);
-        match s.split_once('e') {
-            Some((mantissa, exp)) => format!("{}e{exp}", trim_zeros(mantissa)),
-            None => s,
-        }
-    } else {
-        let decimals = (sig as i32 - 1 - exponent).max(0) as usize;
-        trim_zeros(&format!("{:.*}", decimals, rounded)).to_string()
-    }
-}
+/// `x` with `sig` significant digits, in the shorter of fixed and exponent notation (like
+/// C's `%g`); the library's formatter, so the report and the terminal print the same numbers.
+pub use bead::output::report::sig as g;
 
 /// `x` exactly (shortest round-trip), in exponent notation below 1e-5 and from 1e16 on in
 /// magnitude so that extreme values stay short: `0.016666666666666666`, `1e300`.
@@ -45,14 +24,6 @@ pub fn exact(x: f64) -> String {
         format!("{x:e}")
     } else {
         format!("{x}")
-    }
-}
-
-fn trim_zeros(s: &str) -> &str {
-    if s.contains('.') {
-        s.trim_end_matches('0').trim_end_matches('.')
-    } else {
-        s
     }
 }
 

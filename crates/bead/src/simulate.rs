@@ -218,6 +218,21 @@ struct Monitor {
 const BLOW_UP_FACTOR: f64 = 1e12;
 
 impl Monitor {
+    /// Observe `state` after a step, or say why it has diverged: a non-finite or blown-up
+    /// coordinate of the formulation (checked first, so nothing is evaluated on NaN), else
+    /// [`Monitor::divergence`] of the observed particle state.
+    fn observe_checked(
+        &mut self,
+        formulation: &mut dyn Formulation,
+        state: &crate::formulation::State,
+    ) -> Option<(String, f64)> {
+        if let Some(found) = non_finite(formulation, &state.q, &state.qdot) {
+            return Some(found);
+        }
+        self.observe(formulation, state.t, &state.q, &state.qdot);
+        self.divergence(formulation.system())
+    }
+
     /// Why the last observed state has diverged, if it has: a non-finite energy or constraint
     /// error, or a particle beyond the position or velocity limit.
     fn divergence(&self, system: &crate::model::System) -> Option<(String, f64)> {
@@ -348,17 +363,7 @@ pub fn run_with_progress(
         if step % progress_every == 0 {
             progress.advance(step, options.steps);
         }
-        if let Some((quantity, value)) = non_finite(formulation, &state.q, &state.qdot) {
-            failure = Some(RunError::Diverged {
-                t: state.t,
-                step,
-                quantity,
-                value,
-            });
-            break;
-        }
-        monitor.observe(formulation, state.t, &state.q, &state.qdot);
-        if let Some((quantity, value)) = monitor.divergence(formulation.system()) {
+        if let Some((quantity, value)) = monitor.observe_checked(formulation, &state) {
             failure = Some(RunError::Diverged {
                 t: state.t,
                 step,
@@ -624,17 +629,7 @@ fn run_adaptive(
             failure = Some(RunError::Step(e));
             break;
         }
-        if let Some((quantity, value)) = non_finite(formulation, &state.q, &state.qdot) {
-            failure = Some(RunError::Diverged {
-                t: state.t,
-                step: interval,
-                quantity,
-                value,
-            });
-            break;
-        }
-        monitor.observe(formulation, state.t, &state.q, &state.qdot);
-        if let Some((quantity, value)) = monitor.divergence(formulation.system()) {
+        if let Some((quantity, value)) = monitor.observe_checked(formulation, &state) {
             failure = Some(RunError::Diverged {
                 t: state.t,
                 step: interval,
