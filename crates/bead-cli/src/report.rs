@@ -13,8 +13,8 @@ use bead::scene::Scene;
 use crate::plan::Plan;
 
 /// `x` with `sig` significant digits, in the shorter of fixed and exponent notation (like
-/// C's `%g`); the library's formatter, so the report and the terminal print the same numbers.
-pub use bead::output::report::sig as g;
+/// C's `%g`); the report's formatter, so the report and the terminal print the same numbers.
+pub use bead_report::report::sig as g;
 
 /// `x` exactly (shortest round-trip), in exponent notation below 1e-5 and from 1e16 on in
 /// magnitude so that extreme values stay short: `0.016666666666666666`, `1e300`.

@@ -7,8 +7,8 @@ use std::sync::Arc;
 
 use anyhow::{bail, Result};
 use bead::formulation::{Feedback, Method};
-use bead::output::report::{write_report, Recorder, Report, ReportRun};
 use bead::simulate::{Sample, Sink};
+use bead_report::report::{write_report, Recorder, Report, ReportRun};
 
 use super::{json, load_scene, print, report_error, run_method_with, write_file};
 use crate::args::CompareArgs;

@@ -6,7 +6,7 @@ use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
-use bead::output::plot::{
+use bead_report::plot::{
     write_figure, Figure, Format, MinMaxDecimator, Panel, Series, DEFAULT_BUCKETS,
 };
 

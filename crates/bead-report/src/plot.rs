@@ -12,8 +12,8 @@
 //!   [`svg_string`] returns the SVG text.
 //!
 //! Log axes clamp values at or below [`LOG_FLOOR`] to it (the panel's `note` says so when it
-//! happens) and skip NaN and infinite points. Text is drawn with DejaVu Sans, embedded in the
-//! library, so drawing a PNG needs no system font.
+//! happens) and skip NaN and infinite points. Text is drawn with DejaVu Sans, embedded in this
+//! crate, so drawing a PNG needs no system font.
 
 use std::path::Path;
 use std::sync::Once;
@@ -23,7 +23,7 @@ use plotters::prelude::*;
 use plotters::style::{register_font, FontStyle};
 
 /// DejaVu Sans (see `assets/DejaVuSans.LICENSE`): the only font the plots use.
-static FONT: &[u8] = include_bytes!("../../assets/DejaVuSans.ttf");
+static FONT: &[u8] = include_bytes!("../assets/DejaVuSans.ttf");
 const FAMILY: &str = "sans-serif";
 
 /// Values at or below this are drawn at it on log axes.

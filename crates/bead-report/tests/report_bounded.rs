@@ -7,10 +7,10 @@ use std::sync::Arc;
 
 use bead::formulation::{formulate, Feedback, Method};
 use bead::integrate::IntegratorKind;
-use bead::output::plot::DEFAULT_BUCKETS;
-use bead::output::report::{write_report, Recorder, Report, ReportRun};
 use bead::scene::Scene;
 use bead::simulate::{run_with_progress, Progress, RunOptions};
+use bead_report::plot::DEFAULT_BUCKETS;
+use bead_report::report::{write_report, Recorder, Report, ReportRun};
 
 struct Count(u64, u64);
 impl Progress for Count {

@@ -15,13 +15,13 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use crate::formulation::Method;
-use crate::integrate::IntegratorKind;
-use crate::model::System;
-use crate::output::plot::{
-    self, Figure, HeadTail, MinMaxDecimator, Panel, PlotError, Series, Style,
-};
-use crate::simulate::{RunStats, Sample, Sink};
+// Everything this module takes from the physics library, in one place.
+use bead::formulation::Method;
+use bead::integrate::IntegratorKind;
+use bead::model::System;
+use bead::simulate::{RunStats, Sample, Sink};
+
+use crate::plot::{self, Figure, HeadTail, MinMaxDecimator, Panel, PlotError, Series, Style};
 
 /// Detects the period of an oscillating signal from its upward zero crossings (negative to
 /// non-negative), each placed by linear interpolation between the two samples around it.
