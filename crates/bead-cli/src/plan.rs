@@ -5,7 +5,7 @@ use anyhow::{bail, Result};
 use bead::formulation::{Feedback, Method};
 use bead::integrate::{IntegratorKind, IntegratorSettings};
 use bead::scene::Scene;
-use bead::simulate::RunOptions;
+use bead::simulate::{RunOptions, SimulationConfig};
 
 use crate::args::SimArgs;
 use crate::report::exact;
@@ -104,59 +104,40 @@ impl Plan {
         })
     }
 
-    /// Run options for the library's run loop.
+    /// How long the run goes and how often it is recorded.
     pub fn options(&self) -> RunOptions {
         RunOptions {
-            integrator: self.integrator,
-            dt: self.dt,
             steps: self.steps,
             every: self.every,
-            settings: self.settings,
-            project: self.project,
         }
     }
 
-    /// Whether the integrator and --project can run on `method`: both rattle and the
-    /// projection work on the implicit form's constraints.
-    pub fn check_method(&self, method: Method) -> Result<()> {
-        if method == Method::Parametric {
-            if self.integrator.needs_constraints() {
-                bail!(
-                    "{} needs the implicit form; the parametric form has no constraints to project onto — use gauss-legendre or rk4",
-                    self.integrator.name()
-                );
-            }
-            if self.project {
-                bail!("--project applies to the implicit form; the parametric form stays on its constraints by construction");
-            }
+    /// The simulation of `method` as planned. Feedback from the scene's `[run]` table applies
+    /// to the implicit form only and is dropped for the parametric one (the caller warns);
+    /// feedback or a projection asked for on the command line is kept, so that the library's
+    /// one legality check ([`SimulationConfig::check`]) refuses it with its own words.
+    pub fn config(&self, method: Method) -> SimulationConfig {
+        let feedback = match method {
+            Method::Implicit => self.feedback,
+            Method::Parametric if self.feedback_from_flags => self.feedback,
+            Method::Parametric => Feedback::default(),
+        };
+        SimulationConfig {
+            method,
+            integrator: self.integrator,
+            dt: self.dt,
+            feedback,
+            project: self.project,
+            settings: self.settings,
+            // The plan's settings already carry the scene-scaled tolerance.
+            scaled_constraint_tolerance: false,
+            track_work: None,
         }
-        if self.project && self.integrator.is_adaptive() {
-            bail!(
-                "--project is not available with {}: it would invalidate the adaptive integrator's step control and dense output; use a fixed-step integrator",
-                self.integrator.name()
-            );
-        }
-        Ok(())
     }
 
     /// Time at the end of a complete run (the run loop computes t = step * dt).
     pub fn t_end(&self) -> f64 {
         self.steps as f64 * self.dt
-    }
-
-    /// The feedback to use for `method`: the plan's for the implicit form, none for the
-    /// parametric form (which cannot drift). Asking for feedback on the command line with the
-    /// parametric form is an error.
-    pub fn feedback_for(&self, method: Method) -> Result<Feedback> {
-        match method {
-            Method::Implicit => Ok(self.feedback),
-            Method::Parametric
-                if self.feedback_from_flags && self.feedback != Feedback::default() =>
-            {
-                bail!("--stabilize applies only to the implicit form; the parametric form stays on its constraints by construction")
-            }
-            Method::Parametric => Ok(Feedback::default()),
-        }
     }
 
     /// Whether the scene asks for feedback that a parametric run will not use.

@@ -714,7 +714,7 @@ fn stabilize_with_parametric() {
     );
     assert_eq!(
         err,
-        "error: --stabilize applies only to the implicit form; the parametric form stays on its constraints by construction\n"
+        "error: constraint feedback (ks, kd) applies to the implicit form only: the parametric form stays on its constraints by construction\n"
     );
 }
 
@@ -726,8 +726,9 @@ fn two_identical_constraints_are_singular() {
     let err = fails(bead_in(&dir.0, &["run", "s.toml", "--steps", "10"]), 1);
     assert_eq!(
         err,
-        "error: at t = 0: the constraints are singular at constraint 2 (`bead.x^2 + bead.y^2 - 1 = 0`): \
-         its gradient vanishes there or it duplicates other constraints\n"
+        "error: the initial state cannot be simulated: at t = 0: the constraints are singular at \
+         constraint 2 (`bead.x^2 + bead.y^2 - 1 = 0`): its gradient vanishes there or it \
+         duplicates other constraints\n"
     );
 }
 
@@ -740,8 +741,10 @@ fn a_vanishing_gradient_is_singular() {
     let err = fails(bead_in(&dir.0, &["run", "s.toml", "--steps", "10"]), 1);
     assert_eq!(
         err,
-        "error: at t = 0: the constraints are singular at ring (`bead.x^2 + bead.y^2 = 0`): \
-         its gradient vanishes there or it duplicates other constraints\n"
+        "error: the initial state cannot be simulated: at t = 0: ring (`bead.x^2 + bead.y^2 = 0`) \
+         is singular: its gradient is zero or not finite at the initial state (bead.x, bead.y) = \
+         (0, 0): a cusp or a crossing of the curve; the motion cannot be continued on this curve \
+         by the implicit form\n"
     );
 }
 
@@ -795,17 +798,42 @@ fn divergence_names_the_time_and_keeps_the_trace_and_summary() {
 #[test]
 fn a_failed_run_still_prints_json() {
     let dir = TempDir::new("fail-json");
+    let spring = "[[force]]\nkind = \"spring\"\nparticle = \"bead\"\nanchor = [0.0, 0.0]\nstiffness = 1e6\nrest_length = 0.0\n";
+    dir.write("s.toml", &bead_scene(spring));
+    let out = bead_in(
+        &dir.0,
+        &[
+            "run",
+            "s.toml",
+            "--integrator",
+            "euler",
+            "--dt",
+            "0.1",
+            "--json",
+        ],
+    );
+    let value: serde_json::Value = serde_json::from_str(&stdout(&out)).expect("JSON on stdout");
+    assert_eq!(value["completed"], false);
+    assert!(value["error"]
+        .as_str()
+        .is_some_and(|e| e.contains("diverged")));
+    fails(out, 1);
+}
+
+#[test]
+fn a_run_that_cannot_start_says_why_and_prints_no_summary() {
+    let dir = TempDir::new("fail-start");
     dir.write(
         "s.toml",
         &bead_scene(&"[[constraint]]\nexpr = \"bead.x - 1\"\n".repeat(2)),
     );
     let out = bead_in(&dir.0, &["run", "s.toml", "--json"]);
-    let value: serde_json::Value = serde_json::from_str(&stdout(&out)).expect("JSON on stdout");
-    assert_eq!(value["completed"], false);
-    assert!(value["error"]
-        .as_str()
-        .is_some_and(|e| e.contains("singular")));
-    fails(out, 1);
+    assert_eq!(stdout(&out), "");
+    let err = fails(out, 1);
+    assert!(
+        err.starts_with("error: the initial state cannot be simulated: at t = 0: the constraints are singular at constraint 2"),
+        "{err}"
+    );
 }
 
 #[test]
@@ -1046,7 +1074,7 @@ fn rattle_on_the_parametric_form_is_an_error() {
     );
     assert_eq!(
         err,
-        "error: rattle needs the implicit form; the parametric form has no constraints to project onto — use gauss-legendre or rk4\n"
+        "error: rattle needs the implicit form: the parametric form has no constraints to project onto (it stays on them by construction); use gauss-legendre or rk4 with the parametric form\n"
     );
 }
 
@@ -1089,7 +1117,7 @@ fn project_keeps_rk4_on_the_constraint_and_says_so() {
     );
     assert_eq!(
         err,
-        "error: --project applies to the implicit form; the parametric form stays on its constraints by construction\n"
+        "error: projection onto the constraints needs the implicit form: the parametric form stays on its constraints by construction, so there is nothing to project\n"
     );
 }
 

@@ -101,18 +101,20 @@ impl PeriodDetector {
 }
 
 /// A [`Sink`] that records a run for a report in bounded memory: the constraint error and the
-/// relative energy error |E - E0| / E_scale (E_scale = max(|E0|, T0 + |V0|), or 1 when both
-/// vanish, as in [`RunStats::energy_rel_error_max`]) as min/max-decimated series, the particle
-/// positions of the first and last samples (see [`HeadTail`]), and the period of each particle velocity
-/// component from every sample.
+/// relative error of the conserved energy ([`Sample::energy_error`]: |E - E0| / E_scale, or
+/// |E - W - E0| / E_scale when something does work on the system and the energy ledger runs)
+/// as min/max-decimated series, the particle positions of the first and last samples (see
+/// [`HeadTail`]), and the period of each particle velocity component from every sample.
 pub struct Recorder {
     system: Arc<System>,
     constraint: MinMaxDecimator,
     energy: MinMaxDecimator,
     trajectory: HeadTail,
     periods: Vec<PeriodDetector>,
-    energy_initial: f64,
-    energy_scale: f64,
+    /// Whether the energy series is the balance E - W (the ledger ran).
+    balance: bool,
+    /// The trajectory row being assembled: t, then the particle coordinates (n + 1)
+    row: Vec<f64>,
     samples: u64,
 }
 
@@ -127,8 +129,8 @@ impl Recorder {
             trajectory: HeadTail::new(n + 1, buckets),
             periods: vec![PeriodDetector::new(); n],
             system,
-            energy_initial: f64::NAN,
-            energy_scale: 1.0,
+            balance: false,
+            row: vec![0.0; n + 1],
             samples: 0,
         }
     }
@@ -159,6 +161,7 @@ impl Recorder {
             trajectory: self.trajectory.rows(),
             period,
             samples: self.samples,
+            energy_balance: self.balance,
         }
     }
 }
@@ -174,30 +177,15 @@ fn velocity_name(system: &System, k: usize) -> String {
 
 impl Sink for Recorder {
     fn record(&mut self, sample: &Sample) -> std::io::Result<()> {
-        if self.samples == 0 {
-            let kinetic = self.system.kinetic_energy(sample.xdot);
-            let potential = self.system.potential_energy(sample.x);
-            self.energy_initial = kinetic + potential;
-            let scale = self.energy_initial.abs().max(kinetic + potential.abs());
-            self.energy_scale = if scale > 0.0 && scale.is_finite() {
-                scale
-            } else {
-                1.0
-            };
-        }
         self.samples += 1;
+        self.balance = sample.work.is_some();
         self.constraint.push(sample.t, sample.constraint_error);
-        self.energy.push(
-            sample.t,
-            (sample.energy - self.energy_initial).abs() / self.energy_scale,
-        );
-        // Row: t, then the particle coordinates; a stack buffer keeps this allocation-free
-        // for up to 63 coordinates.
-        let mut row = [0.0; 64];
-        let n = sample.x.len().min(63);
-        row[0] = sample.t;
-        row[1..=n].copy_from_slice(&sample.x[..n]);
-        self.trajectory.push(&row[..=n]);
+        self.energy.push(sample.t, sample.energy_error());
+        // Row: t, then the particle coordinates.
+        let n = sample.x.len().min(self.row.len() - 1);
+        self.row[0] = sample.t;
+        self.row[1..=n].copy_from_slice(&sample.x[..n]);
+        self.trajectory.push(&self.row[..=n]);
         for (detector, &v) in self.periods.iter_mut().zip(sample.xdot) {
             detector.push(sample.t, v);
         }
@@ -221,8 +209,11 @@ pub struct Period {
 pub struct Recording {
     /// (t, max_i |C_i|)
     pub constraint_error: Vec<(f64, f64)>,
-    /// (t, |E - E0| / E_scale)
+    /// (t, |E - E0| / E_scale), or (t, |E - W - E0| / E_scale) when `energy_balance`
     pub energy_error: Vec<(f64, f64)>,
+    /// Whether `energy_error` is the error of the balance E - W (something did work on the
+    /// system and the energy ledger ran) rather than of T + V.
+    pub energy_balance: bool,
     /// Rows `t, x_0, x_1, ...` (particle coordinates): the first and the last samples at full
     /// resolution, with a row of NaN between them when samples were dropped.
     pub trajectory: Vec<Vec<f64>>,
@@ -394,11 +385,23 @@ impl Report {
 
     /// Relative energy error vs time.
     pub fn energy_figure(&self) -> Figure {
+        let balance = self.runs.iter().any(|r| r.recording.energy_balance);
         Figure {
             columns: 0,
-            title: format!("{}: energy error", self.title),
+            title: if balance {
+                format!(
+                    "{}: energy balance error (energy not conserved: E - W is)",
+                    self.title
+                )
+            } else {
+                format!("{}: energy error", self.title)
+            },
             panels: vec![Panel {
-                title: "|E - E0| / E_scale vs time (log scale)".into(),
+                title: if balance {
+                    "|E - W - E0| / E_scale vs time (log scale); W = work done on the system".into()
+                } else {
+                    "|E - E0| / E_scale vs time (log scale)".into()
+                },
                 x_label: "t (s)".into(),
                 y_label: "relative energy error (1)".into(),
                 x_log: false,
@@ -606,7 +609,11 @@ pub fn write_report(report: &Report, dir: &Path) -> Result<ReportFiles, ReportEr
         (
             "energy_error",
             report.energy_figure(),
-            "Relative energy error |E - E0| / E_scale against time, per run (E_scale = max(|E0|, T0 + |V0|)).",
+            if report.runs.iter().any(|r| r.recording.energy_balance) {
+                "Energy is not conserved here (something does work on the system): the error of the conserved balance E - W, |E - W - E0| / E_scale, against time, per run (W: the work done on the system, integrated by the run's integrator; E_scale = max(|E0|, T0 + |V0|, T0 + M |g| L))."
+            } else {
+                "Relative energy error |E - E0| / E_scale against time, per run (E_scale = max(|E0|, T0 + |V0|, T0 + M |g| L): M the total mass, L the largest initial distance from the origin)."
+            },
         ),
         (
             "trajectories",

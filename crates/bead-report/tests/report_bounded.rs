@@ -5,10 +5,10 @@
 use std::path::Path;
 use std::sync::Arc;
 
-use bead::formulation::{formulate, Feedback, Method};
+use bead::formulation::Method;
 use bead::integrate::IntegratorKind;
 use bead::scene::Scene;
-use bead::simulate::{run_with_progress, Progress, RunOptions};
+use bead::simulate::{run_with_progress, Progress, RunOptions, Simulation, SimulationConfig};
 use bead_report::plot::DEFAULT_BUCKETS;
 use bead_report::report::{write_report, Recorder, Report, ReportRun};
 
@@ -28,17 +28,17 @@ fn a_report_over_100_000_steps_keeps_at_most_the_bounded_points_per_series() {
     let steps = 100_000;
     let mut runs = Vec::new();
     for method in [Method::Implicit, Method::Parametric] {
-        let mut formulation =
-            formulate(Arc::clone(&scene.system), method, Feedback::default()).unwrap();
-        let options = RunOptions {
+        let config = SimulationConfig {
+            method,
             integrator: IntegratorKind::Rk4,
             dt: 1e-3,
-            steps,
-            ..RunOptions::default()
+            ..Default::default()
         };
+        let mut simulation = Simulation::new(Arc::clone(&scene.system), config).unwrap();
         let mut recorder = Recorder::new(Arc::clone(&scene.system), DEFAULT_BUCKETS);
         let mut progress = Count(0, 0);
-        let stats = run_with_progress(&mut *formulation, &options, &mut recorder, &mut progress)
+        let options = RunOptions { steps, every: 1 };
+        let stats = run_with_progress(&mut simulation, options, &mut recorder, &mut progress)
             .unwrap_or_else(|e| panic!("{e}"));
         assert!(progress.0 <= 101, "progress called {} times", progress.0);
         assert_eq!(progress.1, steps, "the last call reports the end");

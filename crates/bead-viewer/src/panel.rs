@@ -103,7 +103,8 @@ impl Panel {
     ) -> Result<Panel, BuildError> {
         validate_combination(&settings, &scene.system)?;
         let base = Arc::clone(&scene.system);
-        let formulation = formulate(Arc::clone(&base), settings.method, settings.feedback())?;
+        let formulation = formulate(Arc::clone(&base), settings.method, settings.feedback())
+            .map_err(|e| e.to_string())?;
         let state = formulation.initial_state();
         let n = base.n_coords();
         let projection_tolerance = constraint_tolerance(&base, 1e-12);
@@ -478,7 +479,8 @@ impl Panel {
                 scene.system
             }
         };
-        let formulation = formulate(system, self.settings.method, self.settings.feedback())?;
+        let formulation = formulate(system, self.settings.method, self.settings.feedback())
+            .map_err(|e| e.to_string())?;
         self.formulation = formulation;
         self.stepper = make_stepper(
             &self.settings,

@@ -14,12 +14,15 @@
 //! Scene: the article's bead, mass 1, g = 500 along +y (down), released at rest at x = 150,
 //! y = -225 (on the parabola). E0 = -m g y0 = 112500.
 
+mod common;
+
 use std::sync::Arc;
 
 use bead::formulation::{formulate, Feedback, Method};
 use bead::integrate::IntegratorKind;
 use bead::model::{System, SystemBuilder};
-use bead::simulate::{run, RunOptions, Sample, Sink};
+use bead::simulate::{Sample, Sink};
+use common::{run, Options};
 
 const DT: f64 = 1.0 / 60.0;
 /// Ten minutes of simulated time at 60 steps per second.
@@ -59,20 +62,20 @@ impl Sink for Trace {
 }
 
 fn trace(method: Method, feedback: Feedback, integrator: IntegratorKind, steps: u64) -> Trace {
-    let mut formulation = formulate(article_system(), method, feedback).unwrap();
+    let formulation = formulate(article_system(), method, feedback).unwrap();
     let capacity = steps as usize + 1;
     let mut trace = Trace {
         energy: Vec::with_capacity(capacity),
         constraint: Vec::with_capacity(capacity),
     };
-    let options = RunOptions {
+    let options = Options {
         integrator,
         dt: DT,
         steps,
         every: 1,
         ..Default::default()
     };
-    let stats = run(&mut *formulation, &options, &mut trace).unwrap();
+    let stats = run(formulation, &options, &mut trace).unwrap();
     assert_eq!(stats.steps, steps);
     assert_eq!(stats.energy_initial, E0);
     trace

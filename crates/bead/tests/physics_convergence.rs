@@ -18,7 +18,8 @@ use std::sync::Arc;
 use bead::formulation::{formulate, Feedback, Method};
 use bead::integrate::IntegratorKind;
 use bead::model::System;
-use bead::simulate::{run, NullSink, RunOptions};
+use bead::simulate::NullSink;
+use common::{run, Options};
 
 mod common;
 use common::{pendulum, pendulum_reference};
@@ -33,15 +34,15 @@ fn reference_position(n: u64) -> [f64; 2] {
 
 /// The engine's particle position at T_END with `n` steps.
 fn engine_position(system: &Arc<System>, method: Method, kind: IntegratorKind, n: u64) -> [f64; 2] {
-    let mut formulation = formulate(system.clone(), method, Feedback::default()).unwrap();
-    let options = RunOptions {
+    let formulation = formulate(system.clone(), method, Feedback::default()).unwrap();
+    let options = Options {
         integrator: kind,
         dt: T_END / n as f64,
         steps: n,
         every: n,
         ..Default::default()
     };
-    let stats = run(&mut *formulation, &options, &mut NullSink).unwrap();
+    let stats = run(formulation, &options, &mut NullSink).unwrap();
     assert_eq!(stats.steps, n);
     [stats.x[0], stats.x[1]]
 }

@@ -8,25 +8,43 @@
 //! dependent constraint, or the coordinate the map does not depend on) and the time, instead of
 //! returning accelerations made of divisions by zero.
 
+mod common;
+
 use std::sync::Arc;
 
 use bead::formulation::{
-    formulate, Feedback, Implicit, Method, Parametric, SecondOrderSystem, StepError,
+    formulate, Feedback, Implicit, Method, Parametric, SecondOrderSystem, SingularKind, StepError,
+    Subject,
 };
 use bead::integrate::IntegratorKind;
 use bead::model::{System, SystemBuilder};
-use bead::simulate::{run, NullSink, RunError, RunFailure, RunOptions};
+use bead::simulate::{NullSink, RunError, RunFailure, SetupError, Simulation, SimulationConfig};
+use common::{run, Options};
+
+/// The error of a simulation that cannot start from its initial state.
+fn start_failure(system: Arc<System>, method: Method) -> StepError {
+    let config = SimulationConfig {
+        method,
+        dt: 0.01,
+        ..Default::default()
+    };
+    match Simulation::new(system, config) {
+        Err(SetupError::Initial(e)) => e,
+        Err(other) => panic!("expected a failure of the initial state, got {other}"),
+        Ok(_) => panic!("the simulation must not start"),
+    }
+}
 
 fn run_to_failure(system: Arc<System>, method: Method, dt: f64, steps: u64) -> RunFailure {
-    let mut formulation = formulate(system, method, Feedback::default()).unwrap();
-    let options = RunOptions {
+    let formulation = formulate(system, method, Feedback::default()).unwrap();
+    let options = Options {
         integrator: IntegratorKind::Rk4,
         dt,
         steps,
         every: 1,
         ..Default::default()
     };
-    let failure = run(&mut *formulation, &options, &mut NullSink).expect_err("the run must fail");
+    let failure = run(formulation, &options, &mut NullSink).expect_err("the run must fail");
     // The figures up to the last good state are finite: nothing was integrated into NaN.
     let stats = &failure.stats;
     for value in stats
@@ -98,12 +116,13 @@ fn duplicate_constraints_are_singular_and_the_duplicate_is_named() {
         "accelerations written on failure: {a:?}"
     );
 
-    let failure = run_to_failure(system, Method::Implicit, 0.01, 10);
-    assert_eq!(
-        singular_constraint(&failure),
-        (0.0, "constraint 2".to_string())
-    );
-    assert_eq!(failure.stats.steps, 0);
+    // A simulation refuses to start there.
+    match start_failure(system, Method::Implicit) {
+        StepError::SingularConstraints { t, constraint, .. } => {
+            assert_eq!((t, constraint.as_str()), (0.0, "constraint 2"));
+        }
+        other => panic!("expected singular constraints, got {other}"),
+    }
 }
 
 // C = x^2 + y^2 = 0 holds only at the origin, where grad C = (2x, 2y) = 0: J W J^T = [0].
@@ -125,10 +144,29 @@ fn vanishing_gradient_at_the_origin_is_singular() {
     );
     assert!(a.iter().all(|v| v.is_finite()), "{a:?}");
 
-    let failure = run_to_failure(system, Method::Implicit, 0.01, 10);
-    assert_eq!(
-        singular_constraint(&failure),
-        (0.0, "constraint 1".to_string())
+    // A simulation refuses to start there, naming the singular point.
+    let error = start_failure(system, Method::Implicit);
+    match &error {
+        StepError::SingularPoint {
+            t,
+            subject: Subject::Constraint { name, .. },
+            position,
+            kind: SingularKind::AtStart,
+            ..
+        } => {
+            assert_eq!((*t, name.as_str()), (0.0, "constraint 1"));
+            assert_eq!(
+                position,
+                &vec![("bead.x".to_string(), 0.0), ("bead.y".to_string(), 0.0)]
+            );
+        }
+        other => panic!("expected a singular point at the start, got {other}"),
+    }
+    assert!(
+        error
+            .to_string()
+            .contains("its gradient is zero or not finite"),
+        "{error}"
     );
 }
 
@@ -199,11 +237,16 @@ fn degenerate_parametric_map_gives_a_singular_mass_matrix() {
         .unwrap();
     assert!(qddot[0].is_finite());
 
-    let failure = run_to_failure(system, Method::Parametric, 0.01, 10);
-    match &failure.error {
-        RunError::Step(StepError::SingularMassMatrix { t, coordinate }) => {
-            assert_eq!((*t, coordinate.as_str()), (0.0, "q"));
+    // A simulation refuses to start there, naming the coordinate.
+    match start_failure(system, Method::Parametric) {
+        StepError::SingularPoint {
+            t,
+            subject: Subject::Coordinate { name },
+            kind: SingularKind::AtStart,
+            ..
+        } => {
+            assert_eq!((t, name.as_str()), (0.0, "q"));
         }
-        other => panic!("expected a singular mass matrix, got {other}"),
+        other => panic!("expected a singular point at the start, got {other}"),
     }
 }

@@ -15,13 +15,14 @@ use bead::formulation::{formulate, Feedback, Method};
 use bead::integrate::{IntegratorKind, IntegratorSettings};
 use bead::model::{System, SystemBuilder};
 use bead::scene::Scene;
-use bead::simulate::{run, NullSink, RunOptions, RunStats, Sample, Sink};
+use bead::simulate::{NullSink, RunStats, Sample, Sink};
+use common::{run, Options};
 
 mod common;
 use common::{pendulum, pendulum_reference_positions as reference_positions, L};
 
-fn options(integrator: IntegratorKind, dt: f64, steps: u64) -> RunOptions {
-    RunOptions {
+fn options(integrator: IntegratorKind, dt: f64, steps: u64) -> Options {
+    Options {
         integrator,
         dt,
         steps,
@@ -30,8 +31,8 @@ fn options(integrator: IntegratorKind, dt: f64, steps: u64) -> RunOptions {
     }
 }
 
-fn dopri5(dt: f64, steps: u64, rtol: f64, atol: f64) -> RunOptions {
-    RunOptions {
+fn dopri5(dt: f64, steps: u64, rtol: f64, atol: f64) -> Options {
+    Options {
         settings: IntegratorSettings {
             rtol,
             atol,
@@ -41,10 +42,14 @@ fn dopri5(dt: f64, steps: u64, rtol: f64, atol: f64) -> RunOptions {
     }
 }
 
-fn run_system(system: &Arc<System>, method: Method, options: &RunOptions) -> RunStats {
-    let mut formulation = formulate(system.clone(), method, Feedback::default()).unwrap();
-    let stats = run(&mut *formulation, options, &mut NullSink).unwrap();
-    assert_eq!(stats.steps, options.steps);
+fn run_system(system: &Arc<System>, method: Method, options: &Options) -> RunStats {
+    let formulation = formulate(system.clone(), method, Feedback::default()).unwrap();
+    let stats = run(formulation, options, &mut NullSink).unwrap();
+    // Complete: the run reached its end (adaptive runs count their own steps).
+    assert_eq!(stats.t_final, options.steps as f64 * options.dt);
+    if !options.integrator.is_adaptive() {
+        assert_eq!(stats.steps, options.steps);
+    }
     stats
 }
 
@@ -125,14 +130,9 @@ impl Sink for Energies {
 }
 
 fn energies(method: Method, integrator: IntegratorKind, steps: u64) -> Vec<f64> {
-    let mut formulation = formulate(parabola(), method, Feedback::default()).unwrap();
+    let formulation = formulate(parabola(), method, Feedback::default()).unwrap();
     let mut sink = Energies(Vec::with_capacity(steps as usize + 1));
-    let stats = run(
-        &mut *formulation,
-        &options(integrator, DT, steps),
-        &mut sink,
-    )
-    .unwrap();
+    let stats = run(formulation, &options(integrator, DT, steps), &mut sink).unwrap();
     assert_eq!(stats.steps, steps);
     assert_eq!(sink.0.len() as u64, steps + 1);
     sink.0
@@ -200,9 +200,9 @@ fn gauss_legendre_energy_stays_bounded_where_rk4_decays() {
 /// wrong state.
 #[test]
 fn gauss_legendre_reports_a_stage_iteration_that_does_not_converge() {
-    let mut formulation = formulate(parabola(), Method::Parametric, Feedback::default()).unwrap();
+    let formulation = formulate(parabola(), Method::Parametric, Feedback::default()).unwrap();
     let failure = run(
-        &mut *formulation,
+        formulation,
         &options(IntegratorKind::GaussLegendre, 1.0, 10),
         &mut NullSink,
     )
@@ -235,10 +235,10 @@ impl Sink for Positions {
 
 fn dopri5_pendulum(method: Method, rtol: f64) -> (RunStats, Vec<Vec<f64>>) {
     let steps = (PENDULUM_T / OUTPUT_DT).round() as u64;
-    let mut formulation = formulate(pendulum(), method, Feedback::default()).unwrap();
+    let formulation = formulate(pendulum(), method, Feedback::default()).unwrap();
     let mut sink = Positions(Vec::new());
     let stats = run(
-        &mut *formulation,
+        formulation,
         &dopri5(OUTPUT_DT, steps, rtol, rtol * 1e-2),
         &mut sink,
     )
@@ -368,14 +368,9 @@ fn dopri5_on_the_helix_follows_the_analytic_angle() {
         worst: 0.0,
         constants: (r, b, w0),
     };
-    let mut formulation =
+    let formulation =
         formulate(scene.system.clone(), Method::Implicit, Feedback::default()).unwrap();
-    let stats = run(
-        &mut *formulation,
-        &dopri5(dt, steps, 1e-10, 1e-12),
-        &mut check,
-    )
-    .unwrap();
+    let stats = run(formulation, &dopri5(dt, steps, 1e-10, 1e-12), &mut check).unwrap();
     let t = stats.t_final;
     let phi = w0 * t + 0.5 * alpha * t * t;
     let final_phi = stats.x[2] / b;

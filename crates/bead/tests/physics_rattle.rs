@@ -20,7 +20,11 @@ use bead::formulation::{
 };
 use bead::integrate::{Integrator, IntegratorKind, IntegratorSettings, Rattle};
 use bead::model::{Endpoint, Force, System, SystemBuilder};
-use bead::simulate::{run, NullSink, RunError, RunOptions, RunStats, Sample, Sink};
+use bead::simulate::{
+    ConfigError, NullSink, Requirement, RunError, RunStats, Sample, SetupError, Simulation,
+    SimulationConfig, Sink,
+};
+use common::{run, Options};
 
 // ---------------------------------------------------------------------------------------
 // systems
@@ -109,17 +113,17 @@ fn moving_circle() -> Arc<System> {
 // ---------------------------------------------------------------------------------------
 // helpers
 
-fn options(kind: IntegratorKind, dt: f64, steps: u64) -> RunOptions {
-    RunOptions {
+fn options(kind: IntegratorKind, dt: f64, steps: u64) -> Options {
+    Options {
         integrator: kind,
         dt,
         steps,
         every: 1,
-        ..RunOptions::default()
+        ..Options::default()
     }
 }
 
-fn with_tolerance(mut options: RunOptions, tolerance: f64) -> RunOptions {
+fn with_tolerance(mut options: Options, tolerance: f64) -> Options {
     options.settings = IntegratorSettings {
         constraint_tolerance: tolerance,
         ..IntegratorSettings::default()
@@ -127,9 +131,9 @@ fn with_tolerance(mut options: RunOptions, tolerance: f64) -> RunOptions {
     options
 }
 
-fn run_implicit(system: &Arc<System>, options: &RunOptions, sink: &mut dyn Sink) -> RunStats {
-    let mut formulation = formulate(system.clone(), Method::Implicit, Feedback::default()).unwrap();
-    match run(&mut *formulation, options, sink) {
+fn run_implicit(system: &Arc<System>, options: &Options, sink: &mut dyn Sink) -> RunStats {
+    let formulation = formulate(system.clone(), Method::Implicit, Feedback::default()).unwrap();
+    match run(formulation, options, sink) {
         Ok(stats) => stats,
         Err(failure) => panic!("run failed: {}", failure.error),
     }
@@ -403,27 +407,31 @@ fn projections_land_on_the_constraints() {
 // ---------------------------------------------------------------------------------------
 // errors
 
-/// Law: RATTLE needs constraints to project onto; on the parametric form (none) the run fails
-/// at once with a message naming the fix, and a bare step reports the same error.
+/// Law: RATTLE needs constraints to project onto; on the parametric form (none) the
+/// simulation refuses to start with a message naming the fix, and a bare step reports the
+/// same need.
 #[test]
 fn rattle_on_the_parametric_form_is_a_clear_error() {
     let system = parabola();
-    let mut formulation =
-        formulate(system.clone(), Method::Parametric, Feedback::default()).unwrap();
-    let failure = run(
-        &mut *formulation,
-        &options(IntegratorKind::Rattle, 0.01, 10),
-        &mut NullSink,
-    )
-    .unwrap_err();
-    assert_eq!(failure.stats.steps, 0);
-    let message = failure.error.to_string();
+    let config = SimulationConfig {
+        method: Method::Parametric,
+        integrator: IntegratorKind::Rattle,
+        dt: 0.01,
+        ..Default::default()
+    };
+    let error = Simulation::new(system.clone(), config).unwrap_err();
     assert_eq!(
-        message,
-        "rattle needs the implicit form; the parametric form has no constraints to project onto — use gauss-legendre or rk4"
+        error,
+        SetupError::Config(ConfigError::NeedsConstraints(Requirement::Integrator(
+            IntegratorKind::Rattle
+        )))
+    );
+    assert_eq!(
+        error.to_string(),
+        "rattle needs the implicit form: the parametric form has no constraints to project onto (it stays on them by construction); use gauss-legendre or rk4 with the parametric form"
     );
 
-    let mut parametric = Parametric::new(system).unwrap();
+    let mut parametric = Parametric::new(system.clone()).unwrap();
     assert!(parametric.as_constrained().is_none());
     let mut state = bead::formulation::Formulation::initial_state(&parametric);
     let err = Rattle::new(1, 1e-10, 10)
@@ -431,17 +439,21 @@ fn rattle_on_the_parametric_form_is_a_clear_error() {
         .unwrap_err();
     assert!(matches!(err, StepError::NeedsConstraints { .. }), "{err}");
 
-    let mut formulation = formulate(parabola(), Method::Parametric, Feedback::default()).unwrap();
-    let mut o = options(IntegratorKind::Rk4, 0.01, 10);
-    o.project = true;
-    let failure = run(&mut *formulation, &o, &mut NullSink).unwrap_err();
+    let config = SimulationConfig {
+        method: Method::Parametric,
+        integrator: IntegratorKind::Rk4,
+        dt: 0.01,
+        project: true,
+        ..Default::default()
+    };
+    let error = Simulation::new(system, config).unwrap_err();
+    assert_eq!(
+        error,
+        SetupError::Config(ConfigError::NeedsConstraints(Requirement::Projection))
+    );
     assert!(
-        failure
-            .error
-            .to_string()
-            .contains("needs the implicit form"),
-        "{}",
-        failure.error
+        error.to_string().contains("needs the implicit form"),
+        "{error}"
     );
 }
 
@@ -456,8 +468,8 @@ fn projection_failure_is_reported() {
     let mut o = options(IntegratorKind::Rattle, 0.01, 10);
     o.settings.constraint_max_iterations = 0;
     o.settings.constraint_tolerance = 1e-14;
-    let mut formulation = formulate(system.clone(), Method::Implicit, Feedback::default()).unwrap();
-    let failure = run(&mut *formulation, &o, &mut NullSink).unwrap_err();
+    let formulation = formulate(system.clone(), Method::Implicit, Feedback::default()).unwrap();
+    let failure = run(formulation, &o, &mut NullSink).unwrap_err();
     match &failure.error {
         RunError::Step(StepError::ProjectionFailed {
             t,
@@ -479,7 +491,8 @@ fn projection_failure_is_reported() {
     o.project = true;
     o.settings.constraint_max_iterations = 0;
     o.settings.constraint_tolerance = 1e-14;
-    let failure = run(&mut *formulation, &o, &mut NullSink).unwrap_err();
+    let formulation = formulate(system.clone(), Method::Implicit, Feedback::default()).unwrap();
+    let failure = run(formulation, &o, &mut NullSink).unwrap_err();
     assert!(
         matches!(
             failure.error,

@@ -18,18 +18,18 @@ pub fn compare(args: &CompareArgs) -> Result<()> {
     }
     let scene = load_scene(&args.scene, &args.sim.set)?;
     let plan = Plan::resolve(&scene, &args.sim)?;
-    plan.check_method(Method::Implicit)?;
     let methods = compare_methods(&scene);
     let mut summaries = Vec::new();
     let mut failures = Vec::new();
     for &method in &methods {
         let trace = args.trace.as_deref().map(|path| trace_path(path, method));
-        // --stabilize and the scene's stabilize apply to the implicit run only.
-        let feedback = match method {
-            Method::Implicit => plan.feedback,
-            Method::Parametric => Feedback::default(),
-        };
-        let outcome = run_method(&scene, &plan, method, feedback, trace.as_deref())?;
+        // --stabilize, the scene's stabilize and --project apply to the implicit run only.
+        let mut config = plan.config(method);
+        if method == Method::Parametric {
+            config.feedback = Feedback::default();
+            config.project = false;
+        }
+        let outcome = run_method(&scene, &plan, config, trace.as_deref())?;
         if let Err(failure) = &outcome.result {
             failures.push(format!("{}: {}", method.name(), failure.error));
         }

@@ -63,7 +63,12 @@ pub fn compare_grid(args: &CompareArgs) -> Result<()> {
             let mut combination = plan.clone();
             combination.integrator = integrator;
             combination.project = project;
-            if let Err(reason) = combination.check_method(method) {
+            let mut config = combination.config(method);
+            if method == Method::Parametric {
+                // --stabilize and the scene's stabilize apply to the implicit runs only.
+                config.feedback = Feedback::default();
+            }
+            if let Err(reason) = config.check(&scene.system) {
                 let name = if project {
                     format!("{}+project", method.name())
                 } else {
@@ -80,10 +85,6 @@ pub fn compare_grid(args: &CompareArgs) -> Result<()> {
                     planned.steps = steps;
                     planned.overshoot = overshoot;
                 }
-                let feedback = match method {
-                    Method::Implicit => plan.feedback,
-                    Method::Parametric => Feedback::default(),
-                };
                 let trace = args.trace.as_deref().map(|path| {
                     trace_path(
                         path,
@@ -98,11 +99,12 @@ pub fn compare_grid(args: &CompareArgs) -> Result<()> {
                 });
                 let mut recorder =
                     Recorder::new(Arc::clone(&scene.system), (args.grid.points / 2) as usize);
+                let mut config = config;
+                config.dt = planned.dt;
                 let outcome = run_method_with(
                     &scene,
                     &planned,
-                    method,
-                    feedback,
+                    config,
                     trace.as_deref(),
                     Some(&mut recorder),
                 )?;

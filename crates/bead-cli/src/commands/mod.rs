@@ -15,10 +15,9 @@ use std::path::Path;
 use std::sync::Arc;
 
 use anyhow::{Context, Result};
-use bead::formulation::{formulate, Feedback, Method};
 use bead::output::{CsvTrace, Summary};
 use bead::scene::Scene;
-use bead::simulate::{self, NullSink, RunFailure, RunStats, Sink};
+use bead::simulate::{self, NullSink, RunFailure, RunStats, Simulation, SimulationConfig, Sink};
 
 use crate::args::Command;
 use crate::plan::Plan;
@@ -60,16 +59,15 @@ struct Outcome {
     summary: Summary,
 }
 
-/// Run `method` of `scene` as planned with constraint feedback `feedback` (implicit form
-/// only), with an optional CSV trace.
+/// Run `scene` as `config` says (checked by the library: an illegal combination or an
+/// initial state that cannot be simulated is the error), with an optional CSV trace.
 fn run_method(
     scene: &Scene,
     plan: &Plan,
-    method: Method,
-    feedback: Feedback,
+    config: SimulationConfig,
     trace: Option<&Path>,
 ) -> Result<Outcome> {
-    run_method_with(scene, plan, method, feedback, trace, None)
+    run_method_with(scene, plan, config, trace, None)
 }
 
 /// [`run_method`], also recording into `recorder` (for `compare --report`), with a progress
@@ -77,36 +75,35 @@ fn run_method(
 fn run_method_with(
     scene: &Scene,
     plan: &Plan,
-    method: Method,
-    feedback: Feedback,
+    config: SimulationConfig,
     trace: Option<&Path>,
     recorder: Option<&mut dyn Sink>,
 ) -> Result<Outcome> {
-    let mut formulation =
-        formulate(Arc::clone(&scene.system), method, feedback).map_err(anyhow::Error::msg)?;
-    let coordinates = formulation.coordinate_names().to_vec();
+    let mut simulation = Simulation::new(Arc::clone(&scene.system), config)?;
+    let coordinates = simulation.formulation().coordinate_names().to_vec();
     let mut sink: Box<dyn Sink> = match trace {
         Some(path) => {
             let file = File::create(path)
                 .with_context(|| format!("cannot create trace file `{}`", path.display()))?;
-            let trace = CsvTrace::for_formulation(file, &*formulation)
+            let trace = CsvTrace::for_simulation(file, &simulation)
                 .with_context(|| format!("cannot write trace file `{}`", path.display()))?;
             Box::new(trace)
         }
         None => Box::new(NullSink),
     };
-    let mut options = plan.options();
-    // --project applies to the implicit form only (compare runs the parametric form without).
-    options.project &= method == Method::Implicit;
-    let mut bar = progress::Bar::new(format!("{} {}", method.name(), options.integrator.name()));
+    let mut bar = progress::Bar::new(format!(
+        "{} {}",
+        config.method.name(),
+        config.integrator.name()
+    ));
     let result = match recorder {
         Some(recorder) => simulate::run_with_progress(
-            &mut *formulation,
-            &options,
+            &mut simulation,
+            plan.options(),
             &mut grid::Tee(&mut *sink, recorder),
             &mut bar,
         ),
-        None => simulate::run_with_progress(&mut *formulation, &options, &mut *sink, &mut bar),
+        None => simulate::run_with_progress(&mut simulation, plan.options(), &mut *sink, &mut bar),
     };
     bar.finish();
     let summary = Summary::from_result(&scene.file, &scene.system, &coordinates, &result);

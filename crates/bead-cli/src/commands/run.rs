@@ -15,9 +15,7 @@ pub fn run(args: &RunArgs) -> Result<()> {
     if plan.ignores_scene_feedback(method) {
         warn("the scene's [run] stabilize applies only to the implicit form; not used for this parametric run");
     }
-    let feedback = plan.feedback_for(method)?;
-    plan.check_method(method)?;
-    let outcome = run_method(&scene, &plan, method, feedback, args.trace.as_deref())?;
+    let outcome = run_method(&scene, &plan, plan.config(method), args.trace.as_deref())?;
     let summary_json = json(&outcome.summary)?;
     if let Some(path) = &args.output.summary {
         write_file(path, &summary_json)?;

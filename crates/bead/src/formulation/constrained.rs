@@ -45,7 +45,7 @@ pub trait ConstrainedSystem: SecondOrderSystem {
     fn constraint_jacobian(&mut self, t: f64, q: &[f64], jacobian: &mut [f64]);
     /// The error to report when constraint row `row` is singular (vanishing gradient or
     /// dependent on earlier rows) at time t: names the declared constraint.
-    fn singular_constraint(&self, t: f64, row: usize) -> StepError;
+    fn singular_constraint(&mut self, t: f64, row: usize) -> StepError;
     /// Move q onto C(q, t) = 0 by mass-weighted Gauss-Newton steps
     /// dq = -W J^T (J W J^T)^-1 C until max|C| <= `tolerance` (absolute, in the units of C).
     /// Returns the number of iterations (linear solves) used; 0 when q was already within
@@ -64,7 +64,7 @@ pub trait ConstrainedSystem: SecondOrderSystem {
 
 /// Scratch space of the projections, sized once for one system.
 pub(crate) struct ProjectionWorkspace {
-    eval: ConstraintEval,
+    pub(crate) eval: ConstraintEval,
     /// Zero velocities (n), for evaluations that need only C and J.
     zeros: Vec<f64>,
     /// F (n)
@@ -167,7 +167,7 @@ impl ConstrainedSystem for Implicit {
     ) -> Result<(), StepError> {
         let system = &*self.system;
         let ws = &mut self.projection;
-        system.accumulate_forces(q, qdot, &mut ws.force);
+        super::implicit::accumulate_all_forces(system, &self.external, q, qdot, &mut ws.force);
         for ((a, f), w) in a.iter_mut().zip(&ws.force).zip(&system.inverse_mass) {
             *a = w * f;
         }
@@ -199,7 +199,7 @@ impl ConstrainedSystem for Implicit {
         }
     }
 
-    fn singular_constraint(&self, t: f64, row: usize) -> StepError {
+    fn singular_constraint(&mut self, t: f64, row: usize) -> StepError {
         singular_error(self.system.constraints(), t, row)
     }
 

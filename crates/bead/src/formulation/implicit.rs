@@ -14,9 +14,12 @@
 
 use std::sync::Arc;
 
-use super::{Formulation, Method, SecondOrderSystem, State, StepError};
+use super::{
+    Formulation, Gradients, Method, Nonconservation, Observation, SecondOrderSystem,
+    SingularSearch, State, StepError, Subject,
+};
 use crate::linalg::{DenseCholesky, SpdSolver};
-use crate::model::{ConstraintEval, ConstraintSet, System};
+use crate::model::{ConstraintEval, ConstraintSet, Force, System};
 
 /// Constraint stabilization Cddot = -ks C - kd Cdot (units 1/s^2 and 1/s).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -53,6 +56,8 @@ pub struct Implicit {
     lambda: Vec<f64>,
     /// Scratch space of the [`super::ConstrainedSystem`] methods (projections).
     pub(crate) projection: super::constrained::ProjectionWorkspace,
+    /// Forces applied from outside the system (see [`Formulation::external_forces_mut`]).
+    pub(crate) external: Vec<Force>,
 }
 
 impl Implicit {
@@ -78,6 +83,7 @@ impl Implicit {
             matrix: vec![0.0; m * m],
             lambda: vec![0.0; m],
             projection: super::constrained::ProjectionWorkspace::new(&system),
+            external: Vec::new(),
             system,
         }
     }
@@ -103,7 +109,7 @@ impl SecondOrderSystem for Implicit {
         let system = &*self.system;
         let set = system.constraints();
         let w = &system.inverse_mass;
-        system.accumulate_forces(x, v, &mut self.force);
+        accumulate_all_forces(system, &self.external, x, v, &mut self.force);
         let m = set.n_rows();
         if m > 0 {
             set.evaluate(t, x, v, &mut self.constraints);
@@ -123,7 +129,18 @@ impl SecondOrderSystem for Implicit {
                     - self.feedback.ks * ce.value[i]
                     - self.feedback.kd * ce.velocity[i];
             }
+            let rhs_finite = self.lambda.iter().all(|r| r.is_finite());
             if let Err(singular) = self.solver.solve(m, &mut self.matrix, &mut self.lambda) {
+                // Overflow or a non-finite input is not a singular constraint: say which.
+                if let Some(error) = non_finite_input(system, t, x, v, &self.force, ce) {
+                    return Err(error);
+                }
+                if !rhs_finite {
+                    return Err(StepError::NonFinite {
+                        t,
+                        quantity: "the constraint force's right-hand side".into(),
+                    });
+                }
                 let info = set.info_of_row(singular.row);
                 return Err(StepError::SingularConstraints {
                     t,
@@ -178,6 +195,194 @@ impl Formulation for Implicit {
         x.copy_from_slice(q);
         xdot.copy_from_slice(qdot);
     }
+
+    fn external_forces_mut(&mut self) -> &mut Vec<Force> {
+        &mut self.external
+    }
+
+    fn external_forces(&self) -> &[Force] {
+        &self.external
+    }
+
+    /// P = lambda . (J v) + F_nc . v: the constraint force J^T lambda (feedback included) and
+    /// the forces without a potential, at the last evaluation.
+    fn power(&self, x: &[f64], v: &[f64], _a: &[f64]) -> f64 {
+        let set = self.system.constraints();
+        let ce = &self.constraints;
+        let constraint: f64 = (0..set.n_rows())
+            .map(|i| {
+                let jv: f64 = set
+                    .row_columns(i)
+                    .iter()
+                    .zip(&ce.jacobian[set.row_entries(i)])
+                    .map(|(&k, &jik)| jik * v[k])
+                    .sum();
+                self.lambda[i] * jv
+            })
+            .sum();
+        constraint + self.applied_power(x, v)
+    }
+
+    fn applied_power(&self, x: &[f64], v: &[f64]) -> f64 {
+        let system = &*self.system;
+        system.nonconservative_power(x, v) + external_power(system, &self.external, x, v)
+    }
+
+    fn nonconservation(&self) -> Vec<Nonconservation> {
+        let set = self.system.constraints();
+        let mut out: Vec<Nonconservation> = self
+            .system
+            .nonconservative_forces()
+            .into_iter()
+            .map(Nonconservation::Force)
+            .collect();
+        for info in set.infos() {
+            if info.rows.clone().any(|r| set.is_time_dependent(r)) {
+                out.push(Nonconservation::DrivenConstraint(info.name.clone()));
+            }
+        }
+        if !self.external.is_empty() {
+            out.push(Nonconservation::External);
+        }
+        out
+    }
+
+    fn new_observation(&self) -> Observation {
+        let set = self.system.constraints();
+        let n = self.system.n_coords();
+        Observation {
+            x: vec![0.0; n],
+            xdot: vec![0.0; n],
+            constraints: vec![0.0; set.n_rows()],
+            gradients: Gradients::with_rows(
+                (0..set.n_rows()).map(|i| set.row_columns(i).len()),
+                true,
+            ),
+        }
+    }
+
+    fn observe(&mut self, t: f64, q: &[f64], qdot: &[f64], out: &mut Observation) {
+        out.x.copy_from_slice(q);
+        out.xdot.copy_from_slice(qdot);
+        let set = self.system.constraints();
+        if set.n_rows() == 0 {
+            return;
+        }
+        let ws = &mut self.projection.eval;
+        set.gradient(t, q, ws);
+        out.constraints.copy_from_slice(&ws.value);
+        let g = &mut out.gradients;
+        g.values.copy_from_slice(&ws.jacobian);
+        for i in 0..set.n_rows() {
+            let entries = set.row_entries(i);
+            for (slot, &k) in g.coords[entries.clone()].iter_mut().zip(set.row_columns(i)) {
+                *slot = q[k];
+            }
+            let norm = ws.jacobian[entries]
+                .iter()
+                .map(|g| g * g)
+                .sum::<f64>()
+                .sqrt();
+            g.offset[i] = ws.value[i].abs() / norm;
+        }
+    }
+
+    fn gradient_subject(&self, row: usize) -> Subject {
+        let info = self.system.constraints().info_of_row(row);
+        Subject::Constraint {
+            name: info.name.clone(),
+            description: info.description.clone(),
+        }
+    }
+
+    fn gradient_position(&self, row: usize, q: &[f64]) -> Vec<(String, f64)> {
+        self.system
+            .constraints()
+            .row_columns(row)
+            .iter()
+            .map(|&k| (self.system.coordinate_name(k), q[k]))
+            .collect()
+    }
+
+    fn row_variables(&self, row: usize, q: &[f64]) -> Vec<f64> {
+        let set = self.system.constraints();
+        set.row_columns(row).iter().map(|&k| q[k]).collect()
+    }
+
+    fn locate_singular_point(&self, row: usize, t: f64, q: &[f64]) -> SingularSearch {
+        self.system.constraints().locate_singular_point(row, t, q)
+    }
+}
+
+/// F = every force on the particles: the system's own (gravity included) and the external
+/// ones, at positions `x` and velocities `v`.
+pub(crate) fn accumulate_all_forces(
+    system: &System,
+    external: &[Force],
+    x: &[f64],
+    v: &[f64],
+    force: &mut [f64],
+) {
+    system.accumulate_forces(x, v, force);
+    for f in external {
+        f.accumulate(system.dim(), x, v, force);
+    }
+}
+
+/// The power F . v of the external forces (all counted as non-conservative).
+pub(crate) fn external_power(system: &System, external: &[Force], x: &[f64], v: &[f64]) -> f64 {
+    external.iter().map(|f| f.power(system.dim(), x, v)).sum()
+}
+
+/// The first non-finite input of an evaluation, as the error to report instead of a singular
+/// matrix: a position or velocity, an applied force, a constraint value, gradient or bias.
+fn non_finite_input(
+    system: &System,
+    t: f64,
+    x: &[f64],
+    v: &[f64],
+    force: &[f64],
+    ce: &ConstraintEval,
+) -> Option<StepError> {
+    let error = |quantity: String| Some(StepError::NonFinite { t, quantity });
+    if let Some(k) = x.iter().position(|c| !c.is_finite()) {
+        return error(format!(
+            "the position {} ({})",
+            system.coordinate_name(k),
+            x[k]
+        ));
+    }
+    if let Some(k) = v.iter().position(|c| !c.is_finite()) {
+        return error(format!(
+            "the velocity {} ({})",
+            system.velocity_name(k),
+            v[k]
+        ));
+    }
+    if let Some(k) = force.iter().position(|c| !c.is_finite()) {
+        return error(format!(
+            "the applied force on {} ({})",
+            system.coordinate_name(k),
+            force[k]
+        ));
+    }
+    let set = system.constraints();
+    for i in 0..set.n_rows() {
+        let name = &set.info_of_row(i).name;
+        if !ce.value[i].is_finite() {
+            return error(format!("the value of {name} ({})", ce.value[i]));
+        }
+        if ce.jacobian[set.row_entries(i)]
+            .iter()
+            .any(|g| !g.is_finite())
+        {
+            return error(format!("the gradient of {name}"));
+        }
+        if !ce.bias[i].is_finite() {
+            return error(format!("the acceleration bias of {name} ({})", ce.bias[i]));
+        }
+    }
+    None
 }
 
 /// A = J W J^T (m x m, row-major) from J's sparse rows (`entries` in the structure of

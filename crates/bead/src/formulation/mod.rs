@@ -10,16 +10,19 @@
 //! run loop needs: the initial state and the map back to particles).
 
 mod constrained;
+mod gradients;
 mod implicit;
 mod parametric;
 
+use std::fmt;
 use std::sync::Arc;
 
 pub use constrained::ConstrainedSystem;
+pub use gradients::{Gradients, Observation, SingularSearch};
 pub use implicit::{Feedback, Implicit};
 pub use parametric::Parametric;
 
-use crate::model::System;
+use crate::model::{Force, System};
 
 /// A second-order ODE qddot = f(t, q, qdot) in n coordinates: the whole interface between
 /// formulations and integrators.
@@ -72,6 +75,87 @@ pub enum StepError {
     },
     #[error("step size underflow at t = {t}: the adaptive step fell to {h:.3e} s, below 1e-14 of the time scale (the system is too stiff or singular there, or the tolerances are too tight)")]
     StepSizeUnderflow { t: f64, h: f64 },
+    /// The motion reached, or is about to cross, a point where a constraint's gradient (or a
+    /// column dx/dq of the parametric map) vanishes: a cusp or a self-crossing of the curve.
+    #[error("{}", describe_singular_point(*t, subject, position, *kind, cause.as_deref()))]
+    SingularPoint {
+        t: f64,
+        /// The constraint or coordinate that becomes singular.
+        subject: Subject,
+        /// Where: the coordinates it reads, by name, at the last good state.
+        position: Vec<(String, f64)>,
+        kind: SingularKind,
+        /// What failed first, when the singular point was found as the cause of another
+        /// failure (e.g. an implicit stage iteration that did not converge next to it).
+        cause: Option<String>,
+    },
+}
+
+/// What becomes singular: a constraint row of the implicit form or a generalized coordinate of
+/// the parametric form.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Subject {
+    Constraint { name: String, description: String },
+    Coordinate { name: String },
+}
+
+impl fmt::Display for Subject {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Subject::Constraint { name, description } => write!(f, "{name} (`{description}`)"),
+            Subject::Coordinate { name } => write!(f, "coordinate `{name}`"),
+        }
+    }
+}
+
+/// How a singular point showed itself (see `simulate`'s regularity monitor).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum SingularKind {
+    /// The gradient has all but vanished: below 1e-3 of its largest length in this run.
+    Vanishes,
+    /// The gradient reversed its direction within one step: the step crossed a point where
+    /// it vanishes.
+    Reverses,
+    /// Extrapolated along the motion, the gradient vanishes within the next two steps.
+    Ahead,
+    /// The state is off the constraint by more than 1/100 of the distance to a point ahead
+    /// where the gradient vanishes: near a crossing the level set through the state belongs
+    /// to another branch of the curve.
+    OffBranch,
+    /// The gradient is exactly zero (or not finite) at the initial state.
+    AtStart,
+}
+
+fn describe_singular_point(
+    t: f64,
+    subject: &Subject,
+    position: &[(String, f64)],
+    kind: SingularKind,
+    cause: Option<&str>,
+) -> String {
+    let names: Vec<&str> = position.iter().map(|(n, _)| n.as_str()).collect();
+    let values: Vec<String> = position.iter().map(|(_, v)| crate::readable(*v)).collect();
+    let at = if position.len() == 1 {
+        format!("{} = {}", names[0], values[0])
+    } else {
+        format!("({}) = ({})", names.join(", "), values.join(", "))
+    };
+    let (what, how) = match subject {
+        Subject::Constraint { .. } => ("its gradient", "a cusp or a crossing of the curve; the motion cannot be continued on this curve by the implicit form"),
+        Subject::Coordinate { .. } => ("dx/dq along it", "a cusp of the parametrization, where the map stops depending on this coordinate; the motion cannot be continued through it"),
+    };
+    let happened = match kind {
+        SingularKind::Vanishes => format!("{what} vanishes near {at}"),
+        SingularKind::Reverses => format!("{what} reversed direction within the step that ended at {at}, so the step crossed a point where it vanishes"),
+        SingularKind::Ahead => format!("{what} vanishes within the next two steps from {at}"),
+        SingularKind::OffBranch => format!("the state {at} is off the constraint by more than 1/100 of its distance to a point ahead where {what} vanishes, so it may follow another branch of the curve"),
+        SingularKind::AtStart => format!("{what} is zero or not finite at the initial state {at}"),
+    };
+    let cause = cause.map(|c| format!(" ({c})")).unwrap_or_default();
+    format!(
+        "at t = {}: {subject} is singular: {happened}: {how}{cause}",
+        crate::readable(t)
+    )
 }
 
 /// Which formulation.
@@ -113,6 +197,44 @@ pub struct State {
     pub qdot: Vec<f64>,
 }
 
+/// Why a formulation cannot be built.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+pub enum FormulationError {
+    #[error("the scene defines no parametric form (add a [parametric] table)")]
+    NoParametricForm,
+    #[error("constraint feedback (ks, kd) applies to the implicit form only: the parametric form stays on its constraints by construction")]
+    FeedbackOnParametric,
+}
+
+/// Why the mechanical energy T + V of a formulation is not conserved: something does work on
+/// it, which the energy ledger counts (see `simulate`).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum Nonconservation {
+    /// A force without a potential, e.g. `drag on \`bead\``.
+    Force(String),
+    /// A constraint that depends on time (a driven or moving constraint), by name.
+    DrivenConstraint(String),
+    /// The parametric map x(q, t) depends on time.
+    MovingMap,
+    /// Forces applied from outside the system while it runs (e.g. dragging in the viewer).
+    External,
+}
+
+impl fmt::Display for Nonconservation {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Nonconservation::Force(force) => write!(f, "{force}"),
+            Nonconservation::DrivenConstraint(name) => {
+                write!(f, "driven constraint: {name} depends on t")
+            }
+            Nonconservation::MovingMap => {
+                write!(f, "moving map: the parametric positions depend on t")
+            }
+            Nonconservation::External => write!(f, "external forces"),
+        }
+    }
+}
+
 /// What the run loop needs beyond the ODE.
 pub trait Formulation: SecondOrderSystem {
     fn method(&self) -> Method;
@@ -123,6 +245,52 @@ pub trait Formulation: SecondOrderSystem {
     fn coordinate_names(&self) -> &[String];
     /// Particle positions x and velocities xdot (n_coords each) of state (t, q, qdot).
     fn particle_state(&mut self, t: f64, q: &[f64], qdot: &[f64], x: &mut [f64], xdot: &mut [f64]);
+
+    /// Forces applied from outside the system (e.g. a spring dragged with the mouse): added to
+    /// the system's own forces in every evaluation and counted as non-conservative by the
+    /// energy ledger. Changing them takes effect at the next evaluation; nothing is rebuilt.
+    fn external_forces_mut(&mut self) -> &mut Vec<Force>;
+    /// The forces applied from outside, see [`Formulation::external_forces_mut`].
+    fn external_forces(&self) -> &[Force];
+
+    /// P = dW/dt, the power of every force that does work on T + V, at the state of the last
+    /// [`SecondOrderSystem::acceleration`] call, given that call's `q`, `qdot` and result
+    /// `qddot`:
+    ///
+    /// ```text
+    /// P = sum_k v_k (m_k a_k - F_cons,k) = F_nc . v + F_c . v
+    /// ```
+    /// with v, a the particle velocities and accelerations, F_nc the forces without a potential
+    /// (drag, external forces) and F_c the constraint force (implicit: J^T lambda, including
+    /// feedback; parametric: m a - F, which works only when the map moves). d(T + V)/dt = P
+    /// holds exactly for the equations the integrator advances.
+    fn power(&self, q: &[f64], qdot: &[f64], qddot: &[f64]) -> f64;
+    /// P of the applied forces only (no constraint force) at (q, qdot): what RATTLE's
+    /// unconstrained kicks need beside the constraint impulses it handles itself.
+    fn applied_power(&self, q: &[f64], qdot: &[f64]) -> f64;
+
+    /// Why T + V is not conserved by this formulation; empty when it is.
+    fn nonconservation(&self) -> Vec<Nonconservation>;
+
+    /// A buffer for [`Formulation::observe`], sized for this formulation.
+    fn new_observation(&self) -> Observation;
+    /// What the monitors need about (t, q, qdot), from one evaluation: particle positions and
+    /// velocities, the implicit constraints' values, and the vectors whose collapse makes this
+    /// formulation singular (the gradient rows J_i of the implicit constraints with how far
+    /// the state is off each, or the columns dx/dq_j of the parametric map). Allocation-free.
+    fn observe(&mut self, t: f64, q: &[f64], qdot: &[f64], out: &mut Observation);
+    /// What row `row` of [`Observation::gradients`] belongs to.
+    fn gradient_subject(&self, row: usize) -> Subject;
+    /// The coordinates row `row` reads, by name, with their values at q: the particle
+    /// coordinates of a constraint row, or the generalized coordinate of a column.
+    fn gradient_position(&self, row: usize, q: &[f64]) -> Vec<(String, f64)>;
+    /// The variables a search for row `row`'s singular point moves, at q: the particle
+    /// coordinates the constraint row reads (implicit), or all of q (parametric).
+    fn row_variables(&self, row: usize, q: &[f64]) -> Vec<f64>;
+    /// Look near q for a point where gradient row `row` vanishes (Gauss-Newton with exact
+    /// second derivatives over [`Formulation::row_variables`]). A diagnostic, used before a
+    /// run is stopped for a singular point; it allocates.
+    fn locate_singular_point(&self, row: usize, t: f64, q: &[f64]) -> SingularSearch;
 }
 
 /// Build the formulation `method` of `system`.
@@ -130,12 +298,12 @@ pub fn formulate(
     system: Arc<System>,
     method: Method,
     feedback: Feedback,
-) -> Result<Box<dyn Formulation + Send>, String> {
+) -> Result<Box<dyn Formulation + Send>, FormulationError> {
     match method {
         Method::Implicit => Ok(Box::new(Implicit::new(system, feedback))),
         Method::Parametric => {
             if feedback != Feedback::default() {
-                return Err("feedback (--stabilize) applies to the implicit form only; the parametric form cannot drift off its constraints".into());
+                return Err(FormulationError::FeedbackOnParametric);
             }
             Parametric::new(system).map(|p| Box::new(p) as Box<dyn Formulation + Send>)
         }

@@ -13,9 +13,13 @@
 
 use std::sync::Arc;
 
-use super::{Formulation, Method, SecondOrderSystem, State, StepError};
+use super::implicit::{accumulate_all_forces, external_power};
+use super::{
+    Formulation, FormulationError, Gradients, Method, Nonconservation, Observation,
+    SecondOrderSystem, SingularSearch, State, StepError, Subject,
+};
 use crate::linalg::{DenseCholesky, SpdSolver};
-use crate::model::{ParametricEval, ParametricMap, System};
+use crate::model::{ConstraintEval, Force, ParametricEval, ParametricMap, System};
 
 /// The parametric (generalized-coordinate) formulation.
 pub struct Parametric {
@@ -30,14 +34,18 @@ pub struct Parametric {
     matrix: Vec<f64>,
     /// rhs, then qddot (n_q)
     rhs: Vec<f64>,
+    /// Forces applied from outside the system (see [`Formulation::external_forces_mut`]).
+    external: Vec<Force>,
+    /// The system's implicit constraints, evaluated at the mapped positions for the monitors.
+    constraints: ConstraintEval,
 }
 
 impl Parametric {
     /// The parametric form of `system`; an error when the system has none.
-    pub fn new(system: Arc<System>) -> Result<Self, String> {
+    pub fn new(system: Arc<System>) -> Result<Self, FormulationError> {
         let map = system
             .parametric()
-            .ok_or("the scene defines no parametric form ([parametric])")?;
+            .ok_or(FormulationError::NoParametricForm)?;
         let n_q = map.n_q();
         Ok(Parametric {
             solver: Box::new(DenseCholesky::default()),
@@ -50,6 +58,8 @@ impl Parametric {
                 .collect(),
             matrix: vec![0.0; n_q * n_q],
             rhs: vec![0.0; n_q],
+            external: Vec::new(),
+            constraints: system.constraints().workspace(),
             system,
         })
     }
@@ -78,7 +88,13 @@ impl SecondOrderSystem for Parametric {
         let n_q = map.n_q();
         let ws = &mut self.map;
         map.evaluate(t, q, qdot, ws);
-        system.accumulate_forces(&ws.position, &ws.velocity, &mut self.force);
+        accumulate_all_forces(
+            system,
+            &self.external,
+            &ws.position,
+            &ws.velocity,
+            &mut self.force,
+        );
         let mass_of = &self.coordinate_mass;
         // Q - sum m J^T h: with per-coordinate mass m_k, rhs_j = sum_k J_kj (F_k - m_k h_k).
         for j in 0..n_q {
@@ -96,7 +112,11 @@ impl SecondOrderSystem for Parametric {
                 self.matrix[l * n_q + j] = mass;
             }
         }
+        let finite = self.rhs.iter().chain(&self.matrix).all(|v| v.is_finite());
         if let Err(singular) = self.solver.solve(n_q, &mut self.matrix, &mut self.rhs) {
+            if !finite {
+                return Err(non_finite_input(system, map, t, q, qdot, ws, &self.force));
+            }
             return Err(StepError::SingularMassMatrix {
                 t,
                 coordinate: map.coordinates()[singular.row].clone(),
@@ -134,4 +154,154 @@ impl Formulation for Parametric {
         x.copy_from_slice(&self.map.position);
         xdot.copy_from_slice(&self.map.velocity);
     }
+
+    fn external_forces_mut(&mut self) -> &mut Vec<Force> {
+        &mut self.external
+    }
+
+    fn external_forces(&self) -> &[Force] {
+        &self.external
+    }
+
+    /// P = sum_k v_k (m_k a_k - F_k) + F_nc . v with a = J qddot + h: the map's reaction force
+    /// m a - F (which works only when the map moves, since J^T (m a - F) = 0) plus the forces
+    /// without a potential, at the last evaluation.
+    fn power(&self, _q: &[f64], _qdot: &[f64], qddot: &[f64]) -> f64 {
+        let ws = &self.map;
+        let n_q = qddot.len();
+        let reaction: f64 = (0..ws.position.len())
+            .map(|k| {
+                let jq: f64 = (0..n_q).map(|j| ws.jacobian[k * n_q + j] * qddot[j]).sum();
+                let a = jq + ws.bias[k];
+                ws.velocity[k] * (self.coordinate_mass[k] * a - self.force[k])
+            })
+            .sum();
+        reaction + self.applied_power(&ws.position, &ws.velocity)
+    }
+
+    /// Here `x`, `v` are particle positions and velocities (the map's, from the last
+    /// evaluation, when called by [`Formulation::power`]).
+    fn applied_power(&self, x: &[f64], v: &[f64]) -> f64 {
+        let system = &*self.system;
+        if x.len() != system.n_coords() {
+            return 0.0;
+        }
+        system.nonconservative_power(x, v) + external_power(system, &self.external, x, v)
+    }
+
+    fn nonconservation(&self) -> Vec<Nonconservation> {
+        let mut out: Vec<Nonconservation> = self
+            .system
+            .nonconservative_forces()
+            .into_iter()
+            .map(Nonconservation::Force)
+            .collect();
+        if self.parametric_map().is_time_dependent() {
+            out.push(Nonconservation::MovingMap);
+        }
+        if !self.external.is_empty() {
+            out.push(Nonconservation::External);
+        }
+        out
+    }
+
+    fn new_observation(&self) -> Observation {
+        let n = self.system.n_coords();
+        let n_q = self.parametric_map().n_q();
+        Observation {
+            x: vec![0.0; n],
+            xdot: vec![0.0; n],
+            constraints: vec![0.0; self.system.constraints().n_rows()],
+            gradients: Gradients::with_rows((0..n_q).map(|_| n), false),
+        }
+    }
+
+    /// Gradient row j: the column dx/dq_j of the map.
+    fn observe(&mut self, t: f64, q: &[f64], qdot: &[f64], out: &mut Observation) {
+        let system = &*self.system;
+        let map = system.parametric().expect("checked in Parametric::new");
+        let n_q = map.n_q();
+        map.evaluate(t, q, qdot, &mut self.map);
+        let ws = &self.map;
+        out.x.copy_from_slice(&ws.position);
+        out.xdot.copy_from_slice(&ws.velocity);
+        let n = ws.position.len();
+        for j in 0..n_q {
+            for k in 0..n {
+                out.gradients.values[j * n + k] = ws.jacobian[k * n_q + j];
+            }
+        }
+        let set = system.constraints();
+        if set.n_rows() > 0 {
+            let values = set.residuals(t, &out.x, &mut self.constraints);
+            out.constraints.copy_from_slice(values);
+        }
+    }
+
+    fn gradient_subject(&self, row: usize) -> Subject {
+        Subject::Coordinate {
+            name: self.parametric_map().coordinates()[row].clone(),
+        }
+    }
+
+    fn gradient_position(&self, row: usize, q: &[f64]) -> Vec<(String, f64)> {
+        vec![(self.parametric_map().coordinates()[row].clone(), q[row])]
+    }
+
+    fn row_variables(&self, _row: usize, q: &[f64]) -> Vec<f64> {
+        q.to_vec()
+    }
+
+    fn locate_singular_point(&self, row: usize, t: f64, q: &[f64]) -> SingularSearch {
+        let (point, reduction) = self.parametric_map().locate_singular_point(row, t, q);
+        SingularSearch {
+            point,
+            reduction,
+            value: 0.0,
+        }
+    }
+}
+
+/// The first non-finite input of an evaluation, as the error to report instead of a singular
+/// mass matrix.
+fn non_finite_input(
+    system: &System,
+    map: &ParametricMap,
+    t: f64,
+    q: &[f64],
+    qdot: &[f64],
+    ws: &ParametricEval,
+    force: &[f64],
+) -> StepError {
+    let names = map.coordinates();
+    let quantity = if let Some(j) = q.iter().position(|c| !c.is_finite()) {
+        format!("the coordinate {} ({})", names[j], q[j])
+    } else if let Some(j) = qdot.iter().position(|c| !c.is_finite()) {
+        format!("the rate of {} ({})", names[j], qdot[j])
+    } else if let Some(k) = ws.position.iter().position(|c| !c.is_finite()) {
+        format!(
+            "the parametric position {} ({})",
+            system.coordinate_name(k),
+            ws.position[k]
+        )
+    } else if let Some(k) = ws.velocity.iter().position(|c| !c.is_finite()) {
+        format!(
+            "the parametric velocity {} ({})",
+            system.velocity_name(k),
+            ws.velocity[k]
+        )
+    } else if ws.jacobian.iter().any(|c| !c.is_finite()) {
+        "the derivative dx/dq of the parametric map".into()
+    } else if ws.bias.iter().any(|c| !c.is_finite()) {
+        "the parametric map's acceleration term h".into()
+    } else if let Some(k) = force.iter().position(|c| !c.is_finite()) {
+        format!(
+            "the applied force on {} ({})",
+            system.coordinate_name(k),
+            force[k]
+        )
+    } else {
+        "the mass matrix or the generalized force (overflow)".into()
+    };
+    StepError::NonFinite { t, quantity }
 }

@@ -11,6 +11,9 @@ use crate::expr::{parse, Expr, ExprError, Resolved};
 /// (2 n) when the system is compiled, because n is known only then.
 const TIME_PLACEHOLDER: usize = 1 << 40;
 const AXES: [&str; 3] = ["x", "y", "z"];
+/// The masses a particle may have: products of masses, inverse masses and squared speeds stay
+/// far from overflow and underflow (1/1e308 is subnormal, so W would lose all precision).
+pub(crate) const MASS_RANGE: (f64, f64) = (1e-100, 1e100);
 /// Names a parameter may not take.
 const RESERVED: [&str; 6] = ["t", "pi", "e", "x", "y", "z"];
 
@@ -29,14 +32,16 @@ pub enum ModelError {
     Duplicate { kind: &'static str, name: String },
     #[error("`{0}` is reserved and cannot name a parameter or coordinate")]
     Reserved(String),
-    #[error("particle `{name}`: mass must be positive and finite, got {mass}")]
+    #[error("particle `{name}`: mass must be between 1e-100 and 1e100, got {}", crate::readable(*mass))]
     BadMass { name: String, mass: f64 },
-    #[error("{what} must be finite, got {value}")]
+    #[error("{what} must be finite, got {}", crate::readable(*value))]
     NotFinite { what: String, value: f64 },
-    #[error("{what} must be positive, got {value}")]
+    #[error("{what} must be positive, got {}", crate::readable(*value))]
     NotPositive { what: String, value: f64 },
     #[error("unknown particle `{0}`")]
     UnknownParticle(String),
+    #[error("no external force #{0}: it was removed, or never added")]
+    UnknownForce(u64),
     #[error("a system needs at least one particle")]
     NoParticles,
     #[error("{0}")]
@@ -153,7 +158,7 @@ impl SystemBuilder {
                 name: name.into(),
             });
         }
-        if !(mass.is_finite() && mass > 0.0) {
+        if !(MASS_RANGE.0..=MASS_RANGE.1).contains(&mass) {
             return Err(ModelError::BadMass {
                 name: name.into(),
                 mass,
@@ -181,38 +186,7 @@ impl SystemBuilder {
 
     /// Add an applied force (checked for dimension and finiteness here).
     pub fn force(&mut self, force: Force) -> Result<&mut Self, ModelError> {
-        match &force {
-            Force::Constant { particle, vector } => {
-                self.check_particle(*particle)?;
-                self.vector("constant force vector", vector)?;
-            }
-            Force::Spring {
-                a,
-                b,
-                stiffness,
-                rest_length,
-            } => {
-                self.check_particle(*a)?;
-                self.endpoint("spring anchor", b)?;
-                finite("spring stiffness", *stiffness)?;
-                finite("spring rest_length", *rest_length)?;
-                if *rest_length < 0.0 {
-                    return Err(ModelError::NotPositive {
-                        what: "spring rest_length".into(),
-                        value: *rest_length,
-                    });
-                }
-            }
-            Force::Drag {
-                particle,
-                coefficient,
-            } => {
-                if let Some(p) = particle {
-                    self.check_particle(*p)?;
-                }
-                finite("drag coefficient", *coefficient)?;
-            }
-        }
+        check_force(self.dim(), self.particles.len(), &force)?;
         self.forces.push(force);
         Ok(self)
     }
@@ -576,6 +550,7 @@ impl SystemBuilder {
             .flat_map(|p| std::iter::repeat_n(1.0 / p.mass, dim))
             .collect();
         Ok(System {
+            params: self.params,
             dim,
             particles: self.particles,
             gravity: self.gravity,
@@ -587,18 +562,11 @@ impl SystemBuilder {
     }
 
     fn check_particle(&self, p: ParticleId) -> Result<(), ModelError> {
-        if p.0 < self.particles.len() {
-            Ok(())
-        } else {
-            Err(ModelError::UnknownParticle(format!("#{}", p.0)))
-        }
+        check_particle(self.particles.len(), p)
     }
 
     fn endpoint(&self, what: &str, e: &Endpoint) -> Result<(), ModelError> {
-        match e {
-            Endpoint::Particle(p) => self.check_particle(*p),
-            Endpoint::Fixed(point) => self.vector(what, point),
-        }
+        check_endpoint(self.dim(), self.particles.len(), what, e)
     }
 
     fn endpoint_name(&self, e: &Endpoint) -> String {
@@ -609,17 +577,7 @@ impl SystemBuilder {
     }
 
     fn vector(&self, what: &str, v: &[f64]) -> Result<(), ModelError> {
-        if v.len() != self.dim() {
-            return Err(ModelError::DimensionMismatch {
-                what: what.into(),
-                expected: self.dim(),
-                got: v.len(),
-            });
-        }
-        for c in v {
-            finite(what, *c)?;
-        }
-        Ok(())
+        check_vector(self.dim(), what, v)
     }
 
     fn particle_list(&self) -> String {
@@ -643,6 +601,77 @@ impl SystemBuilder {
     fn axis_list(&self) -> String {
         AXES[..self.dim().min(3)].join(", ")
     }
+}
+
+/// Check a force against a system of `n_particles` particles in `dim` dimensions.
+pub(crate) fn check_force(dim: usize, n_particles: usize, force: &Force) -> Result<(), ModelError> {
+    match force {
+        Force::Constant { particle, vector } => {
+            check_particle(n_particles, *particle)?;
+            check_vector(dim, "constant force vector", vector)
+        }
+        Force::Spring {
+            a,
+            b,
+            stiffness,
+            rest_length,
+        } => {
+            check_particle(n_particles, *a)?;
+            check_endpoint(dim, n_particles, "spring anchor", b)?;
+            finite("spring stiffness", *stiffness)?;
+            finite("spring rest_length", *rest_length)?;
+            if *rest_length < 0.0 {
+                return Err(ModelError::NotPositive {
+                    what: "spring rest_length".into(),
+                    value: *rest_length,
+                });
+            }
+            Ok(())
+        }
+        Force::Drag {
+            particle,
+            coefficient,
+        } => {
+            if let Some(p) = particle {
+                check_particle(n_particles, *p)?;
+            }
+            finite("drag coefficient", *coefficient)
+        }
+    }
+}
+
+fn check_particle(n_particles: usize, p: ParticleId) -> Result<(), ModelError> {
+    if p.0 < n_particles {
+        Ok(())
+    } else {
+        Err(ModelError::UnknownParticle(format!("#{}", p.0)))
+    }
+}
+
+fn check_endpoint(
+    dim: usize,
+    n_particles: usize,
+    what: &str,
+    e: &Endpoint,
+) -> Result<(), ModelError> {
+    match e {
+        Endpoint::Particle(p) => check_particle(n_particles, *p),
+        Endpoint::Fixed(point) => check_vector(dim, what, point),
+    }
+}
+
+fn check_vector(dim: usize, what: &str, v: &[f64]) -> Result<(), ModelError> {
+    if v.len() != dim {
+        return Err(ModelError::DimensionMismatch {
+            what: what.into(),
+            expected: dim,
+            got: v.len(),
+        });
+    }
+    for c in v {
+        finite(what, *c)?;
+    }
+    Ok(())
 }
 
 fn endpoint_expr(e: &Endpoint, dim: usize, axis: usize) -> Expr {

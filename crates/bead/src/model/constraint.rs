@@ -94,9 +94,13 @@ pub struct ConstraintSet {
     value_tape: Tape,
     /// Outputs: C | Cdot | bias (expression rows) | gradient entries in row order.
     full_tape: Tape,
+    /// Outputs: C (expression rows) | gradient entries in row order.
+    gradient_tape: Tape,
     /// Sparse row structure of J: row i owns entries row_start[i]..row_start[i+1] of `columns`.
     row_start: Vec<usize>,
     columns: Vec<usize>,
+    /// Whether row i depends on t (m).
+    time_dependent: Vec<bool>,
 }
 
 impl std::fmt::Debug for ConstraintSet {
@@ -135,6 +139,12 @@ impl ConstraintSet {
         custom_rows: Vec<CustomRow>,
     ) -> Self {
         let values: Vec<Expr> = expr_rows.iter().map(|r| r.value.clone()).collect();
+        let mut gradient_outputs = values.clone();
+        gradient_outputs.extend(
+            expr_rows
+                .iter()
+                .flat_map(|r| r.gradient.iter().map(|(_, d)| d.clone())),
+        );
         let mut outputs = values.clone();
         outputs.extend(expr_rows.iter().map(|r| r.velocity.clone()));
         outputs.extend(expr_rows.iter().map(|r| r.bias.clone()));
@@ -151,11 +161,19 @@ impl ConstraintSet {
             columns.extend(&row.coords);
             row_start.push(columns.len());
         }
+        let time = 2 * n_coords;
+        let time_dependent = expr_rows
+            .iter()
+            .map(|r| r.value.depends_on(time))
+            .chain(custom_rows.iter().map(|r| r.constraint.time_dependent()))
+            .collect();
         ConstraintSet {
+            time_dependent,
             n_coords,
             infos,
             value_tape: Tape::compile(&values),
             full_tape: Tape::compile(&outputs),
+            gradient_tape: Tape::compile(&gradient_outputs),
             expr_rows,
             custom_rows,
             row_start,
@@ -177,6 +195,10 @@ impl ConstraintSet {
             .iter()
             .find(|i| i.rows.contains(&row))
             .unwrap_or(&self.infos[0])
+    }
+    /// Whether `row` depends on t (a moving or driven constraint, which does work).
+    pub fn is_time_dependent(&self, row: usize) -> bool {
+        self.time_dependent[row]
     }
     /// Coordinates of the nonzero entries of J in `row`.
     pub fn row_columns(&self, row: usize) -> &[usize] {
@@ -214,7 +236,13 @@ impl ConstraintSet {
             bias: vec![0.0; m],
             jacobian: vec![0.0; self.columns.len()],
             vars: vec![0.0; 2 * self.n_coords + 1],
-            scratch: vec![0.0; self.full_tape.n_slots().max(self.value_tape.n_slots())],
+            scratch: vec![
+                0.0;
+                self.full_tape
+                    .n_slots()
+                    .max(self.value_tape.n_slots())
+                    .max(self.gradient_tape.n_slots())
+            ],
             tape_out: vec![0.0; self.full_tape.n_outputs()],
             local_x: vec![0.0; widest],
             local_v: vec![0.0; widest],
@@ -266,6 +294,41 @@ impl ConstraintSet {
         }
     }
 
+    /// C and J at (t, x) into `ws.value` and `ws.jacobian` (Cdot and bias untouched).
+    /// Allocation-free.
+    pub fn gradient(&self, t: f64, x: &[f64], ws: &mut ConstraintEval) {
+        let n_expr = self.expr_rows.len();
+        if n_expr > 0 {
+            self.load_vars(t, x, None, ws);
+            let nnz_expr = self.row_start[n_expr];
+            self.gradient_tape.eval(
+                &ws.vars,
+                &mut ws.scratch,
+                &mut ws.tape_out[..n_expr + nnz_expr],
+            );
+            let out = &ws.tape_out;
+            ws.value[..n_expr].copy_from_slice(&out[..n_expr]);
+            ws.jacobian[..nnz_expr].copy_from_slice(&out[n_expr..n_expr + nnz_expr]);
+        }
+        for (i, row) in self.custom_rows.iter().enumerate() {
+            let r = n_expr + i;
+            let len = row.coords.len();
+            for (j, &k) in row.coords.iter().enumerate() {
+                ws.local_x[j] = x[k];
+                ws.local_v[j] = 0.0;
+            }
+            let entries = self.row_entries(r);
+            let (c, _, _) = row.constraint.derivatives(
+                &ws.local_x[..len],
+                &ws.local_v[..len],
+                t,
+                &mut ws.duals,
+                &mut ws.jacobian[entries],
+            );
+            ws.value[r] = c;
+        }
+    }
+
     /// C(x, t) into `ws.value`, nothing else. Allocation-free.
     pub fn residuals<'w>(&self, t: f64, x: &[f64], ws: &'w mut ConstraintEval) -> &'w [f64] {
         let n_expr = self.expr_rows.len();
@@ -282,6 +345,67 @@ impl ConstraintSet {
             ws.value[n_expr + i] = row.constraint.value(&ws.local_x[..len], t);
         }
         &ws.value
+    }
+
+    /// Look near `x` for a point where row `row`'s gradient vanishes: Gauss-Newton over the
+    /// coordinates the row reads (the others fixed), with the exact Hessian (symbolic for
+    /// expression rows, dual numbers for Rust rows): those coordinates at the point found,
+    /// |J(found)| / |J(x)| (see [`crate::linalg::gauss_newton_zero`]) and C there. Allocates:
+    /// a diagnostic for the regularity monitor, not for the step loop.
+    pub fn locate_singular_point(
+        &self,
+        row: usize,
+        t: f64,
+        x: &[f64],
+    ) -> crate::formulation::SingularSearch {
+        let columns = self.row_columns(row).to_vec();
+        let k = columns.len();
+        let mut y: Vec<f64> = columns.iter().map(|&c| x[c]).collect();
+        let n = self.n_coords;
+        match self.expr_rows.get(row) {
+            Some(expr_row) => {
+                let gradient: Vec<&Expr> = expr_row.gradient.iter().map(|(_, e)| e).collect();
+                let hessian: Vec<Expr> = gradient
+                    .iter()
+                    .flat_map(|g| columns.iter().map(move |&c| g.derivative(c)))
+                    .collect();
+                let mut vars = vec![0.0; 2 * n + 1];
+                vars[..n].copy_from_slice(x);
+                vars[2 * n] = t;
+                let reduction = crate::linalg::gauss_newton_zero(&mut y, k, 40, |y, g, d| {
+                    for (&c, &value) in columns.iter().zip(y) {
+                        vars[c] = value;
+                    }
+                    for (slot, e) in g.iter_mut().zip(&gradient) {
+                        *slot = e.eval(&vars);
+                    }
+                    for (slot, e) in d.iter_mut().zip(&hessian) {
+                        *slot = e.eval(&vars);
+                    }
+                });
+                for (&c, &value) in columns.iter().zip(&y) {
+                    vars[c] = value;
+                }
+                let value = expr_row.value.eval(&vars);
+                crate::formulation::SingularSearch {
+                    point: y,
+                    reduction,
+                    value,
+                }
+            }
+            None => {
+                let custom = &self.custom_rows[row - self.expr_rows.len()];
+                let reduction = crate::linalg::gauss_newton_zero(&mut y, k, 40, |y, g, d| {
+                    custom.constraint.gradient_hessian(y, t, g, d);
+                });
+                let value = custom.constraint.value(&y, t);
+                crate::formulation::SingularSearch {
+                    point: y,
+                    reduction,
+                    value,
+                }
+            }
+        }
     }
 
     /// max_i |C_i(x, t)|, or 0 without constraints.

@@ -122,4 +122,75 @@ impl Force {
     pub fn is_conservative(&self) -> bool {
         !matches!(self, Force::Drag { .. })
     }
+
+    /// Whether the force depends on velocities (drag does).
+    pub fn is_velocity_dependent(&self) -> bool {
+        matches!(self, Force::Drag { .. })
+    }
+
+    /// Its power F . v at positions `x` and velocities `v` (n_coords each).
+    pub(crate) fn power(&self, dim: usize, x: &[f64], v: &[f64]) -> f64 {
+        match self {
+            Force::Constant { particle, vector } => {
+                (0..dim).map(|a| vector[a] * v[particle.0 * dim + a]).sum()
+            }
+            Force::Spring {
+                a,
+                b,
+                stiffness,
+                rest_length,
+            } => {
+                let mut d = [0.0; 3];
+                let mut dv = [0.0; 3];
+                for axis in 0..dim {
+                    d[axis] = x[a.0 * dim + axis] - b.coord(dim, x, axis);
+                    dv[axis] = v[a.0 * dim + axis]
+                        - match b {
+                            Endpoint::Particle(pb) => v[pb.0 * dim + axis],
+                            Endpoint::Fixed(_) => 0.0,
+                        };
+                }
+                let length = d.iter().map(|c| c * c).sum::<f64>().sqrt();
+                if length == 0.0 {
+                    return 0.0;
+                }
+                // F_a . v_a + F_b . v_b = F_a . (v_a - v_b).
+                let scale = -stiffness * (length - rest_length) / length;
+                (0..dim).map(|axis| scale * d[axis] * dv[axis]).sum()
+            }
+            Force::Drag {
+                particle,
+                coefficient,
+            } => match particle {
+                Some(p) => {
+                    -coefficient
+                        * (0..dim)
+                            .map(|axis| v[p.0 * dim + axis].powi(2))
+                            .sum::<f64>()
+                }
+                None => -coefficient * v.iter().map(|v| v * v).sum::<f64>(),
+            },
+        }
+    }
+
+    /// A short description for messages, e.g. `drag on bead`.
+    pub(crate) fn describe(&self, particles: &[super::Particle]) -> String {
+        let name = |p: &super::ParticleId| {
+            particles
+                .get(p.0)
+                .map(|p| format!("`{}`", p.name))
+                .unwrap_or_else(|| format!("particle #{}", p.0))
+        };
+        match self {
+            Force::Constant { particle, .. } => format!("constant force on {}", name(particle)),
+            Force::Spring { a, b, .. } => match b {
+                Endpoint::Particle(b) => format!("spring between {} and {}", name(a), name(b)),
+                Endpoint::Fixed(_) => format!("spring from {} to a fixed point", name(a)),
+            },
+            Force::Drag {
+                particle: Some(p), ..
+            } => format!("drag on {}", name(p)),
+            Force::Drag { particle: None, .. } => "drag on every particle".into(),
+        }
+    }
 }

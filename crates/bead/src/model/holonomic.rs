@@ -3,7 +3,7 @@
 
 use std::sync::Arc;
 
-use num_dual::{Dual2_64, Dual64};
+use num_dual::{Dual2_64, Dual64, HyperDual64};
 
 use super::ParticleId;
 use crate::Scalar;
@@ -22,6 +22,7 @@ use crate::Scalar;
 /// impl Holonomic for Parabola {
 ///     fn particles(&self) -> Vec<ParticleId> { vec![self.0] }
 ///     fn value<T: Scalar>(&self, x: &[T], _t: T) -> T { x[0] * x[0] + x[1] * 100.0 }
+///     fn time_dependent(&self) -> bool { false }
 /// }
 ///
 /// let mut b = SystemBuilder::new(&[0.0, 500.0]);
@@ -35,12 +36,23 @@ pub trait Holonomic: Send + Sync + 'static {
     fn particles(&self) -> Vec<ParticleId>;
     /// C(x, t).
     fn value<T: Scalar>(&self, x: &[T], t: T) -> T;
+    /// Whether C depends on t (a moving or driven constraint). Such a constraint does work on
+    /// the particles, which the energy ledger counts. The default, `true`, is the safe answer:
+    /// a constraint that does not in fact depend on t then does no work, and the ledger shows
+    /// it. Return `false` for a fixed constraint so that its energy is reported as conserved.
+    fn time_dependent(&self) -> bool {
+        true
+    }
 }
 
 /// Object-safe face of a [`Holonomic`]: value, gradient and the acceleration bias by
 /// dual numbers.
 pub(crate) trait ErasedHolonomic: Send + Sync {
     fn value(&self, x: &[f64], t: f64) -> f64;
+    fn time_dependent(&self) -> bool;
+    /// The gradient (k) and Hessian (k x k, row-major) of C at (x, t), by hyper-dual numbers
+    /// (one pass per pair of coordinates). Allocates; for diagnostics only.
+    fn gradient_hessian(&self, x: &[f64], t: f64, gradient: &mut [f64], hessian: &mut [f64]);
     /// Fills `gradient` (local coordinates) with dC/dx and returns (C, Cdot, bias) where
     /// Cdot = J v + C_t and bias = v^T H v + 2 C_xt v + C_tt, the second derivative of
     /// s -> C(x + s v, t + s) at s = 0: one Dual2 pass along (v, 1), plus one Dual64 pass per
@@ -76,6 +88,30 @@ pub(crate) struct Erased<H>(pub(crate) H);
 impl<H: Holonomic> ErasedHolonomic for Erased<H> {
     fn value(&self, x: &[f64], t: f64) -> f64 {
         self.0.value(x, t)
+    }
+
+    fn time_dependent(&self) -> bool {
+        self.0.time_dependent()
+    }
+
+    fn gradient_hessian(&self, x: &[f64], t: f64, gradient: &mut [f64], hessian: &mut [f64]) {
+        let n = x.len();
+        let mut point = vec![HyperDual64::from(0.0); n];
+        for i in 0..n {
+            for j in i..n {
+                for (k, p) in point.iter_mut().enumerate() {
+                    let e1 = if k == i { 1.0 } else { 0.0 };
+                    let e2 = if k == j { 1.0 } else { 0.0 };
+                    *p = HyperDual64::new(x[k], e1, e2, 0.0);
+                }
+                let c = self.0.value(&point, HyperDual64::from(t));
+                hessian[i * n + j] = c.eps1eps2;
+                hessian[j * n + i] = c.eps1eps2;
+                if j == i {
+                    gradient[i] = c.eps1;
+                }
+            }
+        }
     }
 
     fn derivatives(

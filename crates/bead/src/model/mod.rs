@@ -47,6 +47,8 @@ pub struct System {
     pub(crate) parametric: Option<ParametricMap>,
     /// Inverse masses per coordinate (n_coords): W = M^-1 as a diagonal.
     pub(crate) inverse_mass: Vec<f64>,
+    /// The parameters the expressions were parsed with, in declaration order.
+    pub(crate) params: Vec<(String, f64)>,
 }
 
 impl System {
@@ -77,6 +79,14 @@ impl System {
     /// The parametric form, when the system has one.
     pub fn parametric(&self) -> Option<&ParametricMap> {
         self.parametric.as_ref()
+    }
+    /// The named parameters the system was built with, in declaration order.
+    pub fn params(&self) -> &[(String, f64)] {
+        &self.params
+    }
+    /// The inverse mass of every coordinate (n_coords): the diagonal of W = M^-1.
+    pub fn inverse_mass(&self) -> &[f64] {
+        &self.inverse_mass
     }
     /// Look a particle up by name.
     pub fn particle_id(&self, name: &str) -> Option<ParticleId> {
@@ -151,6 +161,46 @@ impl System {
     /// Total mechanical energy E = T + V.
     pub fn energy(&self, x: &[f64], v: &[f64]) -> f64 {
         self.kinetic_energy(v) + self.potential_energy(x)
+    }
+
+    /// The power sum F . v of the forces without a potential (drag), at positions `x` and
+    /// velocities `v`: the rate at which they change the energy T + V.
+    pub fn nonconservative_power(&self, x: &[f64], v: &[f64]) -> f64 {
+        self.forces
+            .iter()
+            .filter(|f| !f.is_conservative())
+            .map(|f| f.power(self.dim, x, v))
+            .sum()
+    }
+
+    /// Whether any applied force depends on the velocities (drag).
+    pub fn has_velocity_dependent_forces(&self) -> bool {
+        self.forces.iter().any(Force::is_velocity_dependent)
+    }
+
+    /// Names of the forces that do work without a potential, e.g. `drag on \`bead\``.
+    pub fn nonconservative_forces(&self) -> Vec<String> {
+        self.forces
+            .iter()
+            .filter(|f| !f.is_conservative())
+            .map(|f| f.describe(&self.particles))
+            .collect()
+    }
+
+    /// Check a force against this system (particles exist, vectors have its dimension, numbers
+    /// are finite), as [`SystemBuilder::force`] does.
+    pub fn check_force(&self, force: &Force) -> Result<(), ModelError> {
+        builder::check_force(self.dim, self.particles.len(), force)
+    }
+
+    /// Name of velocity component k, e.g. `bead.vy` (as in the CSV trace's header).
+    pub fn velocity_name(&self, k: usize) -> String {
+        const AXES: [&str; 3] = ["vx", "vy", "vz"];
+        format!(
+            "{}.{}",
+            self.particles[k / self.dim].name,
+            AXES[k % self.dim]
+        )
     }
 
     /// Name of coordinate k, e.g. `bead.y`.

@@ -111,6 +111,39 @@ impl ParametricMap {
             &self.jacobian[k * n_q..(k + 1) * n_q],
         )
     }
+    /// Whether the map x(q, t) depends on t (a moving map, which does work on the particles).
+    pub fn is_time_dependent(&self) -> bool {
+        let time = 2 * self.n_q();
+        self.positions.iter().any(|x| x.depends_on(time))
+    }
+    /// Look near `q` for a point where the column dx/dq_j vanishes (a cusp of the
+    /// parametrization): Gauss-Newton over q with the map's exact second derivatives. Returns
+    /// q at the point found and |dx/dq_j(found)| / |dx/dq_j(q)| (see
+    /// [`crate::linalg::gauss_newton_zero`]). Allocates: a diagnostic, not for the step loop.
+    pub fn locate_singular_point(&self, j: usize, t: f64, q: &[f64]) -> (Vec<f64>, f64) {
+        let n_q = self.n_q();
+        let column: Vec<&Expr> = (0..self.positions.len())
+            .map(|k| &self.jacobian[k * n_q + j])
+            .collect();
+        let derivatives: Vec<Expr> = column
+            .iter()
+            .flat_map(|e| (0..n_q).map(move |l| e.derivative(l)))
+            .collect();
+        let mut vars = vec![0.0; 2 * n_q + 1];
+        vars[2 * n_q] = t;
+        let mut y = q.to_vec();
+        let reduction = crate::linalg::gauss_newton_zero(&mut y, column.len(), 40, |y, g, d| {
+            vars[..n_q].copy_from_slice(y);
+            for (slot, e) in g.iter_mut().zip(&column) {
+                *slot = e.eval(&vars);
+            }
+            for (slot, e) in d.iter_mut().zip(&derivatives) {
+                *slot = e.eval(&vars);
+            }
+        });
+        (y, reduction)
+    }
+
     /// Size of the compiled code.
     pub fn n_instructions(&self) -> usize {
         self.tape.n_instructions()

@@ -3,9 +3,10 @@
 use std::fmt::Write as _;
 use std::io::{self, BufWriter, Write};
 
+#[cfg(doc)]
 use crate::formulation::Formulation;
 use crate::model::System;
-use crate::simulate::{Sample, Sink};
+use crate::simulate::{Sample, Simulation, Sink};
 
 const AXES: [&str; 3] = ["x", "y", "z"];
 
@@ -13,11 +14,13 @@ const AXES: [&str; 3] = ["x", "y", "z"];
 ///
 /// ```text
 /// t, then per particle NAME.x NAME.y [NAME.z] NAME.vx NAME.vy [NAME.vz],
-/// energy, constraint_error, then per generalized coordinate q.NAME qdot.NAME
+/// energy, constraint_error, [work], then per generalized coordinate q.NAME qdot.NAME
 /// ```
 ///
 /// `coordinates` are the generalized coordinates of a parametric run
-/// ([`Formulation::coordinate_names`]); pass an empty slice for the implicit form.
+/// ([`Formulation::coordinate_names`]); pass an empty slice for the implicit form. `work`
+/// adds the column of the energy ledger's W (runs of systems whose T + V is not conserved:
+/// E - W is the conserved quantity there).
 ///
 /// ```
 /// use bead::model::SystemBuilder;
@@ -26,11 +29,11 @@ const AXES: [&str; 3] = ["x", "y", "z"];
 /// b.particle("bead", 1.0, &[1.0, 0.0], &[0.0, 0.0]).unwrap();
 /// let system = b.build().unwrap();
 /// assert_eq!(
-///     trace_header(&system, &[]).join(","),
+///     trace_header(&system, &[], false).join(","),
 ///     "t,bead.x,bead.y,bead.vx,bead.vy,energy,constraint_error"
 /// );
 /// ```
-pub fn trace_header(system: &System, coordinates: &[String]) -> Vec<String> {
+pub fn trace_header(system: &System, coordinates: &[String], work: bool) -> Vec<String> {
     let dim = system.dim();
     let mut columns = vec!["t".to_string()];
     for particle in system.particles() {
@@ -43,6 +46,9 @@ pub fn trace_header(system: &System, coordinates: &[String]) -> Vec<String> {
     }
     columns.push("energy".into());
     columns.push("constraint_error".into());
+    if work {
+        columns.push("work".into());
+    }
     for name in coordinates {
         columns.push(format!("q.{name}"));
         columns.push(format!("qdot.{name}"));
@@ -76,16 +82,19 @@ pub struct CsvTrace<W: Write> {
     n_q: usize,
     /// Spatial dimension.
     dim: usize,
+    /// Whether rows carry the work W.
+    work: bool,
     /// The row being formatted, reused so that recording allocates nothing once warm.
     line: String,
 }
 
 impl<W: Write> CsvTrace<W> {
     /// A trace of `system` into `writer`; writes (and flushes) the header row at once.
-    /// `coordinates` are the parametric coordinates' names, empty for the implicit form.
-    pub fn new(writer: W, system: &System, coordinates: &[String]) -> io::Result<Self> {
+    /// `coordinates` are the parametric coordinates' names, empty for the implicit form;
+    /// `work` adds the energy ledger's column (see [`trace_header`]).
+    pub fn new(writer: W, system: &System, coordinates: &[String], work: bool) -> io::Result<Self> {
         let mut out = BufWriter::new(writer);
-        let header = trace_header(system, coordinates).join(",");
+        let header = trace_header(system, coordinates, work).join(",");
         out.write_all(header.as_bytes())?;
         out.write_all(b"\n")?;
         out.flush()?;
@@ -94,14 +103,21 @@ impl<W: Write> CsvTrace<W> {
             n_coords: system.n_coords(),
             n_q: coordinates.len(),
             dim: system.dim(),
+            work,
             line: String::with_capacity(header.len() * 2),
         })
     }
 
-    /// A trace of the run of `formulation`: its system, and its generalized coordinates when
-    /// it is parametric.
-    pub fn for_formulation(writer: W, formulation: &dyn Formulation) -> io::Result<Self> {
-        Self::new(writer, formulation.system(), formulation.coordinate_names())
+    /// A trace of `simulation`: its system, its generalized coordinates when it is
+    /// parametric, and the work W when its energy ledger runs.
+    pub fn for_simulation(writer: W, simulation: &Simulation) -> io::Result<Self> {
+        let formulation = simulation.formulation();
+        Self::new(
+            writer,
+            formulation.system(),
+            formulation.coordinate_names(),
+            simulation.tracks_work(),
+        )
     }
 
     /// Flush and hand back the writer.
@@ -116,6 +132,7 @@ impl<W: Write> Sink for CsvTrace<W> {
             || sample.xdot.len() != self.n_coords
             || sample.q.len() < self.n_q
             || sample.qdot.len() < self.n_q
+            || sample.work.is_some() != self.work
         {
             return Err(io::Error::new(
                 io::ErrorKind::InvalidInput,
@@ -137,6 +154,9 @@ impl<W: Write> Sink for CsvTrace<W> {
             }
         }
         let _ = write!(line, ",{},{}", sample.energy, sample.constraint_error);
+        if let Some(work) = sample.work {
+            let _ = write!(line, ",{work}");
+        }
         for (q, qdot) in sample.q[..self.n_q].iter().zip(&sample.qdot[..self.n_q]) {
             let _ = write!(line, ",{q},{qdot}");
         }
@@ -173,7 +193,7 @@ mod tests {
     fn header_2d_lists_positions_then_velocities_per_particle() {
         let s = system(&[0.0, -9.81], &["a", "b"]);
         assert_eq!(
-            trace_header(&s, &[]).join(","),
+            trace_header(&s, &[], false).join(","),
             "t,a.x,a.y,a.vx,a.vy,b.x,b.y,b.vx,b.vy,energy,constraint_error"
         );
     }
@@ -182,7 +202,7 @@ mod tests {
     fn header_3d_has_z_columns() {
         let s = system(&[0.0, 0.0, -9.81], &["p"]);
         assert_eq!(
-            trace_header(&s, &[]).join(","),
+            trace_header(&s, &[], false).join(","),
             "t,p.x,p.y,p.z,p.vx,p.vy,p.vz,energy,constraint_error"
         );
     }
@@ -192,7 +212,7 @@ mod tests {
         let s = system(&[0.0, -9.81], &["bead"]);
         let coordinates = vec!["u".to_string(), "w".to_string()];
         assert_eq!(
-            trace_header(&s, &coordinates).join(","),
+            trace_header(&s, &coordinates, false).join(","),
             "t,bead.x,bead.y,bead.vx,bead.vy,energy,constraint_error,q.u,qdot.u,q.w,qdot.w"
         );
     }
@@ -201,7 +221,7 @@ mod tests {
     fn rows_are_exact_and_match_the_header() {
         let s = system(&[0.0, -9.81], &["bead"]);
         let coordinates = vec!["q".to_string()];
-        let mut trace = CsvTrace::new(Vec::new(), &s, &coordinates).unwrap();
+        let mut trace = CsvTrace::new(Vec::new(), &s, &coordinates, false).unwrap();
         let sample = Sample {
             step: 3,
             t: 0.1,
@@ -211,6 +231,9 @@ mod tests {
             constraint_error: 0.0,
             q: &[1.0 / 3.0],
             qdot: &[-0.0],
+            work: None,
+            energy_initial: 0.0,
+            energy_scale: 1.0,
         };
         trace.record(&sample).unwrap();
         trace.finish().unwrap();
@@ -229,7 +252,7 @@ mod tests {
     #[test]
     fn implicit_rows_skip_the_formulation_coordinates() {
         let s = system(&[0.0, -9.81], &["bead"]);
-        let mut trace = CsvTrace::new(Vec::new(), &s, &[]).unwrap();
+        let mut trace = CsvTrace::new(Vec::new(), &s, &[], false).unwrap();
         let sample = Sample {
             step: 0,
             t: 0.0,
@@ -239,15 +262,45 @@ mod tests {
             constraint_error: 6.0,
             q: &[1.0, 2.0],
             qdot: &[3.0, 4.0],
+            work: None,
+            energy_initial: 0.0,
+            energy_scale: 1.0,
         };
         trace.record(&sample).unwrap();
         assert_eq!(written(trace).lines().nth(1), Some("0,1,2,3,4,5,6"));
     }
 
     #[test]
+    fn the_work_column_follows_the_constraint_error() {
+        let s = system(&[0.0, -9.81], &["bead"]);
+        let mut trace = CsvTrace::new(Vec::new(), &s, &[], true).unwrap();
+        let sample = Sample {
+            step: 0,
+            t: 0.0,
+            x: &[1.0, 2.0],
+            xdot: &[3.0, 4.0],
+            energy: 5.0,
+            constraint_error: 6.0,
+            q: &[1.0, 2.0],
+            qdot: &[3.0, 4.0],
+            work: Some(-7.5),
+            energy_initial: 0.0,
+            energy_scale: 1.0,
+        };
+        trace.record(&sample).unwrap();
+        let text = written(trace);
+        let mut lines = text.lines();
+        assert_eq!(
+            lines.next(),
+            Some("t,bead.x,bead.y,bead.vx,bead.vy,energy,constraint_error,work")
+        );
+        assert_eq!(lines.next(), Some("0,1,2,3,4,5,6,-7.5"));
+    }
+
+    #[test]
     fn a_sample_of_another_system_is_an_error_not_a_panic() {
         let s = system(&[0.0, -9.81], &["bead"]);
-        let mut trace = CsvTrace::new(Vec::new(), &s, &[]).unwrap();
+        let mut trace = CsvTrace::new(Vec::new(), &s, &[], false).unwrap();
         let sample = Sample {
             step: 0,
             t: 0.0,
@@ -257,6 +310,9 @@ mod tests {
             constraint_error: 6.0,
             q: &[],
             qdot: &[],
+            work: None,
+            energy_initial: 0.0,
+            energy_scale: 1.0,
         };
         assert!(trace.record(&sample).is_err());
     }

@@ -18,12 +18,17 @@ use crate::simulate::{RunFailure, RunStats};
 /// | `method` | `"implicit"` or `"parametric"` |
 /// | `integrator` | e.g. `"rk4"` |
 /// | `dt` | step size (s) |
-/// | `steps` | steps completed (adaptive runs: output intervals of `dt` completed) |
+/// | `steps` | integrator steps taken (adaptive runs: accepted steps) |
 /// | `accepted_steps`, `rejected_steps` | adaptive runs (dopri5) only: the integrator's own steps |
 /// | `t_final` | time of the last good state (s) |
 /// | `wall_seconds`, `steps_per_second` | wall time and speed |
 /// | `energy_initial`, `energy_final` | total mechanical energy T + V |
-/// | `energy_rel_error_max` | max relative energy error (see [`RunStats`]) |
+/// | `energy_rel_error_max` | max over the run of \|E - E0\| / `energy_scale` |
+/// | `energy_scale` | E_scale = max(\|E0\|, T0 + \|V0\|, T0 + M \|g\| L) (see [`RunStats`]) |
+/// | `energy_conserved` | whether T + V is conserved (nothing does work on the system) |
+/// | `energy_not_conserved_by` | when it is not: what does work, e.g. `["drag on \`bead\`"]` |
+/// | `work_final` | when the energy ledger ran: the work W done on T + V by the end |
+/// | `energy_balance_error_max` | when the ledger ran: max of \|E - W - E0\| / `energy_scale`, the error of the conserved quantity |
 /// | `constraint_error_max`, `constraint_error_final` | max_i \|C_i\| over the run and at the end |
 /// | `projected` | only when `--project` was on: `true` |
 /// | `newton_iterations_max` | rattle or `--project` only: most Newton iterations of any step |
@@ -73,6 +78,26 @@ pub struct Summary {
     #[serde(serialize_with = "number")]
     /// Max relative energy error over the run (see [`RunStats::energy_rel_error_max`]).
     pub energy_rel_error_max: f64,
+    /// The denominator of the relative energy errors (see [`RunStats::energy_scale`]).
+    #[serde(serialize_with = "number")]
+    pub energy_scale: f64,
+    /// Whether T + V is conserved.
+    pub energy_conserved: bool,
+    /// What does work on the system, when T + V is not conserved.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub energy_not_conserved_by: Vec<String>,
+    /// The work W done on T + V by the end, when the energy ledger ran.
+    #[serde(
+        skip_serializing_if = "Option::is_none",
+        serialize_with = "optional_number"
+    )]
+    pub work_final: Option<f64>,
+    /// Max of |E - W - E0| / E_scale, when the energy ledger ran.
+    #[serde(
+        skip_serializing_if = "Option::is_none",
+        serialize_with = "optional_number"
+    )]
+    pub energy_balance_error_max: Option<f64>,
     #[serde(serialize_with = "number")]
     /// max_i |C_i| over the run.
     pub constraint_error_max: f64,
@@ -161,6 +186,15 @@ impl Summary {
             energy_initial: stats.energy_initial,
             energy_final: stats.energy_final,
             energy_rel_error_max: stats.energy_rel_error_max,
+            energy_scale: stats.energy_scale,
+            energy_conserved: stats.energy_conserved,
+            energy_not_conserved_by: stats
+                .nonconservation
+                .iter()
+                .map(|n| n.to_string())
+                .collect(),
+            work_final: stats.work_final,
+            energy_balance_error_max: stats.energy_balance_error_max,
             constraint_error_max: stats.constraint_error_max,
             constraint_error_final: stats.constraint_error_final,
             projected: stats.projected,
@@ -247,6 +281,10 @@ fn number<S: Serializer>(x: &f64, serializer: S) -> Result<S::Ok, S::Error> {
     Number(*x).serialize(serializer)
 }
 
+fn optional_number<S: Serializer>(x: &Option<f64>, serializer: S) -> Result<S::Ok, S::Error> {
+    Number(x.unwrap_or(f64::NAN)).serialize(serializer)
+}
+
 fn numbers<S: Serializer>(x: &[f64], serializer: S) -> Result<S::Ok, S::Error> {
     Numbers(x).serialize(serializer)
 }
@@ -261,7 +299,7 @@ mod tests {
     use crate::model::SystemBuilder;
     use crate::simulate::RunError;
 
-    const KEYS: [&str; 14] = [
+    const KEYS: [&str; 16] = [
         "scene",
         "method",
         "integrator",
@@ -273,6 +311,8 @@ mod tests {
         "energy_initial",
         "energy_final",
         "energy_rel_error_max",
+        "energy_scale",
+        "energy_conserved",
         "constraint_error_max",
         "constraint_error_final",
         "particles",
@@ -296,6 +336,11 @@ mod tests {
             energy_initial: -1.0,
             energy_final: -1.5,
             energy_rel_error_max: 0.5,
+            energy_scale: 2.0,
+            energy_conserved: true,
+            nonconservation: Vec::new(),
+            work_final: None,
+            energy_balance_error_max: None,
             constraint_error_max: 1e-3,
             constraint_error_final: 1e-4,
             x: vec![1.0, 2.0, 3.0, 4.0],
@@ -367,6 +412,45 @@ mod tests {
     }
 
     #[test]
+    fn a_driven_run_says_energy_is_not_conserved_and_gives_the_balance_error() {
+        let mut s = stats(Method::Implicit);
+        s.energy_conserved = false;
+        s.nonconservation = vec![crate::formulation::Nonconservation::DrivenConstraint(
+            "hoop".into(),
+        )];
+        s.work_final = Some(2.5);
+        s.energy_balance_error_max = Some(1e-9);
+        let json = Summary::new("s.toml", &system(), &[], &s)
+            .to_json_pretty()
+            .unwrap();
+        let mut expected: Vec<String> = KEYS.iter().map(|k| k.to_string()).collect();
+        let at = expected
+            .iter()
+            .position(|k| k == "energy_conserved")
+            .unwrap()
+            + 1;
+        for (i, key) in [
+            "energy_not_conserved_by",
+            "work_final",
+            "energy_balance_error_max",
+        ]
+        .iter()
+        .enumerate()
+        {
+            expected.insert(at + i, key.to_string());
+        }
+        expected.push("completed".into());
+        assert_eq!(keys(&json), expected);
+        let value: serde_json::Value = serde_json::from_str(&json).unwrap();
+        assert_eq!(value["energy_conserved"], false);
+        assert_eq!(
+            value["energy_not_conserved_by"],
+            serde_json::json!(["driven constraint: hoop depends on t"])
+        );
+        assert_eq!(value["energy_balance_error_max"], 1e-9);
+    }
+
+    #[test]
     fn particles_keep_their_order() {
         let json = Summary::new("s.toml", &system(), &[], &stats(Method::Implicit))
             .to_json_pretty()
@@ -401,8 +485,9 @@ mod tests {
             error: RunError::Diverged {
                 t: 1.5,
                 step: 3,
-                quantity: "b.y".into(),
+                quantity: crate::simulate::Quantity::Position("b.y".into()),
                 value: f64::NAN,
+                limit: None,
             },
             stats: Box::new(s),
         };

@@ -132,13 +132,15 @@ impl Loader<'_> {
                     format!("the scene's parameters are {}", known.join(", "))
                 };
                 return Err(self.src.error_unplaced(format!(
-                    "--set {name}={value}: unknown parameter `{name}`; {list}"
+                    "--set {name}={}: unknown parameter `{name}`; {list}",
+                    crate::readable(*value)
                 )));
             }
             if !value.is_finite() {
-                return Err(self
-                    .src
-                    .error_unplaced(format!("--set {name}={value}: the value must be finite")));
+                return Err(self.src.error_unplaced(format!(
+                    "--set {name}={}: the value must be finite",
+                    crate::readable(*value)
+                )));
             }
         }
         for (i, (key, value)) in entries.iter().enumerate() {
@@ -222,7 +224,7 @@ impl Loader<'_> {
         if !v.is_finite() {
             return Err(self.src.error(
                 value.span(),
-                format!("{ctx}: {what} must be finite, got {v}"),
+                format!("{ctx}: {what} must be finite, got {}", crate::readable(v)),
             ));
         }
         Ok(v)
@@ -234,7 +236,7 @@ impl Loader<'_> {
         if v <= 0.0 {
             return Err(self.src.error(
                 value.span(),
-                format!("{ctx}: {what} must be positive, got {v}"),
+                format!("{ctx}: {what} must be positive, got {}", crate::readable(v)),
             ));
         }
         Ok(v)
@@ -246,7 +248,10 @@ impl Loader<'_> {
         if v < 0.0 {
             return Err(self.src.error(
                 value.span(),
-                format!("{ctx}: {what} must not be negative, got {v}"),
+                format!(
+                    "{ctx}: {what} must not be negative, got {}",
+                    crate::readable(v)
+                ),
             ));
         }
         Ok(v)
@@ -319,7 +324,10 @@ impl Loader<'_> {
             if !(v >= 1.0 && v.fract() == 0.0 && v <= 9_007_199_254_740_992.0) {
                 return Err(self.src.error(
                     s.span(),
-                    format!("{ctx}: `steps` must be a positive integer, got {v}"),
+                    format!(
+                        "{ctx}: `steps` must be a positive integer, got {}",
+                        crate::readable(v)
+                    ),
                 ));
             }
             out.steps = Some(v as u64);
@@ -856,7 +864,10 @@ impl Builder<'_, '_> {
                         if !v.is_finite() {
                             return Err(self.src().error(
                                 c.span(),
-                                format!("{pctx}: components must be finite, got {v}"),
+                                format!(
+                                    "{pctx}: components must be finite, got {}",
+                                    crate::readable(*v)
+                                ),
                             ));
                         }
                         Expr::constant(*v)

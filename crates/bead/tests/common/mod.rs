@@ -63,3 +63,76 @@ pub fn pendulum_reference(t_end: f64, n: u64) -> [f64; 2] {
     let positions = pendulum_reference_positions(t_end / n as f64, n, n);
     positions[positions.len() - 1]
 }
+
+/// What the tests run: the formulation's integrator settings plus the run's length, as one
+/// record (the library splits them into `SimulationConfig` and `RunOptions`).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Options {
+    pub integrator: bead::integrate::IntegratorKind,
+    pub dt: f64,
+    pub steps: u64,
+    pub every: u64,
+    pub settings: bead::integrate::IntegratorSettings,
+    pub project: bool,
+}
+
+impl Default for Options {
+    /// rk4, dt = 1/60 s, 600 steps, every step recorded, default settings, no projection.
+    fn default() -> Self {
+        Options {
+            integrator: bead::integrate::IntegratorKind::Rk4,
+            dt: 1.0 / 60.0,
+            steps: 600,
+            every: 1,
+            settings: bead::integrate::IntegratorSettings::default(),
+            project: false,
+        }
+    }
+}
+
+impl Options {
+    /// The simulation configuration: the tests set tolerances themselves, unscaled.
+    pub fn config(&self) -> bead::simulate::SimulationConfig {
+        bead::simulate::SimulationConfig {
+            integrator: self.integrator,
+            dt: self.dt,
+            project: self.project,
+            settings: self.settings,
+            scaled_constraint_tolerance: false,
+            ..Default::default()
+        }
+    }
+}
+
+/// A simulation of `formulation` as `options` say; panics when it cannot start.
+pub fn simulation(
+    formulation: Box<dyn bead::formulation::Formulation + Send>,
+    options: &Options,
+) -> bead::simulate::Simulation {
+    bead::simulate::Simulation::with_formulation(formulation, options.config())
+        .unwrap_or_else(|e| panic!("{e}"))
+}
+
+/// Run `formulation` from its initial state as `options` say.
+pub fn run(
+    formulation: Box<dyn bead::formulation::Formulation + Send>,
+    options: &Options,
+    sink: &mut dyn bead::simulate::Sink,
+) -> Result<bead::simulate::RunStats, bead::simulate::RunFailure> {
+    run_with_progress(formulation, options, sink, &mut bead::simulate::NoProgress)
+}
+
+/// [`run`] with a progress observer.
+pub fn run_with_progress(
+    formulation: Box<dyn bead::formulation::Formulation + Send>,
+    options: &Options,
+    sink: &mut dyn bead::simulate::Sink,
+    progress: &mut dyn bead::simulate::Progress,
+) -> Result<bead::simulate::RunStats, bead::simulate::RunFailure> {
+    let mut simulation = simulation(formulation, options);
+    let run = bead::simulate::RunOptions {
+        steps: options.steps,
+        every: options.every,
+    };
+    bead::simulate::run_with_progress(&mut simulation, run, sink, progress)
+}

@@ -1,0 +1,150 @@
+//! The energy ledger's quadrature: the work W done on T + V, integrated by the integrator
+//! itself as one extra coordinate, so that it converges at the integrator's own order.
+//!
+//! [`WithWork`] presents a formulation with n coordinates as a system with n + 1: the extra
+//! coordinate's "velocity" is W and its "acceleration" is the power P = dW/dt
+//! ([`Formulation::power`]); its "position" (the time integral of W) is never read. Every
+//! integrator advances W with the same stages and weights as the velocities (RK4 by Simpson's
+//! weights, Gauss-Legendre by Gauss quadrature, Verlet by the trapezoidal rule, dopri5 under
+//! its error control), without knowing what the coordinate is. For integrators that work on
+//! the constraints (RATTLE, the projection) the extra coordinate has zero inverse mass and
+//! no constraint reads it, so constraint impulses never touch it; the applied forces' power
+//! drives it through [`ConstrainedSystem::unconstrained_acceleration`].
+
+use crate::formulation::{ConstrainedSystem, Formulation, SecondOrderSystem, StepError};
+
+/// Scratch space of [`WithWork`], sized once.
+pub(super) struct LedgerScratch {
+    /// W = M^-1 with a trailing 0 for the work coordinate (n + 1)
+    inverse_mass: Vec<f64>,
+    /// The formulation's dense J (m x n), before it is widened to m x (n + 1)
+    jacobian: Vec<f64>,
+}
+
+impl LedgerScratch {
+    pub(super) fn new(formulation: &mut (dyn Formulation + Send)) -> Self {
+        let n = formulation.n_coords();
+        let (mut inverse_mass, m) = match formulation.as_constrained() {
+            Some(cs) => (cs.inverse_mass().to_vec(), cs.n_constraints()),
+            None => (vec![0.0; n], 0),
+        };
+        inverse_mass.push(0.0);
+        LedgerScratch {
+            inverse_mass,
+            jacobian: vec![0.0; m * n],
+        }
+    }
+}
+
+/// A formulation plus the work coordinate (see the module documentation).
+pub(super) struct WithWork<'a> {
+    pub(super) formulation: &'a mut (dyn Formulation + Send),
+    pub(super) scratch: &'a mut LedgerScratch,
+}
+
+impl WithWork<'_> {
+    fn n(&self) -> usize {
+        self.scratch.inverse_mass.len() - 1
+    }
+
+    fn constrained(&mut self) -> &mut dyn ConstrainedSystem {
+        self.formulation
+            .as_constrained()
+            .expect("WithWork is offered as constrained only when the formulation is")
+    }
+}
+
+impl SecondOrderSystem for WithWork<'_> {
+    fn n_coords(&self) -> usize {
+        self.n() + 1
+    }
+
+    /// qddot of the formulation, and P for the work coordinate.
+    fn acceleration(
+        &mut self,
+        t: f64,
+        q: &[f64],
+        qdot: &[f64],
+        a: &mut [f64],
+    ) -> Result<(), StepError> {
+        let n = self.n();
+        self.formulation
+            .acceleration(t, &q[..n], &qdot[..n], &mut a[..n])?;
+        a[n] = self.formulation.power(&q[..n], &qdot[..n], &a[..n]);
+        Ok(())
+    }
+
+    fn as_constrained(&mut self) -> Option<&mut dyn ConstrainedSystem> {
+        if self.formulation.as_constrained().is_some() {
+            Some(self)
+        } else {
+            None
+        }
+    }
+}
+
+impl ConstrainedSystem for WithWork<'_> {
+    fn n_constraints(&self) -> usize {
+        let n = self.n();
+        self.scratch.jacobian.len().checked_div(n).unwrap_or(0)
+    }
+
+    fn inverse_mass(&self) -> &[f64] {
+        &self.scratch.inverse_mass
+    }
+
+    /// a = W F for the particles, and the applied forces' power for the work coordinate.
+    fn unconstrained_acceleration(
+        &mut self,
+        t: f64,
+        q: &[f64],
+        qdot: &[f64],
+        a: &mut [f64],
+    ) -> Result<(), StepError> {
+        let n = self.n();
+        self.constrained()
+            .unconstrained_acceleration(t, &q[..n], &qdot[..n], &mut a[..n])?;
+        a[n] = self.formulation.applied_power(&q[..n], &qdot[..n]);
+        Ok(())
+    }
+
+    fn constraint_values(&mut self, t: f64, q: &[f64], c: &mut [f64]) {
+        let n = self.n();
+        self.constrained().constraint_values(t, &q[..n], c);
+    }
+
+    /// J widened by a zero column for the work coordinate (m x (n + 1)).
+    fn constraint_jacobian(&mut self, t: f64, q: &[f64], jacobian: &mut [f64]) {
+        let n = self.n();
+        let mut narrow = std::mem::take(&mut self.scratch.jacobian);
+        self.constrained()
+            .constraint_jacobian(t, &q[..n], &mut narrow);
+        for (wide, row) in jacobian.chunks_exact_mut(n + 1).zip(narrow.chunks_exact(n)) {
+            wide[..n].copy_from_slice(row);
+            wide[n] = 0.0;
+        }
+        self.scratch.jacobian = narrow;
+    }
+
+    fn singular_constraint(&mut self, t: f64, row: usize) -> StepError {
+        self.constrained().singular_constraint(t, row)
+    }
+
+    fn project_positions(
+        &mut self,
+        t: f64,
+        q: &mut [f64],
+        tolerance: f64,
+        max_iterations: usize,
+    ) -> Result<usize, StepError> {
+        let n = self.n();
+        self.constrained()
+            .project_positions(t, &mut q[..n], tolerance, max_iterations)
+    }
+
+    fn project_velocities(&mut self, t: f64, q: &[f64], qdot: &mut [f64]) -> Result<(), StepError> {
+        let n = self.n();
+        self.constrained()
+            .project_velocities(t, &q[..n], &mut qdot[..n])
+    }
+}

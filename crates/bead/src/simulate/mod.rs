@@ -1,0 +1,890 @@
+//! The simulation core: [`Simulation`] owns a formulation, an integrator (fixed-step or
+//! adaptive, behind one interface), the state, the monitors and the run statistics. Every
+//! front end drives it: the CLI's `run` and `compare` through [`run`], the viewer's panels,
+//! and anything that steps a system.
+//!
+//! ```
+//! use std::sync::Arc;
+//! use bead::formulation::Method;
+//! use bead::integrate::IntegratorKind;
+//! use bead::model::SystemBuilder;
+//! use bead::simulate::{Simulation, SimulationConfig};
+//!
+//! // A pendulum: a bead on a circle of radius 1, released at 90 degrees.
+//! let mut b = SystemBuilder::new(&[0.0, 9.81]);
+//! b.particle("bead", 1.0, &[1.0, 0.0], &[0.0, 0.0])?;
+//! b.constraint_expr("bead.x^2 + bead.y^2 - 1")?;
+//! let system = Arc::new(b.build()?);
+//! let config = SimulationConfig {
+//!     method: Method::Implicit,
+//!     integrator: IntegratorKind::Rattle,
+//!     dt: 1e-3,
+//!     ..Default::default()
+//! };
+//! let mut sim = Simulation::new(system, config)?;
+//! sim.advance_to(0.5)?;
+//! assert_eq!(sim.t(), 0.5);
+//! assert!(sim.constraint_error() < 1e-9);
+//! assert!(sim.energy_error() < 1e-4); // relative to the energy scale, see `energy_scale`
+//! # Ok::<(), Box<dyn std::error::Error>>(())
+//! ```
+//!
+//! # What it watches
+//!
+//! After every step a simulation observes the new state and rejects it (restoring the last
+//! good state and returning the error) when
+//!
+//! - a value is not finite, or a particle is beyond 10^12 times the run's reach (the length
+//!   and speed the initial state, gravity and the initial energy can reach by then):
+//!   [`RunError::Diverged`], naming the quantity;
+//! - a constraint's gradient (implicit form) or a column dx/dq of the map (parametric form)
+//!   vanishes, reverses within the step, or is about to vanish: a cusp or a self-crossing of
+//!   the curve, where the motion cannot be continued on it
+//!   ([`crate::formulation::StepError::SingularPoint`]; see `monitor.rs` for the tests).
+//!
+//! # The energy ledger
+//!
+//! T + V is conserved only when nothing does work on the system. Drag, forces applied from
+//! outside (the viewer's drag spring), driven constraints (C depends on t) and moving maps
+//! (x depends on t) do work W, with dW/dt = P (see [`Formulation::power`]). A simulation of
+//! such a system integrates W as one more coordinate with the integrator's own method, so
+//! that it converges at the same order as the state, and E - W is then the conserved
+//! quantity: [`Simulation::energy_balance_error`] measures the integrator's error where the
+//! plain energy error would measure the driver's work. Relative errors divide by
+//! [`Simulation::energy_scale`], E_scale = max(|E0|, T0 + |V0|, T0 + M |g| L), which does not
+//! vanish when a scene starts at the potential's zero.
+
+mod config;
+mod ledger;
+mod monitor;
+mod run;
+
+use std::sync::Arc;
+
+pub use crate::readable;
+pub use config::{ConfigError, Requirement, SetupError, SimulationConfig};
+pub use monitor::Quantity;
+pub use run::{
+    run, run_with_progress, NoProgress, NullSink, Progress, RunError, RunFailure, RunOptions,
+    RunStats, Sample, Sink,
+};
+
+use crate::formulation::{
+    formulate, Formulation, Method, Nonconservation, SecondOrderSystem, State, StepError,
+};
+use crate::integrate::{Dopri5, Integrator, IntegratorKind};
+use crate::model::{Force, ModelError, System};
+use ledger::{LedgerScratch, WithWork};
+use monitor::{Monitor, Rejection};
+
+/// An absolute tolerance on max_i |C_i| for `system`, in the units of its constraints:
+/// `relative` times max_i |J_i| L at the initial state, where |J_i| is the norm of row i's
+/// gradient and L the largest initial coordinate magnitude (the scene's length scale; 1 when
+/// every coordinate is 0). For the article's parabola C = x^2 + 100 y at (150, -225) this is
+/// relative * 316 * 225 ~ relative * 7e4 (the scale of C, length^2). `relative` itself when
+/// the system has no constraints.
+pub fn constraint_tolerance(system: &System, relative: f64) -> f64 {
+    let set = system.constraints();
+    let (x, v) = system.initial_particle_state();
+    let length = x.iter().fold(0.0, |l: f64, c| l.max(c.abs()));
+    let length = if length > 0.0 && length.is_finite() {
+        length
+    } else {
+        1.0
+    };
+    let mut ws = set.workspace();
+    set.evaluate(0.0, &x, &v, &mut ws);
+    let gradient = (0..set.n_rows())
+        .map(|i| {
+            ws.jacobian[set.row_entries(i)]
+                .iter()
+                .map(|j| j * j)
+                .sum::<f64>()
+                .sqrt()
+        })
+        .fold(0.0, f64::max);
+    if gradient > 0.0 && gradient.is_finite() {
+        relative * gradient * length
+    } else {
+        relative
+    }
+}
+
+/// An external force's handle (see [`Simulation::add_force`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct ForceId(u64);
+
+enum Stepper {
+    Fixed(Box<dyn Integrator>),
+    Adaptive(Box<Dopri5>),
+}
+
+impl Stepper {
+    fn new(config: &SimulationConfig, n: usize) -> Stepper {
+        if config.integrator.is_adaptive() {
+            Stepper::Adaptive(Box::new(Dopri5::new(n, &config.settings)))
+        } else {
+            Stepper::Fixed(config.integrator.build_with(n, &config.settings))
+        }
+    }
+}
+
+/// One simulated system: a formulation advanced by an integrator, with its monitors.
+///
+/// Cheap to create from a shared `Arc<System>`, `Send`, and without global state, so that many
+/// can run side by side. After any error the simulation holds the last good state, and it can
+/// go on (e.g. with a smaller step after [`Simulation::reset`]).
+pub struct Simulation {
+    config: SimulationConfig,
+    formulation: Box<dyn Formulation + Send>,
+    stepper: Stepper,
+    /// The integrator's state: q, qdot (n each), then the work coordinate when the ledger
+    /// runs (its "velocity" is W)
+    state: State,
+    /// The state before the step in progress, restored when the step fails
+    previous: State,
+    /// Adaptive integrators: the state at the last requested time, behind `state`
+    output: State,
+    output_behind: bool,
+    /// The formulation's coordinate count n
+    n: usize,
+    ledger: Option<LedgerScratch>,
+    monitor: Monitor,
+    /// Whether forces from outside have ever acted (they make T + V not conserved)
+    had_external: bool,
+    external_ids: Vec<ForceId>,
+    next_force_id: u64,
+    stop_time: Option<f64>,
+    /// Fixed-step integrators step on the grid grid_origin + k dt
+    grid_origin: f64,
+    grid_steps: u64,
+    /// Integrator steps taken (accepted ones for adaptive integrators)
+    steps: u64,
+    projection_iterations_max: Option<usize>,
+}
+
+impl Simulation {
+    /// A simulation of `system` as `config` says, at the system's initial state. Fails when
+    /// the combination is illegal ([`SimulationConfig::check`]), the system is
+    /// over-constrained, or the initial state cannot be simulated (a constraint or its
+    /// gradient not finite or zero there, dependent constraints, a singular mass matrix).
+    pub fn new(system: Arc<System>, config: SimulationConfig) -> Result<Simulation, SetupError> {
+        config.check(&system)?;
+        let mut config = config;
+        if config.scaled_constraint_tolerance {
+            config.settings.constraint_tolerance = constraint_tolerance(&system, 1e-12);
+        }
+        let rows = system.constraints().n_rows();
+        if config.method == Method::Implicit && rows > system.n_coords() {
+            return Err(SetupError::OverConstrained {
+                rows,
+                coords: system.n_coords(),
+            });
+        }
+        let formulation =
+            formulate(system, config.method, config.feedback).map_err(ConfigError::from)?;
+        Simulation::with_formulation(formulation, config)
+    }
+
+    /// A simulation of an already built formulation (its method and feedback are its own;
+    /// `config`'s are not used). The checks of [`Simulation::new`] on the initial state apply.
+    pub fn with_formulation(
+        mut formulation: Box<dyn Formulation + Send>,
+        config: SimulationConfig,
+    ) -> Result<Simulation, SetupError> {
+        let state = formulation.initial_state();
+        let n = state.q.len();
+        let monitor = Monitor::new(&mut *formulation, state.t, &state.q, &state.qdot);
+        let mut simulation = Simulation {
+            stepper: Stepper::new(&config, n),
+            previous: state.clone(),
+            output: state.clone(),
+            output_behind: false,
+            grid_origin: state.t,
+            state,
+            n,
+            ledger: None,
+            monitor,
+            had_external: false,
+            external_ids: Vec::new(),
+            next_force_id: 0,
+            stop_time: None,
+            grid_steps: 0,
+            steps: 0,
+            projection_iterations_max: None,
+            config,
+            formulation,
+        };
+        let track = config
+            .track_work
+            .unwrap_or(!simulation.formulation.nonconservation().is_empty());
+        if track {
+            simulation.enable_work_tracking();
+        }
+        simulation.check_initial_state()?;
+        Ok(simulation)
+    }
+
+    /// The checks of the initial state (see [`Simulation::new`]).
+    fn check_initial_state(&mut self) -> Result<(), SetupError> {
+        let t = self.state.t;
+        let n = self.n;
+        let initial = |e: StepError| SetupError::Initial(e);
+        let observation = &self.monitor.observation;
+        let system = self.formulation.system();
+        if let Some(k) = observation.x.iter().position(|c| !c.is_finite()) {
+            return Err(initial(StepError::NonFinite {
+                t,
+                quantity: format!("the position {}", system.coordinate_name(k)),
+            }));
+        }
+        if let Some(i) = observation.constraints.iter().position(|c| !c.is_finite()) {
+            let name = &system.constraints().info_of_row(i).name;
+            return Err(initial(StepError::NonFinite {
+                t,
+                quantity: format!("the value of {name} ({})", observation.constraints[i]),
+            }));
+        }
+        if let Some(row) = self.monitor.singular_at_start() {
+            return Err(initial(StepError::SingularPoint {
+                t,
+                subject: self.formulation.gradient_subject(row),
+                position: self.formulation.gradient_position(row, &self.state.q[..n]),
+                kind: crate::formulation::SingularKind::AtStart,
+                cause: None,
+            }));
+        }
+        let mut a = vec![0.0; self.state.q.len()];
+        let Simulation {
+            formulation,
+            ledger,
+            state,
+            ..
+        } = self;
+        with_system(formulation, ledger, |system| {
+            system.acceleration(state.t, &state.q, &state.qdot, &mut a)
+        })
+        .map_err(initial)?;
+        if let Some(k) = a.iter().position(|c| !c.is_finite()) {
+            return Err(initial(StepError::NonFinite {
+                t,
+                quantity: format!("the initial acceleration of coordinate {k}"),
+            }));
+        }
+        Ok(())
+    }
+
+    /// The configuration (with the constraint tolerance it resolved).
+    pub fn config(&self) -> &SimulationConfig {
+        &self.config
+    }
+    /// The formulation it advances.
+    pub fn formulation(&self) -> &dyn Formulation {
+        &*self.formulation
+    }
+    /// The system it simulates.
+    pub fn system(&self) -> &System {
+        self.formulation.system()
+    }
+    /// Which formulation.
+    pub fn method(&self) -> Method {
+        self.formulation.method()
+    }
+    /// Which integrator.
+    pub fn integrator(&self) -> IntegratorKind {
+        self.config.integrator
+    }
+
+    /// The observable state: the integrator's, or for adaptive integrators the dense output at
+    /// the last requested time.
+    fn observed(&self) -> &State {
+        if self.output_behind {
+            &self.output
+        } else {
+            &self.state
+        }
+    }
+    /// Time of the current state.
+    pub fn t(&self) -> f64 {
+        self.observed().t
+    }
+    /// The formulation's coordinates q (particle coordinates for the implicit form).
+    pub fn q(&self) -> &[f64] {
+        &self.observed().q[..self.n]
+    }
+    /// Their rates qdot.
+    pub fn qdot(&self) -> &[f64] {
+        &self.observed().qdot[..self.n]
+    }
+    /// Particle positions (n_coords: particle p, axis a at p * dim + a).
+    pub fn positions(&self) -> &[f64] {
+        &self.monitor.observation.x
+    }
+    /// Particle velocities (n_coords).
+    pub fn velocities(&self) -> &[f64] {
+        &self.monitor.observation.xdot
+    }
+    /// The energy T + V of the current state.
+    pub fn energy(&self) -> f64 {
+        self.monitor.energy
+    }
+    /// T + V at the start.
+    pub fn energy_initial(&self) -> f64 {
+        self.monitor.energy_initial
+    }
+    /// E_scale = max(|E0|, T0 + |V0|, T0 + M |g| L): the denominator of the relative energy
+    /// errors (M the total mass, L the largest distance of a particle from the origin at the
+    /// start; 1 when all of these vanish).
+    pub fn energy_scale(&self) -> f64 {
+        self.monitor.energy_scale
+    }
+    /// |E - E0| / E_scale now.
+    pub fn energy_error(&self) -> f64 {
+        (self.monitor.energy - self.monitor.energy_initial).abs() / self.monitor.energy_scale
+    }
+    /// The work W done on T + V since the start (0 when the ledger does not run).
+    pub fn work(&self) -> f64 {
+        self.monitor.work
+    }
+    /// |E - W - E0| / E_scale now: the error of the conserved quantity E - W.
+    pub fn energy_balance_error(&self) -> f64 {
+        (self.monitor.energy - self.monitor.work - self.monitor.energy_initial).abs()
+            / self.monitor.energy_scale
+    }
+    /// Whether T + V is conserved: nothing does work on the system (no drag, no driven
+    /// constraint or moving map, no external forces so far).
+    pub fn energy_conserved(&self) -> bool {
+        !self.had_external && self.formulation.nonconservation().is_empty()
+    }
+    /// What does work on the system, when T + V is not conserved.
+    pub fn nonconservation(&self) -> Vec<Nonconservation> {
+        let mut reasons = self.formulation.nonconservation();
+        if self.had_external && !reasons.contains(&Nonconservation::External) {
+            reasons.push(Nonconservation::External);
+        }
+        reasons
+    }
+    /// Whether the work W is being tracked.
+    pub fn tracks_work(&self) -> bool {
+        self.ledger.is_some()
+    }
+    /// max_i |C_i| now, over the system's implicit constraints (for both forms).
+    pub fn constraint_error(&self) -> f64 {
+        self.monitor.constraint_error
+    }
+    /// Integrator steps taken (accepted steps for adaptive integrators).
+    pub fn steps(&self) -> u64 {
+        self.steps
+    }
+
+    /// Adaptive integrators never step past `t` (the end of a run), so that the last step
+    /// lands on it; output before it comes from the dense output. `None`: every
+    /// [`Simulation::advance_to`] lands exactly on its target.
+    pub fn set_stop_time(&mut self, t: Option<f64>) {
+        self.stop_time = t;
+    }
+
+    /// One step: dt for fixed-step integrators; for adaptive ones one accepted step of their
+    /// own size, never past the stop time (or t + dt when none is set).
+    pub fn step(&mut self) -> Result<(), RunError> {
+        let dt = self.config.dt;
+        match self.stepper {
+            Stepper::Fixed(_) => {
+                let t_end = self.grid_origin + (self.grid_steps + 1) as f64 * dt;
+                self.fixed_step(t_end)?;
+                self.grid_steps += 1;
+            }
+            Stepper::Adaptive(_) => {
+                let t = self.state.t;
+                let horizon = match self.stop_time {
+                    Some(stop) if stop > t => stop,
+                    _ => t + dt,
+                };
+                self.adaptive_step(horizon)?;
+            }
+        }
+        self.output_behind = false;
+        Ok(())
+    }
+
+    /// Advance to exactly time `t` (not before the current time): fixed-step integrators take
+    /// steps of dt on their grid and, when `t` is not on it, one shorter step to land on `t`
+    /// (the grid then restarts there); adaptive integrators take their own steps (not past
+    /// the stop time, or `t` when none is set) and, when the last one passed `t`, the state
+    /// is the dense output at `t`.
+    pub fn advance_to(&mut self, t: f64) -> Result<(), RunError> {
+        let now = self.t();
+        if !t.is_finite() || t < now {
+            return Err(RunError::TimeBehind { requested: t, now });
+        }
+        let dt = self.config.dt;
+        match self.stepper {
+            Stepper::Fixed(_) => {
+                self.output_behind = false;
+                let tolerance = 1e-9 * dt;
+                loop {
+                    let next = self.grid_origin + (self.grid_steps + 1) as f64 * dt;
+                    if next > t + tolerance {
+                        break;
+                    }
+                    let on_target = (next - t).abs() <= tolerance;
+                    self.fixed_step(if on_target { t } else { next })?;
+                    self.grid_steps += 1;
+                    if on_target {
+                        return Ok(());
+                    }
+                }
+                if self.state.t < t {
+                    self.fixed_step(t)?;
+                    self.grid_origin = t;
+                    self.grid_steps = 0;
+                }
+                Ok(())
+            }
+            Stepper::Adaptive(_) => {
+                let horizon = match self.stop_time {
+                    Some(stop) if stop >= t => stop,
+                    _ => t,
+                };
+                while self.state.t < t {
+                    self.adaptive_step(horizon)?;
+                }
+                if self.state.t > t {
+                    if let Stepper::Adaptive(dopri) = &self.stepper {
+                        dopri.interpolate(t, &mut self.output.q, &mut self.output.qdot);
+                    }
+                    self.output.t = t;
+                    self.output_behind = true;
+                    let (q, qdot, work) = split(&self.output, self.n);
+                    self.monitor
+                        .observe(&mut *self.formulation, t, q, qdot, work);
+                    self.monitor.accumulate();
+                } else {
+                    self.output_behind = false;
+                }
+                Ok(())
+            }
+        }
+    }
+
+    /// One fixed step from the current state to `t_end`, then the projection and the checks.
+    fn fixed_step(&mut self, t_end: f64) -> Result<(), RunError> {
+        self.save();
+        let h = t_end - self.state.t;
+        let Simulation {
+            formulation,
+            ledger,
+            state,
+            stepper,
+            config,
+            ..
+        } = self;
+        let Stepper::Fixed(integrator) = stepper else {
+            unreachable!("fixed_step is called for fixed-step integrators only");
+        };
+        let result = with_system(formulation, ledger, |system| {
+            integrator.step(system, state, h)?;
+            state.t = t_end;
+            if config.project {
+                project(system, state, config).map(Some)
+            } else {
+                Ok(None)
+            }
+        });
+        match result {
+            Ok(iterations) => {
+                if let Some(iterations) = iterations {
+                    self.projection_iterations_max =
+                        Some(self.projection_iterations_max.unwrap_or(0).max(iterations));
+                }
+            }
+            Err(e) => return Err(self.fail(e)),
+        }
+        self.steps += 1;
+        self.accept()
+    }
+
+    /// One accepted adaptive step towards `horizon`, then the checks.
+    fn adaptive_step(&mut self, horizon: f64) -> Result<(), RunError> {
+        self.save();
+        let Simulation {
+            formulation,
+            ledger,
+            state,
+            stepper,
+            ..
+        } = self;
+        let Stepper::Adaptive(dopri) = stepper else {
+            unreachable!("adaptive_step is called for adaptive integrators only");
+        };
+        let result = with_system(formulation, ledger, |system| {
+            dopri.advance(system, state, horizon)
+        });
+        if let Err(e) = result {
+            return Err(self.fail(e));
+        }
+        self.steps += 1;
+        self.accept()
+    }
+
+    /// Remember the state before a step.
+    fn save(&mut self) {
+        self.previous.t = self.state.t;
+        self.previous.q.copy_from_slice(&self.state.q);
+        self.previous.qdot.copy_from_slice(&self.state.qdot);
+    }
+
+    /// Back to the state before the step.
+    fn restore(&mut self) {
+        self.state.t = self.previous.t;
+        self.state.q.copy_from_slice(&self.previous.q);
+        self.state.qdot.copy_from_slice(&self.previous.qdot);
+    }
+
+    /// A failed step: restore the last good state, and report the error, or the singular point
+    /// next to which an iteration failed.
+    fn fail(&mut self, error: StepError) -> RunError {
+        self.restore();
+        let iterative = matches!(
+            error,
+            StepError::ImplicitStageFailed { .. }
+                | StepError::ProjectionFailed { .. }
+                | StepError::StepSizeUnderflow { .. }
+                | StepError::SingularConstraints { .. }
+                | StepError::SingularMassMatrix { .. }
+        );
+        if iterative {
+            let (q, _, _) = split(&self.state, self.n);
+            let near = self
+                .monitor
+                .near_singular(&*self.formulation, self.state.t, q);
+            if let Some((row, kind)) = near {
+                return RunError::Step(StepError::SingularPoint {
+                    t: self.state.t,
+                    subject: self.formulation.gradient_subject(row),
+                    position: self
+                        .formulation
+                        .gradient_position(row, &self.state.q[..self.n]),
+                    kind,
+                    cause: Some(error.to_string()),
+                });
+            }
+        }
+        RunError::Step(error)
+    }
+
+    /// Observe the state a step produced and accept it, or restore the previous one and say
+    /// why not.
+    fn accept(&mut self) -> Result<(), RunError> {
+        let n = self.n;
+        let t = self.state.t;
+        if let Some((quantity, value)) = non_finite_state(&*self.formulation, &self.state, n) {
+            let step = self.steps;
+            self.restore();
+            return Err(RunError::Diverged {
+                t,
+                step,
+                quantity,
+                value,
+                limit: None,
+            });
+        }
+        let (q, qdot, work) = split(&self.state, n);
+        self.monitor
+            .observe(&mut *self.formulation, t, q, qdot, work);
+        match self.monitor.check_step(&*self.formulation, t, q) {
+            Ok(()) => {
+                self.monitor.accumulate();
+                Ok(())
+            }
+            Err(rejection) => {
+                let step = self.steps;
+                self.steps -= 1;
+                self.restore();
+                let (q, qdot, work) = split(&self.state, n);
+                self.monitor
+                    .observe(&mut *self.formulation, self.state.t, q, qdot, work);
+                Err(match rejection {
+                    Rejection::Diverged {
+                        quantity,
+                        value,
+                        limit,
+                    } => RunError::Diverged {
+                        t,
+                        step,
+                        quantity,
+                        value,
+                        limit,
+                    },
+                    Rejection::Singular(e) => RunError::Step(e),
+                })
+            }
+        }
+    }
+
+    /// Back to the initial state: monitors, statistics and the integrator's memory restart;
+    /// external forces stay.
+    pub fn reset(&mut self) {
+        let mut state = self.formulation.initial_state();
+        if self.ledger.is_some() {
+            state.q.push(0.0);
+            state.qdot.push(0.0);
+        }
+        self.start_from(state);
+    }
+
+    /// Restart from `state` (the formulation's coordinates, plus the work coordinate when the
+    /// ledger runs): as [`Simulation::reset`], with this as the initial state.
+    fn start_from(&mut self, state: State) {
+        let n = self.n;
+        self.monitor = Monitor::new(
+            &mut *self.formulation,
+            state.t,
+            &state.q[..n],
+            &state.qdot[..n],
+        );
+        self.previous = state.clone();
+        self.output = state.clone();
+        self.output_behind = false;
+        self.grid_origin = state.t;
+        self.grid_steps = 0;
+        self.steps = 0;
+        self.projection_iterations_max = None;
+        self.stepper = Stepper::new(&self.config, state.q.len());
+        self.state = state;
+    }
+
+    /// Back to the initial state moved onto the constraints (implicit form): positions onto
+    /// C = 0, velocities onto J qdot + C_t = 0, by the mass-weighted projections; the energy
+    /// reference restarts there. For the parametric form the same as [`Simulation::reset`].
+    /// Used after the constraints changed (a curve edit), which leaves the scene's initial
+    /// state off them.
+    pub fn reset_onto_constraints(&mut self) -> Result<(), RunError> {
+        self.reset();
+        let mut state = self.state.clone();
+        let config = self.config;
+        let Simulation {
+            formulation,
+            ledger,
+            ..
+        } = self;
+        let result = with_system(formulation, ledger, |system| {
+            if system.as_constrained().is_some() {
+                project(system, &mut state, &config).map(|_| ())
+            } else {
+                Ok(())
+            }
+        });
+        result.map_err(RunError::Step)?;
+        self.start_from(state);
+        Ok(())
+    }
+
+    /// Apply `force` from outside the system from now on (e.g. a spring dragged with the
+    /// mouse), without rebuilding anything. Its work is counted by the energy ledger, which
+    /// starts running if it was not.
+    pub fn add_force(&mut self, force: Force) -> Result<ForceId, ModelError> {
+        self.system().check_force(&force)?;
+        self.enable_work_tracking();
+        self.formulation.external_forces_mut().push(force);
+        let id = ForceId(self.next_force_id);
+        self.next_force_id += 1;
+        self.external_ids.push(id);
+        self.had_external = true;
+        Ok(id)
+    }
+
+    /// Replace the external force `id` (e.g. move a drag spring's anchor); cheap.
+    pub fn set_force(&mut self, id: ForceId, force: Force) -> Result<(), ModelError> {
+        self.system().check_force(&force)?;
+        let index = self
+            .external_ids
+            .iter()
+            .position(|&i| i == id)
+            .ok_or(ModelError::UnknownForce(id.0))?;
+        self.formulation.external_forces_mut()[index] = force;
+        Ok(())
+    }
+
+    /// Stop applying the external force `id`; returns it, or `None` for an unknown id.
+    pub fn remove_force(&mut self, id: ForceId) -> Option<Force> {
+        let index = self.external_ids.iter().position(|&i| i == id)?;
+        self.external_ids.remove(index);
+        Some(self.formulation.external_forces_mut().remove(index))
+    }
+
+    /// Start the energy ledger (allocates once; the integrator restarts).
+    fn enable_work_tracking(&mut self) {
+        if self.ledger.is_some() {
+            return;
+        }
+        self.ledger = Some(LedgerScratch::new(&mut *self.formulation));
+        for state in [&mut self.state, &mut self.previous, &mut self.output] {
+            state.q.push(0.0);
+            state.qdot.push(0.0);
+        }
+        self.stepper = Stepper::new(&self.config, self.n + 1);
+    }
+
+    /// The statistics so far (wall time and sampling are the caller's: see [`run`]).
+    pub fn stats(&self, wall_seconds: f64) -> RunStats {
+        let observed = self.observed();
+        let (accepted, rejected) = match &self.stepper {
+            Stepper::Adaptive(dopri) => {
+                (Some(dopri.accepted_steps()), Some(dopri.rejected_steps()))
+            }
+            Stepper::Fixed(_) => (None, None),
+        };
+        let integrator_iterations = match &self.stepper {
+            Stepper::Fixed(integrator) => integrator.newton_iterations_max(),
+            Stepper::Adaptive(_) => None,
+        };
+        let newton_iterations_max = match (integrator_iterations, self.projection_iterations_max) {
+            (Some(a), Some(b)) => Some(a.max(b)),
+            (a, b) => a.or(b),
+        };
+        let m = &self.monitor;
+        RunStats {
+            method: self.method(),
+            integrator: self.config.integrator,
+            dt: self.config.dt,
+            steps: self.steps,
+            t_final: observed.t,
+            wall_seconds,
+            energy_initial: m.energy_initial,
+            energy_final: m.energy,
+            energy_scale: m.energy_scale,
+            energy_rel_error_max: m.energy_rel_error_max,
+            energy_conserved: self.energy_conserved(),
+            nonconservation: self.nonconservation(),
+            work_final: self.tracks_work().then_some(m.work),
+            energy_balance_error_max: self.tracks_work().then_some(m.balance_error_max),
+            constraint_error_max: m.constraint_error_max,
+            constraint_error_final: m.constraint_error,
+            x: m.observation.x.clone(),
+            xdot: m.observation.xdot.clone(),
+            q: observed.q[..self.n].to_vec(),
+            qdot: observed.qdot[..self.n].to_vec(),
+            accepted_steps: accepted,
+            rejected_steps: rejected,
+            projected: self.config.project,
+            newton_iterations_max,
+        }
+    }
+
+    /// The current state as a [`Sample`] numbered `index`.
+    pub fn sample(&self, index: u64) -> Sample<'_> {
+        let observed = self.observed();
+        Sample {
+            step: index,
+            t: observed.t,
+            x: &self.monitor.observation.x,
+            xdot: &self.monitor.observation.xdot,
+            energy: self.monitor.energy,
+            constraint_error: self.monitor.constraint_error,
+            q: &observed.q[..self.n],
+            qdot: &observed.qdot[..self.n],
+            work: self.tracks_work().then_some(self.monitor.work),
+            energy_initial: self.monitor.energy_initial,
+            energy_scale: self.monitor.energy_scale,
+        }
+    }
+}
+
+/// Run `f` on the formulation as the integrators see it: with the work coordinate when the
+/// ledger runs.
+fn with_system<R>(
+    formulation: &mut Box<dyn Formulation + Send>,
+    ledger: &mut Option<LedgerScratch>,
+    f: impl FnOnce(&mut dyn SecondOrderSystem) -> R,
+) -> R {
+    match ledger {
+        Some(scratch) => f(&mut WithWork {
+            formulation: &mut **formulation,
+            scratch,
+        }),
+        None => f(&mut **formulation),
+    }
+}
+
+/// Project `state` onto C = 0 and J qdot + C_t = 0; returns the position iterations.
+fn project(
+    system: &mut dyn SecondOrderSystem,
+    state: &mut State,
+    config: &SimulationConfig,
+) -> Result<usize, StepError> {
+    let Some(constrained) = system.as_constrained() else {
+        return Ok(0);
+    };
+    let settings = &config.settings;
+    let iterations = constrained.project_positions(
+        state.t,
+        &mut state.q,
+        settings.constraint_tolerance,
+        settings.constraint_max_iterations,
+    )?;
+    constrained.project_velocities(state.t, &state.q, &mut state.qdot)?;
+    Ok(iterations)
+}
+
+/// (q, qdot, W) of a state with n formulation coordinates (W = 0 without the ledger).
+fn split(state: &State, n: usize) -> (&[f64], &[f64], f64) {
+    let work = state.qdot.get(n).copied().unwrap_or(0.0);
+    (&state.q[..n], &state.qdot[..n], work)
+}
+
+/// The first non-finite coordinate or rate of a state, named.
+fn non_finite_state(
+    formulation: &dyn Formulation,
+    state: &State,
+    n: usize,
+) -> Option<(Quantity, f64)> {
+    let names = formulation.coordinate_names();
+    let system = formulation.system();
+    if let Some(k) = state.q[..n].iter().position(|c| !c.is_finite()) {
+        let quantity = if names.is_empty() {
+            Quantity::Position(system.coordinate_name(k))
+        } else {
+            Quantity::Coordinate(names[k].clone())
+        };
+        return Some((quantity, state.q[k]));
+    }
+    if let Some(k) = state.qdot[..n].iter().position(|c| !c.is_finite()) {
+        let quantity = if names.is_empty() {
+            Quantity::Velocity(system.velocity_name(k))
+        } else {
+            Quantity::Rate(names[k].clone())
+        };
+        return Some((quantity, state.qdot[k]));
+    }
+    if let Some(&w) = state.qdot.get(n) {
+        if !w.is_finite() {
+            return Some((Quantity::Work, w));
+        }
+    }
+    None
+}
+
+impl std::fmt::Debug for Simulation {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Simulation")
+            .field("method", &self.method())
+            .field("config", &self.config)
+            .field("t", &self.t())
+            .field("steps", &self.steps)
+            .field("tracks_work", &self.tracks_work())
+            .finish()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn assert_send<T: Send>() {}
+
+    #[test]
+    fn a_simulation_can_move_to_another_thread() {
+        assert_send::<Simulation>();
+    }
+}

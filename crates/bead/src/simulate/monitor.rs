@@ -1,0 +1,554 @@
+//! What a simulation watches after every step: the energy ledger, the constraint error,
+//! divergence, and singular points of the constraints (the regularity monitor).
+
+use std::fmt;
+
+use crate::formulation::{Formulation, Observation, SingularKind, StepError};
+use crate::model::System;
+
+/// A particle farther than this many times the run's length scale, or faster than this many
+/// times its speed scale, has diverged (see [`Reach`]).
+pub(super) const BLOW_UP_FACTOR: f64 = 1e12;
+
+/// A gradient row shorter than this fraction of its longest length in the run has vanished.
+const VANISHED: f64 = 1e-3;
+/// The lookahead: extrapolated along the motion, a gradient row that shrinks below this
+/// fraction of its length ...
+const AHEAD_FRACTION: f64 = 0.1;
+/// ... within this many steps, meets a singular point.
+const AHEAD_STEPS: f64 = 2.0;
+/// A state off its constraint by more than this fraction of the distance to a singular point
+/// ahead may follow another branch of the curve.
+const OFF_BRANCH: f64 = 0.01;
+
+/// A quantity that diverged.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Quantity {
+    /// A particle coordinate, e.g. `bead.x`.
+    Position(String),
+    /// A particle velocity component, e.g. `bead.vx`.
+    Velocity(String),
+    /// A generalized coordinate of the parametric form, by name.
+    Coordinate(String),
+    /// The rate of a generalized coordinate, by name.
+    Rate(String),
+    /// The energy T + V.
+    Energy,
+    /// The largest constraint residual max |C_i|.
+    ConstraintError,
+    /// The work W of the energy ledger.
+    Work,
+}
+
+impl fmt::Display for Quantity {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Quantity::Position(name) | Quantity::Velocity(name) => write!(f, "{name}"),
+            Quantity::Coordinate(name) => write!(f, "q.{name}"),
+            Quantity::Rate(name) => write!(f, "qdot.{name}"),
+            Quantity::Energy => write!(f, "the energy"),
+            Quantity::ConstraintError => write!(f, "the constraint error"),
+            Quantity::Work => write!(f, "the work W"),
+        }
+    }
+}
+
+/// Why a state is not acceptable: not finite, beyond the run's reach, or at a singular point.
+pub(super) enum Rejection {
+    Diverged {
+        quantity: Quantity,
+        value: f64,
+        /// The limit it passed, when it is finite but too large.
+        limit: Option<f64>,
+    },
+    Singular(StepError),
+}
+
+/// The length and speed a run can legitimately reach by time t: the reach of the initial state,
+/// of gravity and of the initial energy,
+///
+/// ```text
+/// L(t) = max(1, max|x0|, max|v0| t, |g| t^2 / 2, V t)
+/// V(t) = max(1, max|v0|, |g| t, sqrt(|g| L), sqrt(2 E_scale / m_min))
+/// ```
+/// Legitimate motion stays within a small multiple of these, while an unstable integration
+/// grows geometrically and passes [`BLOW_UP_FACTOR`] times them within a few steps, long
+/// before f64 overflows.
+#[derive(Clone, Copy, Debug)]
+pub(super) struct Reach {
+    position: f64,
+    speed: f64,
+    gravity: f64,
+    energy_speed: f64,
+}
+
+impl Reach {
+    fn at(&self, t: f64) -> (f64, f64) {
+        let t = t.abs();
+        let speed0 = self.speed.max(self.energy_speed);
+        let length = [1.0, self.position, speed0 * t, 0.5 * self.gravity * t * t]
+            .into_iter()
+            .fold(0.0, f64::max);
+        let speed = [
+            1.0,
+            speed0,
+            self.gravity * t,
+            (self.gravity * length).sqrt(),
+        ]
+        .into_iter()
+        .fold(0.0, f64::max);
+        (BLOW_UP_FACTOR * length, BLOW_UP_FACTOR * speed)
+    }
+}
+
+/// The monitors of one simulation: energy ledger, constraint error and regularity, with their
+/// maxima. Buffers are sized once.
+pub(super) struct Monitor {
+    /// The last observed state (particle state, constraint values, gradient rows).
+    pub(super) observation: Observation,
+    /// Gradient rows at the previous step's end (regularity)
+    previous: crate::formulation::Gradients,
+    /// The formulation's q at the previous step's end (n)
+    previous_q: Vec<f64>,
+    has_previous: bool,
+    /// The longest each gradient row has been in this run (rows)
+    longest: Vec<f64>,
+    pub(super) energy_initial: f64,
+    /// E_scale: the denominator of relative energy errors
+    pub(super) energy_scale: f64,
+    pub(super) energy: f64,
+    pub(super) work: f64,
+    pub(super) energy_rel_error_max: f64,
+    pub(super) balance_error_max: f64,
+    pub(super) constraint_error: f64,
+    pub(super) constraint_error_max: f64,
+    reach: Reach,
+}
+
+impl Monitor {
+    /// A monitor at the initial state (t0, q, qdot); the energy scale is fixed here:
+    ///
+    /// ```text
+    /// E_scale = max(|E0|, T0 + |V0|, T0 + M |g| L)
+    /// ```
+    /// with M the total mass and L the largest distance of a particle from the origin at t0:
+    /// the energy the motion can exchange, which does not vanish when the scene starts at the
+    /// potential's zero. 1 (an absolute error) when all of these vanish.
+    pub(super) fn new(
+        formulation: &mut (dyn Formulation + Send),
+        t0: f64,
+        q: &[f64],
+        qdot: &[f64],
+    ) -> Self {
+        let mut observation = formulation.new_observation();
+        formulation.observe(t0, q, qdot, &mut observation);
+        let system = formulation.system();
+        let kinetic = system.kinetic_energy(&observation.xdot);
+        let potential = system.potential_energy(&observation.x);
+        let energy = kinetic + potential;
+        let dim = system.dim();
+        let distance = observation
+            .x
+            .chunks(dim)
+            .map(|p| p.iter().map(|c| c * c).sum::<f64>().sqrt())
+            .fold(0.0, f64::max);
+        let gravity = norm(system.gravity());
+        let mass: f64 = system.particles().iter().map(|p| p.mass).sum();
+        let scale = [
+            energy.abs(),
+            kinetic + potential.abs(),
+            kinetic + mass * gravity * distance,
+        ]
+        .into_iter()
+        .fold(0.0, f64::max);
+        let energy_scale = if scale > 0.0 && scale.is_finite() {
+            scale
+        } else {
+            1.0
+        };
+        let largest = |v: &[f64]| v.iter().fold(0.0_f64, |m, c| m.max(c.abs()));
+        let lightest = system
+            .particles()
+            .iter()
+            .map(|p| p.mass)
+            .fold(f64::INFINITY, f64::min);
+        let reach = Reach {
+            position: largest(&observation.x),
+            speed: largest(&observation.xdot),
+            gravity,
+            energy_speed: (2.0 * energy_scale / lightest).sqrt(),
+        };
+        let constraint_error = observation.constraint_error();
+        let previous = observation.gradients.clone();
+        let previous_q = q.to_vec();
+        let longest = (0..observation.gradients.n_rows())
+            .map(|r| norm(observation.gradients.row(r)))
+            .collect();
+        Monitor {
+            observation,
+            previous,
+            previous_q,
+            has_previous: false,
+            longest,
+            energy_initial: energy,
+            energy_scale,
+            energy,
+            work: 0.0,
+            energy_rel_error_max: 0.0,
+            balance_error_max: 0.0,
+            constraint_error,
+            constraint_error_max: constraint_error,
+            reach,
+        }
+    }
+
+    /// Observe (t, q, qdot) with work W: particle state, energy, constraint error.
+    pub(super) fn observe(
+        &mut self,
+        formulation: &mut (dyn Formulation + Send),
+        t: f64,
+        q: &[f64],
+        qdot: &[f64],
+        work: f64,
+    ) {
+        formulation.observe(t, q, qdot, &mut self.observation);
+        let system = formulation.system();
+        self.energy = system.energy(&self.observation.x, &self.observation.xdot);
+        self.work = work;
+        self.constraint_error = self.observation.constraint_error();
+    }
+
+    /// Fold the last observation into the maxima.
+    pub(super) fn accumulate(&mut self) {
+        let error = (self.energy - self.energy_initial).abs() / self.energy_scale;
+        let balance = (self.energy - self.work - self.energy_initial).abs() / self.energy_scale;
+        self.energy_rel_error_max = max_nan(self.energy_rel_error_max, error);
+        self.balance_error_max = max_nan(self.balance_error_max, balance);
+        self.constraint_error_max = max_nan(self.constraint_error_max, self.constraint_error);
+    }
+
+    /// Whether the state last observed at the end of a step (at time t) can be accepted: finite,
+    /// within the run's reach, and away from singular points of the constraints. Call after
+    /// [`Monitor::observe`] of a step's end (not of an interpolated sample); on success the
+    /// gradient rows become the reference of the next step's regularity check.
+    pub(super) fn check_step(
+        &mut self,
+        formulation: &dyn Formulation,
+        t: f64,
+        q: &[f64],
+    ) -> Result<(), Rejection> {
+        self.check_divergence(formulation.system(), t)?;
+        if let Some((row, kind)) = self.regularity(formulation, t, q) {
+            return Err(Rejection::Singular(StepError::SingularPoint {
+                t,
+                subject: formulation.gradient_subject(row),
+                position: formulation.gradient_position(row, q),
+                kind,
+                cause: None,
+            }));
+        }
+        self.previous.copy_from(&self.observation.gradients);
+        self.previous_q.copy_from_slice(q);
+        self.has_previous = true;
+        for (r, longest) in self.longest.iter_mut().enumerate() {
+            *longest = longest.max(norm(self.observation.gradients.row(r)));
+        }
+        Ok(())
+    }
+
+    /// Whether the last observed state (the last good one) is next to a singular point, to
+    /// explain a failed step (an implicit stage iteration or a projection that did not
+    /// converge): a confirmed singular point (see [`Monitor::regularity`]) within ten step
+    /// lengths, or where the gradient has fallen below 1% of its longest.
+    pub(super) fn near_singular(
+        &self,
+        formulation: &dyn Formulation,
+        t: f64,
+        q: &[f64],
+    ) -> Option<(usize, SingularKind)> {
+        let g = &self.observation.gradients;
+        for r in 0..g.n_rows() {
+            let row = g.row(r);
+            let length = norm(row);
+            let (kind, ahead) = match self.has_previous {
+                true => match steps_to_vanish(row, self.previous.row(r)) {
+                    Some(steps) if steps <= 10.0 => (SingularKind::Ahead, steps),
+                    _ if length < 1e-2 * self.longest[r] => (SingularKind::Vanishes, 0.0),
+                    _ => continue,
+                },
+                false if length < 1e-2 * self.longest[r] => (SingularKind::Vanishes, 0.0),
+                false => continue,
+            };
+            if self.confirm(formulation, r, t, q, ahead, 11.0) {
+                return Some((r, kind));
+            }
+        }
+        None
+    }
+
+    /// A row whose gradient is zero or not finite at the initial state.
+    pub(super) fn singular_at_start(&self) -> Option<usize> {
+        let g = &self.observation.gradients;
+        (0..g.n_rows()).find(|&r| {
+            let length = norm(g.row(r));
+            !(length > 0.0 && length.is_finite())
+        })
+    }
+
+    fn check_divergence(&self, system: &System, t: f64) -> Result<(), Rejection> {
+        let diverged = |quantity: Quantity, value: f64, limit: Option<f64>| {
+            Err(Rejection::Diverged {
+                quantity,
+                value,
+                limit,
+            })
+        };
+        if !self.energy.is_finite() {
+            return diverged(Quantity::Energy, self.energy, None);
+        }
+        if !self.constraint_error.is_finite() {
+            return diverged(Quantity::ConstraintError, self.constraint_error, None);
+        }
+        if !self.work.is_finite() {
+            return diverged(Quantity::Work, self.work, None);
+        }
+        let (position_limit, speed_limit) = self.reach.at(t);
+        let x = &self.observation.x;
+        if let Some(k) = x.iter().position(|c| c.is_nan() || c.abs() > position_limit) {
+            let limit = x[k].is_finite().then_some(position_limit);
+            return diverged(Quantity::Position(system.coordinate_name(k)), x[k], limit);
+        }
+        let v = &self.observation.xdot;
+        if let Some(k) = v.iter().position(|c| c.is_nan() || c.abs() > speed_limit) {
+            let limit = v[k].is_finite().then_some(speed_limit);
+            return diverged(Quantity::Velocity(system.velocity_name(k)), v[k], limit);
+        }
+        Ok(())
+    }
+
+    /// The regularity monitor: the first gradient row that vanished, reversed, or is seen to
+    /// vanish ahead, at a point of the curve. Per row r, with g its gradient now, p at the
+    /// previous step's end and G its longest length in the run, a cheap first-order test
+    /// raises a candidate:
+    ///
+    /// - g . p < 0: the gradient reversed within the step (on a smooth curve it turns by far
+    ///   less than 90 degrees per step), so the step may have crossed a point where it
+    ///   vanishes;
+    /// - |g| < 1e-3 G: it has all but vanished;
+    /// - extrapolated linearly along the motion, g + s (g - p) shrinks below 0.1 |g| within
+    ///   s <= 2 steps: a singular point may be about to be reached;
+    /// - the same extrapolation nears zero at any distance while the state is off the
+    ///   constraint: near a crossing, the level set through a drifted state may belong to
+    ///   another branch.
+    ///
+    /// A candidate stops the run only when a search with exact second derivatives
+    /// ([`Formulation::locate_singular_point`]) confirms a point x* where the gradient
+    /// vanishes, on the curve (|C(x*)| small against |g| times the distance), and within
+    /// reach: on the step's chord (reversal), within three steps (vanishing, ahead), or
+    /// closer than 100 times the state's distance off the constraint (another branch). So a
+    /// wildly unstable integration on a regular curve (Euler at a huge step on a parabola,
+    /// whose gradient also reverses) is left to the divergence test, and the centre of an
+    /// ellipse (a critical point of C off the curve) stops nothing.
+    fn regularity(
+        &self,
+        formulation: &dyn Formulation,
+        t: f64,
+        q: &[f64],
+    ) -> Option<(usize, SingularKind)> {
+        if !self.has_previous {
+            return None;
+        }
+        let g = &self.observation.gradients;
+        for r in 0..g.n_rows() {
+            let row = g.row(r);
+            let previous = self.previous.row(r);
+            let length = norm(row);
+            let reversed = dot(row, previous) < 0.0;
+            let ahead = steps_to_vanish(row, previous);
+            let vanished = length < VANISHED * self.longest[r];
+            let candidate = if reversed {
+                // The chord's point where the interpolated gradient is shortest, as a step
+                // fraction s in [-1, 0] from the current state.
+                Some((
+                    SingularKind::Reverses,
+                    chord_minimum(previous, row) - 1.0,
+                    1.0,
+                ))
+            } else if let Some(steps) = ahead.filter(|&s| s <= AHEAD_STEPS) {
+                Some((SingularKind::Ahead, steps, AHEAD_STEPS + 1.0))
+            } else if vanished {
+                Some((SingularKind::Vanishes, 0.0, AHEAD_STEPS + 1.0))
+            } else if let (Some(steps), true) = (ahead, g.offset(r) > 0.0) {
+                Some((SingularKind::OffBranch, steps, f64::INFINITY))
+            } else {
+                None
+            };
+            let Some((kind, probe, reach)) = candidate else {
+                continue;
+            };
+            if kind == SingularKind::OffBranch {
+                if self.off_branch(formulation, r, t, q, probe) {
+                    return Some((r, kind));
+                }
+            } else if self.confirm(formulation, r, t, q, probe, reach) {
+                return Some((r, kind));
+            }
+        }
+        None
+    }
+
+    /// Whether a search from q + probe (q - q_prev) finds a point of the curve where row r's
+    /// gradient vanishes within `reach` step lengths of the current state (of the chord
+    /// between the previous and the current state, for a reversal).
+    fn confirm(
+        &self,
+        formulation: &dyn Formulation,
+        r: usize,
+        t: f64,
+        q: &[f64],
+        probe: f64,
+        reach: f64,
+    ) -> bool {
+        let Some((found, now, step)) = self.search(formulation, r, t, q, probe) else {
+            return false;
+        };
+        let distance = if probe < 0.0 {
+            // Reversal: the distance to the chord from the previous to the current state.
+            let before = formulation.row_variables(r, &self.previous_q);
+            distance_to_segment(&found, &before, &now)
+        } else {
+            distance(&found, &now)
+        };
+        distance <= reach * step
+    }
+
+    /// Whether the state is off row r's constraint by more than [`OFF_BRANCH`] times its
+    /// distance to a confirmed singular point of the curve ahead.
+    fn off_branch(
+        &self,
+        formulation: &dyn Formulation,
+        r: usize,
+        t: f64,
+        q: &[f64],
+        probe: f64,
+    ) -> bool {
+        let Some((found, now, _)) = self.search(formulation, r, t, q, probe) else {
+            return false;
+        };
+        self.observation.gradients.offset(r) > OFF_BRANCH * distance(&found, &now)
+    }
+
+    /// The search for row r's singular point from q + probe (q - q_prev): the point found,
+    /// the row's variables now and the length of the last step in them, when the search
+    /// converged (|g| reduced below 1e-6 of its start) at a point of the curve.
+    fn search(
+        &self,
+        formulation: &dyn Formulation,
+        r: usize,
+        t: f64,
+        q: &[f64],
+        probe: f64,
+    ) -> Option<(Vec<f64>, Vec<f64>, f64)> {
+        let start: Vec<f64> = q
+            .iter()
+            .zip(&self.previous_q)
+            .map(|(now, before)| now + probe * (now - before))
+            .collect();
+        let search = formulation.locate_singular_point(r, t, &start);
+        if search.reduction.is_nan() || search.reduction > 1e-6 {
+            return None;
+        }
+        let now = formulation.row_variables(r, q);
+        let before = formulation.row_variables(r, &self.previous_q);
+        let step = distance(&now, &before);
+        let apart = distance(&search.point, &now).max(step);
+        let length = norm(self.observation.gradients.row(r));
+        // On the curve: C there is small against what the gradient makes of the distance.
+        if search.value.is_nan() || search.value.abs() > 0.1 * length * apart {
+            return None;
+        }
+        Some((search.point, now, step))
+    }
+}
+
+/// The fraction u in [0, 1] at which p + u (g - p) is shortest.
+fn chord_minimum(p: &[f64], g: &[f64]) -> f64 {
+    let (mut pd, mut dd) = (0.0, 0.0);
+    for (p, g) in p.iter().zip(g) {
+        pd += p * (g - p);
+        dd += (g - p) * (g - p);
+    }
+    if dd > 0.0 {
+        (-pd / dd).clamp(0.0, 1.0)
+    } else {
+        0.5
+    }
+}
+
+/// With `row` = g now and `previous` = p one step earlier: the number of steps s > 0 after
+/// which the linear extrapolation g + s (g - p) is shortest, when it is then shorter than
+/// [`AHEAD_FRACTION`] |g|; None when the extrapolation never comes that close to zero.
+fn steps_to_vanish(row: &[f64], previous: &[f64]) -> Option<f64> {
+    let (mut gd, mut dd, mut gg) = (0.0, 0.0, 0.0);
+    for (g, p) in row.iter().zip(previous) {
+        let d = g - p;
+        gd += g * d;
+        dd += d * d;
+        gg += g * g;
+    }
+    if dd.is_nan() || dd <= 0.0 {
+        return None;
+    }
+    let s = -gd / dd;
+    // |g + s d|^2 = |g|^2 - (g.d)^2 / |d|^2 at the minimum.
+    let shortest = (gg - gd * gd / dd).max(0.0);
+    (s > 0.0 && shortest < AHEAD_FRACTION * AHEAD_FRACTION * gg).then_some(s)
+}
+
+fn norm(v: &[f64]) -> f64 {
+    v.iter().map(|c| c * c).sum::<f64>().sqrt()
+}
+
+fn dot(a: &[f64], b: &[f64]) -> f64 {
+    a.iter().zip(b).map(|(a, b)| a * b).sum()
+}
+
+/// The distance from `p` to the segment from `a` to `b`.
+fn distance_to_segment(p: &[f64], a: &[f64], b: &[f64]) -> f64 {
+    let (mut ap_ab, mut ab_ab) = (0.0, 0.0);
+    for ((p, a), b) in p.iter().zip(a).zip(b) {
+        ap_ab += (p - a) * (b - a);
+        ab_ab += (b - a) * (b - a);
+    }
+    let u = if ab_ab > 0.0 {
+        (ap_ab / ab_ab).clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
+    p.iter()
+        .zip(a)
+        .zip(b)
+        .map(|((p, a), b)| {
+            let c = a + u * (b - a);
+            (p - c) * (p - c)
+        })
+        .sum::<f64>()
+        .sqrt()
+}
+
+fn distance(a: &[f64], b: &[f64]) -> f64 {
+    a.iter()
+        .zip(b)
+        .map(|(a, b)| (a - b) * (a - b))
+        .sum::<f64>()
+        .sqrt()
+}
+
+/// max that propagates NaN.
+pub(super) fn max_nan(a: f64, b: f64) -> f64 {
+    if a.is_nan() || b.is_nan() {
+        f64::NAN
+    } else {
+        a.max(b)
+    }
+}

@@ -1,0 +1,252 @@
+//! A run: a [`Simulation`] advanced over a number of output intervals, each recorded sample
+//! pushed into a [`Sink`], with the figures of the run at the end.
+
+use std::time::Instant;
+
+use super::{Quantity, Simulation};
+use crate::formulation::{Method, Nonconservation, StepError};
+use crate::integrate::IntegratorKind;
+
+/// How long to run and how often to record.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct RunOptions {
+    /// Output intervals of dt to run: steps for fixed-step integrators.
+    pub steps: u64,
+    /// Record every K-th interval (the first and the last state are always recorded).
+    pub every: u64,
+}
+
+impl Default for RunOptions {
+    /// 600 intervals (10 s at dt = 1/60), every one recorded.
+    fn default() -> Self {
+        RunOptions {
+            steps: 600,
+            every: 1,
+        }
+    }
+}
+
+/// One recorded state, in particle space and in the formulation's own coordinates.
+#[derive(Clone, Copy, Debug)]
+pub struct Sample<'a> {
+    /// The output interval this sample ends (0 for the initial state).
+    pub step: u64,
+    pub t: f64,
+    /// Particle positions (n_coords)
+    pub x: &'a [f64],
+    /// Particle velocities (n_coords)
+    pub xdot: &'a [f64],
+    /// Total mechanical energy T + V
+    pub energy: f64,
+    /// max_i |C_i| over the system's implicit constraints
+    pub constraint_error: f64,
+    /// The formulation's coordinates: particle coordinates (implicit) or q (parametric)
+    pub q: &'a [f64],
+    pub qdot: &'a [f64],
+    /// The work W done on T + V so far, when the energy ledger runs
+    pub work: Option<f64>,
+    /// T + V at the start of the run
+    pub energy_initial: f64,
+    /// E_scale, the denominator of relative energy errors (see
+    /// [`Simulation::energy_scale`])
+    pub energy_scale: f64,
+}
+
+impl Sample<'_> {
+    /// The relative error of the conserved energy: |E - W - E0| / E_scale, with W = 0 when
+    /// the energy ledger does not run (then T + V itself is conserved).
+    pub fn energy_error(&self) -> f64 {
+        (self.energy - self.work.unwrap_or(0.0) - self.energy_initial).abs() / self.energy_scale
+    }
+}
+
+/// Receives samples as the run goes. Implementations flush as they write, so that a run that
+/// fails keeps every finished record.
+pub trait Sink {
+    fn record(&mut self, sample: &Sample) -> std::io::Result<()>;
+    /// Called once at the end, whether the run succeeded or failed.
+    fn finish(&mut self) -> std::io::Result<()> {
+        Ok(())
+    }
+}
+
+/// A sink that discards everything.
+pub struct NullSink;
+impl Sink for NullSink {
+    fn record(&mut self, _: &Sample) -> std::io::Result<()> {
+        Ok(())
+    }
+}
+
+/// Figures of a run (complete or up to where it stopped).
+#[derive(Clone, Debug, PartialEq)]
+pub struct RunStats {
+    pub method: Method,
+    pub integrator: IntegratorKind,
+    /// Step size, or output interval of adaptive integrators (s).
+    pub dt: f64,
+    /// Integrator steps taken (for adaptive integrators: accepted steps).
+    pub steps: u64,
+    pub t_final: f64,
+    pub wall_seconds: f64,
+    pub energy_initial: f64,
+    pub energy_final: f64,
+    /// E_scale = max(|E0|, T0 + |V0|, T0 + M |g| L): the denominator of the relative energy
+    /// errors (see [`Simulation::energy_scale`]).
+    pub energy_scale: f64,
+    /// max over the run of |E - E0| / E_scale.
+    pub energy_rel_error_max: f64,
+    /// Whether T + V is conserved (nothing does work on the system).
+    pub energy_conserved: bool,
+    /// What does work on the system when it is not.
+    pub nonconservation: Vec<Nonconservation>,
+    /// The work W done on T + V by the end, when the energy ledger ran.
+    pub work_final: Option<f64>,
+    /// max over the run of |E - W - E0| / E_scale, when the energy ledger ran: the error of
+    /// the conserved quantity E - W.
+    pub energy_balance_error_max: Option<f64>,
+    pub constraint_error_max: f64,
+    pub constraint_error_final: f64,
+    /// Final particle positions and velocities (n_coords each).
+    pub x: Vec<f64>,
+    pub xdot: Vec<f64>,
+    /// Final formulation coordinates and rates.
+    pub q: Vec<f64>,
+    pub qdot: Vec<f64>,
+    /// Adaptive runs only (dopri5): integrator steps accepted and rejected.
+    pub accepted_steps: Option<u64>,
+    pub rejected_steps: Option<u64>,
+    /// Whether positions and velocities were projected onto the constraints after every step.
+    pub projected: bool,
+    /// The most Newton iterations any step needed, over the integrator's own solve (rattle)
+    /// and the projection; `None` when neither ran.
+    pub newton_iterations_max: Option<usize>,
+}
+
+impl RunStats {
+    /// Integrator steps per second of wall time (accepted steps for adaptive integrators).
+    pub fn steps_per_second(&self) -> f64 {
+        if self.wall_seconds > 0.0 {
+            self.steps as f64 / self.wall_seconds
+        } else {
+            0.0
+        }
+    }
+}
+
+/// Why a simulation or a run stopped.
+#[derive(Debug, thiserror::Error)]
+pub enum RunError {
+    #[error("{0}")]
+    Step(StepError),
+    #[error("diverged at t = {} (step {step}): {quantity} is {}{}", crate::readable(*t), crate::readable(*value), limit.map(|l| format!(", beyond {} (10^12 times the reach of the initial state, gravity and the initial energy by then)", crate::readable(l))).unwrap_or_default())]
+    Diverged {
+        t: f64,
+        step: u64,
+        quantity: Quantity,
+        value: f64,
+        /// The limit a finite value passed.
+        limit: Option<f64>,
+    },
+    #[error("cannot advance to t = {} from t = {}: time only moves forward", crate::readable(*requested), crate::readable(*now))]
+    TimeBehind { requested: f64, now: f64 },
+    #[error("writing output failed: {0}")]
+    Io(#[from] std::io::Error),
+}
+
+/// A run that stopped early, with the figures up to the last good state.
+#[derive(Debug, thiserror::Error)]
+#[error("{error}")]
+pub struct RunFailure {
+    pub error: RunError,
+    pub stats: Box<RunStats>,
+}
+
+/// Told how far a run has got, for progress bars. Called at most about 100 times per run
+/// (every `max(1, total / 100)` output intervals), from the step loop, which allocates
+/// nothing: implementations should not allocate either.
+pub trait Progress {
+    /// `step` of `total` output intervals done.
+    fn advance(&mut self, step: u64, total: u64);
+}
+
+/// A [`Progress`] that ignores everything.
+pub struct NoProgress;
+impl Progress for NoProgress {
+    fn advance(&mut self, _: u64, _: u64) {}
+}
+
+/// Run `simulation` from where it is over `options.steps` output intervals of dt, recording
+/// into `sink`. The step loop allocates nothing.
+pub fn run(
+    simulation: &mut Simulation,
+    options: RunOptions,
+    sink: &mut dyn Sink,
+) -> Result<RunStats, RunFailure> {
+    run_with_progress(simulation, options, sink, &mut NoProgress)
+}
+
+/// [`run`], telling `progress` how far it has got (see [`Progress`]).
+///
+/// Output time k is t0 + k dt, computed from k so that it does not accumulate rounding; a
+/// fixed-step integrator takes one step per interval, an adaptive one its own steps with the
+/// samples from its dense output, the last step landing on the end. On failure the
+/// simulation holds the last good state, which the sink has received as well.
+pub fn run_with_progress(
+    simulation: &mut Simulation,
+    options: RunOptions,
+    sink: &mut dyn Sink,
+    progress: &mut dyn Progress,
+) -> Result<RunStats, RunFailure> {
+    let start = Instant::now();
+    let t0 = simulation.t();
+    let dt = simulation.config().dt;
+    let every = options.every.max(1);
+    let progress_every = (options.steps / 100).max(1);
+    simulation.set_stop_time(Some(t0 + options.steps as f64 * dt));
+    let mut failure = None;
+    let mut recorded_t = t0;
+    if let Err(e) = sink.record(&simulation.sample(0)) {
+        failure = Some(RunError::Io(e));
+    }
+    let mut interval = 0;
+    while failure.is_none() && interval < options.steps {
+        let next = interval + 1;
+        if let Err(e) = simulation.advance_to(t0 + next as f64 * dt) {
+            failure = Some(e);
+            break;
+        }
+        interval = next;
+        if interval % progress_every == 0 {
+            progress.advance(interval, options.steps);
+        }
+        if interval % every == 0 || interval == options.steps {
+            recorded_t = simulation.t();
+            if let Err(e) = sink.record(&simulation.sample(interval)) {
+                failure = Some(RunError::Io(e));
+            }
+        }
+    }
+    if failure.is_some()
+        && !matches!(failure, Some(RunError::Io(_)))
+        && simulation.t() != recorded_t
+    {
+        // The last good state: make sure the sink has it. Best effort: the run has already
+        // failed, and that error is the one to report.
+        let _ = sink.record(&simulation.sample(interval));
+    }
+    simulation.set_stop_time(None);
+    let stats = simulation.stats(start.elapsed().as_secs_f64());
+    let finish = sink.finish();
+    match (failure, finish) {
+        (Some(error), _) => Err(RunFailure {
+            error,
+            stats: Box::new(stats),
+        }),
+        (None, Err(e)) => Err(RunFailure {
+            error: RunError::Io(e),
+            stats: Box::new(stats),
+        }),
+        (None, Ok(())) => Ok(stats),
+    }
+}
