@@ -35,6 +35,14 @@ pub trait SecondOrderSystem {
         a: &mut [f64],
     ) -> Result<(), StepError>;
 
+    /// Whether f may depend on qdot. Integrators whose velocity update is implicit in qdot
+    /// (verlet's second half kick) solve it only when this is true, and take the explicit
+    /// update, exact then, when it is false. Answering false for a system whose f does depend
+    /// on qdot costs accuracy (verlet drops to first order), so the default is true.
+    fn velocity_dependent(&self) -> bool {
+        true
+    }
+
     /// The holonomic constraints of this system, for integrators and projections that work
     /// on them directly (RATTLE, `--project`). `None` (the default) for systems without
     /// constraints to project onto, such as the parametric form.

@@ -122,4 +122,9 @@ impl Force {
     pub fn is_conservative(&self) -> bool {
         !matches!(self, Force::Drag { .. })
     }
+
+    /// Whether the force depends on the velocities (drag does).
+    pub fn depends_on_velocity(&self) -> bool {
+        matches!(self, Force::Drag { .. })
+    }
 }
