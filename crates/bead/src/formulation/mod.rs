@@ -72,8 +72,15 @@ pub enum StepError {
     },
     #[error("{what} needs the implicit form; the parametric form has no constraints to project onto — use gauss-legendre or rk4")]
     NeedsConstraints { what: String },
-    #[error("at t = {t}: the implicit stage equations (gauss-legendre) did not converge in {iterations} fixed-point iterations (last increment {residual:.3e} relative to the stage accelerations); reduce dt: the iteration converges when dt is small against the system's time scales")]
+    /// The fixed-point iteration of an integrator's implicit equations did not converge:
+    /// gauss-legendre's stages, or the velocity half kick of verlet and rattle when the
+    /// acceleration depends on the velocity.
+    #[error("at t = {t}: {method}: the implicit {equations} did not converge in {iterations} fixed-point iterations (last increment {residual:.3e} relative to the accelerations); reduce dt: the iteration converges when dt is small against the system's time scales")]
     ImplicitStageFailed {
+        /// The integrator, e.g. `gauss-legendre`.
+        method: &'static str,
+        /// Which equations, e.g. `stage equations`.
+        equations: &'static str,
         t: f64,
         iterations: u32,
         residual: f64,

@@ -14,6 +14,7 @@
 
 mod dopri5;
 mod euler;
+mod fixed_point;
 mod gauss_legendre;
 mod midpoint;
 mod rattle;
