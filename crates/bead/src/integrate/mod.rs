@@ -68,10 +68,11 @@ pub struct IntegratorSettings {
     /// 1e-10: below the rtol share for any state of magnitude >= 0.01, so that rtol governs
     /// and atol only guards components passing through zero.
     pub atol: f64,
-    /// gauss-legendre: the stage iteration stops when its increment's max norm is at most
-    /// this times the stage accelerations' max norm. Default 1e-14 (round-off).
+    /// gauss-legendre's stage iteration, and the implicit velocity kick of verlet and rattle
+    /// on velocity-dependent systems: the fixed-point iteration stops when its increment's
+    /// max norm is at most this times the accelerations' max norm. Default 1e-14 (round-off).
     pub implicit_tolerance: f64,
-    /// gauss-legendre: stage iterations allowed per step before
+    /// gauss-legendre, verlet, rattle: fixed-point iterations allowed per step before
     /// [`StepError::ImplicitStageFailed`]. Default 50.
     pub implicit_max_iterations: u32,
 }
@@ -186,7 +187,7 @@ impl IntegratorKind {
             IntegratorKind::SymplecticEuler => Box::new(SymplecticEuler::new(n)),
             IntegratorKind::Midpoint => Box::new(Midpoint::new(n)),
             IntegratorKind::Rk4 => Box::new(Rk4::new(n)),
-            IntegratorKind::Verlet => Box::new(Verlet::new(n)),
+            IntegratorKind::Verlet => Box::new(Verlet::with_settings(n, settings)),
             IntegratorKind::Rattle => Box::new(Rattle::new(
                 n,
                 settings.constraint_tolerance,
