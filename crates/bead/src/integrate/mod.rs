@@ -188,11 +188,7 @@ impl IntegratorKind {
             IntegratorKind::Midpoint => Box::new(Midpoint::new(n)),
             IntegratorKind::Rk4 => Box::new(Rk4::new(n)),
             IntegratorKind::Verlet => Box::new(Verlet::with_settings(n, settings)),
-            IntegratorKind::Rattle => Box::new(Rattle::new(
-                n,
-                settings.constraint_tolerance,
-                settings.constraint_max_iterations,
-            )),
+            IntegratorKind::Rattle => Box::new(Rattle::with_settings(n, settings)),
             IntegratorKind::GaussLegendre => Box::new(GaussLegendre::new(n, settings)),
             IntegratorKind::Dopri5 => Box::new(Dopri5::new(n, settings)),
         }
