@@ -22,8 +22,8 @@
 //! times max |A| (default 1e-14), or when the increments stop shrinking at round-off, and fails
 //! with [`StepError::ImplicitStageFailed`] naming verlet after `implicit_max_iterations`
 //! sweeps (both in [`super::IntegratorSettings`]): reduce dt. Cost per step: two evaluations
-//! of f on velocity-independent systems, 2 + (sweeps) otherwise, typically 2 + 3 to 5 at
-//! ordinary step sizes.
+//! of f on velocity-independent systems, 2 + (sweeps) otherwise: 3 to 9 sweeps on the
+//! systems of `tests/physics_orders.rs` at dt = 1/100 to 1/400 s, fewer as dt shrinks.
 //!
 //! Meant for unconstrained and pinned systems and as the base of RATTLE ([`super::Rattle`]).
 //! On the implicit form with curved constraints it is Verlet on the constraint-force ODE,
