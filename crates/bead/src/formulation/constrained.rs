@@ -39,6 +39,11 @@ pub trait ConstrainedSystem: SecondOrderSystem {
         qdot: &[f64],
         a: &mut [f64],
     ) -> Result<(), StepError>;
+    /// Whether a = W F depends on qdot (drag). RATTLE solves its second half kick
+    /// implicitly only then. The default, true, is the safe answer.
+    fn applied_forces_velocity_dependent(&self) -> bool {
+        true
+    }
     /// C(q, t) into `c` (m).
     fn constraint_values(&mut self, t: f64, q: &[f64], c: &mut [f64]);
     /// J = dC/dq at (q, t) into `jacobian`: dense, row-major m x n, every entry overwritten.
@@ -172,6 +177,11 @@ impl ConstrainedSystem for Implicit {
             *a = w * f;
         }
         Ok(())
+    }
+
+    fn applied_forces_velocity_dependent(&self) -> bool {
+        self.system.forces().iter().any(|f| f.depends_on_velocity())
+            || self.external.iter().any(|f| f.depends_on_velocity())
     }
 
     fn constraint_values(&mut self, t: f64, q: &[f64], c: &mut [f64]) {

@@ -165,6 +165,15 @@ impl SecondOrderSystem for Implicit {
         Ok(())
     }
 
+    /// True with any constraint row (the bias v^T H v + 2 C_xt v and the feedback kd Cdot
+    /// depend on v; a linear constraint's bias vanishes, but Rust-typed rows cannot be
+    /// inspected, so every row counts) or a velocity-dependent force (drag).
+    fn velocity_dependent(&self) -> bool {
+        self.system.constraints().n_rows() > 0
+            || self.system.forces().iter().any(|f| f.depends_on_velocity())
+            || self.external.iter().any(|f| f.depends_on_velocity())
+    }
+
     fn as_constrained(&mut self) -> Option<&mut dyn super::ConstrainedSystem> {
         Some(self)
     }

@@ -38,6 +38,14 @@ pub trait SecondOrderSystem {
         a: &mut [f64],
     ) -> Result<(), StepError>;
 
+    /// Whether f may depend on qdot. Integrators whose velocity update is implicit in qdot
+    /// (verlet's second half kick) solve it only when this is true, and take the explicit
+    /// update, exact then, when it is false. Answering false for a system whose f does depend
+    /// on qdot costs accuracy (verlet drops to first order), so the default is true.
+    fn velocity_dependent(&self) -> bool {
+        true
+    }
+
     /// The holonomic constraints of this system, for integrators and projections that work
     /// on them directly (RATTLE, `--project`). `None` (the default) for systems without
     /// constraints to project onto, such as the parametric form.
@@ -67,8 +75,15 @@ pub enum StepError {
     },
     #[error("{what} needs the implicit form; the parametric form has no constraints to project onto — use gauss-legendre or rk4")]
     NeedsConstraints { what: String },
-    #[error("at t = {t}: the implicit stage equations (gauss-legendre) did not converge in {iterations} fixed-point iterations (last increment {residual:.3e} relative to the stage accelerations); reduce dt: the iteration converges when dt is small against the system's time scales")]
+    /// The fixed-point iteration of an integrator's implicit equations did not converge:
+    /// gauss-legendre's stages, or the velocity half kick of verlet and rattle when the
+    /// acceleration depends on the velocity.
+    #[error("at t = {t}: {method}: the implicit {equations} did not converge in {iterations} fixed-point iterations (last increment {residual:.3e} relative to the accelerations); reduce dt: the iteration converges when dt is small against the system's time scales")]
     ImplicitStageFailed {
+        /// The integrator, e.g. `gauss-legendre`.
+        method: &'static str,
+        /// Which equations, e.g. `stage equations`.
+        equations: &'static str,
         t: f64,
         iterations: u32,
         residual: f64,

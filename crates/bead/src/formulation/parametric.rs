@@ -38,6 +38,8 @@ pub struct Parametric {
     external: Vec<Force>,
     /// The system's implicit constraints, evaluated at the mapped positions for the monitors.
     constraints: ConstraintEval,
+    /// Whether qddot depends on qdot, decided once from the model (see `velocity_dependent`).
+    velocity_dependent: bool,
 }
 
 impl Parametric {
@@ -47,7 +49,15 @@ impl Parametric {
             .parametric()
             .ok_or(FormulationError::NoParametricForm)?;
         let n_q = map.n_q();
+        // qddot depends on qdot through drag, or through h = x_qq(qdot, qdot) + 2 x_qt qdot
+        // + x_tt when the compiled h reads a rate slot (n_q..2 n_q): a map nonlinear in q (so
+        // also any non-constant M(q)) or one whose J moves with t. Symbolic dependence is a
+        // superset of the true one, so this errs on the safe side.
+        let velocity_dependent = system.forces().iter().any(|f| f.depends_on_velocity())
+            || (0..system.n_coords())
+                .any(|k| (n_q..2 * n_q).any(|slot| map.symbolic(k).2.depends_on(slot)));
         Ok(Parametric {
+            velocity_dependent,
             solver: Box::new(DenseCholesky::default()),
             map: map.workspace(),
             force: vec![0.0; system.n_coords()],
@@ -124,6 +134,12 @@ impl SecondOrderSystem for Parametric {
         }
         qddot.copy_from_slice(&self.rhs);
         Ok(())
+    }
+
+    /// True with a velocity-dependent force (drag) or when h = xddot - J qddot depends on
+    /// qdot (the map is nonlinear in q or its J depends on t); decided at construction.
+    fn velocity_dependent(&self) -> bool {
+        self.velocity_dependent || self.external.iter().any(|f| f.depends_on_velocity())
     }
 }
 

@@ -31,6 +31,7 @@
 // Stage loops index the Butcher tableau as the formulas do (a_ij, c_i, b_i).
 #![allow(clippy::needless_range_loop)]
 
+use super::fixed_point::{increment_and_scale, FixedPoint};
 use super::{Integrator, IntegratorSettings};
 use crate::formulation::{SecondOrderSystem, State, StepError};
 
@@ -38,8 +39,6 @@ const SQRT3_6: f64 = 0.288_675_134_594_812_882_254_574_390_251; // sqrt(3)/6
 const C: [f64; 2] = [0.5 - SQRT3_6, 0.5 + SQRT3_6];
 const A: [[f64; 2]; 2] = [[0.25, 0.25 - SQRT3_6], [0.25 + SQRT3_6, 0.25]];
 const B: [f64; 2] = [0.5, 0.5];
-/// Increments that stop shrinking below this fraction of |A| have reached round-off.
-const STAGNATION_LEVEL: f64 = 1e-10;
 
 /// Two-stage Gauss-Legendre (order 4, symplectic) with fixed-point stage iteration.
 pub struct GaussLegendre {
@@ -51,8 +50,8 @@ pub struct GaussLegendre {
     velocity: [Vec<f64>; 2],
     /// Stage positions Q_i (2 x n)
     position: [Vec<f64>; 2],
-    tolerance: f64,
-    max_iterations: u32,
+    /// Stopping rule of the stage iteration
+    rule: FixedPoint,
     /// Most stage iterations any step so far has needed
     iterations_max: usize,
     /// The state this integrator last produced and the step that produced it, to start the
@@ -72,8 +71,12 @@ impl GaussLegendre {
             next: pair(),
             velocity: pair(),
             position: pair(),
-            tolerance: settings.implicit_tolerance,
-            max_iterations: settings.implicit_max_iterations.max(1),
+            rule: FixedPoint {
+                method: "gauss-legendre",
+                equations: "stage equations",
+                tolerance: settings.implicit_tolerance,
+                max_iterations: settings.implicit_max_iterations.max(1),
+            },
             iterations_max: 0,
             end_q: vec![0.0; n],
             end_qdot: vec![0.0; n],
@@ -151,40 +154,18 @@ impl Integrator for GaussLegendre {
                     &mut self.next[i],
                 )?;
             }
-            let mut increment = 0.0_f64;
-            let mut scale = 0.0_f64;
+            let (mut increment, mut scale) = (0.0, 0.0);
             for i in 0..2 {
-                for (new, old) in self.next[i].iter().zip(&self.acceleration[i]) {
-                    let d = (new - old).abs();
-                    // NaN-propagating max: a non-finite stage must not look converged.
-                    increment = if d.is_nan() { d } else { increment.max(d) };
-                    scale = scale.max(new.abs());
-                }
+                (increment, scale) =
+                    increment_and_scale(&self.next[i], &self.acceleration[i], (increment, scale));
             }
             std::mem::swap(&mut self.acceleration, &mut self.next);
-            if !increment.is_finite() || !scale.is_finite() {
-                return Err(StepError::ImplicitStageFailed {
-                    t: s.t,
-                    iterations,
-                    residual: f64::NAN,
-                });
-            }
-            let converged = increment <= self.tolerance * scale
-                || (increment >= previous && increment <= STAGNATION_LEVEL * scale);
-            if converged {
+            if self
+                .rule
+                .converged(s.t, iterations, increment, previous, scale)?
+            {
                 self.iterations_max = self.iterations_max.max(iterations as usize);
                 break;
-            }
-            if iterations >= self.max_iterations {
-                return Err(StepError::ImplicitStageFailed {
-                    t: s.t,
-                    iterations,
-                    residual: if scale > 0.0 {
-                        increment / scale
-                    } else {
-                        increment
-                    },
-                });
             }
             previous = increment;
         }

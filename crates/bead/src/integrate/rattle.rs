@@ -1,16 +1,18 @@
 //! RATTLE (Andersen 1983; Leimkuhler & Reich, *Simulating Hamiltonian Dynamics*, ch. 7):
 //! velocity Verlet with the holonomic constraints C(q, t) = 0 enforced at the position and at
-//! the velocity level by Lagrange multipliers. With the applied acceleration a = W F(q):
+//! the velocity level by Lagrange multipliers. With the applied acceleration a = W F(q, v):
 //!
 //! ```text
-//! v_half  = v_n + h/2 (a_n + W J(q_n)^T lambda)
+//! v_half  = v_n + h/2 (a(q_n, v_n) + W J(q_n)^T lambda)
 //! q_{n+1} = q_n + h v_half,            C(q_{n+1}, t_{n+1}) = 0        (solve for lambda)
-//! v_{n+1} = v_half + h/2 (a_{n+1} + W J(q_{n+1})^T mu),
+//! v_{n+1} = v_half + h/2 (a(q_{n+1}, v_{n+1}) + W J(q_{n+1})^T mu),
 //!           J(q_{n+1}) v_{n+1} + C_t(q_{n+1}, t_{n+1}) = 0           (solve for mu)
 //! ```
-//! Order 2, symmetric and symplectic on the constraint manifold (for forces a = a(q)): the
-//! energy error stays bounded, and the constraint holds after every step to the solver
-//! tolerance, without drift and without feedback.
+//! Order 2 for any applied forces, drag included. For forces a = a(q) it is RATTLE exactly:
+//! symmetric and symplectic on the constraint manifold, so the energy error stays bounded, and
+//! the constraint holds after every step to the solver tolerance, without drift and without
+//! feedback. With velocity-dependent forces (drag) the last line is implicit in v_{n+1} and
+//! the method dissipative, as the system is.
 //!
 //! **Position solve (SHAKE).** Write q(nu) = q_pred - W J(q_n)^T nu with the unconstrained
 //! predictor q_pred = q_n + h v_n + h^2/2 a_n (nu = -h^2/2 lambda). The correction direction
@@ -24,20 +26,26 @@
 //! needing more than `max_iterations` Newton steps, or a NaN residual, is
 //! [`StepError::ProjectionFailed`], never a silent continuation.
 //!
-//! **Velocity solve.** Linear in mu: the mass-weighted projection of
+//! **Velocity solve.** For a given a_{n+1}, linear in mu: the mass-weighted projection of
 //! v_half + h/2 a_{n+1} onto J v = -C_t, done by [`ConstrainedSystem::project_velocities`] (the
-//! symmetric J W J^T at q_{n+1}, the formulation's SPD solver, singular rows named).
-//!
-//! **Forces.** a_{n+1} is evaluated at (q_{n+1}, v_half), a_n at (q_n, v_n). For forces that
-//! depend only on q this is RATTLE exactly; with velocity-dependent forces (drag) it is the
-//! explicit variant and not symplectic, which is expected for a dissipative system.
+//! symmetric J W J^T at q_{n+1}, the formulation's SPD solver, singular rows named), with
+//! a_{n+1} = a(q_{n+1}, v_half) first. When the applied forces ignore the velocity
+//! ([`ConstrainedSystem::applied_forces_velocity_dependent`] false) that is all: one force
+//! evaluation and one projection. Otherwise a_{n+1} = a(q_{n+1}, v_{n+1}) is solved by
+//! fixed-point iteration, each sweep re-evaluating a at the last projected v_{n+1} and
+//! projecting again (one force evaluation and one projection per sweep; the evaluation at
+//! v_half alone would be an O(h^2) error per step, first order). It contracts by about
+//! h/2 ||da/dv|| (c/(2m) h for drag c) and stops or fails as gauss-legendre's stages do
+//! (`implicit_tolerance`, `implicit_max_iterations` in [`IntegratorSettings`]; failure is
+//! [`StepError::ImplicitStageFailed`] naming rattle: reduce dt).
 //!
 //! RATTLE works on the constraints themselves, so it needs the implicit form: on a system
 //! without [`SecondOrderSystem::as_constrained`] (the parametric form) each step fails with
 //! [`StepError::NeedsConstraints`]. Buffers that depend on the number of constraints m are
 //! sized on the first step; later steps allocate nothing.
 
-use super::Integrator;
+use super::fixed_point::{increment_and_scale, FixedPoint};
+use super::{Integrator, IntegratorSettings};
 use crate::formulation::{ConstrainedSystem, SecondOrderSystem, State, StepError};
 use crate::linalg::solve_general;
 
@@ -47,8 +55,16 @@ pub struct Rattle {
     max_iterations: usize,
     /// Most Newton iterations any step has needed so far.
     iterations_max: usize,
-    /// a (n)
+    /// Stopping rule of the implicit velocity kick (velocity-dependent forces)
+    rule: FixedPoint,
+    /// Most sweeps of the implicit velocity kick any step has needed so far.
+    velocity_iterations_max: usize,
+    /// a, then the current iterate of a_{n+1} (n)
     acceleration: Vec<f64>,
+    /// a at the velocity the current a_{n+1} implies (n)
+    next: Vec<f64>,
+    /// v_half (n)
+    velocity_half: Vec<f64>,
     /// q_n (n)
     q_start: Vec<f64>,
     /// W (n)
@@ -69,13 +85,36 @@ pub struct Rattle {
 
 impl Rattle {
     /// RATTLE for n coordinates: the position solve stops at max_i |C_i| <= `tolerance`
-    /// (absolute) and fails after `max_iterations` Newton iterations.
+    /// (absolute) and fails after `max_iterations` Newton iterations. The implicit velocity
+    /// kick uses the defaults of [`IntegratorSettings`].
     pub fn new(n: usize, tolerance: f64, max_iterations: usize) -> Self {
+        Self::with_settings(
+            n,
+            &IntegratorSettings {
+                constraint_tolerance: tolerance,
+                constraint_max_iterations: max_iterations,
+                ..IntegratorSettings::default()
+            },
+        )
+    }
+
+    /// RATTLE for n coordinates with the constraint and implicit-solve tolerances and
+    /// iteration limits of `settings`.
+    pub fn with_settings(n: usize, settings: &IntegratorSettings) -> Self {
         Rattle {
-            tolerance,
-            max_iterations,
+            tolerance: settings.constraint_tolerance,
+            max_iterations: settings.constraint_max_iterations,
             iterations_max: 0,
+            rule: FixedPoint {
+                method: "rattle",
+                equations: "velocity half kick v' = v_half + h/2 (a(q', v') + W J^T mu)",
+                tolerance: settings.implicit_tolerance,
+                max_iterations: settings.implicit_max_iterations.max(1),
+            },
+            velocity_iterations_max: 0,
             acceleration: vec![0.0; n],
+            next: vec![0.0; n],
+            velocity_half: vec![0.0; n],
             q_start: vec![0.0; n],
             inverse_mass: vec![0.0; n],
             jacobian_start: Vec::new(),
@@ -85,6 +124,12 @@ impl Rattle {
             nu: Vec::new(),
             column_scale: Vec::new(),
         }
+    }
+
+    /// The most fixed-point sweeps of the implicit velocity kick any step so far has needed
+    /// (0 while the applied forces did not depend on the velocity).
+    pub fn velocity_iterations_max(&self) -> usize {
+        self.velocity_iterations_max
     }
 
     /// Size the m-dependent buffers (allocates only when m changes, i.e. on the first step).
@@ -158,6 +203,26 @@ impl Rattle {
     }
 }
 
+/// v = v_half + h/2 a, then the mass-weighted projection onto J(q) v + C_t(q, t) = 0 (which
+/// adds the W J^T mu term).
+fn kick_and_project(
+    cs: &mut dyn ConstrainedSystem,
+    t: f64,
+    q: &[f64],
+    v: &mut [f64],
+    velocity_half: &[f64],
+    half: f64,
+    acceleration: &[f64],
+) -> Result<(), StepError> {
+    for ((v, vh), a) in v.iter_mut().zip(velocity_half).zip(acceleration) {
+        *v = vh + half * a;
+    }
+    if cs.n_constraints() > 0 {
+        cs.project_velocities(t, q, v)?;
+    }
+    Ok(())
+}
+
 /// max |c_i|, NaN if any is NaN.
 fn max_abs(c: &[f64]) -> f64 {
     c.iter().fold(0.0, |m: f64, c| {
@@ -210,13 +275,47 @@ impl Integrator for Rattle {
                 }
             }
         }
-        // Second half kick, then the velocity constraint J v + C_t = 0 (the mu solve).
+        // Second half kick, then the velocity constraint J v + C_t = 0 (the mu solve), with
+        // a_{n+1} first at v_half.
+        self.velocity_half.copy_from_slice(&s.qdot);
         cs.unconstrained_acceleration(t1, &s.q, &s.qdot, &mut self.acceleration)?;
-        for (v, a) in s.qdot.iter_mut().zip(&self.acceleration) {
-            *v += half * a;
-        }
-        if m > 0 {
-            cs.project_velocities(t1, &s.q, &mut s.qdot)?;
+        kick_and_project(
+            cs,
+            t1,
+            &s.q,
+            &mut s.qdot,
+            &self.velocity_half,
+            half,
+            &self.acceleration,
+        )?;
+        if cs.applied_forces_velocity_dependent() {
+            // Fixed point a_{n+1} = a(q_{n+1}, v_{n+1}(a_{n+1})).
+            let mut previous = f64::INFINITY;
+            let mut iterations = 0;
+            loop {
+                iterations += 1;
+                cs.unconstrained_acceleration(t1, &s.q, &s.qdot, &mut self.next)?;
+                let (increment, scale) =
+                    increment_and_scale(&self.next, &self.acceleration, (0.0, 0.0));
+                std::mem::swap(&mut self.acceleration, &mut self.next);
+                kick_and_project(
+                    cs,
+                    t1,
+                    &s.q,
+                    &mut s.qdot,
+                    &self.velocity_half,
+                    half,
+                    &self.acceleration,
+                )?;
+                if self
+                    .rule
+                    .converged(t0, iterations, increment, previous, scale)?
+                {
+                    break;
+                }
+                previous = increment;
+            }
+            self.velocity_iterations_max = self.velocity_iterations_max.max(iterations as usize);
         }
         s.t = t1;
         Ok(())

@@ -123,8 +123,8 @@ impl Force {
         !matches!(self, Force::Drag { .. })
     }
 
-    /// Whether the force depends on velocities (drag does).
-    pub fn is_velocity_dependent(&self) -> bool {
+    /// Whether the force depends on the velocities (drag does).
+    pub fn depends_on_velocity(&self) -> bool {
         matches!(self, Force::Drag { .. })
     }
 

@@ -175,7 +175,7 @@ impl System {
 
     /// Whether any applied force depends on the velocities (drag).
     pub fn has_velocity_dependent_forces(&self) -> bool {
-        self.forces.iter().any(Force::is_velocity_dependent)
+        self.forces.iter().any(Force::depends_on_velocity)
     }
 
     /// Names of the forces that do work without a potential, e.g. `drag on \`bead\``.

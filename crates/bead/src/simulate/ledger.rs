@@ -38,8 +38,26 @@ impl LedgerScratch {
 
 /// A formulation plus the work coordinate (see the module documentation).
 pub(super) struct WithWork<'a> {
-    pub(super) formulation: &'a mut (dyn Formulation + Send),
-    pub(super) scratch: &'a mut LedgerScratch,
+    formulation: &'a mut (dyn Formulation + Send),
+    scratch: &'a mut LedgerScratch,
+    /// Whether the applied forces (so also their power) depend on the velocities
+    applied_velocity_dependent: bool,
+}
+
+impl<'a> WithWork<'a> {
+    pub(super) fn new(
+        formulation: &'a mut (dyn Formulation + Send),
+        scratch: &'a mut LedgerScratch,
+    ) -> Self {
+        let applied_velocity_dependent = formulation
+            .as_constrained()
+            .is_none_or(|c| c.applied_forces_velocity_dependent());
+        WithWork {
+            formulation,
+            scratch,
+            applied_velocity_dependent,
+        }
+    }
 }
 
 impl WithWork<'_> {
@@ -91,6 +109,12 @@ impl ConstrainedSystem for WithWork<'_> {
 
     fn inverse_mass(&self) -> &[f64] {
         &self.scratch.inverse_mass
+    }
+
+    /// The work coordinate's acceleration is the applied forces' power F_nc . v, which
+    /// depends on v exactly when some of those forces exist; the formulation knows.
+    fn applied_forces_velocity_dependent(&self) -> bool {
+        self.applied_velocity_dependent
     }
 
     /// a = W F for the particles, and the applied forces' power for the work coordinate.

@@ -799,10 +799,7 @@ fn with_system<R>(
     f: impl FnOnce(&mut dyn SecondOrderSystem) -> R,
 ) -> R {
     match ledger {
-        Some(scratch) => f(&mut WithWork {
-            formulation: &mut **formulation,
-            scratch,
-        }),
+        Some(scratch) => f(&mut WithWork::new(&mut **formulation, scratch)),
         None => f(&mut **formulation),
     }
 }

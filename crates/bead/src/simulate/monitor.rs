@@ -314,7 +314,10 @@ impl Monitor {
         }
         let (position_limit, speed_limit) = self.reach.at(t);
         let x = &self.observation.x;
-        if let Some(k) = x.iter().position(|c| c.is_nan() || c.abs() > position_limit) {
+        if let Some(k) = x
+            .iter()
+            .position(|c| c.is_nan() || c.abs() > position_limit)
+        {
             let limit = x[k].is_finite().then_some(position_limit);
             return diverged(Quantity::Position(system.coordinate_name(k)), x[k], limit);
         }
