@@ -131,7 +131,8 @@ pub enum SingularKind {
     /// The gradient reversed its direction within one step: the step crossed a point where
     /// it vanishes.
     Reverses,
-    /// Extrapolated along the motion, the gradient vanishes within the next two steps.
+    /// Extrapolated along the motion, the gradient vanishes within the next few steps (two
+    /// for a step that was accepted, ten to explain one that failed).
     Ahead,
     /// The state is off the constraint by more than 1/100 of the distance to a point ahead
     /// where the gradient vanishes: near a crossing the level set through the state belongs
@@ -162,11 +163,13 @@ fn describe_singular_point(
     let happened = match kind {
         SingularKind::Vanishes => format!("{what} vanishes near {at}"),
         SingularKind::Reverses => format!("{what} reversed direction within the step that ended at {at}, so the step crossed a point where it vanishes"),
-        SingularKind::Ahead => format!("{what} vanishes within the next two steps from {at}"),
+        SingularKind::Ahead => format!("{what} vanishes a few steps ahead of {at}"),
         SingularKind::OffBranch => format!("the state {at} is off the constraint by more than 1/100 of its distance to a point ahead where {what} vanishes, so it may follow another branch of the curve"),
         SingularKind::AtStart => format!("{what} is zero or not finite at the initial state {at}"),
     };
-    let cause = cause.map(|c| format!(" ({c})")).unwrap_or_default();
+    let cause = cause
+        .map(|c| format!(" (which is why the step failed: {c})"))
+        .unwrap_or_default();
     format!(
         "at t = {}: {subject} is singular: {happened}: {how}{cause}",
         crate::readable(t)

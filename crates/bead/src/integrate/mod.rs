@@ -56,6 +56,13 @@ pub trait Integrator: Send {
     fn newton_iterations_max(&self) -> Option<usize> {
         None
     }
+
+    /// The work done on the particles by constraint impulses the last step applied outside
+    /// of f (RATTLE's multipliers), sum of Delta p . v; 0 for methods that take every force
+    /// from f. The energy ledger adds it to the work W (see `simulate`).
+    fn constraint_work(&self) -> f64 {
+        0.0
+    }
 }
 
 /// Settings of the iterative integrators and of the constraint projection, with defaults.

@@ -65,6 +65,10 @@ pub struct Rattle {
     next: Vec<f64>,
     /// v_half (n)
     velocity_half: Vec<f64>,
+    /// v_n (n)
+    velocity_start: Vec<f64>,
+    /// The work of the last step's constraint impulses (see `constraint_work`)
+    constraint_work: f64,
     /// q_n (n)
     q_start: Vec<f64>,
     /// W (n)
@@ -115,6 +119,8 @@ impl Rattle {
             acceleration: vec![0.0; n],
             next: vec![0.0; n],
             velocity_half: vec![0.0; n],
+            velocity_start: vec![0.0; n],
+            constraint_work: 0.0,
             q_start: vec![0.0; n],
             inverse_mass: vec![0.0; n],
             jacobian_start: Vec::new(),
@@ -255,6 +261,8 @@ impl Integrator for Rattle {
         // Unconstrained half kick and drift: v_half = v + h/2 a_n, q_pred = q + h v_half.
         cs.unconstrained_acceleration(t0, &s.q, &s.qdot, &mut self.acceleration)?;
         self.q_start.copy_from_slice(&s.q);
+        self.velocity_start.copy_from_slice(&s.qdot);
+        self.constraint_work = 0.0;
         for ((q, v), a) in
             s.q.iter_mut()
                 .zip(s.qdot.iter_mut())
@@ -267,12 +275,24 @@ impl Integrator for Rattle {
             cs.constraint_jacobian(t0, &self.q_start, &mut self.jacobian_start);
             let iterations = self.solve_positions(cs, t1, &mut s.q)?;
             self.iterations_max = self.iterations_max.max(iterations);
-            // v_half += h/2 W J(q_n)^T lambda = -(1/h) W J(q_n)^T nu.
+            // v_half += h/2 W J(q_n)^T lambda = -(1/h) W J(q_n)^T nu. The impulse
+            // -J(q_n)^T nu / h does the work (h/2) lambda . J(q_n) v_n on the velocity it
+            // acts at: the first half of the trapezoidal rule for the constraint force's
+            // power (zero for fixed constraints, where J v_n = 0).
             for (row_j, nu) in self.jacobian_start.chunks_exact(n).zip(&self.nu) {
                 let d = nu / dt;
-                for ((v, w), jk) in s.qdot.iter_mut().zip(&self.inverse_mass).zip(row_j) {
+                let mut jv = 0.0;
+                for (((v, w), jk), v0) in s
+                    .qdot
+                    .iter_mut()
+                    .zip(&self.inverse_mass)
+                    .zip(row_j)
+                    .zip(&self.velocity_start)
+                {
                     *v -= w * jk * d;
+                    jv += jk * v0;
                 }
+                self.constraint_work -= d * jv;
             }
         }
         // Second half kick, then the velocity constraint J v + C_t = 0 (the mu solve), with
@@ -317,8 +337,26 @@ impl Integrator for Rattle {
             }
             self.velocity_iterations_max = self.velocity_iterations_max.max(iterations as usize);
         }
+        // The velocity projection's impulse M (v_{n+1} - (v_half + h/2 a_{n+1})) does the work
+        // (h/2) mu . J(q_{n+1}) v_{n+1}: the trapezoidal rule's second half.
+        if m > 0 {
+            for k in 0..n {
+                let w = self.inverse_mass[k];
+                if w > 0.0 {
+                    let kicked = self.velocity_half[k] + half * self.acceleration[k];
+                    self.constraint_work += (s.qdot[k] - kicked) / w * s.qdot[k];
+                }
+            }
+        }
         s.t = t1;
         Ok(())
+    }
+
+    /// The work of the last step's constraint impulses, sum of Delta p . v: the trapezoidal
+    /// rule for the constraint force's power lambda . J v = -lambda . C_t, so nonzero only for
+    /// constraints that depend on t (a driven constraint does work; a fixed one does none).
+    fn constraint_work(&self) -> f64 {
+        self.constraint_work
     }
 
     fn newton_iterations_max(&self) -> Option<usize> {

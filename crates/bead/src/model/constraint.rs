@@ -420,3 +420,42 @@ impl ConstraintSet {
         })
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use crate::model::SystemBuilder;
+
+    fn set(expr: &str, at: [f64; 2]) -> crate::model::System {
+        let mut b = SystemBuilder::new(&[0.0, 0.0]);
+        b.particle("p", 1.0, &at, &[0.0, 0.0]).unwrap();
+        b.constraint_expr(expr).unwrap();
+        b.build().unwrap()
+    }
+
+    /// The search for a point where the gradient vanishes: it finds the crossing of the nodal
+    /// cubic (on the curve, C = 0 there), finds the centre of an ellipse (a critical point of
+    /// C, but off the curve: C = -1), and finds nothing on a parabola, whose gradient's
+    /// component along the axis never vanishes.
+    #[test]
+    fn singular_point_search_tells_crossings_from_regular_points() {
+        let node = set("p.y^2 - p.x^2*(p.x + 1)", [-0.05, 0.05]);
+        let found = node
+            .constraints()
+            .locate_singular_point(0, 0.0, &[-0.05, 0.0475]);
+        assert!(found.reduction < 1e-10, "{found:?}");
+        assert!(found.point.iter().all(|c| c.abs() < 1e-10) && found.value.abs() < 1e-15);
+
+        let ellipse = set("p.x^2 + (p.y/0.005)^2 - 1", [1.0, 0.0]);
+        let found = ellipse
+            .constraints()
+            .locate_singular_point(0, 0.0, &[0.999, 0.0002]);
+        assert!(found.reduction < 1e-10, "{found:?}");
+        assert!((found.value + 1.0).abs() < 1e-12, "{found:?}");
+
+        let parabola = set("p.x^2 + 100*p.y", [150.0, -225.0]);
+        let found = parabola
+            .constraints()
+            .locate_singular_point(0, 0.0, &[150.0, -225.0]);
+        assert!(found.reduction > 0.1, "{found:?}");
+    }
+}

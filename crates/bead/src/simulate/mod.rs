@@ -482,9 +482,15 @@ impl Simulation {
         let Stepper::Fixed(integrator) = stepper else {
             unreachable!("fixed_step is called for fixed-step integrators only");
         };
+        let tracks_work = ledger.is_some();
+        let n = self.n;
         let result = with_system(formulation, ledger, |system| {
             integrator.step(system, state, h)?;
             state.t = t_end;
+            if tracks_work {
+                // Impulses the integrator applied outside f (RATTLE's) did work too.
+                state.qdot[n] += integrator.constraint_work();
+            }
             if config.project {
                 project(system, state, config).map(Some)
             } else {

@@ -11,10 +11,13 @@ use crate::model::System;
 pub(super) const BLOW_UP_FACTOR: f64 = 1e12;
 
 /// A gradient row shorter than this fraction of its longest length in the run has vanished.
-const VANISHED: f64 = 1e-3;
+const VANISHED: f64 = 1e-2;
 /// The lookahead: extrapolated along the motion, a gradient row that shrinks below this
 /// fraction of its length ...
-const AHEAD_FRACTION: f64 = 0.1;
+const AHEAD_FRACTION: f64 = 0.5;
+/// ... or, for a singular point further ahead that a drifted state may already be on the
+/// wrong side of, below this fraction (nearly to zero, as at a crossing).
+const OFF_BRANCH_FRACTION: f64 = 0.1;
 /// ... within this many steps, meets a singular point.
 const AHEAD_STEPS: f64 = 2.0;
 /// A state off its constraint by more than this fraction of the distance to a singular point
@@ -106,13 +109,17 @@ impl Reach {
 pub(super) struct Monitor {
     /// The last observed state (particle state, constraint values, gradient rows).
     pub(super) observation: Observation,
-    /// Gradient rows at the previous step's end (regularity)
-    previous: crate::formulation::Gradients,
-    /// The formulation's q at the previous step's end (n)
-    previous_q: Vec<f64>,
-    has_previous: bool,
+    /// The last accepted step's end (regularity: what a new state is compared with)
+    last: StepEnd,
+    /// The step end before it (to explain a failure at the last accepted state)
+    before: StepEnd,
     /// The longest each gradient row has been in this run (rows)
     longest: Vec<f64>,
+    /// Per row, the gradient's length when a search for a singular point last found none
+    /// (infinite when none failed): the search is repeated only once the gradient has
+    /// shrunk by half since, so that a curve with a sharp but regular turn (the tip of a thin
+    /// ellipse) costs a few searches, not one per step.
+    searched: Vec<f64>,
     pub(super) energy_initial: f64,
     /// E_scale: the denominator of relative energy errors
     pub(super) energy_scale: f64,
@@ -179,17 +186,25 @@ impl Monitor {
             energy_speed: (2.0 * energy_scale / lightest).sqrt(),
         };
         let constraint_error = observation.constraint_error();
-        let previous = observation.gradients.clone();
-        let previous_q = q.to_vec();
-        let longest = (0..observation.gradients.n_rows())
+        let last = StepEnd {
+            gradients: observation.gradients.clone(),
+            q: q.to_vec(),
+            valid: true,
+        };
+        let before = StepEnd {
+            valid: false,
+            ..last.clone()
+        };
+        let longest: Vec<f64> = (0..observation.gradients.n_rows())
             .map(|r| norm(observation.gradients.row(r)))
             .collect();
+        let searched = vec![f64::INFINITY; longest.len()];
         Monitor {
             observation,
-            previous,
-            previous_q,
-            has_previous: false,
+            last,
+            before,
             longest,
+            searched,
             energy_initial: energy,
             energy_scale,
             energy,
@@ -247,11 +262,19 @@ impl Monitor {
                 cause: None,
             }));
         }
-        self.previous.copy_from(&self.observation.gradients);
-        self.previous_q.copy_from_slice(q);
-        self.has_previous = true;
-        for (r, longest) in self.longest.iter_mut().enumerate() {
-            *longest = longest.max(norm(self.observation.gradients.row(r)));
+        // Shift: the last step end becomes the one before, the new state the last.
+        std::mem::swap(&mut self.last, &mut self.before);
+        self.last.gradients.copy_from(&self.observation.gradients);
+        self.last.q.copy_from_slice(q);
+        self.last.valid = true;
+        for (r, (longest, searched)) in self.longest.iter_mut().zip(&mut self.searched).enumerate()
+        {
+            let length = norm(self.observation.gradients.row(r));
+            *longest = longest.max(length);
+            if length > 2.0 * *searched {
+                // Away from where the last search found nothing: search again next time.
+                *searched = f64::INFINITY;
+            }
         }
         Ok(())
     }
@@ -270,16 +293,19 @@ impl Monitor {
         for r in 0..g.n_rows() {
             let row = g.row(r);
             let length = norm(row);
-            let (kind, ahead) = match self.has_previous {
-                true => match steps_to_vanish(row, self.previous.row(r)) {
-                    Some(steps) if steps <= 10.0 => (SingularKind::Ahead, steps),
-                    _ if length < 1e-2 * self.longest[r] => (SingularKind::Vanishes, 0.0),
-                    _ => continue,
-                },
-                false if length < 1e-2 * self.longest[r] => (SingularKind::Vanishes, 0.0),
-                false => continue,
+            let ahead = if self.before.valid {
+                steps_to_vanish(row, self.before.gradients.row(r), AHEAD_FRACTION)
+            } else {
+                None
             };
-            if self.confirm(formulation, r, t, q, ahead, 11.0) {
+            let (kind, probe, reach) = match ahead {
+                Some(steps) if steps <= 10.0 => (SingularKind::Ahead, steps, 11.0),
+                _ if length < VANISHED * self.longest[r] => {
+                    (SingularKind::Vanishes, 0.0, f64::INFINITY)
+                }
+                _ => continue,
+            };
+            if self.confirm(formulation, &self.before, r, t, q, probe, reach) {
                 return Some((r, kind));
             }
         }
@@ -353,21 +379,23 @@ impl Monitor {
     /// whose gradient also reverses) is left to the divergence test, and the centre of an
     /// ellipse (a critical point of C off the curve) stops nothing.
     fn regularity(
-        &self,
+        &mut self,
         formulation: &dyn Formulation,
         t: f64,
         q: &[f64],
     ) -> Option<(usize, SingularKind)> {
-        if !self.has_previous {
+        if !self.last.valid {
             return None;
         }
+        let reference = &self.last;
         let g = &self.observation.gradients;
         for r in 0..g.n_rows() {
             let row = g.row(r);
-            let previous = self.previous.row(r);
+            let previous = reference.gradients.row(r);
             let length = norm(row);
             let reversed = dot(row, previous) < 0.0;
-            let ahead = steps_to_vanish(row, previous);
+            let ahead = steps_to_vanish(row, previous, AHEAD_FRACTION);
+            let far_ahead = steps_to_vanish(row, previous, OFF_BRANCH_FRACTION);
             let vanished = length < VANISHED * self.longest[r];
             let candidate = if reversed {
                 // The chord's point where the interpolated gradient is shortest, as a step
@@ -380,8 +408,11 @@ impl Monitor {
             } else if let Some(steps) = ahead.filter(|&s| s <= AHEAD_STEPS) {
                 Some((SingularKind::Ahead, steps, AHEAD_STEPS + 1.0))
             } else if vanished {
-                Some((SingularKind::Vanishes, 0.0, AHEAD_STEPS + 1.0))
-            } else if let (Some(steps), true) = (ahead, g.offset(r) > 0.0) {
+                // Collapsed below 1% of its longest: close to the singular point in the row's
+                // own scale whatever the step (an adaptive integrator approaching it shrinks
+                // its steps without end), so any confirmed point of the curve counts.
+                Some((SingularKind::Vanishes, 0.0, f64::INFINITY))
+            } else if let (Some(steps), true) = (far_ahead, g.offset(r) > 0.0) {
                 Some((SingularKind::OffBranch, steps, f64::INFINITY))
             } else {
                 None
@@ -389,40 +420,49 @@ impl Monitor {
             let Some((kind, probe, reach)) = candidate else {
                 continue;
             };
-            if kind == SingularKind::OffBranch {
-                if self.off_branch(formulation, r, t, q, probe) {
-                    return Some((r, kind));
-                }
-            } else if self.confirm(formulation, r, t, q, probe, reach) {
+            // A reversal is rare and decisive: always searched. Other candidates only once
+            // the gradient has halved since a search found nothing.
+            if kind != SingularKind::Reverses && length > 0.5 * self.searched[r] {
+                continue;
+            }
+            let confirmed = if kind == SingularKind::OffBranch {
+                self.off_branch(formulation, reference, r, t, q, probe)
+            } else {
+                self.confirm(formulation, reference, r, t, q, probe, reach)
+            };
+            if confirmed {
                 return Some((r, kind));
             }
+            self.searched[r] = length;
         }
         None
     }
 
-    /// Whether a search from q + probe (q - q_prev) finds a point of the curve where row r's
-    /// gradient vanishes within `reach` step lengths of the current state (of the chord
-    /// between the previous and the current state, for a reversal).
+    /// Whether a search from q + probe (q - q_ref) finds a point of the curve where row r's
+    /// gradient vanishes within `reach` step lengths of the state q (of the chord from the
+    /// reference state, one step earlier, to q, for a reversal).
+    #[allow(clippy::too_many_arguments)]
     fn confirm(
         &self,
         formulation: &dyn Formulation,
+        reference: &StepEnd,
         r: usize,
         t: f64,
         q: &[f64],
         probe: f64,
         reach: f64,
     ) -> bool {
-        let Some((found, now, step)) = self.search(formulation, r, t, q, probe) else {
+        let Some((found, now, step)) = self.search(formulation, reference, r, t, q, probe) else {
             return false;
         };
         let distance = if probe < 0.0 {
             // Reversal: the distance to the chord from the previous to the current state.
-            let before = formulation.row_variables(r, &self.previous_q);
+            let before = formulation.row_variables(r, &reference.q);
             distance_to_segment(&found, &before, &now)
         } else {
             distance(&found, &now)
         };
-        distance <= reach * step
+        reach.is_infinite() || distance <= reach * step
     }
 
     /// Whether the state is off row r's constraint by more than [`OFF_BRANCH`] times its
@@ -430,12 +470,13 @@ impl Monitor {
     fn off_branch(
         &self,
         formulation: &dyn Formulation,
+        reference: &StepEnd,
         r: usize,
         t: f64,
         q: &[f64],
         probe: f64,
     ) -> bool {
-        let Some((found, now, _)) = self.search(formulation, r, t, q, probe) else {
+        let Some((found, now, _)) = self.search(formulation, reference, r, t, q, probe) else {
             return false;
         };
         self.observation.gradients.offset(r) > OFF_BRANCH * distance(&found, &now)
@@ -447,6 +488,7 @@ impl Monitor {
     fn search(
         &self,
         formulation: &dyn Formulation,
+        reference: &StepEnd,
         r: usize,
         t: f64,
         q: &[f64],
@@ -454,7 +496,7 @@ impl Monitor {
     ) -> Option<(Vec<f64>, Vec<f64>, f64)> {
         let start: Vec<f64> = q
             .iter()
-            .zip(&self.previous_q)
+            .zip(&reference.q)
             .map(|(now, before)| now + probe * (now - before))
             .collect();
         let search = formulation.locate_singular_point(r, t, &start);
@@ -462,7 +504,7 @@ impl Monitor {
             return None;
         }
         let now = formulation.row_variables(r, q);
-        let before = formulation.row_variables(r, &self.previous_q);
+        let before = formulation.row_variables(r, &reference.q);
         let step = distance(&now, &before);
         let apart = distance(&search.point, &now).max(step);
         let length = norm(self.observation.gradients.row(r));
@@ -472,6 +514,16 @@ impl Monitor {
         }
         Some((search.point, now, step))
     }
+}
+
+/// What the regularity monitor keeps of an accepted step's end.
+#[derive(Clone, Debug)]
+struct StepEnd {
+    gradients: crate::formulation::Gradients,
+    /// The formulation's q (n)
+    q: Vec<f64>,
+    /// Whether it holds a step end yet
+    valid: bool,
 }
 
 /// The fraction u in [0, 1] at which p + u (g - p) is shortest.
@@ -490,8 +542,8 @@ fn chord_minimum(p: &[f64], g: &[f64]) -> f64 {
 
 /// With `row` = g now and `previous` = p one step earlier: the number of steps s > 0 after
 /// which the linear extrapolation g + s (g - p) is shortest, when it is then shorter than
-/// [`AHEAD_FRACTION`] |g|; None when the extrapolation never comes that close to zero.
-fn steps_to_vanish(row: &[f64], previous: &[f64]) -> Option<f64> {
+/// `fraction` |g|; None when the extrapolation never comes that close to zero.
+fn steps_to_vanish(row: &[f64], previous: &[f64], fraction: f64) -> Option<f64> {
     let (mut gd, mut dd, mut gg) = (0.0, 0.0, 0.0);
     for (g, p) in row.iter().zip(previous) {
         let d = g - p;
@@ -505,7 +557,7 @@ fn steps_to_vanish(row: &[f64], previous: &[f64]) -> Option<f64> {
     let s = -gd / dd;
     // |g + s d|^2 = |g|^2 - (g.d)^2 / |d|^2 at the minimum.
     let shortest = (gg - gd * gd / dd).max(0.0);
-    (s > 0.0 && shortest < AHEAD_FRACTION * AHEAD_FRACTION * gg).then_some(s)
+    (s > 0.0 && shortest < fraction * fraction * gg).then_some(s)
 }
 
 fn norm(v: &[f64]) -> f64 {
