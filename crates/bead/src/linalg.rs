@@ -7,6 +7,9 @@
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Singular {
     pub row: usize,
+    /// Whether the failing row's numbers were finite: `false` means overflow or a non-finite
+    /// input (an inf or NaN diagonal or pivot), not a dependent or vanishing row.
+    pub finite: bool,
 }
 
 /// Solves A z = b for a symmetric positive-definite A.
@@ -61,7 +64,10 @@ impl SpdSolver for DenseCholesky {
             let diagonal = a[j * n + j];
             let pivot = diagonal - (0..j).map(|k| a[j * n + k] * a[j * n + k]).sum::<f64>();
             if !(diagonal > 0.0 && pivot > self.relative_pivot_tolerance * diagonal) {
-                return Err(Singular { row: j });
+                return Err(Singular {
+                    row: j,
+                    finite: diagonal.is_finite() && pivot.is_finite(),
+                });
             }
             a[j * n + j] = pivot.sqrt();
         }
@@ -296,7 +302,10 @@ mod tests {
         let mut b = [1.0, 1.0, 1.0];
         assert_eq!(
             DenseCholesky::default().solve(3, &mut a, &mut b),
-            Err(Singular { row: 2 })
+            Err(Singular {
+                row: 2,
+                finite: true
+            })
         );
     }
 
@@ -306,7 +315,10 @@ mod tests {
         let mut b = [1.0, 1.0];
         assert_eq!(
             DenseCholesky::default().solve(2, &mut a, &mut b),
-            Err(Singular { row: 1 })
+            Err(Singular {
+                row: 1,
+                finite: true
+            })
         );
     }
 
@@ -316,7 +328,10 @@ mod tests {
         let mut b = [1.0];
         assert_eq!(
             DenseCholesky::default().solve(1, &mut a, &mut b),
-            Err(Singular { row: 0 })
+            Err(Singular {
+                row: 0,
+                finite: false
+            })
         );
     }
 }

@@ -129,16 +129,15 @@ impl SecondOrderSystem for Implicit {
                     - self.feedback.ks * ce.value[i]
                     - self.feedback.kd * ce.velocity[i];
             }
-            let rhs_finite = self.lambda.iter().all(|r| r.is_finite());
             if let Err(singular) = self.solver.solve(m, &mut self.matrix, &mut self.lambda) {
                 // Overflow or a non-finite input is not a singular constraint: say which.
                 if let Some(error) = non_finite_input(system, t, x, v, &self.force, ce) {
                     return Err(error);
                 }
-                if !rhs_finite {
+                if !singular.finite {
                     return Err(StepError::NonFinite {
                         t,
-                        quantity: "the constraint force's right-hand side".into(),
+                        quantity: "the matrix J W J^T (overflow)".into(),
                     });
                 }
                 let info = set.info_of_row(singular.row);

@@ -122,9 +122,9 @@ impl SecondOrderSystem for Parametric {
                 self.matrix[l * n_q + j] = mass;
             }
         }
-        let finite = self.rhs.iter().chain(&self.matrix).all(|v| v.is_finite());
         if let Err(singular) = self.solver.solve(n_q, &mut self.matrix, &mut self.rhs) {
-            if !finite {
+            let inputs = [q, qdot, &ws.position, &ws.velocity, &ws.jacobian, &ws.bias];
+            if !singular.finite || inputs.iter().any(|v| v.iter().any(|c| !c.is_finite())) {
                 return Err(non_finite_input(system, map, t, q, qdot, ws, &self.force));
             }
             return Err(StepError::SingularMassMatrix {
