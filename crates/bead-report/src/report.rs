@@ -612,7 +612,7 @@ pub fn write_report(report: &Report, dir: &Path) -> Result<ReportFiles, ReportEr
             if report.runs.iter().any(|r| r.recording.energy_balance) {
                 "Energy is not conserved here (something does work on the system): the error of the conserved balance E - W, |E - W - E0| / E_scale, against time, per run (W: the work done on the system, integrated by the run's integrator; E_scale = max(|E0|, T0 + |V0|, T0 + M |g| L))."
             } else {
-                "Relative energy error |E - E0| / E_scale against time, per run (E_scale = max(|E0|, T0 + |V0|, T0 + M |g| L): M the total mass, L the largest initial distance from the origin)."
+                "Relative energy error |E - E0| / E_scale against time, per run (E_scale = max(|E0|, T0 + |V0|, T0 + M |g| L): M the total mass, L the largest initial coordinate magnitude)."
             },
         ),
         (

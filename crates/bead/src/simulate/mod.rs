@@ -333,8 +333,8 @@ impl Simulation {
         self.monitor.energy_initial
     }
     /// E_scale = max(|E0|, T0 + |V0|, T0 + M |g| L): the denominator of the relative energy
-    /// errors (M the total mass, L the largest distance of a particle from the origin at the
-    /// start; 1 when all of these vanish).
+    /// errors (M the total mass, L the largest initial coordinate magnitude; 1 when all of these
+    /// vanish).
     pub fn energy_scale(&self) -> f64 {
         self.monitor.energy_scale
     }

@@ -138,9 +138,9 @@ impl Monitor {
     /// ```text
     /// E_scale = max(|E0|, T0 + |V0|, T0 + M |g| L)
     /// ```
-    /// with M the total mass and L the largest distance of a particle from the origin at t0:
-    /// the energy the motion can exchange, which does not vanish when the scene starts at the
-    /// potential's zero. 1 (an absolute error) when all of these vanish.
+    /// with M the total mass and L the scene's length scale, the largest initial coordinate
+    /// magnitude: the energy the motion can exchange, which does not vanish when the scene
+    /// starts at the potential's zero. 1 (an absolute error) when all of these vanish.
     pub(super) fn new(
         formulation: &mut (dyn Formulation + Send),
         t0: f64,
@@ -153,18 +153,15 @@ impl Monitor {
         let kinetic = system.kinetic_energy(&observation.xdot);
         let potential = system.potential_energy(&observation.x);
         let energy = kinetic + potential;
-        let dim = system.dim();
-        let distance = observation
-            .x
-            .chunks(dim)
-            .map(|p| p.iter().map(|c| c * c).sum::<f64>().sqrt())
-            .fold(0.0, f64::max);
+        // The scene's length scale: the largest initial coordinate magnitude (as for the
+        // constraint tolerance).
+        let length = observation.x.iter().fold(0.0_f64, |m, c| m.max(c.abs()));
         let gravity = norm(system.gravity());
         let mass: f64 = system.particles().iter().map(|p| p.mass).sum();
         let scale = [
             energy.abs(),
             kinetic + potential.abs(),
-            kinetic + mass * gravity * distance,
+            kinetic + mass * gravity * length,
         ]
         .into_iter()
         .fold(0.0, f64::max);
