@@ -134,16 +134,38 @@ pub fn run_text(scene: &Scene, plan: &Plan, summary: &Summary) -> String {
             exact(plan.t_end())
         );
     }
-    row(
-        &mut s,
-        "energy",
-        format!(
-            "initial {}, final {}, max relative error {}",
-            g(summary.energy_initial, 10),
-            g(summary.energy_final, 10),
-            g(summary.energy_rel_error_max, 4)
-        ),
-    );
+    if summary.energy_conserved {
+        row(
+            &mut s,
+            "energy",
+            format!(
+                "initial {}, final {}, max relative error {}",
+                g(summary.energy_initial, 10),
+                g(summary.energy_final, 10),
+                g(summary.energy_rel_error_max, 4)
+            ),
+        );
+    } else {
+        row(
+            &mut s,
+            "energy",
+            format!(
+                "initial {}, final {}: not conserved ({})",
+                g(summary.energy_initial, 10),
+                g(summary.energy_final, 10),
+                summary.nonconservation_text()
+            ),
+        );
+        row(
+            &mut s,
+            "work",
+            format!(
+                "W = {} done on the system by the end; E - W is conserved to a max relative error of {}",
+                g(summary.work_final.unwrap_or(f64::NAN), 10),
+                g(summary.conserved_energy_error_max(), 4)
+            ),
+        );
+    }
     row(
         &mut s,
         "constraint",
@@ -224,7 +246,7 @@ pub fn compare_text(scene: &Scene, plan: &Plan, summaries: &[Summary]) -> String
             r.method.name().to_string(),
             g(r.constraint_error_final, 4),
             g(r.constraint_error_max, 4),
-            g(r.energy_rel_error_max, 4),
+            energy_cell(r),
             g(r.energy_final, 10),
             g(r.steps_per_second, 4),
         ];
@@ -244,7 +266,38 @@ pub fn compare_text(scene: &Scene, plan: &Plan, summaries: &[Summary]) -> String
         rows.push(row);
     }
     s.push_str(&table(&rows));
+    s.push_str(&energy_note(summaries));
     s
+}
+
+/// The energy error cell of a summary: of T + V, or of E - W (marked) when energy is not
+/// conserved.
+pub fn energy_cell(summary: &Summary) -> String {
+    if summary.energy_conserved {
+        g(summary.energy_rel_error_max, 4)
+    } else {
+        format!("{} (E-W)", g(summary.conserved_energy_error_max(), 4))
+    }
+}
+
+/// The note under a table with runs whose energy is not conserved (empty otherwise).
+pub fn energy_note(summaries: &[Summary]) -> String {
+    let mut reasons: Vec<String> = Vec::new();
+    for summary in summaries.iter().filter(|s| !s.energy_conserved) {
+        for reason in &summary.energy_not_conserved_by {
+            let labelled = format!("{}: {reason}", summary.method.name());
+            if !reasons.contains(&labelled) {
+                reasons.push(labelled);
+            }
+        }
+    }
+    if reasons.is_empty() {
+        return String::new();
+    }
+    format!(
+        "energy not conserved ({}): rows marked (E-W) give the error of E - W, the energy minus the work done on the system, which is conserved\n",
+        reasons.join("; ")
+    )
 }
 
 /// Rows of cells as an aligned table: the first column left-aligned, numbers right-aligned,

@@ -337,7 +337,11 @@ impl Report {
                 run.dt_label.clone(),
                 sig(s.constraint_error_final, 4),
                 sig(s.constraint_error_max, 4),
-                sig(s.energy_rel_error_max, 4),
+                if s.energy_conserved {
+                    sig(s.energy_rel_error_max, 4)
+                } else {
+                    format!("{} (E-W)", sig(s.conserved_energy_error_max(), 4))
+                },
                 run.recording
                     .period
                     .as_ref()
@@ -546,10 +550,10 @@ impl Report {
                 Panel {
                     title: "max relative energy error vs wall time".into(),
                     x_label: "wall time (s)".into(),
-                    y_label: "max |E - E0| / E_scale (1)".into(),
+                    y_label: "max |E - E0| / E_scale, or of E - W (1)".into(),
                     x_log: true,
                     y_log: true,
-                    series: series(|s| s.energy_rel_error_max),
+                    series: series(|s| s.conserved_energy_error_max()),
                 },
             ],
             size: (1200, 540),

@@ -13,7 +13,7 @@ use bead_report::report::{write_report, Recorder, Report, ReportRun};
 use super::{json, load_scene, print, report_error, run_method_with, write_file};
 use crate::args::CompareArgs;
 use crate::plan::{compare_methods, steps_for, Plan};
-use crate::report::{exact, integrator_text, table, title};
+use crate::report::{energy_note, exact, integrator_text, table, title};
 
 /// Two sinks fed the same samples.
 pub struct Tee<'a>(pub &'a mut dyn Sink, pub &'a mut dyn Sink);
@@ -172,6 +172,7 @@ pub fn compare_grid(args: &CompareArgs) -> Result<()> {
     } else {
         let mut text = format!("{}\n  {}\n\n", report.title, report.description);
         text.push_str(&table(&report.rows()));
+        text.push_str(&energy_note(&summaries));
         for s in &report.skipped {
             text.push_str(&format!("skipped: {s}\n"));
         }

@@ -225,6 +225,21 @@ impl Summary {
         }
     }
 
+    /// The largest relative error of what the system conserves: `energy_balance_error_max`
+    /// (of E - W) when energy is not conserved, else `energy_rel_error_max`.
+    pub fn conserved_energy_error_max(&self) -> f64 {
+        match (self.energy_conserved, self.energy_balance_error_max) {
+            (false, Some(balance)) => balance,
+            _ => self.energy_rel_error_max,
+        }
+    }
+
+    /// What does work on the system, for text: `driven constraint: plane depends on t, drag on
+    /// \`bead\``.
+    pub fn nonconservation_text(&self) -> String {
+        self.energy_not_conserved_by.join(", ")
+    }
+
     /// Pretty-printed JSON.
     pub fn to_json_pretty(&self) -> serde_json::Result<String> {
         serde_json::to_string_pretty(self)

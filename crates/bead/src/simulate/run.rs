@@ -124,6 +124,15 @@ pub struct RunStats {
 }
 
 impl RunStats {
+    /// The largest relative error of what the system conserves: of E - W when something does
+    /// work on it (the energy ledger ran), else of T + V.
+    pub fn conserved_energy_error_max(&self) -> f64 {
+        match (self.energy_conserved, self.energy_balance_error_max) {
+            (false, Some(balance)) => balance,
+            _ => self.energy_rel_error_max,
+        }
+    }
+
     /// Integrator steps per second of wall time (accepted steps for adaptive integrators).
     pub fn steps_per_second(&self) -> f64 {
         if self.wall_seconds > 0.0 {
