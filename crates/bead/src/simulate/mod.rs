@@ -187,11 +187,18 @@ impl Simulation {
     }
 
     /// A simulation of an already built formulation (its method and feedback are its own;
-    /// `config`'s are not used). The checks of [`Simulation::new`] on the initial state apply.
+    /// `config`'s are replaced by them). The legality check and the checks of the initial
+    /// state of [`Simulation::new`] apply.
     pub fn with_formulation(
         mut formulation: Box<dyn Formulation + Send>,
         config: SimulationConfig,
     ) -> Result<Simulation, SetupError> {
+        let config = SimulationConfig {
+            method: formulation.method(),
+            feedback: crate::formulation::Feedback::default(),
+            ..config
+        };
+        config.check(formulation.system())?;
         let state = formulation.initial_state();
         let n = state.q.len();
         let monitor = Monitor::new(&mut *formulation, state.t, &state.q, &state.qdot);
