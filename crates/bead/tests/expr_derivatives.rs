@@ -86,11 +86,11 @@ fn check(src: &str, x: f64, y: f64) {
     }
 }
 
-/// `e` as `bead check` prints it: collected, with the names of `resolve`.
+/// `e` as `bead check` prints it (collected, for reading), without its length limit.
 fn printed(e: &Expr) -> String {
     let names = |k: usize| ["x", "y"][k].to_string();
     let tidy = e.for_display();
-    let shown = tidy.display_with(&names).to_string();
+    let shown = tidy.display_bounded(&names, usize::MAX).to_string();
     shown
 }
 
@@ -276,7 +276,7 @@ fn printing_a_long_product_is_bounded() {
     let short = p("y - (1 + x/1)*(1 + x/2)*(1 + x/3)")
         .derivative(0)
         .for_display();
-    let full = short.display_with(&names).to_string();
+    let full = short.display_bounded(&names, usize::MAX).to_string();
     let cut = short.display_bounded(&names, 20).to_string();
     let prefix = cut.split(" ... (").next().unwrap();
     assert!(full.starts_with(prefix), "{full} / {cut}");

@@ -27,13 +27,18 @@ impl Expr {
             expr: self,
             name,
             limit: None,
+            loose: false,
         }
     }
 
-    /// [`Expr::display_with`], stopping once `max_chars` characters are written (at the end
+    /// Infix form for reading, stopping once `max_chars` characters are written (at the end
     /// of the token that reaches the limit) with ` ... (N more characters)`, N being what the
     /// whole tree would take. Time and memory are linear in the DAG and in what is printed,
     /// however long the written-out tree would be.
+    ///
+    /// Unlike [`Expr::display_with`] it leaves out the parentheses that only group a product
+    /// (`a*(b*c)` and `a*(b/c)` print as `a*b*c` and `a*b/c`): the text parses back to an
+    /// expression of the same value, not necessarily to the same tree.
     ///
     /// ```
     /// use bead::expr::Expr;
@@ -55,6 +60,7 @@ impl Expr {
             expr: self,
             name,
             limit: Some(max_chars),
+            loose: true,
         }
     }
 
@@ -81,6 +87,8 @@ struct Printer<'a> {
     expr: &'a Expr,
     name: &'a dyn Fn(usize) -> String,
     limit: Option<usize>,
+    /// Leave out the parentheses that only group a product (`a*(b*c)`).
+    loose: bool,
 }
 
 /// Where a subexpression is printed, to decide on parentheses.
@@ -90,7 +98,10 @@ enum Pos {
     AddL,
     AddR,
     MulL,
+    /// Right of `*`
     MulR,
+    /// Right of `/`
+    DivR,
     NegArg,
     PowBase,
     PowExp,
@@ -108,13 +119,16 @@ fn class(n: &Node) -> u8 {
     }
 }
 
-fn needs_parens(n: &Node, pos: Pos) -> bool {
+/// Whether `n` printed at `pos` needs parentheses; `loose`: not around a product right of
+/// `*`, which only groups it.
+fn needs_parens(n: &Node, pos: Pos, loose: bool) -> bool {
     let c = class(n);
     match pos {
         Pos::Top | Pos::AddL => false,
         Pos::AddR => c <= 1 || c == 3,
         Pos::MulL => c <= 1,
-        Pos::MulR | Pos::NegArg | Pos::PowExp => c <= 3,
+        Pos::MulR if loose && c == 2 => false,
+        Pos::MulR | Pos::DivR | Pos::NegArg | Pos::PowExp => c <= 3,
         Pos::PowBase => c <= 4,
     }
 }
@@ -135,7 +149,7 @@ fn binary(n: &Node) -> Option<(&'static str, Pos, Pos)> {
         Node::Add(..) => (" + ", Pos::AddL, Pos::AddR),
         Node::Sub(..) => (" - ", Pos::AddL, Pos::AddR),
         Node::Mul(..) => ("*", Pos::MulL, Pos::MulR),
-        Node::Div(..) => ("/", Pos::MulL, Pos::MulR),
+        Node::Div(..) => ("/", Pos::MulL, Pos::DivR),
         Node::Pow(..) => ("^", Pos::PowBase, Pos::PowExp),
         _ => return None,
     })
@@ -143,12 +157,12 @@ fn binary(n: &Node) -> Option<(&'static str, Pos, Pos)> {
 
 /// The number of characters `root` prints as, written out in full: computed on the DAG (each
 /// shared node once), saturating at `u64::MAX`.
-fn printed_length(root: &Expr, name: &dyn Fn(usize) -> String) -> u64 {
+fn printed_length(root: &Expr, name: &dyn Fn(usize) -> String, loose: bool) -> u64 {
     let t = topo([root]);
     let mut length: Vec<u64> = Vec::with_capacity(t.nodes.len());
     for (e, &[ia, ib]) in t.nodes.iter().zip(&t.kids) {
         let child = |i: u32, pos: Pos| {
-            let parens = if needs_parens(&t.nodes[i as usize].0, pos) {
+            let parens = if needs_parens(&t.nodes[i as usize].0, pos, loose) {
                 2
             } else {
                 0
@@ -198,7 +212,7 @@ impl fmt::Display for Printer<'_> {
         }
         // (limit, full length) when the expression is longer than the limit.
         let cut = self.limit.and_then(|limit| {
-            let full = printed_length(self.expr, self.name);
+            let full = printed_length(self.expr, self.name, self.loose);
             (full > limit as u64).then_some((limit as u64, full))
         });
         let mut out = Counted { out: f, chars: 0 };
@@ -220,7 +234,7 @@ impl fmt::Display for Printer<'_> {
                 }
                 Task::E(e, pos) => (e, pos),
             };
-            if needs_parens(&e.0, pos) {
+            if needs_parens(&e.0, pos, self.loose) {
                 out.write_str("(")?;
                 stack.push(Task::S(")"));
             }
@@ -392,11 +406,16 @@ impl<'a> Tidy<'a> {
         let c = num / den;
         let short =
             |c: f64| number_text(c).len() <= number_text(num).len() + number_text(den).len();
-        let (top, bottom) = if den == 1.0 || c.abs() == 1.0 || (c.is_normal() && short(c)) {
+        let (top, bottom) = if den == 1.0 || c.abs() == 1.0 {
+            (c, 1.0)
+        } else if num.abs() == 1.0 {
+            // x/2 rather than 0.5*x, z/0.2 as written rather than 5*z
+            (num, den)
+        } else if c.is_normal() && short(c) {
             // 0.02*q rather than 2*q/100, 2*x/y rather than 4*x/(2*y)
             (c, 1.0)
         } else {
-            // x/2 rather than 0.5*x, 2*x/3 rather than 0.6666666666666666*x
+            // 2*x/3 rather than 0.6666666666666666*x, x/2 rather than 2*x/4
             reduced(num, den)
         };
         let numerator = match (top, f.n.clone()) {
@@ -572,6 +591,11 @@ mod tests {
         e.display_with(&name).to_string()
     }
 
+    /// For reading, without a limit.
+    fn read(e: &Expr) -> String {
+        e.display_bounded(&name, usize::MAX).to_string()
+    }
+
     /// `src` parsed, collected and printed.
     fn tidy(src: &str) -> String {
         show(&p(src).for_display())
@@ -585,6 +609,7 @@ mod tests {
         assert_eq!(tidy("x/2"), "x/2");
         assert_eq!(tidy("(x + y)/2"), "(x + y)/2");
         assert_eq!(tidy("3*x/2"), "3*x/2");
+        assert_eq!(tidy("x/0.2"), "x/0.2");
         assert_eq!(tidy("2*x/4"), "x/2");
         assert_eq!(tidy("2*x/3"), "2*x/3");
         assert_eq!(tidy("2*x/(3*y)"), "2*x/(3*y)");
@@ -660,15 +685,35 @@ mod tests {
             let mut pool = Vec::new();
             let e = random_expr(&mut rng, 4, 6, &mut pool);
             for e in [e.clone(), e.for_display(), e.derivative(0)] {
-                let full = show(&e);
-                assert_eq!(
-                    printed_length(&e, &name),
-                    full.chars().count() as u64,
-                    "{full}"
+                let (exact, loose) = (show(&e), read(&e));
+                let count = |s: &str| s.chars().count() as u64;
+                assert_eq!(printed_length(&e, &name, false), count(&exact), "{exact}");
+                assert_eq!(printed_length(&e, &name, true), count(&loose), "{loose}");
+                // Up to the limit the bounded printer prints everything.
+                assert_eq!(e.display_bounded(&name, loose.len()).to_string(), loose);
+                // The loose form has the same value.
+                let v = [0.3, -1.1, 0.7, 1.9];
+                let (a, b) = (e.eval(&v), p(&loose).eval(&v));
+                assert!(
+                    a == b || (a - b).abs() <= 1e-12 * (1.0 + a.abs()),
+                    "{loose}"
                 );
-                // Below the limit the bounded printer prints the same.
-                assert_eq!(e.display_bounded(&name, full.len()).to_string(), full);
             }
+        }
+    }
+
+    #[test]
+    fn reading_drops_only_the_grouping_of_products() {
+        for (src, want) in [
+            ("a*(b*x)", "a*b*x"),
+            ("a*(b/x)", "a*b/x"),
+            ("a/(b*x)", "a/(b*x)"),
+            ("a/(b/x)", "a/(b/x)"),
+            ("a - (b + x)", "a - (b + x)"),
+            ("a*(-b)", "-(a*b)"),
+            ("x*(y + 1)", "x*(y + 1)"),
+        ] {
+            assert_eq!(read(&p(src)), want, "{src}");
         }
     }
 
