@@ -373,6 +373,18 @@ fn plural(n: usize, one: &str, many: &str) -> String {
     format!("{n} {}", if n == 1 { one } else { many })
 }
 
+/// Longest expression `bead check` prints, in characters: a longer one is cut there and says
+/// how many characters are left (derivatives written out can be far larger than the scene).
+pub const EXPRESSION_LIMIT: usize = 400;
+
+/// `e` as `bead check` prints it: numeric factors collected, at most [`EXPRESSION_LIMIT`]
+/// characters (plus the last token and the count of what is left).
+fn expression(e: &Expr, name: &dyn Fn(usize) -> String) -> String {
+    let tidy = e.for_display();
+    let text = tidy.display_bounded(name, EXPRESSION_LIMIT).to_string();
+    text
+}
+
 /// The description printed by `bead check`.
 pub fn check_text(scene: &Scene) -> String {
     let system = &*scene.system;
@@ -453,15 +465,15 @@ pub fn check_text(scene: &Scene) -> String {
                         velocity,
                         bias,
                     } = symbolic;
-                    let _ = writeln!(s, "    row {row}: C = {}", value.display_with(&name));
+                    let _ = writeln!(s, "    row {row}: C = {}", expression(value, &name));
                     for (k, d) in gradient {
-                        let _ = writeln!(s, "      dC/d({}) = {}", name(*k), d.display_with(&name));
+                        let _ = writeln!(s, "      dC/d({}) = {}", name(*k), expression(d, &name));
                     }
-                    let _ = writeln!(s, "      Cdot = {}", velocity.display_with(&name));
+                    let _ = writeln!(s, "      Cdot = {}", expression(velocity, &name));
                     let _ = writeln!(
                         s,
                         "      bias = {}   (Cddot = J a + bias)",
-                        bias.display_with(&name)
+                        expression(bias, &name)
                     );
                 }
                 None => {
@@ -513,20 +525,20 @@ pub fn check_text(scene: &Scene) -> String {
             for k in 0..system.n_coords() {
                 let (x, xdot, h, jacobian): (&Expr, &Expr, &Expr, &[Expr]) = map.symbolic(k);
                 let coordinate = system.coordinate_name(k);
-                let _ = writeln!(s, "  {coordinate} = {}", x.display_with(&qname));
+                let _ = writeln!(s, "  {coordinate} = {}", expression(x, &qname));
                 for (j, d) in jacobian.iter().enumerate() {
                     let _ = writeln!(
                         s,
                         "    d({coordinate})/d{} = {}",
                         coordinates[j],
-                        d.display_with(&qname)
+                        expression(d, &qname)
                     );
                 }
-                let _ = writeln!(s, "    velocity = {}", xdot.display_with(&qname));
+                let _ = writeln!(s, "    velocity = {}", expression(xdot, &qname));
                 let _ = writeln!(
                     s,
                     "    h = {}   (acceleration = J q'' + h)",
-                    h.display_with(&qname)
+                    expression(h, &qname)
                 );
             }
             let _ = writeln!(s, "  compiled: {} tape instructions", map.n_instructions());
