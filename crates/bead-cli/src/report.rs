@@ -9,6 +9,7 @@ use bead::integrate::IntegratorKind;
 use bead::model::{Endpoint, ExprRow, Force, System};
 use bead::output::Summary;
 use bead::scene::Scene;
+use bead::simulate::SetupError;
 
 use crate::plan::Plan;
 
@@ -385,8 +386,49 @@ fn expression(e: &Expr, name: &dyn Fn(usize) -> String) -> String {
     text
 }
 
-/// The description printed by `bead check`.
-pub fn check_text(scene: &Scene) -> String {
+/// What `bead check` found when it started each formulation of a scene as `bead run` starts
+/// it (the library's own checks, [`bead::simulate::Simulation::new`]), without stepping.
+pub struct StartCheck {
+    /// The scene's `[run]` settings as `bead run` resolves them, or `bead run`'s error.
+    pub plan: Result<Plan, String>,
+    /// `bead run`'s error when the scene's `[run]` method cannot run.
+    pub method: Option<String>,
+    /// Each formulation the scene has (none when the plan failed) and whether it starts.
+    pub forms: Vec<(Method, Result<(), SetupError>)>,
+}
+
+impl StartCheck {
+    /// Every refusal, worded as `bead run` words it, the formulation named.
+    pub fn errors(&self) -> Vec<String> {
+        let mut errors = Vec::new();
+        if let Err(e) = &self.plan {
+            errors.push(e.clone());
+        }
+        errors.extend(self.method.clone());
+        for (method, result) in &self.forms {
+            if let Err(e) = result {
+                errors.push(format!("{} form: {}", method.name(), setup_error(e)));
+            }
+        }
+        errors
+    }
+
+    /// The refusal of the implicit form for having more constraint rows than coordinates.
+    fn over_constrained(&self) -> Option<&SetupError> {
+        self.forms.iter().find_map(|(_, result)| match result {
+            Err(e @ SetupError::OverConstrained { .. }) => Some(e),
+            _ => None,
+        })
+    }
+}
+
+/// A setup error as `bead run` prints it (the error and its causes).
+fn setup_error(e: &SetupError) -> String {
+    format!("{:#}", anyhow::Error::from(e.clone()))
+}
+
+/// The description printed by `bead check`, ending with whether each formulation starts.
+pub fn check_text(scene: &Scene, start: &StartCheck) -> String {
     let system = &*scene.system;
     let mut s = String::new();
     let _ = writeln!(s, "{}", title(scene));
@@ -502,7 +544,21 @@ pub fn check_text(scene: &Scene) -> String {
             set.n_instructions()
         );
     }
-    let _ = writeln!(s, "\ndegrees of freedom: {}", system.degrees_of_freedom());
+    match (start.over_constrained(), system.parametric()) {
+        (Some(refusal), _) => {
+            let _ = writeln!(s, "\ndegrees of freedom: none: {refusal}");
+        }
+        (None, Some(map)) if set.n_rows() == 0 => {
+            let _ = writeln!(
+                s,
+                "\ndegrees of freedom: {} (the parametric form's coordinates)",
+                map.coordinates().len()
+            );
+        }
+        (None, _) => {
+            let _ = writeln!(s, "\ndegrees of freedom: {}", system.degrees_of_freedom());
+        }
+    }
 
     match system.parametric() {
         None => {
@@ -574,7 +630,35 @@ pub fn check_text(scene: &Scene) -> String {
             defaults.join(", ")
         }
     );
+    start_text(&mut s, start);
     s
+}
+
+/// The last section of `bead check`: whether each formulation starts.
+fn start_text(s: &mut String, start: &StartCheck) {
+    match &start.plan {
+        Ok(plan) => {
+            let _ = writeln!(
+                s,
+                "\nstart at t = 0 ({}, dt {})",
+                plan.integrator.name(),
+                exact(plan.dt)
+            );
+        }
+        Err(e) => {
+            let _ = writeln!(s, "\nstart at t = 0: not tried: {e}");
+        }
+    }
+    for (method, result) in &start.forms {
+        let outcome = match result {
+            Ok(()) => "ok".to_string(),
+            Err(e) => format!("refused: {}", setup_error(e)),
+        };
+        let _ = writeln!(s, "  {:<12} {outcome}", method.name());
+    }
+    if let Some(e) = &start.method {
+        let _ = writeln!(s, "  [run] method refused: {e}");
+    }
 }
 
 #[cfg(test)]

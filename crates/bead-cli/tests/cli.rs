@@ -805,6 +805,168 @@ fn a_vanishing_gradient_is_singular() {
     );
 }
 
+// ---------------------------------------------------------------------------------------
+// check refuses what run refuses at t = 0 (exit code 1, after the description)
+
+/// The `error: ` lines of `text`.
+fn error_lines(text: &str) -> Vec<String> {
+    text.lines()
+        .filter(|l| l.starts_with("error: "))
+        .map(String::from)
+        .collect()
+}
+
+/// Write `scene`, and assert that `bead check` prints its description, then exits 1 with the
+/// error `bead run` gives for it (with `run_flags`), naming the formulation (`form`) when it
+/// is about one. Returns check's stdout.
+fn check_refuses_as_run_does(
+    name: &str,
+    scene: &str,
+    form: Option<&str>,
+    run_flags: &[&str],
+) -> String {
+    let dir = TempDir::new(name);
+    dir.write("s.toml", scene);
+    let check = bead_in(&dir.0, &["check", "s.toml"]);
+    let out = stdout(&check);
+    let err = fails(check, 1);
+    assert!(out.starts_with("test bead\n"), "{out}");
+    assert!(out.contains("\ndegrees of freedom: "), "{out}");
+    assert!(out.contains("\nstart at t = 0"), "{out}");
+    let mut args = vec!["run", "s.toml", "--steps", "1"];
+    args.extend(run_flags);
+    let run = error_lines(&fails(bead_in(&dir.0, &args), 1));
+    assert_eq!(run.len(), 1, "{run:?}");
+    let expected = match form {
+        Some(form) => run[0].replacen("error: ", &format!("error: {form} form: "), 1),
+        None => run[0].clone(),
+    };
+    assert_eq!(error_lines(&err), vec![expected], "{err}");
+    out
+}
+
+#[test]
+fn check_refuses_an_over_constrained_scene() {
+    let three = "[[constraint]]\nexpr = \"bead.x - 1\"\n[[constraint]]\nexpr = \"bead.y\"\n\
+                 [[constraint]]\nexpr = \"bead.x + bead.y - 1\"\n";
+    let out = check_refuses_as_run_does("check-over", &bead_scene(three), Some("implicit"), &[]);
+    assert!(!out.contains("degrees of freedom: -1"), "{out}");
+    assert!(
+        out.contains(
+            "degrees of freedom: none: the system is over-constrained: 3 constraint rows on 2 \
+             coordinates leave -1 degrees of freedom\n"
+        ),
+        "{out}"
+    );
+    assert!(
+        out.contains("  implicit     refused: the system is over-constrained"),
+        "{out}"
+    );
+}
+
+#[test]
+fn check_refuses_a_duplicated_constraint() {
+    let twice = "[[constraint]]\nexpr = \"bead.x^2 + bead.y^2 - 1\"\n".repeat(2);
+    let out = check_refuses_as_run_does("check-twice", &bead_scene(&twice), Some("implicit"), &[]);
+    assert!(out.contains("duplicates other constraints"), "{out}");
+}
+
+#[test]
+fn check_refuses_a_constraint_that_is_identically_zero() {
+    let zero = "[[constraint]]\nexpr = \"bead.x - bead.x\"\n";
+    check_refuses_as_run_does("check-zero", &bead_scene(zero), Some("implicit"), &[]);
+}
+
+#[test]
+fn check_refuses_a_gradient_that_vanishes_at_the_start() {
+    let cusp = bead_scene("[[constraint]]\nexpr = \"bead.y^2 - bead.x^3\"\n")
+        .replace("position = [1.0, 0.0]", "position = [0.0, 0.0]");
+    let out = check_refuses_as_run_does("check-cusp", &cusp, Some("implicit"), &[]);
+    assert!(out.contains("is singular: its gradient is zero"), "{out}");
+}
+
+#[test]
+fn check_refuses_a_parametric_map_singular_at_the_start() {
+    let map = "[parametric]\ncoordinates = [\"s\"]\ninitial = [0.0]\nrates = [0.0]\n\
+               [parametric.positions]\nbead = [\"s^2\", \"s^3\"]\n";
+    let scene = bead_scene(map).replace("position = [1.0, 0.0]", "position = [0.0, 0.0]");
+    let out = check_refuses_as_run_does("check-map", &scene, Some("parametric"), &[]);
+    assert!(out.contains("coordinate `s` is singular"), "{out}");
+}
+
+#[test]
+fn check_refuses_a_constraint_that_is_not_finite_at_the_start() {
+    let infinite = "[[constraint]]\nexpr = \"bead.x - 1/0\"\n";
+    let out = check_refuses_as_run_does("check-inf", &bead_scene(infinite), Some("implicit"), &[]);
+    assert!(out.contains("is not finite"), "{out}");
+}
+
+#[test]
+fn check_refuses_a_run_table_the_library_refuses() {
+    // Both forms; the scene asks for rattle, which the parametric form cannot use.
+    let both = "[[constraint]]\nexpr = \"bead.x^2 + bead.y^2 - 1\"\n\
+                [parametric]\ncoordinates = [\"th\"]\ninitial = [1.5707963267948966]\n\
+                rates = [0.0]\n[parametric.positions]\nbead = [\"sin(th)\", \"cos(th)\"]\n\
+                [run]\nintegrator = \"rattle\"\n";
+    let out = check_refuses_as_run_does(
+        "check-rattle",
+        &bead_scene(both),
+        Some("parametric"),
+        &["--method", "parametric"],
+    );
+    assert!(out.contains("start at t = 0 (rattle, "), "{out}");
+    assert!(out.contains("  implicit     ok\n"), "{out}");
+    assert!(
+        out.contains("  parametric   refused: rattle needs the implicit form"),
+        "{out}"
+    );
+}
+
+#[test]
+fn check_refuses_run_settings_that_run_refuses() {
+    // The scene loader accepts each number; resolving them as `bead run` does fails.
+    let scene = bead_scene(
+        "[[constraint]]\nexpr = \"bead.x^2 + bead.y^2 - 1\"\n[run]\ndt = 1e-10\nduration = 1e10\n",
+    );
+    let dir = TempDir::new("check-steps");
+    dir.write("s.toml", &scene);
+    let check = bead_in(&dir.0, &["check", "s.toml"]);
+    let out = stdout(&check);
+    let err = fails(check, 1);
+    assert!(
+        out.contains("\nstart at t = 0: not tried: duration"),
+        "{out}"
+    );
+    // `bead run` without --steps (which would override the scene's duration).
+    let run = fails(bead_in(&dir.0, &["run", "s.toml"]), 1);
+    assert_eq!(error_lines(&err), error_lines(&run));
+    assert_eq!(
+        error_lines(&err),
+        vec!["error: duration 10000000000 with dt 1e-10 would take 1e20 steps; at most 2^53 are allowed"]
+    );
+}
+
+#[test]
+fn check_accepts_every_shipped_scene() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes");
+    let mut scenes: Vec<PathBuf> = std::fs::read_dir(&dir)
+        .expect("scenes/")
+        .map(|e| e.expect("entry").path())
+        .filter(|p| p.extension().is_some_and(|e| e == "toml"))
+        .collect();
+    scenes.sort();
+    assert!(scenes.len() >= 5, "{scenes:?}");
+    for scene in &scenes {
+        let out = bead(&["check", p(scene)]);
+        assert_eq!(stderr(&out), "", "{}", scene.display());
+        let text = ok(out);
+        assert!(text.contains("\ndegrees of freedom: "), "{text}");
+        assert!(text.contains("\nstart at t = 0 (rk4, dt "), "{text}");
+        assert!(!text.contains("refused"), "{text}");
+        assert!(text.contains(" ok\n"), "{text}");
+    }
+}
+
 #[test]
 fn divergence_names_the_time_and_keeps_the_trace_and_summary() {
     let dir = TempDir::new("diverge");
