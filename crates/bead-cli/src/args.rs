@@ -173,6 +173,25 @@ pub struct SimArgs {
     pub project: bool,
 }
 
+impl SimArgs {
+    /// No flags at all, as if none were given: everything comes from the scene's `[run]` table
+    /// or the defaults (for `bead check`, which starts the scene as `bead run SCENE` would).
+    pub fn none() -> SimArgs {
+        SimArgs {
+            integrator: None,
+            dt: None,
+            duration: None,
+            steps: None,
+            stabilize: None,
+            set: Vec::new(),
+            every: 1,
+            rtol: None,
+            atol: None,
+            project: false,
+        }
+    }
+}
+
 /// Where the report goes: shared by `run` and `compare`.
 #[derive(Debug, Args)]
 pub struct OutputArgs {
@@ -356,6 +375,15 @@ mod tests {
         for bad in ["-1e-10", "nan", "inf", "x", ""] {
             assert!(parse_non_negative(bad).is_err(), "{bad}");
         }
+    }
+
+    #[test]
+    fn no_flags_are_what_clap_parses_from_no_flags() {
+        let cli = Cli::try_parse_from(["bead", "run", "s.toml"]).expect("parses");
+        let Command::Run(run) = cli.command else {
+            panic!("not run")
+        };
+        assert_eq!(format!("{:?}", run.sim), format!("{:?}", SimArgs::none()));
     }
 
     #[test]

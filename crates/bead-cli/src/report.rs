@@ -9,6 +9,7 @@ use bead::integrate::IntegratorKind;
 use bead::model::{Endpoint, ExprRow, Force, System};
 use bead::output::Summary;
 use bead::scene::Scene;
+use bead::simulate::SetupError;
 
 use crate::plan::Plan;
 
@@ -426,8 +427,75 @@ fn plural(n: usize, one: &str, many: &str) -> String {
     format!("{n} {}", if n == 1 { one } else { many })
 }
 
-/// The description printed by `bead check`.
-pub fn check_text(scene: &Scene) -> String {
+/// Longest expression `bead check` prints, in characters: a longer one is cut there and says
+/// how many characters are left (derivatives written out can be far larger than the scene).
+pub const EXPRESSION_LIMIT: usize = 400;
+
+/// `e` as `bead check` prints it: numeric factors collected, at most [`EXPRESSION_LIMIT`]
+/// characters (plus the last token and the count of what is left).
+fn expression(e: &Expr, name: &dyn Fn(usize) -> String) -> String {
+    let tidy = e.for_display();
+    let text = tidy.display_bounded(name, EXPRESSION_LIMIT).to_string();
+    text
+}
+
+/// What `bead check` found when it started each formulation of a scene as `bead run` starts
+/// it (the library's own checks, [`bead::simulate::Simulation::new`]), without stepping.
+pub struct StartCheck {
+    /// The scene's `[run]` settings as `bead run` resolves them, or `bead run`'s error.
+    pub plan: Result<Plan, String>,
+    /// `bead run`'s error when the scene's `[run]` method cannot run.
+    pub method: Option<String>,
+    /// Each formulation the scene has (none when the plan failed) and whether it starts.
+    pub forms: Vec<(Method, Result<(), SetupError>)>,
+    /// The formulation `bead run` picks without `--method` (None when that is refused).
+    pub run_method: Option<Method>,
+}
+
+impl StartCheck {
+    /// Every refusal, worded as `bead run` words it, the formulation named. A formulation
+    /// other than the one `bead run` picks is held to its initial state only: that the
+    /// scene's integrator or projection does not apply to it (rattle on the parametric form)
+    /// is what `bead compare` skips with a note, not an error of the scene.
+    pub fn errors(&self) -> Vec<String> {
+        let mut errors = Vec::new();
+        if let Err(e) = &self.plan {
+            errors.push(e.clone());
+        }
+        errors.extend(self.method.clone());
+        for (method, result) in &self.forms {
+            if let Err(e) = result {
+                if self.only_not_applicable(*method, e) {
+                    continue;
+                }
+                errors.push(format!("{} form: {}", method.name(), setup_error(e)));
+            }
+        }
+        errors
+    }
+
+    /// Whether `e` only says that the scene's settings do not apply to `method`, a
+    /// formulation `bead run` does not pick by default.
+    fn only_not_applicable(&self, method: Method, e: &SetupError) -> bool {
+        self.run_method.is_some_and(|run| run != method) && matches!(e, SetupError::Config(_))
+    }
+
+    /// The refusal of the implicit form for having more constraint rows than coordinates.
+    fn over_constrained(&self) -> Option<&SetupError> {
+        self.forms.iter().find_map(|(_, result)| match result {
+            Err(e @ SetupError::OverConstrained { .. }) => Some(e),
+            _ => None,
+        })
+    }
+}
+
+/// A setup error as `bead run` prints it (the error and its causes).
+fn setup_error(e: &SetupError) -> String {
+    format!("{:#}", anyhow::Error::from(e.clone()))
+}
+
+/// The description printed by `bead check`, ending with whether each formulation starts.
+pub fn check_text(scene: &Scene, start: &StartCheck) -> String {
     let system = &*scene.system;
     let mut s = String::new();
     let _ = writeln!(s, "{}", title(scene));
@@ -506,15 +574,15 @@ pub fn check_text(scene: &Scene) -> String {
                         velocity,
                         bias,
                     } = symbolic;
-                    let _ = writeln!(s, "    row {row}: C = {}", value.display_with(&name));
+                    let _ = writeln!(s, "    row {row}: C = {}", expression(value, &name));
                     for (k, d) in gradient {
-                        let _ = writeln!(s, "      dC/d({}) = {}", name(*k), d.display_with(&name));
+                        let _ = writeln!(s, "      dC/d({}) = {}", name(*k), expression(d, &name));
                     }
-                    let _ = writeln!(s, "      Cdot = {}", velocity.display_with(&name));
+                    let _ = writeln!(s, "      Cdot = {}", expression(velocity, &name));
                     let _ = writeln!(
                         s,
                         "      bias = {}   (Cddot = J a + bias)",
-                        bias.display_with(&name)
+                        expression(bias, &name)
                     );
                 }
                 None => {
@@ -543,7 +611,21 @@ pub fn check_text(scene: &Scene) -> String {
             set.n_instructions()
         );
     }
-    let _ = writeln!(s, "\ndegrees of freedom: {}", system.degrees_of_freedom());
+    match (start.over_constrained(), system.parametric()) {
+        (Some(refusal), _) => {
+            let _ = writeln!(s, "\ndegrees of freedom: none: {refusal}");
+        }
+        (None, Some(map)) if set.n_rows() == 0 => {
+            let _ = writeln!(
+                s,
+                "\ndegrees of freedom: {} (the parametric form's coordinates)",
+                map.coordinates().len()
+            );
+        }
+        (None, _) => {
+            let _ = writeln!(s, "\ndegrees of freedom: {}", system.degrees_of_freedom());
+        }
+    }
 
     match system.parametric() {
         None => {
@@ -566,20 +648,20 @@ pub fn check_text(scene: &Scene) -> String {
             for k in 0..system.n_coords() {
                 let (x, xdot, h, jacobian): (&Expr, &Expr, &Expr, &[Expr]) = map.symbolic(k);
                 let coordinate = system.coordinate_name(k);
-                let _ = writeln!(s, "  {coordinate} = {}", x.display_with(&qname));
+                let _ = writeln!(s, "  {coordinate} = {}", expression(x, &qname));
                 for (j, d) in jacobian.iter().enumerate() {
                     let _ = writeln!(
                         s,
                         "    d({coordinate})/d{} = {}",
                         coordinates[j],
-                        d.display_with(&qname)
+                        expression(d, &qname)
                     );
                 }
-                let _ = writeln!(s, "    velocity = {}", xdot.display_with(&qname));
+                let _ = writeln!(s, "    velocity = {}", expression(xdot, &qname));
                 let _ = writeln!(
                     s,
                     "    h = {}   (acceleration = J q'' + h)",
-                    h.display_with(&qname)
+                    expression(h, &qname)
                 );
             }
             let _ = writeln!(s, "  compiled: {} tape instructions", map.n_instructions());
@@ -615,7 +697,38 @@ pub fn check_text(scene: &Scene) -> String {
             defaults.join(", ")
         }
     );
+    start_text(&mut s, start);
     s
+}
+
+/// The last section of `bead check`: whether each formulation starts.
+fn start_text(s: &mut String, start: &StartCheck) {
+    match &start.plan {
+        Ok(plan) => {
+            let _ = writeln!(
+                s,
+                "\nstart at t = 0 ({}, dt {})",
+                plan.integrator.name(),
+                exact(plan.dt)
+            );
+        }
+        Err(e) => {
+            let _ = writeln!(s, "\nstart at t = 0: not tried: {e}");
+        }
+    }
+    for (method, result) in &start.forms {
+        let outcome = match result {
+            Ok(()) => "ok".to_string(),
+            Err(e) if start.only_not_applicable(*method, e) => {
+                format!("not with these settings (bead run uses the other form): {e}")
+            }
+            Err(e) => format!("refused: {}", setup_error(e)),
+        };
+        let _ = writeln!(s, "  {:<12} {outcome}", method.name());
+    }
+    if let Some(e) = &start.method {
+        let _ = writeln!(s, "  [run] method refused: {e}");
+    }
 }
 
 #[cfg(test)]

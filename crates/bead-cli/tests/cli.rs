@@ -432,6 +432,63 @@ fn check_prints_the_derivatives() {
 }
 
 #[test]
+fn check_prints_derivatives_with_constant_factors_folded() {
+    let double = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes/double-pendulum.toml");
+    let out = ok(bead(&["check", p(&double)]));
+    // C = (|a - b|^2 - L^2)/2: its gradient was printed 2*(a.x - b.x)/2.
+    assert!(out.contains("dC/d(a.x) = a.x - b.x\n"), "{out}");
+    assert!(out.contains("dC/d(b.x) = -(a.x - b.x)\n"), "{out}");
+    assert!(
+        out.contains("Cdot = (a.x - b.x)*a.vx + (a.y - b.y)*a.vy - (a.x - b.x)*b.vx"),
+        "{out}"
+    );
+    let out = ok(bead(&["check", p(&parabola())]));
+    assert!(out.contains("d(bead.y)/dq = -0.02*q\n"), "{out}");
+    assert!(out.contains("bias = 2*bead.vx^2 "), "{out}");
+}
+
+/// A bead on y = prod_k (1 + x/k), k = 1..n: a 13.7 KB scene for n = 800.
+fn product_scene(n: usize) -> String {
+    let product: Vec<String> = (1..=n).map(|k| format!("(1 + bead.x/{k})")).collect();
+    bead_scene(&format!(
+        "[[constraint]]\nname = \"product\"\nexpr = \"bead.y - {}\"\n",
+        product.join("*")
+    ))
+    .replace("position = [1.0, 0.0]", "position = [0.0, 1.0]")
+}
+
+#[test]
+fn check_output_stays_small_for_a_product_of_800_factors() {
+    // The derivatives of a product of n factors are DAGs of O(n) nodes but trees of O(n^2)
+    // (gradient) and O(n^3) (bias) characters: printed in full, this scene took 4.4 GB of
+    // output and as much memory. Each expression is now cut at about 400 characters.
+    let dir = TempDir::new("product-800");
+    let scene = product_scene(800);
+    assert!(scene.len() > 13_000);
+    dir.write("s.toml", &scene);
+    let out = bead_in(&dir.0, &["check", "s.toml"]);
+    let text = ok(out);
+    // The description repeats the scene's constraint (13.7 KB); everything else is small.
+    assert!(text.len() < scene.len() + 10_000, "{} bytes", text.len());
+    for line in text.lines().filter(|l| l.contains(" = ")) {
+        let printed = line.split(" ... (").next().unwrap_or(line);
+        assert!(
+            printed.len() < 600 || line.trim_start().starts_with("product:"),
+            "{} characters: {}",
+            printed.len(),
+            line.chars().take(200).collect::<String>()
+        );
+    }
+    let bias = text
+        .lines()
+        .find(|l| l.trim_start().starts_with("bias = "))
+        .expect("bias line");
+    assert!(bias.contains(" more characters)"), "{bias}");
+    // `bead run` of the same scene starts (and check agrees).
+    ok(bead_in(&dir.0, &["run", "s.toml", "--steps", "10"]));
+}
+
+#[test]
 fn help_describes_every_integrator_and_flag() {
     let out = ok(bead(&["run", "--help"]));
     for line in [
@@ -746,6 +803,170 @@ fn a_vanishing_gradient_is_singular() {
          (0, 0): a cusp or a crossing of the curve; the motion cannot be continued on this curve \
          by the implicit form\n"
     );
+}
+
+// ---------------------------------------------------------------------------------------
+// check refuses what run refuses at t = 0 (exit code 1, after the description)
+
+/// The `error: ` lines of `text`.
+fn error_lines(text: &str) -> Vec<String> {
+    text.lines()
+        .filter(|l| l.starts_with("error: "))
+        .map(String::from)
+        .collect()
+}
+
+/// Write `scene`, and assert that `bead check` prints its description, then exits 1 with the
+/// error `bead run` gives for it (with `run_flags`), naming the formulation (`form`) when it
+/// is about one. Returns check's stdout.
+fn check_refuses_as_run_does(
+    name: &str,
+    scene: &str,
+    form: Option<&str>,
+    run_flags: &[&str],
+) -> String {
+    let dir = TempDir::new(name);
+    dir.write("s.toml", scene);
+    let check = bead_in(&dir.0, &["check", "s.toml"]);
+    let out = stdout(&check);
+    let err = fails(check, 1);
+    assert!(out.starts_with("test bead\n"), "{out}");
+    assert!(out.contains("\ndegrees of freedom: "), "{out}");
+    assert!(out.contains("\nstart at t = 0"), "{out}");
+    let mut args = vec!["run", "s.toml", "--steps", "1"];
+    args.extend(run_flags);
+    let run = error_lines(&fails(bead_in(&dir.0, &args), 1));
+    assert_eq!(run.len(), 1, "{run:?}");
+    let expected = match form {
+        Some(form) => run[0].replacen("error: ", &format!("error: {form} form: "), 1),
+        None => run[0].clone(),
+    };
+    assert_eq!(error_lines(&err), vec![expected], "{err}");
+    out
+}
+
+#[test]
+fn check_refuses_an_over_constrained_scene() {
+    let three = "[[constraint]]\nexpr = \"bead.x - 1\"\n[[constraint]]\nexpr = \"bead.y\"\n\
+                 [[constraint]]\nexpr = \"bead.x + bead.y - 1\"\n";
+    let out = check_refuses_as_run_does("check-over", &bead_scene(three), Some("implicit"), &[]);
+    assert!(!out.contains("degrees of freedom: -1"), "{out}");
+    assert!(
+        out.contains(
+            "degrees of freedom: none: the system is over-constrained: 3 constraint rows on 2 \
+             coordinates leave -1 degrees of freedom\n"
+        ),
+        "{out}"
+    );
+    assert!(
+        out.contains("  implicit     refused: the system is over-constrained"),
+        "{out}"
+    );
+}
+
+#[test]
+fn check_refuses_a_duplicated_constraint() {
+    let twice = "[[constraint]]\nexpr = \"bead.x^2 + bead.y^2 - 1\"\n".repeat(2);
+    let out = check_refuses_as_run_does("check-twice", &bead_scene(&twice), Some("implicit"), &[]);
+    assert!(out.contains("duplicates other constraints"), "{out}");
+}
+
+#[test]
+fn check_refuses_a_constraint_that_is_identically_zero() {
+    let zero = "[[constraint]]\nexpr = \"bead.x - bead.x\"\n";
+    check_refuses_as_run_does("check-zero", &bead_scene(zero), Some("implicit"), &[]);
+}
+
+#[test]
+fn check_refuses_a_gradient_that_vanishes_at_the_start() {
+    let cusp = bead_scene("[[constraint]]\nexpr = \"bead.y^2 - bead.x^3\"\n")
+        .replace("position = [1.0, 0.0]", "position = [0.0, 0.0]");
+    let out = check_refuses_as_run_does("check-cusp", &cusp, Some("implicit"), &[]);
+    assert!(out.contains("is singular: its gradient is zero"), "{out}");
+}
+
+#[test]
+fn check_refuses_a_parametric_map_singular_at_the_start() {
+    let map = "[parametric]\ncoordinates = [\"s\"]\ninitial = [0.0]\nrates = [0.0]\n\
+               [parametric.positions]\nbead = [\"s^2\", \"s^3\"]\n";
+    let scene = bead_scene(map).replace("position = [1.0, 0.0]", "position = [0.0, 0.0]");
+    let out = check_refuses_as_run_does("check-map", &scene, Some("parametric"), &[]);
+    assert!(out.contains("coordinate `s` is singular"), "{out}");
+}
+
+#[test]
+fn check_refuses_a_constraint_that_is_not_finite_at_the_start() {
+    let infinite = "[[constraint]]\nexpr = \"bead.x - 1/0\"\n";
+    let out = check_refuses_as_run_does("check-inf", &bead_scene(infinite), Some("implicit"), &[]);
+    assert!(out.contains("is not finite"), "{out}");
+}
+
+#[test]
+fn check_refuses_a_run_table_the_library_refuses() {
+    // Both forms; the scene asks for the parametric form with rattle, which it cannot use.
+    // (Asking for rattle with the implicit form as the run's form passes: see
+    // check_passes_a_rattle_scene_that_also_has_a_parametric_form.)
+    let both = "[[constraint]]\nexpr = \"bead.x^2 + bead.y^2 - 1\"\n\
+                [parametric]\ncoordinates = [\"th\"]\ninitial = [1.5707963267948966]\n\
+                rates = [0.0]\n[parametric.positions]\nbead = [\"sin(th)\", \"cos(th)\"]\n\
+                [run]\nmethod = \"parametric\"\nintegrator = \"rattle\"\n";
+    let out = check_refuses_as_run_does(
+        "check-rattle",
+        &bead_scene(both),
+        Some("parametric"),
+        &["--method", "parametric"],
+    );
+    assert!(out.contains("start at t = 0 (rattle, "), "{out}");
+    assert!(out.contains("  implicit     ok\n"), "{out}");
+    assert!(
+        out.contains("  parametric   refused: rattle needs the implicit form"),
+        "{out}"
+    );
+}
+
+#[test]
+fn check_refuses_run_settings_that_run_refuses() {
+    // The scene loader accepts each number; resolving them as `bead run` does fails.
+    let scene = bead_scene(
+        "[[constraint]]\nexpr = \"bead.x^2 + bead.y^2 - 1\"\n[run]\ndt = 1e-10\nduration = 1e10\n",
+    );
+    let dir = TempDir::new("check-steps");
+    dir.write("s.toml", &scene);
+    let check = bead_in(&dir.0, &["check", "s.toml"]);
+    let out = stdout(&check);
+    let err = fails(check, 1);
+    assert!(
+        out.contains("\nstart at t = 0: not tried: duration"),
+        "{out}"
+    );
+    // `bead run` without --steps (which would override the scene's duration).
+    let run = fails(bead_in(&dir.0, &["run", "s.toml"]), 1);
+    assert_eq!(error_lines(&err), error_lines(&run));
+    assert_eq!(
+        error_lines(&err),
+        vec!["error: duration 10000000000 with dt 1e-10 would take 1e20 steps; at most 2^53 are allowed"]
+    );
+}
+
+#[test]
+fn check_accepts_every_shipped_scene() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes");
+    let mut scenes: Vec<PathBuf> = std::fs::read_dir(&dir)
+        .expect("scenes/")
+        .map(|e| e.expect("entry").path())
+        .filter(|p| p.extension().is_some_and(|e| e == "toml"))
+        .collect();
+    scenes.sort();
+    assert!(scenes.len() >= 5, "{scenes:?}");
+    for scene in &scenes {
+        let out = bead(&["check", p(scene)]);
+        assert_eq!(stderr(&out), "", "{}", scene.display());
+        let text = ok(out);
+        assert!(text.contains("\ndegrees of freedom: "), "{text}");
+        assert!(text.contains("\nstart at t = 0 (rk4, dt "), "{text}");
+        assert!(!text.contains("refused"), "{text}");
+        assert!(text.contains(" ok\n"), "{text}");
+    }
 }
 
 #[test]
@@ -1374,4 +1595,26 @@ fn plot_errors_name_the_problem() {
     let no_t = dir.write("no_t.csv", "x,energy\n0,1\n");
     let err = fails(bead_in(&dir.0, &["plot", p(&no_t)]), 1);
     assert!(err.contains("no_t.csv:1:") && err.contains("`t`"), "{err}");
+}
+
+/// A scene whose `[run]` asks for rattle and that also has a parametric form: `bead run` uses
+/// the implicit form and works, so `bead check` passes, noting that the parametric form is not
+/// for rattle (as `bead compare` skips it), instead of failing the scene.
+#[test]
+fn check_passes_a_rattle_scene_that_also_has_a_parametric_form() {
+    let dir = TempDir::new("check-rattle-both");
+    let scene = bead_scene(
+        "[[constraint]]\nexpr = \"bead.x^2 + bead.y^2 - 1\"\n\
+         [parametric]\ncoordinates = [\"th\"]\ninitial = [1.5707963267948966]\n\
+         [parametric.positions]\nbead = [\"sin(th)\", \"cos(th)\"]\n\
+         [run]\nintegrator = \"rattle\"\n",
+    );
+    dir.write("s.toml", &scene);
+    let text = ok(bead_in(&dir.0, &["check", "s.toml"]));
+    assert!(text.contains("implicit     ok"), "{text}");
+    assert!(
+        text.contains("parametric   not with these settings (bead run uses the other form): rattle needs the implicit form"),
+        "{text}"
+    );
+    ok(bead_in(&dir.0, &["run", "s.toml", "--steps", "10"]));
 }

@@ -1,7 +1,7 @@
 //! Symbolic derivatives of every built-in function and operator, checked against forward-mode
 //! automatic differentiation with num-dual (first derivatives with `Dual64`, second with
 //! `Dual2_64`, mixed second partials with `HyperDual64`), through both `Expr::eval` and the
-//! compiled `Tape`.
+//! compiled `Tape`; and the forms `bead check` prints (`Expr::for_display`), parsed back.
 use bead::expr::{parse, Expr, ExprError, Func, Resolved, Tape};
 use num_dual::{Dual2_64, Dual64, HyperDual64};
 
@@ -56,6 +56,22 @@ fn check(src: &str, x: f64, y: f64) {
     assert_close(fxy.eval(&v), hxy.eps1eps2, &format!("d2/dxdy {at}"));
     assert_close(fyx.eval(&v), hxy.eps1eps2, &format!("d2/dydx {at}"));
 
+    // What `bead check` prints, parsed back, has the same values.
+    for (e, want, what) in [
+        (&fx, dx.eps, "d/dx"),
+        (&fy, dy.eps, "d/dy"),
+        (&fxx, d2x.v2, "d2/dx2"),
+        (&fyy, d2y.v2, "d2/dy2"),
+        (&fxy, hxy.eps1eps2, "d2/dxdy"),
+    ] {
+        let shown = printed(e);
+        assert_close(
+            p(&shown).eval(&v),
+            want,
+            &format!("{what} {at} printed as {shown}"),
+        );
+    }
+
     let outputs = [f, fx, fy, fxx, fyy, fxy];
     let tape = Tape::compile(&outputs);
     let mut scratch = vec![0.0; tape.n_slots()];
@@ -68,6 +84,14 @@ fn check(src: &str, x: f64, y: f64) {
             "tape vs eval for {at}: {o} vs {want}"
         );
     }
+}
+
+/// `e` as `bead check` prints it (collected, for reading), without its length limit.
+fn printed(e: &Expr) -> String {
+    let names = |k: usize| ["x", "y"][k].to_string();
+    let tidy = e.for_display();
+    let shown = tidy.display_bounded(&names, usize::MAX).to_string();
+    shown
 }
 
 /// Points (x, y) with x in (-1, 1) \ {0} and y > 0, so every function below is smooth.
@@ -212,4 +236,55 @@ fn derivative_of_non_dependent_parts_is_exactly_zero() {
     let d = f.derivative(0);
     assert_eq!(d.as_constant(), Some(0.0));
     assert_eq!(p("x*y").derivative(7).as_constant(), Some(0.0));
+}
+
+#[test]
+fn printed_derivatives_fold_constant_factors() {
+    // d/dx sqrt(x^2 + y^2) is built as 2*x/(2*sqrt(...)); printed without the 2s.
+    let r = p("sqrt(x^2 + y^2)");
+    assert_eq!(printed(&r.derivative(0)), "x/sqrt(x^2 + y^2)");
+    // The half-square form of a distance constraint.
+    let c = p("(x^2 + y^2 - L^2)/2");
+    assert_eq!(printed(&c), "(x^2 + y^2 - 2.25)/2");
+    assert_eq!(printed(&c.derivative(0)), "x");
+    assert_eq!(printed(&p("-(2*x/100)")), "-0.02*x");
+    assert_eq!(printed(&p("x*x*3").derivative(0)), "3*(x + x)");
+    assert_eq!(printed(&p("1/x").derivative(0)), "-1/x^2");
+}
+
+#[test]
+fn printing_a_long_product_is_bounded() {
+    // C = y - prod_k (1 + x/k), 800 factors: the DAG of the second derivative is linear in
+    // the number of factors, the tree written out cubic.
+    let n = 800;
+    let product = (1..=n)
+        .map(|k| format!("(1 + x/{k})"))
+        .collect::<Vec<_>>()
+        .join("*");
+    let c = p(&format!("y - {product}"));
+    let cx = c.derivative(0);
+    let cxx = cx.derivative(0);
+    let names = |k: usize| ["x", "y"][k].to_string();
+    for e in [&c, &cx, &cxx] {
+        let tidy = e.for_display();
+        assert!(tidy.node_count() <= 2 * e.node_count() + 10);
+        let shown = tidy.display_bounded(&names, 400).to_string();
+        assert!(shown.len() < 500, "{} characters", shown.len());
+        assert!(shown.ends_with(" more characters)"), "{shown}");
+    }
+    // The printed prefix is the start of the full form.
+    let short = p("y - (1 + x/1)*(1 + x/2)*(1 + x/3)")
+        .derivative(0)
+        .for_display();
+    let full = short.display_bounded(&names, usize::MAX).to_string();
+    let cut = short.display_bounded(&names, 20).to_string();
+    let prefix = cut.split(" ... (").next().unwrap();
+    assert!(full.starts_with(prefix), "{full} / {cut}");
+    let rest: usize = cut
+        .split(" ... (")
+        .nth(1)
+        .and_then(|r| r.split(' ').next())
+        .and_then(|n| n.parse().ok())
+        .unwrap();
+    assert_eq!(prefix.len() + rest, full.len());
 }

@@ -1,4 +1,5 @@
-//! The expression DAG: nodes, simplifying constructors, evaluation, substitution and display.
+//! The expression DAG: nodes, simplifying constructors, evaluation and substitution (printing
+//! is in `display.rs`).
 //!
 //! Every algorithm here walks the DAG iteratively (see [`topo`]) and visits each shared node
 //! once, so neither very long expressions (`x + x + ... + x`, a left-deep chain thousands of
@@ -911,133 +912,9 @@ impl Expr {
         super::diff::derivative(self, k)
     }
 
-    /// Infix form with slot names given by `name` (for `bead check`), with the fewest
-    /// parentheses that keep the structure: `x^2 + 100*y`, `-(a + b)`, `sin(q)`.
-    /// Numbers use Rust's shortest round-trip formatting (`{}`, switching to `{:e}` below
-    /// 1e-5 and from 1e16 on in magnitude), so the output parses back to the same tree.
-    pub fn display_with<'a>(&'a self, name: &'a dyn Fn(usize) -> String) -> impl fmt::Display + 'a {
-        DisplayWith { expr: self, name }
-    }
-
     /// Number of distinct nodes in the DAG.
     pub fn node_count(&self) -> usize {
         topo([self]).nodes.len()
-    }
-}
-
-// ---------------------------------------------------------------------------------------
-// Display.
-
-struct DisplayWith<'a> {
-    expr: &'a Expr,
-    name: &'a dyn Fn(usize) -> String,
-}
-
-/// Where a subexpression is printed, to decide on parentheses.
-#[derive(Clone, Copy)]
-enum Pos {
-    Top,
-    AddL,
-    AddR,
-    MulL,
-    MulR,
-    NegArg,
-    PowBase,
-    PowExp,
-}
-
-/// 1: sum, 2: product, 3: negation (incl. negative constants), 4: power, 5: atom.
-fn class(n: &Node) -> u8 {
-    match n {
-        Node::Add(..) | Node::Sub(..) => 1,
-        Node::Mul(..) | Node::Div(..) => 2,
-        Node::Neg(_) => 3,
-        Node::Const(c) if c.is_sign_negative() => 3,
-        Node::Pow(..) => 4,
-        _ => 5,
-    }
-}
-
-fn needs_parens(n: &Node, pos: Pos) -> bool {
-    let c = class(n);
-    match pos {
-        Pos::Top | Pos::AddL => false,
-        Pos::AddR => c <= 1 || c == 3,
-        Pos::MulL => c <= 1,
-        Pos::MulR | Pos::NegArg | Pos::PowExp => c <= 3,
-        Pos::PowBase => c <= 4,
-    }
-}
-
-/// Shortest round-trip formatting, in exponent form for very large or small magnitudes.
-pub(crate) fn fmt_number(f: &mut fmt::Formatter<'_>, c: f64) -> fmt::Result {
-    let m = c.abs();
-    if c.is_finite() && m != 0.0 && !(1e-5..1e16).contains(&m) {
-        write!(f, "{c:e}")
-    } else {
-        write!(f, "{c}")
-    }
-}
-
-impl fmt::Display for DisplayWith<'_> {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        enum Task<'b> {
-            E(&'b Expr, Pos),
-            S(&'static str),
-        }
-        let mut stack = vec![Task::E(self.expr, Pos::Top)];
-        while let Some(task) = stack.pop() {
-            let (e, pos) = match task {
-                Task::S(s) => {
-                    f.write_str(s)?;
-                    continue;
-                }
-                Task::E(e, pos) => (e, pos),
-            };
-            if needs_parens(&e.0, pos) {
-                f.write_str("(")?;
-                stack.push(Task::S(")"));
-            }
-            let (a, op, b, pa, pb) = match &*e.0 {
-                Node::Const(c) => {
-                    fmt_number(f, *c)?;
-                    continue;
-                }
-                Node::Var(k) => {
-                    f.write_str(&(self.name)(*k))?;
-                    continue;
-                }
-                Node::Neg(a) => {
-                    f.write_str("-")?;
-                    stack.push(Task::E(a, Pos::NegArg));
-                    continue;
-                }
-                Node::Unary(func, a) => {
-                    f.write_str(func.name())?;
-                    f.write_str("(")?;
-                    stack.push(Task::S(")"));
-                    stack.push(Task::E(a, Pos::Top));
-                    continue;
-                }
-                Node::Atan2(y, x) => {
-                    f.write_str("atan2(")?;
-                    stack.push(Task::S(")"));
-                    stack.push(Task::E(x, Pos::Top));
-                    stack.push(Task::S(", "));
-                    stack.push(Task::E(y, Pos::Top));
-                    continue;
-                }
-                Node::Add(a, b) => (a, " + ", b, Pos::AddL, Pos::AddR),
-                Node::Sub(a, b) => (a, " - ", b, Pos::AddL, Pos::AddR),
-                Node::Mul(a, b) => (a, "*", b, Pos::MulL, Pos::MulR),
-                Node::Div(a, b) => (a, "/", b, Pos::MulL, Pos::MulR),
-                Node::Pow(a, b) => (a, "^", b, Pos::PowBase, Pos::PowExp),
-            };
-            stack.push(Task::E(b, pb));
-            stack.push(Task::S(op));
-            stack.push(Task::E(a, pa));
-        }
-        Ok(())
     }
 }
 

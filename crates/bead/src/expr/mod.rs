@@ -31,6 +31,7 @@
 
 mod ast;
 mod diff;
+mod display;
 mod parse;
 mod tape;
 
