@@ -281,8 +281,8 @@ async fn checks(client: &Client, addr: SocketAddr) {
     .await;
     assert_ne!(before, after);
     // Explicit Euler gains energy far faster than RK4 on the parametric form.
-    let euler = frame(client, 1).await["energy_rel_error"].as_f64().unwrap();
-    let rk4 = frame(client, 2).await["energy_rel_error"].as_f64().unwrap();
+    let euler = frame(client, 1).await["energy_error"].as_f64().unwrap();
+    let rk4 = frame(client, 2).await["energy_error"].as_f64().unwrap();
     assert!(euler > 100.0 * rk4, "euler {euler} vs rk4 {rk4}");
 
     // Drag with RATTLE (implicit) and in the parametric panel: the bead follows the cursor
