@@ -1300,6 +1300,19 @@ fn rattle_on_the_parametric_form_is_an_error() {
 }
 
 #[test]
+fn projection_with_dopri5_is_an_error_in_the_librarys_words() {
+    // The viewer replies with the same words (crates/bead-viewer/tests/session.rs).
+    let err = fails(
+        bead(&["run", p(&parabola()), "--integrator", "dopri5", "--project"]),
+        1,
+    );
+    let expected = bead::simulate::ConfigError::ProjectionWithAdaptive(
+        bead::integrate::IntegratorKind::Dopri5,
+    );
+    assert_eq!(err, format!("error: {expected}\n"));
+}
+
+#[test]
 fn project_keeps_rk4_on_the_constraint_and_says_so() {
     let out = ok(bead(&[
         "run",

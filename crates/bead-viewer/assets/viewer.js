@@ -11,7 +11,9 @@
     ws: null,
     welcome: null,
     scene: null,
-    panels: new Map(),      // id -> { info, frame, dom, trail, history, view }
+    // id -> { info, frame, dom, trail, history }. `info.epoch` and `frame.epoch` change
+    // whenever the panel restarts; a frame of an older epoch than `info` is stale.
+    panels: new Map(),
     drags: new Map(),       // panel id -> particle being dragged
     pendingMoves: new Map(),// panel id -> latest drag_move, sent once per animation frame
   };
@@ -72,9 +74,11 @@
       case "panels": onPanels(msg.panels); break;
       case "frame": onFrame(msg); break;
       case "error":
+        // msg.code is the machine-readable reason (protocol.rs, ErrorCode).
         if (msg.panel != null && state.panels.has(msg.panel)) {
           const p = state.panels.get(msg.panel);
           p.dom.configError.textContent = msg.message;
+          p.dom.configError.dataset.code = msg.code;
         } else {
           showMessage(`${msg.request ? msg.request + ": " : ""}${msg.message}`);
         }
@@ -178,6 +182,7 @@
       text += "\n  " + expr + "\n  " + " ".repeat(a) + "^".repeat(Math.max(1, b - a));
     }
     error.textContent = text;
+    error.dataset.code = msg.code;
     error.hidden = false;
   }
 
@@ -192,12 +197,11 @@
         state.panels.set(info.id, p);
         $("panels").appendChild(p.dom.root);
       } else {
-        const reset = p.info.method !== info.method || p.info.integrator !== info.integrator ||
-          p.info.dt !== info.dt || JSON.stringify(p.info.exprs) !== JSON.stringify(info.exprs) ||
-          p.info.ks !== info.ks || p.info.kd !== info.kd || p.info.project !== info.project;
+        // A new epoch: the panel restarted (configured, reset, new curve).
+        if (p.info.epoch !== info.epoch) { p.trail = []; p.history = []; }
         p.info = info;
-        if (reset) { p.trail = []; p.history = []; }
       }
+      p.dom.root.dataset.epoch = String(info.epoch);
       fillConfig(p);
       p.dom.configError.textContent = "";
     }
@@ -303,19 +307,28 @@
     for (const f of msg.panels) {
       const p = state.panels.get(f.id);
       if (!p) continue;
+      // Sent before the panel restarted: nothing of it belongs to the new epoch.
+      if (f.epoch < p.info.epoch) continue;
       const previous = p.frame;
       p.frame = f;
-      if (previous && f.t < previous.t) { p.trail = []; p.history = []; }
-      if (!previous || f.t !== previous.t || f.steps !== previous.steps) {
+      if (previous && f.epoch !== previous.epoch) { p.trail = []; p.history = []; }
+      if (!previous || f.t !== previous.t || f.steps !== previous.steps || f.epoch !== previous.epoch) {
         p.trail.push(f.x.slice());
         if (p.trail.length > TRAIL) p.trail.shift();
-        p.history.push([f.t, f.energy_rel_error, f.constraint_error]);
+        p.history.push([f.t, f.energy_error, f.constraint_error]);
         if (p.history.length > HISTORY) p.history.shift();
       }
       const r = p.dom.fields;
       r.t.textContent = `t = ${fmt(f.t)} s`;
-      r.energy.textContent = `E = ${fmt(f.energy, 7)}`;
-      r.erel.textContent = `|ΔE|/E = ${fmt(f.energy_rel_error)}`;
+      // What the panel conserves: T + V, or E - W when something does work on the system.
+      const reasons = f.not_conserved_by.join("; ");
+      r.energy.textContent = f.energy_conserved ? `E = ${fmt(f.energy, 7)}` :
+        `E = ${fmt(f.energy, 7)}, W = ${fmt(f.work, 5)}`;
+      r.erel.textContent = f.energy_conserved ? `|ΔE|/E = ${fmt(f.energy_error)}` :
+        `|Δ(E − W)|/E = ${fmt(f.energy_error)}`;
+      r.erel.title = f.energy_conserved ? "relative energy error" :
+        `energy not conserved (${reasons}): the error of E − W, W the work done on the system`;
+      r.erel.dataset.value = String(f.energy_error);
       r.cerr.textContent = `|C| = ${fmt(f.constraint_error)}`;
       r.cerr.dataset.value = String(f.constraint_error);
       r.sps.textContent = `steps/s = ${fmt(f.steps_per_second, 3)}`;
@@ -481,7 +494,13 @@
       ctx.fillText("1e" + d, L - 4, py(d) + 5);
     }
     ctx.textAlign = "left";
-    ctx.fillText(label, L + 4, 14);
+    let title = label;
+    const room = W - L - R - 8;
+    if (ctx.measureText(title).width > room) {
+      while (title.length > 1 && ctx.measureText(title + "…").width > room) title = title.slice(0, -1);
+      title += "…";
+    }
+    ctx.fillText(title, L + 4, 14);
     ctx.textAlign = "right";
     ctx.fillText(`t ${fmt(t0, 3)}–${fmt(t1, 3)} s`, W - R, H - 4);
     ctx.strokeStyle = color;
@@ -500,7 +519,11 @@
   function render() {
     for (const p of state.panels.values()) {
       drawPanel(p);
-      drawChart(p.dom.chartE, p.history, 1, "relative energy error", "#1f6feb");
+      const f = p.frame;
+      const energyLabel = !f || f.energy_conserved ? "relative energy error" :
+        `energy (not conserved: ${f.not_conserved_by.join("; ")}): error of E − W`;
+      p.dom.chartE.title = energyLabel;
+      drawChart(p.dom.chartE, p.history, 1, energyLabel, "#1f6feb");
       drawChart(p.dom.chartC, p.history, 2, "constraint error |C|", "#b42318");
     }
     for (const move of state.pendingMoves.values()) send(move);

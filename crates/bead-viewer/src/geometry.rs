@@ -12,9 +12,10 @@
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use bead::formulation::{formulate, Feedback, Method};
+use bead::formulation::Method;
 use bead::integrate::IntegratorKind;
 use bead::model::System;
+use bead::simulate::{Simulation, SimulationConfig};
 
 /// Marching-squares resolution per side.
 pub const GRID: usize = 160;
@@ -54,23 +55,20 @@ pub fn view_box(system: &Arc<System>, dt: f64, duration: f64, extra: &[[f64; 2]]
     } else {
         Method::Implicit
     };
-    if let Ok(mut formulation) = formulate(Arc::clone(system), method, Feedback::default()) {
-        let mut state = formulation.initial_state();
-        let mut integrator = IntegratorKind::Rk4.build(state.q.len());
-        let n = system.n_coords();
-        let (mut x, mut v) = (vec![0.0; n], vec![0.0; n]);
+    let config = SimulationConfig {
+        method,
+        integrator: IntegratorKind::Rk4,
+        dt,
+        ..SimulationConfig::default()
+    };
+    if let Ok(mut simulation) = Simulation::new(Arc::clone(system), config) {
         let steps = (duration / dt).ceil().clamp(1.0, 20_000.0) as u64;
         let start = Instant::now();
-        for k in 0..steps {
-            if integrator.step(&mut *formulation, &mut state, dt).is_err() {
+        for _ in 0..steps {
+            if simulation.step().is_err() {
                 break;
             }
-            state.t = (k + 1) as f64 * dt;
-            formulation.particle_state(state.t, &state.q, &state.qdot, &mut x, &mut v);
-            if x.iter().any(|c| !c.is_finite() || c.abs() > 1e12) {
-                break;
-            }
-            for p in x.chunks(dim) {
+            for p in simulation.positions().chunks(dim) {
                 include(p[0], p[1]);
             }
             if start.elapsed() > Duration::from_millis(150) {

@@ -1,22 +1,23 @@
-//! One panel: a scene text, a formulation, an integrator and their state, advanced a batch of
-//! steps at a time. Nothing here panics on user input; every failure becomes the panel's
-//! error and stops that panel only.
+//! One panel: a [`Simulation`] of the panel's scene, advanced in real time.
+//!
+//! The simulation does the physics: stepping (fixed-step and adaptive), projection, the
+//! divergence and singular-point checks, the energy ledger and the statistics; which
+//! combinations are legal is its [`SimulationConfig::check`]. The panel keeps what is the
+//! viewer's own: pacing against the wall clock (time scale, per-frame step and compute
+//! budget, the `behind` flag, steps/s), the drag in progress, its epoch and the drawing data.
+//! Nothing here panics on user input; a failure stops this panel only.
 
+use std::fmt;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use bead::formulation::{formulate, Feedback, Formulation, Method, State};
-use bead::integrate::{Dopri5, Integrator, IntegratorKind, IntegratorSettings};
-use bead::model::{ConstraintEval, System};
+use bead::formulation::{Feedback, Method, StepError};
+use bead::integrate::IntegratorKind;
+use bead::model::{Endpoint, Force, ModelError, ParticleId};
 use bead::scene::Scene;
-use bead::simulate::constraint_tolerance;
+use bead::simulate::{ForceId, RunError, SetupError, Simulation, SimulationConfig};
 
 use crate::protocol::{DragInfo, PanelFrame, PanelInfo};
-
-/// Values beyond this magnitude count as a blow-up (as in the run loop).
-const BLOW_UP: f64 = 1e150;
-/// Adaptive integrators: accepted steps allowed per output interval.
-const MAX_ADAPTIVE_STEPS: u32 = 100_000;
 
 /// What a panel runs.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -30,107 +31,179 @@ pub struct PanelSettings {
 }
 
 impl PanelSettings {
-    fn feedback(&self) -> Feedback {
-        Feedback {
-            ks: self.ks,
-            kd: self.kd,
+    /// The simulation these settings describe (the library's defaults otherwise).
+    pub fn config(&self) -> SimulationConfig {
+        SimulationConfig {
+            method: self.method,
+            integrator: self.integrator,
+            dt: self.dt,
+            feedback: Feedback {
+                ks: self.ks,
+                kd: self.kd,
+            },
+            project: self.project,
+            ..SimulationConfig::default()
         }
     }
 }
 
-/// A drag in progress: a spring from `particle` to `target` plus critical damping.
+/// A drag in progress: a spring from `particle` to `target` plus critical damping, both
+/// external forces of the simulation.
 #[derive(Clone, Debug, PartialEq)]
 struct Drag {
     particle: usize,
     target: Vec<f64>,
-    /// The target moved since the formulation was last rebuilt.
-    dirty: bool,
+    stiffness: f64,
+    spring: ForceId,
+    damping: ForceId,
+    /// c / m of the damping (1/s).
+    damping_rate: f64,
 }
 
-enum Stepper {
-    Fixed(Box<dyn Integrator>),
-    Adaptive(Box<Dopri5>),
+/// What was being dragged when a step failed (see [`PanelFailure`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DragContext {
+    pub particle: usize,
+    /// c / m of the drag's damping (1/s).
+    pub damping_rate: f64,
+    pub integrator: IntegratorKind,
+    pub dt: f64,
+}
+
+/// Why a panel stopped. The simulation keeps the last good state; `reset` starts again.
+#[derive(Debug)]
+pub enum PanelFailure {
+    /// A step failed or the motion diverged; `drag` when a particle was being dragged.
+    Step {
+        error: RunError,
+        drag: Option<DragContext>,
+    },
+    /// The initial state could not be moved onto the constraints.
+    Start(RunError),
+    /// The simulation could not be built again on reset.
+    Setup(SetupError),
+    /// The simulation panicked: a bug.
+    Panicked,
+}
+
+impl fmt::Display for PanelFailure {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            PanelFailure::Step { error, drag } => {
+                write!(f, "{error}")?;
+                let Some(drag) = drag else {
+                    return Ok(());
+                };
+                let kick = matches!(error, RunError::Step(StepError::ImplicitStageFailed { .. }))
+                    && matches!(
+                        drag.integrator,
+                        IntegratorKind::Verlet | IntegratorKind::Rattle
+                    );
+                if kick {
+                    // The fixed-point iteration of the kick contracts by about dt c / (2 m)
+                    // per iteration from the damping alone; it needs that well below 1.
+                    write!(
+                        f,
+                        ". This happened while dragging particle {}: the drag's damping (c/m = {}/s) makes the force depend on the velocity, so {}'s second velocity kick is an implicit equation, solved by fixed-point iteration that contracts by about dt c/(2m) = {} per iteration here (dt = {} s), too slowly once that nears 1 (the constraint forces add to it). To drag with {}, use dt of at most about m/(2c) = {} s, or an explicit integrator",
+                        drag.particle,
+                        bead::readable(round3(drag.damping_rate)),
+                        drag.integrator.name(),
+                        bead::readable(round3(drag.dt * drag.damping_rate / 2.0)),
+                        bead::readable(drag.dt),
+                        drag.integrator.name(),
+                        bead::readable(round3(0.5 / drag.damping_rate)),
+                    )
+                } else {
+                    write!(
+                        f,
+                        " (while dragging particle {}: the drag's spring and damping, c/m = {}/s, stiffen the system; a smaller dt may help)",
+                        drag.particle,
+                        bead::readable(round3(drag.damping_rate))
+                    )
+                }
+            }
+            PanelFailure::Start(error) => write!(
+                f,
+                "cannot move the initial state onto the constraints: {error}"
+            ),
+            PanelFailure::Setup(error) => write!(f, "{error}"),
+            PanelFailure::Panicked => write!(f, "internal error: the simulation panicked"),
+        }
+    }
+}
+
+/// Three significant digits, for messages.
+fn round3(v: f64) -> f64 {
+    if v == 0.0 || !v.is_finite() {
+        return v;
+    }
+    let scale = 10f64.powi(2 - v.abs().log10().floor() as i32);
+    (v * scale).round() / scale
+}
+
+/// A drag request that cannot be carried out.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum DragError {
+    #[error("no particle {particle}: the scene has {count}")]
+    NoParticle { particle: usize, count: usize },
+    #[error("target needs {dim} numbers, got {got}")]
+    TargetDimension { dim: usize, got: usize },
+    #[error("target must be finite numbers within 1e12")]
+    TargetRange,
+    #[error("no drag in progress in this panel")]
+    NoDrag,
+    #[error("the drag force was refused: {0}")]
+    Force(#[from] ModelError),
 }
 
 /// A live panel.
 pub struct Panel {
     pub id: u32,
-    pub settings: PanelSettings,
-    /// The scene text this panel runs (the session's, with this panel's curve edits).
-    pub text: Arc<str>,
-    pub file: String,
-    /// The expression of every `[[constraint]]` (None for non-expression kinds).
-    pub exprs: Vec<Option<String>>,
-    /// The system without the drag spring: energy and constraint error are measured on it.
-    base: Arc<System>,
-    formulation: Box<dyn Formulation + Send>,
-    stepper: Stepper,
-    state: State,
-    x: Vec<f64>,
-    xdot: Vec<f64>,
-    constraints: ConstraintEval,
-    projection_tolerance: f64,
-    energy_initial: f64,
-    energy_scale: f64,
-    energy: f64,
-    constraint_error: f64,
-    pub steps: u64,
+    epoch: u64,
+    settings: PanelSettings,
+    /// The scene this panel runs: the session's, with this panel's curve edits.
+    scene: Arc<Scene>,
+    simulation: Simulation,
     pub running: bool,
-    pub failed: Option<String>,
+    failure: Option<PanelFailure>,
+    /// Output intervals of dt taken since the epoch started: the next target time is
+    /// (intervals + 1) dt.
+    intervals: u64,
     /// Simulated time owed to real time (s).
     debt: f64,
     behind: bool,
     steps_per_second: f64,
     drag: Option<Drag>,
-    /// Scene scale (largest side of the view box) for the drag spring.
+    /// Scene scale (largest side of the view box), for the drag spring.
     scale: f64,
-    pub curves: Vec<Vec<f64>>,
-    pub curve_source: String,
+    curves: Vec<Vec<f64>>,
+    curve_source: String,
 }
 
-/// Why a panel cannot be built.
-pub type BuildError = String;
-
 impl Panel {
-    /// Build a panel from a parsed scene (`scene` was parsed from `text`).
+    /// A panel running `scene` with `settings`, from the scene's initial state moved onto
+    /// the constraints (implicit form; see [`Simulation::reset_onto_constraints`]). Fails when
+    /// the simulation cannot be built ([`SetupError`], whose `ConfigError` is the same for
+    /// every front end); a state that cannot be moved onto the constraints leaves the panel
+    /// failed (see [`Panel::failure`]).
     pub fn new(
         id: u32,
+        epoch: u64,
         settings: PanelSettings,
-        text: Arc<str>,
-        scene: &Scene,
-        exprs: Vec<Option<String>>,
+        scene: Arc<Scene>,
         view: [f64; 4],
-    ) -> Result<Panel, BuildError> {
-        validate_combination(&settings, &scene.system)?;
-        let base = Arc::clone(&scene.system);
-        let formulation = formulate(Arc::clone(&base), settings.method, settings.feedback())
-            .map_err(|e| e.to_string())?;
-        let state = formulation.initial_state();
-        let n = base.n_coords();
-        let projection_tolerance = constraint_tolerance(&base, 1e-12);
-        let stepper = make_stepper(&settings, state.q.len(), projection_tolerance);
-        let (curves, curve_source) = crate::geometry::curves(&base, settings.method, view);
+    ) -> Result<Panel, SetupError> {
+        let simulation = Simulation::new(Arc::clone(&scene.system), settings.config())?;
+        let (curves, curve_source) = crate::geometry::curves(&scene.system, settings.method, view);
         let mut panel = Panel {
             id,
+            epoch,
             settings,
-            text,
-            file: scene.file.clone(),
-            exprs,
-            constraints: base.constraints().workspace(),
-            base,
-            formulation,
-            stepper,
-            state,
-            x: vec![0.0; n],
-            xdot: vec![0.0; n],
-            projection_tolerance,
-            energy_initial: 0.0,
-            energy_scale: 1.0,
-            energy: 0.0,
-            constraint_error: 0.0,
-            steps: 0,
+            scene,
+            simulation,
             running: false,
-            failed: None,
+            failure: None,
+            intervals: 0,
             debt: 0.0,
             behind: false,
             steps_per_second: 0.0,
@@ -139,80 +212,62 @@ impl Panel {
             curves,
             curve_source,
         };
-        panel.reset();
+        panel.start();
         Ok(panel)
     }
 
-    /// Back to the scene's initial state (moved onto the constraints for implicit panels),
-    /// clearing any failure and drag.
-    pub fn reset(&mut self) {
-        let was_dragging = self.drag.take().is_some();
-        if was_dragging {
-            if let Err(e) = self.rebuild(None) {
-                self.failed = Some(e);
-                return;
-            }
+    /// Move the simulation's initial state onto the constraints; a failure stops the panel.
+    fn start(&mut self) {
+        if let Err(e) = self.simulation.reset_onto_constraints() {
+            self.failure = Some(PanelFailure::Start(e));
+            self.running = false;
         }
-        self.state = self.formulation.initial_state();
-        self.steps = 0;
+    }
+
+    pub fn epoch(&self) -> u64 {
+        self.epoch
+    }
+    pub fn settings(&self) -> PanelSettings {
+        self.settings
+    }
+    pub fn scene(&self) -> &Arc<Scene> {
+        &self.scene
+    }
+    pub fn method(&self) -> Method {
+        self.settings.method
+    }
+    /// Why the panel stopped, when it did.
+    pub fn failure(&self) -> Option<&PanelFailure> {
+        self.failure.as_ref()
+    }
+    pub fn failed(&self) -> bool {
+        self.failure.is_some()
+    }
+
+    /// Back to the scene's initial state (moved onto the constraints) in a new epoch,
+    /// clearing any failure and drag. The simulation is built again, so that nothing of the
+    /// last epoch (external forces, the work they did) carries over.
+    pub fn reset(&mut self, epoch: u64) {
+        self.epoch = epoch;
+        self.intervals = 0;
         self.debt = 0.0;
-        self.failed = None;
         self.behind = false;
-        self.stepper = make_stepper(
-            &self.settings,
-            self.state.q.len(),
-            self.projection_tolerance,
-        );
-        if self.settings.method == Method::Implicit {
-            // A curve edit leaves the initial position off the new curve: move it on.
-            if let Some(constrained) = self.formulation.as_constrained() {
-                let tolerance = self.projection_tolerance;
-                let ok = constrained
-                    .project_positions(0.0, &mut self.state.q, tolerance, 50)
-                    .and_then(|_| {
-                        constrained.project_velocities(0.0, &self.state.q, &mut self.state.qdot)
-                    });
-                if let Err(e) = ok {
-                    self.failed = Some(format!(
-                        "cannot move the initial state onto the constraints: {e}"
-                    ));
-                }
+        self.drag = None;
+        self.failure = None;
+        match Simulation::new(Arc::clone(&self.scene.system), self.settings.config()) {
+            Ok(simulation) => {
+                self.simulation = simulation;
+                self.start();
+            }
+            Err(e) => {
+                self.failure = Some(PanelFailure::Setup(e));
+                self.running = false;
             }
         }
-        self.observe();
-        self.rebaseline();
-        if !self.energy.is_finite() || !self.constraint_error.is_finite() {
-            self.failed = Some("the initial state is not finite".into());
-        }
     }
 
-    /// Restart the energy reference at the current state.
-    fn rebaseline(&mut self) {
-        let kinetic = self.base.kinetic_energy(&self.xdot);
-        let potential = self.base.potential_energy(&self.x);
-        self.energy_initial = kinetic + potential;
-        let scale = self.energy_initial.abs().max(kinetic + potential.abs());
-        self.energy_scale = if scale > 0.0 && scale.is_finite() {
-            scale
-        } else {
-            1.0
-        };
-    }
-
-    /// Particle state, energy and constraint error of the current state.
-    fn observe(&mut self) {
-        let s = &self.state;
-        self.formulation
-            .particle_state(s.t, &s.q, &s.qdot, &mut self.x, &mut self.xdot);
-        self.energy = self.base.energy(&self.x, &self.xdot);
-        self.constraint_error =
-            self.base
-                .constraints()
-                .max_abs_residual(s.t, &self.x, &mut self.constraints);
-    }
-
-    /// Advance by the real time `elapsed` times `time_scale`, at most `max_steps` steps and
-    /// roughly `budget` of compute time. Returns the steps taken.
+    /// Advance by the real time `elapsed` times `time_scale`, at most `max_steps` intervals
+    /// of dt and roughly `budget` of compute time. Returns the intervals taken.
     pub fn advance(
         &mut self,
         elapsed: f64,
@@ -220,233 +275,103 @@ impl Panel {
         max_steps: u64,
         budget: Duration,
     ) -> u64 {
-        if !self.running || self.failed.is_some() {
+        if !self.running || self.failure.is_some() {
             self.behind = false;
             return 0;
         }
+        let dt = self.settings.dt;
         self.debt += time_scale * elapsed;
-        let wanted = (self.debt / self.settings.dt).round().max(0.0);
+        let wanted = (self.debt / dt).round().max(0.0);
         let wanted = if wanted.is_finite() { wanted as u64 } else { 0 };
-        let steps = wanted.min(max_steps);
-        let taken = self.run_steps(steps, budget);
+        let taken = self.run_intervals(wanted.min(max_steps), budget);
         self.behind = taken < wanted;
         if self.behind {
             // Do not try to catch up later: fall behind real time instead.
             self.debt = 0.0;
         } else {
-            self.debt -= taken as f64 * self.settings.dt;
+            self.debt -= taken as f64 * dt;
         }
         taken
     }
 
-    /// Take exactly one step (for the `step` control).
-    pub fn single_step(&mut self) {
+    /// Pause, then advance by exactly one interval of dt (one step of a fixed-step
+    /// integrator). The failure, when the step fails.
+    pub fn single_step(&mut self) -> Result<(), &PanelFailure> {
         self.running = false;
-        if self.failed.is_none() {
-            self.run_steps(1, Duration::from_secs(5));
+        if self.failure.is_none() {
+            self.run_intervals(1, Duration::from_secs(5));
+        }
+        match &self.failure {
+            Some(failure) => Err(failure),
+            None => Ok(()),
         }
     }
 
-    /// Run up to `steps` steps within about `budget`; stops the panel on failure.
-    fn run_steps(&mut self, steps: u64, budget: Duration) -> u64 {
-        if steps == 0 {
-            return 0;
-        }
-        if let Err(e) = self.apply_drag() {
-            self.fail(e);
+    /// Advance up to `count` intervals of dt within about `budget`; stops the panel on
+    /// failure. Returns the intervals completed.
+    fn run_intervals(&mut self, count: u64, budget: Duration) -> u64 {
+        if count == 0 {
             return 0;
         }
         let start = Instant::now();
+        let steps_before = self.simulation.steps();
+        let dt = self.settings.dt;
+        let mut taken = 0;
         let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-            let mut taken = 0;
-            while taken < steps {
-                self.step_once()?;
+            while taken < count {
+                let target = (self.intervals + 1) as f64 * dt;
+                self.simulation.advance_to(target)?;
+                self.intervals += 1;
                 taken += 1;
                 if start.elapsed() > budget {
                     break;
                 }
             }
-            Ok::<u64, String>(taken)
+            Ok::<(), RunError>(())
         }));
-        let taken = match result {
-            Ok(Ok(taken)) => taken,
-            Ok(Err(e)) => {
-                self.fail(e);
-                0
+        match result {
+            Ok(Ok(())) => {}
+            Ok(Err(error)) => {
+                let drag = self.drag.as_ref().map(|d| DragContext {
+                    particle: d.particle,
+                    damping_rate: d.damping_rate,
+                    integrator: self.settings.integrator,
+                    dt,
+                });
+                self.fail(PanelFailure::Step { error, drag });
             }
-            Err(_) => {
-                self.fail("internal error: the simulation panicked".into());
-                0
-            }
-        };
+            Err(_) => self.fail(PanelFailure::Panicked),
+        }
         let wall = start.elapsed().as_secs_f64();
-        if taken > 0 && wall > 0.0 {
-            let rate = taken as f64 / wall;
+        let steps = self.simulation.steps().saturating_sub(steps_before);
+        if steps > 0 && wall > 0.0 {
+            let rate = steps as f64 / wall;
             self.steps_per_second = if self.steps_per_second > 0.0 {
                 0.8 * self.steps_per_second + 0.2 * rate
             } else {
                 rate
             };
         }
-        if self.failed.is_none() {
-            self.observe();
-            if !self.energy.is_finite() {
-                self.fail(format!(
-                    "diverged at t = {}: the energy is {}",
-                    self.state.t, self.energy
-                ));
-            } else if !self.constraint_error.is_finite() {
-                self.fail(format!(
-                    "diverged at t = {}: the constraint error is {}",
-                    self.state.t, self.constraint_error
-                ));
-            }
-        }
         taken
     }
 
-    fn fail(&mut self, message: String) {
-        self.failed = Some(message);
+    fn fail(&mut self, failure: PanelFailure) {
+        self.failure = Some(failure);
         self.running = false;
     }
 
-    /// One step of dt (or, for adaptive integrators, one output interval).
-    fn step_once(&mut self) -> Result<(), String> {
-        let dt = self.settings.dt;
-        let t_end = (self.steps + 1) as f64 * dt;
-        match &mut self.stepper {
-            Stepper::Fixed(integrator) => {
-                integrator
-                    .step(&mut *self.formulation, &mut self.state, dt)
-                    .map_err(|e| e.to_string())?;
-                self.state.t = t_end;
-            }
-            Stepper::Adaptive(dopri) => {
-                let mut count = 0;
-                while self.state.t < t_end {
-                    dopri
-                        .advance(&mut *self.formulation, &mut self.state, t_end)
-                        .map_err(|e| e.to_string())?;
-                    count += 1;
-                    if count > MAX_ADAPTIVE_STEPS {
-                        return Err(format!(
-                            "at t = {}: more than {MAX_ADAPTIVE_STEPS} adaptive steps in one interval of dt",
-                            self.state.t
-                        ));
-                    }
-                }
-            }
-        }
-        if self.settings.project {
-            if let Some(constrained) = self.formulation.as_constrained() {
-                let t = self.state.t;
-                constrained
-                    .project_positions(t, &mut self.state.q, self.projection_tolerance, 50)
-                    .and_then(|_| {
-                        constrained.project_velocities(t, &self.state.q, &mut self.state.qdot)
-                    })
-                    .map_err(|e| e.to_string())?;
-            }
-        }
-        self.steps += 1;
-        for (k, v) in self.state.q.iter().chain(&self.state.qdot).enumerate() {
-            if !v.is_finite() || v.abs() > BLOW_UP {
-                let n = self.state.q.len();
-                let what = if k < n {
-                    format!("coordinate {k}")
-                } else {
-                    format!("the velocity of coordinate {}", k - n)
-                };
-                return Err(format!(
-                    "diverged at t = {} (step {}): {what} is {v:e}",
-                    self.state.t, self.steps
-                ));
-            }
-        }
-        Ok(())
-    }
-
-    /// Start dragging particle `particle` towards `target`.
-    pub fn drag_start(&mut self, particle: usize, target: Vec<f64>) -> Result<(), String> {
-        if particle >= self.base.particles().len() {
-            return Err(format!(
-                "no particle {particle}: the scene has {}",
-                self.base.particles().len()
-            ));
+    /// Start dragging particle `particle` towards `target`: a spring to the target plus
+    /// critical damping, added to the simulation as external forces (nothing is rebuilt). A
+    /// drag already in progress is released first.
+    pub fn drag_start(&mut self, particle: usize, target: Vec<f64>) -> Result<(), DragError> {
+        let system = self.simulation.system();
+        let count = system.particles().len();
+        if particle >= count {
+            return Err(DragError::NoParticle { particle, count });
         }
         let target = self.full_target(particle, target)?;
-        self.drag = Some(Drag {
-            particle,
-            target,
-            dirty: true,
-        });
-        Ok(())
-    }
-
-    /// Move the drag target.
-    pub fn drag_move(&mut self, target: Vec<f64>) -> Result<(), String> {
-        let Some(particle) = self.drag.as_ref().map(|d| d.particle) else {
-            return Err("no drag in progress in this panel".into());
-        };
-        let target = self.full_target(particle, target)?;
-        if let Some(drag) = &mut self.drag {
-            drag.target = target;
-            drag.dirty = true;
-        }
-        Ok(())
-    }
-
-    /// Release the drag: the spring goes, the energy reference restarts here.
-    pub fn drag_end(&mut self) -> Result<(), String> {
-        if self.drag.take().is_none() {
-            return Ok(());
-        }
-        self.rebuild(None)?;
-        self.observe();
-        self.rebaseline();
-        Ok(())
-    }
-
-    /// A target with one number per axis: a missing z is the particle's current z.
-    fn full_target(&self, particle: usize, mut target: Vec<f64>) -> Result<Vec<f64>, String> {
-        let dim = self.base.dim();
-        if target.len() == 2 && dim == 3 {
-            target.push(self.x[particle * dim + 2]);
-        }
-        if target.len() != dim {
-            return Err(format!("target needs {dim} numbers, got {}", target.len()));
-        }
-        if target.iter().any(|v| !v.is_finite() || v.abs() > 1e12) {
-            return Err("target must be finite numbers within 1e12".into());
-        }
-        Ok(target)
-    }
-
-    /// Rebuild the formulation for a moved drag target, keeping the state.
-    fn apply_drag(&mut self) -> Result<(), String> {
-        let Some(drag) = &self.drag else {
-            return Ok(());
-        };
-        if !drag.dirty {
-            return Ok(());
-        }
-        let spring = self.spring_text(drag.particle, &drag.target);
-        if let Some(drag) = &mut self.drag {
-            drag.dirty = false;
-        }
-        self.rebuild(Some(spring))
-    }
-
-    /// The scene text of the drag spring and its damping.
-    fn spring_text(&self, particle: usize, target: &[f64]) -> String {
-        let p = &self.base.particles()[particle];
-        let gravity = self
-            .base
-            .gravity()
-            .iter()
-            .map(|g| g * g)
-            .sum::<f64>()
-            .sqrt();
+        let mass = system.particles()[particle].mass;
+        let gravity = system.gravity().iter().map(|g| g * g).sum::<f64>().sqrt();
         let scale = if self.scale > 0.0 && self.scale.is_finite() {
             self.scale
         } else {
@@ -457,50 +382,104 @@ impl Panel {
         let omega2 = (2.0 * std::f64::consts::PI * 2.0)
             .powi(2)
             .max(20.0 * gravity / scale);
-        let stiffness = p.mass * omega2;
-        let damping = 2.0 * p.mass * omega2.sqrt();
-        let name = serde_json::to_string(&p.name).unwrap_or_else(|_| "\"\"".into());
-        let anchor: Vec<String> = target.iter().map(|v| format!("{v:?}")).collect();
-        format!(
-            "\n[[force]]\nkind = \"spring\"\nparticle = {name}\nanchor = [{}]\nstiffness = {stiffness:?}\n\n[[force]]\nkind = \"drag\"\nparticle = {name}\ncoefficient = {damping:?}\n",
-            anchor.join(", ")
-        )
-    }
-
-    /// Rebuild formulation and integrator from the panel's text plus `extra` (the drag
-    /// spring), keeping the current state.
-    fn rebuild(&mut self, extra: Option<String>) -> Result<(), String> {
-        let system = match extra {
-            None => Arc::clone(&self.base),
-            Some(extra) => {
-                let text = format!("{}\n{extra}", self.text);
-                let scene = crate::session::parse_scene(&text, &self.file)
-                    .map_err(|e| format!("cannot add the drag spring: {}", e.message))?;
-                scene.system
+        let stiffness = mass * omega2;
+        let coefficient = 2.0 * mass * omega2.sqrt();
+        self.drag_end();
+        let id = ParticleId(particle);
+        let spring = self.simulation.add_force(Force::Spring {
+            a: id,
+            b: Endpoint::Fixed(target.clone()),
+            stiffness,
+            rest_length: 0.0,
+        })?;
+        let damping = match self.simulation.add_force(Force::Drag {
+            particle: Some(id),
+            coefficient,
+        }) {
+            Ok(damping) => damping,
+            Err(e) => {
+                self.simulation.remove_force(spring);
+                return Err(e.into());
             }
         };
-        let formulation = formulate(system, self.settings.method, self.settings.feedback())
-            .map_err(|e| e.to_string())?;
-        self.formulation = formulation;
-        self.stepper = make_stepper(
-            &self.settings,
-            self.state.q.len(),
-            self.projection_tolerance,
-        );
+        self.drag = Some(Drag {
+            particle,
+            target,
+            stiffness,
+            spring,
+            damping,
+            damping_rate: coefficient / mass,
+        });
         Ok(())
+    }
+
+    /// Move the drag target: the spring's fixed end moves, nothing is rebuilt.
+    pub fn drag_move(&mut self, target: Vec<f64>) -> Result<(), DragError> {
+        let Some(particle) = self.drag.as_ref().map(|d| d.particle) else {
+            return Err(DragError::NoDrag);
+        };
+        let target = self.full_target(particle, target)?;
+        let Some(drag) = &mut self.drag else {
+            return Err(DragError::NoDrag);
+        };
+        self.simulation.set_force(
+            drag.spring,
+            Force::Spring {
+                a: ParticleId(particle),
+                b: Endpoint::Fixed(target.clone()),
+                stiffness: drag.stiffness,
+                rest_length: 0.0,
+            },
+        )?;
+        drag.target = target;
+        Ok(())
+    }
+
+    /// Release the drag: spring and damping go. The work they did stays in the ledger, so
+    /// the energy error goes on measuring E - W.
+    pub fn drag_end(&mut self) {
+        if let Some(drag) = self.drag.take() {
+            self.simulation.remove_force(drag.spring);
+            self.simulation.remove_force(drag.damping);
+        }
+    }
+
+    /// A target with one number per axis: a missing z is the particle's current z.
+    fn full_target(&self, particle: usize, mut target: Vec<f64>) -> Result<Vec<f64>, DragError> {
+        let dim = self.simulation.system().dim();
+        if target.len() == 2 && dim == 3 {
+            target.push(self.simulation.positions()[particle * dim + 2]);
+        }
+        if target.len() != dim {
+            return Err(DragError::TargetDimension {
+                dim,
+                got: target.len(),
+            });
+        }
+        if target.iter().any(|v| !v.is_finite() || v.abs() > 1e12) {
+            return Err(DragError::TargetRange);
+        }
+        Ok(target)
     }
 
     /// Settings and drawing data.
     pub fn info(&self) -> PanelInfo {
         PanelInfo {
             id: self.id,
+            epoch: self.epoch,
             method: self.settings.method.name().into(),
             integrator: self.settings.integrator.name().into(),
             dt: self.settings.dt,
             ks: self.settings.ks,
             kd: self.settings.kd,
             project: self.settings.project,
-            exprs: self.exprs.clone(),
+            exprs: self
+                .scene
+                .system
+                .declared_constraints()
+                .iter()
+                .map(|c| c.source().map(str::to_string))
+                .collect(),
             curves: self.curves.clone(),
             curve_source: self.curve_source.clone(),
         }
@@ -509,16 +488,21 @@ impl Panel {
     /// The current state for a frame.
     pub fn frame(&self) -> PanelFrame {
         let finite = |v: f64| if v.is_finite() { v } else { 0.0 };
+        let s = &self.simulation;
         PanelFrame {
             id: self.id,
-            t: finite(self.state.t),
-            steps: self.steps,
-            x: self.x.iter().map(|&v| finite(v)).collect(),
-            energy: finite(self.energy),
-            energy_rel_error: finite((self.energy - self.energy_initial).abs() / self.energy_scale),
-            constraint_error: finite(self.constraint_error),
+            epoch: self.epoch,
+            t: finite(s.t()),
+            steps: s.steps(),
+            x: s.positions().iter().map(|&v| finite(v)).collect(),
+            energy: finite(s.energy()),
+            energy_error: finite(s.energy_balance_error()),
+            energy_conserved: s.energy_conserved(),
+            work: finite(s.work()),
+            not_conserved_by: s.nonconservation().iter().map(|r| r.to_string()).collect(),
+            constraint_error: finite(s.constraint_error()),
             steps_per_second: finite(self.steps_per_second),
-            status: if self.failed.is_some() {
+            status: if self.failure.is_some() {
                 "failed"
             } else if self.running {
                 "running"
@@ -526,54 +510,12 @@ impl Panel {
                 "paused"
             }
             .into(),
-            error: self.failed.clone(),
+            error: self.failure.as_ref().map(|f| f.to_string()),
             behind: self.behind,
             drag: self.drag.as_ref().map(|d| DragInfo {
                 particle: d.particle,
                 target: d.target.clone(),
             }),
         }
-    }
-}
-
-/// Whether `settings` can run on `system`.
-pub fn validate_combination(settings: &PanelSettings, system: &System) -> Result<(), String> {
-    let implicit = settings.method == Method::Implicit;
-    if settings.method == Method::Parametric && system.parametric().is_none() {
-        return Err("the scene has no [parametric] section".into());
-    }
-    if settings.integrator.needs_constraints() && !implicit {
-        return Err(format!(
-            "{} needs the implicit form (it works on the constraints directly)",
-            settings.integrator.name()
-        ));
-    }
-    if settings.project && !implicit {
-        return Err("projection applies to the implicit form only".into());
-    }
-    if settings.project && settings.integrator.is_adaptive() {
-        return Err(format!(
-            "projection is not available with {}: it would invalidate its step control",
-            settings.integrator.name()
-        ));
-    }
-    if !implicit && (settings.ks != 0.0 || settings.kd != 0.0) {
-        return Err(
-            "feedback ks, kd applies to the implicit form only; set both to 0 for parametric"
-                .into(),
-        );
-    }
-    Ok(())
-}
-
-fn make_stepper(settings: &PanelSettings, n: usize, tolerance: f64) -> Stepper {
-    let integrator_settings = IntegratorSettings {
-        constraint_tolerance: tolerance,
-        ..IntegratorSettings::default()
-    };
-    if settings.integrator.is_adaptive() {
-        Stepper::Adaptive(Box::new(Dopri5::new(n, &integrator_settings)))
-    } else {
-        Stepper::Fixed(settings.integrator.build_with(n, &integrator_settings))
     }
 }

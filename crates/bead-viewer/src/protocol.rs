@@ -18,6 +18,20 @@
 //!    settings the server sends a new [`ServerMessage::Panels`]; after a scene change a new
 //!    [`ServerMessage::Scene`] and [`ServerMessage::Panels`].
 //!
+//! Every panel has an `epoch` ([`PanelInfo::epoch`], [`PanelFrame::epoch`]) that changes
+//! whenever the panel is rebuilt or restarted (`configure_panel`, `reset`, a curve edit, a
+//! scene load). Frames already on their way still carry the old epoch: a client that waits
+//! for the effect of a request waits for a frame of the new epoch, never for a value that a
+//! frame from before the request could also show.
+//!
+//! Every rejected request gets an [`ServerMessage::Error`] with a stable, machine-readable
+//! [`ErrorCode`] besides the human message; failed curve edits get
+//! [`ServerMessage::CurveError`], also with a code.
+//!
+//! Version 2 (this one) added `epoch`, the error codes and the energy ledger in frames
+//! (`energy_error`, which replaces version 1's `energy_rel_error`, `energy_conserved`,
+//! `work`, `not_conserved_by`).
+//!
 //! Numbers must be finite JSON numbers. JSON has no NaN or infinity; a string such as
 //! `"NaN"` is a wrong type, and an out-of-range literal like `1e999` is rejected.
 //!
@@ -27,7 +41,7 @@
 use serde::{Deserialize, Serialize};
 
 /// The protocol version; bumped on any incompatible change.
-pub const PROTOCOL_VERSION: u32 = 1;
+pub const PROTOCOL_VERSION: u32 = 2;
 
 /// Which panels a message applies to: one panel by id, or all when absent / `null`.
 pub type PanelTarget = Option<u32>;
@@ -99,7 +113,8 @@ pub enum ClientMessage {
     },
     /// Grab particle `particle` (index) of panel `panel`: from now on a spring from the
     /// particle to `target` (scene coordinates, 2 or 3 numbers; missing z = the particle's)
-    /// acts on it as an applied force.
+    /// plus critical damping act on it as forces from outside the system. Their work is
+    /// counted in the frame's `work`, so the energy error stays the error of E - W.
     DragStart {
         panel: u32,
         particle: usize,
@@ -107,7 +122,7 @@ pub enum ClientMessage {
     },
     /// Move the spring's end of the drag in panel `panel`.
     DragMove { panel: u32, target: Vec<f64> },
-    /// Release: the spring is removed; the energy reference restarts at the current state.
+    /// Release: the spring and the damping are removed (the work they did stays counted).
     DragEnd { panel: u32 },
 }
 
@@ -166,9 +181,12 @@ pub enum ServerMessage {
         time_scale: f64,
         panels: Vec<PanelFrame>,
     },
-    /// A request was rejected; nothing changed. `request` is the message type when it could
-    /// be read, `panel` the panel concerned when there is one.
+    /// A request was rejected; nothing changed (except for `step_failed`: the step ran and
+    /// failed, and the panel shows the failure). `code` says what went wrong for programs,
+    /// `message` for people; `request` is the message type when it could be read, `panel`
+    /// the panel concerned when there is one.
     Error {
+        code: ErrorCode,
         message: String,
         #[serde(skip_serializing_if = "Option::is_none")]
         request: Option<String>,
@@ -182,14 +200,68 @@ pub enum ServerMessage {
         line: usize,
         column: usize,
     },
-    /// A `set_curve` failed. `columns` is the 0-based, end-exclusive character range of the
-    /// offending text within `expr` when known, to underline it under the input.
+    /// A `set_curve` failed. `columns` is the 0-based, end-exclusive character range (in
+    /// characters, not bytes) of the offending text within `expr` when known, to underline it
+    /// under the input; at the end of the input it is `[len, len + 1]`.
     CurveError {
         constraint: usize,
+        code: ErrorCode,
         message: String,
         #[serde(skip_serializing_if = "Option::is_none")]
         columns: Option<[usize; 2]>,
     },
+}
+
+/// Why a request was rejected: stable names (`snake_case` in JSON) for programs.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ErrorCode {
+    /// Not JSON, not an object with a known `type`, or a field of the wrong type.
+    InvalidMessage,
+    /// A text frame over [`Limits::max_message_bytes`].
+    TooLarge,
+    /// A binary frame.
+    BinaryMessage,
+    /// The server failed while handling the message (a bug); the session is kept.
+    InternalError,
+    /// The request needs a scene and none is loaded.
+    NoScene,
+    /// No panel with that id.
+    NoPanel,
+    /// [`Limits::max_panels`] reached.
+    TooManyPanels,
+    /// A number out of its range (dt, ks, kd, time scale, drag target), or a name that
+    /// is not a method, integrator or particle.
+    BadValue,
+    /// A combination of formulation, integrator, projection and feedback that cannot run
+    /// (the message is the library's `ConfigError`, word for word what the CLI prints).
+    IllegalCombination,
+    /// The simulation cannot start: over-constrained, or an initial state that cannot be
+    /// simulated or moved onto the constraints.
+    SetupFailed,
+    /// `load_scene` by a name that is not in [`Welcome::scenes`].
+    UnknownScene,
+    /// Fields that do not go together (e.g. `load_scene` with both `name` and `toml`).
+    BadRequest,
+    /// `drag_move` without a drag in progress in that panel.
+    NoDrag,
+    /// A `step` request ran and the panel failed (see its frame's `error`).
+    StepFailed,
+    /// `set_curve`: the expression does not parse or names something unknown (`columns`
+    /// point at it).
+    Expression,
+    /// `set_curve`: the expression does not depend on any particle coordinate.
+    NoCoordinate,
+    /// `set_curve`: no constraint with that index.
+    UnknownConstraint,
+    /// `set_curve`: the constraint is a distance or pin constraint, which has no expression.
+    NotAnExpression,
+    /// `set_curve`: the expression is longer than [`Limits::max_expr_chars`].
+    TooLong,
+    /// `set_curve`: no implicit panel to apply the curve to.
+    NoImplicitPanel,
+    /// `set_curve` on a parametric panel, whose curve is its map x(q).
+    ParametricPanel,
 }
 
 /// Contents of [`ServerMessage::Welcome`].
@@ -276,7 +348,7 @@ pub struct SceneInfo {
 }
 
 /// A `kind = "distance"` constraint: a rod from particle `a` to particle `b` or to the fixed
-/// point `anchor` (x-y; given only when the scene writes it as plain numbers).
+/// point `anchor` (x-y).
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct Rod {
     pub a: usize,
@@ -307,6 +379,8 @@ pub struct ConstraintInfo {
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct PanelInfo {
     pub id: u32,
+    /// Changes whenever the panel is rebuilt or restarted; frames carry it too.
+    pub epoch: u64,
     pub method: String,
     pub integrator: String,
     pub dt: f64,
@@ -329,16 +403,29 @@ pub struct PanelInfo {
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct PanelFrame {
     pub id: u32,
+    /// The panel's epoch when this frame was made (see [`PanelInfo::epoch`]).
+    pub epoch: u64,
     /// Simulated time (s).
     pub t: f64,
     /// Steps taken since the last reset (accepted steps for adaptive integrators).
     pub steps: u64,
     /// Particle positions, `dim` numbers per particle.
     pub x: Vec<f64>,
-    /// Total mechanical energy E = T + V (without the drag spring).
+    /// Total mechanical energy E = T + V of the scene's system (the drag spring has no
+    /// potential here: its work is in `work`).
     pub energy: f64,
-    /// |E - E0| / E_scale since the last reset or drag release.
-    pub energy_rel_error: f64,
+    /// The relative error of what the panel conserves, |E - W - E0| / E_scale since the
+    /// epoch started: |E - E0| / E_scale when nothing does work on the system. E_scale =
+    /// max(|E0|, T0 + |V0|, T0 + M |g| L) does not vanish at the potential's zero.
+    pub energy_error: f64,
+    /// Whether T + V itself is conserved: nothing does work on the system (no drag force, no
+    /// driven constraint or moving map, no drag with the mouse since the epoch started).
+    pub energy_conserved: bool,
+    /// The work W done on the system since the epoch started (0 when nothing does work).
+    pub work: f64,
+    /// What does work on the system when `energy_conserved` is false, e.g.
+    /// `driven constraint: constraint 1 depends on t`, `external forces`.
+    pub not_conserved_by: Vec<String>,
     /// max_i |C_i| over the scene's implicit constraints.
     pub constraint_error: f64,
     /// Steps per second of compute time (recent average).
@@ -362,17 +449,34 @@ pub struct DragInfo {
     pub target: Vec<f64>,
 }
 
-/// Parse one client text frame. Errors are messages for the client (serde's, which name the
-/// field and position).
-pub fn parse_client_message(text: &str, limits: &Limits) -> Result<ClientMessage, String> {
-    if text.len() > limits.max_message_bytes {
-        return Err(format!(
-            "message too large: {} bytes (limit {})",
-            text.len(),
-            limits.max_message_bytes
-        ));
+/// A client text frame that is not a valid message.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum ProtocolError {
+    #[error("message too large: {bytes} bytes (limit {limit})")]
+    TooLarge { bytes: usize, limit: usize },
+    /// serde's message, which names the field and the position.
+    #[error("invalid message: {0}")]
+    Invalid(String),
+}
+
+impl ProtocolError {
+    pub fn code(&self) -> ErrorCode {
+        match self {
+            ProtocolError::TooLarge { .. } => ErrorCode::TooLarge,
+            ProtocolError::Invalid(_) => ErrorCode::InvalidMessage,
+        }
     }
-    serde_json::from_str(text).map_err(|e| format!("invalid message: {e}"))
+}
+
+/// Parse one client text frame.
+pub fn parse_client_message(text: &str, limits: &Limits) -> Result<ClientMessage, ProtocolError> {
+    if text.len() > limits.max_message_bytes {
+        return Err(ProtocolError::TooLarge {
+            bytes: text.len(),
+            limit: limits.max_message_bytes,
+        });
+    }
+    serde_json::from_str(text).map_err(|e| ProtocolError::Invalid(e.to_string()))
 }
 
 /// The `type` of a JSON object, when it has a string one (for error replies to messages that

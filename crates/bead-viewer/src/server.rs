@@ -19,7 +19,7 @@ use axum::routing::get;
 use axum::Router;
 use tokio::net::TcpListener;
 
-use crate::protocol::{message_type, parse_client_message, Limits, ServerMessage};
+use crate::protocol::{message_type, parse_client_message, ErrorCode, Limits, ServerMessage};
 use crate::scenes::Catalog;
 use crate::session::Session;
 
@@ -143,8 +143,9 @@ async fn on_session<T: Send + 'static>(
     .ok()
 }
 
-fn error_reply(message: String, request: Option<String>) -> ServerMessage {
+fn error_reply(code: ErrorCode, message: String, request: Option<String>) -> ServerMessage {
     ServerMessage::Error {
+        code,
         message,
         request,
         panel: None,
@@ -185,15 +186,21 @@ async fn connection(mut socket: WebSocket, config: Arc<ServerConfig>) {
                                 session = s;
                                 result.unwrap_or_else(|()| {
                                     vec![error_reply(
+                                        ErrorCode::InternalError,
                                         "internal error while handling the message".into(),
                                         Some(kind.into()),
                                     )]
                                 })
                             }
-                            Err(e) => vec![error_reply(e, message_type(text.as_str()))],
+                            Err(e) => vec![error_reply(
+                                e.code(),
+                                e.to_string(),
+                                message_type(text.as_str()),
+                            )],
                         }
                     }
                     Some(Ok(Message::Binary(_))) => vec![error_reply(
+                        ErrorCode::BinaryMessage,
                         "binary messages are not part of the protocol; send JSON text".into(),
                         None,
                     )],

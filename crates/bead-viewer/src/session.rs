@@ -7,27 +7,153 @@ use std::time::Duration;
 
 use bead::formulation::Method;
 use bead::integrate::IntegratorKind;
+use bead::model::{DeclaredConstraint, EditError, Endpoint};
 use bead::scene::{Scene, SceneError};
+use bead::simulate::{ConfigError, RunError, SetupError};
 
 use crate::geometry;
-use crate::panel::{validate_combination, Panel, PanelSettings};
+use crate::panel::{DragError, Panel, PanelFailure, PanelSettings};
 use crate::protocol::{
-    ClientMessage, ConstraintInfo, IntegratorInfo, Limits, PanelSettingsPatch, ParticleInfo, Rod,
-    SceneInfo, ServerMessage, Welcome, PROTOCOL_VERSION,
+    ClientMessage, ConstraintInfo, ErrorCode, IntegratorInfo, Limits, PanelSettingsPatch,
+    ParticleInfo, Rod, SceneInfo, ServerMessage, Welcome, PROTOCOL_VERSION,
 };
 use crate::scenes::Catalog;
 
 /// Compute time allowed for stepping per frame, over all panels.
 const FRAME_BUDGET: Duration = Duration::from_millis(25);
 
-/// The loaded scene, shared by the panels (each may have its own curve edits).
+/// The loaded scene; panels share it, or a copy with their own curve edits.
 struct CurrentScene {
-    name: String,
-    text: Arc<str>,
-    scene: Scene,
+    scene: Arc<Scene>,
     info: SceneInfo,
-    /// `[[constraint]]` expressions as in the file.
-    exprs: Vec<Option<String>>,
+}
+
+/// Why a request was rejected. Each has an [`ErrorCode`] for the reply.
+#[derive(Debug, thiserror::Error)]
+pub enum SessionError {
+    #[error("no scene loaded")]
+    NoScene,
+    #[error("no panel {0}")]
+    NoPanel(u32),
+    #[error("too many panels (limit {0})")]
+    TooManyPanels(usize),
+    /// A number outside its range.
+    #[error("{name} must be a number in [{}, {}]", bead::readable(*min), bead::readable(*max))]
+    OutOfRange {
+        name: &'static str,
+        min: f64,
+        max: f64,
+    },
+    /// A method or integrator name that is not one (the library's message).
+    #[error("{0}")]
+    UnknownName(String),
+    /// The library's legality check: the same words as the CLI's.
+    #[error(transparent)]
+    Illegal(ConfigError),
+    /// The simulation cannot start (over-constrained, initial state).
+    #[error(transparent)]
+    Setup(SetupError),
+    #[error("unknown scene `{name}`; use one of {}", known.join(", "))]
+    UnknownScene { name: String, known: Vec<String> },
+    #[error("load_scene needs exactly one of `name` and `toml`")]
+    SceneSource,
+    #[error(transparent)]
+    Drag(#[from] DragError),
+    /// A `step` request made the panel fail.
+    #[error("{message}")]
+    StepFailed { message: String },
+}
+
+impl SessionError {
+    pub fn code(&self) -> ErrorCode {
+        match self {
+            SessionError::NoScene => ErrorCode::NoScene,
+            SessionError::NoPanel(_) => ErrorCode::NoPanel,
+            SessionError::TooManyPanels(_) => ErrorCode::TooManyPanels,
+            SessionError::OutOfRange { .. } | SessionError::UnknownName(_) => ErrorCode::BadValue,
+            SessionError::Illegal(_) => ErrorCode::IllegalCombination,
+            SessionError::Setup(_) => ErrorCode::SetupFailed,
+            SessionError::UnknownScene { .. } => ErrorCode::UnknownScene,
+            SessionError::SceneSource => ErrorCode::BadRequest,
+            SessionError::Drag(DragError::NoDrag) => ErrorCode::NoDrag,
+            SessionError::Drag(_) => ErrorCode::BadValue,
+            SessionError::StepFailed { .. } => ErrorCode::StepFailed,
+        }
+    }
+}
+
+impl From<SetupError> for SessionError {
+    fn from(e: SetupError) -> Self {
+        match e {
+            SetupError::Config(e) => SessionError::Illegal(e),
+            other => SessionError::Setup(other),
+        }
+    }
+}
+
+/// Why a curve edit was refused (a [`ServerMessage::CurveError`]).
+#[derive(Debug, thiserror::Error)]
+enum CurveFailure {
+    #[error("expression too long: {chars} characters (limit {limit})")]
+    TooLong { chars: usize, limit: usize },
+    #[error(transparent)]
+    Edit(EditError),
+    #[error("a parametric panel's curve is its map x(q): edit [parametric.positions] in the scene file instead")]
+    ParametricPanel,
+    #[error("no implicit panel to apply the curve to: add one (the parametric form's curve is its map x(q))")]
+    NoImplicitPanel,
+    #[error(transparent)]
+    Setup(SessionError),
+    #[error("cannot move the initial state onto the new curve: {0}")]
+    Start(String),
+}
+
+impl CurveFailure {
+    fn code(&self) -> ErrorCode {
+        match self {
+            CurveFailure::TooLong { .. } => ErrorCode::TooLong,
+            CurveFailure::Edit(EditError::Expression { .. }) => ErrorCode::Expression,
+            CurveFailure::Edit(EditError::NoCoordinate { .. }) => ErrorCode::NoCoordinate,
+            CurveFailure::Edit(EditError::UnknownConstraint { .. }) => ErrorCode::UnknownConstraint,
+            CurveFailure::Edit(EditError::NotAnExpression { .. }) => ErrorCode::NotAnExpression,
+            CurveFailure::Edit(_) => ErrorCode::BadValue,
+            CurveFailure::ParametricPanel => ErrorCode::ParametricPanel,
+            CurveFailure::NoImplicitPanel => ErrorCode::NoImplicitPanel,
+            CurveFailure::Setup(e) => e.code(),
+            CurveFailure::Start(_) => ErrorCode::SetupFailed,
+        }
+    }
+
+    /// The message shown under the input: an expression error's own message (the columns
+    /// point into the input), else the whole error.
+    fn message(&self) -> String {
+        match self {
+            CurveFailure::Edit(EditError::Expression { message, .. }) => message.clone(),
+            other => other.to_string(),
+        }
+    }
+
+    /// The character range of an expression error inside `expr`.
+    fn columns(&self, expr: &str) -> Option<[usize; 2]> {
+        let CurveFailure::Edit(EditError::Expression { span, .. }) = self else {
+            return None;
+        };
+        Some(char_columns(expr, span.start, span.end))
+    }
+}
+
+/// A byte range of `text` as a character range, at least one character wide (an error at
+/// the end of the input underlines the place just after it).
+pub fn char_columns(text: &str, start: usize, end: usize) -> [usize; 2] {
+    let chars_before = |i: usize| {
+        let mut i = i.min(text.len());
+        while !text.is_char_boundary(i) {
+            i -= 1;
+        }
+        text[..i].chars().count()
+    };
+    let begin = chars_before(start);
+    [begin, chars_before(end).max(begin + 1)]
 }
 
 /// A connection's session.
@@ -37,6 +163,7 @@ pub struct Session {
     scene: Option<CurrentScene>,
     panels: Vec<Panel>,
     next_id: u32,
+    next_epoch: u64,
     time_scale: f64,
 }
 
@@ -61,6 +188,8 @@ pub(crate) fn parse_scene(text: &str, file: &str) -> Result<Scene, SceneError> {
     Ok(scene)
 }
 
+type Rejection = (SessionError, Option<u32>);
+
 impl Session {
     /// A session with the catalog's first scene loaded and its default panels.
     pub fn new(catalog: Arc<Catalog>, limits: Limits) -> Session {
@@ -70,6 +199,7 @@ impl Session {
             scene: None,
             panels: Vec::new(),
             next_id: 1,
+            next_epoch: 1,
             time_scale: 1.0,
         };
         if let Some(first) = session.catalog.first().cloned() {
@@ -130,6 +260,13 @@ impl Session {
         self.panels.len()
     }
 
+    /// A fresh epoch (unique within the session).
+    fn epoch(&mut self) -> u64 {
+        let epoch = self.next_epoch;
+        self.next_epoch += 1;
+        epoch
+    }
+
     /// Advance the running panels by `elapsed` wall seconds (times the time scale), within the
     /// per-frame step limit and compute budget.
     pub fn advance(&mut self, elapsed: f64) {
@@ -137,7 +274,7 @@ impl Session {
         let running = self
             .panels
             .iter()
-            .filter(|p| p.running && p.failed.is_none())
+            .filter(|p| p.running && !p.failed())
             .count() as u64;
         if running == 0 {
             return;
@@ -154,43 +291,33 @@ impl Session {
         let kind = message.kind();
         match self.apply(message) {
             Ok(replies) => replies,
-            Err((message, panel)) => vec![ServerMessage::Error {
-                message,
+            Err((error, panel)) => vec![ServerMessage::Error {
+                code: error.code(),
+                message: error.to_string(),
                 request: Some(kind.into()),
                 panel,
             }],
         }
     }
 
-    fn apply(
-        &mut self,
-        message: ClientMessage,
-    ) -> Result<Vec<ServerMessage>, (String, Option<u32>)> {
-        let plain = |m: String| (m, None);
+    fn scene(&self) -> Result<&CurrentScene, Rejection> {
+        self.scene.as_ref().ok_or((SessionError::NoScene, None))
+    }
+
+    fn apply(&mut self, message: ClientMessage) -> Result<Vec<ServerMessage>, Rejection> {
         match message {
             ClientMessage::AddPanel(patch) => {
                 if self.panels.len() >= self.limits.max_panels {
-                    return Err(plain(format!(
-                        "too many panels (limit {})",
-                        self.limits.max_panels
-                    )));
+                    return Err((SessionError::TooManyPanels(self.limits.max_panels), None));
                 }
-                let scene = self
-                    .scene
-                    .as_ref()
-                    .ok_or_else(|| plain("no scene loaded".into()))?;
-                let defaults = default_settings(&scene.scene, None);
-                let settings = patch_settings(defaults, &patch, &self.limits).map_err(plain)?;
-                let panel = Panel::new(
-                    self.next_id,
-                    settings,
-                    Arc::clone(&scene.text),
-                    &scene.scene,
-                    scene.exprs.clone(),
-                    scene.info.view,
-                )
-                .map_err(plain)?;
-                let mut panel = panel;
+                let current = self.scene()?;
+                let (scene, view) = (Arc::clone(&current.scene), current.info.view);
+                let defaults = default_settings(&scene, None);
+                let settings =
+                    patch_settings(defaults, &patch, &self.limits).map_err(|e| (e, None))?;
+                let epoch = self.epoch();
+                let mut panel = Panel::new(self.next_id, epoch, settings, scene, view)
+                    .map_err(|e| (e.into(), None))?;
                 panel.running = self.panels.iter().any(|p| p.running);
                 self.next_id += 1;
                 self.panels.push(panel);
@@ -203,32 +330,23 @@ impl Session {
             }
             ClientMessage::ConfigurePanel { panel, settings } => {
                 let index = self.index(panel)?;
+                let view = self.scene()?.info.view;
                 let old = &self.panels[index];
-                let new_settings = patch_settings(old.settings, &settings, &self.limits)
-                    .map_err(|m| (m, Some(panel)))?;
-                let scene = self
-                    .scene
-                    .as_ref()
-                    .ok_or_else(|| plain("no scene loaded".into()))?;
-                // Rebuild from the panel's own text (it keeps its curve edits).
-                let parsed =
-                    parse_scene(&old.text, &scene.name).map_err(|e| (e.render(), Some(panel)))?;
-                let mut rebuilt = Panel::new(
-                    panel,
-                    new_settings,
-                    Arc::clone(&old.text),
-                    &parsed,
-                    old.exprs.clone(),
-                    scene.info.view,
-                )
-                .map_err(|m| (m, Some(panel)))?;
-                rebuilt.running = old.running;
+                let new_settings = patch_settings(old.settings(), &settings, &self.limits)
+                    .map_err(|e| (e, Some(panel)))?;
+                // The panel keeps its own scene, with its curve edits.
+                let scene = Arc::clone(old.scene());
+                let running = old.running;
+                let epoch = self.epoch();
+                let mut rebuilt = Panel::new(panel, epoch, new_settings, scene, view)
+                    .map_err(|e| (e.into(), Some(panel)))?;
+                rebuilt.running = running && !rebuilt.failed();
                 self.panels[index] = rebuilt;
                 Ok(vec![self.panels_message()])
             }
             ClientMessage::Play { panel } => {
                 for p in self.targets(panel)? {
-                    p.running = p.failed.is_none();
+                    p.running = !p.failed();
                 }
                 Ok(Vec::new())
             }
@@ -239,23 +357,44 @@ impl Session {
                 Ok(Vec::new())
             }
             ClientMessage::Step { panel } => {
+                let mut failed = None;
                 for p in self.targets(panel)? {
-                    p.single_step();
+                    if p.failed() {
+                        p.running = false;
+                        continue;
+                    }
+                    let id = p.id;
+                    if let Err(failure) = p.single_step() {
+                        failed.get_or_insert((id, failure.to_string()));
+                    }
                 }
-                Ok(Vec::new())
+                match failed {
+                    None => Ok(Vec::new()),
+                    Some((id, message)) => Err((SessionError::StepFailed { message }, Some(id))),
+                }
             }
             ClientMessage::Reset { panel } => {
-                for p in self.targets(panel)? {
-                    p.reset();
+                let targets: Vec<usize> = match panel {
+                    Some(id) => vec![self.index(id)?],
+                    None => (0..self.panels.len()).collect(),
+                };
+                for index in targets {
+                    let epoch = self.epoch();
+                    self.panels[index].reset(epoch);
                 }
-                Ok(Vec::new())
+                Ok(vec![self.panels_message()])
             }
             ClientMessage::SetTimeScale { scale } => {
-                if !(scale.is_finite() && (0.0..=self.limits.max_time_scale).contains(&scale)) {
-                    return Err(plain(format!(
-                        "time scale must be a number in [0, {}]",
-                        self.limits.max_time_scale
-                    )));
+                let max = self.limits.max_time_scale;
+                if !(scale.is_finite() && (0.0..=max).contains(&scale)) {
+                    return Err((
+                        SessionError::OutOfRange {
+                            name: "time scale",
+                            min: 0.0,
+                            max,
+                        },
+                        None,
+                    ));
                 }
                 self.time_scale = scale;
                 Ok(Vec::new())
@@ -268,11 +407,13 @@ impl Session {
                 let (name, text) = match (name, toml) {
                     (Some(name), None) => {
                         let scene = self.catalog.get(&name).ok_or_else(|| {
-                            plain(format!(
-                                "unknown scene `{}`; use one of {}",
-                                truncate(&name, 80),
-                                self.catalog.names().join(", ")
-                            ))
+                            (
+                                SessionError::UnknownScene {
+                                    name: truncate(&name, 80),
+                                    known: self.catalog.names(),
+                                },
+                                None,
+                            )
                         })?;
                         (scene.name.clone(), scene.text.clone())
                     }
@@ -283,11 +424,7 @@ impl Session {
                             .unwrap_or_else(|| "scene.toml".into());
                         (name, text)
                     }
-                    _ => {
-                        return Err(plain(
-                            "load_scene needs exactly one of `name` and `toml`".into(),
-                        ))
-                    }
+                    _ => return Err((SessionError::SceneSource, None)),
                 };
                 match self.load(&name, &text) {
                     Ok(()) => Ok(self.scene_messages()),
@@ -311,34 +448,32 @@ impl Session {
                 let index = self.index(panel)?;
                 self.panels[index]
                     .drag_start(particle, target)
-                    .map_err(|m| (m, Some(panel)))?;
+                    .map_err(|e| (e.into(), Some(panel)))?;
                 Ok(Vec::new())
             }
             ClientMessage::DragMove { panel, target } => {
                 let index = self.index(panel)?;
                 self.panels[index]
                     .drag_move(target)
-                    .map_err(|m| (m, Some(panel)))?;
+                    .map_err(|e| (e.into(), Some(panel)))?;
                 Ok(Vec::new())
             }
             ClientMessage::DragEnd { panel } => {
                 let index = self.index(panel)?;
-                if let Err(m) = self.panels[index].drag_end() {
-                    self.panels[index].failed = Some(m);
-                }
+                self.panels[index].drag_end();
                 Ok(Vec::new())
             }
         }
     }
 
-    fn index(&self, panel: u32) -> Result<usize, (String, Option<u32>)> {
+    fn index(&self, panel: u32) -> Result<usize, Rejection> {
         self.panels
             .iter()
             .position(|p| p.id == panel)
-            .ok_or_else(|| (format!("no panel {panel}"), Some(panel)))
+            .ok_or((SessionError::NoPanel(panel), Some(panel)))
     }
 
-    fn targets(&mut self, panel: Option<u32>) -> Result<Vec<&mut Panel>, (String, Option<u32>)> {
+    fn targets(&mut self, panel: Option<u32>) -> Result<Vec<&mut Panel>, Rejection> {
         match panel {
             None => Ok(self.panels.iter_mut().collect()),
             Some(id) => {
@@ -350,52 +485,9 @@ impl Session {
 
     /// Load a scene text and replace the panels by its default panels.
     fn load(&mut self, name: &str, text: &str) -> Result<(), SceneError> {
-        let scene = parse_scene(text, name)?;
-        let table: Option<toml::Table> = toml::from_str(text).ok();
-        let constraint_tables = constraint_tables(table.as_ref());
-        let system = &scene.system;
-        let constraints: Vec<ConstraintInfo> = system
-            .constraints()
-            .infos()
-            .iter()
-            .enumerate()
-            .map(|(i, info)| ConstraintInfo {
-                name: info.name.clone(),
-                description: info.description.clone(),
-                expr: expression_of(constraint_tables.get(i).copied()),
-            })
-            .collect();
-        let exprs: Vec<Option<String>> = constraints.iter().map(|c| c.expr.clone()).collect();
-        let rods = rods(&scene, &constraint_tables);
-        let anchors: Vec<[f64; 2]> = rods.iter().filter_map(|r| r.anchor).collect();
-        let dt = scene.run.dt.unwrap_or(1.0 / 60.0);
-        let duration = scene
-            .run
-            .duration
-            .or(scene.run.steps.map(|s| s as f64 * dt))
-            .unwrap_or(10.0);
-        let view = geometry::view_box(system, dt, duration, &anchors);
-        let info = SceneInfo {
-            name: name.to_string(),
-            title: scene.title.clone(),
-            dim: system.dim(),
-            particles: system
-                .particles()
-                .iter()
-                .map(|p| ParticleInfo {
-                    name: p.name.clone(),
-                    mass: p.mass,
-                })
-                .collect(),
-            constraints,
-            view,
-            rods,
-            has_implicit: system.constraints().n_rows() > 0,
-            has_parametric: system.parametric().is_some(),
-            warnings: scene.warnings(),
-        };
-        let text: Arc<str> = Arc::from(text);
-        let mut panels = Vec::new();
+        let scene = Arc::new(parse_scene(text, name)?);
+        let info = scene_info(name, &scene);
+        let view = info.view;
         let mut methods = Vec::new();
         if info.has_implicit || !info.has_parametric {
             methods.push(Method::Implicit);
@@ -403,36 +495,32 @@ impl Session {
         if info.has_parametric {
             methods.push(Method::Parametric);
         }
-        for method in methods {
+        let mut panels = Vec::new();
+        for (k, method) in methods.into_iter().enumerate() {
             let settings = default_settings(&scene, Some(method));
+            let epoch = self.next_epoch + k as u64;
             let mut panel = Panel::new(
-                self.next_id,
+                self.next_id + k as u32,
+                epoch,
                 settings,
-                Arc::clone(&text),
-                &scene,
-                exprs.clone(),
+                Arc::clone(&scene),
                 view,
             )
-            .map_err(|message| SceneError {
+            .map_err(|e| SceneError {
                 file: name.to_string(),
                 line: 0,
                 column: 0,
-                message,
+                message: e.to_string(),
                 snippet: None,
             })?;
-            self.next_id += 1;
             // A scene starts playing, as in the article.
-            panel.running = true;
+            panel.running = !panel.failed();
             panels.push(panel);
         }
+        self.next_id += panels.len() as u32;
+        self.next_epoch += panels.len() as u64;
         self.panels = panels;
-        self.scene = Some(CurrentScene {
-            name: name.to_string(),
-            text,
-            scene,
-            info,
-            exprs,
-        });
+        self.scene = Some(CurrentScene { scene, info });
         Ok(())
     }
 
@@ -441,108 +529,145 @@ impl Session {
         panel: Option<u32>,
         constraint: usize,
         expr: String,
-    ) -> Result<Vec<ServerMessage>, (String, Option<u32>)> {
-        let curve_error = |message: String, columns: Option<[usize; 2]>| {
+    ) -> Result<Vec<ServerMessage>, Rejection> {
+        let reply = |failure: CurveFailure| {
             Ok(vec![ServerMessage::CurveError {
                 constraint,
-                message,
-                columns,
+                code: failure.code(),
+                message: failure.message(),
+                columns: failure.columns(&expr),
             }])
         };
         let chars = expr.chars().count();
         if chars > self.limits.max_expr_chars {
-            return curve_error(
-                format!(
-                    "expression too long: {chars} characters (limit {})",
-                    self.limits.max_expr_chars
-                ),
-                None,
-            );
+            return reply(CurveFailure::TooLong {
+                chars,
+                limit: self.limits.max_expr_chars,
+            });
         }
-        if let Some((column, c)) = expr
-            .chars()
-            .enumerate()
-            .find(|(_, c)| *c == '"' || *c == '\\' || c.is_control())
-        {
-            return curve_error(
-                format!("unexpected character {c:?} in the expression"),
-                Some([column, column + 1]),
-            );
-        }
-        if expr.trim().is_empty() {
-            return curve_error("the expression is empty".into(), None);
-        }
-        let Some(scene) = &self.scene else {
-            return Err(("no scene loaded".into(), None));
-        };
-        if scene.exprs.get(constraint).is_none_or(|e| e.is_none()) {
-            return curve_error(
-                format!(
-                    "constraint {constraint} is not an expression constraint of this scene (it has {} constraints)",
-                    scene.exprs.len()
-                ),
-                None,
-            );
-        }
+        let view = self.scene()?.info.view;
         let indices: Vec<usize> = match panel {
             Some(id) => {
                 let index = self.index(id)?;
-                if self.panels[index].settings.method != Method::Implicit {
-                    return curve_error(
-                        "a parametric panel's curve is its map x(q): edit [parametric.positions] in the scene file instead".into(),
-                        None,
-                    );
+                if self.panels[index].method() != Method::Implicit {
+                    return reply(CurveFailure::ParametricPanel);
                 }
                 vec![index]
             }
             None => (0..self.panels.len())
-                .filter(|&i| self.panels[i].settings.method == Method::Implicit)
+                .filter(|&i| self.panels[i].method() == Method::Implicit)
                 .collect(),
         };
         if indices.is_empty() {
-            return curve_error(
-                "no implicit panel to apply the curve to: add one (the parametric form's curve is its map x(q))".into(),
-                None,
-            );
-        }
-        // Build every new panel first; replace them only when all succeeded.
-        let mut rebuilt = Vec::new();
-        for &index in &indices {
-            let old = &self.panels[index];
-            let (text, expr_line) = match replace_expression(&old.text, constraint, &expr) {
-                Ok(v) => v,
-                Err(m) => return curve_error(m, None),
-            };
-            let parsed = match parse_scene(&text, &scene.name) {
-                Ok(parsed) => parsed,
-                Err(e) => {
-                    let columns = expression_columns(&e, expr_line, &text, &expr);
-                    return curve_error(e.message.clone(), columns);
-                }
-            };
-            let mut exprs = old.exprs.clone();
-            exprs[constraint] = Some(expr.clone());
-            let mut panel = match Panel::new(
-                old.id,
-                old.settings,
-                Arc::from(text.as_str()),
-                &parsed,
-                exprs,
-                scene.info.view,
-            ) {
-                Ok(panel) => panel,
-                Err(m) => return curve_error(m, None),
-            };
-            if let Some(failure) = &panel.failed {
-                return curve_error(failure.clone(), None);
+            // The expression's own errors come first: they are what the user can fix here.
+            if let Err(e) = self.scene()?.scene.with_constraint_expr(constraint, &expr) {
+                return reply(CurveFailure::Edit(e));
             }
-            panel.running = old.running;
+            return reply(CurveFailure::NoImplicitPanel);
+        }
+        // Build every new panel first; replace them only when all succeeded. Panels that
+        // share a scene share its edited copy.
+        let mut edited: Vec<(Arc<Scene>, Arc<Scene>)> = Vec::new();
+        let mut rebuilt = Vec::new();
+        for index in indices {
+            let old = &self.panels[index];
+            let scene = match edited
+                .iter()
+                .find(|(from, _)| Arc::ptr_eq(from, old.scene()))
+            {
+                Some((_, to)) => Arc::clone(to),
+                None => match old.scene().with_constraint_expr(constraint, &expr) {
+                    Ok(scene) => {
+                        let scene = Arc::new(scene);
+                        edited.push((Arc::clone(old.scene()), Arc::clone(&scene)));
+                        scene
+                    }
+                    Err(e) => return reply(CurveFailure::Edit(e)),
+                },
+            };
+            let (id, settings, running) = (old.id, old.settings(), old.running);
+            let epoch = self.epoch();
+            let mut panel = match Panel::new(id, epoch, settings, scene, view) {
+                Ok(panel) => panel,
+                Err(e) => return reply(CurveFailure::Setup(e.into())),
+            };
+            if let Some(failure) = panel.failure() {
+                let message = match failure {
+                    PanelFailure::Start(RunError::Step(e)) => e.to_string(),
+                    other => other.to_string(),
+                };
+                return reply(CurveFailure::Start(message));
+            }
+            panel.running = running;
             rebuilt.push((index, panel));
         }
         for (index, panel) in rebuilt {
             self.panels[index] = panel;
         }
         Ok(vec![self.panels_message()])
+    }
+}
+
+/// What the page draws of a scene that does not move.
+fn scene_info(name: &str, scene: &Scene) -> SceneInfo {
+    let system = &scene.system;
+    let declared = system.declared_constraints();
+    let infos = system.constraints().infos();
+    let constraints = declared
+        .iter()
+        .map(|c| ConstraintInfo {
+            name: c.name().to_string(),
+            description: infos
+                .iter()
+                .find(|i| i.name == c.name())
+                .map(|i| i.description.clone())
+                .unwrap_or_default(),
+            expr: c.source().map(str::to_string),
+        })
+        .collect();
+    let rods: Vec<Rod> = declared
+        .iter()
+        .filter_map(|c| match c {
+            DeclaredConstraint::Distance { a, b, .. } => Some(match b {
+                Endpoint::Particle(b) => Rod {
+                    a: a.0,
+                    b: Some(b.0),
+                    anchor: None,
+                },
+                Endpoint::Fixed(point) => Rod {
+                    a: a.0,
+                    b: None,
+                    anchor: Some([point[0], point[1]]),
+                },
+            }),
+            _ => None,
+        })
+        .collect();
+    let anchors: Vec<[f64; 2]> = rods.iter().filter_map(|r| r.anchor).collect();
+    let dt = scene.run.dt.unwrap_or(1.0 / 60.0);
+    let duration = scene
+        .run
+        .duration
+        .or(scene.run.steps.map(|s| s as f64 * dt))
+        .unwrap_or(10.0);
+    SceneInfo {
+        name: name.to_string(),
+        title: scene.title.clone(),
+        dim: system.dim(),
+        particles: system
+            .particles()
+            .iter()
+            .map(|p| ParticleInfo {
+                name: p.name.clone(),
+                mass: p.mass,
+            })
+            .collect(),
+        constraints,
+        view: geometry::view_box(system, dt, duration, &anchors),
+        rods,
+        has_implicit: system.constraints().n_rows() > 0,
+        has_parametric: system.parametric().is_some(),
+        warnings: scene.warnings(),
     }
 }
 
@@ -575,15 +700,20 @@ fn default_settings(scene: &Scene, method: Option<Method>) -> PanelSettings {
     }
 }
 
-/// `base` with the fields of `patch`, validated.
+/// `base` with the fields of `patch`, each in its range. Whether the combination can run is
+/// the library's [`bead::simulate::SimulationConfig::check`], when the panel is built.
 fn patch_settings(
     base: PanelSettings,
     patch: &PanelSettingsPatch,
     limits: &Limits,
-) -> Result<PanelSettings, String> {
+) -> Result<PanelSettings, SessionError> {
     let mut s = base;
     if let Some(method) = &patch.method {
-        s.method = method.parse().map_err(|e: String| truncate(&e, 200))?;
+        s.method = method
+            .parse()
+            .map_err(|e: String| SessionError::UnknownName(truncate(&e, 200)))?;
+        // Switching to the parametric form drops what only the implicit one has, unless the
+        // request asks for it (then the library refuses the combination).
         if s.method == Method::Parametric && patch.ks.is_none() && patch.kd.is_none() {
             s.ks = 0.0;
             s.kd = 0.0;
@@ -593,24 +723,28 @@ fn patch_settings(
         }
     }
     if let Some(integrator) = &patch.integrator {
-        s.integrator = integrator.parse().map_err(|e: String| truncate(&e, 300))?;
+        s.integrator = integrator
+            .parse()
+            .map_err(|e: String| SessionError::UnknownName(truncate(&e, 300)))?;
     }
     if let Some(dt) = patch.dt {
         if !(dt.is_finite() && dt >= limits.min_dt && dt <= limits.max_dt) {
-            return Err(format!(
-                "dt must be a number in [{:e}, {}]",
-                limits.min_dt, limits.max_dt
-            ));
+            return Err(SessionError::OutOfRange {
+                name: "dt",
+                min: limits.min_dt,
+                max: limits.max_dt,
+            });
         }
         s.dt = dt;
     }
     for (name, value, slot) in [("ks", patch.ks, &mut s.ks), ("kd", patch.kd, &mut s.kd)] {
         if let Some(v) = value {
             if !(v.is_finite() && (0.0..=limits.max_feedback).contains(&v)) {
-                return Err(format!(
-                    "{name} must be a number in [0, {:e}]",
-                    limits.max_feedback
-                ));
+                return Err(SessionError::OutOfRange {
+                    name,
+                    min: 0.0,
+                    max: limits.max_feedback,
+                });
             }
             *slot = v;
         }
@@ -618,129 +752,7 @@ fn patch_settings(
     if let Some(project) = patch.project {
         s.project = project;
     }
-    if !(s.dt.is_finite() && s.dt > 0.0) {
-        s.dt = 1.0 / 60.0;
-    }
     Ok(s)
-}
-
-/// Check settings against a system without building a panel (for tests).
-pub fn check_settings(settings: &PanelSettings, scene: &Scene) -> Result<(), String> {
-    validate_combination(settings, &scene.system)
-}
-
-/// The `[[constraint]]` tables of a parsed scene file, in order.
-fn constraint_tables(table: Option<&toml::Table>) -> Vec<&toml::Table> {
-    table
-        .and_then(|t| t.get("constraint"))
-        .and_then(|c| c.as_array())
-        .map(|a| a.iter().filter_map(|v| v.as_table()).collect())
-        .unwrap_or_default()
-}
-
-/// The expression of an expression constraint table.
-fn expression_of(table: Option<&toml::Table>) -> Option<String> {
-    let table = table?;
-    let kind = table
-        .get("kind")
-        .and_then(|k| k.as_str())
-        .unwrap_or("expression");
-    if kind != "expression" {
-        return None;
-    }
-    table.get("expr")?.as_str().map(str::to_string)
-}
-
-/// Distance constraints as rods.
-fn rods(scene: &Scene, tables: &[&toml::Table]) -> Vec<Rod> {
-    let system = &scene.system;
-    let id = |v: Option<&toml::Value>| {
-        v.and_then(|v| v.as_str())
-            .and_then(|name| system.particle_id(name))
-            .map(|p| p.0)
-    };
-    let mut out = Vec::new();
-    for table in tables {
-        if table.get("kind").and_then(|k| k.as_str()) != Some("distance") {
-            continue;
-        }
-        if let Some(between) = table.get("between").and_then(|b| b.as_array()) {
-            if let (Some(a), Some(b)) = (id(between.first()), id(between.get(1))) {
-                out.push(Rod {
-                    a,
-                    b: Some(b),
-                    anchor: None,
-                });
-            }
-        } else if let Some(a) = id(table.get("particle")) {
-            let anchor = table
-                .get("anchor")
-                .and_then(|v| v.as_array())
-                .and_then(|v| {
-                    let number = |i: usize| {
-                        v.get(i)
-                            .and_then(|c| c.as_float().or_else(|| c.as_integer().map(|i| i as f64)))
-                    };
-                    Some([number(0)?, number(1)?])
-                });
-            if anchor.is_some() {
-                out.push(Rod { a, b: None, anchor });
-            }
-        }
-    }
-    out
-}
-
-/// The scene text with constraint `index`'s `expr` replaced, and the 1-based line on which
-/// the new expression stands.
-fn replace_expression(text: &str, index: usize, expr: &str) -> Result<(String, usize), String> {
-    let mut table: toml::Table =
-        toml::from_str(text).map_err(|e| format!("cannot edit the scene: {e}"))?;
-    let constraint = table
-        .get_mut("constraint")
-        .and_then(|c| c.as_array_mut())
-        .and_then(|a| a.get_mut(index))
-        .and_then(|c| c.as_table_mut())
-        .ok_or_else(|| format!("the scene has no constraint {index}"))?;
-    constraint.insert("expr".into(), toml::Value::String(expr.to_string()));
-    // A marker value, to find the line of the expression after serialization.
-    let text = toml::to_string(&table).map_err(|e| format!("cannot edit the scene: {e}"))?;
-    let needle = format!("expr = {}", toml::Value::String(expr.to_string()));
-    // The n-th occurrence of an expr line belongs to constraint n only if every earlier
-    // constraint has one; search by content instead: the first line equal to the needle.
-    let line = text
-        .lines()
-        .position(|l| l.trim() == needle)
-        .map(|l| l + 1)
-        .unwrap_or(0);
-    Ok((text, line))
-}
-
-/// The 0-based character range within `expr` of a scene error on the expression's line.
-fn expression_columns(
-    error: &SceneError,
-    expr_line: usize,
-    text: &str,
-    expr: &str,
-) -> Option<[usize; 2]> {
-    if error.line == 0 || error.line != expr_line {
-        return None;
-    }
-    let line = text.lines().nth(expr_line - 1)?;
-    // The expression starts after `expr = "`.
-    let quote = line.find('"')?;
-    let start = line[..quote].chars().count() + 1;
-    let column = error.column.checked_sub(1)?.checked_sub(start)?;
-    let width = error
-        .snippet
-        .as_deref()
-        .and_then(|s| s.lines().find(|l| l.trim_start().starts_with('^')))
-        .map(|l| l.trim().chars().filter(|c| *c == '^').count())
-        .unwrap_or(1)
-        .max(1);
-    let len = expr.chars().count();
-    let begin = column.min(len);
-    Some([begin, (column + width).min(len.max(begin + 1))])
 }
 
 fn truncate(s: &str, max: usize) -> String {

@@ -1,6 +1,10 @@
 //! End to end in real headless Chromium, driven through chromedriver (fantoccini): the page
 //! loads without errors, draws, reacts to its controls, drags a bead along its curve and
-//! shows a bad curve expression inline. Saves a screenshot to `target/viewer-screenshot.png`
+//! shows a bad curve expression inline.
+//!
+//! Every wait waits for the state it checks, never for a value that a message from before
+//! the request could also show: after a panel restarts, for a frame of its new epoch
+//! (`frame.epoch === info.epoch`); for motion, for the motion itself rather than a delay. Saves a screenshot to `target/viewer-screenshot.png`
 //! (and to `docs/viewer.png` with `BEAD_UPDATE_SCREENSHOT=1`).
 //!
 //! Skipped with a notice when chromium or chromedriver is missing, unless
@@ -86,6 +90,15 @@ async fn wait_until(client: &Client, condition: &str, what: &str) {
         }
         tokio::time::sleep(Duration::from_millis(50)).await;
     }
+}
+
+/// A JS condition: panel `panel`'s latest frame belongs to its current epoch (the panel's
+/// last restart) and satisfies `condition` on `f`.
+fn current(panel: u64, condition: &str) -> String {
+    format!(
+        "(() => {{ const p = window.__viewer.panels.get({panel}); const f = p && p.frame; \
+         return !!(f && f.epoch === p.info.epoch && ({condition})); }})()"
+    )
 }
 
 async fn frame(client: &Client, panel: u64) -> Value {
@@ -268,9 +281,14 @@ async fn checks(client: &Client, addr: SocketAddr) {
         "the euler panel",
     )
     .await;
+    // t > 0.5 in a frame of the euler panel's own epoch: a frame from before the restart
+    // has t > 0.5 too, and the error of rk4.
     wait_until(
         client,
-        "window.__viewer.panels.get(1).frame.t > 0.5",
+        &format!(
+            "window.__viewer.panels.get(1).info.integrator === 'euler' && {}",
+            current(1, "f.t > 0.5")
+        ),
         "the euler panel to run",
     )
     .await;
@@ -281,8 +299,8 @@ async fn checks(client: &Client, addr: SocketAddr) {
     .await;
     assert_ne!(before, after);
     // Explicit Euler gains energy far faster than RK4 on the parametric form.
-    let euler = frame(client, 1).await["energy_rel_error"].as_f64().unwrap();
-    let rk4 = frame(client, 2).await["energy_rel_error"].as_f64().unwrap();
+    let euler = frame(client, 1).await["energy_error"].as_f64().unwrap();
+    let rk4 = frame(client, 2).await["energy_error"].as_f64().unwrap();
     assert!(euler > 100.0 * rk4, "euler {euler} vs rk4 {rk4}");
 
     // Drag with RATTLE (implicit) and in the parametric panel: the bead follows the cursor
@@ -303,7 +321,11 @@ async fn checks(client: &Client, addr: SocketAddr) {
     js(client, "document.getElementById('play').textContent === 'Pause' && document.getElementById('play').click(); return null;").await;
     wait_until(
         client,
-        "[1, 2].every(id => window.__viewer.panels.get(id).frame.status === 'paused')",
+        &format!(
+            "window.__viewer.panels.get(1).info.integrator === 'rattle' && {} && {}",
+            current(1, "f.status === 'paused'"),
+            current(2, "f.status === 'paused'")
+        ),
         "the pause",
     )
     .await;
@@ -329,13 +351,15 @@ async fn checks(client: &Client, addr: SocketAddr) {
         "document.getElementById('play').click(); return null;",
     )
     .await;
-    wait_until(
-        client,
-        "[1, 2].every(id => window.__viewer.panels.get(id).frame.status === 'running')",
-        "play",
-    )
-    .await;
-    tokio::time::sleep(Duration::from_millis(2500)).await;
+    // The beads follow the cursor: wait for that, however long the machine takes.
+    for panel in [1, 2] {
+        wait_until(
+            client,
+            &current(panel, "f.status === 'running' && f.drag && f.x[0] < -50"),
+            "the bead to follow the cursor",
+        )
+        .await;
+    }
     for panel in [1, 2] {
         let f = frame(client, panel).await;
         assert!(f["drag"].is_object(), "panel {panel} is not dragging: {f}");
@@ -404,8 +428,12 @@ async fn checks(client: &Client, addr: SocketAddr) {
         error.contains("bead.x^2 + 100*bead.w\n") && error.contains("               ^^^^^^"),
         "{error}"
     );
-    tokio::time::sleep(Duration::from_millis(300)).await;
-    assert!(frame(client, 1).await["t"].as_f64().unwrap() > t);
+    wait_until(
+        client,
+        &current(1, &format!("f.status === 'running' && f.t > {t}")),
+        "the panel to run on",
+    )
+    .await;
 
     // A valid edit redraws the implicit panel's curve and clears the error.
     js(
@@ -417,7 +445,10 @@ async fn checks(client: &Client, addr: SocketAddr) {
     .await;
     wait_until(
         client,
-        "window.__viewer.panels.get(1).info.exprs[0] === 'bead.x^2 + 200*bead.y' && document.querySelector('#curves .curve-error').hidden",
+        &format!(
+            "window.__viewer.panels.get(1).info.exprs[0] === 'bead.x^2 + 200*bead.y' && document.querySelector('#curves .curve-error').hidden && {}",
+            current(1, "f.constraint_error < 1e-3")
+        ),
         "the new curve",
     )
     .await;
@@ -431,7 +462,7 @@ async fn checks(client: &Client, addr: SocketAddr) {
     .await;
     wait_until(
         client,
-        "window.__viewer.scene.name === 'double-pendulum' && window.__viewer.panels.size === 2 && [...window.__viewer.panels.values()].every(p => p.frame && p.frame.t > 0.2)",
+        "window.__viewer.scene.name === 'double-pendulum' && window.__viewer.panels.size === 2 && [...window.__viewer.panels.values()].every(p => p.frame && p.frame.epoch === p.info.epoch && p.frame.t > 0.2)",
         "the double pendulum",
     )
     .await;

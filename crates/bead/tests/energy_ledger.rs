@@ -404,6 +404,7 @@ fn external_forces_are_counted_by_the_ledger() {
     assert!(sim.remove_force(damper).is_none());
     sim.advance_to(1.5).unwrap();
     assert!(sim.work().abs() > 0.1, "{}", sim.work());
+    assert!(!sim.energy_conserved(), "forces acted during this run");
     // The spring is external, so its potential is not part of T + V: what it does to T + V is
     // its work, integral F . v dt, wherever its anchor goes, and the balance holds.
     assert!(
@@ -412,4 +413,7 @@ fn external_forces_are_counted_by_the_ledger() {
         sim.energy_balance_error()
     );
     assert!(sim.energy_error() > 1e-3, "{}", sim.energy_error());
+    // A reset without external forces left starts a conservative run again.
+    sim.reset();
+    assert!(sim.energy_conserved());
 }

@@ -254,8 +254,8 @@ fn expression_syntax_error_points_inside_the_string() {
     );
     // Columns count characters, and tabs are kept so that the caret lines up.
     assert_eq!(
-        error(&edit("mass = 1.0", "mass =\t\"2*ü\"")),
-        "s.toml:8:11: particle 1: unexpected character `ü`\n  mass =\t\"2*ü\"\n        \t   ^"
+        error(&edit("mass = 1.0", "mass =\t\"2*€\"")),
+        "s.toml:8:11: particle 1: unexpected character `€`\n  mass =\t\"2*€\"\n        \t   ^"
     );
 }
 

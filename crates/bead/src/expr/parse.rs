@@ -11,8 +11,11 @@
 //! primary := number | name | function "(" sum ("," sum)* ")" | "(" sum ")"
 //! number  := digits ["." digits?] [exponent] | "." digits [exponent]
 //! exponent:= ("e" | "E") ["+" | "-"] digits
-//! name    := ident ("." ident)*          ident := [A-Za-z_][A-Za-z0-9_]*
+//! name    := ident ("." ident)*          ident := (letter | _) (letter | [0-9] | _)*
 //! ```
+//!
+//! A letter is one of any alphabet (Unicode alphabetic), as in particle names (`perlé.x`);
+//! digits are ASCII only, so that `x²` is an error at `²`.
 //!
 //! Nesting (parentheses, calls, prefix signs, exponents) is limited to [`MAX_DEPTH`] levels so
 //! hostile input cannot overflow the stack; everything else is linear in the input length.
@@ -129,12 +132,19 @@ struct Token {
     span: Span,
 }
 
-fn is_ident_start(b: u8) -> bool {
-    b.is_ascii_alphabetic() || b == b'_'
+/// Names start with a letter (any alphabet: particle names may be `perlé`) or `_`.
+fn is_ident_start(c: char) -> bool {
+    c.is_alphabetic() || c == '_'
 }
 
-fn is_ident_char(b: u8) -> bool {
-    b.is_ascii_alphanumeric() || b == b'_'
+/// Names go on with letters, ASCII digits and `_` (not `²`: `x²` is an error at `²`).
+fn is_ident_char(c: char) -> bool {
+    c.is_alphabetic() || c.is_ascii_digit() || c == '_'
+}
+
+/// The character starting at byte `i` of `s`, if `i` is a boundary inside it.
+fn char_at(s: &str, i: usize) -> Option<char> {
+    s.get(i..)?.chars().next()
 }
 
 struct Parser<'s, 'r> {
@@ -179,14 +189,14 @@ impl<'s> Parser<'s, '_> {
             {
                 return self.lex_number(start);
             }
-            Some(&b) if is_ident_start(b) => {
+            Some(_) if char_at(self.src, i).is_some_and(is_ident_start) => {
                 let mut j = i;
                 loop {
-                    while j < bytes.len() && is_ident_char(bytes[j]) {
-                        j += 1;
+                    while let Some(c) = char_at(self.src, j).filter(|&c| is_ident_char(c)) {
+                        j += c.len_utf8();
                     }
                     if bytes.get(j) == Some(&b'.') {
-                        if bytes.get(j + 1).copied().is_some_and(is_ident_start) {
+                        if char_at(self.src, j + 1).is_some_and(is_ident_start) {
                             j += 1;
                             continue;
                         }
@@ -517,6 +527,7 @@ mod tests {
             "y" => Ok(Resolved::Var(1)),
             "z" => Ok(Resolved::Var(2)),
             "bead.x" => Ok(Resolved::Var(3)),
+            "pérle.x" => Ok(Resolved::Var(0)),
             "a.vx" => Ok(Resolved::Var(4)),
             "k" => Ok(Resolved::Value(2.5)),
             // A resolver cannot override the built-in constants.
@@ -743,7 +754,17 @@ mod tests {
             "bead.x^2 + 100*bead.w\n               ^^^^^^",
         );
         check_err("x²", "unexpected character `²`", 1, 3, "x²\n ^");
-        check_err("é + x", "unexpected character `é`", 0, 2, "é + x\n^");
+        check_err("€ + x", "unexpected character `€`", 0, 3, "€ + x\n^");
+        // Letters of any alphabet make names (particle names may use them); spans stay in
+        // bytes, carets in characters.
+        check_err("é + x", "unknown name `é`", 0, 2, "é + x\n^");
+        check_err(
+            "pérle.x + bead.w",
+            "unknown name `bead.w`",
+            11,
+            17,
+            "pérle.x + bead.w\n          ^^^^^^",
+        );
         check_err(
             "1 + 1e",
             "malformed number `1e`: expected digits after the exponent `e`",

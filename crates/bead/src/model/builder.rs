@@ -53,8 +53,10 @@ pub enum ModelError {
     },
 }
 
+/// A constraint as declared. Expressions keep their source so that edits can parse them
+/// again (see `edit.rs`).
 #[derive(Clone)]
-enum ConstraintSpec {
+pub(super) enum ConstraintSpec {
     Expression(Expr, String),
     Distance {
         a: ParticleId,
@@ -68,12 +70,19 @@ enum ConstraintSpec {
     Custom(SharedHolonomic, Vec<ParticleId>),
 }
 
-struct ParametricSpec {
-    coordinates: Vec<String>,
-    initial: Vec<f64>,
-    rates: Vec<f64>,
-    positions: Vec<Option<Vec<Expr>>>,
+/// The parametric form as declared.
+#[derive(Clone)]
+pub(super) struct ParametricSpec {
+    pub(super) coordinates: Vec<String>,
+    pub(super) initial: Vec<f64>,
+    pub(super) rates: Vec<f64>,
+    /// Per particle, one component per axis: the expression and, when it was parsed from
+    /// text, that text (numbers and already built expressions have none).
+    pub(super) positions: Vec<Option<Vec<Component>>>,
 }
+
+/// A parametric position component: its expression and the text it was parsed from.
+pub(super) type Component = (Expr, Option<String>);
 
 /// Builds a [`System`] from particles, forces, constraints and an optional parametric map.
 ///
@@ -87,13 +96,31 @@ struct ParametricSpec {
 /// let system = b.build().unwrap();
 /// assert_eq!(system.degrees_of_freedom(), 1);
 /// ```
+///
+/// The [`System`] it builds keeps the builder (what the system was declared from), so that
+/// [`System::with_constraint_expr`] and [`System::with_param`] can change one declaration and
+/// compile again through the same code path as `build`.
+#[derive(Clone)]
 pub struct SystemBuilder {
-    gravity: Vec<f64>,
-    params: Vec<(String, f64)>,
-    particles: Vec<Particle>,
-    forces: Vec<Force>,
-    constraints: Vec<(String, ConstraintSpec)>,
-    parametric: Option<ParametricSpec>,
+    pub(super) gravity: Vec<f64>,
+    pub(super) params: Vec<(String, f64)>,
+    pub(super) particles: Vec<Particle>,
+    pub(super) forces: Vec<Force>,
+    pub(super) constraints: Vec<(String, ConstraintSpec)>,
+    pub(super) parametric: Option<ParametricSpec>,
+}
+
+impl std::fmt::Debug for SystemBuilder {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("SystemBuilder")
+            .field("dim", &self.gravity.len())
+            .field("params", &self.params)
+            .field("particles", &self.particles.len())
+            .field("forces", &self.forces.len())
+            .field("constraints", &self.constraints.len())
+            .field("parametric", &self.parametric.is_some())
+            .finish()
+    }
 }
 
 impl SystemBuilder {
@@ -380,13 +407,35 @@ impl SystemBuilder {
         parse(source, &|name| self.resolve_parametric_name(name))
     }
 
-    /// Set particle `name`'s position as expressions of q and t (one per axis).
+    /// Set particle `name`'s position as expressions of q and t (one per axis). These have no
+    /// source text, so [`System::with_param`] keeps them as they are: give expressions of
+    /// parameters with [`Self::parametric_position_exprs`] or
+    /// [`Self::parametric_position_with_sources`].
     pub fn parametric_position(
         &mut self,
         name: &str,
         exprs: Vec<Expr>,
     ) -> Result<&mut Self, ModelError> {
+        let sources = vec![None; exprs.len()];
+        self.parametric_position_with_sources(name, exprs, sources)
+    }
+
+    /// [`Self::parametric_position`] with the text each expression was parsed from (`None`
+    /// for a number), which [`System::with_param`] parses again.
+    pub fn parametric_position_with_sources(
+        &mut self,
+        name: &str,
+        exprs: Vec<Expr>,
+        sources: Vec<Option<String>>,
+    ) -> Result<&mut Self, ModelError> {
         let p = self.particle_id(name)?.0;
+        if sources.len() != exprs.len() {
+            return Err(ModelError::Parametric(format!(
+                "parametric position of `{name}`: {} sources for {} expressions",
+                sources.len(),
+                exprs.len()
+            )));
+        }
         if exprs.len() != self.dim() {
             return Err(ModelError::DimensionMismatch {
                 what: format!("parametric position of `{name}`"),
@@ -405,7 +454,7 @@ impl SystemBuilder {
                 name: name.into(),
             });
         }
-        spec.positions[p] = Some(exprs);
+        spec.positions[p] = Some(exprs.into_iter().zip(sources).collect());
         Ok(self)
     }
 
@@ -425,140 +474,13 @@ impl SystemBuilder {
                     })
             })
             .collect::<Result<Vec<_>, _>>()?;
-        self.parametric_position(name, exprs)
+        let sources = sources.iter().map(|s| Some(s.to_string())).collect();
+        self.parametric_position_with_sources(name, exprs, sources)
     }
 
     /// Check everything and compile the constraints and the parametric map.
     pub fn build(self) -> Result<System, ModelError> {
-        let dim = self.dim();
-        if !(2..=3).contains(&dim) {
-            return Err(ModelError::BadDimension(dim));
-        }
-        for g in &self.gravity {
-            finite("gravity", *g)?;
-        }
-        if self.particles.is_empty() {
-            return Err(ModelError::NoParticles);
-        }
-        let n = self.particles.len() * dim;
-        let time = |k: usize| {
-            if k == TIME_PLACEHOLDER {
-                Expr::var(2 * n)
-            } else {
-                Expr::var(k)
-            }
-        };
-        let mut infos = Vec::new();
-        let mut expr_rows = Vec::new();
-        let mut custom = Vec::new();
-        // Rust rows go after all expression rows; remember which info they belong to.
-        let mut custom_infos = Vec::new();
-        for (name, spec) in &self.constraints {
-            let start = expr_rows.len();
-            let description = match spec {
-                ConstraintSpec::Expression(expr, source) => {
-                    expr_rows.push(ExprRow::new(expr.substitute(&time), n));
-                    format!("{source} = 0")
-                }
-                ConstraintSpec::Distance { a, b, length } => {
-                    // C = (|d|^2 - L^2) / (2 L): zero on the rod, |grad C| = |d|/L = 1 there,
-                    // and smooth even where |d| = 0.
-                    let squared = (0..dim)
-                        .map(|axis| {
-                            let d = Expr::var(a.0 * dim + axis) - endpoint_expr(b, dim, axis);
-                            &d * &d
-                        })
-                        .fold(Expr::constant(0.0), |acc, s| acc + s);
-                    let c = (squared - length * length) / (2.0 * length);
-                    expr_rows.push(ExprRow::new(c, n));
-                    format!(
-                        "distance({}, {}) = {length}",
-                        self.particles[a.0].name,
-                        self.endpoint_name(b)
-                    )
-                }
-                ConstraintSpec::Pin { particle, anchor } => {
-                    for (axis, value) in anchor.iter().enumerate() {
-                        expr_rows
-                            .push(ExprRow::new(Expr::var(particle.0 * dim + axis) - *value, n));
-                    }
-                    format!("pin({}) at {anchor:?}", self.particles[particle.0].name)
-                }
-                ConstraintSpec::Custom(constraint, particles) => {
-                    let mut coords = Vec::new();
-                    for p in particles {
-                        self.check_particle(*p)?;
-                        coords.extend((0..dim).map(|axis| p.0 * dim + axis));
-                    }
-                    custom.push(CustomRow {
-                        constraint: constraint.clone(),
-                        coords,
-                    });
-                    custom_infos.push(ConstraintInfo {
-                        name: name.clone(),
-                        description: "Rust constraint (derivatives by dual numbers)".into(),
-                        rows: 0..0,
-                    });
-                    continue;
-                }
-            };
-            infos.push(ConstraintInfo {
-                name: name.clone(),
-                description,
-                rows: start..expr_rows.len(),
-            });
-        }
-        let n_expr = expr_rows.len();
-        for (i, mut info) in custom_infos.into_iter().enumerate() {
-            info.rows = n_expr + i..n_expr + i + 1;
-            infos.push(info);
-        }
-        let constraints = ConstraintSet::new(n, infos, expr_rows, custom);
-
-        let parametric = match self.parametric {
-            None => None,
-            Some(spec) => {
-                let n_q = spec.coordinates.len();
-                let time = |k: usize| {
-                    if k == TIME_PLACEHOLDER {
-                        Expr::var(2 * n_q)
-                    } else {
-                        Expr::var(k)
-                    }
-                };
-                let mut positions = Vec::with_capacity(n);
-                for (p, particle) in self.particles.iter().enumerate() {
-                    let exprs = spec.positions.get(p).and_then(|e| e.as_ref()).ok_or_else(|| {
-                        ModelError::Parametric(format!(
-                            "the parametric form gives no position for particle `{}`; every particle needs one",
-                            particle.name
-                        ))
-                    })?;
-                    positions.extend(exprs.iter().map(|e| e.substitute(&time)));
-                }
-                Some(ParametricMap::new(
-                    spec.coordinates,
-                    spec.initial,
-                    spec.rates,
-                    positions,
-                ))
-            }
-        };
-        let inverse_mass = self
-            .particles
-            .iter()
-            .flat_map(|p| std::iter::repeat_n(1.0 / p.mass, dim))
-            .collect();
-        Ok(System {
-            params: self.params,
-            dim,
-            particles: self.particles,
-            gravity: self.gravity,
-            forces: self.forces,
-            constraints,
-            parametric,
-            inverse_mass,
-        })
+        compile(Arc::new(self))
     }
 
     fn check_particle(&self, p: ParticleId) -> Result<(), ModelError> {
@@ -601,6 +523,142 @@ impl SystemBuilder {
     fn axis_list(&self) -> String {
         AXES[..self.dim().min(3)].join(", ")
     }
+}
+
+/// Check a declaration and compile its constraints and parametric map: the one compile step
+/// of [`SystemBuilder::build`] and of the edits ([`System::with_constraint_expr`],
+/// [`System::with_param`]). The system keeps `declared`.
+pub(super) fn compile(declared: Arc<SystemBuilder>) -> Result<System, ModelError> {
+    let b = &*declared;
+    let dim = b.dim();
+    if !(2..=3).contains(&dim) {
+        return Err(ModelError::BadDimension(dim));
+    }
+    for g in &b.gravity {
+        finite("gravity", *g)?;
+    }
+    if b.particles.is_empty() {
+        return Err(ModelError::NoParticles);
+    }
+    let n = b.particles.len() * dim;
+    let time = |k: usize| {
+        if k == TIME_PLACEHOLDER {
+            Expr::var(2 * n)
+        } else {
+            Expr::var(k)
+        }
+    };
+    let mut infos = Vec::new();
+    let mut expr_rows = Vec::new();
+    let mut custom = Vec::new();
+    // Rust rows go after all expression rows; remember which info they belong to.
+    let mut custom_infos = Vec::new();
+    for (name, spec) in &b.constraints {
+        let start = expr_rows.len();
+        let description = match spec {
+            ConstraintSpec::Expression(expr, source) => {
+                expr_rows.push(ExprRow::new(expr.substitute(&time), n));
+                format!("{source} = 0")
+            }
+            ConstraintSpec::Distance { a, b: end, length } => {
+                // C = (|d|^2 - L^2) / (2 L): zero on the rod, |grad C| = |d|/L = 1 there,
+                // and smooth even where |d| = 0.
+                let squared = (0..dim)
+                    .map(|axis| {
+                        let d = Expr::var(a.0 * dim + axis) - endpoint_expr(end, dim, axis);
+                        &d * &d
+                    })
+                    .fold(Expr::constant(0.0), |acc, s| acc + s);
+                let c = (squared - length * length) / (2.0 * length);
+                expr_rows.push(ExprRow::new(c, n));
+                format!(
+                    "distance({}, {}) = {length}",
+                    b.particles[a.0].name,
+                    b.endpoint_name(end)
+                )
+            }
+            ConstraintSpec::Pin { particle, anchor } => {
+                for (axis, value) in anchor.iter().enumerate() {
+                    expr_rows.push(ExprRow::new(Expr::var(particle.0 * dim + axis) - *value, n));
+                }
+                format!("pin({}) at {anchor:?}", b.particles[particle.0].name)
+            }
+            ConstraintSpec::Custom(constraint, particles) => {
+                let mut coords = Vec::new();
+                for p in particles {
+                    b.check_particle(*p)?;
+                    coords.extend((0..dim).map(|axis| p.0 * dim + axis));
+                }
+                custom.push(CustomRow {
+                    constraint: constraint.clone(),
+                    coords,
+                });
+                custom_infos.push(ConstraintInfo {
+                    name: name.clone(),
+                    description: "Rust constraint (derivatives by dual numbers)".into(),
+                    rows: 0..0,
+                });
+                continue;
+            }
+        };
+        infos.push(ConstraintInfo {
+            name: name.clone(),
+            description,
+            rows: start..expr_rows.len(),
+        });
+    }
+    let n_expr = expr_rows.len();
+    for (i, mut info) in custom_infos.into_iter().enumerate() {
+        info.rows = n_expr + i..n_expr + i + 1;
+        infos.push(info);
+    }
+    let constraints = ConstraintSet::new(n, infos, expr_rows, custom);
+
+    let parametric = match &b.parametric {
+        None => None,
+        Some(spec) => {
+            let n_q = spec.coordinates.len();
+            let time = |k: usize| {
+                if k == TIME_PLACEHOLDER {
+                    Expr::var(2 * n_q)
+                } else {
+                    Expr::var(k)
+                }
+            };
+            let mut positions = Vec::with_capacity(n);
+            for (p, particle) in b.particles.iter().enumerate() {
+                let exprs = spec.positions.get(p).and_then(|e| e.as_ref()).ok_or_else(|| {
+                    ModelError::Parametric(format!(
+                        "the parametric form gives no position for particle `{}`; every particle needs one",
+                        particle.name
+                    ))
+                })?;
+                positions.extend(exprs.iter().map(|(e, _)| e.substitute(&time)));
+            }
+            Some(ParametricMap::new(
+                spec.coordinates.clone(),
+                spec.initial.clone(),
+                spec.rates.clone(),
+                positions,
+            ))
+        }
+    };
+    let inverse_mass = b
+        .particles
+        .iter()
+        .flat_map(|p| std::iter::repeat_n(1.0 / p.mass, dim))
+        .collect();
+    Ok(System {
+        params: b.params.clone(),
+        dim,
+        particles: b.particles.clone(),
+        gravity: b.gravity.clone(),
+        forces: b.forces.clone(),
+        constraints,
+        parametric,
+        inverse_mass,
+        declared,
+    })
 }
 
 /// Check a force against a system of `n_particles` particles in `dim` dimensions.

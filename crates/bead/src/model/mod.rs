@@ -5,17 +5,24 @@
 //! parametric map x_i(q, t); [`SystemBuilder::build`] checks it and compiles every constraint
 //! once, with its exact derivatives, into straight-line code.
 //!
+//! A compiled system keeps its declaration: [`System::with_constraint_expr`] and
+//! [`System::with_param`] return a new system with one expression or parameter changed,
+//! compiled by the same code as `build`; errors are typed ([`EditError`]) and carry byte
+//! spans into the new expression.
+//!
 //! Coordinates are numbered globally: particle p, axis a is coordinate `p * dim + a`; the
 //! configuration vector x has `n_coords = n_particles * dim` entries.
 
 mod builder;
 mod constraint;
+mod edit;
 mod force;
 mod holonomic;
 mod parametric;
 
 pub use builder::{ModelError, SystemBuilder};
 pub use constraint::{ConstraintEval, ConstraintInfo, ConstraintSet, ExprRow};
+pub use edit::{DeclaredConstraint, EditError};
 pub use force::{Endpoint, Force};
 pub use holonomic::Holonomic;
 pub use parametric::{ParametricEval, ParametricMap};
@@ -49,6 +56,8 @@ pub struct System {
     pub(crate) inverse_mass: Vec<f64>,
     /// The parameters the expressions were parsed with, in declaration order.
     pub(crate) params: Vec<(String, f64)>,
+    /// What the system was declared from: edits change it and compile again.
+    pub(crate) declared: std::sync::Arc<SystemBuilder>,
 }
 
 impl System {

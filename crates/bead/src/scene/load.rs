@@ -105,6 +105,9 @@ pub(super) fn load(text: &str, file: &str, overrides: &[(String, f64)]) -> Resul
         system: Arc::new(system),
         params,
         run,
+        text: Arc::from(text),
+        overrides: overrides.to_vec(),
+        edits: Vec::new(),
     })
 }
 
@@ -858,6 +861,7 @@ impl Builder<'_, '_> {
                 ));
             }
             let mut exprs = Vec::with_capacity(self.dim);
+            let mut sources = Vec::with_capacity(self.dim);
             for c in components {
                 let expr = match c.get_ref() {
                     Num::Value(v) => {
@@ -870,21 +874,25 @@ impl Builder<'_, '_> {
                                 ),
                             ));
                         }
+                        sources.push(None);
                         Expr::constant(*v)
                     }
-                    Num::Expr(source) => self.b.parse_parametric_expr(source).map_err(|err| {
-                        self.src().expr_error(
-                            c.span(),
-                            source,
-                            &err,
-                            format!("{pctx}: {}", err.message),
-                        )
-                    })?,
+                    Num::Expr(source) => {
+                        sources.push(Some(source.clone()));
+                        self.b.parse_parametric_expr(source).map_err(|err| {
+                            self.src().expr_error(
+                                c.span(),
+                                source,
+                                &err,
+                                format!("{pctx}: {}", err.message),
+                            )
+                        })?
+                    }
                 };
                 exprs.push(expr);
             }
             self.b
-                .parametric_position(key.get_ref(), exprs)
+                .parametric_position_with_sources(key.get_ref(), exprs, sources)
                 .map_err(|e| l.model(key.span(), ctx, e))?;
             given[id.0] = true;
         }

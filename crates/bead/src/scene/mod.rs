@@ -54,6 +54,8 @@ mod file;
 mod load;
 mod location;
 
+pub use crate::model::EditError;
+
 use std::path::Path;
 use std::sync::Arc;
 
@@ -77,6 +79,22 @@ pub struct Scene {
     pub params: Vec<(String, f64)>,
     /// The `[run]` table.
     pub run: RunDefaults,
+    /// The text it was loaded from.
+    text: Arc<str>,
+    /// The parameter overrides it was loaded with.
+    overrides: Vec<(String, f64)>,
+    /// Constraint expressions replaced since (declared index, new expression), in order.
+    edits: Vec<(usize, String)>,
+}
+
+/// Why [`Scene::with_param`] failed: the edit itself, or the scene's text with the new value
+/// (e.g. a mass written as an expression of the parameter becomes negative).
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum SceneEditError {
+    #[error(transparent)]
+    Edit(#[from] EditError),
+    #[error(transparent)]
+    Load(#[from] SceneError),
 }
 
 /// `[run]` defaults; every field may be overridden on the command line.
@@ -152,6 +170,68 @@ impl Scene {
     /// Load a scene from text; `file` names it in messages.
     pub fn parse(text: &str, file: &str, overrides: &[(String, f64)]) -> Result<Scene, SceneError> {
         load::load(text, file, overrides)
+    }
+
+    /// The text the scene was loaded from (without later edits).
+    pub fn text(&self) -> &str {
+        &self.text
+    }
+
+    /// The parameter overrides it was loaded with (`--set`, [`Scene::with_param`]).
+    pub fn overrides(&self) -> &[(String, f64)] {
+        &self.overrides
+    }
+
+    /// The constraint expressions replaced since loading ([`Scene::with_constraint_expr`]):
+    /// (declared index, expression), latest edit of each constraint, in the order made.
+    pub fn constraint_edits(&self) -> &[(usize, String)] {
+        &self.edits
+    }
+
+    /// The scene with constraint `index` (0-based, the order of its `[[constraint]]` tables)
+    /// replaced by `source = 0`: see [`System::with_constraint_expr`]. Errors in the new
+    /// expression carry byte spans into `source`.
+    ///
+    /// ```
+    /// use bead::model::EditError;
+    /// use bead::scene::Scene;
+    /// let text = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/../../scenes/parabola.toml"))?;
+    /// let scene = Scene::parse(&text, "parabola.toml", &[])?;
+    /// let flatter = scene.with_constraint_expr(0, "bead.x^2 + 200*bead.y")?;
+    /// assert_eq!(flatter.system.declared_constraints()[0].source(), Some("bead.x^2 + 200*bead.y"));
+    /// let error = scene.with_constraint_expr(0, "bead.x^2 + 200*bead.w").unwrap_err();
+    /// assert!(matches!(error, EditError::Expression { span, .. } if span == (15..21)));
+    /// # Ok::<(), Box<dyn std::error::Error>>(())
+    /// ```
+    pub fn with_constraint_expr(&self, index: usize, source: &str) -> Result<Scene, EditError> {
+        let system = self.system.with_constraint_expr(index, source)?;
+        let mut scene = self.clone();
+        scene.system = Arc::new(system);
+        scene.edits.retain(|(i, _)| *i != index);
+        scene.edits.push((index, source.to_string()));
+        Ok(scene)
+    }
+
+    /// The scene loaded again from its text with parameter `name` set to `value`, so that
+    /// every number written as an expression of it (masses, positions, lengths, forces, the
+    /// expressions of constraints and of the parametric form) follows; the constraint edits
+    /// made before are applied again, parsed with the new value.
+    pub fn with_param(&self, name: &str, value: f64) -> Result<Scene, SceneEditError> {
+        if !self.params.iter().any(|(n, _)| n == name) {
+            return Err(EditError::UnknownParam {
+                name: name.to_string(),
+                known: self.params.iter().map(|(n, _)| n.clone()).collect(),
+            }
+            .into());
+        }
+        let mut overrides = self.overrides.clone();
+        overrides.retain(|(n, _)| n != name);
+        overrides.push((name.to_string(), value));
+        let mut scene = Scene::parse(&self.text, &self.file, &overrides)?;
+        for (index, source) in &self.edits {
+            scene = scene.with_constraint_expr(*index, source)?;
+        }
+        Ok(scene)
     }
 
     /// Warnings about the scene that do not stop a run:
@@ -272,4 +352,124 @@ fn fmt_vec(v: &[f64]) -> String {
             .collect::<Vec<_>>()
             .join(", ")
     )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::model::DeclaredConstraint;
+
+    /// Two pendulum bobs: the first on a circle of radius L (an expression), the second on a
+    /// rod of length L from it; masses and positions are expressions of L too.
+    const TWO_BOBS: &str = r#"
+title = "two bobs"
+[params]
+L = 2.0
+m = "L/2"
+[world]
+gravity = [0.0, 9.81]
+[[particle]]
+name = "a"
+mass = "m"
+position = ["L", 0.0]
+[[particle]]
+name = "b"
+mass = 1.0
+position = ["2*L", 0.0]
+[[constraint]]
+expr = "a.x^2 + a.y^2 - L^2"
+[[constraint]]
+kind = "distance"
+between = ["a", "b"]
+length = "L"
+[parametric]
+coordinates = ["p", "q"]
+initial = [0.0, 0.0]
+[parametric.positions]
+a = ["L*cos(p)", "L*sin(p)"]
+b = ["L*cos(p) + L*cos(q)", "L*sin(p) + L*sin(q)"]
+"#;
+
+    fn scene() -> Scene {
+        Scene::parse(TWO_BOBS, "two.toml", &[]).unwrap()
+    }
+
+    fn circle_residual(scene: &Scene, x: &[f64]) -> f64 {
+        let set = scene.system.constraints();
+        let mut ws = set.workspace();
+        set.residuals(0.0, x, &mut ws)[0]
+    }
+
+    #[test]
+    fn a_constraint_edit_changes_that_expression_only() {
+        let scene = scene();
+        let edited = scene
+            .with_constraint_expr(0, "a.x^2 + 4*a.y^2 - L^2")
+            .unwrap();
+        assert_eq!(
+            edited.constraint_edits(),
+            &[(0, "a.x^2 + 4*a.y^2 - L^2".to_string())]
+        );
+        assert_eq!(circle_residual(&edited, &[0.0, 1.0, 0.0, 0.0]), 0.0);
+        assert_eq!(
+            edited.system.declared_constraints()[1],
+            scene.system.declared_constraints()[1]
+        );
+        assert!(scene.constraint_edits().is_empty());
+        // The error points at the offending token of the new expression.
+        let source = "a.x^2 + 4*a.w - L^2";
+        let Err(EditError::Expression { span, message, .. }) =
+            scene.with_constraint_expr(0, source)
+        else {
+            panic!("no expression error")
+        };
+        assert_eq!(&source[span], "a.w");
+        assert_eq!(message, "`a` has no coordinate `w`; in 2D use x, y");
+        assert!(matches!(
+            scene.with_constraint_expr(1, "a.x"),
+            Err(EditError::NotAnExpression {
+                kind: "distance",
+                ..
+            })
+        ));
+    }
+
+    #[test]
+    fn a_parameter_change_reloads_the_numbers_and_keeps_the_edits() {
+        let scene = scene()
+            .with_constraint_expr(0, "a.x^2 + 4*a.y^2 - L^2")
+            .unwrap();
+        let bigger = scene.with_param("L", 3.0).unwrap();
+        let system = &bigger.system;
+        // Numbers written as expressions of L follow it.
+        assert_eq!(system.particles()[0].mass, 1.5);
+        assert_eq!(system.particles()[0].position, vec![3.0, 0.0]);
+        assert_eq!(system.particles()[1].position, vec![6.0, 0.0]);
+        assert!(matches!(
+            system.declared_constraints()[1],
+            DeclaredConstraint::Distance { length, .. } if length == 3.0
+        ));
+        assert!(bigger.params.contains(&("m".to_string(), 1.5)));
+        assert_eq!(bigger.overrides(), &[("L".to_string(), 3.0)]);
+        // The earlier edit is applied again with the new L.
+        assert_eq!(circle_residual(&bigger, &[0.0, 1.5, 0.0, 0.0]), 0.0);
+        let map = system.parametric().unwrap();
+        let mut ws = map.workspace();
+        map.state_at(0.0, &[0.0, 0.0], &[0.0, 0.0], &mut ws);
+        assert_eq!(ws.position, vec![3.0, 0.0, 6.0, 0.0]);
+        // Back again: the same as the original.
+        let back = bigger.with_param("L", 2.0).unwrap();
+        assert_eq!(back.system.particles(), scene.system.particles());
+
+        assert!(matches!(
+            scene.with_param("R", 1.0),
+            Err(SceneEditError::Edit(EditError::UnknownParam { .. }))
+        ));
+        // A value that makes the scene invalid is the scene's located error.
+        let Err(SceneEditError::Load(error)) = scene.with_param("L", -2.0) else {
+            panic!("a negative mass was accepted")
+        };
+        assert!(error.message.contains("mass"), "{}", error.render());
+        assert!(error.line > 0);
+    }
 }

@@ -636,8 +636,9 @@ impl Simulation {
     }
 
     /// Back to the initial state: monitors, statistics and the integrator's memory restart;
-    /// external forces stay.
+    /// external forces stay (and energy counts as not conserved only while there are any).
     pub fn reset(&mut self) {
+        self.had_external = !self.external_ids.is_empty();
         let mut state = self.formulation.initial_state();
         if self.ledger.is_some() {
             state.q.push(0.0);
