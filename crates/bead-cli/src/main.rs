@@ -3,6 +3,7 @@
 
 mod args;
 mod commands;
+mod numbers;
 mod plan;
 mod report;
 mod report_args;

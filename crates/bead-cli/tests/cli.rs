@@ -656,13 +656,111 @@ fn steps_conflict_with_duration() {
 fn bad_set() {
     for (set, message) in [
         ("g", "expected NAME=VALUE, got `g`"),
-        ("g=abc", "the value of `g` must be a number, got `abc`"),
-        ("g=inf", "the value of `g` must be finite, got `inf`"),
+        // Values are expressions of numbers (see numeric_flags_take_expressions), so a
+        // word is a name that is not a number, and `inf` is refused by name.
+        ("g=abc", "the value of `g`: `abc` is not a number"),
+        (
+            "g=inf",
+            "the value of `g`: `inf` is not allowed here: numbers must be finite",
+        ),
+        ("g=1e308*10", "the value of `g`: must be finite, got inf"),
         ("=1", "the name is empty"),
     ] {
         let err = fails(bead(&["run", p(&parabola()), "--set", set]), 2);
         assert!(err.contains(message), "{set}: {err}");
     }
+}
+
+/// `--dt 1/60` used to be refused while `--dts 1/60` was accepted (issue 7).
+#[test]
+fn numeric_flags_take_expressions() {
+    let scene = parabola();
+    let json = |args: &[&str]| -> serde_json::Value {
+        let mut all = vec!["run", p(&scene), "--json"];
+        all.extend_from_slice(args);
+        serde_json::from_str(&ok(bead(&all))).expect("JSON")
+    };
+    let plain = json(&["--dt", "0.016666666666666666", "--duration", "1"]);
+    let typed = json(&["--dt", "1/60", "--duration", "2*5/10"]);
+    assert_eq!(typed["dt"], plain["dt"]);
+    assert_eq!(typed["steps"], 60);
+    assert_eq!(typed["particles"], plain["particles"]);
+    // --set g=2*250 is the scene's own g = 500.
+    let set = json(&["--steps", "10", "--set", "g=2*250"]);
+    let own = json(&["--steps", "10"]);
+    assert_eq!(set["particles"], own["particles"]);
+    let moved = json(&["--steps", "10", "--set", "g=sqrt(4)*pi"]);
+    assert_ne!(moved["particles"], own["particles"]);
+    // --stabilize, --rtol and --atol.
+    let text = ok(bead(&[
+        "run",
+        p(&parabola()),
+        "--steps",
+        "10",
+        "--stabilize",
+        "2*79, atan2(0, 1) + 25",
+    ]));
+    assert!(text.contains("ks = 158, kd = 25"), "{text}");
+    let text = ok(bead(&[
+        "run",
+        p(&parabola()),
+        "--integrator",
+        "dopri5",
+        "--rtol",
+        "1/1e9",
+        "--atol",
+        "10^-12",
+    ]));
+    assert!(text.contains("rtol 1e-9, atol 1e-12"), "{text}");
+}
+
+#[test]
+fn numeric_flag_errors_point_into_the_value() {
+    for (args, expected) in [
+        (
+            vec!["--dt", "1/"],
+            "error: invalid value '1/' for '--dt <SECONDS>': unexpected end of expression, \
+             expected a number, name or `(`\n  1/\n    ^\n",
+        ),
+        (
+            vec!["--duration", "10 - 2*5"],
+            "error: invalid value '10 - 2*5' for '--duration <SECONDS>': must be positive, got 0\n  \
+             10 - 2*5\n  ^^^^^^^^\n",
+        ),
+        (
+            vec!["--set", "g=2*g"],
+            "error: invalid value 'g=2*g' for '--set <NAME=VALUE>': the value of `g`: `g` is not \
+             a number; a --set value may use pi, e and functions like sqrt(2), not the scene's \
+             parameters\n  g=2*g\n      ^\n",
+        ),
+        (
+            vec!["--stabilize", "100,-20"],
+            "error: invalid value '100,-20' for '--stabilize <KS,KD>': KD: must not be negative, \
+             got -20; expected KS,KD (two finite numbers >= 0, e.g. 100,20)\n  100,-20\n      ^^^\n",
+        ),
+        (
+            vec!["--rtol", "1e-9 x"],
+            "error: invalid value '1e-9 x' for '--rtol <RTOL>': unexpected `x`, expected an operator \
+             (implicit multiplication is not supported; write `*`)\n  1e-9 x\n       ^\n",
+        ),
+    ] {
+        let scene = parabola();
+        let mut all = vec!["run", p(&scene)];
+        all.extend_from_slice(&args);
+        let err = fails(bead(&all), 2);
+        assert!(
+            err.starts_with(expected),
+            "{args:?}:\n{err}\nexpected:\n{expected}"
+        );
+    }
+    let err = fails(
+        bead(&["compare", p(&parabola()), "--dts", "1/30, 1/60, 1/60"]),
+        2,
+    );
+    assert!(
+        err.contains("`1/60` is given twice\n  1/30, 1/60, 1/60\n              ^^^^\n"),
+        "{err}"
+    );
 }
 
 #[test]
@@ -1290,7 +1388,7 @@ fn compare_period_of_the_circle_matches_the_large_amplitude_pendulum() {
 
 #[test]
 fn dts_entries_must_be_positive_numbers_or_fractions() {
-    for (bad, message) in [("1/0", "divides by zero"), ("abc", "not a number")] {
+    for (bad, message) in [("1/0", "must be finite, got inf"), ("abc", "not a number")] {
         let err = fails(
             bead(&["compare", p(&parabola()), "--dts", &format!("1/60,{bad}")]),
             2,

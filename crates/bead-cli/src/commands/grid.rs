@@ -93,7 +93,7 @@ pub fn compare_grid(args: &CompareArgs) -> Result<()> {
                             method.name(),
                             if project { "-project" } else { "" },
                             integrator.name(),
-                            dt_label.replace('/', "_")
+                            file_label(dt_label)
                         ),
                     )
                 });
@@ -191,6 +191,20 @@ pub fn compare_grid(args: &CompareArgs) -> Result<()> {
     }
 }
 
+/// A dt as given (`1/60`, `2*pi/100`) as part of a file name: `1_60`, `2_pi_100`.
+fn file_label(label: &str) -> String {
+    label
+        .chars()
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || matches!(c, '.' | '-' | '+') {
+                c
+            } else {
+                '_'
+            }
+        })
+        .collect()
+}
+
 /// `trace.csv` -> `trace.TAG.csv`.
 fn trace_path(path: &Path, tag: &str) -> PathBuf {
     let mut name = OsString::new();
@@ -207,4 +221,17 @@ fn trace_path(path: &Path, tag: &str) -> PathBuf {
         (None, _) => name.push(format!("trace.{tag}.csv")),
     }
     path.with_file_name(name)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn dt_labels_become_file_name_parts() {
+        assert_eq!(file_label("1/60"), "1_60");
+        assert_eq!(file_label("2*pi/100"), "2_pi_100");
+        assert_eq!(file_label("1e-3"), "1e-3");
+        assert_eq!(file_label("atan2(1, 2)"), "atan2_1__2_");
+    }
 }
