@@ -487,6 +487,82 @@ fn missing_file() {
     );
 }
 
+/// OS errors were printed twice: `(os error 2): No such file or directory (os error 2)`
+/// (issue 7). Every cause is printed once, after what could not be done.
+#[test]
+fn os_errors_are_printed_once() {
+    let dir = TempDir::new("os-errors");
+    let os = std::fs::read_to_string(dir.path("no-such-scene.toml"))
+        .unwrap_err()
+        .to_string();
+    let err = fails(bead_in(&dir.0, &["run", "no-such-scene.toml"]), 1);
+    assert_eq!(
+        err,
+        format!("error: no-such-scene.toml: cannot read the scene file: {os}\n")
+    );
+    // Outputs under a regular file: "Not a directory", once.
+    let file = dir.write("file", "");
+    let under = |name: &str| file.join(name);
+    let not_a_directory = std::fs::write(under("x"), "").unwrap_err().to_string();
+    let trace = run_trace(&dir);
+    let err = fails(
+        bead_in(&dir.0, &["plot", p(&trace), "-o", p(&under("x.png"))]),
+        1,
+    );
+    assert_eq!(
+        err,
+        format!(
+            "error: cannot write `{}`: {not_a_directory}\n",
+            p(&under("x.png"))
+        )
+    );
+    let err = fails(
+        bead_in(
+            &dir.0,
+            &[
+                "compare",
+                p(&parabola()),
+                "--steps",
+                "10",
+                "--report",
+                p(&under("report")),
+            ],
+        ),
+        1,
+    );
+    assert_eq!(
+        err,
+        format!(
+            "error: cannot write `{}`: {not_a_directory}\n",
+            p(&under("report"))
+        )
+    );
+    for (flag, what) in [
+        ("--trace", "cannot create trace file"),
+        ("--summary", "cannot write"),
+    ] {
+        let err = fails(
+            bead_in(
+                &dir.0,
+                &[
+                    "run",
+                    p(&parabola()),
+                    "--steps",
+                    "10",
+                    flag,
+                    p(&under("out")),
+                ],
+            ),
+            1,
+        );
+        assert_eq!(
+            err,
+            format!("error: {what} `{}`: {not_a_directory}\n", p(&under("out"))),
+            "{flag}"
+        );
+    }
+}
+
 #[test]
 fn bad_toml_names_line_and_column() {
     let dir = TempDir::new("bad-toml");

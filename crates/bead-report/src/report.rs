@@ -565,16 +565,14 @@ pub struct ReportFiles {
     pub plots: Vec<PathBuf>,
 }
 
-/// Why a report could not be written.
+/// Why a report could not be written. The message includes the cause (no `source()`, so
+/// that printing the chain shows it once).
 #[derive(Debug, thiserror::Error)]
 pub enum ReportError {
     #[error(transparent)]
     Plot(#[from] PlotError),
-    #[error("cannot write `{path}`: {source}")]
-    Io {
-        path: String,
-        source: std::io::Error,
-    },
+    #[error("cannot write `{path}`: {error}")]
+    Io { path: String, error: std::io::Error },
 }
 
 fn escape(s: &str) -> String {
@@ -597,7 +595,7 @@ svg{max-width:100%;height:auto}.skipped{color:#844}";
 pub fn write_report(report: &Report, dir: &Path) -> Result<ReportFiles, ReportError> {
     let io = |path: &Path| {
         let path = path.display().to_string();
-        move |source| ReportError::Io { path, source }
+        move |error| ReportError::Io { path, error }
     };
     std::fs::create_dir_all(dir).map_err(io(dir))?;
     let figures = [
