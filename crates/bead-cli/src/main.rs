@@ -4,6 +4,7 @@
 mod args;
 mod commands;
 mod numbers;
+mod outputs;
 mod plan;
 mod report;
 mod report_args;
@@ -27,6 +28,10 @@ fn main() -> ExitCode {
                 return ExitCode::SUCCESS;
             }
             let _ = writeln!(io::stderr(), "error: {}", chain(&error));
+            if error.downcast_ref::<commands::Usage>().is_some() {
+                // Flags that contradict each other, found after parsing: like clap's own.
+                return ExitCode::from(2);
+            }
             ExitCode::FAILURE
         }
     }

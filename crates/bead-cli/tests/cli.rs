@@ -563,6 +563,102 @@ fn os_errors_are_printed_once() {
     }
 }
 
+/// `--trace X --summary X` silently overwrote the trace with the summary (issue 7). Two
+/// outputs naming one file, or an output naming an input, are a usage error naming both
+/// flags, found before anything is written.
+#[test]
+fn outputs_that_name_the_same_file_are_refused() {
+    let dir = TempDir::new("clash");
+    let scene = dir.write(
+        "s.toml",
+        &std::fs::read_to_string(parabola()).expect("parabola"),
+    );
+    let refused = |args: &[&str], expected: &str| {
+        let err = fails(bead_in(&dir.0, args), 2);
+        assert_eq!(err, format!("error: {expected}\n"), "{args:?}");
+    };
+    refused(
+        &["run", "s.toml", "--trace", "out", "--summary", "./out"],
+        "--trace out and --summary ./out are the same file; give each output its own path",
+    );
+    refused(
+        &["run", "s.toml", "--summary", p(&scene)],
+        &format!(
+            "--summary {} would overwrite the scene file s.toml",
+            p(&scene)
+        ),
+    );
+    refused(
+        &[
+            "compare",
+            "s.toml",
+            "--trace",
+            "t.csv",
+            "--summary",
+            "t.parametric.csv",
+        ],
+        "--trace t.csv (writing t.parametric.csv) and --summary t.parametric.csv are the same \
+         file; give each output its own path",
+    );
+    refused(
+        &[
+            "compare",
+            "s.toml",
+            "--dts",
+            "1/60",
+            "--report",
+            "r",
+            "--summary",
+            "r/report.html",
+        ],
+        "--summary r/report.html and --report r (writing r/report.html) are the same file; give \
+         each output its own path",
+    );
+    refused(
+        &[
+            "compare",
+            "s.toml",
+            "--dts",
+            "1/60,1*60",
+            "--trace",
+            "t.csv",
+        ],
+        "--trace t.csv (writing t.implicit.rk4.dt1_60.csv for implicit rk4 dt 1/60) and --trace \
+         t.csv (writing t.implicit.rk4.dt1_60.csv for implicit rk4 dt 1*60) are the same file; \
+         give each output its own path",
+    );
+    // Nothing was written, and the scene is intact.
+    let mut left: Vec<String> = std::fs::read_dir(&dir.0)
+        .expect("dir")
+        .map(|e| e.expect("entry").file_name().to_string_lossy().into_owned())
+        .collect();
+    left.sort();
+    assert_eq!(left, ["s.toml"]);
+    // A symbolic link is the file it points to.
+    #[cfg(unix)]
+    {
+        std::os::unix::fs::symlink(dir.path("s.toml"), dir.path("link.toml")).expect("symlink");
+        refused(
+            &["run", "link.toml", "--summary", "s.toml"],
+            "--summary s.toml would overwrite the scene file link.toml",
+        );
+    }
+    // Distinct files are fine.
+    ok(bead_in(
+        &dir.0,
+        &[
+            "run",
+            "s.toml",
+            "--steps",
+            "5",
+            "--trace",
+            "a.csv",
+            "--summary",
+            "a.json",
+        ],
+    ));
+}
+
 #[test]
 fn bad_toml_names_line_and_column() {
     let dir = TempDir::new("bad-toml");

@@ -588,6 +588,24 @@ td{text-align:right;font-variant-numeric:tabular-nums}td:first-child,td:nth-chil
 th{background:#f0f0f0}figure{margin:1.5em 0}figcaption{font-size:14px;color:#444;margin-top:.3em}\
 svg{max-width:100%;height:auto}.skipped{color:#844}";
 
+/// The figures of a report by file stem; each is written as `STEM.png` and `STEM.svg`.
+pub const FIGURES: [&str; 4] = [
+    "constraint_error",
+    "energy_error",
+    "trajectories",
+    "work_precision",
+];
+
+/// Every file [`write_report`] writes into `dir`: `report.html` and each figure's PNG and SVG.
+pub fn report_files(dir: &Path) -> Vec<PathBuf> {
+    let mut files = vec![dir.join("report.html")];
+    for name in FIGURES {
+        files.push(dir.join(format!("{name}.png")));
+        files.push(dir.join(format!("{name}.svg")));
+    }
+    files
+}
+
 /// Write `report` into `dir` (created if needed): `report.html` and, per figure, a PNG and an
 /// SVG (`constraint_error`, `energy_error`, `trajectories`, `work_precision`). The HTML is
 /// self-contained: inline CSS, the table, the SVGs inline, and relative links to the PNG and
@@ -600,12 +618,12 @@ pub fn write_report(report: &Report, dir: &Path) -> Result<ReportFiles, ReportEr
     std::fs::create_dir_all(dir).map_err(io(dir))?;
     let figures = [
         (
-            "constraint_error",
+            FIGURES[0],
             report.constraint_figure(),
             "Constraint error max_i |C_i| against time, per run.",
         ),
         (
-            "energy_error",
+            FIGURES[1],
             report.energy_figure(),
             if report.runs.iter().any(|r| r.recording.energy_balance) {
                 "Energy is not conserved here (something does work on the system): the error of the conserved balance E - W, |E - W - E0| / E_scale, against time, per run (W: the work done on the system, integrated by the run's integrator; E_scale = max(|E0|, T0 + |V0|, T0 + M |g| L))."
@@ -614,7 +632,7 @@ pub fn write_report(report: &Report, dir: &Path) -> Result<ReportFiles, ReportEr
             },
         ),
         (
-            "trajectories",
+            FIGURES[2],
             report.trajectory_figure(),
             if report.system.dim() == 3 {
                 "Trajectories in particle space, projected onto the x-y plane (left) and the x-z plane (right); for long runs the first and the last samples of each run (each at full resolution)."
@@ -623,7 +641,7 @@ pub fn write_report(report: &Report, dir: &Path) -> Result<ReportFiles, ReportEr
             },
         ),
         (
-            "work_precision",
+            FIGURES[3],
             report.work_precision_figure(),
             "Work-precision: the largest error of each run against its wall time; one point per dt, one line per method and integrator.",
         ),

@@ -7,11 +7,13 @@ use std::sync::Arc;
 
 use anyhow::{bail, Result};
 use bead::formulation::{Feedback, Method};
+use bead::integrate::IntegratorKind;
 use bead::simulate::{Sample, Sink};
-use bead_report::report::{write_report, Recorder, Report, ReportRun};
+use bead_report::report::{report_files, write_report, Recorder, Report, ReportRun};
 
 use super::{json, load_scene, print, report_error, run_method_with, write_file};
 use crate::args::CompareArgs;
+use crate::outputs::Files;
 use crate::plan::{compare_methods, steps_for, Plan};
 use crate::report::{exact, integrator_text, table, title};
 
@@ -58,6 +60,8 @@ pub fn compare_grid(args: &CompareArgs) -> Result<()> {
             variants.push((method, true));
         }
     }
+    // Which combinations run (the others are skipped, with the reason).
+    let mut combinations = Vec::new();
     for &(method, project) in &variants {
         for &integrator in &integrators {
             let mut combination = plan.clone();
@@ -77,57 +81,91 @@ pub fn compare_grid(args: &CompareArgs) -> Result<()> {
                 skipped.push(format!("{name} x {}: {reason}", integrator.name()));
                 continue;
             }
-            for (dt_label, dt) in &dts {
-                let mut planned = combination.clone();
-                if args.grid.dts.is_some() {
-                    let (steps, _, overshoot) = steps_for(duration, *dt)?;
-                    planned.dt = *dt;
-                    planned.steps = steps;
-                    planned.overshoot = overshoot;
-                }
-                let trace = args.trace.as_deref().map(|path| {
-                    trace_path(
-                        path,
-                        &format!(
-                            "{}{}.{}.dt{}",
-                            method.name(),
-                            if project { "-project" } else { "" },
-                            integrator.name(),
-                            file_label(dt_label)
-                        ),
-                    )
-                });
-                let mut recorder =
-                    Recorder::new(Arc::clone(&scene.system), (args.grid.points / 2) as usize);
-                let mut config = config;
-                config.dt = planned.dt;
-                let outcome = run_method_with(
-                    &scene,
-                    &planned,
-                    config,
-                    trace.as_deref(),
-                    Some(&mut recorder),
-                )?;
-                let (stats, error) = match &outcome.result {
-                    Ok(stats) => (stats.clone(), None),
-                    Err(failure) => (*failure.stats.clone(), Some(failure.error.to_string())),
-                };
-                let run = ReportRun {
-                    method,
-                    projected: planned.project,
-                    integrator,
-                    dt: *dt,
-                    dt_label: dt_label.clone(),
-                    stats,
-                    error,
-                    recording: recorder.recording(),
-                };
-                if let Some(error) = &run.error {
-                    failures.push(format!("{}: {error}", run.label()));
-                }
-                runs.push(run);
-                summaries.push(outcome.summary);
+            combinations.push((method, project, integrator, combination, config));
+        }
+    }
+    let trace_of = |method: Method, project: bool, integrator: IntegratorKind, label: &str| {
+        args.trace.as_deref().map(|path| {
+            trace_path(
+                path,
+                &format!(
+                    "{}{}.{}.dt{}",
+                    method.name(),
+                    if project { "-project" } else { "" },
+                    integrator.name(),
+                    file_label(label)
+                ),
+            )
+        })
+    };
+    // No output may overwrite another, or the scene, before anything runs.
+    let mut files = Files::new();
+    files.input("the scene file", &args.scene);
+    for &(method, project, integrator, _, _) in &combinations {
+        for (label, _) in &dts {
+            if let (Some(given), Some(path)) =
+                (&args.trace, trace_of(method, project, integrator, label))
+            {
+                let run = format!(
+                    "{}{} {} dt {label}",
+                    method.name(),
+                    if project { "+project" } else { "" },
+                    integrator.name()
+                );
+                files.derived("--trace", given, &path, Some(&run));
             }
+        }
+    }
+    if let Some(summary) = &args.output.summary {
+        files.output("--summary", summary);
+    }
+    if let Some(dir) = &args.grid.report {
+        files.output("--report", dir);
+        for file in report_files(dir) {
+            files.derived("--report", dir, &file, None);
+        }
+    }
+    files.check()?;
+    for (method, project, integrator, combination, config) in combinations {
+        for (dt_label, dt) in &dts {
+            let mut planned = combination.clone();
+            if args.grid.dts.is_some() {
+                let (steps, _, overshoot) = steps_for(duration, *dt)?;
+                planned.dt = *dt;
+                planned.steps = steps;
+                planned.overshoot = overshoot;
+            }
+            let trace = trace_of(method, project, integrator, dt_label);
+            let mut recorder =
+                Recorder::new(Arc::clone(&scene.system), (args.grid.points / 2) as usize);
+            let mut config = config;
+            config.dt = planned.dt;
+            let outcome = run_method_with(
+                &scene,
+                &planned,
+                config,
+                trace.as_deref(),
+                Some(&mut recorder),
+            )?;
+            let (stats, error) = match &outcome.result {
+                Ok(stats) => (stats.clone(), None),
+                Err(failure) => (*failure.stats.clone(), Some(failure.error.to_string())),
+            };
+            let run = ReportRun {
+                method,
+                projected: planned.project,
+                integrator,
+                dt: *dt,
+                dt_label: dt_label.clone(),
+                stats,
+                error,
+                recording: recorder.recording(),
+            };
+            if let Some(error) = &run.error {
+                failures.push(format!("{}: {error}", run.label()));
+            }
+            runs.push(run);
+            summaries.push(outcome.summary);
         }
     }
     let mut description = format!("scene {}; t = 0 to {} s", scene.file, exact(duration));

@@ -33,6 +33,19 @@ pub fn dispatch(command: Command) -> Result<()> {
     }
 }
 
+/// A usage error found after the flags were parsed (e.g. two outputs naming the same file):
+/// exit code 2, like clap's.
+#[derive(Debug)]
+pub struct Usage(pub String);
+
+impl std::fmt::Display for Usage {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+impl std::error::Error for Usage {}
+
 /// Load a scene and print its warnings to stderr.
 fn load_scene(path: &Path, overrides: &[(String, f64)]) -> Result<Scene> {
     // The scene error renders as `file:line:column: message` and a caret snippet.

@@ -10,6 +10,7 @@ use bead_report::plot::{
     write_figure, Figure, Format, MinMaxDecimator, Panel, Series, DEFAULT_BUCKETS,
 };
 
+use crate::outputs::Files;
 use crate::report_args::PlotArgs;
 
 /// `bead plot`.
@@ -20,6 +21,16 @@ pub fn plot(args: &PlotArgs) -> Result<()> {
         .unwrap_or_else(|| args.trace.with_extension("png"));
     // Check the format before reading a possibly long trace.
     Format::from_path(&output)?;
+    let mut files = Files::new();
+    files.input("the trace", &args.trace).output(
+        if args.output.is_some() {
+            "-o"
+        } else {
+            "the plot"
+        },
+        &output,
+    );
+    files.check()?;
     let name = args.trace.display().to_string();
     let file = File::open(&args.trace).with_context(|| format!("cannot open `{name}`"))?;
     let mut lines = BufReader::new(file).lines();
