@@ -27,7 +27,11 @@ fn main() -> ExitCode {
                 // stdout was closed early (`bead check ... | head`): not an error.
                 return ExitCode::SUCCESS;
             }
-            let _ = writeln!(io::stderr(), "error: {}", chain(&error));
+            let _ = writeln!(
+                io::stderr(),
+                "error: {}",
+                commands::terminal(&chain(&error))
+            );
             if error.downcast_ref::<commands::Usage>().is_some() {
                 // Flags that contradict each other, found after parsing: like clap's own.
                 return ExitCode::from(2);

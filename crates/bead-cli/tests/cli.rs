@@ -659,6 +659,44 @@ fn outputs_that_name_the_same_file_are_refused() {
     ));
 }
 
+/// Control characters in scene strings and file names reached the terminal raw (issue 7).
+#[test]
+fn control_characters_never_reach_the_terminal() {
+    let dir = TempDir::new("control");
+    let raw = |o: &Output| {
+        let all = format!("{}{}", stdout(o), stderr(o));
+        assert!(!all.contains('\u{1b}'), "{all:?}");
+        all
+    };
+    // A title with an escape sequence is refused where it is written.
+    dir.write(
+        "s.toml",
+        &bead_scene("").replace("title = \"test bead\"", "title = \"\\u001b[2J\""),
+    );
+    let out = bead_in(&dir.0, &["run", "s.toml"]);
+    raw(&out);
+    assert_eq!(
+        fails(out, 1),
+        "error: s.toml:1:9: `title` must not contain control characters, found `\\x1b`\n  \
+         title = \"\\u001b[2J\"\n          ^^^^^^^^^^^\n"
+    );
+    // A file name cannot be refused: it is escaped (a scene without a title shows its name).
+    let name = "e\u{1b}[2Jx.toml";
+    dir.write(name, &bead_scene("").replace("title = \"test bead\"\n", ""));
+    let out = bead_in(&dir.0, &["run", name, "--steps", "2"]);
+    let text = raw(&out);
+    assert!(
+        text.starts_with("e\\x1b[2Jx\n  scene        e\\x1b[2Jx.toml\n"),
+        "{text}"
+    );
+    let out = bead_in(&dir.0, &["check", "no\u{1b}such.toml"]);
+    raw(&out);
+    assert!(fails(out, 1).starts_with("error: no\\x1bsuch.toml: cannot read the scene file: "),);
+    // JSON keeps the name, escaped the JSON way.
+    let out = ok(bead_in(&dir.0, &["run", name, "--steps", "2", "--json"]));
+    assert!(out.contains("\"scene\": \"e\\u001b[2Jx.toml\""), "{out}");
+}
+
 #[test]
 fn bad_toml_names_line_and_column() {
     let dir = TempDir::new("bad-toml");

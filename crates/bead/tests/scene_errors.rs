@@ -185,6 +185,30 @@ fn invalid_particle_name_from_the_model() {
     );
 }
 
+/// Control characters in a title or a constraint name were echoed raw to the terminal
+/// (issue 7): they are refused where they are written; a raw one in the file is a TOML error
+/// whose snippet shows it escaped, with the caret under the escape.
+#[test]
+fn control_characters_in_titles_and_names_are_refused() {
+    assert_eq!(
+        error(&edit("title = \"t\"", "title = \"a\\u001b[31mb\"")),
+        "s.toml:1:9: `title` must not contain control characters, found `\\x1b`\n  \
+         title = \"a\\u001b[31mb\"\n          ^^^^^^^^^^^^^^"
+    );
+    assert_eq!(
+        error(&format!(
+            "{BASE}[[constraint]]\nname = \"ring\\r\"\nexpr = \"bead.x\"\n"
+        )),
+        "s.toml:13:8: constraint 2: `name` must not contain control characters, found `\\r`\n  \
+         name = \"ring\\r\"\n         ^^^^^^^^"
+    );
+    assert_eq!(
+        error(&edit("title = \"t\"", "title = \"a\u{1b}b\"")),
+        "s.toml:1:11: invalid basic string, expected non-double-quote visible characters, `\\`\n  \
+         title = \"a\\x1bb\"\n            ^^^^"
+    );
+}
+
 #[test]
 fn duplicate_constraint_name() {
     assert_eq!(

@@ -58,12 +58,35 @@ fn load_scene(path: &Path, overrides: &[(String, f64)]) -> Result<Scene> {
 
 /// Print `warning: MESSAGE` to stderr (a closed stderr is not worth a panic).
 fn warn(message: &str) {
-    let _ = writeln!(io::stderr(), "warning: {message}");
+    let _ = writeln!(io::stderr(), "warning: {}", terminal(message));
 }
 
 /// Print `error: MESSAGE` to stderr, for errors beyond the one `main` reports.
 fn report_error(message: &str) {
-    let _ = writeln!(io::stderr(), "error: {message}");
+    let _ = writeln!(io::stderr(), "error: {}", terminal(message));
+}
+
+/// `text` safe for a terminal: control characters escaped (`\x1b`, `\r`, `\u{9b}`) except
+/// the newlines and tabs of the layout. Scene labels (titles, names) with control characters
+/// are refused when the scene is loaded; this catches what cannot be refused there: file
+/// names, and text quoted in messages.
+pub fn terminal(text: &str) -> std::borrow::Cow<'_, str> {
+    if !text
+        .chars()
+        .any(|c| c.is_control() && c != '\n' && c != '\t')
+    {
+        return std::borrow::Cow::Borrowed(text);
+    }
+    let mut out = String::with_capacity(text.len() + 8);
+    for line in text.split_inclusive(['\n', '\t']) {
+        let (body, end) = match line.char_indices().last() {
+            Some((i, c @ ('\n' | '\t'))) => (&line[..i], Some(c)),
+            _ => (line, None),
+        };
+        out.push_str(&bead::printable(body));
+        out.extend(end);
+    }
+    std::borrow::Cow::Owned(out)
 }
 
 /// One finished (or failed) run of one formulation.
@@ -132,14 +155,47 @@ fn write_file(path: &Path, text: &str) -> Result<()> {
 /// [`io::ErrorKind::BrokenPipe`], which `main` treats as a quiet exit.
 fn print(text: &str) -> Result<()> {
     let mut out = io::stdout().lock();
-    out.write_all(text.as_bytes())?;
+    out.write_all(terminal(text).as_bytes())?;
     out.flush()?;
     Ok(())
 }
 
 /// JSON of one or more summaries, pretty-printed, with a final newline.
+/// serde_json escapes the ASCII control characters but writes DEL and the C1 controls
+/// (U+0080 to U+009F, which some terminals obey) as they are; they can only occur inside
+/// strings, where `\u00XX` is the same character.
 fn json<T: serde::Serialize + ?Sized>(value: &T) -> Result<String> {
-    let mut text = serde_json::to_string_pretty(value).context("cannot serialize the summary")?;
-    text.push('\n');
-    Ok(text)
+    let text = serde_json::to_string_pretty(value).context("cannot serialize the summary")?;
+    let mut out = String::with_capacity(text.len() + 1);
+    for c in text.chars() {
+        if c.is_control() && c as u32 >= 0x7f {
+            out.push_str(&format!("\\u{:04x}", c as u32));
+        } else {
+            out.push(c);
+        }
+    }
+    out.push('\n');
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn terminal_text_escapes_controls_but_keeps_the_layout() {
+        assert_eq!(terminal("a\tb\nc"), "a\tb\nc");
+        assert_eq!(
+            terminal("\u{1b}[31mred\r\n\u{9b}x\t\u{7f}"),
+            "\\x1b[31mred\\r\n\\u{9b}x\t\\x7f"
+        );
+    }
+
+    #[test]
+    fn json_escapes_del_and_c1_controls() {
+        let text = json(&["a\u{1b}b\u{9b}c\u{7f}"]).unwrap();
+        assert_eq!(text, "[\n  \"a\\u001bb\\u009bc\\u007f\"\n]\n");
+        let back: Vec<String> = serde_json::from_str(&text).unwrap();
+        assert_eq!(back, ["a\u{1b}b\u{9b}c\u{7f}"]);
+    }
 }

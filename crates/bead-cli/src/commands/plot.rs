@@ -103,8 +103,7 @@ pub fn plot(args: &PlotArgs) -> Result<()> {
         size: (960, (60 + 280 * n).min(4000)),
     };
     write_figure(&figure, &output)?;
-    println!("wrote {}", output.display());
-    Ok(())
+    super::print(&format!("wrote {}\n", output.display()))
 }
 
 /// Column indices to plot: the requested ones, else energy and constraint_error when

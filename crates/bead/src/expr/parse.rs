@@ -96,15 +96,8 @@ impl ExprError {
             .find('\n')
             .map_or(source.len(), |i| start + i);
         let line = source[line_start..line_end].trim_end_matches('\r');
-        let mut out = String::with_capacity(2 * line.len() + 2);
-        out.push_str(line);
-        out.push('\n');
-        for ch in source[line_start..start].chars() {
-            out.push(if ch == '\t' { '\t' } else { ' ' });
-        }
-        let n = source[start..end.min(line_end)].chars().count().max(1);
-        out.extend(std::iter::repeat_n('^', n));
-        out
+        let marked_end = end.min(line_start + line.len()).max(start);
+        crate::caret_snippet(line, start - line_start, marked_end - line_start)
     }
 }
 
@@ -207,7 +200,10 @@ impl<'s> Parser<'s, '_> {
             Some(_) => {
                 let ch = self.src[start..].chars().next().unwrap_or('?');
                 return self.err(
-                    format!("unexpected character `{ch}`"),
+                    format!(
+                        "unexpected character `{}`",
+                        crate::printable(ch.encode_utf8(&mut [0; 4]))
+                    ),
                     Span::new(start, start + ch.len_utf8()),
                 );
             }
@@ -743,6 +739,14 @@ mod tests {
             "bead.x^2 + 100*bead.w\n               ^^^^^^",
         );
         check_err("x²", "unexpected character `²`", 1, 3, "x²\n ^");
+        // Control characters are shown escaped, and the carets follow the escape.
+        check_err(
+            "x \u{1b} 2",
+            "unexpected character `\\x1b`",
+            2,
+            3,
+            "x \\x1b 2\n  ^^^^",
+        );
         check_err("é + x", "unexpected character `é`", 0, 2, "é + x\n^");
         check_err(
             "1 + 1e",

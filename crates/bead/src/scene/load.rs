@@ -33,7 +33,10 @@ pub(super) fn load(text: &str, file: &str, overrides: &[(String, f64)]) -> Resul
 
     let params = loader.params(doc.params.as_ref(), overrides)?;
     let title = match &doc.title {
-        Some(t) => t.get_ref().clone(),
+        Some(t) => {
+            no_control_characters(&src, t, "`title`")?;
+            t.get_ref().clone()
+        }
         None => std::path::Path::new(file)
             .file_stem()
             .map(|s| s.to_string_lossy().into_owned())
@@ -392,6 +395,22 @@ fn constant_value(expr: &Expr) -> f64 {
     }
 }
 
+/// Titles and names are labels, shown on terminals, in reports, plots and the viewer: a
+/// control character in one (an escape sequence, a newline) is refused where it is written,
+/// rather than escaped in every place that shows it.
+fn no_control_characters(src: &Source, value: &Spanned<String>, what: &str) -> Result<()> {
+    match value.get_ref().chars().find(|c| c.is_control()) {
+        Some(c) => Err(src.error(
+            value.span(),
+            format!(
+                "{what} must not contain control characters, found `{}`",
+                crate::printable(c.encode_utf8(&mut [0; 4]))
+            ),
+        )),
+        None => Ok(()),
+    }
+}
+
 fn is_identifier(name: &str) -> bool {
     let mut chars = name.chars();
     matches!(chars.next(), Some(c) if c.is_ascii_alphabetic() || c == '_')
@@ -649,6 +668,7 @@ impl Builder<'_, '_> {
                         .src()
                         .error(n.span(), format!("{ctx}: `name` must not be empty")));
                 }
+                no_control_characters(self.src(), n, &format!("{ctx}: `name`"))?;
                 if names.contains(n.get_ref()) {
                     return Err(self.src().error(
                         n.span(),

@@ -48,7 +48,9 @@
 //!   rk4), `dt`, `duration` or `steps`, and `stabilize = [ks, kd]` or
 //!   `stabilize = { frequency = f, damping = zeta }` (damping default 1).
 //! - Unknown keys, wrong types, missing keys, non-finite numbers (`nan`, `inf`) and values out of
-//!   range are errors located in the file.
+//!   range are errors located in the file. So are control characters (escape sequences, line
+//!   breaks, tabs) in `title` and constraint names: they are labels, shown on terminals and in
+//!   reports. Error snippets show control characters escaped (`\x1b`).
 
 mod file;
 mod load;
