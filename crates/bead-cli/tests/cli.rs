@@ -697,6 +697,87 @@ fn control_characters_never_reach_the_terminal() {
     assert!(out.contains("\"scene\": \"e\\u001b[2Jx.toml\""), "{out}");
 }
 
+/// Unicode particle names were accepted but unusable in expressions (issue 7): `α.x` works
+/// in a constraint, and check, run, compare, trace headers and plot all show the names.
+#[test]
+fn unicode_names_work_in_check_run_and_traces() {
+    let dir = TempDir::new("unicode");
+    dir.write(
+        "s.toml",
+        r#"title = "α on a circle"
+[params]
+"ℓ" = 1.0
+[world]
+gravity = [0.0, -9.81]
+[[particle]]
+name = "α"
+mass = 1.0
+position = ["ℓ", 0.0]
+[[constraint]]
+name = "rod"
+expr = "α.x^2 + α.y^2 - ℓ^2"
+[parametric]
+coordinates = ["θ"]
+initial = ["pi/2"]
+[parametric.positions]
+"α" = ["ℓ*sin(θ)", "-ℓ*cos(θ)"]
+"#,
+    );
+    let check = ok(bead_in(&dir.0, &["check", "s.toml"]));
+    assert!(check.starts_with("α on a circle\n"), "{check}");
+    assert!(check.contains("dC/d(α.x) = 2*α.x"), "{check}");
+    assert!(check.contains("α.x = sin(θ)"), "{check}");
+    let run = ok(bead_in(
+        &dir.0,
+        &[
+            "run", "s.toml", "--steps", "10", "--trace", "i.csv", "--set", "ℓ=1",
+        ],
+    ));
+    assert!(run.starts_with("α on a circle\n"), "{run}");
+    let header = |file: &str| {
+        let text = std::fs::read_to_string(dir.path(file)).expect("trace");
+        text.lines().next().expect("header").to_string()
+    };
+    assert_eq!(
+        header("i.csv"),
+        "t,α.x,α.y,α.vx,α.vy,energy,constraint_error"
+    );
+    ok(bead_in(
+        &dir.0,
+        &[
+            "run",
+            "s.toml",
+            "--steps",
+            "10",
+            "--method",
+            "parametric",
+            "--trace",
+            "p.csv",
+        ],
+    ));
+    assert_eq!(
+        header("p.csv"),
+        "t,α.x,α.y,α.vx,α.vy,energy,constraint_error,q.θ,qdot.θ"
+    );
+    let value: serde_json::Value = serde_json::from_str(&ok(bead_in(
+        &dir.0,
+        &["compare", "s.toml", "--steps", "10", "--json"],
+    )))
+    .expect("JSON");
+    assert_eq!(
+        value[1]["coordinates"]["θ"].as_array().map(Vec::len),
+        Some(2)
+    );
+    assert!(value[0]["particles"]["α"]["position"].is_array(), "{value}");
+    let plotted = ok(bead_in(
+        &dir.0,
+        &["plot", "p.csv", "--columns", "α.x,q.θ", "-o", "p.svg"],
+    ));
+    assert_eq!(plotted, "wrote p.svg\n");
+    let svg = std::fs::read_to_string(dir.path("p.svg")).expect("svg");
+    assert!(svg.contains("α.x") && svg.contains("q.θ"), "labels");
+}
+
 #[test]
 fn bad_toml_names_line_and_column() {
     let dir = TempDir::new("bad-toml");

@@ -209,6 +209,58 @@ fn control_characters_in_titles_and_names_are_refused() {
     );
 }
 
+/// The loader accepted Unicode particle names that no expression could use: the lexer took
+/// ASCII identifiers only (issue 7). Names and expressions now share one rule (Unicode XID,
+/// as in Rust), so `α.x` works, and a name that is not an identifier is refused where it is
+/// written.
+#[test]
+fn unicode_names_are_usable_in_expressions() {
+    let text = r#"title = "α on a circle"
+[params]
+"ℓ" = 2.0
+[world]
+gravity = [0.0, -9.81]
+[[particle]]
+name = "α"
+mass = 1.0
+position = ["ℓ", 0.0]
+[[constraint]]
+expr = "α.x^2 + α.y^2 - ℓ^2"
+[parametric]
+coordinates = ["θ"]
+initial = ["pi/2"]
+[parametric.positions]
+"α" = ["ℓ*sin(θ)", "-ℓ*cos(θ)"]
+"#;
+    let scene = Scene::parse(text, "s.toml", &[]).unwrap_or_else(|e| panic!("{e}"));
+    assert!(scene.warnings().is_empty(), "{:?}", scene.warnings());
+    let system = &scene.system;
+    assert_eq!(system.coordinate_name(0), "α.x");
+    assert_eq!(system.coordinate_name(1), "α.y");
+    assert_eq!(system.degrees_of_freedom(), 1);
+    assert_eq!(scene.params, [("ℓ".to_string(), 2.0)]);
+    // --set reaches a Unicode parameter.
+    let moved = Scene::parse(
+        &text.replace("position = [\"ℓ\", 0.0]", "position = [3.0, 0.0]"),
+        "s.toml",
+        &[("ℓ".to_string(), 3.0)],
+    )
+    .unwrap();
+    assert!(moved.warnings().is_empty(), "{:?}", moved.warnings());
+
+    // Names that are not identifiers are refused, located.
+    assert_eq!(
+        error(&edit("name = \"bead\"", "name = \"x²\"")),
+        "s.toml:7:8: particle 1: particle name `x²` must be a letter or `_` followed by letters, \
+         digits or `_`\n  name = \"x²\"\n         ^^^^"
+    );
+    assert_eq!(
+        error(&edit("g = 10.0", "\"θ₁\" = 10.0")),
+        "s.toml:3:1: parameter `θ₁`: a parameter name must be a letter or `_` followed by \
+         letters, digits or `_`\n  \"θ₁\" = 10.0\n  ^^^^"
+    );
+}
+
 #[test]
 fn duplicate_constraint_name() {
     assert_eq!(
@@ -276,10 +328,11 @@ fn expression_syntax_error_points_inside_the_string() {
         error(&edit("bead.x^2 + bead.y^2 - 1", "")),
         "s.toml:11:9: constraint 1: empty expression\n  expr = \"\"\n          ^"
     );
-    // Columns count characters, and tabs are kept so that the caret lines up.
+    // Columns count characters, and tabs are kept so that the caret lines up. (`²`, two
+    // bytes: `ü` was used here until identifiers became Unicode and `ü` a name.)
     assert_eq!(
-        error(&edit("mass = 1.0", "mass =\t\"2*ü\"")),
-        "s.toml:8:11: particle 1: unexpected character `ü`\n  mass =\t\"2*ü\"\n        \t   ^"
+        error(&edit("mass = 1.0", "mass =\t\"2*²\"")),
+        "s.toml:8:11: particle 1: unexpected character `²`\n  mass =\t\"2*²\"\n        \t   ^"
     );
 }
 

@@ -411,10 +411,10 @@ fn no_control_characters(src: &Source, value: &Spanned<String>, what: &str) -> R
     }
 }
 
+/// The names a scene gives (parameters, coordinates; particles through the builder) are the
+/// expression parser's identifiers, so every accepted name can be used in an expression.
 fn is_identifier(name: &str) -> bool {
-    let mut chars = name.chars();
-    matches!(chars.next(), Some(c) if c.is_ascii_alphabetic() || c == '_')
-        && chars.all(|c| c.is_ascii_alphanumeric() || c == '_')
+    crate::expr::is_identifier(name)
 }
 
 /// The system being built, with the particles' names and initial positions.
