@@ -186,7 +186,9 @@ pub fn compare_text(scene: &Scene, plan: &Plan, summaries: &[Summary]) -> String
             exact(plan.t_end())
         );
     }
-    if plan.feedback != Default::default() {
+    // Feedback and the projection apply to the implicit run only: not mentioned without one.
+    let implicit = summaries.iter().any(|r| r.method == Method::Implicit);
+    if implicit && plan.feedback != Default::default() {
         let _ = writeln!(
             s,
             "  implicit form stabilized with ks = {}, kd = {}",
@@ -194,7 +196,7 @@ pub fn compare_text(scene: &Scene, plan: &Plan, summaries: &[Summary]) -> String
             exact(plan.feedback.kd)
         );
     }
-    if plan.project {
+    if implicit && plan.project {
         let _ = writeln!(
             s,
             "  implicit form projected onto its constraints after every step (--project)"

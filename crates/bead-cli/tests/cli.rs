@@ -1319,6 +1319,60 @@ fn without_constraints_the_default_is_parametric_and_compare_runs_only_it() {
     assert_eq!(value.as_array().map(Vec::len), Some(1));
 }
 
+/// `bead run scenes/cycloid.toml --method implicit` simulated free fall silently: the scene
+/// has a parametric form and no constraints (issue 7). The library refuses it now.
+#[test]
+fn cycloid_refuses_the_implicit_method_and_compares_only_its_parametric_form() {
+    let cycloid = scene("cycloid.toml");
+    for integrator in ["rk4", "rattle", "dopri5"] {
+        let err = fails(
+            bead(&[
+                "run",
+                p(&cycloid),
+                "--method",
+                "implicit",
+                "--integrator",
+                integrator,
+            ]),
+            1,
+        );
+        assert_eq!(
+            err,
+            "error: the scene has no constraints, only a parametric form: its implicit form \
+             would simulate free particles, not the system of its [parametric] table; use the \
+             parametric method, or add [[constraint]] tables\n",
+            "{integrator}"
+        );
+    }
+    let out = ok(bead(&["compare", p(&cycloid), "--steps", "10"]));
+    let methods: Vec<&str> = out
+        .lines()
+        .skip_while(|l| !l.starts_with("---"))
+        .skip(1)
+        .filter_map(|l| l.split_whitespace().next())
+        .collect();
+    assert_eq!(methods, ["parametric"], "{out}");
+    // Flags for the implicit form only are not silently dropped, nor claimed in the header.
+    let out = bead(&["compare", p(&cycloid), "--steps", "10", "--project"]);
+    assert_eq!(
+        stderr(&out),
+        "warning: --project applies to the implicit form only, and the scene has no \
+         constraints: compare runs its parametric form alone; not used\n"
+    );
+    let text = ok(out);
+    assert!(!text.contains("implicit"), "{text}");
+    let out = ok(bead(&[
+        "compare",
+        p(&cycloid),
+        "--steps",
+        "10",
+        "--integrators",
+        "rk4,rattle",
+    ]));
+    assert!(out.contains("\nparametric          rk4 "), "{out}");
+    assert!(out.contains("skipped: parametric x rattle: "), "{out}");
+}
+
 #[test]
 fn without_a_parametric_form_compare_runs_only_implicit() {
     let dir = TempDir::new("implicit-only");

@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{bail, Result};
 use bead::formulation::{Feedback, Method};
 
-use super::{json, load_scene, print, report_error, run_method, write_file};
+use super::{json, load_scene, print, report_error, run_method, warn_implicit_only, write_file};
 use crate::args::CompareArgs;
 use crate::outputs::Files;
 use crate::plan::{compare_methods, Plan};
@@ -20,6 +20,7 @@ pub fn compare(args: &CompareArgs) -> Result<()> {
     let scene = load_scene(&args.scene, &args.sim.set)?;
     let plan = Plan::resolve(&scene, &args.sim)?;
     let methods = compare_methods(&scene);
+    warn_implicit_only(&plan, &methods);
     let mut files = Files::new();
     files.input("the scene file", &args.scene);
     if let Some(trace) = &args.trace {

@@ -11,7 +11,9 @@ use bead::integrate::IntegratorKind;
 use bead::simulate::{Sample, Sink};
 use bead_report::report::{report_files, write_report, Recorder, Report, ReportRun};
 
-use super::{json, load_scene, print, report_error, run_method_with, write_file};
+use super::{
+    json, load_scene, print, report_error, run_method_with, warn_implicit_only, write_file,
+};
 use crate::args::CompareArgs;
 use crate::outputs::Files;
 use crate::plan::{compare_methods, steps_for, Plan};
@@ -47,6 +49,7 @@ pub fn compare_grid(args: &CompareArgs) -> Result<()> {
     // Every dt covers the same time: the requested duration, else the planned run's.
     let duration = plan.duration.unwrap_or_else(|| plan.t_end());
     let methods = compare_methods(&scene);
+    warn_implicit_only(&plan, &methods);
     let mut runs = Vec::new();
     let mut summaries = Vec::new();
     let mut skipped = Vec::new();
@@ -175,14 +178,15 @@ pub fn compare_grid(args: &CompareArgs) -> Result<()> {
             integrator_text(plan.integrator)
         ));
     }
-    if plan.feedback != Feedback::default() {
+    let implicit = methods.contains(&Method::Implicit);
+    if implicit && plan.feedback != Feedback::default() {
         description.push_str(&format!(
             "; implicit form stabilized with ks = {}, kd = {}",
             exact(plan.feedback.ks),
             exact(plan.feedback.kd)
         ));
     }
-    if plan.project {
+    if implicit && plan.project {
         description.push_str(
             "; implicit+project: the implicit form projected onto its constraints after every step (--project)",
         );

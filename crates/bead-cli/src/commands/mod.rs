@@ -61,6 +61,28 @@ fn warn(message: &str) {
     let _ = writeln!(io::stderr(), "warning: {}", terminal(message));
 }
 
+/// `compare` applies --stabilize and --project to the implicit run only: say so when the scene
+/// has none (a scene with a parametric form and no constraints), instead of ignoring them.
+fn warn_implicit_only(plan: &Plan, methods: &[bead::formulation::Method]) {
+    if methods.contains(&bead::formulation::Method::Implicit) {
+        return;
+    }
+    let mut flags = Vec::new();
+    if plan.feedback_from_flags {
+        flags.push("--stabilize");
+    }
+    if plan.project {
+        flags.push("--project");
+    }
+    if !flags.is_empty() {
+        warn(&format!(
+            "{} {} to the implicit form only, and the scene has no constraints: compare runs its parametric form alone; not used",
+            flags.join(" and "),
+            if flags.len() == 1 { "applies" } else { "apply" }
+        ));
+    }
+}
+
 /// Print `error: MESSAGE` to stderr, for errors beyond the one `main` reports.
 fn report_error(message: &str) {
     let _ = writeln!(io::stderr(), "error: {}", terminal(message));
