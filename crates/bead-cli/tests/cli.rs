@@ -1785,6 +1785,72 @@ fn plot_writes_png_by_default_and_svg_by_extension() {
     assert!(text.contains("bead.x") && text.contains("constraint_error"));
 }
 
+/// A CSV with nothing to plot (only `t`, or no finite value besides it) made `bead plot`
+/// write a blank PNG and exit 0 (issue 7). It is an error, and no file is written.
+#[test]
+fn plot_refuses_a_trace_with_nothing_to_plot() {
+    let dir = TempDir::new("plot-nothing");
+    for (file, text, message) in [
+        (
+            "only_t.csv",
+            "t\n0\n0.1\n",
+            "nothing to plot: the trace has only the column `t`",
+        ),
+        (
+            "nan.csv",
+            "t,energy\n0,nan\n0.1,inf\n",
+            "nothing to plot: column `energy` has no finite value in 2 rows",
+        ),
+        (
+            "no_t.csv",
+            "t,energy,bead.x\nnan,1,2\n",
+            "nothing to plot: column `t` has no finite value in 1 row",
+        ),
+        (
+            "empty.csv",
+            "",
+            "the file is empty; expected a header row starting with `t`",
+        ),
+        ("header.csv", "t,energy\n", "no data rows after the header"),
+        (
+            "blank_rows.csv",
+            "t,energy\n\n\n",
+            "no data rows after the header",
+        ),
+    ] {
+        dir.write(file, text);
+        let err = fails(bead_in(&dir.0, &["plot", file]), 1);
+        assert_eq!(err, format!("error: {file}: {message}\n"));
+    }
+    let err = fails(
+        bead_in(
+            &dir.0,
+            &["plot", "nan.csv", "--columns", "energy", "-o", "x.svg"],
+        ),
+        1,
+    );
+    assert!(err.contains("column `energy` has no finite value"), "{err}");
+    let err = fails(bead_in(&dir.0, &["plot", "nan.csv", "--columns", "t"]), 1);
+    assert_eq!(
+        err,
+        "error: `t` is the horizontal axis of every panel; choose among energy\n"
+    );
+    let written: Vec<String> = std::fs::read_dir(&dir.0)
+        .expect("dir")
+        .map(|e| e.expect("entry").file_name().to_string_lossy().into_owned())
+        .filter(|n| n.ends_with(".png") || n.ends_with(".svg"))
+        .collect();
+    assert!(written.is_empty(), "{written:?}");
+    // One empty column among others is plotted, with a warning.
+    dir.write("half.csv", "t,energy,bead.x\n0,nan,1\n0.1,nan,2\n");
+    let out = bead_in(&dir.0, &["plot", "half.csv", "--columns", "energy,bead.x"]);
+    assert_eq!(
+        stderr(&out),
+        "warning: half.csv: column `energy` has no finite value; its panel is empty\n"
+    );
+    assert_eq!(ok(out), "wrote half.png\n");
+}
+
 #[test]
 fn plot_errors_name_the_problem() {
     let dir = TempDir::new("plot-errors");
