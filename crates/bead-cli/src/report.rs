@@ -16,15 +16,12 @@ use crate::plan::Plan;
 /// C's `%g`); the report's formatter, so the report and the terminal print the same numbers.
 pub use bead_report::report::sig as g;
 
-/// `x` exactly (shortest round-trip), in exponent notation below 1e-5 and from 1e16 on in
-/// magnitude so that extreme values stay short: `0.016666666666666666`, `1e300`.
+/// `x` exactly (shortest round-trip), in exponent notation below 1e-4 and from 1e16 on in
+/// magnitude so that extreme values stay short: `0.016666666666666666`, `1e300`. The
+/// library's [`bead::readable`], so that the CLI and the library's messages (scene warnings,
+/// errors) print a number the same way.
 pub fn exact(x: f64) -> String {
-    let magnitude = x.abs();
-    if x.is_finite() && x != 0.0 && !(1e-5..1e16).contains(&magnitude) {
-        format!("{x:e}")
-    } else {
-        format!("{x}")
-    }
+    bead::readable(x)
 }
 
 /// A list of numbers as `[a, b]`, exact.

@@ -1137,6 +1137,110 @@ fn a_vanishing_gradient_is_singular() {
     );
 }
 
+/// Whether `text` has a run of more than 20 digits (a number printed in full, like 1e300 as
+/// 1000...0).
+fn has_long_number(text: &str) -> bool {
+    text.split(|c: char| !c.is_ascii_digit())
+        .any(|run| run.len() > 20)
+}
+
+/// Overflow must never be reported as singular constraints, nor printed as 300 digits
+/// (issue 7): a huge dt, a huge mass and a constraint that divides by zero are each named.
+#[test]
+fn overflow_is_named_never_called_singular() {
+    let dir = TempDir::new("overflow");
+    let circle = "[[constraint]]\nexpr = \"bead.x^2 + bead.y^2 - 1\"\n";
+    dir.write("circle.toml", &bead_scene(circle));
+    let out = bead_in(&dir.0, &["run", "circle.toml", "--dt", "1e300"]);
+    let text = stdout(&out);
+    let err = fails(out, 1);
+    assert_eq!(
+        err,
+        "error: at t = 5e299: the position bead.y (inf) is not finite\n"
+    );
+    assert!(
+        text.contains("dt           1e300 s") && !has_long_number(&text),
+        "{text}"
+    );
+
+    dir.write(
+        "heavy.toml",
+        &bead_scene(circle).replace("mass = 1.0", "mass = 1e308"),
+    );
+    let err = fails(bead_in(&dir.0, &["run", "heavy.toml"]), 1);
+    assert_eq!(
+        err,
+        "error: heavy.toml:7:8: particle 1: `mass` must be between 1e-100 and 1e100, got 1e308: \
+         masses, their inverses and momenta must stay far from overflow and underflow\n  \
+         mass = 1e308\n         ^^^^^\n"
+    );
+
+    dir.write(
+        "divide.toml",
+        &bead_scene("[[constraint]]\nexpr = \"bead.x^2 + bead.y^2 - 1 + 1/0\"\n"),
+    );
+    let err = fails(bead_in(&dir.0, &["run", "divide.toml"]), 1);
+    assert_eq!(
+        err,
+        "warning: constraint 1 (`bead.x^2 + bead.y^2 - 1 + 1/0 = 0`): its value at the initial \
+         positions is not finite (inf)\n\
+         error: the initial state cannot be simulated: at t = 0: the value of constraint 1 (inf) \
+         is not finite\n"
+    );
+}
+
+/// Scene warnings printed 300-digit decimals and `by inf`, and `Cdot = 5e1` where `check`
+/// printed `-50` (issue 7): numbers are exact and short, measured values signed and printed
+/// like `check` prints them, and what is not finite is said in words.
+#[test]
+fn warnings_print_numbers_like_check() {
+    let dir = TempDir::new("warnings");
+    let circle = "[[constraint]]\nexpr = \"bead.x^2 + bead.y^2 - 1\"\n";
+    dir.write(
+        "moving.toml",
+        &bead_scene(circle).replace("velocity = [0.0, 0.0]", "velocity = [-25.0, 0.0]"),
+    );
+    let out = bead_in(&dir.0, &["run", "moving.toml", "--steps", "1"]);
+    assert_eq!(
+        stderr(&out),
+        "warning: constraint 1 (`bead.x^2 + bead.y^2 - 1 = 0`): the initial velocities are not \
+         tangent to it: Cdot = -50\n"
+    );
+    let check = ok(bead_in(&dir.0, &["check", "moving.toml"]));
+    assert!(check.contains("at t = 0: C = 0, Cdot = -50\n"), "{check}");
+
+    let off = bead_scene(circle).replace("position = [1.0, 0.0]", "position = [1.5, 0.0]");
+    dir.write("off.toml", &off);
+    let out = bead_in(&dir.0, &["run", "off.toml", "--steps", "1"]);
+    assert_eq!(
+        stderr(&out),
+        "warning: constraint 1 (`bead.x^2 + bead.y^2 - 1 = 0`): the initial positions violate \
+         it: C = 1.25 (about 0.416667 off the constraint)\n"
+    );
+    let check = ok(bead_in(&dir.0, &["check", "off.toml"]));
+    assert!(check.contains("at t = 0: C = 1.25, Cdot = 0\n"), "{check}");
+
+    // A parametric form 1e300 away: exact short numbers, and no `by inf`.
+    let huge = bead_scene(
+        "[parametric]\ncoordinates = [\"q\"]\ninitial = [1e300]\n\
+         [parametric.positions]\nbead = [\"q\", \"0\"]\n",
+    )
+    .replace("position = [1.0, 0.0]", "position = [-1e300, 0.0]");
+    dir.write("huge.toml", &huge);
+    let out = bead_in(&dir.0, &["check", "huge.toml"]);
+    let err = stderr(&out);
+    assert_eq!(
+        err,
+        "warning: particle `bead`: the parametric form's initial position x(q0) = [1e300, 0] \
+         differs from the scene's position [-1e300, 0] by more than the largest representable \
+         number\n"
+    );
+    assert!(
+        !has_long_number(&ok(out)),
+        "check prints no 300-digit number"
+    );
+}
+
 #[test]
 fn divergence_names_the_time_and_keeps_the_trace_and_summary() {
     let dir = TempDir::new("diverge");

@@ -271,35 +271,10 @@ pub struct Report {
     pub skipped: Vec<String>,
 }
 
-/// `x` with `sig` significant digits in the shorter of fixed and exponent notation.
-pub fn sig(x: f64, sig: usize) -> String {
-    if !x.is_finite() {
-        return format!("{x}");
-    }
-    if x == 0.0 {
-        return "0".into();
-    }
-    let sig = sig.max(1);
-    let rounded: f64 = format!("{:.*e}", sig - 1, x).parse().unwrap_or(x);
-    let exponent = rounded.abs().log10().floor() as i32;
-    let trim = |s: &str| -> String {
-        if s.contains('.') {
-            s.trim_end_matches('0').trim_end_matches('.').to_string()
-        } else {
-            s.to_string()
-        }
-    };
-    if exponent < -4 || exponent >= sig as i32 {
-        let s = format!("{:.*e}", sig - 1, rounded);
-        match s.split_once('e') {
-            Some((mantissa, exp)) => format!("{}e{exp}", trim(mantissa)),
-            None => s,
-        }
-    } else {
-        let decimals = (sig as i32 - 1 - exponent).max(0) as usize;
-        trim(&format!("{:.*}", decimals, rounded))
-    }
-}
+/// `x` with `sig` significant digits in the shorter of fixed and exponent notation: the
+/// library's [`bead::significant`], so that reports, the CLI and the library's messages print
+/// numbers alike.
+pub use bead::significant as sig;
 
 impl Report {
     /// The comparison table: a header row, then one row per run. Columns: method,

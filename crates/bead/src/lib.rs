@@ -31,6 +31,45 @@ pub fn readable(value: f64) -> String {
     }
 }
 
+/// `x` with `digits` significant digits, in the shorter of fixed and exponent notation (like
+/// C's `%g`), signed: the formatter of measured values (residuals, errors, energies) in
+/// messages, reports and the CLI, so that every front end prints a number the same way.
+///
+/// ```
+/// assert_eq!(bead::significant(-50.0, 6), "-50");
+/// assert_eq!(bead::significant(1.0 / 60.0, 6), "0.0166667");
+/// assert_eq!(bead::significant(1.234e-8, 4), "1.234e-8");
+/// assert_eq!(bead::significant(f64::INFINITY, 4), "inf");
+/// ```
+pub fn significant(x: f64, digits: usize) -> String {
+    if !x.is_finite() {
+        return format!("{x}");
+    }
+    if x == 0.0 {
+        return "0".into();
+    }
+    let digits = digits.max(1);
+    let rounded: f64 = format!("{:.*e}", digits - 1, x).parse().unwrap_or(x);
+    let exponent = rounded.abs().log10().floor() as i32;
+    let trim = |s: &str| -> String {
+        if s.contains('.') {
+            s.trim_end_matches('0').trim_end_matches('.').to_string()
+        } else {
+            s.to_string()
+        }
+    };
+    if exponent < -4 || exponent >= digits as i32 {
+        let s = format!("{:.*e}", digits - 1, rounded);
+        match s.split_once('e') {
+            Some((mantissa, exp)) => format!("{}e{exp}", trim(mantissa)),
+            None => s,
+        }
+    } else {
+        let decimals = (digits as i32 - 1 - exponent).max(0) as usize;
+        trim(&format!("{:.*}", decimals, rounded))
+    }
+}
+
 /// `text` with every control character escaped, so that it can be shown on a terminal or
 /// quoted in a message on one line: `\n`, `\r`, `\t`, other ASCII controls as `\x1b`, the C1
 /// controls (U+0080 to U+009F) as `\u{9b}`. Everything else, Unicode included, is kept.

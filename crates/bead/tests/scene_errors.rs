@@ -137,6 +137,17 @@ fn mass_not_positive() {
     );
 }
 
+/// A mass of 1e308 was refused by the builder but located at the particle's name (issue 7).
+#[test]
+fn mass_out_of_range_is_located_at_the_mass() {
+    assert_eq!(
+        error(&edit("mass = 1.0", "mass = 1e308")),
+        "s.toml:8:8: particle 1: `mass` must be between 1e-100 and 1e100, got 1e308: masses, \
+         their inverses and momenta must stay far from overflow and underflow\n  mass = 1e308\n         ^^^^^"
+    );
+    assert!(error(&edit("mass = 1.0", "mass = \"1e-200\"")).contains("got 1e-200"));
+}
+
 #[test]
 fn nan_and_inf() {
     assert_eq!(

@@ -482,6 +482,19 @@ impl Builder<'_, '_> {
             ));
         }
         let mass = l.positive(mass_def, &ctx, "`mass`")?;
+        let (lightest, heaviest) = crate::model::MASS_RANGE;
+        if !(lightest..=heaviest).contains(&mass) {
+            // The builder refuses it too, but located at the name; point at the mass.
+            return Err(self.src().error(
+                mass_def.span(),
+                format!(
+                    "{ctx}: `mass` must be between {} and {}, got {}: masses, their inverses and momenta must stay far from overflow and underflow",
+                    crate::readable(lightest),
+                    crate::readable(heaviest),
+                    crate::readable(mass)
+                ),
+            ));
+        }
         let position = self.vector(position_def, &ctx, "position")?;
         let velocity = match &def.velocity {
             Some(v) => self.vector(v, &ctx, "velocity")?,
