@@ -102,23 +102,43 @@ pub fn run_text(scene: &Scene, plan: &Plan, summary: &Summary) -> String {
             format!("at most {iterations} Newton iteration(s) per step"),
         );
     }
-    row(&mut s, "dt", format!("{} s", exact(summary.dt)));
-    let steps = if summary.completed {
-        format!("{}", summary.steps)
-    } else {
-        format!("{} of {} (stopped early)", summary.steps, plan.steps)
-    };
-    row(&mut s, "steps", steps);
+    let adaptive = summary.accepted_steps.is_some();
     if let (Some(accepted), Some(rejected)) = (summary.accepted_steps, summary.rejected_steps) {
+        // dopri5: dt is the output interval; its steps are its own (summary.steps = accepted).
         row(
             &mut s,
-            "adaptive",
+            "dt",
+            format!("{} s, the output interval", exact(summary.dt)),
+        );
+        row(
+            &mut s,
+            "steps",
             format!(
-                "{accepted} accepted steps, {rejected} rejected (rtol {}, atol {}; dt is the output interval)",
+                "{accepted} accepted steps, {rejected} rejected, chosen by {} (rtol {}, atol {})",
+                summary.integrator.name(),
                 exact(plan.settings.rtol),
                 exact(plan.settings.atol)
             ),
         );
+        // The run loop ends each interval exactly at t = k dt.
+        let intervals = (summary.t_final / summary.dt).round() as u64;
+        let output = if summary.completed {
+            format!("{intervals} intervals of dt")
+        } else {
+            format!(
+                "{intervals} of {} intervals of dt (stopped early)",
+                plan.steps
+            )
+        };
+        row(&mut s, "output", output);
+    } else {
+        row(&mut s, "dt", format!("{} s", exact(summary.dt)));
+        let steps = if summary.completed {
+            format!("{}", summary.steps)
+        } else {
+            format!("{} of {} (stopped early)", summary.steps, plan.steps)
+        };
+        row(&mut s, "steps", steps);
     }
     row(&mut s, "t_final", format!("{} s", exact(summary.t_final)));
     if let (Some(duration), true) = (plan.duration, plan.overshoot) {
@@ -154,8 +174,9 @@ pub fn run_text(scene: &Scene, plan: &Plan, summary: &Summary) -> String {
         &mut s,
         "speed",
         format!(
-            "{} steps/s (wall time {} s)",
+            "{} {}steps/s (wall time {} s)",
             g(summary.steps_per_second, 4),
+            if adaptive { "accepted " } else { "" },
             g(summary.wall_seconds, 4)
         ),
     );
@@ -168,11 +189,16 @@ pub fn compare_text(scene: &Scene, plan: &Plan, summaries: &[Summary]) -> String
     let _ = writeln!(s, "{}", title(scene));
     let _ = writeln!(
         s,
-        "  scene {}; integrator {}; dt {} s; {} steps to t = {} s",
+        "  scene {}; integrator {}; dt {} s; {} {} to t = {} s",
         scene.file,
         integrator_text(plan.integrator),
         exact(plan.dt),
         plan.steps,
+        if plan.integrator.is_adaptive() {
+            "output intervals"
+        } else {
+            "steps"
+        },
         exact(plan.t_end())
     );
     if let (Some(duration), true) = (plan.duration, plan.overshoot) {
@@ -243,8 +269,15 @@ pub fn compare_text(scene: &Scene, plan: &Plan, summaries: &[Summary]) -> String
         rows.push(row);
     }
     s.push_str(&table(&rows));
+    if adaptive {
+        s.push_str(ADAPTIVE_NOTE);
+        s.push('\n');
+    }
     s
 }
+
+/// Under a table with adaptive runs: what their steps are.
+pub const ADAPTIVE_NOTE: &str = "steps/s counts integrator steps; an adaptive integrator's are its accepted steps, and its dt is the output interval";
 
 /// Rows of cells as an aligned table: the first column left-aligned, numbers right-aligned,
 /// a rule under the header.

@@ -1572,6 +1572,86 @@ fn dopri5_reports_accepted_and_rejected_steps() {
     }
 }
 
+/// dopri5's steps/s used to count output intervals; the core counts its accepted steps now
+/// (issue 7). The summary, `run`'s text and compare's table say which is which.
+#[test]
+fn dopri5_steps_per_second_counts_accepted_steps() {
+    let out = ok(bead(&[
+        "run",
+        p(&parabola()),
+        "--integrator",
+        "dopri5",
+        "--duration",
+        "1",
+        "--json",
+    ]));
+    let value: serde_json::Value = serde_json::from_str(&out).expect("JSON");
+    let accepted = value["accepted_steps"].as_u64().expect("accepted_steps");
+    let wall = value["wall_seconds"].as_f64().expect("wall_seconds");
+    let speed = value["steps_per_second"]
+        .as_f64()
+        .expect("steps_per_second");
+    assert_eq!(value["steps"].as_u64(), Some(accepted), "{out}");
+    assert_ne!(
+        accepted, 60,
+        "dopri5 takes its own steps, not the 60 output intervals"
+    );
+    assert!(wall > 0.0, "{out}");
+    assert!(
+        (speed - accepted as f64 / wall).abs() <= 1e-12 * speed,
+        "{speed} != {accepted} / {wall}"
+    );
+
+    let text = ok(bead(&[
+        "run",
+        p(&parabola()),
+        "--integrator",
+        "dopri5",
+        "--duration",
+        "1",
+    ]));
+    assert!(
+        text.contains("  dt           0.016666666666666666 s, the output interval\n"),
+        "{text}"
+    );
+    assert!(
+        text.contains("  output       60 intervals of dt\n"),
+        "{text}"
+    );
+    assert!(text.contains(" accepted steps/s (wall time "), "{text}");
+    let steps = text
+        .lines()
+        .find(|l| l.starts_with("  steps "))
+        .expect("steps row");
+    assert!(
+        steps.contains(" accepted steps, ") && steps.contains("chosen by dopri5"),
+        "{steps}"
+    );
+
+    let table = ok(bead(&[
+        "compare",
+        p(&parabola()),
+        "--integrator",
+        "dopri5",
+        "--duration",
+        "1",
+    ]));
+    assert!(
+        table.contains("; 60 output intervals to t = 1 s\n"),
+        "{table}"
+    );
+    assert!(
+        table.ends_with(
+            "steps/s counts integrator steps; an adaptive integrator's are its accepted \
+             steps, and its dt is the output interval\n"
+        ),
+        "{table}"
+    );
+    let fixed = ok(bead(&["compare", p(&parabola()), "--duration", "1"]));
+    assert!(fixed.contains("; 60 steps to t = 1 s\n"), "{fixed}");
+    assert!(!fixed.contains("accepted"), "{fixed}");
+}
+
 #[test]
 fn rattle_keeps_the_parabola_on_its_constraint() {
     let out = ok(bead(&[

@@ -17,7 +17,7 @@ use super::{
 use crate::args::CompareArgs;
 use crate::outputs::Files;
 use crate::plan::{compare_methods, steps_for, Plan};
-use crate::report::{exact, integrator_text, table, title};
+use crate::report::{exact, integrator_text, table, title, ADAPTIVE_NOTE};
 
 /// Two sinks fed the same samples.
 pub struct Tee<'a>(pub &'a mut dyn Sink, pub &'a mut dyn Sink);
@@ -214,6 +214,10 @@ pub fn compare_grid(args: &CompareArgs) -> Result<()> {
     } else {
         let mut text = format!("{}\n  {}\n\n", report.title, report.description);
         text.push_str(&table(&report.rows()));
+        if report.runs.iter().any(|r| r.stats.accepted_steps.is_some()) {
+            text.push_str(ADAPTIVE_NOTE);
+            text.push('\n');
+        }
         for s in &report.skipped {
             text.push_str(&format!("skipped: {s}\n"));
         }
