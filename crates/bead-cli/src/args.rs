@@ -67,8 +67,12 @@ scene has constraints or no parametric form (else parametric), rk4, dt = 1/60 s,
 The number of steps is duration/dt when that is within 1e-9 of an integer, else rounded up (the
 run then ends slightly after the duration, and the summary says so).
 
+Every number given to a flag (--dt, --duration, --stabilize, --set, --rtol, --atol, --dts) may be
+an expression of numbers, pi, e and functions, like 1/60 or 2*pi/100.
+
 Exit status: 0 on success, 1 when the scene is invalid or the run fails (the trace keeps every
-finished row and --summary is still written, with completed: false), 2 on a usage error.";
+finished row and --summary is still written, with completed: false), 2 on a usage error (a bad
+flag value, or two outputs naming the same file).";
 
 /// `bead run`.
 #[derive(Debug, Args)]
@@ -133,8 +137,7 @@ pub struct SimArgs {
     #[arg(long, value_name = "INTEGRATOR")]
     pub integrator: Option<IntegratorArg>,
 
-    /// Step size in seconds, > 0 [default: the scene's, else 1/60]. Every number given to a
-    /// flag may be an expression of numbers, pi, e and functions, like 1/60 or 2*pi/100
+    /// Step size in seconds, > 0, e.g. 1/60 [default: the scene's, else 1/60]
     #[arg(long, value_name = "SECONDS", value_parser = parse_positive)]
     pub dt: Option<f64>,
 
