@@ -9,6 +9,8 @@ use bead::integrate::IntegratorKind;
 use clap::builder::PossibleValue;
 use clap::{Args, Parser, Subcommand, ValueEnum};
 
+use crate::numbers::{self, Bound, Context, NumberError};
+
 /// Constrained particle dynamics from scene files: the same constrained system simulated by
 /// constraint forces (implicit form) or in generalized coordinates (parametric form).
 #[derive(Debug, Parser)]
@@ -65,8 +67,12 @@ scene has constraints or no parametric form (else parametric), rk4, dt = 1/60 s,
 The number of steps is duration/dt when that is within 1e-9 of an integer, else rounded up (the
 run then ends slightly after the duration, and the summary says so).
 
+Every number given to a flag (--dt, --duration, --stabilize, --set, --rtol, --atol, --dts) may be
+an expression of numbers, pi, e and functions, like 1/60 or 2*pi/100.
+
 Exit status: 0 on success, 1 when the scene is invalid or the run fails (the trace keeps every
-finished row and --summary is still written, with completed: false), 2 on a usage error.";
+finished row and --summary is still written, with completed: false), 2 on a usage error (a bad
+flag value, or two outputs naming the same file).";
 
 /// `bead run`.
 #[derive(Debug, Args)]
@@ -118,7 +124,8 @@ pub struct CheckArgs {
     /// The scene file (TOML).
     pub scene: PathBuf,
 
-    /// Override a scene parameter from [params] (repeatable).
+    /// Override a scene parameter from [params] with a number or an expression of numbers,
+    /// pi, e and functions, like 2*pi (not of other parameters) (repeatable).
     #[arg(long = "set", value_name = "NAME=VALUE", value_parser = parse_set)]
     pub set: Vec<(String, f64)>,
 }
@@ -130,7 +137,7 @@ pub struct SimArgs {
     #[arg(long, value_name = "INTEGRATOR")]
     pub integrator: Option<IntegratorArg>,
 
-    /// Step size in seconds, > 0 [default: the scene's, else 1/60]
+    /// Step size in seconds, > 0, e.g. 1/60 [default: the scene's, else 1/60]
     #[arg(long, value_name = "SECONDS", value_parser = parse_positive)]
     pub dt: Option<f64>,
 
@@ -148,7 +155,8 @@ pub struct SimArgs {
     #[arg(long, value_name = "KS,KD", value_parser = parse_stabilize)]
     pub stabilize: Option<Feedback>,
 
-    /// Override a scene parameter from [params] with a number (repeatable)
+    /// Override a scene parameter from [params] with a number or an expression of numbers,
+    /// pi, e and functions, like 2*pi (not of other parameters) (repeatable)
     #[arg(long = "set", value_name = "NAME=VALUE", value_parser = parse_set)]
     pub set: Vec<(String, f64)>,
 
@@ -254,77 +262,70 @@ impl ValueEnum for MethodArg {
     }
 }
 
-/// A finite number > 0.
+/// A finite number > 0: an expression of numbers, `pi`, `e` and functions (`1/60`).
 fn parse_positive(s: &str) -> Result<f64, String> {
-    let x: f64 = s
-        .trim()
-        .parse()
-        .map_err(|_| format!("`{s}` is not a number"))?;
-    if !x.is_finite() {
-        return Err(format!("must be finite, got {s}"));
-    }
-    if x <= 0.0 {
-        return Err(format!("must be positive, got {s}"));
-    }
-    Ok(x)
+    numbers::whole(s, Bound::Positive)
 }
 
-/// A finite number >= 0.
+/// A finite number >= 0 (an expression, like [`parse_positive`]).
 fn parse_non_negative(s: &str) -> Result<f64, String> {
-    let x: f64 = s
-        .trim()
-        .parse()
-        .map_err(|_| format!("`{s}` is not a number"))?;
-    if !x.is_finite() {
-        return Err(format!("must be finite, got {s}"));
-    }
-    if x < 0.0 {
-        return Err(format!("must be >= 0, got {s}"));
-    }
-    Ok(x)
+    numbers::whole(s, Bound::NonNegative)
 }
 
-/// `KS,KD`: two finite numbers >= 0.
+/// `KS,KD`: two finite numbers >= 0, each an expression.
 fn parse_stabilize(s: &str) -> Result<Feedback, String> {
-    let usage = || format!("expected KS,KD (two finite numbers >= 0, e.g. 100,20), got `{s}`");
-    let (ks, kd) = s.split_once(',').ok_or_else(usage)?;
-    let number = |part: &str| -> Result<f64, String> {
-        let x: f64 = part.trim().parse().map_err(|_| usage())?;
-        if x.is_finite() && x >= 0.0 {
-            Ok(x)
+    const USAGE: &str = "expected KS,KD (two finite numbers >= 0, e.g. 100,20)";
+    let parts = numbers::split_list(s);
+    if parts.len() != 2 {
+        let count = parts.len();
+        let (start, end) = match parts.get(2) {
+            // Point at the third number.
+            Some(&(start, _)) => (start, s.len()),
+            None => (0, s.len()),
+        };
+        let got = if count == 1 {
+            "one number".to_string()
         } else {
-            Err(usage())
-        }
+            format!("{count} numbers")
+        };
+        return Err(NumberError::new(format!("{USAGE}, got {got}"), start, end).render(s));
+    }
+    let number = |(start, end): (usize, usize), which: &str| {
+        numbers::number(s, start, end, Bound::NonNegative, Context::Flag).map_err(|e| {
+            NumberError::new(
+                format!("{which} {}; {USAGE}", e.message),
+                e.span.start,
+                e.span.end,
+            )
+            .render(s)
+        })
     };
     Ok(Feedback {
-        ks: number(ks)?,
-        kd: number(kd)?,
+        ks: number(parts[0], "KS:")?,
+        kd: number(parts[1], "KD:")?,
     })
 }
 
-/// `NAME=VALUE` with a finite number.
+/// `NAME=VALUE` with a finite number, an expression of numbers, `pi`, `e` and functions (not
+/// of the scene's parameters: see [`Context::Set`]).
 fn parse_set(s: &str) -> Result<(String, f64), String> {
-    let (name, value) = s
-        .split_once('=')
-        .ok_or_else(|| format!("expected NAME=VALUE, got `{s}`"))?;
-    let name = name.trim();
+    let Some(equals) = s.find('=') else {
+        return Err(format!("expected NAME=VALUE, got `{s}`"));
+    };
+    let name = s[..equals].trim();
     if name.is_empty() {
         return Err(format!(
             "expected NAME=VALUE, got `{s}` (the name is empty)"
         ));
     }
-    let x: f64 = value.trim().parse().map_err(|_| {
-        format!(
-            "the value of `{name}` must be a number, got `{}`",
-            value.trim()
+    let x = numbers::number(s, equals + 1, s.len(), Bound::Finite, Context::Set).map_err(|e| {
+        NumberError::new(
+            format!("the value of `{name}`: {}", e.message),
+            e.span.start,
+            e.span.end,
         )
+        .render(s)
     })?;
-    if !x.is_finite() {
-        return Err(format!(
-            "the value of `{name}` must be finite, got `{}`",
-            value.trim()
-        ));
-    }
     Ok((name.to_string(), x))
 }
 

@@ -3,6 +3,8 @@
 
 mod args;
 mod commands;
+mod numbers;
+mod outputs;
 mod plan;
 mod report;
 mod report_args;
@@ -25,8 +27,59 @@ fn main() -> ExitCode {
                 // stdout was closed early (`bead check ... | head`): not an error.
                 return ExitCode::SUCCESS;
             }
-            let _ = writeln!(io::stderr(), "error: {error:#}");
+            let _ = writeln!(
+                io::stderr(),
+                "error: {}",
+                commands::terminal(&chain(&error))
+            );
+            if error.downcast_ref::<commands::Usage>().is_some() {
+                // Flags that contradict each other, found after parsing: like clap's own.
+                return ExitCode::from(2);
+            }
             ExitCode::FAILURE
         }
+    }
+}
+
+/// The error and its causes, `: `-separated, each cause once: a cause whose text the message
+/// already contains (an error that prints its source and also returns it from `source()`)
+/// is not repeated, so an OS error never reads `(os error 2): ... (os error 2)`.
+fn chain(error: &anyhow::Error) -> String {
+    let mut text = error.to_string();
+    for cause in error.chain().skip(1) {
+        let cause = cause.to_string();
+        if !text.contains(&cause) {
+            text.push_str(": ");
+            text.push_str(&cause);
+        }
+    }
+    text
+}
+
+#[cfg(test)]
+mod tests {
+    use super::chain;
+    use anyhow::Context;
+
+    #[derive(Debug)]
+    struct Loud(std::io::Error);
+    impl std::fmt::Display for Loud {
+        fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+            write!(f, "cannot write `x`: {}", self.0)
+        }
+    }
+    impl std::error::Error for Loud {
+        fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
+            Some(&self.0)
+        }
+    }
+
+    #[test]
+    fn each_cause_is_printed_once() {
+        let os = || std::io::Error::from_raw_os_error(2);
+        let e = anyhow::Error::new(Loud(os()));
+        assert_eq!(chain(&e), format!("cannot write `x`: {}", os()));
+        let e = Err::<(), _>(os()).context("cannot open `y`").unwrap_err();
+        assert_eq!(chain(&e), format!("cannot open `y`: {}", os()));
     }
 }

@@ -17,15 +17,12 @@ use crate::plan::Plan;
 /// C's `%g`); the report's formatter, so the report and the terminal print the same numbers.
 pub use bead_report::report::sig as g;
 
-/// `x` exactly (shortest round-trip), in exponent notation below 1e-5 and from 1e16 on in
-/// magnitude so that extreme values stay short: `0.016666666666666666`, `1e300`.
+/// `x` exactly (shortest round-trip), in exponent notation below 1e-4 and from 1e16 on in
+/// magnitude so that extreme values stay short: `0.016666666666666666`, `1e300`. The
+/// library's [`bead::readable`], so that the CLI and the library's messages (scene warnings,
+/// errors) print a number the same way.
 pub fn exact(x: f64) -> String {
-    let magnitude = x.abs();
-    if x.is_finite() && x != 0.0 && !(1e-5..1e16).contains(&magnitude) {
-        format!("{x:e}")
-    } else {
-        format!("{x}")
-    }
+    bead::readable(x)
 }
 
 /// A list of numbers as `[a, b]`, exact.
@@ -106,23 +103,43 @@ pub fn run_text(scene: &Scene, plan: &Plan, summary: &Summary) -> String {
             format!("at most {iterations} Newton iteration(s) per step"),
         );
     }
-    row(&mut s, "dt", format!("{} s", exact(summary.dt)));
-    let steps = if summary.completed {
-        format!("{}", summary.steps)
-    } else {
-        format!("{} of {} (stopped early)", summary.steps, plan.steps)
-    };
-    row(&mut s, "steps", steps);
+    let adaptive = summary.accepted_steps.is_some();
     if let (Some(accepted), Some(rejected)) = (summary.accepted_steps, summary.rejected_steps) {
+        // dopri5: dt is the output interval; its steps are its own (summary.steps = accepted).
         row(
             &mut s,
-            "adaptive",
+            "dt",
+            format!("{} s, the output interval", exact(summary.dt)),
+        );
+        row(
+            &mut s,
+            "steps",
             format!(
-                "{accepted} accepted steps, {rejected} rejected (rtol {}, atol {}; dt is the output interval)",
+                "{accepted} accepted steps, {rejected} rejected, chosen by {} (rtol {}, atol {})",
+                summary.integrator.name(),
                 exact(plan.settings.rtol),
                 exact(plan.settings.atol)
             ),
         );
+        // The run loop ends each interval exactly at t = k dt.
+        let intervals = (summary.t_final / summary.dt).round() as u64;
+        let output = if summary.completed {
+            format!("{intervals} intervals of dt")
+        } else {
+            format!(
+                "{intervals} of {} intervals of dt (stopped early)",
+                plan.steps
+            )
+        };
+        row(&mut s, "output", output);
+    } else {
+        row(&mut s, "dt", format!("{} s", exact(summary.dt)));
+        let steps = if summary.completed {
+            format!("{}", summary.steps)
+        } else {
+            format!("{} of {} (stopped early)", summary.steps, plan.steps)
+        };
+        row(&mut s, "steps", steps);
     }
     row(&mut s, "t_final", format!("{} s", exact(summary.t_final)));
     if let (Some(duration), true) = (plan.duration, plan.overshoot) {
@@ -180,8 +197,9 @@ pub fn run_text(scene: &Scene, plan: &Plan, summary: &Summary) -> String {
         &mut s,
         "speed",
         format!(
-            "{} steps/s (wall time {} s)",
+            "{} {}steps/s (wall time {} s)",
             g(summary.steps_per_second, 4),
+            if adaptive { "accepted " } else { "" },
             g(summary.wall_seconds, 4)
         ),
     );
@@ -194,11 +212,16 @@ pub fn compare_text(scene: &Scene, plan: &Plan, summaries: &[Summary]) -> String
     let _ = writeln!(s, "{}", title(scene));
     let _ = writeln!(
         s,
-        "  scene {}; integrator {}; dt {} s; {} steps to t = {} s",
+        "  scene {}; integrator {}; dt {} s; {} {} to t = {} s",
         scene.file,
         integrator_text(plan.integrator),
         exact(plan.dt),
         plan.steps,
+        if plan.integrator.is_adaptive() {
+            "output intervals"
+        } else {
+            "steps"
+        },
         exact(plan.t_end())
     );
     if let (Some(duration), true) = (plan.duration, plan.overshoot) {
@@ -209,7 +232,9 @@ pub fn compare_text(scene: &Scene, plan: &Plan, summaries: &[Summary]) -> String
             exact(plan.t_end())
         );
     }
-    if plan.feedback != Default::default() {
+    // Feedback and the projection apply to the implicit run only: not mentioned without one.
+    let implicit = summaries.iter().any(|r| r.method == Method::Implicit);
+    if implicit && plan.feedback != Default::default() {
         let _ = writeln!(
             s,
             "  implicit form stabilized with ks = {}, kd = {}",
@@ -217,7 +242,7 @@ pub fn compare_text(scene: &Scene, plan: &Plan, summaries: &[Summary]) -> String
             exact(plan.feedback.kd)
         );
     }
-    if plan.project {
+    if implicit && plan.project {
         let _ = writeln!(
             s,
             "  implicit form projected onto its constraints after every step (--project)"
@@ -268,8 +293,15 @@ pub fn compare_text(scene: &Scene, plan: &Plan, summaries: &[Summary]) -> String
     }
     s.push_str(&table(&rows));
     s.push_str(&energy_note(summaries));
+    if adaptive {
+        s.push_str(ADAPTIVE_NOTE);
+        s.push('\n');
+    }
     s
 }
+
+/// Under a table with adaptive runs: what their steps are.
+pub const ADAPTIVE_NOTE: &str = "steps/s counts integrator steps; an adaptive integrator's are its accepted steps, and its dt is the output interval";
 
 /// The energy error cell of a summary: of T + V, or of E - W (marked) when energy is not
 /// conserved.

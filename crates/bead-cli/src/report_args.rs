@@ -6,6 +6,8 @@ use std::path::PathBuf;
 use bead::integrate::IntegratorKind;
 use clap::Args;
 
+use crate::numbers::{self, Bound, Context, NumberError};
+
 /// `bead compare`: several integrators and step sizes, and the HTML report.
 #[derive(Debug, Args)]
 pub struct GridArgs {
@@ -16,8 +18,8 @@ pub struct GridArgs {
     #[arg(long, value_name = "LIST", value_parser = parse_integrators, conflicts_with = "integrator")]
     pub integrators: Option<IntegratorList>,
 
-    /// Compare these step sizes (comma-separated, each a number > 0 or a fraction like 1/60)
-    /// over the same duration
+    /// Compare these step sizes (comma-separated, each a number > 0 or an expression like
+    /// 1/60) over the same duration
     #[arg(long, value_name = "LIST", value_parser = parse_dts, conflicts_with_all = ["dt", "steps"])]
     pub dts: Option<DtList>,
 
@@ -84,35 +86,31 @@ fn parse_integrators(s: &str) -> Result<IntegratorList, String> {
     Ok(IntegratorList(kinds))
 }
 
-/// One step size: a finite number > 0, or a fraction `A/B` of two such numbers.
-pub fn parse_dt(s: &str) -> Result<f64, String> {
-    let s = s.trim();
-    let number = |part: &str| -> Result<f64, String> {
-        part.trim()
-            .parse::<f64>()
-            .map_err(|_| format!("`{s}` is not a number or a fraction like 1/60"))
-    };
-    let value = match s.split_once('/') {
-        Some((a, b)) => {
-            let (a, b) = (number(a)?, number(b)?);
-            if b == 0.0 {
-                return Err(format!("`{s}` divides by zero"));
-            }
-            a / b
-        }
-        None => number(s)?,
-    };
-    if !value.is_finite() || value <= 0.0 {
-        return Err(format!("`{s}` must be a finite step size > 0"));
-    }
-    Ok(value)
+/// One step size: a finite number > 0, an expression of numbers, `pi`, `e` and functions
+/// (`1/60`, `2*pi/100`).
+#[cfg(test)]
+fn parse_dt(s: &str) -> Result<f64, String> {
+    numbers::whole(s, Bound::Positive)
 }
 
+/// Comma-separated step sizes (commas inside parentheses belong to a function call), each
+/// with its text as given; the same text twice is an error (its runs would be the same).
 fn parse_dts(s: &str) -> Result<DtList, String> {
-    let mut dts = Vec::new();
-    for part in s.split(',') {
-        let dt = parse_dt(part)?;
-        dts.push((part.trim().to_string(), dt));
+    let mut dts: Vec<(String, f64)> = Vec::new();
+    for (start, end) in numbers::split_list(s) {
+        let dt = numbers::number(s, start, end, Bound::Positive, Context::Flag)
+            .map_err(|e| e.render(s))?;
+        let label = s[start..end].trim().to_string();
+        if dts.iter().any(|(other, _)| *other == label) {
+            let at = start + (s[start..end].len() - s[start..end].trim_start().len());
+            return Err(NumberError::new(
+                format!("`{label}` is given twice"),
+                at,
+                at + label.len(),
+            )
+            .render(s));
+        }
+        dts.push((label, dt));
     }
     Ok(DtList(dts))
 }
@@ -126,11 +124,20 @@ mod tests {
         assert_eq!(parse_dt("1/60"), Ok(1.0 / 60.0));
         assert_eq!(parse_dt(" 0.01 "), Ok(0.01));
         assert_eq!(parse_dt("1e-3"), Ok(1e-3));
-        for bad in ["1/0", "abc", "0", "-1/60", "1/", "/2", "inf", "1/60/2", ""] {
+        // Any expression of numbers: 1/60/2 = 1/120.
+        assert_eq!(parse_dt("1/60/2"), Ok(1.0 / 120.0));
+        assert_eq!(parse_dt("pi/100"), Ok(std::f64::consts::PI / 100.0));
+        for bad in ["1/0", "abc", "0", "-1/60", "1/", "/2", "inf", ""] {
             assert!(parse_dt(bad).is_err(), "{bad}");
         }
-        let list = parse_dts("1/30, 0.01").unwrap();
+        let list = parse_dts("1/30, 0.01, atan2(1, 2)/100").unwrap();
         assert_eq!(list.0[0], ("1/30".to_string(), 1.0 / 30.0));
+        assert_eq!(list.0[1], ("0.01".to_string(), 0.01));
+        assert_eq!(list.0[2].0, "atan2(1, 2)/100");
+        assert_eq!(
+            parse_dts("1/60, 1/60").unwrap_err(),
+            "`1/60` is given twice\n  1/60, 1/60\n        ^^^^"
+        );
     }
 
     #[test]

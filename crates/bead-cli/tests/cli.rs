@@ -544,6 +544,297 @@ fn missing_file() {
     );
 }
 
+/// OS errors were printed twice: `(os error 2): No such file or directory (os error 2)`
+/// (issue 7). Every cause is printed once, after what could not be done.
+#[test]
+fn os_errors_are_printed_once() {
+    let dir = TempDir::new("os-errors");
+    let os = std::fs::read_to_string(dir.path("no-such-scene.toml"))
+        .unwrap_err()
+        .to_string();
+    let err = fails(bead_in(&dir.0, &["run", "no-such-scene.toml"]), 1);
+    assert_eq!(
+        err,
+        format!("error: no-such-scene.toml: cannot read the scene file: {os}\n")
+    );
+    // Outputs under a regular file: "Not a directory", once.
+    let file = dir.write("file", "");
+    let under = |name: &str| file.join(name);
+    let not_a_directory = std::fs::write(under("x"), "").unwrap_err().to_string();
+    let trace = run_trace(&dir);
+    let err = fails(
+        bead_in(&dir.0, &["plot", p(&trace), "-o", p(&under("x.png"))]),
+        1,
+    );
+    assert_eq!(
+        err,
+        format!(
+            "error: cannot write `{}`: {not_a_directory}\n",
+            p(&under("x.png"))
+        )
+    );
+    let err = fails(
+        bead_in(
+            &dir.0,
+            &[
+                "compare",
+                p(&parabola()),
+                "--steps",
+                "10",
+                "--report",
+                p(&under("report")),
+            ],
+        ),
+        1,
+    );
+    assert_eq!(
+        err,
+        format!(
+            "error: cannot write `{}`: {not_a_directory}\n",
+            p(&under("report"))
+        )
+    );
+    for (flag, what) in [
+        ("--trace", "cannot create trace file"),
+        ("--summary", "cannot write"),
+    ] {
+        let err = fails(
+            bead_in(
+                &dir.0,
+                &[
+                    "run",
+                    p(&parabola()),
+                    "--steps",
+                    "10",
+                    flag,
+                    p(&under("out")),
+                ],
+            ),
+            1,
+        );
+        assert_eq!(
+            err,
+            format!("error: {what} `{}`: {not_a_directory}\n", p(&under("out"))),
+            "{flag}"
+        );
+    }
+}
+
+/// `--trace X --summary X` silently overwrote the trace with the summary (issue 7). Two
+/// outputs naming one file, or an output naming an input, are a usage error naming both
+/// flags, found before anything is written.
+#[test]
+fn outputs_that_name_the_same_file_are_refused() {
+    let dir = TempDir::new("clash");
+    let scene = dir.write(
+        "s.toml",
+        &std::fs::read_to_string(parabola()).expect("parabola"),
+    );
+    let refused = |args: &[&str], expected: &str| {
+        let err = fails(bead_in(&dir.0, args), 2);
+        assert_eq!(err, format!("error: {expected}\n"), "{args:?}");
+    };
+    refused(
+        &["run", "s.toml", "--trace", "out", "--summary", "./out"],
+        "--trace out and --summary ./out are the same file; give each output its own path",
+    );
+    refused(
+        &["run", "s.toml", "--summary", p(&scene)],
+        &format!(
+            "--summary {} would overwrite the scene file s.toml",
+            p(&scene)
+        ),
+    );
+    refused(
+        &[
+            "compare",
+            "s.toml",
+            "--trace",
+            "t.csv",
+            "--summary",
+            "t.parametric.csv",
+        ],
+        "--trace t.csv (writing t.parametric.csv) and --summary t.parametric.csv are the same \
+         file; give each output its own path",
+    );
+    refused(
+        &[
+            "compare",
+            "s.toml",
+            "--dts",
+            "1/60",
+            "--report",
+            "r",
+            "--summary",
+            "r/report.html",
+        ],
+        "--summary r/report.html and --report r (writing r/report.html) are the same file; give \
+         each output its own path",
+    );
+    refused(
+        &[
+            "compare",
+            "s.toml",
+            "--dts",
+            "1/60,1*60",
+            "--trace",
+            "t.csv",
+        ],
+        "--trace t.csv (writing t.implicit.rk4.dt1_60.csv for implicit rk4 dt 1/60) and --trace \
+         t.csv (writing t.implicit.rk4.dt1_60.csv for implicit rk4 dt 1*60) are the same file; \
+         give each output its own path",
+    );
+    // Nothing was written, and the scene is intact.
+    let mut left: Vec<String> = std::fs::read_dir(&dir.0)
+        .expect("dir")
+        .map(|e| e.expect("entry").file_name().to_string_lossy().into_owned())
+        .collect();
+    left.sort();
+    assert_eq!(left, ["s.toml"]);
+    // A symbolic link is the file it points to.
+    #[cfg(unix)]
+    {
+        std::os::unix::fs::symlink(dir.path("s.toml"), dir.path("link.toml")).expect("symlink");
+        refused(
+            &["run", "link.toml", "--summary", "s.toml"],
+            "--summary s.toml would overwrite the scene file link.toml",
+        );
+    }
+    // Distinct files are fine.
+    ok(bead_in(
+        &dir.0,
+        &[
+            "run",
+            "s.toml",
+            "--steps",
+            "5",
+            "--trace",
+            "a.csv",
+            "--summary",
+            "a.json",
+        ],
+    ));
+}
+
+/// Control characters in scene strings and file names reached the terminal raw (issue 7).
+#[test]
+fn control_characters_never_reach_the_terminal() {
+    let dir = TempDir::new("control");
+    let raw = |o: &Output| {
+        let all = format!("{}{}", stdout(o), stderr(o));
+        assert!(!all.contains('\u{1b}'), "{all:?}");
+        all
+    };
+    // A title with an escape sequence is refused where it is written.
+    dir.write(
+        "s.toml",
+        &bead_scene("").replace("title = \"test bead\"", "title = \"\\u001b[2J\""),
+    );
+    let out = bead_in(&dir.0, &["run", "s.toml"]);
+    raw(&out);
+    assert_eq!(
+        fails(out, 1),
+        "error: s.toml:1:9: `title` must not contain control characters, found `\\x1b`\n  \
+         title = \"\\u001b[2J\"\n          ^^^^^^^^^^^\n"
+    );
+    // A file name cannot be refused: it is escaped (a scene without a title shows its name).
+    let name = "e\u{1b}[2Jx.toml";
+    dir.write(name, &bead_scene("").replace("title = \"test bead\"\n", ""));
+    let out = bead_in(&dir.0, &["run", name, "--steps", "2"]);
+    let text = raw(&out);
+    assert!(
+        text.starts_with("e\\x1b[2Jx\n  scene        e\\x1b[2Jx.toml\n"),
+        "{text}"
+    );
+    let out = bead_in(&dir.0, &["check", "no\u{1b}such.toml"]);
+    raw(&out);
+    assert!(fails(out, 1).starts_with("error: no\\x1bsuch.toml: cannot read the scene file: "),);
+    // JSON keeps the name, escaped the JSON way.
+    let out = ok(bead_in(&dir.0, &["run", name, "--steps", "2", "--json"]));
+    assert!(out.contains("\"scene\": \"e\\u001b[2Jx.toml\""), "{out}");
+}
+
+/// Unicode particle names were accepted but unusable in expressions (issue 7): `α.x` works
+/// in a constraint, and check, run, compare, trace headers and plot all show the names.
+#[test]
+fn unicode_names_work_in_check_run_and_traces() {
+    let dir = TempDir::new("unicode");
+    dir.write(
+        "s.toml",
+        r#"title = "α on a circle"
+[params]
+"ℓ" = 1.0
+[world]
+gravity = [0.0, -9.81]
+[[particle]]
+name = "α"
+mass = 1.0
+position = ["ℓ", 0.0]
+[[constraint]]
+name = "rod"
+expr = "α.x^2 + α.y^2 - ℓ^2"
+[parametric]
+coordinates = ["θ"]
+initial = ["pi/2"]
+[parametric.positions]
+"α" = ["ℓ*sin(θ)", "-ℓ*cos(θ)"]
+"#,
+    );
+    let check = ok(bead_in(&dir.0, &["check", "s.toml"]));
+    assert!(check.starts_with("α on a circle\n"), "{check}");
+    assert!(check.contains("dC/d(α.x) = 2*α.x"), "{check}");
+    assert!(check.contains("α.x = sin(θ)"), "{check}");
+    let run = ok(bead_in(
+        &dir.0,
+        &[
+            "run", "s.toml", "--steps", "10", "--trace", "i.csv", "--set", "ℓ=1",
+        ],
+    ));
+    assert!(run.starts_with("α on a circle\n"), "{run}");
+    let header = |file: &str| {
+        let text = std::fs::read_to_string(dir.path(file)).expect("trace");
+        text.lines().next().expect("header").to_string()
+    };
+    assert_eq!(
+        header("i.csv"),
+        "t,α.x,α.y,α.vx,α.vy,energy,constraint_error"
+    );
+    ok(bead_in(
+        &dir.0,
+        &[
+            "run",
+            "s.toml",
+            "--steps",
+            "10",
+            "--method",
+            "parametric",
+            "--trace",
+            "p.csv",
+        ],
+    ));
+    assert_eq!(
+        header("p.csv"),
+        "t,α.x,α.y,α.vx,α.vy,energy,constraint_error,q.θ,qdot.θ"
+    );
+    let value: serde_json::Value = serde_json::from_str(&ok(bead_in(
+        &dir.0,
+        &["compare", "s.toml", "--steps", "10", "--json"],
+    )))
+    .expect("JSON");
+    assert_eq!(
+        value[1]["coordinates"]["θ"].as_array().map(Vec::len),
+        Some(2)
+    );
+    assert!(value[0]["particles"]["α"]["position"].is_array(), "{value}");
+    let plotted = ok(bead_in(
+        &dir.0,
+        &["plot", "p.csv", "--columns", "α.x,q.θ", "-o", "p.svg"],
+    ));
+    assert_eq!(plotted, "wrote p.svg\n");
+    let svg = std::fs::read_to_string(dir.path("p.svg")).expect("svg");
+    assert!(svg.contains("α.x") && svg.contains("q.θ"), "labels");
+}
+
 #[test]
 fn bad_toml_names_line_and_column() {
     let dir = TempDir::new("bad-toml");
@@ -713,13 +1004,111 @@ fn steps_conflict_with_duration() {
 fn bad_set() {
     for (set, message) in [
         ("g", "expected NAME=VALUE, got `g`"),
-        ("g=abc", "the value of `g` must be a number, got `abc`"),
-        ("g=inf", "the value of `g` must be finite, got `inf`"),
+        // Values are expressions of numbers (see numeric_flags_take_expressions), so a
+        // word is a name that is not a number, and `inf` is refused by name.
+        ("g=abc", "the value of `g`: `abc` is not a number"),
+        (
+            "g=inf",
+            "the value of `g`: `inf` is not allowed here: numbers must be finite",
+        ),
+        ("g=1e308*10", "the value of `g`: must be finite, got inf"),
         ("=1", "the name is empty"),
     ] {
         let err = fails(bead(&["run", p(&parabola()), "--set", set]), 2);
         assert!(err.contains(message), "{set}: {err}");
     }
+}
+
+/// `--dt 1/60` used to be refused while `--dts 1/60` was accepted (issue 7).
+#[test]
+fn numeric_flags_take_expressions() {
+    let scene = parabola();
+    let json = |args: &[&str]| -> serde_json::Value {
+        let mut all = vec!["run", p(&scene), "--json"];
+        all.extend_from_slice(args);
+        serde_json::from_str(&ok(bead(&all))).expect("JSON")
+    };
+    let plain = json(&["--dt", "0.016666666666666666", "--duration", "1"]);
+    let typed = json(&["--dt", "1/60", "--duration", "2*5/10"]);
+    assert_eq!(typed["dt"], plain["dt"]);
+    assert_eq!(typed["steps"], 60);
+    assert_eq!(typed["particles"], plain["particles"]);
+    // --set g=2*250 is the scene's own g = 500.
+    let set = json(&["--steps", "10", "--set", "g=2*250"]);
+    let own = json(&["--steps", "10"]);
+    assert_eq!(set["particles"], own["particles"]);
+    let moved = json(&["--steps", "10", "--set", "g=sqrt(4)*pi"]);
+    assert_ne!(moved["particles"], own["particles"]);
+    // --stabilize, --rtol and --atol.
+    let text = ok(bead(&[
+        "run",
+        p(&parabola()),
+        "--steps",
+        "10",
+        "--stabilize",
+        "2*79, atan2(0, 1) + 25",
+    ]));
+    assert!(text.contains("ks = 158, kd = 25"), "{text}");
+    let text = ok(bead(&[
+        "run",
+        p(&parabola()),
+        "--integrator",
+        "dopri5",
+        "--rtol",
+        "1/1e9",
+        "--atol",
+        "10^-12",
+    ]));
+    assert!(text.contains("rtol 1e-9, atol 1e-12"), "{text}");
+}
+
+#[test]
+fn numeric_flag_errors_point_into_the_value() {
+    for (args, expected) in [
+        (
+            vec!["--dt", "1/"],
+            "error: invalid value '1/' for '--dt <SECONDS>': unexpected end of expression, \
+             expected a number, name or `(`\n  1/\n    ^\n",
+        ),
+        (
+            vec!["--duration", "10 - 2*5"],
+            "error: invalid value '10 - 2*5' for '--duration <SECONDS>': must be positive, got 0\n  \
+             10 - 2*5\n  ^^^^^^^^\n",
+        ),
+        (
+            vec!["--set", "g=2*g"],
+            "error: invalid value 'g=2*g' for '--set <NAME=VALUE>': the value of `g`: `g` is not \
+             a number; a --set value may use pi, e and functions like sqrt(2), not the scene's \
+             parameters\n  g=2*g\n      ^\n",
+        ),
+        (
+            vec!["--stabilize", "100,-20"],
+            "error: invalid value '100,-20' for '--stabilize <KS,KD>': KD: must not be negative, \
+             got -20; expected KS,KD (two finite numbers >= 0, e.g. 100,20)\n  100,-20\n      ^^^\n",
+        ),
+        (
+            vec!["--rtol", "1e-9 x"],
+            "error: invalid value '1e-9 x' for '--rtol <RTOL>': unexpected `x`, expected an operator \
+             (implicit multiplication is not supported; write `*`)\n  1e-9 x\n       ^\n",
+        ),
+    ] {
+        let scene = parabola();
+        let mut all = vec!["run", p(&scene)];
+        all.extend_from_slice(&args);
+        let err = fails(bead(&all), 2);
+        assert!(
+            err.starts_with(expected),
+            "{args:?}:\n{err}\nexpected:\n{expected}"
+        );
+    }
+    let err = fails(
+        bead(&["compare", p(&parabola()), "--dts", "1/30, 1/60, 1/60"]),
+        2,
+    );
+    assert!(
+        err.contains("`1/60` is given twice\n  1/30, 1/60, 1/60\n              ^^^^\n"),
+        "{err}"
+    );
 }
 
 #[test]
@@ -969,6 +1358,110 @@ fn check_accepts_every_shipped_scene() {
     }
 }
 
+/// Whether `text` has a run of more than 20 digits (a number printed in full, like 1e300 as
+/// 1000...0).
+fn has_long_number(text: &str) -> bool {
+    text.split(|c: char| !c.is_ascii_digit())
+        .any(|run| run.len() > 20)
+}
+
+/// Overflow must never be reported as singular constraints, nor printed as 300 digits
+/// (issue 7): a huge dt, a huge mass and a constraint that divides by zero are each named.
+#[test]
+fn overflow_is_named_never_called_singular() {
+    let dir = TempDir::new("overflow");
+    let circle = "[[constraint]]\nexpr = \"bead.x^2 + bead.y^2 - 1\"\n";
+    dir.write("circle.toml", &bead_scene(circle));
+    let out = bead_in(&dir.0, &["run", "circle.toml", "--dt", "1e300"]);
+    let text = stdout(&out);
+    let err = fails(out, 1);
+    assert_eq!(
+        err,
+        "error: at t = 5e299: the position bead.y (inf) is not finite\n"
+    );
+    assert!(
+        text.contains("dt           1e300 s") && !has_long_number(&text),
+        "{text}"
+    );
+
+    dir.write(
+        "heavy.toml",
+        &bead_scene(circle).replace("mass = 1.0", "mass = 1e308"),
+    );
+    let err = fails(bead_in(&dir.0, &["run", "heavy.toml"]), 1);
+    assert_eq!(
+        err,
+        "error: heavy.toml:7:8: particle 1: `mass` must be between 1e-100 and 1e100, got 1e308: \
+         masses, their inverses and momenta must stay far from overflow and underflow\n  \
+         mass = 1e308\n         ^^^^^\n"
+    );
+
+    dir.write(
+        "divide.toml",
+        &bead_scene("[[constraint]]\nexpr = \"bead.x^2 + bead.y^2 - 1 + 1/0\"\n"),
+    );
+    let err = fails(bead_in(&dir.0, &["run", "divide.toml"]), 1);
+    assert_eq!(
+        err,
+        "warning: constraint 1 (`bead.x^2 + bead.y^2 - 1 + 1/0 = 0`): its value at the initial \
+         positions is not finite (inf)\n\
+         error: the initial state cannot be simulated: at t = 0: the value of constraint 1 (inf) \
+         is not finite\n"
+    );
+}
+
+/// Scene warnings printed 300-digit decimals and `by inf`, and `Cdot = 5e1` where `check`
+/// printed `-50` (issue 7): numbers are exact and short, measured values signed and printed
+/// like `check` prints them, and what is not finite is said in words.
+#[test]
+fn warnings_print_numbers_like_check() {
+    let dir = TempDir::new("warnings");
+    let circle = "[[constraint]]\nexpr = \"bead.x^2 + bead.y^2 - 1\"\n";
+    dir.write(
+        "moving.toml",
+        &bead_scene(circle).replace("velocity = [0.0, 0.0]", "velocity = [-25.0, 0.0]"),
+    );
+    let out = bead_in(&dir.0, &["run", "moving.toml", "--steps", "1"]);
+    assert_eq!(
+        stderr(&out),
+        "warning: constraint 1 (`bead.x^2 + bead.y^2 - 1 = 0`): the initial velocities are not \
+         tangent to it: Cdot = -50\n"
+    );
+    let check = ok(bead_in(&dir.0, &["check", "moving.toml"]));
+    assert!(check.contains("at t = 0: C = 0, Cdot = -50\n"), "{check}");
+
+    let off = bead_scene(circle).replace("position = [1.0, 0.0]", "position = [1.5, 0.0]");
+    dir.write("off.toml", &off);
+    let out = bead_in(&dir.0, &["run", "off.toml", "--steps", "1"]);
+    assert_eq!(
+        stderr(&out),
+        "warning: constraint 1 (`bead.x^2 + bead.y^2 - 1 = 0`): the initial positions violate \
+         it: C = 1.25 (about 0.416667 off the constraint)\n"
+    );
+    let check = ok(bead_in(&dir.0, &["check", "off.toml"]));
+    assert!(check.contains("at t = 0: C = 1.25, Cdot = 0\n"), "{check}");
+
+    // A parametric form 1e300 away: exact short numbers, and no `by inf`.
+    let huge = bead_scene(
+        "[parametric]\ncoordinates = [\"q\"]\ninitial = [1e300]\n\
+         [parametric.positions]\nbead = [\"q\", \"0\"]\n",
+    )
+    .replace("position = [1.0, 0.0]", "position = [-1e300, 0.0]");
+    dir.write("huge.toml", &huge);
+    let out = bead_in(&dir.0, &["check", "huge.toml"]);
+    let err = stderr(&out);
+    assert_eq!(
+        err,
+        "warning: particle `bead`: the parametric form's initial position x(q0) = [1e300, 0] \
+         differs from the scene's position [-1e300, 0] by more than the largest representable \
+         number\n"
+    );
+    assert!(
+        !has_long_number(&ok(out)),
+        "check prints no 300-digit number"
+    );
+}
+
 #[test]
 fn divergence_names_the_time_and_keeps_the_trace_and_summary() {
     let dir = TempDir::new("diverge");
@@ -1151,6 +1644,60 @@ fn without_constraints_the_default_is_parametric_and_compare_runs_only_it() {
     assert_eq!(value.as_array().map(Vec::len), Some(1));
 }
 
+/// `bead run scenes/cycloid.toml --method implicit` simulated free fall silently: the scene
+/// has a parametric form and no constraints (issue 7). The library refuses it now.
+#[test]
+fn cycloid_refuses_the_implicit_method_and_compares_only_its_parametric_form() {
+    let cycloid = scene("cycloid.toml");
+    for integrator in ["rk4", "rattle", "dopri5"] {
+        let err = fails(
+            bead(&[
+                "run",
+                p(&cycloid),
+                "--method",
+                "implicit",
+                "--integrator",
+                integrator,
+            ]),
+            1,
+        );
+        assert_eq!(
+            err,
+            "error: the scene has no constraints, only a parametric form: its implicit form \
+             would simulate free particles, not the system of its [parametric] table; use the \
+             parametric method, or add [[constraint]] tables\n",
+            "{integrator}"
+        );
+    }
+    let out = ok(bead(&["compare", p(&cycloid), "--steps", "10"]));
+    let methods: Vec<&str> = out
+        .lines()
+        .skip_while(|l| !l.starts_with("---"))
+        .skip(1)
+        .filter_map(|l| l.split_whitespace().next())
+        .collect();
+    assert_eq!(methods, ["parametric"], "{out}");
+    // Flags for the implicit form only are not silently dropped, nor claimed in the header.
+    let out = bead(&["compare", p(&cycloid), "--steps", "10", "--project"]);
+    assert_eq!(
+        stderr(&out),
+        "warning: --project applies to the implicit form only, and the scene has no \
+         constraints: compare runs its parametric form alone; not used\n"
+    );
+    let text = ok(out);
+    assert!(!text.contains("implicit"), "{text}");
+    let out = ok(bead(&[
+        "compare",
+        p(&cycloid),
+        "--steps",
+        "10",
+        "--integrators",
+        "rk4,rattle",
+    ]));
+    assert!(out.contains("\nparametric          rk4 "), "{out}");
+    assert!(out.contains("skipped: parametric x rattle: "), "{out}");
+}
+
 #[test]
 fn without_a_parametric_form_compare_runs_only_implicit() {
     let dir = TempDir::new("implicit-only");
@@ -1244,6 +1791,86 @@ fn dopri5_reports_accepted_and_rejected_steps() {
         let flag = bad.split('=').next().unwrap();
         assert!(err.contains(flag), "{bad}: {err}");
     }
+}
+
+/// dopri5's steps/s used to count output intervals; the core counts its accepted steps now
+/// (issue 7). The summary, `run`'s text and compare's table say which is which.
+#[test]
+fn dopri5_steps_per_second_counts_accepted_steps() {
+    let out = ok(bead(&[
+        "run",
+        p(&parabola()),
+        "--integrator",
+        "dopri5",
+        "--duration",
+        "1",
+        "--json",
+    ]));
+    let value: serde_json::Value = serde_json::from_str(&out).expect("JSON");
+    let accepted = value["accepted_steps"].as_u64().expect("accepted_steps");
+    let wall = value["wall_seconds"].as_f64().expect("wall_seconds");
+    let speed = value["steps_per_second"]
+        .as_f64()
+        .expect("steps_per_second");
+    assert_eq!(value["steps"].as_u64(), Some(accepted), "{out}");
+    assert_ne!(
+        accepted, 60,
+        "dopri5 takes its own steps, not the 60 output intervals"
+    );
+    assert!(wall > 0.0, "{out}");
+    assert!(
+        (speed - accepted as f64 / wall).abs() <= 1e-12 * speed,
+        "{speed} != {accepted} / {wall}"
+    );
+
+    let text = ok(bead(&[
+        "run",
+        p(&parabola()),
+        "--integrator",
+        "dopri5",
+        "--duration",
+        "1",
+    ]));
+    assert!(
+        text.contains("  dt           0.016666666666666666 s, the output interval\n"),
+        "{text}"
+    );
+    assert!(
+        text.contains("  output       60 intervals of dt\n"),
+        "{text}"
+    );
+    assert!(text.contains(" accepted steps/s (wall time "), "{text}");
+    let steps = text
+        .lines()
+        .find(|l| l.starts_with("  steps "))
+        .expect("steps row");
+    assert!(
+        steps.contains(" accepted steps, ") && steps.contains("chosen by dopri5"),
+        "{steps}"
+    );
+
+    let table = ok(bead(&[
+        "compare",
+        p(&parabola()),
+        "--integrator",
+        "dopri5",
+        "--duration",
+        "1",
+    ]));
+    assert!(
+        table.contains("; 60 output intervals to t = 1 s\n"),
+        "{table}"
+    );
+    assert!(
+        table.ends_with(
+            "steps/s counts integrator steps; an adaptive integrator's are its accepted \
+             steps, and its dt is the output interval\n"
+        ),
+        "{table}"
+    );
+    let fixed = ok(bead(&["compare", p(&parabola()), "--duration", "1"]));
+    assert!(fixed.contains("; 60 steps to t = 1 s\n"), "{fixed}");
+    assert!(!fixed.contains("accepted"), "{fixed}");
 }
 
 #[test]
@@ -1524,7 +2151,7 @@ fn compare_period_of_the_circle_matches_the_large_amplitude_pendulum() {
 
 #[test]
 fn dts_entries_must_be_positive_numbers_or_fractions() {
-    for (bad, message) in [("1/0", "divides by zero"), ("abc", "not a number")] {
+    for (bad, message) in [("1/0", "must be finite, got inf"), ("abc", "not a number")] {
         let err = fails(
             bead(&["compare", p(&parabola()), "--dts", &format!("1/60,{bad}")]),
             2,
@@ -1574,6 +2201,72 @@ fn plot_writes_png_by_default_and_svg_by_extension() {
     let text = std::fs::read_to_string(&svg).expect("svg");
     roxmltree::Document::parse(&text).expect("the SVG parses");
     assert!(text.contains("bead.x") && text.contains("constraint_error"));
+}
+
+/// A CSV with nothing to plot (only `t`, or no finite value besides it) made `bead plot`
+/// write a blank PNG and exit 0 (issue 7). It is an error, and no file is written.
+#[test]
+fn plot_refuses_a_trace_with_nothing_to_plot() {
+    let dir = TempDir::new("plot-nothing");
+    for (file, text, message) in [
+        (
+            "only_t.csv",
+            "t\n0\n0.1\n",
+            "nothing to plot: the trace has only the column `t`",
+        ),
+        (
+            "nan.csv",
+            "t,energy\n0,nan\n0.1,inf\n",
+            "nothing to plot: column `energy` has no finite value in 2 rows",
+        ),
+        (
+            "no_t.csv",
+            "t,energy,bead.x\nnan,1,2\n",
+            "nothing to plot: column `t` has no finite value in 1 row",
+        ),
+        (
+            "empty.csv",
+            "",
+            "the file is empty; expected a header row starting with `t`",
+        ),
+        ("header.csv", "t,energy\n", "no data rows after the header"),
+        (
+            "blank_rows.csv",
+            "t,energy\n\n\n",
+            "no data rows after the header",
+        ),
+    ] {
+        dir.write(file, text);
+        let err = fails(bead_in(&dir.0, &["plot", file]), 1);
+        assert_eq!(err, format!("error: {file}: {message}\n"));
+    }
+    let err = fails(
+        bead_in(
+            &dir.0,
+            &["plot", "nan.csv", "--columns", "energy", "-o", "x.svg"],
+        ),
+        1,
+    );
+    assert!(err.contains("column `energy` has no finite value"), "{err}");
+    let err = fails(bead_in(&dir.0, &["plot", "nan.csv", "--columns", "t"]), 1);
+    assert_eq!(
+        err,
+        "error: `t` is the horizontal axis of every panel; choose among energy\n"
+    );
+    let written: Vec<String> = std::fs::read_dir(&dir.0)
+        .expect("dir")
+        .map(|e| e.expect("entry").file_name().to_string_lossy().into_owned())
+        .filter(|n| n.ends_with(".png") || n.ends_with(".svg"))
+        .collect();
+    assert!(written.is_empty(), "{written:?}");
+    // One empty column among others is plotted, with a warning.
+    dir.write("half.csv", "t,energy,bead.x\n0,nan,1\n0.1,nan,2\n");
+    let out = bead_in(&dir.0, &["plot", "half.csv", "--columns", "energy,bead.x"]);
+    assert_eq!(
+        stderr(&out),
+        "warning: half.csv: column `energy` has no finite value; its panel is empty\n"
+    );
+    assert_eq!(ok(out), "wrote half.png\n");
 }
 
 #[test]

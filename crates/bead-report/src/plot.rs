@@ -41,18 +41,16 @@ fn register_fonts() {
     });
 }
 
-/// Why a plot could not be written.
+/// Why a plot could not be written. Each message includes its cause, and no variant has a
+/// [`std::error::Error::source`]: printing the chain (`{:#}` in anyhow) shows every cause once.
 #[derive(Debug, thiserror::Error)]
 pub enum PlotError {
     #[error("`{0}`: unknown plot format; use a .png or .svg file name")]
     Format(String),
     #[error("cannot draw `{path}`: {message}")]
     Draw { path: String, message: String },
-    #[error("cannot write `{path}`: {source}")]
-    Io {
-        path: String,
-        source: std::io::Error,
-    },
+    #[error("cannot write `{path}`: {error}")]
+    Io { path: String, error: std::io::Error },
 }
 
 /// File format of a plot.
@@ -434,9 +432,9 @@ pub fn write_figure(figure: &Figure, path: &Path) -> Result<(), PlotError> {
                 draw(figure, &root).map_err(draw_error)?;
                 root.present().map_err(|e| draw_error(e.to_string()))?;
             }
-            let io = |source: std::io::Error| PlotError::Io {
+            let io = |error: std::io::Error| PlotError::Io {
                 path: name.clone(),
-                source,
+                error,
             };
             let file = std::fs::File::create(path).map_err(io)?;
             let mut encoder = png::Encoder::new(std::io::BufWriter::new(file), width, height);
@@ -464,9 +462,9 @@ pub fn write_figure(figure: &Figure, path: &Path) -> Result<(), PlotError> {
         }
         Format::Svg => {
             let text = svg_string(figure).map_err(draw_error)?;
-            std::fs::write(path, text).map_err(|source| PlotError::Io {
+            std::fs::write(path, text).map_err(|error| PlotError::Io {
                 path: name.clone(),
-                source,
+                error,
             })?;
         }
     }

@@ -271,35 +271,10 @@ pub struct Report {
     pub skipped: Vec<String>,
 }
 
-/// `x` with `sig` significant digits in the shorter of fixed and exponent notation.
-pub fn sig(x: f64, sig: usize) -> String {
-    if !x.is_finite() {
-        return format!("{x}");
-    }
-    if x == 0.0 {
-        return "0".into();
-    }
-    let sig = sig.max(1);
-    let rounded: f64 = format!("{:.*e}", sig - 1, x).parse().unwrap_or(x);
-    let exponent = rounded.abs().log10().floor() as i32;
-    let trim = |s: &str| -> String {
-        if s.contains('.') {
-            s.trim_end_matches('0').trim_end_matches('.').to_string()
-        } else {
-            s.to_string()
-        }
-    };
-    if exponent < -4 || exponent >= sig as i32 {
-        let s = format!("{:.*e}", sig - 1, rounded);
-        match s.split_once('e') {
-            Some((mantissa, exp)) => format!("{}e{exp}", trim(mantissa)),
-            None => s,
-        }
-    } else {
-        let decimals = (sig as i32 - 1 - exponent).max(0) as usize;
-        trim(&format!("{:.*}", decimals, rounded))
-    }
-}
+/// `x` with `sig` significant digits in the shorter of fixed and exponent notation: the
+/// library's [`bead::significant`], so that reports, the CLI and the library's messages print
+/// numbers alike.
+pub use bead::significant as sig;
 
 impl Report {
     /// The comparison table: a header row, then one row per run. Columns: method,
@@ -569,16 +544,14 @@ pub struct ReportFiles {
     pub plots: Vec<PathBuf>,
 }
 
-/// Why a report could not be written.
+/// Why a report could not be written. The message includes the cause (no `source()`, so
+/// that printing the chain shows it once).
 #[derive(Debug, thiserror::Error)]
 pub enum ReportError {
     #[error(transparent)]
     Plot(#[from] PlotError),
-    #[error("cannot write `{path}`: {source}")]
-    Io {
-        path: String,
-        source: std::io::Error,
-    },
+    #[error("cannot write `{path}`: {error}")]
+    Io { path: String, error: std::io::Error },
 }
 
 fn escape(s: &str) -> String {
@@ -594,6 +567,24 @@ td{text-align:right;font-variant-numeric:tabular-nums}td:first-child,td:nth-chil
 th{background:#f0f0f0}figure{margin:1.5em 0}figcaption{font-size:14px;color:#444;margin-top:.3em}\
 svg{max-width:100%;height:auto}.skipped{color:#844}";
 
+/// The figures of a report by file stem; each is written as `STEM.png` and `STEM.svg`.
+pub const FIGURES: [&str; 4] = [
+    "constraint_error",
+    "energy_error",
+    "trajectories",
+    "work_precision",
+];
+
+/// Every file [`write_report`] writes into `dir`: `report.html` and each figure's PNG and SVG.
+pub fn report_files(dir: &Path) -> Vec<PathBuf> {
+    let mut files = vec![dir.join("report.html")];
+    for name in FIGURES {
+        files.push(dir.join(format!("{name}.png")));
+        files.push(dir.join(format!("{name}.svg")));
+    }
+    files
+}
+
 /// Write `report` into `dir` (created if needed): `report.html` and, per figure, a PNG and an
 /// SVG (`constraint_error`, `energy_error`, `trajectories`, `work_precision`). The HTML is
 /// self-contained: inline CSS, the table, the SVGs inline, and relative links to the PNG and
@@ -601,17 +592,17 @@ svg{max-width:100%;height:auto}.skipped{color:#844}";
 pub fn write_report(report: &Report, dir: &Path) -> Result<ReportFiles, ReportError> {
     let io = |path: &Path| {
         let path = path.display().to_string();
-        move |source| ReportError::Io { path, source }
+        move |error| ReportError::Io { path, error }
     };
     std::fs::create_dir_all(dir).map_err(io(dir))?;
     let figures = [
         (
-            "constraint_error",
+            FIGURES[0],
             report.constraint_figure(),
             "Constraint error max_i |C_i| against time, per run.",
         ),
         (
-            "energy_error",
+            FIGURES[1],
             report.energy_figure(),
             if report.runs.iter().any(|r| r.recording.energy_balance) {
                 "Energy is not conserved here (something does work on the system): the error of the conserved balance E - W, |E - W - E0| / E_scale, against time, per run (W: the work done on the system, integrated by the run's integrator; E_scale = max(|E0|, T0 + |V0|, T0 + M |g| L))."
@@ -620,7 +611,7 @@ pub fn write_report(report: &Report, dir: &Path) -> Result<ReportFiles, ReportEr
             },
         ),
         (
-            "trajectories",
+            FIGURES[2],
             report.trajectory_figure(),
             if report.system.dim() == 3 {
                 "Trajectories in particle space, projected onto the x-y plane (left) and the x-z plane (right); for long runs the first and the last samples of each run (each at full resolution)."
@@ -629,7 +620,7 @@ pub fn write_report(report: &Report, dir: &Path) -> Result<ReportFiles, ReportEr
             },
         ),
         (
-            "work_precision",
+            FIGURES[3],
             report.work_precision_figure(),
             "Work-precision: the largest error of each run against its wall time; one point per dt, one line per method and integrator.",
         ),

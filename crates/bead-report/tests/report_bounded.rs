@@ -76,6 +76,12 @@ fn a_report_over_100_000_steps_keeps_at_most_the_bounded_points_per_series() {
     };
     let dir = std::env::temp_dir().join(format!("bead-report-bounded-{}", std::process::id()));
     let files = write_report(&report, &dir).unwrap();
+    // report_files lists what write_report writes (the CLI checks other outputs against it).
+    let mut written: Vec<_> = files.plots.iter().chain([&files.html]).cloned().collect();
+    let mut listed = bead_report::report::report_files(&dir);
+    written.sort();
+    listed.sort();
+    assert_eq!(written, listed);
     let total: u64 = files
         .plots
         .iter()

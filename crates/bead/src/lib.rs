@@ -31,6 +31,110 @@ pub fn readable(value: f64) -> String {
     }
 }
 
+/// `x` with `digits` significant digits, in the shorter of fixed and exponent notation (like
+/// C's `%g`), signed: the formatter of measured values (residuals, errors, energies) in
+/// messages, reports and the CLI, so that every front end prints a number the same way.
+///
+/// ```
+/// assert_eq!(bead::significant(-50.0, 6), "-50");
+/// assert_eq!(bead::significant(1.0 / 60.0, 6), "0.0166667");
+/// assert_eq!(bead::significant(1.234e-8, 4), "1.234e-8");
+/// assert_eq!(bead::significant(f64::INFINITY, 4), "inf");
+/// ```
+pub fn significant(x: f64, digits: usize) -> String {
+    if !x.is_finite() {
+        return format!("{x}");
+    }
+    if x == 0.0 {
+        return "0".into();
+    }
+    let digits = digits.max(1);
+    let rounded: f64 = format!("{:.*e}", digits - 1, x).parse().unwrap_or(x);
+    let exponent = rounded.abs().log10().floor() as i32;
+    let trim = |s: &str| -> String {
+        if s.contains('.') {
+            s.trim_end_matches('0').trim_end_matches('.').to_string()
+        } else {
+            s.to_string()
+        }
+    };
+    if exponent < -4 || exponent >= digits as i32 {
+        let s = format!("{:.*e}", digits - 1, rounded);
+        match s.split_once('e') {
+            Some((mantissa, exp)) => format!("{}e{exp}", trim(mantissa)),
+            None => s,
+        }
+    } else {
+        let decimals = (digits as i32 - 1 - exponent).max(0) as usize;
+        trim(&format!("{:.*}", decimals, rounded))
+    }
+}
+
+/// `text` with every control character escaped, so that it can be shown on a terminal or
+/// quoted in a message on one line: `\n`, `\r`, `\t`, other ASCII controls as `\x1b`, the C1
+/// controls (U+0080 to U+009F) as `\u{9b}`. Everything else, Unicode included, is kept.
+///
+/// ```
+/// assert_eq!(bead::printable("a\u{1b}[31mb\n"), "a\\x1b[31mb\\n");
+/// assert_eq!(bead::printable("α.x"), "α.x");
+/// ```
+pub fn printable(text: &str) -> std::borrow::Cow<'_, str> {
+    if !text.chars().any(char::is_control) {
+        return std::borrow::Cow::Borrowed(text);
+    }
+    let mut out = String::with_capacity(text.len() + 8);
+    for c in text.chars() {
+        push_printable(&mut out, c);
+    }
+    std::borrow::Cow::Owned(out)
+}
+
+/// Push `c`, escaped as [`printable`] does when it is a control character.
+pub(crate) fn push_printable(out: &mut String, c: char) {
+    match c {
+        '\n' => out.push_str("\\n"),
+        '\r' => out.push_str("\\r"),
+        '\t' => out.push_str("\\t"),
+        c if c.is_control() && (c as u32) < 0x80 => {
+            out.push_str(&format!("\\x{:02x}", c as u32));
+        }
+        c if c.is_control() => out.push_str(&format!("\\u{{{:x}}}", c as u32)),
+        c => out.push(c),
+    }
+}
+
+/// `line` and, under it, a caret line marking bytes `start..end` of it (at least one caret):
+/// the snippet of located errors. Control characters are escaped as [`printable`] does, and
+/// the carets follow the escaped text; tabs are kept, and repeated in the caret line's
+/// padding, so that the carets line up whatever the tab width.
+pub(crate) fn caret_snippet(line: &str, start: usize, end: usize) -> String {
+    let width = |c: char| {
+        let mut escaped = String::new();
+        push_printable(&mut escaped, c);
+        escaped.chars().count()
+    };
+    let mut shown = String::with_capacity(line.len() + 8);
+    let mut pad = String::new();
+    let mut carets = 0;
+    for (i, c) in line.char_indices() {
+        if c == '\t' {
+            shown.push('\t');
+        } else {
+            push_printable(&mut shown, c);
+        }
+        if i < start {
+            if c == '\t' {
+                pad.push('\t');
+            } else {
+                pad.extend(std::iter::repeat_n(' ', width(c)));
+            }
+        } else if i < end {
+            carets += width(c);
+        }
+    }
+    format!("{shown}\n{pad}{}", "^".repeat(carets.max(1)))
+}
+
 /// The README's Rust examples, compiled and run as doctests.
 #[doc = include_str!("../../../README.md")]
 #[cfg(doctest)]

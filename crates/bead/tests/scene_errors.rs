@@ -137,6 +137,17 @@ fn mass_not_positive() {
     );
 }
 
+/// A mass of 1e308 was refused by the builder but located at the particle's name (issue 7).
+#[test]
+fn mass_out_of_range_is_located_at_the_mass() {
+    assert_eq!(
+        error(&edit("mass = 1.0", "mass = 1e308")),
+        "s.toml:8:8: particle 1: `mass` must be between 1e-100 and 1e100, got 1e308: masses, \
+         their inverses and momenta must stay far from overflow and underflow\n  mass = 1e308\n         ^^^^^"
+    );
+    assert!(error(&edit("mass = 1.0", "mass = \"1e-200\"")).contains("got 1e-200"));
+}
+
 #[test]
 fn nan_and_inf() {
     assert_eq!(
@@ -182,6 +193,82 @@ fn invalid_particle_name_from_the_model() {
         error(&edit("name = \"bead\"", "name = \"my bead\"")),
         "s.toml:7:8: particle 1: particle name `my bead` must be a letter or `_` followed by letters, digits or `_`\n  \
          name = \"my bead\"\n         ^^^^^^^^^"
+    );
+}
+
+/// Control characters in a title or a constraint name were echoed raw to the terminal
+/// (issue 7): they are refused where they are written; a raw one in the file is a TOML error
+/// whose snippet shows it escaped, with the caret under the escape.
+#[test]
+fn control_characters_in_titles_and_names_are_refused() {
+    assert_eq!(
+        error(&edit("title = \"t\"", "title = \"a\\u001b[31mb\"")),
+        "s.toml:1:9: `title` must not contain control characters, found `\\x1b`\n  \
+         title = \"a\\u001b[31mb\"\n          ^^^^^^^^^^^^^^"
+    );
+    assert_eq!(
+        error(&format!(
+            "{BASE}[[constraint]]\nname = \"ring\\r\"\nexpr = \"bead.x\"\n"
+        )),
+        "s.toml:13:8: constraint 2: `name` must not contain control characters, found `\\r`\n  \
+         name = \"ring\\r\"\n         ^^^^^^^^"
+    );
+    assert_eq!(
+        error(&edit("title = \"t\"", "title = \"a\u{1b}b\"")),
+        "s.toml:1:11: invalid basic string, expected non-double-quote visible characters, `\\`\n  \
+         title = \"a\\x1bb\"\n            ^^^^"
+    );
+}
+
+/// The loader accepted Unicode particle names that no expression could use: the lexer took
+/// ASCII identifiers only (issue 7). Names and expressions now share one rule (Unicode XID,
+/// as in Rust), so `α.x` works, and a name that is not an identifier is refused where it is
+/// written.
+#[test]
+fn unicode_names_are_usable_in_expressions() {
+    let text = r#"title = "α on a circle"
+[params]
+"ℓ" = 2.0
+[world]
+gravity = [0.0, -9.81]
+[[particle]]
+name = "α"
+mass = 1.0
+position = ["ℓ", 0.0]
+[[constraint]]
+expr = "α.x^2 + α.y^2 - ℓ^2"
+[parametric]
+coordinates = ["θ"]
+initial = ["pi/2"]
+[parametric.positions]
+"α" = ["ℓ*sin(θ)", "-ℓ*cos(θ)"]
+"#;
+    let scene = Scene::parse(text, "s.toml", &[]).unwrap_or_else(|e| panic!("{e}"));
+    assert!(scene.warnings().is_empty(), "{:?}", scene.warnings());
+    let system = &scene.system;
+    assert_eq!(system.coordinate_name(0), "α.x");
+    assert_eq!(system.coordinate_name(1), "α.y");
+    assert_eq!(system.degrees_of_freedom(), 1);
+    assert_eq!(scene.params, [("ℓ".to_string(), 2.0)]);
+    // --set reaches a Unicode parameter.
+    let moved = Scene::parse(
+        &text.replace("position = [\"ℓ\", 0.0]", "position = [3.0, 0.0]"),
+        "s.toml",
+        &[("ℓ".to_string(), 3.0)],
+    )
+    .unwrap();
+    assert!(moved.warnings().is_empty(), "{:?}", moved.warnings());
+
+    // Names that are not identifiers are refused, located.
+    assert_eq!(
+        error(&edit("name = \"bead\"", "name = \"x²\"")),
+        "s.toml:7:8: particle 1: particle name `x²` must be a letter or `_` followed by letters, \
+         digits or `_`\n  name = \"x²\"\n         ^^^^"
+    );
+    assert_eq!(
+        error(&edit("g = 10.0", "\"θ₁\" = 10.0")),
+        "s.toml:3:1: parameter `θ₁`: a parameter name must be a letter or `_` followed by \
+         letters, digits or `_`\n  \"θ₁\" = 10.0\n  ^^^^"
     );
 }
 
@@ -252,10 +339,11 @@ fn expression_syntax_error_points_inside_the_string() {
         error(&edit("bead.x^2 + bead.y^2 - 1", "")),
         "s.toml:11:9: constraint 1: empty expression\n  expr = \"\"\n          ^"
     );
-    // Columns count characters, and tabs are kept so that the caret lines up.
+    // Columns count characters, and tabs are kept so that the caret lines up. (`²`, two
+    // bytes: `ü` was used here until identifiers became Unicode and `ü` a name.)
     assert_eq!(
-        error(&edit("mass = 1.0", "mass =\t\"2*€\"")),
-        "s.toml:8:11: particle 1: unexpected character `€`\n  mass =\t\"2*€\"\n        \t   ^"
+        error(&edit("mass = 1.0", "mass =\t\"2*²\"")),
+        "s.toml:8:11: particle 1: unexpected character `²`\n  mass =\t\"2*²\"\n        \t   ^"
     );
 }
 

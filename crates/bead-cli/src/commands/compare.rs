@@ -6,8 +6,9 @@ use std::path::{Path, PathBuf};
 use anyhow::{bail, Result};
 use bead::formulation::{Feedback, Method};
 
-use super::{json, load_scene, print, report_error, run_method, write_file};
+use super::{json, load_scene, print, report_error, run_method, warn_implicit_only, write_file};
 use crate::args::CompareArgs;
+use crate::outputs::Files;
 use crate::plan::{compare_methods, Plan};
 use crate::report;
 
@@ -19,6 +20,18 @@ pub fn compare(args: &CompareArgs) -> Result<()> {
     let scene = load_scene(&args.scene, &args.sim.set)?;
     let plan = Plan::resolve(&scene, &args.sim)?;
     let methods = compare_methods(&scene);
+    warn_implicit_only(&plan, &methods);
+    let mut files = Files::new();
+    files.input("the scene file", &args.scene);
+    if let Some(trace) = &args.trace {
+        for &method in &methods {
+            files.derived("--trace", trace, &trace_path(trace, method), None);
+        }
+    }
+    if let Some(summary) = &args.output.summary {
+        files.output("--summary", summary);
+    }
+    files.check()?;
     let mut summaries = Vec::new();
     let mut failures = Vec::new();
     for &method in &methods {

@@ -7,13 +7,17 @@ use std::sync::Arc;
 
 use anyhow::{bail, Result};
 use bead::formulation::{Feedback, Method};
+use bead::integrate::IntegratorKind;
 use bead::simulate::{Sample, Sink};
-use bead_report::report::{write_report, Recorder, Report, ReportRun};
+use bead_report::report::{report_files, write_report, Recorder, Report, ReportRun};
 
-use super::{json, load_scene, print, report_error, run_method_with, write_file};
+use super::{
+    json, load_scene, print, report_error, run_method_with, warn_implicit_only, write_file,
+};
 use crate::args::CompareArgs;
+use crate::outputs::Files;
 use crate::plan::{compare_methods, steps_for, Plan};
-use crate::report::{energy_note, exact, integrator_text, table, title};
+use crate::report::{energy_note, exact, integrator_text, table, title, ADAPTIVE_NOTE};
 
 /// Two sinks fed the same samples.
 pub struct Tee<'a>(pub &'a mut dyn Sink, pub &'a mut dyn Sink);
@@ -45,6 +49,7 @@ pub fn compare_grid(args: &CompareArgs) -> Result<()> {
     // Every dt covers the same time: the requested duration, else the planned run's.
     let duration = plan.duration.unwrap_or_else(|| plan.t_end());
     let methods = compare_methods(&scene);
+    warn_implicit_only(&plan, &methods);
     let mut runs = Vec::new();
     let mut summaries = Vec::new();
     let mut skipped = Vec::new();
@@ -58,6 +63,8 @@ pub fn compare_grid(args: &CompareArgs) -> Result<()> {
             variants.push((method, true));
         }
     }
+    // Which combinations run (the others are skipped, with the reason).
+    let mut combinations = Vec::new();
     for &(method, project) in &variants {
         for &integrator in &integrators {
             let mut combination = plan.clone();
@@ -77,57 +84,91 @@ pub fn compare_grid(args: &CompareArgs) -> Result<()> {
                 skipped.push(format!("{name} x {}: {reason}", integrator.name()));
                 continue;
             }
-            for (dt_label, dt) in &dts {
-                let mut planned = combination.clone();
-                if args.grid.dts.is_some() {
-                    let (steps, _, overshoot) = steps_for(duration, *dt)?;
-                    planned.dt = *dt;
-                    planned.steps = steps;
-                    planned.overshoot = overshoot;
-                }
-                let trace = args.trace.as_deref().map(|path| {
-                    trace_path(
-                        path,
-                        &format!(
-                            "{}{}.{}.dt{}",
-                            method.name(),
-                            if project { "-project" } else { "" },
-                            integrator.name(),
-                            dt_label.replace('/', "_")
-                        ),
-                    )
-                });
-                let mut recorder =
-                    Recorder::new(Arc::clone(&scene.system), (args.grid.points / 2) as usize);
-                let mut config = config;
-                config.dt = planned.dt;
-                let outcome = run_method_with(
-                    &scene,
-                    &planned,
-                    config,
-                    trace.as_deref(),
-                    Some(&mut recorder),
-                )?;
-                let (stats, error) = match &outcome.result {
-                    Ok(stats) => (stats.clone(), None),
-                    Err(failure) => (*failure.stats.clone(), Some(failure.error.to_string())),
-                };
-                let run = ReportRun {
-                    method,
-                    projected: planned.project,
-                    integrator,
-                    dt: *dt,
-                    dt_label: dt_label.clone(),
-                    stats,
-                    error,
-                    recording: recorder.recording(),
-                };
-                if let Some(error) = &run.error {
-                    failures.push(format!("{}: {error}", run.label()));
-                }
-                runs.push(run);
-                summaries.push(outcome.summary);
+            combinations.push((method, project, integrator, combination, config));
+        }
+    }
+    let trace_of = |method: Method, project: bool, integrator: IntegratorKind, label: &str| {
+        args.trace.as_deref().map(|path| {
+            trace_path(
+                path,
+                &format!(
+                    "{}{}.{}.dt{}",
+                    method.name(),
+                    if project { "-project" } else { "" },
+                    integrator.name(),
+                    file_label(label)
+                ),
+            )
+        })
+    };
+    // No output may overwrite another, or the scene, before anything runs.
+    let mut files = Files::new();
+    files.input("the scene file", &args.scene);
+    for &(method, project, integrator, _, _) in &combinations {
+        for (label, _) in &dts {
+            if let (Some(given), Some(path)) =
+                (&args.trace, trace_of(method, project, integrator, label))
+            {
+                let run = format!(
+                    "{}{} {} dt {label}",
+                    method.name(),
+                    if project { "+project" } else { "" },
+                    integrator.name()
+                );
+                files.derived("--trace", given, &path, Some(&run));
             }
+        }
+    }
+    if let Some(summary) = &args.output.summary {
+        files.output("--summary", summary);
+    }
+    if let Some(dir) = &args.grid.report {
+        files.output("--report", dir);
+        for file in report_files(dir) {
+            files.derived("--report", dir, &file, None);
+        }
+    }
+    files.check()?;
+    for (method, project, integrator, combination, config) in combinations {
+        for (dt_label, dt) in &dts {
+            let mut planned = combination.clone();
+            if args.grid.dts.is_some() {
+                let (steps, _, overshoot) = steps_for(duration, *dt)?;
+                planned.dt = *dt;
+                planned.steps = steps;
+                planned.overshoot = overshoot;
+            }
+            let trace = trace_of(method, project, integrator, dt_label);
+            let mut recorder =
+                Recorder::new(Arc::clone(&scene.system), (args.grid.points / 2) as usize);
+            let mut config = config;
+            config.dt = planned.dt;
+            let outcome = run_method_with(
+                &scene,
+                &planned,
+                config,
+                trace.as_deref(),
+                Some(&mut recorder),
+            )?;
+            let (stats, error) = match &outcome.result {
+                Ok(stats) => (stats.clone(), None),
+                Err(failure) => (*failure.stats.clone(), Some(failure.error.to_string())),
+            };
+            let run = ReportRun {
+                method,
+                projected: planned.project,
+                integrator,
+                dt: *dt,
+                dt_label: dt_label.clone(),
+                stats,
+                error,
+                recording: recorder.recording(),
+            };
+            if let Some(error) = &run.error {
+                failures.push(format!("{}: {error}", run.label()));
+            }
+            runs.push(run);
+            summaries.push(outcome.summary);
         }
     }
     let mut description = format!("scene {}; t = 0 to {} s", scene.file, exact(duration));
@@ -137,14 +178,15 @@ pub fn compare_grid(args: &CompareArgs) -> Result<()> {
             integrator_text(plan.integrator)
         ));
     }
-    if plan.feedback != Feedback::default() {
+    let implicit = methods.contains(&Method::Implicit);
+    if implicit && plan.feedback != Feedback::default() {
         description.push_str(&format!(
             "; implicit form stabilized with ks = {}, kd = {}",
             exact(plan.feedback.ks),
             exact(plan.feedback.kd)
         ));
     }
-    if plan.project {
+    if implicit && plan.project {
         description.push_str(
             "; implicit+project: the implicit form projected onto its constraints after every step (--project)",
         );
@@ -173,6 +215,10 @@ pub fn compare_grid(args: &CompareArgs) -> Result<()> {
         let mut text = format!("{}\n  {}\n\n", report.title, report.description);
         text.push_str(&table(&report.rows()));
         text.push_str(&energy_note(&summaries));
+        if report.runs.iter().any(|r| r.stats.accepted_steps.is_some()) {
+            text.push_str(ADAPTIVE_NOTE);
+            text.push('\n');
+        }
         for s in &report.skipped {
             text.push_str(&format!("skipped: {s}\n"));
         }
@@ -192,6 +238,20 @@ pub fn compare_grid(args: &CompareArgs) -> Result<()> {
     }
 }
 
+/// A dt as given (`1/60`, `2*pi/100`) as part of a file name: `1_60`, `2_pi_100`.
+fn file_label(label: &str) -> String {
+    label
+        .chars()
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || matches!(c, '.' | '-' | '+') {
+                c
+            } else {
+                '_'
+            }
+        })
+        .collect()
+}
+
 /// `trace.csv` -> `trace.TAG.csv`.
 fn trace_path(path: &Path, tag: &str) -> PathBuf {
     let mut name = OsString::new();
@@ -208,4 +268,17 @@ fn trace_path(path: &Path, tag: &str) -> PathBuf {
         (None, _) => name.push(format!("trace.{tag}.csv")),
     }
     path.with_file_name(name)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn dt_labels_become_file_name_parts() {
+        assert_eq!(file_label("1/60"), "1_60");
+        assert_eq!(file_label("2*pi/100"), "2_pi_100");
+        assert_eq!(file_label("1e-3"), "1e-3");
+        assert_eq!(file_label("atan2(1, 2)"), "atan2_1__2_");
+    }
 }

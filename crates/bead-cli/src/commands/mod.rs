@@ -33,6 +33,19 @@ pub fn dispatch(command: Command) -> Result<()> {
     }
 }
 
+/// A usage error found after the flags were parsed (e.g. two outputs naming the same file):
+/// exit code 2, like clap's.
+#[derive(Debug)]
+pub struct Usage(pub String);
+
+impl std::fmt::Display for Usage {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+impl std::error::Error for Usage {}
+
 /// Load a scene and print its warnings to stderr.
 fn load_scene(path: &Path, overrides: &[(String, f64)]) -> Result<Scene> {
     // The scene error renders as `file:line:column: message` and a caret snippet.
@@ -45,12 +58,57 @@ fn load_scene(path: &Path, overrides: &[(String, f64)]) -> Result<Scene> {
 
 /// Print `warning: MESSAGE` to stderr (a closed stderr is not worth a panic).
 fn warn(message: &str) {
-    let _ = writeln!(io::stderr(), "warning: {message}");
+    let _ = writeln!(io::stderr(), "warning: {}", terminal(message));
+}
+
+/// `compare` applies --stabilize and --project to the implicit run only: say so when the scene
+/// has none (a scene with a parametric form and no constraints), instead of ignoring them.
+fn warn_implicit_only(plan: &Plan, methods: &[bead::formulation::Method]) {
+    if methods.contains(&bead::formulation::Method::Implicit) {
+        return;
+    }
+    let mut flags = Vec::new();
+    if plan.feedback_from_flags {
+        flags.push("--stabilize");
+    }
+    if plan.project {
+        flags.push("--project");
+    }
+    if !flags.is_empty() {
+        warn(&format!(
+            "{} {} to the implicit form only, and the scene has no constraints: compare runs its parametric form alone; not used",
+            flags.join(" and "),
+            if flags.len() == 1 { "applies" } else { "apply" }
+        ));
+    }
 }
 
 /// Print `error: MESSAGE` to stderr, for errors beyond the one `main` reports.
 fn report_error(message: &str) {
-    let _ = writeln!(io::stderr(), "error: {message}");
+    let _ = writeln!(io::stderr(), "error: {}", terminal(message));
+}
+
+/// `text` safe for a terminal: control characters escaped (`\x1b`, `\r`, `\u{9b}`) except
+/// the newlines and tabs of the layout. Scene labels (titles, names) with control characters
+/// are refused when the scene is loaded; this catches what cannot be refused there: file
+/// names, and text quoted in messages.
+pub fn terminal(text: &str) -> std::borrow::Cow<'_, str> {
+    if !text
+        .chars()
+        .any(|c| c.is_control() && c != '\n' && c != '\t')
+    {
+        return std::borrow::Cow::Borrowed(text);
+    }
+    let mut out = String::with_capacity(text.len() + 8);
+    for line in text.split_inclusive(['\n', '\t']) {
+        let (body, end) = match line.char_indices().last() {
+            Some((i, c @ ('\n' | '\t'))) => (&line[..i], Some(c)),
+            _ => (line, None),
+        };
+        out.push_str(&bead::printable(body));
+        out.extend(end);
+    }
+    std::borrow::Cow::Owned(out)
 }
 
 /// One finished (or failed) run of one formulation.
@@ -119,14 +177,47 @@ fn write_file(path: &Path, text: &str) -> Result<()> {
 /// [`io::ErrorKind::BrokenPipe`], which `main` treats as a quiet exit.
 fn print(text: &str) -> Result<()> {
     let mut out = io::stdout().lock();
-    out.write_all(text.as_bytes())?;
+    out.write_all(terminal(text).as_bytes())?;
     out.flush()?;
     Ok(())
 }
 
 /// JSON of one or more summaries, pretty-printed, with a final newline.
+/// serde_json escapes the ASCII control characters but writes DEL and the C1 controls
+/// (U+0080 to U+009F, which some terminals obey) as they are; they can only occur inside
+/// strings, where `\u00XX` is the same character.
 fn json<T: serde::Serialize + ?Sized>(value: &T) -> Result<String> {
-    let mut text = serde_json::to_string_pretty(value).context("cannot serialize the summary")?;
-    text.push('\n');
-    Ok(text)
+    let text = serde_json::to_string_pretty(value).context("cannot serialize the summary")?;
+    let mut out = String::with_capacity(text.len() + 1);
+    for c in text.chars() {
+        if c.is_control() && c as u32 >= 0x7f {
+            out.push_str(&format!("\\u{:04x}", c as u32));
+        } else {
+            out.push(c);
+        }
+    }
+    out.push('\n');
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn terminal_text_escapes_controls_but_keeps_the_layout() {
+        assert_eq!(terminal("a\tb\nc"), "a\tb\nc");
+        assert_eq!(
+            terminal("\u{1b}[31mred\r\n\u{9b}x\t\u{7f}"),
+            "\\x1b[31mred\\r\n\\u{9b}x\t\\x7f"
+        );
+    }
+
+    #[test]
+    fn json_escapes_del_and_c1_controls() {
+        let text = json(&["a\u{1b}b\u{9b}c\u{7f}"]).unwrap();
+        assert_eq!(text, "[\n  \"a\\u001bb\\u009bc\\u007f\"\n]\n");
+        let back: Vec<String> = serde_json::from_str(&text).unwrap();
+        assert_eq!(back, ["a\u{1b}b\u{9b}c\u{7f}"]);
+    }
 }

@@ -10,6 +10,7 @@ use bead_report::plot::{
     write_figure, Figure, Format, MinMaxDecimator, Panel, Series, DEFAULT_BUCKETS,
 };
 
+use crate::outputs::Files;
 use crate::report_args::PlotArgs;
 
 /// `bead plot`.
@@ -20,6 +21,16 @@ pub fn plot(args: &PlotArgs) -> Result<()> {
         .unwrap_or_else(|| args.trace.with_extension("png"));
     // Check the format before reading a possibly long trace.
     Format::from_path(&output)?;
+    let mut files = Files::new();
+    files.input("the trace", &args.trace).output(
+        if args.output.is_some() {
+            "-o"
+        } else {
+            "the plot"
+        },
+        &output,
+    );
+    files.check()?;
     let name = args.trace.display().to_string();
     let file = File::open(&args.trace).with_context(|| format!("cannot open `{name}`"))?;
     let mut lines = BufReader::new(file).lines();
@@ -34,12 +45,18 @@ pub fn plot(args: &PlotArgs) -> Result<()> {
             columns.first().map(String::as_str).unwrap_or("")
         );
     }
+    if columns.len() < 2 {
+        bail!("{name}: nothing to plot: the trace has only the column `t`");
+    }
     let chosen = choose_columns(&columns, args.columns.as_deref())?;
     let mut decimators: Vec<MinMaxDecimator> = chosen
         .iter()
         .map(|_| MinMaxDecimator::new(DEFAULT_BUCKETS))
         .collect();
     let mut rows = 0u64;
+    // Whether each chosen column has a finite value (NaN and infinities are not drawn).
+    let mut finite = vec![false; chosen.len()];
+    let mut t_finite = false;
     for (index, line) in lines.enumerate() {
         let number = index + 2;
         let line = line.with_context(|| format!("{name}:{number}: cannot read the line"))?;
@@ -64,13 +81,53 @@ pub fn plot(args: &PlotArgs) -> Result<()> {
             })
         };
         let t = value(0)?;
-        for (decimator, &k) in decimators.iter_mut().zip(&chosen) {
-            decimator.push(t, value(k)?);
+        t_finite |= t.is_finite();
+        for ((decimator, &k), finite) in decimators.iter_mut().zip(&chosen).zip(&mut finite) {
+            let y = value(k)?;
+            *finite |= y.is_finite() && t.is_finite();
+            decimator.push(t, y);
         }
         rows += 1;
     }
     if rows == 0 {
         bail!("{name}: no data rows after the header");
+    }
+    let in_rows = if rows == 1 {
+        "in 1 row".to_string()
+    } else {
+        format!("in {rows} rows")
+    };
+    if !t_finite {
+        bail!("{name}: nothing to plot: column `t` has no finite value {in_rows}");
+    }
+    let empty: Vec<&str> = chosen
+        .iter()
+        .zip(&finite)
+        .filter(|(_, &f)| !f)
+        .map(|(&k, _)| columns[k].as_str())
+        .collect();
+    if empty.len() == chosen.len() {
+        bail!(
+            "{name}: nothing to plot: {} no finite value {in_rows}",
+            match empty.as_slice() {
+                [one] => format!("column `{one}` has"),
+                many => format!("columns {} have", quoted(many)),
+            }
+        );
+    }
+    if !empty.is_empty() {
+        super::warn(&format!(
+            "{name}: {} no finite value; {} empty",
+            match empty.as_slice() {
+                [one] => format!("column `{one}` has"),
+                many => format!("columns {} have", quoted(many)),
+            },
+            if empty.len() == 1 {
+                "its panel is"
+            } else {
+                "their panels are"
+            }
+        ));
     }
     let panels: Vec<Panel> = chosen
         .iter()
@@ -92,8 +149,7 @@ pub fn plot(args: &PlotArgs) -> Result<()> {
         size: (960, (60 + 280 * n).min(4000)),
     };
     write_figure(&figure, &output)?;
-    println!("wrote {}", output.display());
-    Ok(())
+    super::print(&format!("wrote {}\n", output.display()))
 }
 
 /// Column indices to plot: the requested ones, else energy and constraint_error when
@@ -104,6 +160,12 @@ fn choose_columns(columns: &[String], requested: Option<&[String]>) -> Result<Ve
             .iter()
             .map(|name| {
                 let name = name.trim();
+                if name == columns[0] {
+                    bail!(
+                        "`{name}` is the horizontal axis of every panel; choose among {}",
+                        columns[1..].join(", ")
+                    );
+                }
                 columns
                     .iter()
                     .position(|c| c == name)
@@ -139,6 +201,15 @@ fn unit_label(column: &str) -> String {
         c if c.contains(".v") => format!("{c} (length/s)"),
         c => format!("{c} (scene units)"),
     }
+}
+
+/// `a`, `b` and `c` with backquotes: "`a`, `b`".
+fn quoted(names: &[&str]) -> String {
+    names
+        .iter()
+        .map(|n| format!("`{n}`"))
+        .collect::<Vec<_>>()
+        .join(", ")
 }
 
 fn file_name(path: &Path) -> String {

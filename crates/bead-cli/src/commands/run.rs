@@ -4,11 +4,21 @@ use anyhow::{bail, Result};
 
 use super::{json, load_scene, print, run_method, warn, write_file};
 use crate::args::RunArgs;
+use crate::outputs::Files;
 use crate::plan::{run_method as resolve_method, Plan};
 use crate::report;
 
 /// `bead run`: resolve the method and plan, run, write the trace and summary, report.
 pub fn run(args: &RunArgs) -> Result<()> {
+    let mut files = Files::new();
+    files.input("the scene file", &args.scene);
+    if let Some(trace) = &args.trace {
+        files.output("--trace", trace);
+    }
+    if let Some(summary) = &args.output.summary {
+        files.output("--summary", summary);
+    }
+    files.check()?;
     let scene = load_scene(&args.scene, &args.sim.set)?;
     let plan = Plan::resolve(&scene, &args.sim)?;
     let method = resolve_method(&scene, args.method.map(|m| m.0))?;

@@ -11,11 +11,13 @@
 //! primary := number | name | function "(" sum ("," sum)* ")" | "(" sum ")"
 //! number  := digits ["." digits?] [exponent] | "." digits [exponent]
 //! exponent:= ("e" | "E") ["+" | "-"] digits
-//! name    := ident ("." ident)*          ident := (letter | _) (letter | [0-9] | _)*
+//! name    := ident ("." ident)*          ident := (XID_Start | "_") XID_Continue*
 //! ```
 //!
-//! A letter is one of any alphabet (Unicode alphabetic), as in particle names (`perlé.x`);
-//! digits are ASCII only, so that `x²` is an error at `²`.
+//! Identifiers follow Unicode's UAX #31, as Rust's do: a letter of any script or `_`, then
+//! letters, digits, `_` and combining marks: `α`, `bead_2`, `θ_1`, but not `x²` or `θ₁`
+//! (superscripts and subscripts are not digits). Particle, parameter and coordinate names follow the same rule
+//! ([`is_identifier`]), so that every name a scene accepts can be written in an expression.
 //!
 //! Nesting (parentheses, calls, prefix signs, exponents) is limited to [`MAX_DEPTH`] levels so
 //! hostile input cannot overflow the stack; everything else is linear in the input length.
@@ -99,15 +101,8 @@ impl ExprError {
             .find('\n')
             .map_or(source.len(), |i| start + i);
         let line = source[line_start..line_end].trim_end_matches('\r');
-        let mut out = String::with_capacity(2 * line.len() + 2);
-        out.push_str(line);
-        out.push('\n');
-        for ch in source[line_start..start].chars() {
-            out.push(if ch == '\t' { '\t' } else { ' ' });
-        }
-        let n = source[start..end.min(line_end)].chars().count().max(1);
-        out.extend(std::iter::repeat_n('^', n));
-        out
+        let marked_end = end.min(line_start + line.len()).max(start);
+        crate::caret_snippet(line, start - line_start, marked_end - line_start)
     }
 }
 
@@ -132,19 +127,26 @@ struct Token {
     span: Span,
 }
 
-/// Names start with a letter (any alphabet: particle names may be `perlé`) or `_`.
 fn is_ident_start(c: char) -> bool {
-    c.is_alphabetic() || c == '_'
+    c == '_' || unicode_ident::is_xid_start(c)
 }
 
-/// Names go on with letters, ASCII digits and `_` (not `²`: `x²` is an error at `²`).
 fn is_ident_char(c: char) -> bool {
-    c.is_alphabetic() || c.is_ascii_digit() || c == '_'
+    unicode_ident::is_xid_continue(c)
 }
 
-/// The character starting at byte `i` of `s`, if `i` is a boundary inside it.
-fn char_at(s: &str, i: usize) -> Option<char> {
-    s.get(i..)?.chars().next()
+/// Whether `name` is one identifier of an expression (no dots): a letter of any script or
+/// `_`, then letters, digits, `_` or combining marks (Unicode XID, as in Rust: `bead`, `α`,
+/// `_q2`, `θ_1`). Names of particles, parameters and coordinates must be identifiers.
+///
+/// ```
+/// use bead::expr::is_identifier;
+/// assert!(is_identifier("α") && is_identifier("bead_2") && is_identifier("_q"));
+/// assert!(!is_identifier("2a") && !is_identifier("a.b") && !is_identifier("x²") && !is_identifier(""));
+/// ```
+pub fn is_identifier(name: &str) -> bool {
+    let mut chars = name.chars();
+    chars.next().is_some_and(is_ident_start) && chars.all(is_ident_char)
 }
 
 struct Parser<'s, 'r> {
@@ -189,14 +191,16 @@ impl<'s> Parser<'s, '_> {
             {
                 return self.lex_number(start);
             }
-            Some(_) if char_at(self.src, i).is_some_and(is_ident_start) => {
+            Some(_) if self.src[i..].chars().next().is_some_and(is_ident_start) => {
                 let mut j = i;
                 loop {
-                    while let Some(c) = char_at(self.src, j).filter(|&c| is_ident_char(c)) {
-                        j += c.len_utf8();
-                    }
+                    j += self.src[j..]
+                        .chars()
+                        .take_while(|&c| is_ident_char(c))
+                        .map(char::len_utf8)
+                        .sum::<usize>();
                     if bytes.get(j) == Some(&b'.') {
-                        if char_at(self.src, j + 1).is_some_and(is_ident_start) {
+                        if self.src[j + 1..].chars().next().is_some_and(is_ident_start) {
                             j += 1;
                             continue;
                         }
@@ -217,7 +221,10 @@ impl<'s> Parser<'s, '_> {
             Some(_) => {
                 let ch = self.src[start..].chars().next().unwrap_or('?');
                 return self.err(
-                    format!("unexpected character `{ch}`"),
+                    format!(
+                        "unexpected character `{}`",
+                        crate::printable(ch.encode_utf8(&mut [0; 4]))
+                    ),
                     Span::new(start, start + ch.len_utf8()),
                 );
             }
@@ -475,7 +482,7 @@ impl<'s> Parser<'s, '_> {
 ///
 /// Syntax: numbers (`1.5`, `1e-3`, `.5`, `2.`), `+ - * / ^`, unary `-` and `+`,
 /// parentheses, the functions of [`Func`] (`sin(x)`, `atan2(y, x)`, `pow(a, b)`, ...),
-/// `pi`, `e`, and names `[A-Za-z_][A-Za-z0-9_]*` optionally dotted (`bead.x` is one name).
+/// `pi`, `e`, and names, [`is_identifier`]s optionally dotted (`bead.x` and `α.x` are one name).
 /// `^` is right-associative and binds tighter than unary minus (`-x^2 = -(x^2)`,
 /// `2^3^2 = 2^9`), then `*` `/`, then `+` `-`, both left-associative.
 ///
@@ -670,6 +677,25 @@ mod tests {
     }
 
     #[test]
+    fn unicode_identifiers() {
+        let seen = std::cell::RefCell::new(Vec::new());
+        let r = |n: &str| {
+            seen.borrow_mut().push(n.to_string());
+            Ok(Resolved::Var(0))
+        };
+        parse("α.x + θ_1*ω + 2*Ψ.z - _é2 + ж", &r).unwrap();
+        assert_eq!(*seen.borrow(), ["α.x", "θ_1", "ω", "Ψ.z", "_é2", "ж"]);
+        // A combining mark continues a name (e + U+0301), never starts one.
+        assert!(is_identifier("e\u{301}"));
+        assert!(!is_identifier("\u{301}e"));
+        for bad in ["x²", "θ₁", "1a", "a.b", "a b", "", "a-b", "😀"] {
+            assert!(!is_identifier(bad), "{bad}");
+        }
+        check_err("θ₁ + 1", "unexpected character `₁`", 2, 5, "θ₁ + 1\n ^");
+        check_err("α.", "expected a name after `.` in `α.`", 2, 3, "α.\n ^");
+    }
+
+    #[test]
     fn error_messages_spans_and_carets() {
         check_err("", "empty expression", 0, 0, "\n^");
         check_err("   ", "empty expression", 3, 3, "   \n   ^");
@@ -754,10 +780,18 @@ mod tests {
             "bead.x^2 + 100*bead.w\n               ^^^^^^",
         );
         check_err("x²", "unexpected character `²`", 1, 3, "x²\n ^");
-        check_err("€ + x", "unexpected character `€`", 0, 3, "€ + x\n^");
-        // Letters of any alphabet make names (particle names may use them); spans stay in
-        // bytes, carets in characters.
+        // Control characters are shown escaped, and the carets follow the escape.
+        check_err(
+            "x \u{1b} 2",
+            "unexpected character `\\x1b`",
+            2,
+            3,
+            "x \\x1b 2\n  ^^^^",
+        );
+        // Identifiers are Unicode (see unicode_identifiers); `é` is a name like any other.
         check_err("é + x", "unknown name `é`", 0, 2, "é + x\n^");
+        check_err("€ + x", "unexpected character `€`", 0, 3, "€ + x\n^");
+        // Spans stay in bytes, carets in characters.
         check_err(
             "pérle.x + bead.w",
             "unknown name `bead.w`",

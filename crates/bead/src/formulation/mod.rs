@@ -57,17 +57,17 @@ pub trait SecondOrderSystem {
 /// Why an acceleration could not be computed.
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
 pub enum StepError {
-    #[error("at t = {t}: the constraints are singular at {constraint} (`{description}`): its gradient vanishes there or it duplicates other constraints")]
+    #[error("at t = {}: the constraints are singular at {constraint} (`{description}`): its gradient vanishes there or it duplicates other constraints", crate::readable(*t))]
     SingularConstraints {
         t: f64,
         constraint: String,
         description: String,
     },
-    #[error("at t = {t}: the mass matrix M(q) is singular in coordinate `{coordinate}`: the parametric map x(q) does not depend on it there")]
+    #[error("at t = {}: the mass matrix M(q) is singular in coordinate `{coordinate}`: the parametric map x(q) does not depend on it there", crate::readable(*t))]
     SingularMassMatrix { t: f64, coordinate: String },
-    #[error("at t = {t}: {quantity} is not finite")]
+    #[error("at t = {}: {quantity} is not finite", crate::readable(*t))]
     NonFinite { t: f64, quantity: String },
-    #[error("at t = {t}: projection onto the constraints did not converge: max |C| = {residual:e} after {iterations} iterations (raise the tolerance or the iteration limit, or reduce dt)")]
+    #[error("at t = {}: projection onto the constraints did not converge: max |C| = {residual:e} after {iterations} iterations (raise the tolerance or the iteration limit, or reduce dt)", crate::readable(*t))]
     ProjectionFailed {
         t: f64,
         iterations: usize,
@@ -78,7 +78,7 @@ pub enum StepError {
     /// The fixed-point iteration of an integrator's implicit equations did not converge:
     /// gauss-legendre's stages, or the velocity half kick of verlet and rattle when the
     /// acceleration depends on the velocity.
-    #[error("at t = {t}: {method}: the implicit {equations} did not converge in {iterations} fixed-point iterations (last increment {residual:.3e} relative to the accelerations); reduce dt: the iteration converges when dt is small against the system's time scales")]
+    #[error("at t = {}: {method}: the implicit {equations} did not converge in {iterations} fixed-point iterations (last increment {residual:.3e} relative to the accelerations); reduce dt: the iteration converges when dt is small against the system's time scales", crate::readable(*t))]
     ImplicitStageFailed {
         /// The integrator, e.g. `gauss-legendre`.
         method: &'static str,
@@ -88,7 +88,7 @@ pub enum StepError {
         iterations: u32,
         residual: f64,
     },
-    #[error("step size underflow at t = {t}: the adaptive step fell to {h:.3e} s, below 1e-14 of the time scale (the system is too stiff or singular there, or the tolerances are too tight)")]
+    #[error("step size underflow at t = {}: the adaptive step fell to {h:.3e} s, below 1e-14 of the time scale (the system is too stiff or singular there, or the tolerances are too tight)", crate::readable(*t))]
     StepSizeUnderflow { t: f64, h: f64 },
     /// The motion reached, or is about to cross, a point where a constraint's gradient (or a
     /// column dx/dq of the parametric map) vanishes: a cusp or a self-crossing of the curve.

@@ -171,10 +171,7 @@ impl SystemBuilder {
         position: &[f64],
         velocity: &[f64],
     ) -> Result<ParticleId, ModelError> {
-        if name.is_empty()
-            || !name.chars().all(|c| c.is_alphanumeric() || c == '_')
-            || name.starts_with(|c: char| c.is_ascii_digit())
-        {
+        if !crate::expr::is_identifier(name) {
             return Err(ModelError::Parametric(format!(
                 "particle name `{name}` must be a letter or `_` followed by letters, digits or `_`"
             )));

@@ -20,6 +20,7 @@ mod force;
 mod holonomic;
 mod parametric;
 
+pub(crate) use builder::MASS_RANGE;
 pub use builder::{ModelError, SystemBuilder};
 pub use constraint::{ConstraintEval, ConstraintInfo, ConstraintSet, ExprRow};
 pub use edit::{DeclaredConstraint, EditError};

@@ -33,7 +33,10 @@ pub(super) fn load(text: &str, file: &str, overrides: &[(String, f64)]) -> Resul
 
     let params = loader.params(doc.params.as_ref(), overrides)?;
     let title = match &doc.title {
-        Some(t) => t.get_ref().clone(),
+        Some(t) => {
+            no_control_characters(&src, t, "`title`")?;
+            t.get_ref().clone()
+        }
         None => std::path::Path::new(file)
             .file_stem()
             .map(|s| s.to_string_lossy().into_owned())
@@ -395,10 +398,26 @@ fn constant_value(expr: &Expr) -> f64 {
     }
 }
 
+/// Titles and names are labels, shown on terminals, in reports, plots and the viewer: a
+/// control character in one (an escape sequence, a newline) is refused where it is written,
+/// rather than escaped in every place that shows it.
+fn no_control_characters(src: &Source, value: &Spanned<String>, what: &str) -> Result<()> {
+    match value.get_ref().chars().find(|c| c.is_control()) {
+        Some(c) => Err(src.error(
+            value.span(),
+            format!(
+                "{what} must not contain control characters, found `{}`",
+                crate::printable(c.encode_utf8(&mut [0; 4]))
+            ),
+        )),
+        None => Ok(()),
+    }
+}
+
+/// The names a scene gives (parameters, coordinates; particles through the builder) are the
+/// expression parser's identifiers, so every accepted name can be used in an expression.
 fn is_identifier(name: &str) -> bool {
-    let mut chars = name.chars();
-    matches!(chars.next(), Some(c) if c.is_ascii_alphabetic() || c == '_')
-        && chars.all(|c| c.is_ascii_alphanumeric() || c == '_')
+    crate::expr::is_identifier(name)
 }
 
 /// The system being built, with the particles' names and initial positions.
@@ -466,6 +485,19 @@ impl Builder<'_, '_> {
             ));
         }
         let mass = l.positive(mass_def, &ctx, "`mass`")?;
+        let (lightest, heaviest) = crate::model::MASS_RANGE;
+        if !(lightest..=heaviest).contains(&mass) {
+            // The builder refuses it too, but located at the name; point at the mass.
+            return Err(self.src().error(
+                mass_def.span(),
+                format!(
+                    "{ctx}: `mass` must be between {} and {}, got {}: masses, their inverses and momenta must stay far from overflow and underflow",
+                    crate::readable(lightest),
+                    crate::readable(heaviest),
+                    crate::readable(mass)
+                ),
+            ));
+        }
         let position = self.vector(position_def, &ctx, "position")?;
         let velocity = match &def.velocity {
             Some(v) => self.vector(v, &ctx, "velocity")?,
@@ -652,6 +684,7 @@ impl Builder<'_, '_> {
                         .src()
                         .error(n.span(), format!("{ctx}: `name` must not be empty")));
                 }
+                no_control_characters(self.src(), n, &format!("{ctx}: `name`"))?;
                 if names.contains(n.get_ref()) {
                     return Err(self.src().error(
                         n.span(),

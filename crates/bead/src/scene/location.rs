@@ -24,22 +24,17 @@ impl<'a> Source<'a> {
         let line = text[..start].matches('\n').count() + 1;
         let prefix = &text[line_start..start];
         let column = prefix.chars().count() + 1;
-        let pad: String = prefix
-            .chars()
-            .map(|c| if c == '\t' { '\t' } else { ' ' })
-            .collect();
-        let width = text[start..end.min(line_end)]
-            .trim_end_matches('\r')
-            .chars()
-            .count()
-            .max(1);
-        let caret = format!("{pad}{}", "^".repeat(width));
+        let marked_end = end.min(line_start + line_text.len()).max(start);
         SceneError {
             file: self.file.to_string(),
             line,
             column,
             message: one_line(&message.into()),
-            snippet: Some(format!("{line_text}\n{caret}")),
+            snippet: Some(crate::caret_snippet(
+                line_text,
+                start - line_start,
+                marked_end - line_start,
+            )),
         }
     }
 

@@ -48,7 +48,9 @@
 //!   rk4), `dt`, `duration` or `steps`, and `stabilize = [ks, kd]` or
 //!   `stabilize = { frequency = f, damping = zeta }` (damping default 1).
 //! - Unknown keys, wrong types, missing keys, non-finite numbers (`nan`, `inf`) and values out of
-//!   range are errors located in the file.
+//!   range are errors located in the file. So are control characters (escape sequences, line
+//!   breaks, tabs) in `title` and constraint names: they are labels, shown on terminals and in
+//!   reports. Error snippets show control characters escaped (`\x1b`).
 
 mod file;
 mod load;
@@ -241,7 +243,13 @@ impl Scene {
     ///   velocities the larger of that and the largest speed component);
     /// - the initial positions are off an implicit constraint by more than 1e-9 of the length
     ///   scale, measured as |C| / |grad C| (the distance to the constraint surface to first
-    ///   order), or the initial velocities are not tangent to it (|Cdot| / |grad C|).
+    ///   order), or the initial velocities are not tangent to it (|Cdot| / |grad C|);
+    /// - a value, gradient or rate of either form is not finite at the initial state (said in
+    ///   words: a run refuses to start from it).
+    ///
+    /// Positions are printed exactly ([`crate::readable`]); measured values (C, Cdot,
+    /// distances) signed with 6 significant digits ([`crate::significant`]), as `bead check`
+    /// prints them.
     pub fn warnings(&self) -> Vec<String> {
         let system = &self.system;
         let dim = system.dim();
@@ -272,11 +280,23 @@ impl Scene {
                         speed_scale,
                     ),
                 ] {
+                    let name = &particle.name;
+                    if computed.iter().any(|c| !c.is_finite()) {
+                        warnings.push(format!(
+                            "particle `{name}`: the parametric form's initial {what} {key} = {} is not finite",
+                            fmt_vec(computed)
+                        ));
+                        continue;
+                    }
                     let difference = distance(given, computed);
                     if exceeds(difference, WARN_TOLERANCE * scale) {
+                        let by = if difference.is_finite() {
+                            format!("by {}", crate::significant(difference, 6))
+                        } else {
+                            "by more than the largest representable number".to_string()
+                        };
                         warnings.push(format!(
-                            "particle `{}`: the parametric form's initial {what} {key} = {} differs from the scene's {what} {} by {difference:e}",
-                            particle.name,
+                            "particle `{name}`: the parametric form's initial {what} {key} = {} differs from the scene's {what} {} {by}",
                             fmt_vec(computed),
                             fmt_vec(given),
                         ));
@@ -291,30 +311,62 @@ impl Scene {
             constraints.evaluate(0.0, &x0, &v0, &mut ws);
             let speed_scale = length_scale.max(max_abs(&v0));
             for info in constraints.infos() {
-                let (mut off, mut drift, mut worst_c, mut worst_cdot) =
-                    (0.0_f64, 0.0_f64, 0.0_f64, 0.0_f64);
-                for row in info.rows.clone() {
+                let rows = info.rows.clone();
+                let name = format!("{} (`{}`)", info.name, info.description);
+                // The row with the largest |value| (and |rate|), with its sign.
+                let worst = |values: &[f64]| {
+                    values[rows.clone()].iter().copied().fold(0.0_f64, |w, v| {
+                        if w.is_nan() || v.abs() <= w.abs() {
+                            w
+                        } else {
+                            v
+                        }
+                    })
+                };
+                let (c, cdot) = (worst(&ws.value), worst(&ws.velocity));
+                if !c.is_finite() {
+                    warnings.push(format!(
+                        "{name}: its value at the initial positions is not finite ({})",
+                        crate::readable(c)
+                    ));
+                    continue;
+                }
+                let (mut off, mut drift) = (0.0_f64, 0.0_f64);
+                let mut gradient_finite = true;
+                for row in rows.clone() {
                     let gradient = ws.jacobian[constraints.row_entries(row)]
                         .iter()
                         .map(|g| g * g)
                         .sum::<f64>()
                         .sqrt();
+                    gradient_finite &= gradient.is_finite();
                     let norm = if gradient > 0.0 { gradient } else { 1.0 };
-                    let (c, cdot) = (ws.value[row], ws.velocity[row]);
-                    off = nan_max(off, c.abs() / norm);
-                    drift = nan_max(drift, cdot.abs() / norm);
-                    worst_c = nan_max(worst_c, c.abs());
-                    worst_cdot = nan_max(worst_cdot, cdot.abs());
+                    off = nan_max(off, ws.value[row].abs() / norm);
+                    drift = nan_max(drift, ws.velocity[row].abs() / norm);
                 }
-                if exceeds(off, WARN_TOLERANCE * length_scale) {
+                if !gradient_finite {
                     warnings.push(format!(
-                        "{} (`{}`): the initial positions violate it: residual {worst_c:e} (about {off:e} off the constraint)",
-                        info.name, info.description
+                        "{name}: its gradient at the initial positions is not finite"
+                    ));
+                } else if exceeds(off, WARN_TOLERANCE * length_scale) {
+                    let how_far = if off.is_finite() {
+                        format!("about {} off the constraint", crate::significant(off, 6))
+                    } else {
+                        "its gradient is too small there to tell how far".to_string()
+                    };
+                    warnings.push(format!(
+                        "{name}: the initial positions violate it: C = {} ({how_far})",
+                        crate::significant(c, 6)
+                    ));
+                } else if !cdot.is_finite() {
+                    warnings.push(format!(
+                        "{name}: its rate Cdot at the initial state is not finite ({})",
+                        crate::readable(cdot)
                     ));
                 } else if exceeds(drift, WARN_TOLERANCE * speed_scale) {
                     warnings.push(format!(
-                        "{} (`{}`): the initial velocities are not tangent to it: Cdot = {worst_cdot:e}",
-                        info.name, info.description
+                        "{name}: the initial velocities are not tangent to it: Cdot = {}",
+                        crate::significant(cdot, 6)
                     ));
                 }
             }
@@ -344,11 +396,12 @@ fn distance(a: &[f64], b: &[f64]) -> f64 {
         .sqrt()
 }
 
+/// `[a, b]`, each exactly and never 300 digits long ([`crate::readable`]).
 fn fmt_vec(v: &[f64]) -> String {
     format!(
         "[{}]",
         v.iter()
-            .map(|c| c.to_string())
+            .map(|c| crate::readable(*c))
             .collect::<Vec<_>>()
             .join(", ")
     )

@@ -159,8 +159,16 @@ pub enum RunError {
     },
     #[error("cannot advance to t = {} from t = {}: time only moves forward", crate::readable(*requested), crate::readable(*now))]
     TimeBehind { requested: f64, now: f64 },
+    /// The message includes the I/O error; it is not also the [`std::error::Error::source`],
+    /// so that printing the chain shows it once.
     #[error("writing output failed: {0}")]
-    Io(#[from] std::io::Error),
+    Io(std::io::Error),
+}
+
+impl From<std::io::Error> for RunError {
+    fn from(e: std::io::Error) -> Self {
+        RunError::Io(e)
+    }
 }
 
 /// A run that stopped early, with the figures up to the last good state.
