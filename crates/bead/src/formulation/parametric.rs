@@ -237,7 +237,7 @@ impl Formulation for Parametric {
         let system = &*self.system;
         let map = system.parametric().expect("checked in Parametric::new");
         let n_q = map.n_q();
-        map.evaluate(t, q, qdot, &mut self.map);
+        map.observe(t, q, qdot, &mut self.map);
         let ws = &self.map;
         out.x.copy_from_slice(&ws.position);
         out.xdot.copy_from_slice(&ws.velocity);

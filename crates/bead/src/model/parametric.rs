@@ -27,6 +27,8 @@ pub struct ParametricMap {
     tape: Tape,
     /// Outputs: x (n) | xdot (n), for mapping states back to particles.
     state_tape: Tape,
+    /// Outputs: x (n) | xdot (n) | J (n * n_q), for the monitors (no h).
+    observe_tape: Tape,
 }
 
 /// Results and scratch of [`ParametricMap::evaluate`], sized once.
@@ -75,6 +77,14 @@ impl ParametricMap {
         ParametricMap {
             tape: Tape::compile(&outputs),
             state_tape: Tape::compile(&[positions.as_slice(), velocities.as_slice()].concat()),
+            observe_tape: Tape::compile(
+                &[
+                    positions.as_slice(),
+                    velocities.as_slice(),
+                    jacobian.as_slice(),
+                ]
+                .concat(),
+            ),
             coordinates,
             initial,
             rates,
@@ -158,7 +168,13 @@ impl ParametricMap {
             bias: vec![0.0; n],
             jacobian: vec![0.0; n * self.n_q()],
             vars: vec![0.0; 2 * self.n_q() + 1],
-            scratch: vec![0.0; self.tape.n_slots().max(self.state_tape.n_slots())],
+            scratch: vec![
+                0.0;
+                self.tape
+                    .n_slots()
+                    .max(self.state_tape.n_slots())
+                    .max(self.observe_tape.n_slots())
+            ],
             out: vec![0.0; self.tape.n_outputs()],
         }
     }
@@ -175,6 +191,21 @@ impl ParametricMap {
         ws.velocity.copy_from_slice(&ws.out[n..2 * n]);
         ws.bias.copy_from_slice(&ws.out[2 * n..3 * n]);
         ws.jacobian.copy_from_slice(&ws.out[3 * n..]);
+    }
+
+    /// x, xdot and J at (t, q, qdot), without h: what the run's monitors read. Allocation-free.
+    pub fn observe(&self, t: f64, q: &[f64], qdot: &[f64], ws: &mut ParametricEval) {
+        let n_q = self.n_q();
+        let n = self.positions.len();
+        ws.vars[..n_q].copy_from_slice(q);
+        ws.vars[n_q..2 * n_q].copy_from_slice(qdot);
+        ws.vars[2 * n_q] = t;
+        let outputs = 2 * n + n * n_q;
+        self.observe_tape
+            .eval(&ws.vars, &mut ws.scratch, &mut ws.out[..outputs]);
+        ws.position.copy_from_slice(&ws.out[..n]);
+        ws.velocity.copy_from_slice(&ws.out[n..2 * n]);
+        ws.jacobian.copy_from_slice(&ws.out[2 * n..outputs]);
     }
 
     /// Particle positions and velocities x(q, t), xdot(q, qdot, t) only, into `ws.position`

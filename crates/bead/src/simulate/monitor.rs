@@ -120,6 +120,8 @@ pub(super) struct Monitor {
     /// shrunk by half since, so that a curve with a sharp but regular turn (the tip of a thin
     /// ellipse) costs a few searches, not one per step.
     searched: Vec<f64>,
+    /// Per row, its length at the state last checked (rows)
+    lengths: Vec<f64>,
     pub(super) energy_initial: f64,
     /// E_scale: the denominator of relative energy errors
     pub(super) energy_scale: f64,
@@ -196,12 +198,14 @@ impl Monitor {
             .map(|r| norm(observation.gradients.row(r)))
             .collect();
         let searched = vec![f64::INFINITY; longest.len()];
+        let lengths = longest.clone();
         Monitor {
             observation,
             last,
             before,
             longest,
             searched,
+            lengths,
             energy_initial: energy,
             energy_scale,
             energy,
@@ -381,18 +385,31 @@ impl Monitor {
         t: f64,
         q: &[f64],
     ) -> Option<(usize, SingularKind)> {
+        let g = &self.observation.gradients;
         if !self.last.valid {
+            for (r, length) in self.lengths.iter_mut().enumerate() {
+                *length = norm(g.row(r));
+            }
             return None;
         }
         let reference = &self.last;
-        let g = &self.observation.gradients;
         for r in 0..g.n_rows() {
             let row = g.row(r);
             let previous = reference.gradients.row(r);
-            let length = norm(row);
-            let reversed = dot(row, previous) < 0.0;
-            let ahead = steps_to_vanish(row, previous, AHEAD_FRACTION);
-            let far_ahead = steps_to_vanish(row, previous, OFF_BRANCH_FRACTION);
+            // One pass: |g|^2, g . p, |p|^2 give the length, the reversal and the lookahead.
+            let (mut gg, mut gp, mut pp) = (0.0, 0.0, 0.0);
+            for (g, p) in row.iter().zip(previous) {
+                gg += g * g;
+                gp += g * p;
+                pp += p * p;
+            }
+            let length = gg.sqrt();
+            self.lengths[r] = length;
+            let reversed = gp < 0.0;
+            let (s, shortest) = lookahead(gg, gp, pp);
+            let ahead = (s > 0.0 && shortest < AHEAD_FRACTION * AHEAD_FRACTION * gg).then_some(s);
+            let far_ahead = (s > 0.0 && shortest < OFF_BRANCH_FRACTION * OFF_BRANCH_FRACTION * gg)
+                .then_some(s);
             let vanished = length < VANISHED * self.longest[r];
             let candidate = if reversed {
                 // The chord's point where the interpolated gradient is shortest, as a step
@@ -541,28 +558,29 @@ fn chord_minimum(p: &[f64], g: &[f64]) -> f64 {
 /// which the linear extrapolation g + s (g - p) is shortest, when it is then shorter than
 /// `fraction` |g|; None when the extrapolation never comes that close to zero.
 fn steps_to_vanish(row: &[f64], previous: &[f64], fraction: f64) -> Option<f64> {
-    let (mut gd, mut dd, mut gg) = (0.0, 0.0, 0.0);
+    let (mut gg, mut gp, mut pp) = (0.0, 0.0, 0.0);
     for (g, p) in row.iter().zip(previous) {
-        let d = g - p;
-        gd += g * d;
-        dd += d * d;
         gg += g * g;
+        gp += g * p;
+        pp += p * p;
     }
-    if dd.is_nan() || dd <= 0.0 {
-        return None;
-    }
-    let s = -gd / dd;
-    // |g + s d|^2 = |g|^2 - (g.d)^2 / |d|^2 at the minimum.
-    let shortest = (gg - gd * gd / dd).max(0.0);
+    let (s, shortest) = lookahead(gg, gp, pp);
     (s > 0.0 && shortest < fraction * fraction * gg).then_some(s)
+}
+
+/// From |g|^2, g . p and |p|^2: the step count s at which g + s (g - p) is shortest and its
+/// squared length there, |g|^2 - (g.d)^2 / |d|^2 with d = g - p; (NaN, NaN) when g = p.
+fn lookahead(gg: f64, gp: f64, pp: f64) -> (f64, f64) {
+    let gd = gg - gp;
+    let dd = gg - 2.0 * gp + pp;
+    if dd.is_nan() || dd <= 0.0 {
+        return (f64::NAN, f64::NAN);
+    }
+    (-gd / dd, (gg - gd * gd / dd).max(0.0))
 }
 
 fn norm(v: &[f64]) -> f64 {
     v.iter().map(|c| c * c).sum::<f64>().sqrt()
-}
-
-fn dot(a: &[f64], b: &[f64]) -> f64 {
-    a.iter().zip(b).map(|(a, b)| a * b).sum()
 }
 
 /// The distance from `p` to the segment from `a` to `b`.
