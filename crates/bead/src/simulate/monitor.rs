@@ -408,8 +408,8 @@ impl Monitor {
             let reversed = gp < 0.0;
             let (s, shortest) = lookahead(gg, gp, pp);
             let ahead = (s > 0.0 && shortest < AHEAD_FRACTION * AHEAD_FRACTION * gg).then_some(s);
-            let far_ahead = (s > 0.0 && shortest < OFF_BRANCH_FRACTION * OFF_BRANCH_FRACTION * gg)
-                .then_some(s);
+            let far_ahead =
+                (s > 0.0 && shortest < OFF_BRANCH_FRACTION * OFF_BRANCH_FRACTION * gg).then_some(s);
             let vanished = length < VANISHED * self.longest[r];
             let candidate = if reversed {
                 // The chord's point where the interpolated gradient is shortest, as a step
