@@ -55,6 +55,9 @@ impl Plan {
             None => scene_positive("dt", run.dt)?.unwrap_or(DEFAULT_DT),
         };
         let (steps, duration, overshoot) = match (sim.steps, sim.duration) {
+            (Some(steps), _) if steps as f64 > MAX_STEPS => {
+                bail!("--steps {steps}: at most 2^53 steps are allowed (beyond, t = step * dt is no longer exact)")
+            }
             (Some(steps), _) => (steps, None, false),
             (None, Some(duration)) => steps_for(duration, dt)?,
             (None, None) => match (run.steps, scene_positive("duration", run.duration)?) {
@@ -149,20 +152,13 @@ impl Plan {
 }
 
 /// The method of `bead run`: the flag, else the scene's `[run]` method, else implicit when the
-/// scene has constraints or no parametric form, else parametric. Checked against the scene.
+/// scene has constraints or no parametric form, else parametric. Whether the scene has that
+/// form is the library's to say (`Simulation::new`), in the words every front end uses.
 pub fn run_method(scene: &Scene, flag: Option<Method>) -> Result<Method> {
-    let system = &scene.system;
-    let method = match (flag, scene.run.method) {
+    Ok(match (flag, scene.run.method) {
         (Some(m), _) | (None, Some(m)) => m,
         (None, None) => default_method(scene),
-    };
-    if method == Method::Parametric && system.parametric().is_none() {
-        if flag.is_some() {
-            bail!("--method parametric needs a parametric form, and the scene defines none (add a [parametric] section)");
-        }
-        bail!("the scene's [run] method is parametric, but it defines no parametric form (add a [parametric] section)");
-    }
-    Ok(method)
+    })
 }
 
 /// The built-in default method of a scene.

@@ -1141,7 +1141,7 @@ fn parametric_without_a_parametric_form() {
     );
     assert_eq!(
         err,
-        "error: --method parametric needs a parametric form, and the scene defines none (add a [parametric] section)\n"
+        "error: the scene defines no parametric form (add a [parametric] table)\n"
     );
 }
 
@@ -1243,7 +1243,8 @@ fn check_refuses_an_over_constrained_scene() {
     assert!(
         out.contains(
             "degrees of freedom: none: the system is over-constrained: 3 constraint rows on 2 \
-             coordinates leave -1 degrees of freedom\n"
+             coordinates (more rows than coordinates, so the constraint forces are not \
+             determined)\n"
         ),
         "{out}"
     );

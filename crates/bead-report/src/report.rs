@@ -101,7 +101,7 @@ impl PeriodDetector {
 }
 
 /// A [`Sink`] that records a run for a report in bounded memory: the constraint error and the
-/// relative error of the conserved energy ([`Sample::energy_error`]: |E - E0| / E_scale, or
+/// relative error of the conserved energy ([`Sample::conserved_energy_error`]: |E - E0| / E_scale, or
 /// |E - W - E0| / E_scale when something does work on the system and the energy ledger runs)
 /// as min/max-decimated series, the particle positions of the first and last samples (see
 /// [`HeadTail`]), and the period of each particle velocity component from every sample.
@@ -180,7 +180,7 @@ impl Sink for Recorder {
         self.samples += 1;
         self.balance = sample.work.is_some();
         self.constraint.push(sample.t, sample.constraint_error);
-        self.energy.push(sample.t, sample.energy_error());
+        self.energy.push(sample.t, sample.conserved_energy_error());
         // Row: t, then the particle coordinates.
         let n = sample.x.len().min(self.row.len() - 1);
         self.row[0] = sample.t;

@@ -324,9 +324,9 @@
       const reasons = f.not_conserved_by.join("; ");
       r.energy.textContent = f.energy_conserved ? `E = ${fmt(f.energy, 7)}` :
         `E = ${fmt(f.energy, 7)}, W = ${fmt(f.work, 5)}`;
-      r.erel.textContent = f.energy_conserved ? `|ΔE|/E = ${fmt(f.energy_error)}` :
-        `|Δ(E − W)|/E = ${fmt(f.energy_error)}`;
-      r.erel.title = f.energy_conserved ? "relative energy error" :
+      r.erel.textContent = f.energy_conserved ? `|ΔE|/E_scale = ${fmt(f.energy_error)}` :
+        `|Δ(E − W)|/E_scale = ${fmt(f.energy_error)}`;
+      r.erel.title = f.energy_conserved ? "relative energy error, |E - E0| / E_scale with E_scale = max(|E0|, T0 + |V0|, T0 + M g L)" :
         `energy not conserved (${reasons}): the error of E − W, W the work done on the system`;
       r.erel.dataset.value = String(f.energy_error);
       r.cerr.textContent = `|C| = ${fmt(f.constraint_error)}`;

@@ -1,6 +1,21 @@
 //! Linear solves behind one interface, so that a sparse or linear-time solver can replace the
 //! dense one without touching the formulations.
 
+/// max_i |v_i|, NaN when any entry is NaN (a non-finite value must not hide behind max);
+/// 0 for an empty slice.
+pub(crate) fn max_abs(values: &[f64]) -> f64 {
+    values.iter().fold(0.0, |m: f64, &v| max_nan(m, v.abs()))
+}
+
+/// max(a, b), NaN when either is NaN.
+pub(crate) fn max_nan(a: f64, b: f64) -> f64 {
+    if a.is_nan() || b.is_nan() {
+        f64::NAN
+    } else {
+        a.max(b)
+    }
+}
+
 /// A symmetric positive-definite system A z = b that could not be solved because pivot `row`
 /// vanished (relative to A's own diagonal): the row is linearly dependent on earlier ones, or
 /// its own gradient vanishes.

@@ -417,3 +417,41 @@ fn external_forces_are_counted_by_the_ledger() {
     sim.reset();
     assert!(sim.energy_conserved());
 }
+
+/// Law: under RATTLE the work of an external force that depends on positions only (a spring
+/// to a fixed point, added while running) is integrated at order 2 too: the work coordinate's
+/// kick needs the power at the end-of-step velocity although the particle's does not.
+#[test]
+fn rattle_integrates_an_external_springs_work_at_second_order() {
+    let mut b = SystemBuilder::new(&[0.0, G]);
+    let bead = b.particle("bead", 1.0, &[1.0, 0.0], &[0.0, 0.0]).unwrap();
+    b.distance("rod", bead, Endpoint::Fixed(vec![0.0, 0.0]), 1.0)
+        .unwrap();
+    let pendulum = Arc::new(b.build().unwrap());
+    let error = |steps: u64| {
+        let mut sim = simulation(
+            &pendulum,
+            Method::Implicit,
+            IntegratorKind::Rattle,
+            1.0 / steps as f64,
+        );
+        sim.add_force(Force::Spring {
+            a: bead,
+            b: Endpoint::Fixed(vec![0.8, 0.8]),
+            stiffness: 30.0,
+            rest_length: 0.0,
+        })
+        .unwrap();
+        sim.advance_to(1.0).unwrap();
+        assert!(sim.work().abs() > 0.2, "{}", sim.work());
+        (sim.energy() - sim.work() - sim.energy_initial()).abs()
+    };
+    let (coarse, fine, finer) = (error(200), error(400), error(800));
+    let orders = [(coarse / fine).log2(), (fine / finer).log2()];
+    for order in orders {
+        assert!(
+            (order - 2.0).abs() < 0.2,
+            "errors {coarse:e} {fine:e} {finer:e}: {orders:?}"
+        );
+    }
+}

@@ -22,7 +22,7 @@
 
 use super::implicit::assemble_jwjt;
 use super::{Implicit, SecondOrderSystem, StepError};
-use crate::linalg::SpdSolver;
+use crate::linalg::{max_abs, SpdSolver};
 use crate::model::{ConstraintEval, ConstraintSet, System};
 
 /// A second-order system with holonomic constraints C(q, t) = 0 (m rows) on its coordinates.
@@ -143,17 +143,6 @@ fn singular_error(set: &ConstraintSet, t: f64, row: usize) -> StepError {
     }
 }
 
-/// max |c_i|, NaN if any is NaN.
-fn max_abs(c: &[f64]) -> f64 {
-    c.iter().fold(0.0, |m: f64, c| {
-        if m.is_nan() || c.is_nan() {
-            f64::NAN
-        } else {
-            m.max(c.abs())
-        }
-    })
-}
-
 impl ConstrainedSystem for Implicit {
     fn n_constraints(&self) -> usize {
         self.system.constraints().n_rows()
@@ -180,7 +169,7 @@ impl ConstrainedSystem for Implicit {
     }
 
     fn applied_forces_velocity_dependent(&self) -> bool {
-        self.system.forces().iter().any(|f| f.depends_on_velocity())
+        self.system.has_velocity_dependent_forces()
             || self.external.iter().any(|f| f.depends_on_velocity())
     }
 

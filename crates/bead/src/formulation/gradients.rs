@@ -13,13 +13,10 @@
 /// Gradient rows with a fixed structure, refilled by [`super::Formulation::observe`].
 #[derive(Clone, Debug, Default)]
 pub struct Gradients {
-    /// Row r owns entries start[r]..start[r + 1] of `values` and `coords` (rows + 1)
+    /// Row r owns entries start[r]..start[r + 1] of `values` (rows + 1)
     pub(crate) start: Vec<usize>,
     /// The vectors' entries (nnz)
     pub(crate) values: Vec<f64>,
-    /// Implicit rows: the positions of the coordinates the row reads, so that the monitor
-    /// can measure how far each step moved them (nnz); empty for the parametric form.
-    pub(crate) coords: Vec<f64>,
     /// How far the state is off row r's constraint, |C_r| / |J_r| (rows); 0 for the
     /// parametric form, which cannot leave its curve.
     pub(crate) offset: Vec<f64>,
@@ -27,7 +24,7 @@ pub struct Gradients {
 
 impl Gradients {
     /// Rows with the given entry counts.
-    pub(crate) fn with_rows(counts: impl Iterator<Item = usize>, with_coords: bool) -> Self {
+    pub(crate) fn with_rows(counts: impl Iterator<Item = usize>) -> Self {
         let mut start = vec![0];
         for count in counts {
             start.push(start.last().copied().unwrap_or(0) + count);
@@ -37,11 +34,6 @@ impl Gradients {
         Gradients {
             start,
             values: vec![0.0; nnz],
-            coords: if with_coords {
-                vec![0.0; nnz]
-            } else {
-                Vec::new()
-            },
             offset: vec![0.0; rows],
         }
     }
@@ -56,15 +48,6 @@ impl Gradients {
         &self.values[self.start[r]..self.start[r + 1]]
     }
 
-    /// The positions of the coordinates row `r` reads (empty for the parametric form).
-    pub fn row_coords(&self, r: usize) -> &[f64] {
-        if self.coords.is_empty() {
-            &[]
-        } else {
-            &self.coords[self.start[r]..self.start[r + 1]]
-        }
-    }
-
     /// How far the state is off row `r`'s constraint (0 for the parametric form).
     pub fn offset(&self, r: usize) -> f64 {
         self.offset[r]
@@ -73,7 +56,6 @@ impl Gradients {
     /// Copy the values of `other` (same structure) into `self`, without allocating.
     pub(crate) fn copy_from(&mut self, other: &Gradients) {
         self.values.copy_from_slice(&other.values);
-        self.coords.copy_from_slice(&other.coords);
         self.offset.copy_from_slice(&other.offset);
     }
 }
@@ -95,13 +77,7 @@ pub struct Observation {
 impl Observation {
     /// max_i |C_i|, NaN if any is NaN; 0 without constraints.
     pub fn constraint_error(&self) -> f64 {
-        self.constraints.iter().fold(0.0, |m: f64, c| {
-            if m.is_nan() || c.is_nan() {
-                f64::NAN
-            } else {
-                m.max(c.abs())
-            }
-        })
+        crate::linalg::max_abs(&self.constraints)
     }
 }
 

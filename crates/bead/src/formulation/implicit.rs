@@ -169,7 +169,7 @@ impl SecondOrderSystem for Implicit {
     /// inspected, so every row counts) or a velocity-dependent force (drag).
     fn velocity_dependent(&self) -> bool {
         self.system.constraints().n_rows() > 0
-            || self.system.forces().iter().any(|f| f.depends_on_velocity())
+            || self.system.has_velocity_dependent_forces()
             || self.external.iter().any(|f| f.depends_on_velocity())
     }
 
@@ -262,10 +262,7 @@ impl Formulation for Implicit {
             x: vec![0.0; n],
             xdot: vec![0.0; n],
             constraints: vec![0.0; set.n_rows()],
-            gradients: Gradients::with_rows(
-                (0..set.n_rows()).map(|i| set.row_columns(i).len()),
-                true,
-            ),
+            gradients: Gradients::with_rows((0..set.n_rows()).map(|i| set.row_columns(i).len())),
         }
     }
 
@@ -283,9 +280,6 @@ impl Formulation for Implicit {
         g.values.copy_from_slice(&ws.jacobian);
         for i in 0..set.n_rows() {
             let entries = set.row_entries(i);
-            for (slot, &k) in g.coords[entries.clone()].iter_mut().zip(set.row_columns(i)) {
-                *slot = q[k];
-            }
             let norm = ws.jacobian[entries]
                 .iter()
                 .map(|g| g * g)

@@ -126,7 +126,8 @@ impl fmt::Display for Subject {
 /// How a singular point showed itself (see `simulate`'s regularity monitor).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum SingularKind {
-    /// The gradient has all but vanished: below 1e-3 of its largest length in this run.
+    /// The gradient has all but vanished: below 1e-2 of its largest length in this run, with a
+    /// point where it vanishes confirmed on the curve nearby.
     Vanishes,
     /// The gradient reversed its direction within one step: the step crossed a point where
     /// it vanishes.

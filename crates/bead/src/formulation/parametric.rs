@@ -53,7 +53,7 @@ impl Parametric {
         // + x_tt when the compiled h reads a rate slot (n_q..2 n_q): a map nonlinear in q (so
         // also any non-constant M(q)) or one whose J moves with t. Symbolic dependence is a
         // superset of the true one, so this errs on the safe side.
-        let velocity_dependent = system.forces().iter().any(|f| f.depends_on_velocity())
+        let velocity_dependent = system.has_velocity_dependent_forces()
             || (0..system.n_coords())
                 .any(|k| (n_q..2 * n_q).any(|slot| map.symbolic(k).2.depends_on(slot)));
         Ok(Parametric {
@@ -228,7 +228,7 @@ impl Formulation for Parametric {
             x: vec![0.0; n],
             xdot: vec![0.0; n],
             constraints: vec![0.0; self.system.constraints().n_rows()],
-            gradients: Gradients::with_rows((0..n_q).map(|_| n), false),
+            gradients: Gradients::with_rows((0..n_q).map(|_| n)),
         }
     }
 

@@ -47,7 +47,7 @@
 use super::fixed_point::{increment_and_scale, FixedPoint};
 use super::{Integrator, IntegratorSettings};
 use crate::formulation::{ConstrainedSystem, SecondOrderSystem, State, StepError};
-use crate::linalg::solve_general;
+use crate::linalg::{max_abs, solve_general};
 
 /// RATTLE with a Newton solve for the position multipliers.
 pub struct Rattle {
@@ -227,17 +227,6 @@ fn kick_and_project(
         cs.project_velocities(t, q, v)?;
     }
     Ok(())
-}
-
-/// max |c_i|, NaN if any is NaN.
-fn max_abs(c: &[f64]) -> f64 {
-    c.iter().fold(0.0, |m: f64, c| {
-        if m.is_nan() || c.is_nan() {
-            f64::NAN
-        } else {
-            m.max(c.abs())
-        }
-    })
 }
 
 impl Integrator for Rattle {

@@ -410,14 +410,7 @@ impl ConstraintSet {
 
     /// max_i |C_i(x, t)|, or 0 without constraints.
     pub fn max_abs_residual(&self, t: f64, x: &[f64], ws: &mut ConstraintEval) -> f64 {
-        // NaN propagates: a non-finite residual must not hide behind max().
-        self.residuals(t, x, ws).iter().fold(0.0, |m: f64, c| {
-            if m.is_nan() || c.is_nan() {
-                f64::NAN
-            } else {
-                m.max(c.abs())
-            }
-        })
+        crate::linalg::max_abs(self.residuals(t, x, ws))
     }
 }
 

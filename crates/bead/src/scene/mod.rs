@@ -219,6 +219,13 @@ impl Scene {
     /// expressions of constraints and of the parametric form) follows; the constraint edits
     /// made before are applied again, parsed with the new value.
     pub fn with_param(&self, name: &str, value: f64) -> Result<Scene, SceneEditError> {
+        if !value.is_finite() {
+            return Err(EditError::Model(crate::model::ModelError::NotFinite {
+                what: format!("parameter `{name}`"),
+                value,
+            })
+            .into());
+        }
         if !self.params.iter().any(|(n, _)| n == name) {
             return Err(EditError::UnknownParam {
                 name: name.to_string(),
@@ -341,8 +348,8 @@ impl Scene {
                         .sqrt();
                     gradient_finite &= gradient.is_finite();
                     let norm = if gradient > 0.0 { gradient } else { 1.0 };
-                    off = nan_max(off, ws.value[row].abs() / norm);
-                    drift = nan_max(drift, ws.velocity[row].abs() / norm);
+                    off = crate::linalg::max_nan(off, ws.value[row].abs() / norm);
+                    drift = crate::linalg::max_nan(drift, ws.velocity[row].abs() / norm);
                 }
                 if !gradient_finite {
                     warnings.push(format!(
@@ -378,14 +385,6 @@ impl Scene {
 /// `value > limit`, or NaN.
 fn exceeds(value: f64, limit: f64) -> bool {
     value.is_nan() || value > limit
-}
-
-fn nan_max(a: f64, b: f64) -> f64 {
-    if a.is_nan() || b.is_nan() {
-        f64::NAN
-    } else {
-        a.max(b)
-    }
 }
 
 fn distance(a: &[f64], b: &[f64]) -> f64 {

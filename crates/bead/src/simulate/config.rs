@@ -114,7 +114,7 @@ impl From<FormulationError> for ConfigError {
 pub enum SetupError {
     #[error(transparent)]
     Config(#[from] ConfigError),
-    #[error("the system is over-constrained: {rows} constraint rows on {coords} coordinates leave {} degrees of freedom", *coords as isize - *rows as isize)]
+    #[error("the system is over-constrained: {rows} constraint rows on {coords} coordinates (more rows than coordinates, so the constraint forces are not determined)")]
     OverConstrained { rows: usize, coords: usize },
     #[error("the initial state cannot be simulated: {0}")]
     Initial(StepError),

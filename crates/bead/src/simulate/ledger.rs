@@ -49,9 +49,13 @@ impl<'a> WithWork<'a> {
         formulation: &'a mut (dyn Formulation + Send),
         scratch: &'a mut LedgerScratch,
     ) -> Self {
-        let applied_velocity_dependent = formulation
-            .as_constrained()
-            .is_none_or(|c| c.applied_forces_velocity_dependent());
+        // The work coordinate's "acceleration" is the applied power F_nc . v: it depends on v
+        // whenever such forces exist, even when they depend on positions only (an external
+        // spring), and the formulation's own answer covers drag.
+        let applied_velocity_dependent = !formulation.external_forces().is_empty()
+            || formulation
+                .as_constrained()
+                .is_none_or(|c| c.applied_forces_velocity_dependent());
         WithWork {
             formulation,
             scratch,
@@ -111,8 +115,8 @@ impl ConstrainedSystem for WithWork<'_> {
         &self.scratch.inverse_mass
     }
 
-    /// The work coordinate's acceleration is the applied forces' power F_nc . v, which
-    /// depends on v exactly when some of those forces exist; the formulation knows.
+    /// Whether the applied accelerations depend on v, the work coordinate's (the power
+    /// F_nc . v) included: see [`WithWork::new`].
     fn applied_forces_velocity_dependent(&self) -> bool {
         self.applied_velocity_dependent
     }

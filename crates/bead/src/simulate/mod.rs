@@ -150,8 +150,10 @@ pub struct Simulation {
     n: usize,
     ledger: Option<LedgerScratch>,
     monitor: Monitor,
-    /// Whether forces from outside have ever acted (they make T + V not conserved)
+    /// Whether forces from outside have acted since the start (they make T + V not conserved)
     had_external: bool,
+    /// Why T + V is not conserved (kept up to date as external forces come and go)
+    nonconservation: Vec<Nonconservation>,
     external_ids: Vec<ForceId>,
     next_force_id: u64,
     stop_time: Option<f64>,
@@ -170,35 +172,40 @@ impl Simulation {
     /// gradient not finite or zero there, dependent constraints, a singular mass matrix).
     pub fn new(system: Arc<System>, config: SimulationConfig) -> Result<Simulation, SetupError> {
         config.check(&system)?;
-        let mut config = config;
-        if config.scaled_constraint_tolerance {
-            config.settings.constraint_tolerance = constraint_tolerance(&system, 1e-12);
-        }
-        let rows = system.constraints().n_rows();
-        if config.method == Method::Implicit && rows > system.n_coords() {
-            return Err(SetupError::OverConstrained {
-                rows,
-                coords: system.n_coords(),
-            });
-        }
+        check_rows(&system, config.method)?;
         let formulation =
             formulate(system, config.method, config.feedback).map_err(ConfigError::from)?;
-        Simulation::with_formulation(formulation, config)
+        Simulation::start(formulation, config)
     }
 
-    /// A simulation of an already built formulation (its method and feedback are its own;
-    /// `config`'s are replaced by them). The legality check and the checks of the initial
-    /// state of [`Simulation::new`] apply.
+    /// A simulation of an already built formulation, whose method replaces `config`'s;
+    /// `config.feedback` should be the formulation's own (it is what [`Simulation::config`]
+    /// reports). The legality check and the checks of the initial state of
+    /// [`Simulation::new`] apply; external forces the formulation already has are kept, with
+    /// ids in their order.
     pub fn with_formulation(
-        mut formulation: Box<dyn Formulation + Send>,
+        formulation: Box<dyn Formulation + Send>,
         config: SimulationConfig,
     ) -> Result<Simulation, SetupError> {
         let config = SimulationConfig {
             method: formulation.method(),
-            feedback: crate::formulation::Feedback::default(),
             ..config
         };
         config.check(formulation.system())?;
+        check_rows(formulation.system(), config.method)?;
+        Simulation::start(formulation, config)
+    }
+
+    /// The simulation of a checked configuration.
+    fn start(
+        mut formulation: Box<dyn Formulation + Send>,
+        config: SimulationConfig,
+    ) -> Result<Simulation, SetupError> {
+        let mut config = config;
+        if config.scaled_constraint_tolerance {
+            config.settings.constraint_tolerance =
+                constraint_tolerance(formulation.system(), 1e-12);
+        }
         let state = formulation.initial_state();
         let n = state.q.len();
         let monitor = Monitor::new(&mut *formulation, state.t, &state.q, &state.qdot);
@@ -213,6 +220,7 @@ impl Simulation {
             ledger: None,
             monitor,
             had_external: false,
+            nonconservation: Vec::new(),
             external_ids: Vec::new(),
             next_force_id: 0,
             stop_time: None,
@@ -222,9 +230,14 @@ impl Simulation {
             config,
             formulation,
         };
+        let existing = simulation.formulation.external_forces().len() as u64;
+        simulation.external_ids = (0..existing).map(ForceId).collect();
+        simulation.next_force_id = existing;
+        simulation.had_external = existing > 0;
+        simulation.refresh_nonconservation();
         let track = config
             .track_work
-            .unwrap_or(!simulation.formulation.nonconservation().is_empty());
+            .unwrap_or(!simulation.nonconservation.is_empty());
         if track {
             simulation.enable_work_tracking();
         }
@@ -359,17 +372,21 @@ impl Simulation {
             / self.monitor.energy_scale
     }
     /// Whether T + V is conserved: nothing does work on the system (no drag, no driven
-    /// constraint or moving map, no external forces so far).
+    /// constraint or moving map, no external forces since the start).
     pub fn energy_conserved(&self) -> bool {
-        !self.had_external && self.formulation.nonconservation().is_empty()
+        self.nonconservation.is_empty()
     }
     /// What does work on the system, when T + V is not conserved.
-    pub fn nonconservation(&self) -> Vec<Nonconservation> {
+    pub fn nonconservation(&self) -> &[Nonconservation] {
+        &self.nonconservation
+    }
+    /// Recompute why T + V is not conserved (after external forces came or went).
+    fn refresh_nonconservation(&mut self) {
         let mut reasons = self.formulation.nonconservation();
         if self.had_external && !reasons.contains(&Nonconservation::External) {
             reasons.push(Nonconservation::External);
         }
-        reasons
+        self.nonconservation = reasons;
     }
     /// Whether the work W is being tracked.
     pub fn tracks_work(&self) -> bool {
@@ -547,11 +564,17 @@ impl Simulation {
         self.previous.qdot.copy_from_slice(&self.state.qdot);
     }
 
-    /// Back to the state before the step.
+    /// Back to the state before the step, which becomes the observable one (also after an
+    /// adaptive integrator's dense output was ahead of it) and is observed again, so that
+    /// every accessor and the statistics describe the last good state.
     fn restore(&mut self) {
         self.state.t = self.previous.t;
         self.state.q.copy_from_slice(&self.previous.q);
         self.state.qdot.copy_from_slice(&self.previous.qdot);
+        self.output_behind = false;
+        let (q, qdot, work) = split(&self.state, self.n);
+        self.monitor
+            .observe(&mut *self.formulation, self.state.t, q, qdot, work);
     }
 
     /// A failed step: restore the last good state, and report the error, or the singular point
@@ -593,6 +616,7 @@ impl Simulation {
         let t = self.state.t;
         if let Some((quantity, value)) = non_finite_state(&*self.formulation, &self.state, n) {
             let step = self.steps;
+            self.steps -= 1;
             self.restore();
             return Err(RunError::Diverged {
                 t,
@@ -614,9 +638,6 @@ impl Simulation {
                 let step = self.steps;
                 self.steps -= 1;
                 self.restore();
-                let (q, qdot, work) = split(&self.state, n);
-                self.monitor
-                    .observe(&mut *self.formulation, self.state.t, q, qdot, work);
                 Err(match rejection {
                     Rejection::Diverged {
                         quantity,
@@ -639,6 +660,7 @@ impl Simulation {
     /// external forces stay (and energy counts as not conserved only while there are any).
     pub fn reset(&mut self) {
         self.had_external = !self.external_ids.is_empty();
+        self.refresh_nonconservation();
         let mut state = self.formulation.initial_state();
         if self.ledger.is_some() {
             state.q.push(0.0);
@@ -705,6 +727,7 @@ impl Simulation {
         self.next_force_id += 1;
         self.external_ids.push(id);
         self.had_external = true;
+        self.refresh_nonconservation();
         Ok(id)
     }
 
@@ -724,7 +747,9 @@ impl Simulation {
     pub fn remove_force(&mut self, id: ForceId) -> Option<Force> {
         let index = self.external_ids.iter().position(|&i| i == id)?;
         self.external_ids.remove(index);
-        Some(self.formulation.external_forces_mut().remove(index))
+        let force = self.formulation.external_forces_mut().remove(index);
+        self.refresh_nonconservation();
+        Some(force)
     }
 
     /// Start the energy ledger (allocates once; the integrator restarts).
@@ -770,7 +795,7 @@ impl Simulation {
             energy_scale: m.energy_scale,
             energy_rel_error_max: m.energy_rel_error_max,
             energy_conserved: self.energy_conserved(),
-            nonconservation: self.nonconservation(),
+            nonconservation: self.nonconservation.clone(),
             work_final: self.tracks_work().then_some(m.work),
             energy_balance_error_max: self.tracks_work().then_some(m.balance_error_max),
             constraint_error_max: m.constraint_error_max,
@@ -803,6 +828,18 @@ impl Simulation {
             energy_scale: self.monitor.energy_scale,
         }
     }
+}
+
+/// An implicit system with more constraint rows than coordinates cannot be solved.
+fn check_rows(system: &System, method: Method) -> Result<(), SetupError> {
+    let rows = system.constraints().n_rows();
+    if method == Method::Implicit && rows > system.n_coords() {
+        return Err(SetupError::OverConstrained {
+            rows,
+            coords: system.n_coords(),
+        });
+    }
+    Ok(())
 }
 
 /// Run `f` on the formulation as the integrators see it: with the work coordinate when the

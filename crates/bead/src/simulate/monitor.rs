@@ -4,13 +4,15 @@
 use std::fmt;
 
 use crate::formulation::{Formulation, Observation, SingularKind, StepError};
+use crate::linalg::max_nan;
 use crate::model::System;
 
 /// A particle farther than this many times the run's length scale, or faster than this many
 /// times its speed scale, has diverged (see [`Reach`]).
 pub(super) const BLOW_UP_FACTOR: f64 = 1e12;
 
-/// A gradient row shorter than this fraction of its longest length in the run has vanished.
+/// A gradient row shorter than this fraction of its longest length in the run has all but
+/// vanished (a candidate, confirmed by a search).
 const VANISHED: f64 = 1e-2;
 /// The lookahead: extrapolated along the motion, a gradient row that shrinks below this
 /// fraction of its length ...
@@ -364,17 +366,18 @@ impl Monitor {
     /// - g . p < 0: the gradient reversed within the step (on a smooth curve it turns by far
     ///   less than 90 degrees per step), so the step may have crossed a point where it
     ///   vanishes;
-    /// - |g| < 1e-3 G: it has all but vanished;
-    /// - extrapolated linearly along the motion, g + s (g - p) shrinks below 0.1 |g| within
+    /// - |g| < 1e-2 G: it has all but vanished;
+    /// - extrapolated linearly along the motion, g + s (g - p) shrinks below 0.5 |g| within
     ///   s <= 2 steps: a singular point may be about to be reached;
-    /// - the same extrapolation nears zero at any distance while the state is off the
-    ///   constraint: near a crossing, the level set through a drifted state may belong to
-    ///   another branch.
+    /// - the same extrapolation nears zero (below 0.1 |g|) at any distance while the state is
+    ///   off the constraint: near a crossing, the level set through a drifted state may belong
+    ///   to another branch.
     ///
     /// A candidate stops the run only when a search with exact second derivatives
     /// ([`Formulation::locate_singular_point`]) confirms a point x* where the gradient
     /// vanishes, on the curve (|C(x*)| small against |g| times the distance), and within
-    /// reach: on the step's chord (reversal), within three steps (vanishing, ahead), or
+    /// reach: on the step's chord (reversal), within three steps (ahead), anywhere (a gradient
+    /// that has collapsed is close to its zero in its own scale, whatever the step), or
     /// closer than 100 times the state's distance off the constraint (another branch). So a
     /// wildly unstable integration on a regular curve (Euler at a huge step on a parabola,
     /// whose gradient also reverses) is left to the divergence test, and the centre of an
@@ -612,13 +615,4 @@ fn distance(a: &[f64], b: &[f64]) -> f64 {
         .map(|(a, b)| (a - b) * (a - b))
         .sum::<f64>()
         .sqrt()
-}
-
-/// max that propagates NaN.
-pub(super) fn max_nan(a: f64, b: f64) -> f64 {
-    if a.is_nan() || b.is_nan() {
-        f64::NAN
-    } else {
-        a.max(b)
-    }
 }

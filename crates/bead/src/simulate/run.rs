@@ -55,7 +55,7 @@ pub struct Sample<'a> {
 impl Sample<'_> {
     /// The relative error of the conserved energy: |E - W - E0| / E_scale, with W = 0 when
     /// the energy ledger does not run (then T + V itself is conserved).
-    pub fn energy_error(&self) -> f64 {
+    pub fn conserved_energy_error(&self) -> f64 {
         (self.energy - self.work.unwrap_or(0.0) - self.energy_initial).abs() / self.energy_scale
     }
 }
@@ -157,7 +157,7 @@ pub enum RunError {
         /// The limit a finite value passed.
         limit: Option<f64>,
     },
-    #[error("cannot advance to t = {} from t = {}: time only moves forward", crate::readable(*requested), crate::readable(*now))]
+    #[error("cannot advance to t = {} from t = {}: time only moves forward, to a finite time", crate::readable(*requested), crate::readable(*now))]
     TimeBehind { requested: f64, now: f64 },
     /// The message includes the I/O error; it is not also the [`std::error::Error::source`],
     /// so that printing the chain shows it once.
