@@ -286,10 +286,16 @@ impl Simulation {
         })
         .map_err(initial)?;
         if let Some(k) = a.iter().position(|c| !c.is_finite()) {
-            return Err(initial(StepError::NonFinite {
-                t,
-                quantity: format!("the initial acceleration of coordinate {k}"),
-            }));
+            let names = self.formulation.coordinate_names();
+            let quantity = if k >= self.n {
+                "the initial rate of work of the energy ledger".to_string()
+            } else if names.is_empty() {
+                let name = self.formulation.system().coordinate_name(k);
+                format!("the initial acceleration of {name}")
+            } else {
+                format!("the initial acceleration of q.{}", names[k])
+            };
+            return Err(initial(StepError::NonFinite { t, quantity }));
         }
         Ok(())
     }
