@@ -116,12 +116,23 @@ fn a_whipping_chain_runs_at_dt_1_60_with_automatic_substeps() {
 #[test]
 fn a_100_link_chain_runs_at_dt_1_60_with_automatic_substeps() {
     let mut sim = Simulation::new(chain(100), config(1.0 / 60.0, 1, 64)).unwrap();
-    let stats = run(&mut sim, RunOptions { steps: 600, every: 1 }, &mut NullSink)
-        .unwrap_or_else(|e| panic!("{e}"));
+    let stats = run(
+        &mut sim,
+        RunOptions {
+            steps: 600,
+            every: 1,
+        },
+        &mut NullSink,
+    )
+    .unwrap_or_else(|e| panic!("{e}"));
     assert_eq!(stats.t_final, 10.0);
     assert!(stats.retried_steps > 0);
     // The tolerance is 1e-12 of the scene's scale (100 lengths): 1e-10 per rod.
-    assert!(stretch(sim.positions()) < 2e-10, "{}", stretch(sim.positions()));
+    assert!(
+        stretch(sim.positions()) < 2e-10,
+        "{}",
+        stretch(sim.positions())
+    );
     println!(
         "100 links, dt = 1/60: {} steps retried, at most {} substeps",
         stats.retried_steps, stats.substeps_max
