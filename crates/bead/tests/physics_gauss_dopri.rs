@@ -197,20 +197,45 @@ fn gauss_legendre_energy_stays_bounded_where_rk4_decays() {
 /// Law checked: the stage iteration is a contraction only when dt is small against the
 /// system's time scales; far outside (dt = 1 s on the bead, whose stage accelerations change
 /// by orders of magnitude across a step) it fails with a clear error instead of returning a
-/// wrong state.
+/// wrong state when retries are off, and with retries each step is taken in halves until
+/// the iteration converges, landing on the same state as the run at that shorter step.
 #[test]
 fn gauss_legendre_reports_a_stage_iteration_that_does_not_converge() {
     let formulation = formulate(parabola(), Method::Parametric, Feedback::default()).unwrap();
-    let failure = run(
-        formulation,
-        &options(IntegratorKind::GaussLegendre, 1.0, 10),
-        &mut NullSink,
-    )
-    .expect_err("dt = 1 s must fail");
+    let no_retries = Options {
+        max_substeps: 1,
+        ..options(IntegratorKind::GaussLegendre, 1.0, 10)
+    };
+    let failure = run(formulation, &no_retries, &mut NullSink).expect_err("dt = 1 s must fail");
     let message = failure.error.to_string();
     assert!(message.contains("reduce dt"), "{message}");
     assert!(message.contains("gauss-legendre"), "{message}");
     assert!(failure.stats.q.iter().all(|q| q.is_finite()));
+
+    // With retries: the first step needs k substeps; a run at dt = 1/k from the start that
+    // takes no retries must give the same state after that first second.
+    let formulation = formulate(parabola(), Method::Parametric, Feedback::default()).unwrap();
+    let retried = run(
+        formulation,
+        &options(IntegratorKind::GaussLegendre, 1.0, 1),
+        &mut NullSink,
+    )
+    .unwrap_or_else(|e| panic!("{}", e.error));
+    assert!(retried.retried_steps > 0, "{retried:?}");
+    let k = retried.substeps_max;
+    let formulation = formulate(parabola(), Method::Parametric, Feedback::default()).unwrap();
+    let fine = run(
+        formulation,
+        &Options {
+            max_substeps: 1,
+            ..options(IntegratorKind::GaussLegendre, 1.0 / k as f64, k as u64)
+        },
+        &mut NullSink,
+    )
+    .unwrap_or_else(|e| panic!("{}", e.error));
+    for (a, b) in retried.q.iter().zip(&fine.q) {
+        assert!((a - b).abs() <= 1e-9 * b.abs().max(1.0), "{a} vs {b}");
+    }
 }
 
 // ---------------------------------------------------------------------------------------

@@ -468,6 +468,16 @@ fn projection_failure_is_reported() {
     let mut o = options(IntegratorKind::Rattle, 0.01, 10);
     o.settings.constraint_max_iterations = 0;
     o.settings.constraint_tolerance = 1e-14;
+    // With retries, the step is tried in 2, 4, ..., 64 substeps first; the failure is the
+    // first substep's of the last try.
+    let formulation = formulate(system.clone(), Method::Implicit, Feedback::default()).unwrap();
+    let failure = run(formulation, &o, &mut NullSink).unwrap_err();
+    match &failure.error {
+        RunError::Step(StepError::ProjectionFailed { t, .. }) => assert_eq!(*t, 0.01 / 64.0),
+        other => panic!("expected ProjectionFailed, got {other}"),
+    }
+    assert_eq!(failure.stats.steps, 0);
+    o.max_substeps = 1;
     let formulation = formulate(system.clone(), Method::Implicit, Feedback::default()).unwrap();
     let failure = run(formulation, &o, &mut NullSink).unwrap_err();
     match &failure.error {
@@ -487,8 +497,10 @@ fn projection_failure_is_reported() {
         .contains("projection onto the constraints did not converge"));
     assert_eq!(failure.stats.steps, 0);
 
+    // Retries off: shorter substeps leave the rod by less and may need no iteration at all.
     let mut o = options(IntegratorKind::Rk4, 0.01, 10);
     o.project = true;
+    o.max_substeps = 1;
     o.settings.constraint_max_iterations = 0;
     o.settings.constraint_tolerance = 1e-14;
     let formulation = formulate(system.clone(), Method::Implicit, Feedback::default()).unwrap();

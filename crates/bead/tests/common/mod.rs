@@ -74,10 +74,13 @@ pub struct Options {
     pub every: u64,
     pub settings: bead::integrate::IntegratorSettings,
     pub project: bool,
+    /// The most substeps a retried step may take (1: no retries)
+    pub max_substeps: u32,
 }
 
 impl Default for Options {
-    /// rk4, dt = 1/60 s, 600 steps, every step recorded, default settings, no projection.
+    /// rk4, dt = 1/60 s, 600 steps, every step recorded, default settings, no projection,
+    /// the default retries.
     fn default() -> Self {
         Options {
             integrator: bead::integrate::IntegratorKind::Rk4,
@@ -86,6 +89,7 @@ impl Default for Options {
             every: 1,
             settings: bead::integrate::IntegratorSettings::default(),
             project: false,
+            max_substeps: bead::simulate::SimulationConfig::default().max_substeps,
         }
     }
 }
@@ -99,6 +103,7 @@ impl Options {
             project: self.project,
             settings: self.settings,
             scaled_constraint_tolerance: false,
+            max_substeps: self.max_substeps,
             ..Default::default()
         }
     }
