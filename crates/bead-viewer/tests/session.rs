@@ -629,32 +629,25 @@ fn dragging_works_with_verlet_and_rattle_at_the_default_dt() {
             assert!(f.constraint_error < 1e-6, "{f:?}");
         }
     }
-    // At a larger dt their velocity kick cannot converge against the drag's damping: the
-    // panel stops and says why, and what to do.
+    // At dt = 0.1 and at the viewer's largest dt, 1, their velocity kick cannot converge
+    // against the drag's damping in one step (dt c/(2m) = 1.26 and 12.6 > 1): each step is
+    // retried in halves (at most 64) and the panel keeps running and follows the drag. (The
+    // panel's explanation of a kick that fails while dragging stays for failures that
+    // retries cannot fix.)
     for integrator in ["verlet", "rattle"] {
-        let mut s = session();
-        send(
-            &mut s,
-            &format!(
-                r#"{{"type":"configure_panel","panel":1,"integrator":"{integrator}","dt":0.1}}"#
-            ),
-        );
-        drag(&mut s, 1, [-100.0, -100.0]);
-        run(&mut s, 0.5);
-        let f = &frames(&s)[0];
-        assert_eq!(f.status, "failed", "{integrator}: {f:?}");
-        let error = f.error.as_deref().unwrap();
-        for needle in [
-            "did not converge",
-            "while dragging particle 0",
-            "c/m = 25.1/s",
-            "dt c/(2m) = 1.26",
-            "m/(2c) = 0.0199 s",
-        ] {
-            assert!(
-                error.contains(needle),
-                "{integrator}: {needle:?} not in {error}"
+        for dt in ["0.1", "1"] {
+            let mut s = session();
+            send(
+                &mut s,
+                &format!(
+                    r#"{{"type":"configure_panel","panel":1,"integrator":"{integrator}","dt":{dt}}}"#
+                ),
             );
+            drag(&mut s, 1, [-100.0, -100.0]);
+            run(&mut s, 4.0);
+            let f = &frames(&s)[0];
+            assert_eq!(f.status, "running", "{integrator} dt = {dt}: {f:?}");
+            assert!(f.x[0] < -50.0, "{integrator} dt = {dt}: {f:?}");
         }
     }
 }
