@@ -1,0 +1,97 @@
+//! Steps per second of a hanging chain built in code: N particles of unit mass joined by
+//! rods of length 1, the first rod pinned at the origin, horizontal at rest, g = 9.81, stepped
+//! through `Simulation` (monitors included) with dt = 1/120.
+//!
+//! ```text
+//! cargo run --release -p bead --example chain -- [N ...] [--integrator rk4|rattle ...]
+//!     [--seconds S] [--max-steps K]
+//! ```
+//! Defaults: N = 10 100 1000 10000, both integrators, S = 2 (wall time per case, after one
+//! warm-up step), at most K = 100000 steps per case.
+
+use std::sync::Arc;
+use std::time::Instant;
+
+use bead::formulation::Method;
+use bead::integrate::IntegratorKind;
+use bead::model::{Endpoint, System, SystemBuilder};
+use bead::simulate::{Simulation, SimulationConfig};
+
+/// The chain: particle i at (i + 1, 0); rod 0 from particle 0 to the origin, rod i from
+/// particle i to particle i - 1.
+fn chain(n: usize) -> System {
+    let mut b = SystemBuilder::new(&[0.0, 9.81]);
+    let mut previous = None;
+    for i in 0..n {
+        let p = b
+            .particle(&format!("p{i}"), 1.0, &[(i + 1) as f64, 0.0], &[0.0, 0.0])
+            .unwrap();
+        let end = match previous {
+            None => Endpoint::Fixed(vec![0.0, 0.0]),
+            Some(q) => Endpoint::Particle(q),
+        };
+        b.distance(&format!("rod {i}"), p, end, 1.0).unwrap();
+        previous = Some(p);
+    }
+    b.build().unwrap()
+}
+
+fn main() {
+    let mut sizes = Vec::new();
+    let mut integrators = Vec::new();
+    let mut seconds = 2.0;
+    let mut max_steps = 100_000u64;
+    let mut args = std::env::args().skip(1);
+    while let Some(arg) = args.next() {
+        match arg.as_str() {
+            "--integrator" => integrators.push(match args.next().as_deref() {
+                Some("rk4") => IntegratorKind::Rk4,
+                Some("rattle") => IntegratorKind::Rattle,
+                other => panic!("unknown integrator {other:?}"),
+            }),
+            "--seconds" => seconds = args.next().unwrap().parse().unwrap(),
+            "--max-steps" => max_steps = args.next().unwrap().parse().unwrap(),
+            n => sizes.push(n.parse::<usize>().expect("N")),
+        }
+    }
+    if sizes.is_empty() {
+        sizes = vec![10, 100, 1000, 10_000];
+    }
+    if integrators.is_empty() {
+        integrators = vec![IntegratorKind::Rk4, IntegratorKind::Rattle];
+    }
+    println!("| N | integrator | build s | setup s | steps | steps/s | max newton |");
+    println!("|---|---|---|---|---|---|---|");
+    for &n in &sizes {
+        let start = Instant::now();
+        let system = Arc::new(chain(n));
+        let build = start.elapsed().as_secs_f64();
+        for &integrator in &integrators {
+            let config = SimulationConfig {
+                method: Method::Implicit,
+                integrator,
+                dt: 1.0 / 120.0,
+                ..Default::default()
+            };
+            let start = Instant::now();
+            let mut sim = Simulation::new(system.clone(), config).unwrap();
+            sim.step().unwrap();
+            let setup = start.elapsed().as_secs_f64();
+            let start = Instant::now();
+            let mut steps = 0u64;
+            while steps < max_steps && start.elapsed().as_secs_f64() < seconds {
+                sim.step().unwrap();
+                steps += 1;
+            }
+            let elapsed = start.elapsed().as_secs_f64();
+            println!(
+                "| {n} | {} | {build:.3} | {setup:.3} | {steps} | {:.1} | {} |",
+                integrator.name(),
+                steps as f64 / elapsed,
+                sim.stats(elapsed)
+                    .newton_iterations_max
+                    .map_or("-".to_string(), |k| k.to_string()),
+            );
+        }
+    }
+}
