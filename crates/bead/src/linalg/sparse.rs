@@ -236,3 +236,140 @@ impl SymmetricSolver for SparseLdlt {
         )
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::super::{DenseCholesky, SymmetricPattern, SymmetricSolver};
+    use super::*;
+
+    /// Every ordering and layout the options allow.
+    fn all_options() -> Vec<SparseOptions> {
+        let mut out = Vec::new();
+        for ordering in [Ordering::Auto, Ordering::Amd, Ordering::Identity] {
+            for supernodal in [None, Some(false), Some(true)] {
+                out.push(SparseOptions {
+                    ordering,
+                    supernodal,
+                });
+            }
+        }
+        out
+    }
+
+    /// A = B B^T + I with B sparse (each row couples to the next and to row i + 7): SPD, with
+    /// fill under the identity ordering. Values in the pattern's order.
+    fn random_spd(m: usize, seed: u64) -> (SymmetricPattern, Vec<f64>) {
+        let mut state = seed;
+        let mut random = || {
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (state >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+        };
+        let mut b = vec![0.0; m * m];
+        for i in 0..m {
+            b[i * m + i] = 1.0 + random();
+            for j in [i + 1, i + 7] {
+                if j < m {
+                    b[i * m + j] = random();
+                }
+            }
+        }
+        let dense: Vec<f64> = (0..m * m)
+            .map(|ij| {
+                let (i, j) = (ij / m, ij % m);
+                (0..m).map(|k| b[i * m + k] * b[j * m + k]).sum::<f64>()
+                    + if i == j { 1.0 } else { 0.0 }
+            })
+            .collect();
+        let pairs = (0..m)
+            .flat_map(|i| (0..m).map(move |j| (i, j)))
+            .filter(|&(i, j)| dense[i * m + j] != 0.0);
+        let pattern = SymmetricPattern::new(m, pairs);
+        let mut values = vec![0.0; pattern.nnz()];
+        for j in 0..m {
+            for (s, &i) in pattern.column(j) {
+                values[s] = dense[i * m + j];
+            }
+        }
+        (pattern, values)
+    }
+
+    #[test]
+    fn agrees_with_the_dense_cholesky_in_every_ordering_and_layout() {
+        let m = 40;
+        let (pattern, values) = random_spd(m, 7);
+        let rhs: Vec<f64> = (0..m).map(|i| (i as f64).sin()).collect();
+        let mut dense = DenseCholesky::new(&pattern);
+        dense.factor(&values).unwrap();
+        let mut expected = rhs.clone();
+        dense.solve_in_place(&mut expected);
+        for options in all_options() {
+            let mut sparse = SparseLdlt::new(&pattern, options);
+            sparse.factor(&values).unwrap();
+            let mut z = rhs.clone();
+            sparse.solve_in_place(&mut z);
+            let error = z
+                .iter()
+                .zip(&expected)
+                .fold(0.0f64, |e, (a, b)| e.max((a - b).abs()));
+            assert!(error < 1e-12, "{options:?}: {error:e}");
+        }
+    }
+
+    /// Row 5 repeats row 2 (a duplicated constraint): whichever the elimination meets second
+    /// is named, finite. A NaN on the diagonal is not finite.
+    #[test]
+    fn names_a_dependent_row_through_the_permutation_and_tells_nan() {
+        let m = 20;
+        let (pattern, mut values) = random_spd(m, 3);
+        // Make rows/columns 2 and 5 equal: A = C C^T with C's rows 2 and 5 equal has them
+        // dependent; simplest: copy column 2 into 5 and row 2 into 5 on a Gram matrix.
+        let dense_of = |values: &[f64]| {
+            let mut d = vec![0.0; m * m];
+            for j in 0..m {
+                for (s, &i) in pattern.column(j) {
+                    d[i * m + j] = values[s];
+                    d[j * m + i] = values[s];
+                }
+            }
+            d
+        };
+        let mut d = dense_of(&values);
+        let (p, q) = (2, 5);
+        for k in 0..m {
+            d[q * m + k] = d[p * m + k];
+            d[k * m + q] = d[k * m + p];
+        }
+        d[q * m + q] = d[p * m + p];
+        d[p * m + q] = d[p * m + p];
+        d[q * m + p] = d[p * m + p];
+        let pattern = SymmetricPattern::new(
+            m,
+            (0..m)
+                .flat_map(|i| (0..m).map(move |j| (i, j)))
+                .filter(|&(i, j)| d[i * m + j] != 0.0),
+        );
+        values.resize(pattern.nnz(), 0.0);
+        for j in 0..m {
+            for (s, &i) in pattern.column(j) {
+                values[s] = d[i * m + j];
+            }
+        }
+        for options in all_options() {
+            let mut sparse = SparseLdlt::new(&pattern, options);
+            let singular = sparse.factor(&values).unwrap_err();
+            assert!(
+                singular.finite && (singular.row == p || singular.row == q),
+                "{options:?}: {singular:?}"
+            );
+        }
+        let (pattern, mut nan) = random_spd(m, 3);
+        nan[pattern.diagonal_slot(9)] = f64::NAN;
+        for options in all_options() {
+            let mut sparse = SparseLdlt::new(&pattern, options);
+            let singular = sparse.factor(&nan).unwrap_err();
+            assert!(!singular.finite, "{options:?}: {singular:?}");
+        }
+    }
+}
