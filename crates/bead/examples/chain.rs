@@ -7,16 +7,21 @@
 //!
 //! ```text
 //! cargo run --release -p bead --example chain -- [N ...] [--integrator rk4|rattle ...]
-//!     [--seconds S] [--max-steps K]
+//!     [--seconds S] [--max-steps K] [--solver auto|dense|sparse]
+//!     [--newton exact|simplified ...]
 //! ```
 //! Defaults: N = 10 100 1000 10000, both integrators, S = 2 (wall time per case, after one
-//! warm-up step), at most K = 100000 steps per case.
+//! warm-up step), at most K = 100000 steps per case, the solver chosen by size. `--newton`
+//! steps RATTLE directly (no `Simulation`, no monitors) with that Newton matrix instead, and
+//! reports the Newton iterations per step (mean and max) at the tolerance `Simulation` would
+//! use.
 
 use std::sync::Arc;
 use std::time::Instant;
 
-use bead::formulation::Method;
-use bead::integrate::IntegratorKind;
+use bead::formulation::{Feedback, Formulation, Implicit, Method};
+use bead::integrate::{Integrator, IntegratorKind, IntegratorSettings, NewtonMatrix, Rattle};
+use bead::linalg::LinearSolver;
 use bead::model::{Endpoint, System, SystemBuilder};
 use bead::simulate::{Simulation, SimulationConfig};
 
@@ -47,6 +52,8 @@ fn main() {
     let mut integrators = Vec::new();
     let mut seconds = 2.0;
     let mut max_steps = 100_000u64;
+    let mut solver = LinearSolver::Auto;
+    let mut newtons = Vec::new();
     let mut args = std::env::args().skip(1);
     while let Some(arg) = args.next() {
         match arg.as_str() {
@@ -57,6 +64,19 @@ fn main() {
             }),
             "--seconds" => seconds = args.next().unwrap().parse().unwrap(),
             "--max-steps" => max_steps = args.next().unwrap().parse().unwrap(),
+            "--solver" => {
+                solver = match args.next().as_deref() {
+                    Some("auto") => LinearSolver::Auto,
+                    Some("dense") => LinearSolver::Dense,
+                    Some("sparse") => LinearSolver::Sparse,
+                    other => panic!("unknown solver {other:?}"),
+                }
+            }
+            "--newton" => newtons.push(match args.next().as_deref() {
+                Some("exact") => NewtonMatrix::Exact,
+                Some("simplified") => NewtonMatrix::Simplified,
+                other => panic!("unknown Newton matrix {other:?}"),
+            }),
             n => sizes.push(n.parse::<usize>().expect("N")),
         }
     }
@@ -65,6 +85,10 @@ fn main() {
     }
     if integrators.is_empty() {
         integrators = vec![IntegratorKind::Rk4, IntegratorKind::Rattle];
+    }
+    if !newtons.is_empty() {
+        newton_table(&sizes, &newtons, solver, seconds, max_steps);
+        return;
     }
     println!("| N | integrator | build s | setup s | steps | steps/s | max newton |");
     println!("|---|---|---|---|---|---|---|");
@@ -80,7 +104,8 @@ fn main() {
                 ..Default::default()
             };
             let start = Instant::now();
-            let mut sim = Simulation::new(system.clone(), config).unwrap();
+            let formulation = Implicit::with_solver(system.clone(), Feedback::default(), solver);
+            let mut sim = Simulation::with_formulation(Box::new(formulation), config).unwrap();
             sim.step().unwrap();
             let setup = start.elapsed().as_secs_f64();
             let (mut steps, mut elapsed, mut newton) = (0u64, 0.0, None);
@@ -102,6 +127,60 @@ fn main() {
                 integrator.name(),
                 steps as f64 / elapsed,
                 newton.map_or("-".to_string(), |k| k.to_string()),
+            );
+        }
+    }
+}
+
+/// RATTLE stepped directly with each Newton matrix: steps/s and Newton iterations per step.
+fn newton_table(
+    sizes: &[usize],
+    newtons: &[NewtonMatrix],
+    solver: LinearSolver,
+    seconds: f64,
+    max_steps: u64,
+) {
+    println!("| N | Newton matrix | steps | steps/s | iterations per step (mean) | max |");
+    println!("|---|---|---|---|---|---|");
+    for &n in sizes {
+        let system = Arc::new(chain(n));
+        let tolerance = bead::simulate::constraint_tolerance(&system, 1e-12);
+        for &newton in newtons {
+            let mut formulation =
+                Implicit::with_solver(system.clone(), Feedback::default(), solver);
+            let settings = IntegratorSettings {
+                constraint_tolerance: tolerance,
+                ..IntegratorSettings::default()
+            };
+            let (mut steps, mut elapsed, mut iterations, mut max) = (0u64, 0.0, 0u64, 0usize);
+            // Restarts: each begins with one untimed step, whose iterations count too.
+            let mut chunks = 0u64;
+            while steps < max_steps && elapsed < seconds {
+                let mut state = formulation.initial_state();
+                let mut rattle =
+                    Rattle::with_settings(state.q.len(), &settings).with_newton(newton);
+                rattle
+                    .step(&mut formulation, &mut state, 1.0 / 120.0)
+                    .unwrap();
+                let start = Instant::now();
+                chunks += 1;
+                for _ in 1..HORIZON {
+                    rattle
+                        .step(&mut formulation, &mut state, 1.0 / 120.0)
+                        .unwrap();
+                    steps += 1;
+                    if start.elapsed().as_secs_f64() + elapsed >= seconds || steps >= max_steps {
+                        break;
+                    }
+                }
+                elapsed += start.elapsed().as_secs_f64();
+                max = max.max(rattle.newton_iterations_max().unwrap_or(0));
+                iterations += rattle.newton_iterations_total();
+            }
+            println!(
+                "| {n} | {newton:?} | {steps} | {:.1} | {:.2} | {max} |",
+                steps as f64 / elapsed,
+                iterations as f64 / (steps + chunks) as f64,
             );
         }
     }

@@ -79,7 +79,7 @@ pub enum LinearSolver {
 
 /// The largest system [`LinearSolver::Auto`] solves densely. Measured on chains (one step of
 /// rk4 and of rattle, see DESIGN.md): the dense factorization is faster up to about this size.
-pub const DENSE_MAX_ROWS: usize = 16;
+pub const DENSE_MAX_ROWS: usize = 8;
 
 /// The solver `kind` for matrices with `pattern`.
 pub fn symmetric_solver(
