@@ -179,6 +179,15 @@ pub struct SimArgs {
     /// not with dopri5; compare applies it to the implicit run only
     #[arg(long)]
     pub project: bool,
+
+    /// Take each step of dt as K steps of dt/K (fixed-step integrators; not dopri5)
+    #[arg(long, value_name = "K", default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..))]
+    pub substeps: u32,
+
+    /// When a step's iteration does not converge (rattle's Newton solve, --project, an
+    /// implicit kick or stage), retry it with twice as many substeps, up to M, before failing
+    #[arg(long, value_name = "M", default_value_t = 64, value_parser = clap::value_parser!(u32).range(1..))]
+    pub max_substeps: u32,
 }
 
 impl SimArgs {
@@ -196,6 +205,8 @@ impl SimArgs {
             rtol: None,
             atol: None,
             project: false,
+            substeps: 1,
+            max_substeps: 64,
         }
     }
 }

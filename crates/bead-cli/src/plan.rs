@@ -39,6 +39,10 @@ pub struct Plan {
     pub settings: IntegratorSettings,
     /// Project onto the constraints after every step (--project; implicit form only).
     pub project: bool,
+    /// Substeps per step of dt (--substeps) and the most a retried step may take
+    /// (--max-substeps).
+    pub substeps: u32,
+    pub max_substeps: u32,
 }
 
 impl Plan {
@@ -104,6 +108,8 @@ impl Plan {
                 settings
             },
             project: sim.project,
+            substeps: sim.substeps,
+            max_substeps: sim.max_substeps.max(sim.substeps),
         })
     }
 
@@ -134,6 +140,8 @@ impl Plan {
             settings: self.settings,
             // The plan's settings already carry the scene-scaled tolerance.
             scaled_constraint_tolerance: false,
+            substeps: self.substeps,
+            max_substeps: self.max_substeps,
             track_work: None,
         }
     }

@@ -96,6 +96,16 @@ pub fn run_text(scene: &Scene, plan: &Plan, summary: &Summary) -> String {
             ),
         );
     }
+    if summary.substeps_max > 1 || summary.retried_steps > 0 {
+        row(
+            &mut s,
+            "substeps",
+            format!(
+                "{} per step of dt asked, at most {} taken; {} step(s) retried with more because an iteration did not converge",
+                summary.substeps, summary.substeps_max, summary.retried_steps
+            ),
+        );
+    }
     if let Some(iterations) = summary.newton_iterations_max {
         row(
             &mut s,

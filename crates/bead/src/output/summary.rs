@@ -32,6 +32,9 @@ use crate::simulate::{RunFailure, RunStats};
 /// | `constraint_error_max`, `constraint_error_final` | max_i \|C_i\| over the run and at the end |
 /// | `projected` | only when `--project` was on: `true` |
 /// | `newton_iterations_max` | rattle or `--project` only: most Newton iterations of any step |
+/// | `substeps` | only when more than 1: substeps per step of dt asked for (`--substeps`) |
+/// | `substeps_max` | only when more than 1: the most substeps any step took, retries included |
+/// | `retried_steps` | only when some were: steps retried with more substeps because an iteration did not converge |
 /// | `particles` | `{NAME: {"position": [..], "velocity": [..]}}` at the end, in particle order |
 /// | `coordinates` | parametric runs only: `{NAME: [q, qdot]}` at the end, in coordinate order |
 /// | `error` | only when the run stopped early: why |
@@ -111,6 +114,16 @@ pub struct Summary {
     /// Most Newton iterations any step needed (rattle's position solve, the projection).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub newton_iterations_max: Option<usize>,
+    /// Substeps per step of dt as asked (written only when more than 1).
+    #[serde(skip_serializing_if = "is_one")]
+    pub substeps: u32,
+    /// The most substeps any step took, retries included (written only when more than 1).
+    #[serde(skip_serializing_if = "is_one")]
+    pub substeps_max: u32,
+    /// Steps retried with more substeps because an iteration did not converge (written only
+    /// when some were).
+    #[serde(skip_serializing_if = "is_zero")]
+    pub retried_steps: u64,
     /// Final particle states, in particle order.
     pub particles: ParticleStates,
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -199,6 +212,9 @@ impl Summary {
             constraint_error_final: stats.constraint_error_final,
             projected: stats.projected,
             newton_iterations_max: stats.newton_iterations_max,
+            substeps: stats.substeps,
+            substeps_max: stats.substeps_max,
+            retried_steps: stats.retried_steps,
             particles: ParticleStates(particles),
             coordinates,
             error: None,
@@ -296,6 +312,14 @@ fn number<S: Serializer>(x: &f64, serializer: S) -> Result<S::Ok, S::Error> {
     Number(*x).serialize(serializer)
 }
 
+fn is_one(n: &u32) -> bool {
+    *n == 1
+}
+
+fn is_zero(n: &u64) -> bool {
+    *n == 0
+}
+
 fn optional_number<S: Serializer>(x: &Option<f64>, serializer: S) -> Result<S::Ok, S::Error> {
     Number(x.unwrap_or(f64::NAN)).serialize(serializer)
 }
@@ -366,6 +390,9 @@ mod tests {
             rejected_steps: None,
             projected: false,
             newton_iterations_max: None,
+            substeps: 1,
+            substeps_max: 1,
+            retried_steps: 0,
         }
     }
 

@@ -24,6 +24,13 @@ pub struct SimulationConfig {
     /// Replace `settings.constraint_tolerance` by 1e-12 of the system's constraint scale
     /// ([`super::constraint_tolerance`]) when the simulation is built. Default true.
     pub scaled_constraint_tolerance: bool,
+    /// Take each step of dt as this many steps of dt / substeps (fixed-step integrators; the
+    /// convention of game-physics engines). Default 1.
+    pub substeps: u32,
+    /// When an iteration of a step does not converge (RATTLE's Newton solve, a projection, an
+    /// implicit kick or stage), retry the step with twice as many substeps, up to this many,
+    /// before failing. Default 64; equal to `substeps` to never retry.
+    pub max_substeps: u32,
     /// Track the work W done on T + V (the energy ledger, see [`super::Simulation::work`]):
     /// `None` (the default) tracks it when the formulation does not conserve T + V (drag,
     /// driven constraints, a moving map); external forces switch it on when they are added.
@@ -41,6 +48,8 @@ impl Default for SimulationConfig {
             project: false,
             settings: IntegratorSettings::default(),
             scaled_constraint_tolerance: true,
+            substeps: 1,
+            max_substeps: 64,
             track_work: None,
         }
     }
@@ -80,6 +89,12 @@ pub enum ConfigError {
     FeedbackOnParametric,
     #[error("the step dt must be positive and finite, got {}", crate::readable(*.0))]
     BadStep(f64),
+    #[error(
+        "substeps must be at least 1 and at most max_substeps (got {substeps} and {max_substeps})"
+    )]
+    BadSubsteps { substeps: u32, max_substeps: u32 },
+    #[error("substeps do not apply to {}, which chooses its own steps", .0.name())]
+    SubstepsWithAdaptive(IntegratorKind),
     #[error("constraint feedback ks and kd must be finite and not negative, got ks = {}, kd = {}", crate::readable(*ks), crate::readable(*kd))]
     BadFeedback { ks: f64, kd: f64 },
     #[error("{name} must be {requirement}, got {}", crate::readable(*value))]
@@ -149,6 +164,15 @@ impl SimulationConfig {
     pub fn check(&self, system: &System) -> Result<(), ConfigError> {
         if !(self.dt.is_finite() && self.dt > 0.0) {
             return Err(ConfigError::BadStep(self.dt));
+        }
+        if self.substeps == 0 || self.max_substeps < self.substeps {
+            return Err(ConfigError::BadSubsteps {
+                substeps: self.substeps,
+                max_substeps: self.max_substeps,
+            });
+        }
+        if self.substeps > 1 && self.integrator.is_adaptive() {
+            return Err(ConfigError::SubstepsWithAdaptive(self.integrator));
         }
         let Feedback { ks, kd } = self.feedback;
         if !(ks.is_finite() && kd.is_finite() && ks >= 0.0 && kd >= 0.0) {

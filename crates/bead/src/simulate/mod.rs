@@ -163,6 +163,10 @@ pub struct Simulation {
     /// Integrator steps taken (accepted ones for adaptive integrators)
     steps: u64,
     projection_iterations_max: Option<usize>,
+    /// The most substeps any step of dt took (configured ones and retries)
+    substeps_max: u32,
+    /// Steps retried with more substeps because an iteration did not converge
+    retried_steps: u64,
 }
 
 impl Simulation {
@@ -227,6 +231,8 @@ impl Simulation {
             grid_steps: 0,
             steps: 0,
             projection_iterations_max: None,
+            substeps_max: 0,
+            retried_steps: 0,
             config,
             formulation,
         };
@@ -500,44 +506,61 @@ impl Simulation {
     /// One fixed step from the current state to `t_end`, then the projection and the checks.
     fn fixed_step(&mut self, t_end: f64) -> Result<(), RunError> {
         self.save();
-        let h = t_end - self.state.t;
+        let mut substeps = self.config.substeps.max(1);
+        loop {
+            match self.substeps(t_end, substeps) {
+                Ok(()) => break,
+                // An iteration that did not converge (RATTLE's Newton solve, a projection, an
+                // implicit kick or stage) may converge on shorter steps: retry this step in
+                // halves, up to the limit.
+                Err(e) if retryable(&e) && substeps * 2 <= self.config.max_substeps => {
+                    self.restore_state_only();
+                    substeps *= 2;
+                    self.retried_steps += 1;
+                }
+                Err(e) => return Err(self.fail(e)),
+            }
+        }
+        self.substeps_max = self.substeps_max.max(substeps);
+        self.steps += 1;
+        self.accept()
+    }
+
+    /// The step from the current state to `t_end` as `count` steps of equal length, each
+    /// followed by the projection when it is on; the last lands exactly on `t_end`.
+    fn substeps(&mut self, t_end: f64, count: u32) -> Result<(), StepError> {
+        let t0 = self.state.t;
+        let h = (t_end - t0) / count as f64;
         let Simulation {
             formulation,
             ledger,
             state,
             stepper,
             config,
+            projection_iterations_max,
+            n,
             ..
         } = self;
         let Stepper::Fixed(integrator) = stepper else {
             unreachable!("fixed_step is called for fixed-step integrators only");
         };
         let tracks_work = ledger.is_some();
-        let n = self.n;
-        let result = with_system(formulation, ledger, |system| {
-            integrator.step(system, state, h)?;
-            state.t = t_end;
-            if tracks_work {
-                // Impulses the integrator applied outside f (RATTLE's) did work too.
-                state.qdot[n] += integrator.constraint_work();
-            }
-            if config.project {
-                project(system, state, config).map(Some)
-            } else {
-                Ok(None)
-            }
-        });
-        match result {
-            Ok(iterations) => {
-                if let Some(iterations) = iterations {
-                    self.projection_iterations_max =
-                        Some(self.projection_iterations_max.unwrap_or(0).max(iterations));
+        with_system(formulation, ledger, |system| {
+            for k in 1..=count {
+                integrator.step(system, state, h)?;
+                state.t = if k == count { t_end } else { t0 + k as f64 * h };
+                if tracks_work {
+                    // Impulses the integrator applied outside f (RATTLE's) did work too.
+                    state.qdot[*n] += integrator.constraint_work();
+                }
+                if config.project {
+                    let iterations = project(system, state, config)?;
+                    *projection_iterations_max =
+                        Some(projection_iterations_max.unwrap_or(0).max(iterations));
                 }
             }
-            Err(e) => return Err(self.fail(e)),
-        }
-        self.steps += 1;
-        self.accept()
+            Ok(())
+        })
     }
 
     /// One accepted adaptive step towards `horizon`, then the checks.
@@ -568,6 +591,13 @@ impl Simulation {
         self.previous.t = self.state.t;
         self.previous.q.copy_from_slice(&self.state.q);
         self.previous.qdot.copy_from_slice(&self.state.qdot);
+    }
+
+    /// Back to the state before the step, without observing it (a retry follows).
+    fn restore_state_only(&mut self) {
+        self.state.t = self.previous.t;
+        self.state.q.copy_from_slice(&self.previous.q);
+        self.state.qdot.copy_from_slice(&self.previous.qdot);
     }
 
     /// Back to the state before the step, which becomes the observable one (also after an
@@ -692,6 +722,8 @@ impl Simulation {
         self.grid_steps = 0;
         self.steps = 0;
         self.projection_iterations_max = None;
+        self.substeps_max = 0;
+        self.retried_steps = 0;
         self.stepper = Stepper::new(&self.config, state.q.len());
         self.state = state;
     }
@@ -814,6 +846,9 @@ impl Simulation {
             rejected_steps: rejected,
             projected: self.config.project,
             newton_iterations_max,
+            substeps: self.config.substeps.max(1),
+            substeps_max: self.substeps_max.max(self.config.substeps.max(1)),
+            retried_steps: self.retried_steps,
         }
     }
 
@@ -834,6 +869,14 @@ impl Simulation {
             energy_scale: self.monitor.energy_scale,
         }
     }
+}
+
+/// Whether a failed step may succeed on shorter substeps: an iteration that did not converge.
+fn retryable(error: &StepError) -> bool {
+    matches!(
+        error,
+        StepError::ProjectionFailed { .. } | StepError::ImplicitStageFailed { .. }
+    )
 }
 
 /// An implicit system with more constraint rows than coordinates cannot be solved.

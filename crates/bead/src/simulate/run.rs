@@ -121,6 +121,12 @@ pub struct RunStats {
     /// The most Newton iterations any step needed, over the integrator's own solve (rattle)
     /// and the projection; `None` when neither ran.
     pub newton_iterations_max: Option<usize>,
+    /// Substeps per step of dt as configured (1: none).
+    pub substeps: u32,
+    /// The most substeps any step took, retries included.
+    pub substeps_max: u32,
+    /// Steps retried with more substeps because an iteration did not converge.
+    pub retried_steps: u64,
 }
 
 impl RunStats {

@@ -1,0 +1,394 @@
+//! A hanging chain of N rods with RATTLE, through the engine and by hand (the floor).
+//!
+//! The chain: N particles of unit mass, p_k at ((k + 1) L, 0), joined by rods of length L = 1,
+//! the first to a fixed anchor at the origin; gravity g = 9.81 along +y; released at rest
+//! (the setup of the peer figures in issue 8). Each variant simulates 10 s with RATTLE at
+//! dt = 1/120 (two steps per frame of 1/60 s; 1/240 for more than 1000 links, where a longer
+//! chain whips faster than one Newton solve per 1/120 s can follow) and reports frames of
+//! 1/60 s per second of wall time, the time per step per link, the stretch max |d - L| / L
+//! over the run and the energy drift |E - E0| / (m g L N (N + 1) / 2) at the end.
+//!
+//! The floor is a hand-written RATTLE of this chain alone: the SHAKE step by exact Newton
+//! with the tridiagonal matrix J(x^k) W J(x_n)^T solved by the Thomas algorithm, the velocity
+//! step by the tridiagonal J W J^T, single-threaded, allocation-free; the same tolerance on
+//! max |C| as the engine.
+
+use std::hint::black_box;
+use std::sync::Arc;
+use std::time::Instant;
+
+use bead::formulation::Method;
+use bead::integrate::{IntegratorKind, IntegratorSettings};
+use bead::model::{Endpoint, System, SystemBuilder};
+use bead::simulate::{Simulation, SimulationConfig};
+
+const G: f64 = 9.81;
+const L: f64 = 1.0;
+const FRAME: f64 = 1.0 / 60.0;
+
+/// The step for a chain of n links: 2 substeps per frame, 4 beyond 1000 links.
+fn dt_for(n: usize) -> f64 {
+    if n > 1000 {
+        FRAME / 4.0
+    } else {
+        FRAME / 2.0
+    }
+}
+
+/// max |C_i| the solves must reach, in the units of C = (|d|^2 - L^2) / (2 L) (a length):
+/// 1e-12 of a rod's length, but not below what rounding allows at the chain's far end
+/// (|x| up to N L: |C| cannot go below a few eps |x| L there).
+fn tolerance(n: usize) -> f64 {
+    (1e-12 * L).max(16.0 * f64::EPSILON * n as f64 * L)
+}
+
+/// The chain's figures after a run.
+#[derive(Clone, Copy, Debug)]
+struct Figures {
+    frames_per_second: f64,
+    ns_per_step_per_link: f64,
+    stretch: f64,
+    drift: f64,
+    steps: u64,
+}
+
+/// The hand-written RATTLE of the chain. Particle k is at `x[k]`, its rod joins it to k - 1
+/// (the anchor at the origin for k = 0).
+struct HandChain {
+    n: usize,
+    x: Vec<[f64; 2]>,
+    v: Vec<[f64; 2]>,
+    /// x_n at the start of the step
+    x0: Vec<[f64; 2]>,
+    /// The predictor q_n + h (v_n + h/2 g)
+    pred: Vec<[f64; 2]>,
+    /// Rod vectors d_i = x_n[i] - x_n[i-1] (start) and e_i at the iterate
+    d: Vec<[f64; 2]>,
+    e: Vec<[f64; 2]>,
+    /// Tridiagonal matrix (lower, diagonal, upper), right-hand side, multipliers, scratch
+    lower: Vec<f64>,
+    diag: Vec<f64>,
+    upper: Vec<f64>,
+    rhs: Vec<f64>,
+    nu: Vec<f64>,
+    scratch: Vec<f64>,
+    tolerance: f64,
+}
+
+impl HandChain {
+    fn new(n: usize) -> Self {
+        let x = (0..n).map(|k| [(k + 1) as f64 * L, 0.0]).collect();
+        let zeros = vec![[0.0; 2]; n];
+        HandChain {
+            n,
+            x,
+            v: zeros.clone(),
+            x0: zeros.clone(),
+            pred: zeros.clone(),
+            d: zeros.clone(),
+            e: zeros,
+            lower: vec![0.0; n],
+            diag: vec![0.0; n],
+            upper: vec![0.0; n],
+            rhs: vec![0.0; n],
+            nu: vec![0.0; n],
+            scratch: vec![0.0; n],
+            tolerance: tolerance(n),
+        }
+    }
+
+    fn rods(x: &[[f64; 2]], out: &mut [[f64; 2]]) {
+        let mut before = [0.0, 0.0];
+        for (o, p) in out.iter_mut().zip(x) {
+            *o = [p[0] - before[0], p[1] - before[1]];
+            before = *p;
+        }
+    }
+
+    /// One RATTLE step of h; returns the Newton iterations it took.
+    fn step(&mut self, h: f64) -> usize {
+        let n = self.n;
+        self.x0.copy_from_slice(&self.x);
+        Self::rods(&self.x0, &mut self.d);
+        for k in 0..n {
+            let vy = self.v[k][1] + 0.5 * h * G;
+            self.pred[k] = [self.x[k][0] + h * self.v[k][0], self.x[k][1] + h * vy];
+        }
+        self.x.copy_from_slice(&self.pred);
+        self.nu.fill(0.0);
+        let mut iterations = 0;
+        let inv_l2 = 1.0 / (L * L);
+        loop {
+            Self::rods(&self.x, &mut self.e);
+            let mut worst = 0.0_f64;
+            for i in 0..n {
+                let e = self.e[i];
+                let c = (e[0] * e[0] + e[1] * e[1] - L * L) / (2.0 * L);
+                self.rhs[i] = c;
+                worst = worst.max(c.abs());
+            }
+            if worst <= self.tolerance {
+                break;
+            }
+            assert!(iterations < 50, "the hand-written SHAKE did not converge");
+            // A = J(x^k) W J(x_n)^T, tridiagonal.
+            for i in 0..n {
+                let (e, d) = (self.e[i], self.d[i]);
+                let ed = (e[0] * d[0] + e[1] * d[1]) * inv_l2;
+                self.diag[i] = if i > 0 { 2.0 * ed } else { ed };
+                if i > 0 {
+                    let dm = self.d[i - 1];
+                    self.lower[i] = -(e[0] * dm[0] + e[1] * dm[1]) * inv_l2;
+                }
+                if i + 1 < n {
+                    let dp = self.d[i + 1];
+                    self.upper[i] = -(e[0] * dp[0] + e[1] * dp[1]) * inv_l2;
+                }
+            }
+            thomas(
+                &self.lower,
+                &self.diag,
+                &self.upper,
+                &mut self.rhs,
+                &mut self.scratch,
+            );
+            for (nu, delta) in self.nu.iter_mut().zip(&self.rhs) {
+                *nu += delta;
+            }
+            // x = pred - W J(x_n)^T nu.
+            for j in 0..n {
+                let mut p = self.pred[j];
+                let dj = self.d[j];
+                p[0] -= dj[0] / L * self.nu[j];
+                p[1] -= dj[1] / L * self.nu[j];
+                if j + 1 < n {
+                    let dn = self.d[j + 1];
+                    p[0] += dn[0] / L * self.nu[j + 1];
+                    p[1] += dn[1] / L * self.nu[j + 1];
+                }
+                self.x[j] = p;
+            }
+            iterations += 1;
+        }
+        // v_half = (x - x_n) / h, then the second half kick and the velocity projection onto
+        // J v = 0 with the symmetric tridiagonal J W J^T at x_{n+1}.
+        Self::rods(&self.x, &mut self.e);
+        for k in 0..n {
+            self.v[k] = [
+                (self.x[k][0] - self.x0[k][0]) / h,
+                (self.x[k][1] - self.x0[k][1]) / h + 0.5 * h * G,
+            ];
+        }
+        let mut before = [0.0, 0.0];
+        for i in 0..n {
+            let e = self.e[i];
+            let dv = [self.v[i][0] - before[0], self.v[i][1] - before[1]];
+            before = self.v[i];
+            self.rhs[i] = (e[0] * dv[0] + e[1] * dv[1]) / L;
+            let ee = (e[0] * e[0] + e[1] * e[1]) * inv_l2;
+            self.diag[i] = if i > 0 { 2.0 * ee } else { ee };
+            if i > 0 {
+                let em = self.e[i - 1];
+                self.lower[i] = -(e[0] * em[0] + e[1] * em[1]) * inv_l2;
+            }
+            if i + 1 < n {
+                let ep = self.e[i + 1];
+                self.upper[i] = -(e[0] * ep[0] + e[1] * ep[1]) * inv_l2;
+            }
+        }
+        thomas(
+            &self.lower,
+            &self.diag,
+            &self.upper,
+            &mut self.rhs,
+            &mut self.scratch,
+        );
+        for j in 0..n {
+            let ej = self.e[j];
+            self.v[j][0] -= ej[0] / L * self.rhs[j];
+            self.v[j][1] -= ej[1] / L * self.rhs[j];
+            if j + 1 < n {
+                let en = self.e[j + 1];
+                self.v[j][0] += en[0] / L * self.rhs[j + 1];
+                self.v[j][1] += en[1] / L * self.rhs[j + 1];
+            }
+        }
+        iterations
+    }
+
+    fn energy(&self) -> f64 {
+        self.x
+            .iter()
+            .zip(&self.v)
+            .map(|(x, v)| 0.5 * (v[0] * v[0] + v[1] * v[1]) - G * x[1])
+            .sum()
+    }
+
+    fn stretch(&self) -> f64 {
+        let mut before = [0.0, 0.0];
+        let mut worst = 0.0_f64;
+        for p in &self.x {
+            let d = ((p[0] - before[0]).powi(2) + (p[1] - before[1]).powi(2)).sqrt();
+            worst = worst.max((d - L).abs() / L);
+            before = *p;
+        }
+        worst
+    }
+}
+
+/// Solve the tridiagonal system (lower[i] at (i, i-1), diag[i], upper[i] at (i, i+1)) in
+/// place: `rhs` becomes the solution. Thomas algorithm without pivoting: the chain's matrices
+/// are diagonally dominant enough near the constraint manifold.
+fn thomas(lower: &[f64], diag: &[f64], upper: &[f64], rhs: &mut [f64], c: &mut [f64]) {
+    let n = rhs.len();
+    let mut beta = diag[0];
+    rhs[0] /= beta;
+    for i in 1..n {
+        c[i - 1] = upper[i - 1] / beta;
+        beta = diag[i] - lower[i] * c[i - 1];
+        rhs[i] = (rhs[i] - lower[i] * rhs[i - 1]) / beta;
+    }
+    for i in (0..n - 1).rev() {
+        rhs[i] -= c[i] * rhs[i + 1];
+    }
+}
+
+/// The chain as a bead system: distance rods, the first to a fixed anchor.
+fn chain_system(n: usize) -> Arc<System> {
+    let mut b = SystemBuilder::new(&[0.0, G]);
+    let mut previous = None;
+    for k in 0..n {
+        let p = b
+            .particle(
+                &format!("p{k}"),
+                1.0,
+                &[(k + 1) as f64 * L, 0.0],
+                &[0.0, 0.0],
+            )
+            .unwrap();
+        let other = match previous {
+            None => Endpoint::Fixed(vec![0.0, 0.0]),
+            Some(q) => Endpoint::Particle(q),
+        };
+        b.distance(&format!("rod {k}"), p, other, L).unwrap();
+        previous = Some(p);
+    }
+    Arc::new(b.build().unwrap())
+}
+
+/// m g L N (N + 1) / 2: the potential energy the chain can exchange, the drift's scale.
+fn energy_scale(n: usize) -> f64 {
+    G * L * (n * (n + 1)) as f64 / 2.0
+}
+
+fn run_hand(n: usize, duration: f64) -> Figures {
+    let mut chain = HandChain::new(n);
+    let e0 = chain.energy();
+    let dt = dt_for(n);
+    let steps = (duration / dt).round() as u64;
+    let mut stretch = 0.0_f64;
+    let start = Instant::now();
+    for _ in 0..steps {
+        black_box(chain.step(dt));
+        stretch = stretch.max(chain.stretch());
+    }
+    let wall = start.elapsed().as_secs_f64();
+    figures(n, dt, steps, wall, stretch, (chain.energy() - e0).abs())
+}
+
+fn run_engine(n: usize, duration: f64) -> Figures {
+    let settings = IntegratorSettings {
+        constraint_tolerance: tolerance(n),
+        ..IntegratorSettings::default()
+    };
+    let config = SimulationConfig {
+        method: Method::Implicit,
+        integrator: IntegratorKind::Rattle,
+        dt: dt_for(n),
+        settings,
+        scaled_constraint_tolerance: false,
+        ..Default::default()
+    };
+    let mut sim = Simulation::new(chain_system(n), config).unwrap();
+    let e0 = sim.energy();
+    let dt = dt_for(n);
+    let steps = (duration / dt).round() as u64;
+    let mut stretch = 0.0_f64;
+    let start = Instant::now();
+    for _ in 0..steps {
+        sim.step().unwrap_or_else(|e| panic!("N = {n}: {e}"));
+        stretch = stretch.max(chain_stretch(sim.positions()));
+    }
+    let wall = start.elapsed().as_secs_f64();
+    figures(n, dt, steps, wall, stretch, (sim.energy() - e0).abs())
+}
+
+fn chain_stretch(x: &[f64]) -> f64 {
+    let mut before = [0.0, 0.0];
+    let mut worst = 0.0_f64;
+    for p in x.chunks_exact(2) {
+        let d = ((p[0] - before[0]).powi(2) + (p[1] - before[1]).powi(2)).sqrt();
+        worst = worst.max((d - L).abs() / L);
+        before = [p[0], p[1]];
+    }
+    worst
+}
+
+fn figures(n: usize, dt: f64, steps: u64, wall: f64, stretch: f64, drift: f64) -> Figures {
+    Figures {
+        frames_per_second: steps as f64 * dt / FRAME / wall,
+        ns_per_step_per_link: wall * 1e9 / steps as f64 / n as f64,
+        stretch,
+        drift: drift / energy_scale(n),
+        steps,
+    }
+}
+
+fn main() {
+    let benchmarking = std::env::args().any(|a| a == "--bench");
+    // The chain's run simulates this much (s); shorter smoke runs under `cargo test --benches`.
+    let duration = if benchmarking { 10.0 } else { 0.05 };
+    // BEAD_CHAIN_SIZES=10,1000 picks the sizes; BEAD_CHAIN_VARIANTS=hand (or engine) one side.
+    let sizes: Vec<usize> = match std::env::var("BEAD_CHAIN_SIZES") {
+        Ok(list) => list
+            .split(',')
+            .map(|s| {
+                s.trim()
+                    .parse()
+                    .expect("BEAD_CHAIN_SIZES: a comma-separated list of N")
+            })
+            .collect(),
+        Err(_) if benchmarking => vec![10, 100, 1000, 10_000],
+        Err(_) => vec![10, 100],
+    };
+    let variants = std::env::var("BEAD_CHAIN_VARIANTS").unwrap_or_else(|_| "engine,hand".into());
+    println!();
+    println!(
+        "A chain of N rods, rattle at dt = 1/120 (1/240 above 1000 links), {duration} s simulated:"
+    );
+    println!(
+        "  {:>6}  {:<12} {:>12} {:>16} {:>10} {:>10}",
+        "N", "variant", "frames/s", "ns/step/link", "stretch", "drift"
+    );
+    for &n in &sizes {
+        let mut rows = Vec::new();
+        if variants.contains("engine") {
+            rows.push(("engine", run_engine(n, duration)));
+        }
+        if variants.contains("hand") {
+            rows.push(("hand-written", run_hand(n, duration)));
+        }
+        for (name, figures) in rows {
+            println!(
+                "  {:>6}  {:<12} {:>12.1} {:>16.1} {:>10.1e} {:>10.1e}",
+                n,
+                name,
+                figures.frames_per_second,
+                figures.ns_per_step_per_link,
+                figures.stretch,
+                figures.drift
+            );
+            black_box(figures.steps);
+        }
+    }
+}
