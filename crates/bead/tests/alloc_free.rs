@@ -191,6 +191,9 @@ fn every_integrator_steps_the_implicit_form_without_allocating() {
         ("parabola", parabola(), 1.0 / 600.0),
         ("Holonomic parabola", parabola_rust_type(), 1.0 / 600.0),
         ("double pendulum", double_pendulum(), 1e-3),
+        // 40 rows: J W J^T by faer's sparse LDL^T (numeric factorization and solves in
+        // buffers sized at construction).
+        ("chain of 40", Arc::new(common::chain(40)), 1e-3),
     ];
     for (name, system, dt) in systems {
         for kind in IntegratorKind::ALL {
@@ -278,6 +281,7 @@ fn run_loop_with_projection_allocates_nothing_per_step() {
     for (name, system, dt) in [
         ("parabola", parabola(), 1.0 / 600.0),
         ("double pendulum", double_pendulum(), 1e-4),
+        ("chain of 40", Arc::new(common::chain(40)), 1e-4),
     ] {
         for kind in IntegratorKind::ALL.into_iter().filter(|k| !k.is_adaptive()) {
             let calls = |steps: u64| {

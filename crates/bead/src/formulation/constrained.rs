@@ -2,8 +2,11 @@
 //! run loop's projection (`--project`).
 //!
 //! [`ConstrainedSystem`] extends [`SecondOrderSystem`] with what those need beyond qddot:
-//! the applied acceleration a = W F without the constraint force, the constraint values C and
-//! the Jacobian J, and two mass-weighted projections:
+//! the applied acceleration a = W F without the constraint force, the constraint values C,
+//! the Jacobian J as sparse rows (its [`RowStructure`] and values), the factorization to use
+//! for J W J^T ([`LinearSolver`], so that an integrator that assembles its own matrices with
+//! [`crate::linalg::ConstraintMatrix`] solves them the same way), and two mass-weighted
+//! projections:
 //!
 //! ```text
 //! positions:  repeat  q <- q - W J(q)^T (J W J^T)^-1 C(q, t)   until max|C| <= tolerance
@@ -18,17 +21,25 @@
 //!
 //! Only [`Implicit`] implements it: integrators reach it through
 //! [`SecondOrderSystem::as_constrained`], which is `None` for the parametric form.
-//! Everything is allocation-free after construction.
+//! Everything is allocation-free after construction, and O(n + nnz) in memory on the sparse
+//! path: the projections assemble and factor the formulation's own [`ConstraintMatrix`].
 
-use super::implicit::assemble_jwjt;
 use super::{Implicit, SecondOrderSystem, StepError};
-use crate::linalg::{max_abs, SpdSolver};
+use crate::linalg::{max_abs, ConstraintMatrix, LinearSolver, RowStructure, Singular};
 use crate::model::{ConstraintEval, ConstraintSet, System};
 
 /// A second-order system with holonomic constraints C(q, t) = 0 (m rows) on its coordinates.
 pub trait ConstrainedSystem: SecondOrderSystem {
     /// Number of constraint rows m.
     fn n_constraints(&self) -> usize;
+    /// The sparse row structure of J: which coordinates each row reads, and where its values
+    /// are in [`ConstrainedSystem::constraint_jacobian`]'s output.
+    fn constraint_structure(&self) -> RowStructure<'_>;
+    /// The factorization this system uses for J W J^T; integrators that factor matrices of
+    /// their own on [`ConstrainedSystem::constraint_structure`] use the same.
+    fn linear_solver(&self) -> LinearSolver {
+        LinearSolver::Auto
+    }
     /// The diagonal inverse mass matrix W (n).
     fn inverse_mass(&self) -> &[f64];
     /// a = W F(t, q, qdot): the applied forces only, without any constraint force.
@@ -46,7 +57,8 @@ pub trait ConstrainedSystem: SecondOrderSystem {
     }
     /// C(q, t) into `c` (m).
     fn constraint_values(&mut self, t: f64, q: &[f64], c: &mut [f64]);
-    /// J = dC/dq at (q, t) into `jacobian`: dense, row-major m x n, every entry overwritten.
+    /// J = dC/dq at (q, t): its nonzero entries (nnz), in the order of
+    /// [`ConstrainedSystem::constraint_structure`], every one overwritten.
     fn constraint_jacobian(&mut self, t: f64, q: &[f64], jacobian: &mut [f64]);
     /// The error to report when constraint row `row` is singular (vanishing gradient or
     /// dependent on earlier rows) at time t: names the declared constraint.
@@ -67,17 +79,11 @@ pub trait ConstrainedSystem: SecondOrderSystem {
     fn project_velocities(&mut self, t: f64, q: &[f64], qdot: &mut [f64]) -> Result<(), StepError>;
 }
 
-/// Scratch space of the projections, sized once for one system.
+/// Scratch space of the projections, sized once for one system: O(n + nnz).
 pub(crate) struct ProjectionWorkspace {
     pub(crate) eval: ConstraintEval,
-    /// Zero velocities (n), for evaluations that need only C and J.
-    zeros: Vec<f64>,
     /// F (n)
     force: Vec<f64>,
-    /// J dense, row-major (m x n); entries outside the sparse structure stay 0
-    jacobian: Vec<f64>,
-    /// J W J^T (m x m)
-    matrix: Vec<f64>,
     /// rhs, then the multipliers (m)
     rhs: Vec<f64>,
 }
@@ -88,54 +94,42 @@ impl ProjectionWorkspace {
         let m = system.constraints().n_rows();
         ProjectionWorkspace {
             eval: system.constraints().workspace(),
-            zeros: vec![0.0; n],
             force: vec![0.0; n],
-            jacobian: vec![0.0; m * n],
-            matrix: vec![0.0; m * m],
             rhs: vec![0.0; m],
         }
     }
 
-    /// After `set.evaluate`: the dense copy of J and A = J W J^T.
-    fn form_matrix(&mut self, set: &ConstraintSet, w: &[f64]) {
-        assemble_jwjt(
-            set,
-            &self.eval.jacobian,
-            w,
-            &mut self.jacobian,
-            &mut self.matrix,
-        );
-    }
-
-    /// Solve (J W J^T) z = rhs in place and subtract W J^T z from `y`.
+    /// After `set.evaluate` and with `rhs` set: A = J W J^T, solve A z = rhs in place and
+    /// subtract W J^T z from `y`.
     fn correct(
         &mut self,
         set: &ConstraintSet,
         w: &[f64],
-        solver: &mut dyn SpdSolver,
+        matrix: &mut ConstraintMatrix,
         t: f64,
         y: &mut [f64],
     ) -> Result<(), StepError> {
-        let m = set.n_rows();
-        if let Err(singular) = solver.solve(m, &mut self.matrix, &mut self.rhs) {
-            return Err(singular_error(set, t, singular.row));
+        matrix.assemble(&self.eval.jacobian, w);
+        if let Err(singular) = matrix.factor() {
+            return Err(singular_error(set, t, singular));
         }
-        for i in 0..m {
-            let z = self.rhs[i];
-            for (&k, &jik) in set
-                .row_columns(i)
-                .iter()
-                .zip(&self.eval.jacobian[set.row_entries(i)])
-            {
-                y[k] -= w[k] * jik * z;
-            }
-        }
+        matrix.solve_in_place(&mut self.rhs);
+        set.structure()
+            .subtract_weighted_transpose(&self.eval.jacobian, w, &self.rhs, y);
         Ok(())
     }
 }
 
-fn singular_error(set: &ConstraintSet, t: f64, row: usize) -> StepError {
-    let info = set.info_of_row(row);
+/// The error of a singular J W J^T: the dependent (or vanishing) constraint by name, or
+/// overflow when the failing pivot was not finite.
+pub(crate) fn singular_error(set: &ConstraintSet, t: f64, singular: Singular) -> StepError {
+    if !singular.finite {
+        return StepError::NonFinite {
+            t,
+            quantity: "the matrix J W J^T (overflow)".into(),
+        };
+    }
+    let info = set.info_of_row(singular.row);
     StepError::SingularConstraints {
         t,
         constraint: info.name.clone(),
@@ -146,6 +140,14 @@ fn singular_error(set: &ConstraintSet, t: f64, row: usize) -> StepError {
 impl ConstrainedSystem for Implicit {
     fn n_constraints(&self) -> usize {
         self.system.constraints().n_rows()
+    }
+
+    fn constraint_structure(&self) -> RowStructure<'_> {
+        self.system.constraints().structure()
+    }
+
+    fn linear_solver(&self) -> LinearSolver {
+        self.solver
     }
 
     fn inverse_mass(&self) -> &[f64] {
@@ -182,24 +184,13 @@ impl ConstrainedSystem for Implicit {
     }
 
     fn constraint_jacobian(&mut self, t: f64, q: &[f64], jacobian: &mut [f64]) {
-        let set = self.system.constraints();
-        let n = q.len();
         let ws = &mut self.projection;
-        set.evaluate(t, q, &ws.zeros, &mut ws.eval);
-        jacobian.fill(0.0);
-        for i in 0..set.n_rows() {
-            for (&k, &value) in set
-                .row_columns(i)
-                .iter()
-                .zip(&ws.eval.jacobian[set.row_entries(i)])
-            {
-                jacobian[i * n + k] = value;
-            }
-        }
+        self.system.constraints().gradient(t, q, &mut ws.eval);
+        jacobian.copy_from_slice(&ws.eval.jacobian);
     }
 
     fn singular_constraint(&mut self, t: f64, row: usize) -> StepError {
-        singular_error(self.system.constraints(), t, row)
+        singular_error(self.system.constraints(), t, Singular { row, finite: true })
     }
 
     fn project_positions(
@@ -218,7 +209,7 @@ impl ConstrainedSystem for Implicit {
         }
         let mut iterations = 0;
         loop {
-            set.evaluate(t, q, &ws.zeros, &mut ws.eval);
+            set.gradient(t, q, &mut ws.eval);
             let residual = max_abs(&ws.eval.value);
             if residual <= tolerance {
                 return Ok(iterations);
@@ -230,9 +221,8 @@ impl ConstrainedSystem for Implicit {
                     residual,
                 });
             }
-            ws.form_matrix(set, w);
             ws.rhs.copy_from_slice(&ws.eval.value);
-            ws.correct(set, w, &mut *self.solver, t, q)?;
+            ws.correct(set, w, &mut self.matrix, t, q)?;
             iterations += 1;
         }
     }
@@ -247,8 +237,7 @@ impl ConstrainedSystem for Implicit {
         }
         // Cdot = J qdot + C_t: the residual of the velocity constraint J qdot = -C_t.
         set.evaluate(t, q, qdot, &mut ws.eval);
-        ws.form_matrix(set, w);
         ws.rhs.copy_from_slice(&ws.eval.velocity);
-        ws.correct(set, w, &mut *self.solver, t, qdot)
+        ws.correct(set, w, &mut self.matrix, t, qdot)
     }
 }

@@ -9,8 +9,11 @@
 //!
 //! J^T lambda does no work on any velocity with J v = 0 (the article's "no work" argument in
 //! matrix form). ks, kd > 0 add the article's error term (Baumgarte feedback). Cost per
-//! evaluation: the compiled constraint tape, O(m^2 k) to form J W J^T (k nonzeros per row) and
-//! O(m^3) for the dense Cholesky solve.
+//! evaluation: the compiled constraint tape, then J W J^T assembled from J's sparse rows into
+//! a pattern fixed at construction ([`ConstraintMatrix`]: one product per pair of entries of
+//! two rows that share a coordinate) and factored: densely (O(m^3)) for at most
+//! [`crate::linalg::DENSE_MAX_ROWS`] rows, by faer's sparse LDL^T above (O(m) for a chain or
+//! a tree, O(nnz(L)) memory). Nothing of size m x n or, on the sparse path, m x m exists.
 
 use std::sync::Arc;
 
@@ -18,8 +21,8 @@ use super::{
     Formulation, Gradients, Method, Nonconservation, Observation, SecondOrderSystem,
     SingularSearch, State, StepError, Subject,
 };
-use crate::linalg::{DenseCholesky, SpdSolver};
-use crate::model::{ConstraintEval, ConstraintSet, Force, System};
+use crate::linalg::{ConstraintMatrix, LinearSolver};
+use crate::model::{ConstraintEval, Force, System};
 
 /// Constraint stabilization Cddot = -ks C - kd Cdot (units 1/s^2 and 1/s).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -44,14 +47,13 @@ impl Feedback {
 pub struct Implicit {
     pub(crate) system: Arc<System>,
     feedback: Feedback,
-    pub(crate) solver: Box<dyn SpdSolver>,
+    /// Which factorization solves J W J^T
+    pub(crate) solver: LinearSolver,
     /// F (n)
     force: Vec<f64>,
     constraints: ConstraintEval,
-    /// J dense, row-major (m x n); entries outside the sparse structure stay 0
-    jacobian: Vec<f64>,
-    /// J W J^T, row-major (m x m)
-    matrix: Vec<f64>,
+    /// J W J^T and its factorization (shared by the acceleration and the projections)
+    pub(crate) matrix: ConstraintMatrix,
     /// rhs, then lambda (m)
     lambda: Vec<f64>,
     /// Scratch space of the [`super::ConstrainedSystem`] methods (projections).
@@ -61,17 +63,15 @@ pub struct Implicit {
 }
 
 impl Implicit {
-    /// The implicit form of `system` with optional feedback, solved by dense Cholesky.
+    /// The implicit form of `system` with optional feedback; J W J^T is solved densely or
+    /// sparsely by its size ([`LinearSolver::Auto`]).
     pub fn new(system: Arc<System>, feedback: Feedback) -> Self {
-        Self::with_solver(system, feedback, Box::new(DenseCholesky::default()))
+        Self::with_solver(system, feedback, LinearSolver::Auto)
     }
 
-    /// As [`Implicit::new`] with another linear solver.
-    pub fn with_solver(
-        system: Arc<System>,
-        feedback: Feedback,
-        solver: Box<dyn SpdSolver>,
-    ) -> Self {
+    /// As [`Implicit::new`] with the factorization of J W J^T chosen. The pattern of J W J^T
+    /// and the solver's symbolic analysis are computed here, once.
+    pub fn with_solver(system: Arc<System>, feedback: Feedback, solver: LinearSolver) -> Self {
         let n = system.n_coords();
         let m = system.constraints().n_rows();
         Implicit {
@@ -79,8 +79,7 @@ impl Implicit {
             solver,
             force: vec![0.0; n],
             constraints: system.constraints().workspace(),
-            jacobian: vec![0.0; m * n],
-            matrix: vec![0.0; m * m],
+            matrix: ConstraintMatrix::new(system.constraints().structure(), solver),
             lambda: vec![0.0; m],
             projection: super::constrained::ProjectionWorkspace::new(&system),
             external: Vec::new(),
@@ -91,6 +90,17 @@ impl Implicit {
     /// The multipliers lambda (m) of the last evaluation; the constraint force is J^T lambda.
     pub fn multipliers(&self) -> &[f64] {
         &self.lambda
+    }
+
+    /// The factorization of J W J^T asked for (see [`Implicit::with_solver`]).
+    pub fn linear_solver(&self) -> LinearSolver {
+        self.solver
+    }
+
+    /// J W J^T's pattern and factorization, e.g. for diagnostics
+    /// ([`ConstraintMatrix::describe`]).
+    pub fn constraint_matrix(&self) -> &ConstraintMatrix {
+        &self.matrix
     }
 }
 
@@ -114,7 +124,7 @@ impl SecondOrderSystem for Implicit {
         if m > 0 {
             set.evaluate(t, x, v, &mut self.constraints);
             let ce = &self.constraints;
-            assemble_jwjt(set, &ce.jacobian, w, &mut self.jacobian, &mut self.matrix);
+            self.matrix.assemble(&ce.jacobian, w);
             // rhs = -bias - J W F - ks C - kd Cdot.
             for i in 0..m {
                 let columns = set.row_columns(i);
@@ -129,34 +139,17 @@ impl SecondOrderSystem for Implicit {
                     - self.feedback.ks * ce.value[i]
                     - self.feedback.kd * ce.velocity[i];
             }
-            if let Err(singular) = self.solver.solve(m, &mut self.matrix, &mut self.lambda) {
+            if let Err(singular) = self.matrix.factor() {
                 // Overflow or a non-finite input is not a singular constraint: say which.
                 if let Some(error) = non_finite_input(system, t, x, v, &self.force, ce) {
                     return Err(error);
                 }
-                if !singular.finite {
-                    return Err(StepError::NonFinite {
-                        t,
-                        quantity: "the matrix J W J^T (overflow)".into(),
-                    });
-                }
-                let info = set.info_of_row(singular.row);
-                return Err(StepError::SingularConstraints {
-                    t,
-                    constraint: info.name.clone(),
-                    description: info.description.clone(),
-                });
+                return Err(super::constrained::singular_error(set, t, singular));
             }
+            self.matrix.solve_in_place(&mut self.lambda);
             // F += J^T lambda.
-            for i in 0..m {
-                for (&k, &jik) in set
-                    .row_columns(i)
-                    .iter()
-                    .zip(&ce.jacobian[set.row_entries(i)])
-                {
-                    self.force[k] += jik * self.lambda[i];
-                }
-            }
+            set.structure()
+                .add_transpose(&ce.jacobian, &self.lambda, &mut self.force);
         }
         for ((a, f), w) in a.iter_mut().zip(&self.force).zip(w) {
             *a = w * f;
@@ -385,34 +378,4 @@ fn non_finite_input(
         }
     }
     None
-}
-
-/// A = J W J^T (m x m, row-major) from J's sparse rows (`entries` in the structure of
-/// `set`), through a dense copy `dense_j` of J (m x n, row-major). J's structure is fixed, so
-/// every structural entry is overwritten on each call and the others stay 0.
-pub(crate) fn assemble_jwjt(
-    set: &ConstraintSet,
-    entries: &[f64],
-    w: &[f64],
-    dense_j: &mut [f64],
-    matrix: &mut [f64],
-) {
-    let (m, n) = (set.n_rows(), w.len());
-    for i in 0..m {
-        for (&k, &value) in set.row_columns(i).iter().zip(&entries[set.row_entries(i)]) {
-            dense_j[i * n + k] = value;
-        }
-    }
-    for i in 0..m {
-        let columns = set.row_columns(i);
-        let row = &entries[set.row_entries(i)];
-        for j in 0..=i {
-            let mut sum = 0.0;
-            for (&k, &jik) in columns.iter().zip(row) {
-                sum += jik * w[k] * dense_j[j * n + k];
-            }
-            matrix[i * m + j] = sum;
-            matrix[j * m + i] = sum;
-        }
-    }
 }

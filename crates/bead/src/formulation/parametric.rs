@@ -18,19 +18,20 @@ use super::{
     Formulation, FormulationError, Gradients, Method, Nonconservation, Observation,
     SecondOrderSystem, SingularSearch, State, StepError, Subject,
 };
-use crate::linalg::{DenseCholesky, SpdSolver};
+use crate::linalg::{DenseCholesky, SymmetricPattern, SymmetricSolver};
 use crate::model::{ConstraintEval, Force, ParametricEval, ParametricMap, System};
 
 /// The parametric (generalized-coordinate) formulation.
 pub struct Parametric {
     system: Arc<System>,
-    solver: Box<dyn SpdSolver>,
+    /// Dense Cholesky of M (n_q x n_q)
+    solver: DenseCholesky,
     map: ParametricEval,
     /// F (n_coords)
     force: Vec<f64>,
     /// The mass of each particle coordinate (n_coords), so the hot loops multiply
     coordinate_mass: Vec<f64>,
-    /// M, row-major (n_q x n_q)
+    /// M's upper triangle by columns: (l, j), l <= j, at j (j + 1) / 2 + l
     matrix: Vec<f64>,
     /// rhs, then qddot (n_q)
     rhs: Vec<f64>,
@@ -58,7 +59,7 @@ impl Parametric {
                 .any(|k| (n_q..2 * n_q).any(|slot| map.symbolic(k).2.depends_on(slot)));
         Ok(Parametric {
             velocity_dependent,
-            solver: Box::new(DenseCholesky::default()),
+            solver: DenseCholesky::new(&SymmetricPattern::dense(n_q)),
             map: map.workspace(),
             force: vec![0.0; system.n_coords()],
             coordinate_mass: system
@@ -66,7 +67,7 @@ impl Parametric {
                 .iter()
                 .flat_map(|p| std::iter::repeat_n(p.mass, system.dim()))
                 .collect(),
-            matrix: vec![0.0; n_q * n_q],
+            matrix: vec![0.0; n_q * (n_q + 1) / 2],
             rhs: vec![0.0; n_q],
             external: Vec::new(),
             constraints: system.constraints().workspace(),
@@ -118,11 +119,14 @@ impl SecondOrderSystem for Parametric {
                 for (k, m) in mass_of.iter().enumerate() {
                     mass += m * ws.jacobian[k * n_q + j] * ws.jacobian[k * n_q + l];
                 }
-                self.matrix[j * n_q + l] = mass;
-                self.matrix[l * n_q + j] = mass;
+                self.matrix[j * (j + 1) / 2 + l] = mass;
             }
         }
-        if let Err(singular) = self.solver.solve(n_q, &mut self.matrix, &mut self.rhs) {
+        let factored = self.solver.factor(&self.matrix);
+        if factored.is_ok() {
+            self.solver.solve_in_place(&mut self.rhs);
+        }
+        if let Err(singular) = factored {
             let inputs = [q, qdot, &ws.position, &ws.velocity, &ws.jacobian, &ws.bias];
             if !singular.finite || inputs.iter().any(|v| v.iter().any(|c| !c.is_finite())) {
                 return Err(non_finite_input(system, map, t, q, qdot, ws, &self.force));

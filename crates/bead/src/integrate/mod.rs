@@ -33,7 +33,7 @@ pub use dopri5::Dopri5;
 pub use euler::Euler;
 pub use gauss_legendre::GaussLegendre;
 pub use midpoint::Midpoint;
-pub use rattle::Rattle;
+pub use rattle::{NewtonMatrix, Rattle};
 pub use rk4::Rk4;
 pub use symplectic_euler::SymplecticEuler;
 pub use verlet::Verlet;

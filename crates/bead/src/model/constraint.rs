@@ -208,6 +208,11 @@ impl ConstraintSet {
     pub fn row_entries(&self, row: usize) -> Range<usize> {
         self.row_start[row]..self.row_start[row + 1]
     }
+    /// The sparse row structure of J (rows, their coordinates, their entries in
+    /// [`ConstraintEval::jacobian`]).
+    pub fn structure(&self) -> crate::linalg::RowStructure<'_> {
+        crate::linalg::RowStructure::new(&self.row_start, &self.columns)
+    }
     /// Total number of nonzero Jacobian entries.
     pub fn n_nonzeros(&self) -> usize {
         self.columns.len()

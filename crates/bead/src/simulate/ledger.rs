@@ -8,30 +8,39 @@
 //! weights, Gauss-Legendre by Gauss quadrature, Verlet by the trapezoidal rule, dopri5 under
 //! its error control), without knowing what the coordinate is. For integrators that work on
 //! the constraints (RATTLE, the projection) the extra coordinate has zero inverse mass and
-//! no constraint reads it, so constraint impulses never touch it; the applied forces' power
-//! drives it through [`ConstrainedSystem::unconstrained_acceleration`].
+//! no constraint reads it (J's sparse rows never name it, so J is the formulation's own),
+//! so constraint impulses never touch it; the applied forces' power drives it through
+//! [`ConstrainedSystem::unconstrained_acceleration`].
 
 use crate::formulation::{ConstrainedSystem, Formulation, SecondOrderSystem, StepError};
+use crate::linalg::{LinearSolver, RowStructure};
 
 /// Scratch space of [`WithWork`], sized once.
 pub(super) struct LedgerScratch {
     /// W = M^-1 with a trailing 0 for the work coordinate (n + 1)
     inverse_mass: Vec<f64>,
-    /// The formulation's dense J (m x n), before it is widened to m x (n + 1)
-    jacobian: Vec<f64>,
+    /// The formulation's constraint rows m (0 without constraints)
+    rows: usize,
+    /// The formulation's factorization of J W J^T
+    solver: LinearSolver,
 }
 
 impl LedgerScratch {
     pub(super) fn new(formulation: &mut (dyn Formulation + Send)) -> Self {
         let n = formulation.n_coords();
-        let (mut inverse_mass, m) = match formulation.as_constrained() {
-            Some(cs) => (cs.inverse_mass().to_vec(), cs.n_constraints()),
-            None => (vec![0.0; n], 0),
+        let (mut inverse_mass, rows, solver) = match formulation.as_constrained() {
+            Some(cs) => (
+                cs.inverse_mass().to_vec(),
+                cs.n_constraints(),
+                cs.linear_solver(),
+            ),
+            None => (vec![0.0; n], 0, LinearSolver::Auto),
         };
         inverse_mass.push(0.0);
         LedgerScratch {
             inverse_mass,
-            jacobian: vec![0.0; m * n],
+            rows,
+            solver,
         }
     }
 }
@@ -107,8 +116,16 @@ impl SecondOrderSystem for WithWork<'_> {
 
 impl ConstrainedSystem for WithWork<'_> {
     fn n_constraints(&self) -> usize {
-        let n = self.n();
-        self.scratch.jacobian.len().checked_div(n).unwrap_or(0)
+        self.scratch.rows
+    }
+
+    /// The formulation's rows: none reads the work coordinate.
+    fn constraint_structure(&self) -> RowStructure<'_> {
+        self.formulation.system().constraints().structure()
+    }
+
+    fn linear_solver(&self) -> LinearSolver {
+        self.scratch.solver
     }
 
     fn inverse_mass(&self) -> &[f64] {
@@ -141,17 +158,11 @@ impl ConstrainedSystem for WithWork<'_> {
         self.constrained().constraint_values(t, &q[..n], c);
     }
 
-    /// J widened by a zero column for the work coordinate (m x (n + 1)).
+    /// The formulation's J: its sparse rows never name the work coordinate, so widening J by
+    /// that zero column changes nothing.
     fn constraint_jacobian(&mut self, t: f64, q: &[f64], jacobian: &mut [f64]) {
         let n = self.n();
-        let mut narrow = std::mem::take(&mut self.scratch.jacobian);
-        self.constrained()
-            .constraint_jacobian(t, &q[..n], &mut narrow);
-        for (wide, row) in jacobian.chunks_exact_mut(n + 1).zip(narrow.chunks_exact(n)) {
-            wide[..n].copy_from_slice(row);
-            wide[n] = 0.0;
-        }
-        self.scratch.jacobian = narrow;
+        self.constrained().constraint_jacobian(t, &q[..n], jacobian);
     }
 
     fn singular_constraint(&mut self, t: f64, row: usize) -> StepError {

@@ -141,3 +141,168 @@ pub fn run_with_progress(
     };
     bead::simulate::run_with_progress(&mut simulation, run, sink, progress)
 }
+
+// ---------------------------------------------------------------------------------------
+// Structures of many rods, for the sparse linear algebra (issue 8)
+
+/// A hanging chain: `links` particles of unit mass at (i + 1, 0), rods of length 1, the first
+/// to the origin, at rest, g = 9.81 along +y (down). Rows in parent-first order.
+pub fn chain(links: usize) -> System {
+    let mut b = SystemBuilder::new(&[0.0, G]);
+    let mut previous = None;
+    for i in 0..links {
+        let p = b
+            .particle(&format!("p{i}"), 1.0, &[(i + 1) as f64, 0.0], &[0.0, 0.0])
+            .unwrap();
+        let end = previous.map_or(Endpoint::Fixed(vec![0.0, 0.0]), Endpoint::Particle);
+        b.distance(&format!("rod {i}"), p, end, 1.0).unwrap();
+        previous = Some(p);
+    }
+    b.build().unwrap()
+}
+
+/// Rod between particles (or to a fixed point) of the length they are apart at the start.
+fn rod(b: &mut SystemBuilder, name: &str, x: &[Vec<f64>], a: usize, end: Option<usize>) {
+    let (target, endpoint) = match end {
+        Some(j) => (x[j].clone(), Endpoint::Particle(bead::model::ParticleId(j))),
+        None => (
+            vec![0.0; x[a].len()],
+            Endpoint::Fixed(vec![0.0; x[a].len()]),
+        ),
+    };
+    let length = x[a]
+        .iter()
+        .zip(&target)
+        .map(|(p, q)| (p - q) * (p - q))
+        .sum::<f64>()
+        .sqrt();
+    b.distance(name, bead::model::ParticleId(a), endpoint, length)
+        .unwrap();
+}
+
+/// A tree of rods: a trunk of 4 links from the origin, three branches of 5 links from its
+/// tip, and a twig of 3 links from the middle of the first branch (2D, masses 1 to 2).
+pub fn tree() -> System {
+    let mut x: Vec<Vec<f64>> = Vec::new();
+    let mut rods: Vec<(usize, Option<usize>)> = Vec::new();
+    let mut grow = |x: &mut Vec<Vec<f64>>, from: Option<usize>, links: usize, dir: [f64; 2]| {
+        let mut parent = from;
+        let mut at = from.map_or([0.0, 0.0], |p| [x[p][0], x[p][1]]);
+        let mut ids = Vec::new();
+        for _ in 0..links {
+            at = [at[0] + dir[0], at[1] + dir[1]];
+            x.push(at.to_vec());
+            let id = x.len() - 1;
+            rods.push((id, parent));
+            parent = Some(id);
+            ids.push(id);
+        }
+        ids
+    };
+    let trunk = grow(&mut x, None, 4, [0.9, 0.4]);
+    let tip = *trunk.last().unwrap();
+    let first = grow(&mut x, Some(tip), 5, [0.8, -0.5]);
+    grow(&mut x, Some(tip), 5, [1.0, 0.1]);
+    grow(&mut x, Some(tip), 5, [0.3, 0.9]);
+    grow(&mut x, Some(first[2]), 3, [-0.2, 0.95]);
+    let mut b = SystemBuilder::new(&[0.0, G]);
+    for (i, p) in x.iter().enumerate() {
+        let mass = 1.0 + (i % 3) as f64 * 0.5;
+        b.particle(&format!("n{i}"), mass, p, &[0.0, 0.0]).unwrap();
+    }
+    for (k, &(a, end)) in rods.iter().enumerate() {
+        rod(&mut b, &format!("rod {k}"), &x, a, end);
+    }
+    b.build().unwrap()
+}
+
+/// A closed ring of `n` rods (a regular polygon of radius 2, slightly squashed), one of its
+/// particles pinned (2D).
+pub fn ring(n: usize) -> System {
+    let x: Vec<Vec<f64>> = (0..n)
+        .map(|i| {
+            let angle = 2.0 * std::f64::consts::PI * i as f64 / n as f64;
+            vec![2.0 * angle.cos(), 1.5 * angle.sin() + 3.0]
+        })
+        .collect();
+    let mut b = SystemBuilder::new(&[0.0, G]);
+    for (i, p) in x.iter().enumerate() {
+        b.particle(&format!("r{i}"), 1.0, p, &[0.0, 0.0]).unwrap();
+    }
+    for i in 0..n {
+        rod(&mut b, &format!("rod {i}"), &x, i, Some((i + 1) % n));
+    }
+    b.pin("top", bead::model::ParticleId(0), &x[0]).unwrap();
+    b.build().unwrap()
+}
+
+/// A cloth patch in 3D: `rows` x `cols` particles on a curved sheet (z = 0.1 (c - cols/2)^2, so
+/// that no line of rods is straight), structural rods between grid neighbours, the two top
+/// corners pinned.
+pub fn cloth(rows: usize, cols: usize) -> System {
+    let at = |r: usize, c: usize| {
+        let u = c as f64 - cols as f64 / 2.0;
+        vec![
+            c as f64 * 0.5,
+            r as f64 * 0.5,
+            0.1 * u * u + 0.05 * r as f64,
+        ]
+    };
+    let x: Vec<Vec<f64>> = (0..rows)
+        .flat_map(|r| (0..cols).map(move |c| at(r, c)))
+        .collect();
+    let mut b = SystemBuilder::new(&[0.0, G, 0.0]);
+    for (i, p) in x.iter().enumerate() {
+        b.particle(&format!("c{i}"), 0.2, p, &[0.0, 0.0, 0.0])
+            .unwrap();
+    }
+    let id = |r: usize, c: usize| r * cols + c;
+    for r in 0..rows {
+        for c in 0..cols {
+            if c + 1 < cols {
+                rod(
+                    &mut b,
+                    &format!("h{r}.{c}"),
+                    &x,
+                    id(r, c),
+                    Some(id(r, c + 1)),
+                );
+            }
+            if r + 1 < rows {
+                rod(
+                    &mut b,
+                    &format!("v{r}.{c}"),
+                    &x,
+                    id(r, c),
+                    Some(id(r + 1, c)),
+                );
+            }
+        }
+    }
+    b.pin(
+        "left corner",
+        bead::model::ParticleId(id(0, 0)),
+        &x[id(0, 0)],
+    )
+    .unwrap();
+    b.pin(
+        "right corner",
+        bead::model::ParticleId(id(0, cols - 1)),
+        &x[id(0, cols - 1)],
+    )
+    .unwrap();
+    b.build().unwrap()
+}
+
+/// A deterministic generator of uniform numbers in [-1/2, 1/2).
+pub struct Random(pub u64);
+
+impl Random {
+    pub fn next(&mut self) -> f64 {
+        self.0 = self
+            .0
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (self.0 >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+    }
+}

@@ -1,5 +1,24 @@
-//! Linear solves behind one interface, so that a sparse or linear-time solver can replace the
-//! dense one without touching the formulations.
+//! Linear solves behind one interface, so that the formulations and integrators do not know
+//! whether a system is solved densely or sparsely.
+//!
+//! - [`SymmetricPattern`]: the nonzero pattern of a symmetric matrix (upper triangle by
+//!   columns), fixed when a formulation is built; values live in a flat array in its order.
+//! - [`SymmetricSolver`]: factor a matrix given by those values, then solve with the factor
+//!   as many right-hand sides as needed. [`DenseCholesky`] for small systems, [`SparseLdlt`]
+//!   (faer's sparse LDL^T, symbolic analysis once, numeric factorization allocation-free) for
+//!   large ones; [`symmetric_solver`] picks one ([`LinearSolver`]).
+//! - [`RowStructure`] and [`ConstraintMatrix`]: the sparse rows of a constraint Jacobian J and
+//!   the matrix J W J^T assembled straight from them through slots computed once.
+
+mod constraint_matrix;
+mod dense;
+mod pattern;
+mod sparse;
+
+pub use constraint_matrix::{ConstraintMatrix, RowStructure};
+pub use dense::{cholesky_in_place, cholesky_substitute, dense_solve, DenseCholesky};
+pub use pattern::SymmetricPattern;
+pub use sparse::{Ordering, SparseLdlt, SparseOptions};
 
 /// max_i |v_i|, NaN when any entry is NaN (a non-finite value must not hide behind max);
 /// 0 for an empty slice.
@@ -27,81 +46,55 @@ pub struct Singular {
     pub finite: bool,
 }
 
-/// Solves A z = b for a symmetric positive-definite A.
-pub trait SpdSolver: Send {
-    /// `a` is n x n, row-major, both triangles filled; it may be overwritten. `b` (n) is
-    /// overwritten with z. Must not allocate.
-    fn solve(&mut self, n: usize, a: &mut [f64], b: &mut [f64]) -> Result<(), Singular>;
+/// Pivots of a symmetric positive-definite factorization below this fraction of the original
+/// diagonal count as zero (see [`cholesky_in_place`]).
+pub const RELATIVE_PIVOT_TOLERANCE: f64 = 1e-10;
+
+/// Factor a symmetric positive-definite matrix A given by its values in the order of a
+/// [`SymmetricPattern`] (the one the solver was built for), then solve A z = b with the factor
+/// for as many right-hand sides as needed. Neither allocates.
+pub trait SymmetricSolver: Send {
+    /// Factor A (`values`: the pattern's upper triangle). A pivot at or below
+    /// [`RELATIVE_PIVOT_TOLERANCE`] of its diagonal entry (or a non-positive or non-finite one)
+    /// is [`Singular`], naming the row of A (in A's own order, whatever order the factorization
+    /// eliminates in) whose pivot failed first.
+    fn factor(&mut self, values: &[f64]) -> Result<(), Singular>;
+    /// Overwrite `rhs` (m) with A^-1 rhs, A the last matrix factored without error.
+    fn solve_in_place(&mut self, rhs: &mut [f64]);
+    /// What it is, for diagnostics (e.g. `sparse LDL^T (identity ordering, simplicial)`).
+    fn describe(&self) -> String;
 }
 
-/// Dense Cholesky A = L L^T in place (left-looking, row-major lower triangle), then forward
-/// and back substitution: n^3/6 multiply-adds plus n square roots.
-///
-/// Pivot test: row j is singular when its pivot d_j = A_jj - sum_k L_jk^2 is not above
-/// `relative_pivot_tolerance * A_jj` (or A_jj <= 0, or d_j is NaN). d_j / A_jj is the squared
-/// sine of the angle between row j of J W^(1/2) and the span of the earlier rows, so the test
-/// is scale-free and names the first dependent row.
-///
-/// ```
-/// use bead::linalg::{DenseCholesky, SpdSolver};
-/// let mut a = [4.0, 1.0, 1.0, 3.0];
-/// let mut b = [1.0, 2.0];
-/// DenseCholesky::default().solve(2, &mut a, &mut b).unwrap();
-/// assert!((b[0] - 1.0 / 11.0).abs() < 1e-15 && (b[1] - 7.0 / 11.0).abs() < 1e-15);
-/// ```
-#[derive(Clone, Copy, Debug)]
-pub struct DenseCholesky {
-    /// Pivots below this fraction of the original diagonal count as zero.
-    pub relative_pivot_tolerance: f64,
+/// Which factorization solves the symmetric systems of a formulation.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum LinearSolver {
+    /// Dense for at most [`DENSE_MAX_ROWS`] rows, sparse above.
+    #[default]
+    Auto,
+    /// [`DenseCholesky`] whatever the size: O(m^2) memory, O(m^3) time.
+    Dense,
+    /// [`SparseLdlt`] with its automatic ordering, whatever the size.
+    Sparse,
 }
 
-impl Default for DenseCholesky {
-    fn default() -> Self {
-        DenseCholesky {
-            relative_pivot_tolerance: 1e-10,
-        }
-    }
-}
+/// The largest system [`LinearSolver::Auto`] solves densely. Measured on chains (one step of
+/// rk4 and of rattle, see DESIGN.md): the dense factorization is faster up to about this size.
+pub const DENSE_MAX_ROWS: usize = 8;
 
-impl SpdSolver for DenseCholesky {
-    fn solve(&mut self, n: usize, a: &mut [f64], b: &mut [f64]) -> Result<(), Singular> {
-        let a = &mut a[..n * n];
-        let b = &mut b[..n];
-        for j in 0..n {
-            // Row j of L: entries k < j from the rows above, then the pivot.
-            for i in 0..j {
-                let mut sum = a[j * n + i];
-                for k in 0..i {
-                    sum -= a[j * n + k] * a[i * n + k];
-                }
-                a[j * n + i] = sum / a[i * n + i];
-            }
-            let diagonal = a[j * n + j];
-            let pivot = diagonal - (0..j).map(|k| a[j * n + k] * a[j * n + k]).sum::<f64>();
-            if !(diagonal > 0.0 && pivot > self.relative_pivot_tolerance * diagonal) {
-                return Err(Singular {
-                    row: j,
-                    finite: diagonal.is_finite() && pivot.is_finite(),
-                });
-            }
-            a[j * n + j] = pivot.sqrt();
-        }
-        // L y = b, then L^T z = y.
-        for i in 0..n {
-            let mut sum = b[i];
-            for k in 0..i {
-                sum -= a[i * n + k] * b[k];
-            }
-            b[i] = sum / a[i * n + i];
-        }
-        for i in (0..n).rev() {
-            let mut sum = b[i];
-            for k in i + 1..n {
-                sum -= a[k * n + i] * b[k];
-            }
-            b[i] = sum / a[i * n + i];
-        }
-        Ok(())
+/// The solver `kind` for matrices with `pattern`.
+pub fn symmetric_solver(
+    pattern: &SymmetricPattern,
+    kind: LinearSolver,
+) -> Box<dyn SymmetricSolver> {
+    let dense = match kind {
+        LinearSolver::Auto => pattern.dim() <= DENSE_MAX_ROWS,
+        LinearSolver::Dense => true,
+        LinearSolver::Sparse => false,
+    };
+    if dense {
+        Box::new(DenseCholesky::new(pattern))
+    } else {
+        Box::new(SparseLdlt::new(pattern, SparseOptions::default()))
     }
 }
 
@@ -210,12 +203,10 @@ pub fn gauss_newton_zero(
         for a in 0..k {
             normal[a * k + a] += 1e-12 * trace;
         }
-        let mut solver = DenseCholesky {
-            relative_pivot_tolerance: 0.0,
-        };
-        if solver.solve(k, &mut normal, &mut rhs).is_err() {
+        if cholesky_in_place(k, &mut normal, 0.0).is_err() {
             break;
         }
+        cholesky_substitute(k, &normal, &mut rhs);
         for ((t, y), step) in trial.iter_mut().zip(y.iter()).zip(&rhs) {
             *t = y - step;
         }
@@ -297,9 +288,7 @@ mod tests {
             }
             let rhs: Vec<f64> = (0..n).map(|_| random()).collect();
             let (mut factor, mut z) = (a.clone(), rhs.clone());
-            DenseCholesky::default()
-                .solve(n, &mut factor, &mut z)
-                .unwrap();
+            dense_solve(n, &mut factor, &mut z).unwrap();
             for i in 0..n {
                 let az: f64 = (0..n).map(|j| a[i * n + j] * z[j]).sum();
                 assert!(
@@ -312,11 +301,34 @@ mod tests {
     }
 
     #[test]
+    fn general_solve_with_pivoting() {
+        // [[0, 2], [3, 1]] z = [4, 5] -> z = [1, 2]
+        let mut a = [0.0, 2.0, 3.0, 1.0];
+        let mut b = [4.0, 5.0];
+        let mut scale = [0.0; 2];
+        solve_general(2, &mut a, &mut b, &mut scale).unwrap();
+        assert!(
+            (b[0] - 1.0).abs() < 1e-15 && (b[1] - 2.0).abs() < 1e-15,
+            "{b:?}"
+        );
+    }
+
+    #[test]
+    fn general_solve_names_the_dependent_column() {
+        let mut a = [1.0, 2.0, 2.0, 4.0];
+        let mut b = [1.0, 1.0];
+        let mut scale = [0.0; 2];
+        assert_eq!(solve_general(2, &mut a, &mut b, &mut scale), Err(1));
+        let mut a = [1.0, 0.0, 0.0, 0.0];
+        assert_eq!(solve_general(2, &mut a, &mut b, &mut scale), Err(1));
+    }
+
+    #[test]
     fn names_the_dependent_row() {
         let mut a = [2.0, 0.0, 2.0, 0.0, 1.0, 0.0, 2.0, 0.0, 2.0];
         let mut b = [1.0, 1.0, 1.0];
         assert_eq!(
-            DenseCholesky::default().solve(3, &mut a, &mut b),
+            dense_solve(3, &mut a, &mut b),
             Err(Singular {
                 row: 2,
                 finite: true
@@ -329,7 +341,7 @@ mod tests {
         let mut a = [1.0, 0.0, 0.0, 0.0];
         let mut b = [1.0, 1.0];
         assert_eq!(
-            DenseCholesky::default().solve(2, &mut a, &mut b),
+            dense_solve(2, &mut a, &mut b),
             Err(Singular {
                 row: 1,
                 finite: true
@@ -342,7 +354,7 @@ mod tests {
         let mut a = [f64::NAN];
         let mut b = [1.0];
         assert_eq!(
-            DenseCholesky::default().solve(1, &mut a, &mut b),
+            dense_solve(1, &mut a, &mut b),
             Err(Singular {
                 row: 0,
                 finite: false
