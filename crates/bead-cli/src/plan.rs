@@ -102,9 +102,9 @@ impl Plan {
                 if let Some(atol) = sim.atol {
                     settings.atol = atol;
                 }
-                // rattle and --project: 1e-12 of the scene's constraint scale.
-                settings.constraint_tolerance =
-                    bead::simulate::constraint_tolerance(&scene.system, 1e-12);
+                // rattle and --project: 1e-12 of each constraint's own scale, set by the
+                // simulation (`scaled_constraint_tolerance`).
+                settings.constraint_tolerance = bead::simulate::RELATIVE_CONSTRAINT_TOLERANCE;
                 settings
             },
             project: sim.project,
@@ -138,8 +138,7 @@ impl Plan {
             feedback,
             project: self.project,
             settings: self.settings,
-            // The plan's settings already carry the scene-scaled tolerance.
-            scaled_constraint_tolerance: false,
+            scaled_constraint_tolerance: true,
             substeps: self.substeps,
             max_substeps: self.max_substeps,
             track_work: None,

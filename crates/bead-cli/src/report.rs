@@ -91,7 +91,7 @@ pub fn run_text(scene: &Scene, plan: &Plan, summary: &Summary) -> String {
             &mut s,
             "projection",
             format!(
-                "on: positions onto C = 0 (tolerance {}) and velocities onto J v = -C_t after every step",
+                "on: positions onto C = 0 (tolerance {} of each constraint's scale, a rod's length) and velocities onto J v = -C_t after every step",
                 g(plan.settings.constraint_tolerance, 4)
             ),
         );

@@ -19,7 +19,7 @@
 use std::sync::Arc;
 use std::time::Instant;
 
-use bead::formulation::{Feedback, Formulation, Implicit, Method};
+use bead::formulation::{ConstraintScales, Feedback, Formulation, Implicit, Method};
 use bead::integrate::{Integrator, IntegratorKind, IntegratorSettings, NewtonMatrix, Rattle};
 use bead::linalg::LinearSolver;
 use bead::model::{Endpoint, System, SystemBuilder};
@@ -144,12 +144,13 @@ fn newton_table(
     println!("|---|---|---|---|---|---|");
     for &n in sizes {
         let system = Arc::new(chain(n));
-        let tolerance = bead::simulate::constraint_tolerance(&system, 1e-12);
         for &newton in newtons {
+            // The tolerance a `Simulation` uses: each rod to 1e-12 of its length.
             let mut formulation =
                 Implicit::with_solver(system.clone(), Feedback::default(), solver);
+            formulation.set_constraint_scales(Some(ConstraintScales::of(&system)));
             let settings = IntegratorSettings {
-                constraint_tolerance: tolerance,
+                constraint_tolerance: bead::simulate::RELATIVE_CONSTRAINT_TOLERANCE,
                 ..IntegratorSettings::default()
             };
             let (mut steps, mut elapsed, mut iterations, mut max) = (0u64, 0.0, 0u64, 0usize);

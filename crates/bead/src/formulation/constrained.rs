@@ -9,7 +9,7 @@
 //! projections:
 //!
 //! ```text
-//! positions:  repeat  q <- q - W J(q)^T (J W J^T)^-1 C(q, t)   until max|C| <= tolerance
+//! positions:  repeat  q <- q - W J(q)^T (J W J^T)^-1 C(q, t)   until |C| <= tolerance
 //! velocities: qdot <- qdot - W J^T (J W J^T)^-1 (J qdot + C_t)  so that J qdot + C_t = 0
 //! ```
 //!
@@ -57,6 +57,14 @@ pub trait ConstrainedSystem: SecondOrderSystem {
     }
     /// C(q, t) into `c` (m).
     fn constraint_values(&mut self, t: f64, q: &[f64], c: &mut [f64]);
+    /// The size of the constraint error `c` = C(q, t) that position tolerances are compared
+    /// with: max_i |C_i| (absolute, units of C) unless the system has
+    /// [`ConstraintScales`], then max_i max(0, |C_i| - rho_i max_{k in row i} |q_k|) / s_i.
+    /// NaN when any C_i is NaN.
+    fn constraint_residual(&mut self, q: &[f64], c: &[f64]) -> f64 {
+        let _ = q;
+        max_abs(c)
+    }
     /// J = dC/dq at (q, t): its nonzero entries (nnz), in the order of
     /// [`ConstrainedSystem::constraint_structure`], every one overwritten.
     fn constraint_jacobian(&mut self, t: f64, q: &[f64], jacobian: &mut [f64]);
@@ -64,7 +72,8 @@ pub trait ConstrainedSystem: SecondOrderSystem {
     /// dependent on earlier rows) at time t: names the declared constraint.
     fn singular_constraint(&mut self, t: f64, row: usize) -> StepError;
     /// Move q onto C(q, t) = 0 by mass-weighted Gauss-Newton steps
-    /// dq = -W J^T (J W J^T)^-1 C until max|C| <= `tolerance` (absolute, in the units of C).
+    /// dq = -W J^T (J W J^T)^-1 C until [`ConstrainedSystem::constraint_residual`] <=
+    /// `tolerance` (absolute in the units of C, or relative to each row's scale).
     /// Returns the number of iterations (linear solves) used; 0 when q was already within
     /// tolerance. More than `max_iterations` needed: [`StepError::ProjectionFailed`].
     fn project_positions(
@@ -77,6 +86,92 @@ pub trait ConstrainedSystem: SecondOrderSystem {
     /// qdot <- qdot - W J^T (J W J^T)^-1 (J qdot + C_t): afterwards J qdot + C_t = 0 (to
     /// round-off). The smallest change of qdot in the kinetic-energy metric.
     fn project_velocities(&mut self, t: f64, q: &[f64], qdot: &mut [f64]) -> Result<(), StepError>;
+}
+
+/// Per-row scales of the position tolerance: row i is within `tolerance` when
+///
+/// ```text
+/// |C_i| <= tolerance s_i + rho_i max_{k in row i} |q_k|
+/// ```
+///
+/// s_i is the row's own scale in the units of C_i: a distance constraint's length L (its
+/// C = (|d|^2 - L^2) / (2L) is |d| - L to first order, so |C_i| / s_i is the rod's stretch),
+/// otherwise |J_i(x_0)| times the scene's length scale (the largest initial coordinate, 1 when
+/// all are 0). The second term allows for rounding: C_i is computed from coordinates of size
+/// |q_k| and cannot be resolved below about eps |J_i| |q_k| (a chain of 10^4 unit rods spans
+/// 10^4 lengths); rho_i = 16 eps |J_i(x_0)|.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ConstraintScales {
+    /// s_i > 0 (m)
+    pub scale: Vec<f64>,
+    /// rho_i >= 0 (m)
+    pub rounding: Vec<f64>,
+}
+
+impl ConstraintScales {
+    /// The scales of `system`'s constraint rows at its initial state (see the type).
+    pub fn of(system: &System) -> ConstraintScales {
+        let set = system.constraints();
+        let (x, v) = system.initial_particle_state();
+        let length = x.iter().fold(0.0, |l: f64, c| l.max(c.abs()));
+        let length = if length > 0.0 && length.is_finite() {
+            length
+        } else {
+            1.0
+        };
+        let mut ws = set.workspace();
+        set.evaluate(0.0, &x, &v, &mut ws);
+        let norms: Vec<f64> = (0..set.n_rows())
+            .map(|i| {
+                let norm = ws.jacobian[set.row_entries(i)]
+                    .iter()
+                    .map(|j| j * j)
+                    .sum::<f64>()
+                    .sqrt();
+                if norm > 0.0 && norm.is_finite() {
+                    norm
+                } else {
+                    0.0
+                }
+            })
+            .collect();
+        // A row whose gradient vanishes or overflows at x_0 borrows the largest finite one.
+        let largest = norms.iter().copied().fold(0.0, f64::max);
+        let fallback = if largest > 0.0 { largest } else { 1.0 };
+        let mut scale = vec![0.0; set.n_rows()];
+        let mut rounding = vec![0.0; set.n_rows()];
+        for info in set.infos() {
+            for i in info.rows.clone() {
+                let norm = if norms[i] > 0.0 { norms[i] } else { fallback };
+                scale[i] = match info.length {
+                    Some(l) if l > 0.0 && l.is_finite() => l,
+                    _ => norm * length,
+                };
+                rounding[i] = 16.0 * f64::EPSILON * norm;
+            }
+        }
+        ConstraintScales { scale, rounding }
+    }
+
+    /// max_i max(0, |C_i| - rho_i max_{k in row i} |q_k|) / s_i for `set`'s rows; NaN when
+    /// any C_i is NaN.
+    pub fn residual(&self, set: &ConstraintSet, q: &[f64], c: &[f64]) -> f64 {
+        let mut worst: f64 = 0.0;
+        for (i, &value) in c.iter().enumerate() {
+            if value.is_nan() {
+                return f64::NAN;
+            }
+            let size = set
+                .row_columns(i)
+                .iter()
+                .fold(0.0, |s: f64, &k| s.max(q[k].abs()));
+            let excess = value.abs() - self.rounding[i] * size;
+            if excess > 0.0 {
+                worst = worst.max(excess / self.scale[i]);
+            }
+        }
+        worst
+    }
 }
 
 /// Scratch space of the projections, sized once for one system: O(n + nnz).
@@ -183,6 +278,13 @@ impl ConstrainedSystem for Implicit {
         c.copy_from_slice(values);
     }
 
+    fn constraint_residual(&mut self, q: &[f64], c: &[f64]) -> f64 {
+        match &self.scales {
+            Some(scales) => scales.residual(self.system.constraints(), q, c),
+            None => max_abs(c),
+        }
+    }
+
     fn constraint_jacobian(&mut self, t: f64, q: &[f64], jacobian: &mut [f64]) {
         let ws = &mut self.projection;
         self.system.constraints().gradient(t, q, &mut ws.eval);
@@ -210,7 +312,10 @@ impl ConstrainedSystem for Implicit {
         let mut iterations = 0;
         loop {
             set.gradient(t, q, &mut ws.eval);
-            let residual = max_abs(&ws.eval.value);
+            let residual = match &self.scales {
+                Some(scales) => scales.residual(set, q, &ws.eval.value),
+                None => max_abs(&ws.eval.value),
+            };
             if residual <= tolerance {
                 return Ok(iterations);
             }
@@ -218,7 +323,7 @@ impl ConstrainedSystem for Implicit {
                 return Err(StepError::ProjectionFailed {
                     t,
                     iterations,
-                    residual,
+                    residual: max_abs(&ws.eval.value),
                 });
             }
             ws.rhs.copy_from_slice(&ws.eval.value);

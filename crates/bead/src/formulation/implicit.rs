@@ -60,6 +60,9 @@ pub struct Implicit {
     pub(crate) projection: super::constrained::ProjectionWorkspace,
     /// Forces applied from outside the system (see [`Formulation::external_forces_mut`]).
     pub(crate) external: Vec<Force>,
+    /// Per-row tolerance scales (see [`Formulation::set_constraint_scales`]); `None`:
+    /// tolerances are absolute.
+    pub(crate) scales: Option<super::ConstraintScales>,
 }
 
 impl Implicit {
@@ -83,6 +86,7 @@ impl Implicit {
             lambda: vec![0.0; m],
             projection: super::constrained::ProjectionWorkspace::new(&system),
             external: Vec::new(),
+            scales: None,
             system,
         }
     }
@@ -195,6 +199,10 @@ impl Formulation for Implicit {
     ) {
         x.copy_from_slice(q);
         xdot.copy_from_slice(qdot);
+    }
+
+    fn set_constraint_scales(&mut self, scales: Option<super::ConstraintScales>) {
+        self.scales = scales;
     }
 
     fn external_forces_mut(&mut self) -> &mut Vec<Force> {

@@ -17,7 +17,7 @@ mod parametric;
 use std::fmt;
 use std::sync::Arc;
 
-pub use constrained::ConstrainedSystem;
+pub use constrained::{ConstrainedSystem, ConstraintScales};
 pub use gradients::{Gradients, Observation, SingularSearch};
 pub use implicit::{Feedback, Implicit};
 pub use parametric::Parametric;
@@ -264,6 +264,12 @@ pub trait Formulation: SecondOrderSystem {
     fn coordinate_names(&self) -> &[String];
     /// Particle positions x and velocities xdot (n_coords each) of state (t, q, qdot).
     fn particle_state(&mut self, t: f64, q: &[f64], qdot: &[f64], x: &mut [f64], xdot: &mut [f64]);
+
+    /// Measure position tolerances (RATTLE, projections) row by row against `scales`, or
+    /// absolutely with `None` (the default). Formulations without constraints ignore it.
+    fn set_constraint_scales(&mut self, scales: Option<ConstraintScales>) {
+        let _ = scales;
+    }
 
     /// Forces applied from outside the system (e.g. a spring dragged with the mouse): added to
     /// the system's own forces in every evaluation and counted as non-conservative by the

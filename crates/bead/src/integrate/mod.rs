@@ -68,10 +68,11 @@ pub trait Integrator: Send {
 /// Settings of the iterative integrators and of the constraint projection, with defaults.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct IntegratorSettings {
-    /// RATTLE's position solve and `--project`: absolute tolerance on max_i |C_i| (in the
-    /// units of C; the caller scales it to the scene, e.g. 1e-12 times the scene's length
-    /// scale squared for a constraint in length^2, see
-    /// [`crate::simulate::constraint_tolerance`]). Default 1e-10.
+    /// RATTLE's position solve and `--project`: tolerance on
+    /// [`crate::formulation::ConstrainedSystem::constraint_residual`]: absolute on max_i |C_i|
+    /// (units of C), or relative to each row's scale when the formulation has
+    /// [`crate::formulation::ConstraintScales`] (a [`crate::simulate::Simulation`] sets them
+    /// with 1e-12 unless told not to). Default 1e-10.
     pub constraint_tolerance: f64,
     /// RATTLE's position solve and `--project`: Newton iterations allowed per step before
     /// [`StepError::ProjectionFailed`]. Default 50.

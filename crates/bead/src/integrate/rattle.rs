@@ -276,7 +276,7 @@ impl Rattle {
         let mut iterations = 0;
         loop {
             cs.constraint_values(t, q, &mut self.residual);
-            let residual = max_abs(&self.residual);
+            let residual = cs.constraint_residual(q, &self.residual);
             if residual <= self.tolerance {
                 return Ok(iterations);
             }
@@ -284,7 +284,7 @@ impl Rattle {
                 return Err(StepError::ProjectionFailed {
                     t,
                     iterations,
-                    residual,
+                    residual: max_abs(&self.residual),
                 });
             }
             if let Some(exact) = &mut self.exact {

@@ -594,6 +594,7 @@ pub(super) fn compile(declared: Arc<SystemBuilder>) -> Result<System, ModelError
                     name: name.clone(),
                     description: "Rust constraint (derivatives by dual numbers)".into(),
                     rows: 0..0,
+                    length: None,
                 });
                 continue;
             }
@@ -602,6 +603,10 @@ pub(super) fn compile(declared: Arc<SystemBuilder>) -> Result<System, ModelError
             name: name.clone(),
             description,
             rows: start..expr_rows.len(),
+            length: match spec {
+                ConstraintSpec::Distance { length, .. } => Some(*length),
+                _ => None,
+            },
         });
     }
     let n_expr = expr_rows.len();

@@ -27,6 +27,10 @@ pub struct ConstraintInfo {
     pub description: String,
     /// Its rows in the stacked constraint vector.
     pub rows: Range<usize>,
+    /// Its own length when it has one (a distance's L): the scale of its tolerance, so that
+    /// a rod's error is measured as its stretch |d - L| / L. `None` for expressions, pins
+    /// and Rust constraints.
+    pub length: Option<f64>,
 }
 
 /// One scalar constraint row written as an expression over slots [x (n), v (n), t], with

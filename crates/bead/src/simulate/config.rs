@@ -21,8 +21,11 @@ pub struct SimulationConfig {
     pub project: bool,
     /// Tolerances and iteration limits of the integrators that have them.
     pub settings: IntegratorSettings,
-    /// Replace `settings.constraint_tolerance` by 1e-12 of the system's constraint scale
-    /// ([`super::constraint_tolerance`]) when the simulation is built. Default true.
+    /// Hold each constraint row to its own scale when the simulation is built: RATTLE and
+    /// the projections stop at |C_i| <= 1e-12 s_i + rho_i |q| (a rod's stretch 1e-12, see
+    /// [`crate::formulation::ConstraintScales`]), replacing `settings.constraint_tolerance` by
+    /// [`super::RELATIVE_CONSTRAINT_TOLERANCE`]. Default true; false keeps
+    /// `settings.constraint_tolerance` as an absolute bound on max_i |C_i|.
     pub scaled_constraint_tolerance: bool,
     /// Take each step of dt as this many steps of dt / substeps (fixed-step integrators; the
     /// convention of game-physics engines). Default 1.

@@ -158,6 +158,11 @@ impl ConstrainedSystem for WithWork<'_> {
         self.constrained().constraint_values(t, &q[..n], c);
     }
 
+    fn constraint_residual(&mut self, q: &[f64], c: &[f64]) -> f64 {
+        let n = self.n();
+        self.constrained().constraint_residual(&q[..n], c)
+    }
+
     /// The formulation's J: its sparse rows never name the work coordinate, so widening J by
     /// that zero column changes nothing.
     fn constraint_jacobian(&mut self, t: f64, q: &[f64], jacobian: &mut [f64]) {

@@ -70,45 +70,19 @@ pub use run::{
 };
 
 use crate::formulation::{
-    formulate, Formulation, Method, Nonconservation, SecondOrderSystem, State, StepError,
+    formulate, ConstraintScales, Formulation, Method, Nonconservation, SecondOrderSystem, State,
+    StepError,
 };
 use crate::integrate::{Dopri5, Integrator, IntegratorKind};
 use crate::model::{Force, ModelError, System};
 use ledger::{LedgerScratch, WithWork};
 use monitor::{Monitor, Rejection};
 
-/// An absolute tolerance on max_i |C_i| for `system`, in the units of its constraints:
-/// `relative` times max_i |J_i| L at the initial state, where |J_i| is the norm of row i's
-/// gradient and L the largest initial coordinate magnitude (the scene's length scale; 1 when
-/// every coordinate is 0). For the article's parabola C = x^2 + 100 y at (150, -225) this is
-/// relative * 316 * 225 ~ relative * 7e4 (the scale of C, length^2). `relative` itself when
-/// the system has no constraints.
-pub fn constraint_tolerance(system: &System, relative: f64) -> f64 {
-    let set = system.constraints();
-    let (x, v) = system.initial_particle_state();
-    let length = x.iter().fold(0.0, |l: f64, c| l.max(c.abs()));
-    let length = if length > 0.0 && length.is_finite() {
-        length
-    } else {
-        1.0
-    };
-    let mut ws = set.workspace();
-    set.evaluate(0.0, &x, &v, &mut ws);
-    let gradient = (0..set.n_rows())
-        .map(|i| {
-            ws.jacobian[set.row_entries(i)]
-                .iter()
-                .map(|j| j * j)
-                .sum::<f64>()
-                .sqrt()
-        })
-        .fold(0.0, f64::max);
-    if gradient > 0.0 && gradient.is_finite() {
-        relative * gradient * length
-    } else {
-        relative
-    }
-}
+/// The relative position tolerance of RATTLE and the projections when a simulation scales
+/// its tolerances ([`SimulationConfig::scaled_constraint_tolerance`]): each constraint row
+/// is held to 1e-12 of its own scale, a rod to a stretch of 1e-12, plus the rounding
+/// allowance of [`ConstraintScales`].
+pub const RELATIVE_CONSTRAINT_TOLERANCE: f64 = 1e-12;
 
 /// An external force's handle (see [`Simulation::add_force`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -207,8 +181,9 @@ impl Simulation {
     ) -> Result<Simulation, SetupError> {
         let mut config = config;
         if config.scaled_constraint_tolerance {
-            config.settings.constraint_tolerance =
-                constraint_tolerance(formulation.system(), 1e-12);
+            config.settings.constraint_tolerance = RELATIVE_CONSTRAINT_TOLERANCE;
+            let scales = ConstraintScales::of(formulation.system());
+            formulation.set_constraint_scales(Some(scales));
         }
         let state = formulation.initial_state();
         let n = state.q.len();
