@@ -53,9 +53,8 @@ impl Parametric {
         // + x_tt when the compiled h reads a rate slot (n_q..2 n_q): a map nonlinear in q (so
         // also any non-constant M(q)) or one whose J moves with t. Symbolic dependence is a
         // superset of the true one, so this errs on the safe side.
-        let velocity_dependent = system.has_velocity_dependent_forces()
-            || (0..system.n_coords())
-                .any(|k| (n_q..2 * n_q).any(|slot| map.symbolic(k).2.depends_on(slot)));
+        let velocity_dependent =
+            system.has_velocity_dependent_forces() || map.bias_depends_on_rates();
         Ok(Parametric {
             velocity_dependent,
             solver: Box::new(DenseCholesky::default()),

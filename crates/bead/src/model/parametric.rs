@@ -8,7 +8,7 @@
 //!
 //! h is built as the total time derivative of the xdot expression with qddot left out.
 
-use crate::expr::{Expr, Tape};
+use crate::expr::{gradients, reads_any, share, Expr, Tape};
 
 /// Generalized coordinates and the compiled map x(q, t). Expression slots: q = 0..n_q,
 /// qdot = n_q..2 n_q, t = 2 n_q.
@@ -23,6 +23,8 @@ pub struct ParametricMap {
     pub(crate) accelerations: Vec<Expr>,
     /// J row-major: dx_k/dq_j at k * n_q + j.
     pub(crate) jacobian: Vec<Expr>,
+    /// Whether some h_k reads a rate qdot_j.
+    bias_reads_rates: bool,
     /// Outputs: x (n) | xdot (n) | h (n) | J (n * n_q).
     tape: Tape,
     /// Outputs: x (n) | xdot (n), for mapping states back to particles.
@@ -48,6 +50,15 @@ pub struct ParametricEval {
 }
 
 impl ParametricMap {
+    /// Derive J, xdot and h of `positions` (slots: q, qdot, t) and compile them.
+    ///
+    /// The positions are first merged structurally (a sum written out in full in every
+    /// position of a chain becomes one shared running sum), then every partial derivative of
+    /// every position comes from one forward pass over their DAG ([`gradients`]); xdot =
+    /// dx_k/dt + sum_j J_kj qdot_j is formed from them, and h the same way from the partials
+    /// of xdot. The expressions are those that one derivative per (k, j) would build, only
+    /// shared, and the cost is about the size of the expressions plus the nonzeros of J,
+    /// where one walk per (k, j) was O(N^3) for a chain of N links.
     pub(crate) fn new(
         coordinates: Vec<String>,
         initial: Vec<f64>,
@@ -56,20 +67,38 @@ impl ParametricMap {
     ) -> Self {
         let n_q = coordinates.len();
         let time = 2 * n_q;
-        let total_derivative = |f: &Expr| {
-            f.vars()
-                .into_iter()
-                .filter(|&j| j < n_q)
-                .fold(f.derivative(time), |acc, j| {
-                    acc + f.derivative(j) * Expr::var(n_q + j)
-                })
+        let wanted = |j: usize| j < n_q || j == time;
+        // d/dt f = df/dt + sum_j df/dq_j qdot_j over the q's f contains (ascending), from f's
+        // partials; qddot is left out.
+        let total_derivative = |partials: &[(usize, Expr)]| {
+            let start = match partials.last() {
+                Some((slot, d)) if *slot == time => d.clone(),
+                _ => Expr::constant(0.0),
+            };
+            partials
+                .iter()
+                .filter(|(j, _)| *j < n_q)
+                .fold(start, |acc, (j, d)| acc + d * Expr::var(n_q + j))
         };
-        let velocities: Vec<Expr> = positions.iter().map(total_derivative).collect();
-        let accelerations: Vec<Expr> = velocities.iter().map(total_derivative).collect();
-        let jacobian: Vec<Expr> = positions
+        let positions = share(&positions);
+        let position_partials = gradients(&positions, &wanted);
+        let velocities = share(
+            &position_partials
+                .iter()
+                .map(|p| total_derivative(p))
+                .collect::<Vec<_>>(),
+        );
+        let accelerations: Vec<Expr> = gradients(&velocities, &wanted)
             .iter()
-            .flat_map(|x| (0..n_q).map(move |j| x.derivative(j)))
+            .map(|p| total_derivative(p))
             .collect();
+        let mut jacobian = vec![Expr::constant(0.0); positions.len() * n_q];
+        for (k, partials) in position_partials.iter().enumerate() {
+            for (j, d) in partials.iter().filter(|(j, _)| *j < n_q) {
+                jacobian[k * n_q + j] = d.clone();
+            }
+        }
+        let bias_reads_rates = reads_any(&accelerations, &|slot| (n_q..2 * n_q).contains(&slot));
         let mut outputs = positions.clone();
         outputs.extend(velocities.iter().cloned());
         outputs.extend(accelerations.iter().cloned());
@@ -92,6 +121,7 @@ impl ParametricMap {
             velocities,
             accelerations,
             jacobian,
+            bias_reads_rates,
         }
     }
 
@@ -120,6 +150,11 @@ impl ParametricMap {
             &self.accelerations[k],
             &self.jacobian[k * n_q..(k + 1) * n_q],
         )
+    }
+    /// Whether h = xddot - J qddot depends on qdot: the map is nonlinear in q, or its J moves
+    /// with t (symbolic dependence, a superset of the true one).
+    pub fn bias_depends_on_rates(&self) -> bool {
+        self.bias_reads_rates
     }
     /// Whether the map x(q, t) depends on t (a moving map, which does work on the particles).
     pub fn is_time_dependent(&self) -> bool {
