@@ -688,22 +688,22 @@ pub fn check_text(scene: &Scene, start: &StartCheck) -> String {
             let _ = writeln!(s, "  initial      {}", described.join(", "));
             let qname = |slot: usize| parametric_slot_name(coordinates, slot);
             for k in 0..system.n_coords() {
-                let (x, xdot, h, jacobian): (&Expr, &Expr, &Expr, &[Expr]) = map.symbolic(k);
+                let row = map.symbolic(k);
                 let coordinate = system.coordinate_name(k);
-                let _ = writeln!(s, "  {coordinate} = {}", expression(x, &qname));
-                for (j, d) in jacobian.iter().enumerate() {
-                    let _ = writeln!(
-                        s,
-                        "    d({coordinate})/d{} = {}",
-                        coordinates[j],
-                        expression(d, &qname)
-                    );
+                let _ = writeln!(s, "  {coordinate} = {}", expression(row.position, &qname));
+                // Every column, the structural zeros of J too.
+                for (j, name) in coordinates.iter().enumerate() {
+                    let d = match row.columns.iter().position(|&c| c == j) {
+                        Some(e) => expression(&row.jacobian[e], &qname),
+                        None => "0".to_string(),
+                    };
+                    let _ = writeln!(s, "    d({coordinate})/d{name} = {d}");
                 }
-                let _ = writeln!(s, "    velocity = {}", expression(xdot, &qname));
+                let _ = writeln!(s, "    velocity = {}", expression(row.velocity, &qname));
                 let _ = writeln!(
                     s,
                     "    h = {}   (acceleration = J q'' + h)",
-                    expression(h, &qname)
+                    expression(row.bias, &qname)
                 );
             }
             let _ = writeln!(s, "  compiled: {} tape instructions", map.n_instructions());

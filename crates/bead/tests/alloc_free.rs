@@ -165,6 +165,39 @@ fn double_pendulum() -> Arc<System> {
     Arc::new(b.build().unwrap())
 }
 
+/// A chain of five links in angles on unit rods: rows of J with 1..5 nonzeros, columns with
+/// 10..2.
+fn chain() -> Arc<System> {
+    let links = 5;
+    let angles: [f64; 5] = [1.5, 1.2, 0.9, 0.6, 0.3];
+    let mut b = SystemBuilder::new(&[0.0, 9.81]);
+    let names: Vec<String> = (1..=links).map(|i| format!("th{i}")).collect();
+    let (mut x, mut y, mut previous): (f64, f64, _) = (0.0, 0.0, None);
+    for (i, th) in angles.iter().enumerate() {
+        (x, y) = (x + th.sin(), y + th.cos());
+        let p = b
+            .particle(&format!("p{}", i + 1), 1.0, &[x, y], &[0.0, 0.0])
+            .unwrap();
+        let end = previous.map_or(Endpoint::Fixed(vec![0.0, 0.0]), Endpoint::Particle);
+        b.distance(&format!("rod{}", i + 1), p, end, 1.0).unwrap();
+        previous = Some(p);
+    }
+    let refs: Vec<&str> = names.iter().map(String::as_str).collect();
+    b.parametric(&refs, &angles, &[0.0; 5]).unwrap();
+    for i in 1..=links {
+        let sum = |f: &str| {
+            names[..i]
+                .iter()
+                .map(|th| format!("{f}({th})"))
+                .collect::<Vec<_>>()
+                .join(" + ")
+        };
+        b.parametric_position_exprs(&format!("p{i}"), &[&sum("sin"), &sum("cos")])
+            .unwrap();
+    }
+    Arc::new(b.build().unwrap())
+}
+
 const STEPS: usize = 1000;
 
 /// Allocator calls during STEPS steps after one warm-up step.
@@ -214,6 +247,7 @@ fn every_integrator_steps_the_parametric_form_without_allocating() {
     for (name, system, dt) in [
         ("parabola", parabola(), 1.0 / 600.0),
         ("double pendulum", double_pendulum(), 1e-3),
+        ("chain", chain(), 1e-3),
     ] {
         // rattle needs the implicit form's constraints (an error on this form, tested in
         // physics_rattle.rs).
@@ -240,6 +274,7 @@ fn run_loop_allocation_count_does_not_depend_on_the_number_of_steps() {
     for (name, system, dt) in [
         ("parabola", parabola(), 1.0 / 600.0),
         ("double pendulum", double_pendulum(), 1e-4),
+        ("chain", chain(), 1e-4),
     ] {
         for method in [Method::Implicit, Method::Parametric] {
             for kind in IntegratorKind::ALL {

@@ -310,6 +310,84 @@ pub(crate) fn topo<'a>(roots: impl IntoIterator<Item = &'a Expr>) -> Topo<'a> {
     }
 }
 
+/// The same expressions with structurally equal subexpressions merged into one node: same
+/// operation, same (merged) children, constants by bit pattern, variables by slot. Nothing is
+/// rewritten or reordered, so every value and every printed form stays the same; only sharing
+/// grows. What was written out several times (`sin(q1) + sin(q2)` in one position and
+/// `sin(q1) + sin(q2) + sin(q3)` in the next) is then differentiated once.
+pub(crate) fn share(roots: &[Expr]) -> Vec<Expr> {
+    let t = topo(roots);
+    // Key: (operation, function or constant bits or slot, merged child ids).
+    let mut canonical: FastMap<(u8, u64, u32, u32), u32> = FastMap::default();
+    let mut merged: Vec<Expr> = Vec::with_capacity(t.nodes.len());
+    let mut id: Vec<u32> = Vec::with_capacity(t.nodes.len());
+    for (e, &[ia, ib]) in t.nodes.iter().zip(&t.kids) {
+        let kid = |c: u32| {
+            if c == NO_CHILD {
+                NO_CHILD
+            } else {
+                id[c as usize]
+            }
+        };
+        let (ka, kb) = (kid(ia), kid(ib));
+        let (op, extra) = match &*e.0 {
+            Node::Const(c) => (0, c.to_bits()),
+            Node::Var(k) => (1, *k as u64),
+            Node::Neg(_) => (2, 0),
+            Node::Add(..) => (3, 0),
+            Node::Sub(..) => (4, 0),
+            Node::Mul(..) => (5, 0),
+            Node::Div(..) => (6, 0),
+            Node::Pow(..) => (7, 0),
+            Node::Unary(f, _) => (8, *f as u64),
+            Node::Atan2(..) => (9, 0),
+        };
+        let next = merged.len() as u32;
+        let slot = *canonical.entry((op, extra, ka, kb)).or_insert(next);
+        if slot != next {
+            id.push(id[slot as usize]);
+            merged.push(merged[slot as usize].clone());
+            continue;
+        }
+        let same = |c: u32, k: u32, child: Option<&Expr>| {
+            c == NO_CHILD || child.is_some_and(|x| x.ptr_eq(&merged[k as usize]))
+        };
+        let [ca, cb] = e.0.children();
+        let node = if same(ia, ka, ca) && same(ib, kb, cb) {
+            (*e).clone()
+        } else {
+            let a = || merged[ka as usize].clone();
+            let b = || merged[kb as usize].clone();
+            make(match &*e.0 {
+                Node::Neg(_) => Node::Neg(a()),
+                Node::Add(..) => Node::Add(a(), b()),
+                Node::Sub(..) => Node::Sub(a(), b()),
+                Node::Mul(..) => Node::Mul(a(), b()),
+                Node::Div(..) => Node::Div(a(), b()),
+                Node::Pow(..) => Node::Pow(a(), b()),
+                Node::Unary(f, _) => Node::Unary(*f, a()),
+                Node::Atan2(..) => Node::Atan2(a(), b()),
+                Node::Const(_) | Node::Var(_) => unreachable!("leaves have no children"),
+            })
+        };
+        id.push(next);
+        merged.push(node);
+    }
+    t.roots
+        .iter()
+        .map(|&r| merged[r as usize].clone())
+        .collect()
+}
+
+/// Whether some variable slot for which `pred` holds occurs in any of `roots` (one walk over
+/// their shared DAG).
+pub(crate) fn reads_any(roots: &[Expr], pred: &dyn Fn(usize) -> bool) -> bool {
+    topo(roots)
+        .nodes
+        .iter()
+        .any(|e| matches!(*e.0, Node::Var(k) if pred(k)))
+}
+
 // ---------------------------------------------------------------------------------------
 // Numeric semantics shared by `eval`, constant folding and the tape.
 
@@ -1019,6 +1097,51 @@ mod tests {
 
     fn c(v: f64) -> Expr {
         Expr::constant(v)
+    }
+
+    #[test]
+    fn share_merges_equal_subexpressions_and_changes_nothing_else() {
+        // Two sums written out separately, the second extending the first.
+        let a = p("sin(x) + cos(y*b) + a");
+        let b = p("sin(x) + cos(y*b) + a + exp(x)");
+        let shared = share(&[a.clone(), b.clone()]);
+        assert_eq!(show(&shared[0]), show(&a));
+        assert_eq!(show(&shared[1]), show(&b));
+        let Node::Add(prefix, _) = &*shared[1].0 else {
+            panic!("a sum")
+        };
+        assert!(prefix.ptr_eq(&shared[0]));
+        assert!(topo(&shared).nodes.len() < topo([&a, &b]).nodes.len());
+        let v = [0.3, -1.1, 0.7, 2.0];
+        assert_eq!(shared[1].eval(&v).to_bits(), b.eval(&v).to_bits());
+        // Already shared expressions come back as they are; constants merge by bit pattern.
+        let again = share(&shared);
+        assert!(again[0].ptr_eq(&shared[0]) && again[1].ptr_eq(&shared[1]));
+        let twice = share(&[p("x + 0.5"), p("x + 0.5"), p("x + 0.25")]);
+        assert!(twice[0].ptr_eq(&twice[1]) && !twice[0].ptr_eq(&twice[2]));
+        // Random expressions keep their values and printed forms.
+        let mut rng = Rng::new(4);
+        for _ in 0..50 {
+            let mut pool = Vec::new();
+            let roots: Vec<Expr> = (0..4)
+                .map(|_| random_expr(&mut rng, 4, 5, &mut pool))
+                .collect();
+            let shared = share(&roots);
+            for (r, s) in roots.iter().zip(&shared) {
+                assert_eq!(show(r), show(s));
+                let got = s.eval(&v);
+                let want = r.eval(&v);
+                assert!(got.to_bits() == want.to_bits() || (got.is_nan() && want.is_nan()));
+            }
+        }
+    }
+
+    #[test]
+    fn reads_any_looks_at_every_root() {
+        let roots = [p("x + 1"), p("sin(y)*2")];
+        assert!(reads_any(&roots, &|k| k == 1));
+        assert!(!reads_any(&roots, &|k| k >= 2));
+        assert!(!reads_any(&[], &|_| true));
     }
 
     #[test]

@@ -42,9 +42,8 @@ use super::{Expr, Func};
 /// The partial derivative of `root` with respect to variable slot `k`.
 pub(crate) fn derivative(root: &Expr, k: usize) -> Expr {
     let zero = Expr::constant(0.0);
-    let one = || Expr::constant(1.0);
     if let Node::Var(j) = &*root.0 {
-        return if *j == k { one() } else { zero };
+        return if *j == k { Expr::constant(1.0) } else { zero };
     }
     if matches!(&*root.0, Node::Const(_)) {
         return zero;
@@ -67,76 +66,156 @@ pub(crate) fn derivative(root: &Expr, k: usize) -> Expr {
             continue;
         }
         // Derivatives of the children (the shared zero node when independent).
-        let da = || d[ia as usize].clone();
-        let db = || d[ib as usize].clone();
-        let me = || (*e).clone();
-        let de = match &*e.0 {
-            Node::Const(_) => zero.clone(),
-            Node::Var(_) => one(),
-            Node::Neg(_) => ast::neg(da()),
-            Node::Add(..) => ast::add(da(), db()),
-            Node::Sub(..) => ast::sub(da(), db()),
-            Node::Mul(a, b) => ast::add(ast::mul(da(), b.clone()), ast::mul(a.clone(), db())),
-            Node::Div(_, b) => {
-                // (a/b)' = (a' - (a/b) b') / b
-                ast::div(ast::sub(da(), ast::mul(me(), db())), b.clone())
-            }
-            Node::Pow(a, b) => {
-                if !dep_b {
-                    // b a^(b-1) a'
-                    let b1 = ast::sub(b.clone(), one());
-                    ast::mul(ast::mul(b.clone(), ast::pow(a.clone(), b1)), da())
-                } else if !dep_a {
-                    // a^b ln(a) b'
-                    ast::mul(ast::mul(me(), ast::unary(Func::Ln, a.clone())), db())
-                } else {
-                    // a^b (b' ln(a) + b a'/a)
-                    let t1 = ast::mul(db(), ast::unary(Func::Ln, a.clone()));
-                    let t2 = ast::div(ast::mul(b.clone(), da()), a.clone());
-                    ast::mul(me(), ast::add(t1, t2))
-                }
-            }
-            Node::Unary(f, a) => {
-                let a = a.clone();
-                let square = |x: Expr| ast::pow(x, Expr::constant(2.0));
-                match f {
-                    Func::Sin => ast::mul(ast::unary(Func::Cos, a), da()),
-                    Func::Cos => ast::neg(ast::mul(ast::unary(Func::Sin, a), da())),
-                    Func::Tan => ast::mul(ast::add(one(), square(me())), da()),
-                    Func::Asin => {
-                        ast::div(da(), ast::unary(Func::Sqrt, ast::sub(one(), square(a))))
-                    }
-                    Func::Acos => ast::neg(ast::div(
-                        da(),
-                        ast::unary(Func::Sqrt, ast::sub(one(), square(a))),
-                    )),
-                    Func::Atan => ast::div(da(), ast::add(one(), square(a))),
-                    Func::Sinh => ast::mul(ast::unary(Func::Cosh, a), da()),
-                    Func::Cosh => ast::mul(ast::unary(Func::Sinh, a), da()),
-                    Func::Tanh => ast::mul(ast::sub(one(), square(me())), da()),
-                    Func::Exp => ast::mul(me(), da()),
-                    Func::Ln => ast::div(da(), a),
-                    Func::Log10 => {
-                        ast::div(da(), ast::mul(Expr::constant(std::f64::consts::LN_10), a))
-                    }
-                    Func::Sqrt => ast::div(da(), ast::mul(Expr::constant(2.0), me())),
-                    Func::Abs => ast::mul(ast::unary(Func::Sign, a), da()),
-                    Func::Sign => zero.clone(),
-                    // Never stored as unary nodes.
-                    Func::Atan2 | Func::Pow => Expr::constant(f64::NAN),
-                }
-            }
-            Node::Atan2(y, x) => {
-                // (x y' - y x') / (x^2 + y^2)
-                let two = || Expr::constant(2.0);
-                let num = ast::sub(ast::mul(x.clone(), da()), ast::mul(y.clone(), db()));
-                let den = ast::add(ast::pow(x.clone(), two()), ast::pow(y.clone(), two()));
-                ast::div(num, den)
-            }
-        };
+        let child = |c: u32| if c == NO_CHILD { &zero } else { &d[c as usize] };
+        let de = rule(e, child(ia), child(ib), dep_a, dep_b);
         d.push(de);
     }
     d.swap_remove(t.roots[0] as usize)
+}
+
+/// The partial derivatives of each root with respect to every variable slot it contains for
+/// which `wanted` holds, ascending by slot, in one forward pass over the DAG of all roots.
+///
+/// Each node carries the derivatives with respect to the wanted slots below it, built from its
+/// children's by the same rules as [`derivative`], so every entry is the expression
+/// `derivative(root, slot)` builds (a constant 0 where it simplifies to one: the list is the
+/// structural dependence). The cost is the sum over nodes of the number of wanted slots below
+/// each, instead of one walk over the whole root per slot: for x_i = x_(i-1) + sin(q_i), all
+/// partials of all x_i cost O(N^2), where one [`derivative`] per (i, slot) costs O(N^3).
+pub(crate) fn gradients(roots: &[Expr], wanted: &dyn Fn(usize) -> bool) -> Vec<Vec<(usize, Expr)>> {
+    let t = topo(roots);
+    let n = t.nodes.len();
+    let zero = Expr::constant(0.0);
+    // A child's list is dropped once its last parent has been built (roots are kept).
+    let mut parents = vec![0u32; n];
+    for kids in &t.kids {
+        for &c in kids.iter().filter(|&&c| c != NO_CHILD) {
+            parents[c as usize] += 1;
+        }
+    }
+    let mut is_root = vec![false; n];
+    for &r in &t.roots {
+        is_root[r as usize] = true;
+    }
+    let mut grads: Vec<Vec<(usize, Expr)>> = Vec::with_capacity(n);
+    for (e, &[ia, ib]) in t.nodes.iter().zip(&t.kids) {
+        let g = match &*e.0 {
+            Node::Const(_) => Vec::new(),
+            Node::Var(j) if wanted(*j) => vec![(*j, Expr::constant(1.0))],
+            Node::Var(_) => Vec::new(),
+            _ => {
+                let empty = Vec::new();
+                let list = |c: u32| {
+                    if c == NO_CHILD {
+                        &empty
+                    } else {
+                        &grads[c as usize]
+                    }
+                };
+                let (ga, gb) = (list(ia), list(ib));
+                let mut g = Vec::with_capacity(ga.len().max(gb.len()));
+                let (mut i, mut j) = (0, 0);
+                // Merge the children's ascending slot lists.
+                while i < ga.len() || j < gb.len() {
+                    let sa = ga.get(i).map_or(usize::MAX, |p| p.0);
+                    let sb = gb.get(j).map_or(usize::MAX, |p| p.0);
+                    let slot = sa.min(sb);
+                    let da = (sa == slot).then(|| &ga[i].1);
+                    let db = (sb == slot).then(|| &gb[j].1);
+                    let de = rule(
+                        e,
+                        da.unwrap_or(&zero),
+                        db.unwrap_or(&zero),
+                        da.is_some(),
+                        db.is_some(),
+                    );
+                    g.push((slot, de));
+                    i += usize::from(da.is_some());
+                    j += usize::from(db.is_some());
+                }
+                g
+            }
+        };
+        grads.push(g);
+        for &c in [ia, ib].iter().filter(|&&c| c != NO_CHILD) {
+            let c = c as usize;
+            parents[c] -= 1;
+            if parents[c] == 0 && !is_root[c] {
+                grads[c] = Vec::new();
+            }
+        }
+    }
+    t.roots.iter().map(|&r| grads[r as usize].clone()).collect()
+}
+
+/// The derivative of the non-leaf node `e` from its children's derivatives `da`, `db` (the
+/// constant 0 for an absent child or one that does not contain the variable; `dep_a`, `dep_b`
+/// say whether each does).
+fn rule(e: &Expr, da: &Expr, db: &Expr, dep_a: bool, dep_b: bool) -> Expr {
+    let one = || Expr::constant(1.0);
+    let da = || da.clone();
+    let db = || db.clone();
+    let me = || e.clone();
+    match &*e.0 {
+        Node::Const(_) => Expr::constant(0.0),
+        Node::Var(_) => one(),
+        Node::Neg(_) => ast::neg(da()),
+        Node::Add(..) => ast::add(da(), db()),
+        Node::Sub(..) => ast::sub(da(), db()),
+        Node::Mul(a, b) => ast::add(ast::mul(da(), b.clone()), ast::mul(a.clone(), db())),
+        Node::Div(_, b) => {
+            // (a/b)' = (a' - (a/b) b') / b
+            ast::div(ast::sub(da(), ast::mul(me(), db())), b.clone())
+        }
+        Node::Pow(a, b) => {
+            if !dep_b {
+                // b a^(b-1) a'
+                let b1 = ast::sub(b.clone(), one());
+                ast::mul(ast::mul(b.clone(), ast::pow(a.clone(), b1)), da())
+            } else if !dep_a {
+                // a^b ln(a) b'
+                ast::mul(ast::mul(me(), ast::unary(Func::Ln, a.clone())), db())
+            } else {
+                // a^b (b' ln(a) + b a'/a)
+                let t1 = ast::mul(db(), ast::unary(Func::Ln, a.clone()));
+                let t2 = ast::div(ast::mul(b.clone(), da()), a.clone());
+                ast::mul(me(), ast::add(t1, t2))
+            }
+        }
+        Node::Unary(f, a) => {
+            let a = a.clone();
+            let square = |x: Expr| ast::pow(x, Expr::constant(2.0));
+            match f {
+                Func::Sin => ast::mul(ast::unary(Func::Cos, a), da()),
+                Func::Cos => ast::neg(ast::mul(ast::unary(Func::Sin, a), da())),
+                Func::Tan => ast::mul(ast::add(one(), square(me())), da()),
+                Func::Asin => ast::div(da(), ast::unary(Func::Sqrt, ast::sub(one(), square(a)))),
+                Func::Acos => ast::neg(ast::div(
+                    da(),
+                    ast::unary(Func::Sqrt, ast::sub(one(), square(a))),
+                )),
+                Func::Atan => ast::div(da(), ast::add(one(), square(a))),
+                Func::Sinh => ast::mul(ast::unary(Func::Cosh, a), da()),
+                Func::Cosh => ast::mul(ast::unary(Func::Sinh, a), da()),
+                Func::Tanh => ast::mul(ast::sub(one(), square(me())), da()),
+                Func::Exp => ast::mul(me(), da()),
+                Func::Ln => ast::div(da(), a),
+                Func::Log10 => ast::div(da(), ast::mul(Expr::constant(std::f64::consts::LN_10), a)),
+                Func::Sqrt => ast::div(da(), ast::mul(Expr::constant(2.0), me())),
+                Func::Abs => ast::mul(ast::unary(Func::Sign, a), da()),
+                Func::Sign => Expr::constant(0.0),
+                // Never stored as unary nodes.
+                Func::Atan2 | Func::Pow => Expr::constant(f64::NAN),
+            }
+        }
+        Node::Atan2(y, x) => {
+            // (x y' - y x') / (x^2 + y^2)
+            let two = || Expr::constant(2.0);
+            let num = ast::sub(ast::mul(x.clone(), da()), ast::mul(y.clone(), db()));
+            let den = ast::add(ast::pow(x.clone(), two()), ast::pow(y.clone(), two()));
+            ast::div(num, den)
+        }
+    }
 }
 
 #[cfg(test)]
@@ -252,6 +331,60 @@ mod tests {
         let want = g.eval_generic(&[x]).eps;
         let got = dg.eval(&[0.1]);
         assert!((got - want).abs() <= 1e-9 * want.abs(), "{got} vs {want}");
+    }
+
+    #[test]
+    fn gradients_build_the_expressions_of_derivative() {
+        let mut rng = Rng::new(8);
+        let show = |e: &Expr| e.display_with(&|k| format!("v{k}")).to_string();
+        for _ in 0..100 {
+            let mut pool = Vec::new();
+            let roots: Vec<Expr> = (0..3)
+                .map(|_| random_expr(&mut rng, 3, 5, &mut pool))
+                .collect();
+            // Slot 1 is not wanted.
+            let wanted = |k: usize| k != 1;
+            let all = gradients(&roots, &wanted);
+            let v = [
+                rng.uniform(-2.0, 2.0),
+                rng.uniform(-2.0, 2.0),
+                rng.uniform(-2.0, 2.0),
+            ];
+            for (root, partials) in roots.iter().zip(&all) {
+                let slots: Vec<usize> = partials.iter().map(|(k, _)| *k).collect();
+                let contained: Vec<usize> =
+                    root.vars().into_iter().filter(|&k| wanted(k)).collect();
+                assert_eq!(slots, contained, "{}", show(root));
+                for (k, d) in partials {
+                    let want = root.derivative(*k);
+                    assert_eq!(show(d), show(&want));
+                    let (got, want) = (d.eval(&v), want.eval(&v));
+                    assert!(got.to_bits() == want.to_bits() || (got.is_nan() && want.is_nan()));
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn gradients_of_a_shared_chain_cost_its_nonzeros() {
+        // x_i = x_(i-1) + sin(q_i): all partials of all x_i are O(N^2) entries, each the
+        // shared cos(q_j) node.
+        let n = 400;
+        let mut x = Expr::constant(0.0);
+        let mut roots = Vec::new();
+        for i in 0..n {
+            x = x + Expr::var(i).sin();
+            roots.push(x.clone());
+        }
+        let start = std::time::Instant::now();
+        let all = gradients(&roots, &|_| true);
+        assert!(start.elapsed().as_secs_f64() < 2.0);
+        for (i, partials) in all.iter().enumerate() {
+            assert_eq!(partials.len(), i + 1);
+            for (j, d) in partials {
+                assert!(d.ptr_eq(&all[n - 1][*j].1), "d x_{i} / d q_{j} is shared");
+            }
+        }
     }
 
     #[test]

@@ -26,7 +26,7 @@ pub use constraint::{ConstraintEval, ConstraintInfo, ConstraintSet, ExprRow};
 pub use edit::{DeclaredConstraint, EditError};
 pub use force::{Endpoint, Force};
 pub use holonomic::Holonomic;
-pub use parametric::{ParametricEval, ParametricMap};
+pub use parametric::{ParametricEval, ParametricMap, SymbolicRow};
 
 /// Index of a particle in its system.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]

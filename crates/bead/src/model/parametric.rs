@@ -6,12 +6,20 @@
 //! xddot = J qddot + h,   h = sum_jk x_qj_qk qdot_j qdot_k + 2 x_qt qdot + x_tt
 //! ```
 //!
-//! h is built as the total time derivative of the xdot expression with qddot left out.
+//! h is built as the total time derivative of the xdot expression with qddot left out. J is
+//! kept sparse: only the entries that are not the constant 0 are compiled.
 
-use crate::expr::{Expr, Tape};
+use crate::expr::{gradients, reads_any, share, Expr, Tape};
 
 /// Generalized coordinates and the compiled map x(q, t). Expression slots: q = 0..n_q,
 /// qdot = n_q..2 n_q, t = 2 n_q.
+///
+/// J is sparse: entries dx_k/dq_j whose expression is the constant 0 (x_k does not contain
+/// q_j, or its derivative simplifies to 0) are structural zeros, neither compiled nor
+/// evaluated. A chain of N links in angles has x_i depending on th_1..th_i only, so half of
+/// its dense J is such zeros. The nonzeros are stored by rows (row k: the q's that x_k
+/// depends on, ascending) and indexed by columns too (column j: the coordinates that move
+/// with q_j), see [`ParametricMap::row_entries`] and [`ParametricMap::column_entries`].
 #[derive(Clone, Debug)]
 pub struct ParametricMap {
     pub(crate) coordinates: Vec<String>,
@@ -21,14 +29,40 @@ pub struct ParametricMap {
     pub(crate) positions: Vec<Expr>,
     pub(crate) velocities: Vec<Expr>,
     pub(crate) accelerations: Vec<Expr>,
-    /// J row-major: dx_k/dq_j at k * n_q + j.
+    /// The nonzeros of J in row order: row k owns entries row_start[k]..row_start[k + 1]
+    /// (n_coords + 1).
+    row_start: Vec<usize>,
+    /// The column j of each entry (nnz), ascending within a row.
+    columns: Vec<usize>,
+    /// dx_k/dq_j of each entry (nnz).
     pub(crate) jacobian: Vec<Expr>,
-    /// Outputs: x (n) | xdot (n) | h (n) | J (n * n_q).
+    /// Column j's entries are column_entry[column_start[j]..column_start[j + 1]] (n_q + 1).
+    column_start: Vec<usize>,
+    /// Entry indices (into the row order), grouped by column, ascending row within a column.
+    column_entry: Vec<usize>,
+    /// Whether some h_k reads a rate qdot_j.
+    bias_reads_rates: bool,
+    /// Outputs: x (n) | xdot (n) | h (n) | J (nnz).
     tape: Tape,
     /// Outputs: x (n) | xdot (n), for mapping states back to particles.
     state_tape: Tape,
-    /// Outputs: x (n) | xdot (n) | J (n * n_q), for the monitors (no h).
+    /// Outputs: x (n) | xdot (n) | J (nnz), for the monitors (no h).
     observe_tape: Tape,
+}
+
+/// One row of the symbolic map, for `bead check`: see [`ParametricMap::symbolic`].
+#[derive(Clone, Copy, Debug)]
+pub struct SymbolicRow<'a> {
+    /// x_k(q, t)
+    pub position: &'a Expr,
+    /// xdot_k = J_k qdot + dx_k/dt
+    pub velocity: &'a Expr,
+    /// h_k = xddot_k - J_k qddot
+    pub bias: &'a Expr,
+    /// The q's x_k depends on (ascending): the structural nonzeros of row k of J.
+    pub columns: &'a [usize],
+    /// dx_k/dq_j for each of `columns`; every other entry of the row is 0.
+    pub jacobian: &'a [Expr],
 }
 
 /// Results and scratch of [`ParametricMap::evaluate`], sized once.
@@ -40,7 +74,7 @@ pub struct ParametricEval {
     pub velocity: Vec<f64>,
     /// h = xddot - J qddot (n_coords)
     pub bias: Vec<f64>,
-    /// J row-major (n_coords x n_q)
+    /// The nonzeros of J in row order (nnz; see [`ParametricMap::row_entries`]).
     pub jacobian: Vec<f64>,
     vars: Vec<f64>,
     scratch: Vec<f64>,
@@ -48,6 +82,16 @@ pub struct ParametricEval {
 }
 
 impl ParametricMap {
+    /// Derive J, xdot and h of `positions` (slots: q, qdot, t) and compile them.
+    ///
+    /// The positions are first merged structurally (a sum written out in full in every
+    /// position of a chain becomes one shared running sum), then every partial derivative of
+    /// every position comes from one forward pass over their DAG ([`gradients`]); xdot =
+    /// dx_k/dt + sum_j J_kj qdot_j is formed from them, and h the same way from the partials
+    /// of xdot. The expressions are those that one derivative per (k, j) would build, only
+    /// shared, and the cost is about the size of the expressions plus the nonzeros of J,
+    /// where one walk per (k, j) was O(N^3) for a chain of N links. Partials that are the
+    /// constant 0 are structural zeros of J and are not compiled.
     pub(crate) fn new(
         coordinates: Vec<String>,
         initial: Vec<f64>,
@@ -55,21 +99,62 @@ impl ParametricMap {
         positions: Vec<Expr>,
     ) -> Self {
         let n_q = coordinates.len();
+        let n = positions.len();
         let time = 2 * n_q;
-        let total_derivative = |f: &Expr| {
-            f.vars()
-                .into_iter()
-                .filter(|&j| j < n_q)
-                .fold(f.derivative(time), |acc, j| {
-                    acc + f.derivative(j) * Expr::var(n_q + j)
-                })
+        let wanted = |j: usize| j < n_q || j == time;
+        // d/dt f = df/dt + sum_j df/dq_j qdot_j over the q's f contains (ascending), from f's
+        // partials; qddot is left out.
+        let total_derivative = |partials: &[(usize, Expr)]| {
+            let start = match partials.last() {
+                Some((slot, d)) if *slot == time => d.clone(),
+                _ => Expr::constant(0.0),
+            };
+            partials
+                .iter()
+                .filter(|(j, _)| *j < n_q)
+                .fold(start, |acc, (j, d)| acc + d * Expr::var(n_q + j))
         };
-        let velocities: Vec<Expr> = positions.iter().map(total_derivative).collect();
-        let accelerations: Vec<Expr> = velocities.iter().map(total_derivative).collect();
-        let jacobian: Vec<Expr> = positions
+        let positions = share(&positions);
+        let position_partials = gradients(&positions, &wanted);
+        let velocities = share(
+            &position_partials
+                .iter()
+                .map(|p| total_derivative(p))
+                .collect::<Vec<_>>(),
+        );
+        let accelerations: Vec<Expr> = gradients(&velocities, &wanted)
             .iter()
-            .flat_map(|x| (0..n_q).map(move |j| x.derivative(j)))
+            .map(|p| total_derivative(p))
             .collect();
+
+        let mut row_start = Vec::with_capacity(n + 1);
+        let mut columns = Vec::new();
+        let mut jacobian = Vec::new();
+        row_start.push(0);
+        for partials in &position_partials {
+            for (j, d) in partials {
+                if *j < n_q && d.as_constant() != Some(0.0) {
+                    columns.push(*j);
+                    jacobian.push(d.clone());
+                }
+            }
+            row_start.push(columns.len());
+        }
+        let mut column_start = vec![0; n_q + 1];
+        for &j in &columns {
+            column_start[j + 1] += 1;
+        }
+        for j in 0..n_q {
+            column_start[j + 1] += column_start[j];
+        }
+        let mut fill = column_start.clone();
+        let mut column_entry = vec![0; columns.len()];
+        for (entry, &j) in columns.iter().enumerate() {
+            column_entry[fill[j]] = entry;
+            fill[j] += 1;
+        }
+        let bias_reads_rates = reads_any(&accelerations, &|slot| (n_q..2 * n_q).contains(&slot));
+
         let mut outputs = positions.clone();
         outputs.extend(velocities.iter().cloned());
         outputs.extend(accelerations.iter().cloned());
@@ -91,7 +176,12 @@ impl ParametricMap {
             positions,
             velocities,
             accelerations,
+            row_start,
+            columns,
             jacobian,
+            column_start,
+            column_entry,
+            bias_reads_rates,
         }
     }
 
@@ -111,15 +201,39 @@ impl ParametricMap {
     pub fn rates(&self) -> &[f64] {
         &self.rates
     }
-    /// The symbolic x_k(q, t), its xdot, h and row k of J, for `bead check`.
-    pub fn symbolic(&self, k: usize) -> (&Expr, &Expr, &Expr, &[Expr]) {
-        let n_q = self.n_q();
-        (
-            &self.positions[k],
-            &self.velocities[k],
-            &self.accelerations[k],
-            &self.jacobian[k * n_q..(k + 1) * n_q],
-        )
+    /// The symbolic x_k(q, t), its xdot, h and the nonzeros of row k of J, for `bead check`.
+    pub fn symbolic(&self, k: usize) -> SymbolicRow<'_> {
+        let entries = self.row_entries(k);
+        SymbolicRow {
+            position: &self.positions[k],
+            velocity: &self.velocities[k],
+            bias: &self.accelerations[k],
+            columns: &self.columns[entries.clone()],
+            jacobian: &self.jacobian[entries],
+        }
+    }
+    /// Row k of J: its entries' positions in [`ParametricEval::jacobian`]; their columns are
+    /// `jacobian_columns()[row_entries(k)]`.
+    pub fn row_entries(&self, k: usize) -> std::ops::Range<usize> {
+        self.row_start[k]..self.row_start[k + 1]
+    }
+    /// The column j of every nonzero of J, in row order (nnz).
+    pub fn jacobian_columns(&self) -> &[usize] {
+        &self.columns
+    }
+    /// Column j of J: the positions in [`ParametricEval::jacobian`] of its nonzeros, by
+    /// ascending particle coordinate.
+    pub fn column_entries(&self, j: usize) -> &[usize] {
+        &self.column_entry[self.column_start[j]..self.column_start[j + 1]]
+    }
+    /// Number of structural nonzeros of J.
+    pub fn jacobian_nonzeros(&self) -> usize {
+        self.columns.len()
+    }
+    /// Whether h = xddot - J qddot depends on qdot: the map is nonlinear in q, or its J moves
+    /// with t (symbolic dependence, a superset of the true one).
+    pub fn bias_depends_on_rates(&self) -> bool {
+        self.bias_reads_rates
     }
     /// Whether the map x(q, t) depends on t (a moving map, which does work on the particles).
     pub fn is_time_dependent(&self) -> bool {
@@ -132,13 +246,18 @@ impl ParametricMap {
     /// [`crate::linalg::gauss_newton_zero`]). Allocates: a diagnostic, not for the step loop.
     pub fn locate_singular_point(&self, j: usize, t: f64, q: &[f64]) -> (Vec<f64>, f64) {
         let n_q = self.n_q();
-        let column: Vec<&Expr> = (0..self.positions.len())
-            .map(|k| &self.jacobian[k * n_q + j])
-            .collect();
-        let derivatives: Vec<Expr> = column
+        let column: Vec<Expr> = self
+            .column_entries(j)
             .iter()
-            .flat_map(|e| (0..n_q).map(move |l| e.derivative(l)))
+            .map(|&e| self.jacobian[e].clone())
             .collect();
+        // d(column)/dq, dense (entries x n_q), from one pass over the column's expressions.
+        let mut derivatives = vec![Expr::constant(0.0); column.len() * n_q];
+        for (e, partials) in gradients(&column, &|l| l < n_q).into_iter().enumerate() {
+            for (l, d) in partials {
+                derivatives[e * n_q + l] = d;
+            }
+        }
         let mut vars = vec![0.0; 2 * n_q + 1];
         vars[2 * n_q] = t;
         let mut y = q.to_vec();
@@ -166,7 +285,7 @@ impl ParametricMap {
             position: vec![0.0; n],
             velocity: vec![0.0; n],
             bias: vec![0.0; n],
-            jacobian: vec![0.0; n * self.n_q()],
+            jacobian: vec![0.0; self.columns.len()],
             vars: vec![0.0; 2 * self.n_q() + 1],
             scratch: vec![
                 0.0;
@@ -200,7 +319,7 @@ impl ParametricMap {
         ws.vars[..n_q].copy_from_slice(q);
         ws.vars[n_q..2 * n_q].copy_from_slice(qdot);
         ws.vars[2 * n_q] = t;
-        let outputs = 2 * n + n * n_q;
+        let outputs = 2 * n + self.columns.len();
         self.observe_tape
             .eval(&ws.vars, &mut ws.scratch, &mut ws.out[..outputs]);
         ws.position.copy_from_slice(&ws.out[..n]);
