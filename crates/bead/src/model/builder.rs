@@ -4,6 +4,7 @@ use std::sync::Arc;
 
 use super::constraint::{ConstraintInfo, ConstraintSet, CustomRow, ExprRow};
 use super::holonomic::{Erased, SharedHolonomic};
+use super::native::NativeRow;
 use super::{Endpoint, Force, Holonomic, ParametricMap, Particle, ParticleId, System};
 use crate::expr::{parse, Expr, ExprError, Resolved};
 
@@ -547,6 +548,8 @@ pub(super) fn compile(declared: Arc<SystemBuilder>) -> Result<System, ModelError
     };
     let mut infos = Vec::new();
     let mut expr_rows = Vec::new();
+    // The native form of each expression row (distances and pins), if it has one.
+    let mut native: Vec<Option<NativeRow>> = Vec::new();
     let mut custom = Vec::new();
     // Rust rows go after all expression rows; remember which info they belong to.
     let mut custom_infos = Vec::new();
@@ -555,6 +558,7 @@ pub(super) fn compile(declared: Arc<SystemBuilder>) -> Result<System, ModelError
         let description = match spec {
             ConstraintSpec::Expression(expr, source) => {
                 expr_rows.push(ExprRow::new(expr.substitute(&time), n));
+                native.push(None);
                 format!("{source} = 0")
             }
             ConstraintSpec::Distance { a, b: end, length } => {
@@ -567,7 +571,9 @@ pub(super) fn compile(declared: Arc<SystemBuilder>) -> Result<System, ModelError
                     })
                     .fold(Expr::constant(0.0), |acc, s| acc + s);
                 let c = (squared - length * length) / (2.0 * length);
-                expr_rows.push(ExprRow::new(c, n));
+                let row = ExprRow::new(c, n);
+                native.push(native_distance(&row, dim, a.0, end, *length));
+                expr_rows.push(row);
                 format!(
                     "distance({}, {}) = {length}",
                     b.particles[a.0].name,
@@ -576,7 +582,14 @@ pub(super) fn compile(declared: Arc<SystemBuilder>) -> Result<System, ModelError
             }
             ConstraintSpec::Pin { particle, anchor } => {
                 for (axis, value) in anchor.iter().enumerate() {
-                    expr_rows.push(ExprRow::new(Expr::var(particle.0 * dim + axis) - *value, n));
+                    let coordinate = particle.0 * dim + axis;
+                    let row = ExprRow::new(Expr::var(coordinate) - *value, n);
+                    let columns: Vec<usize> = row.gradient.iter().map(|(k, _)| *k).collect();
+                    native.push((columns == [coordinate]).then_some(NativeRow::Pin {
+                        coordinate,
+                        anchor: *value,
+                    }));
+                    expr_rows.push(row);
                 }
                 format!("pin({}) at {anchor:?}", b.particles[particle.0].name)
             }
@@ -614,7 +627,7 @@ pub(super) fn compile(declared: Arc<SystemBuilder>) -> Result<System, ModelError
         info.rows = n_expr + i..n_expr + i + 1;
         infos.push(info);
     }
-    let constraints = ConstraintSet::new(n, infos, expr_rows, custom);
+    let constraints = ConstraintSet::new(n, infos, expr_rows, native, custom);
 
     let parametric = match &b.parametric {
         None => None,
@@ -732,6 +745,45 @@ fn check_vector(dim: usize, what: &str, v: &[f64]) -> Result<(), ModelError> {
         finite(what, *c)?;
     }
     Ok(())
+}
+
+/// The native form of a distance row between particle `a` and `end`, built from the
+/// symbolic row's columns (which fix where each coordinate's entry goes); `None` when the
+/// row is degenerate (a particle tied to itself) and stays on the tape.
+fn native_distance(
+    row: &ExprRow,
+    dim: usize,
+    a: usize,
+    end: &Endpoint,
+    length: f64,
+) -> Option<NativeRow> {
+    let columns: Vec<usize> = row.gradient.iter().map(|(k, _)| *k).collect();
+    let entry = |coordinate: usize| columns.iter().position(|&k| k == coordinate);
+    let (mut entries_a, mut entries_b, mut anchor) = ([0; 3], [0; 3], [0.0; 3]);
+    let b = match end {
+        Endpoint::Particle(p) if p.0 == a => return None,
+        Endpoint::Particle(p) => Some(p.0 * dim),
+        Endpoint::Fixed(point) => {
+            anchor[..dim].copy_from_slice(point);
+            None
+        }
+    };
+    for axis in 0..dim {
+        entries_a[axis] = entry(a * dim + axis)?;
+        if let Some(b) = b {
+            entries_b[axis] = entry(b + axis)?;
+        }
+    }
+    let expected = if b.is_some() { 2 * dim } else { dim };
+    (columns.len() == expected).then_some(NativeRow::Distance {
+        dim,
+        a: a * dim,
+        b,
+        anchor,
+        length,
+        entries_a,
+        entries_b,
+    })
 }
 
 fn endpoint_expr(e: &Endpoint, dim: usize, axis: usize) -> Expr {

@@ -15,6 +15,7 @@
 use std::ops::Range;
 
 use super::holonomic::{DualScratch, SharedHolonomic};
+use super::native::NativeRow;
 use crate::expr::{Expr, Tape};
 
 /// What a user named: one declared constraint, which may own several rows (a pin has one per
@@ -94,11 +95,15 @@ pub struct ConstraintSet {
     infos: Vec<ConstraintInfo>,
     expr_rows: Vec<ExprRow>,
     custom_rows: Vec<CustomRow>,
-    /// Outputs: C (expression rows).
+    /// Expression rows that the tapes evaluate, in row order: those without a native form.
+    tape_rows: Vec<usize>,
+    /// Expression rows evaluated by direct code (distances and pins), with their row index.
+    native_rows: Vec<(usize, NativeRow)>,
+    /// Outputs: C (tape rows).
     value_tape: Tape,
-    /// Outputs: C | Cdot | bias (expression rows) | gradient entries in row order.
+    /// Outputs: C | Cdot | bias (tape rows) | gradient entries in row order.
     full_tape: Tape,
-    /// Outputs: C (expression rows) | gradient entries in row order.
+    /// Outputs: C (tape rows) | gradient entries in row order.
     gradient_tape: Tape,
     /// Sparse row structure of J: row i owns entries row_start[i]..row_start[i+1] of `columns`.
     row_start: Vec<usize>,
@@ -136,29 +141,36 @@ pub struct ConstraintEval {
 }
 
 impl ConstraintSet {
+    /// The set of `expr_rows` (each with its native form, if any, in `native`) then
+    /// `custom_rows`. Rows with a native form are evaluated by it; the tapes are compiled
+    /// from the others only.
     pub(crate) fn new(
         n_coords: usize,
         infos: Vec<ConstraintInfo>,
         expr_rows: Vec<ExprRow>,
+        native: Vec<Option<NativeRow>>,
         custom_rows: Vec<CustomRow>,
     ) -> Self {
-        let values: Vec<Expr> = expr_rows.iter().map(|r| r.value.clone()).collect();
+        let tape_rows: Vec<usize> = (0..expr_rows.len())
+            .filter(|&r| native.get(r).is_none_or(Option::is_none))
+            .collect();
+        let native_rows: Vec<(usize, NativeRow)> = native
+            .into_iter()
+            .enumerate()
+            .filter_map(|(r, n)| n.map(|n| (r, n)))
+            .collect();
+        let taped = || tape_rows.iter().map(|&r| &expr_rows[r]);
+        let values: Vec<Expr> = taped().map(|r| r.value.clone()).collect();
         let mut gradient_outputs = values.clone();
-        gradient_outputs.extend(
-            expr_rows
-                .iter()
-                .flat_map(|r| r.gradient.iter().map(|(_, d)| d.clone())),
-        );
+        gradient_outputs.extend(taped().flat_map(|r| r.gradient.iter().map(|(_, d)| d.clone())));
         let mut outputs = values.clone();
-        outputs.extend(expr_rows.iter().map(|r| r.velocity.clone()));
-        outputs.extend(expr_rows.iter().map(|r| r.bias.clone()));
+        outputs.extend(taped().map(|r| r.velocity.clone()));
+        outputs.extend(taped().map(|r| r.bias.clone()));
+        outputs.extend(taped().flat_map(|r| r.gradient.iter().map(|(_, d)| d.clone())));
         let mut row_start = vec![0];
         let mut columns = Vec::new();
         for row in &expr_rows {
-            for (k, d) in &row.gradient {
-                columns.push(*k);
-                outputs.push(d.clone());
-            }
+            columns.extend(row.gradient.iter().map(|(k, _)| *k));
             row_start.push(columns.len());
         }
         for row in &custom_rows {
@@ -180,9 +192,22 @@ impl ConstraintSet {
             gradient_tape: Tape::compile(&gradient_outputs),
             expr_rows,
             custom_rows,
+            tape_rows,
+            native_rows,
             row_start,
             columns,
         }
+    }
+
+    /// Whether every expression row is on the tape (no native rows): its outputs are then
+    /// in row order and copied as blocks.
+    fn all_taped(&self) -> bool {
+        self.native_rows.is_empty()
+    }
+
+    /// Number of rows evaluated by direct code (distances and pins).
+    pub fn n_native_rows(&self) -> usize {
+        self.native_rows.len()
     }
 
     /// Number of scalar constraint rows m.
@@ -270,18 +295,39 @@ impl ConstraintSet {
 
     /// Evaluate C, Cdot, bias and J at (t, x, v) into `ws`. Allocation-free.
     pub fn evaluate(&self, t: f64, x: &[f64], v: &[f64], ws: &mut ConstraintEval) {
-        let n_expr = self.expr_rows.len();
-        if n_expr > 0 {
+        let n_tape = self.tape_rows.len();
+        if n_tape > 0 {
             self.load_vars(t, x, Some(v), ws);
             self.full_tape
                 .eval(&ws.vars, &mut ws.scratch, &mut ws.tape_out);
             let out = &ws.tape_out;
-            ws.value[..n_expr].copy_from_slice(&out[..n_expr]);
-            ws.velocity[..n_expr].copy_from_slice(&out[n_expr..2 * n_expr]);
-            ws.bias[..n_expr].copy_from_slice(&out[2 * n_expr..3 * n_expr]);
-            let nnz_expr = self.row_start[n_expr];
-            ws.jacobian[..nnz_expr].copy_from_slice(&out[3 * n_expr..3 * n_expr + nnz_expr]);
+            if self.all_taped() {
+                let nnz = self.row_start[n_tape];
+                ws.value[..n_tape].copy_from_slice(&out[..n_tape]);
+                ws.velocity[..n_tape].copy_from_slice(&out[n_tape..2 * n_tape]);
+                ws.bias[..n_tape].copy_from_slice(&out[2 * n_tape..3 * n_tape]);
+                ws.jacobian[..nnz].copy_from_slice(&out[3 * n_tape..3 * n_tape + nnz]);
+            } else {
+                let mut entry = 3 * n_tape;
+                for (j, &r) in self.tape_rows.iter().enumerate() {
+                    ws.value[r] = out[j];
+                    ws.velocity[r] = out[n_tape + j];
+                    ws.bias[r] = out[2 * n_tape + j];
+                    let entries = self.row_entries(r);
+                    let len = entries.len();
+                    ws.jacobian[entries].copy_from_slice(&out[entry..entry + len]);
+                    entry += len;
+                }
+            }
         }
+        for (r, row) in &self.native_rows {
+            let entries = self.row_start[*r]..self.row_start[r + 1];
+            let (c, cdot, bias) = row.evaluate(x, v, &mut ws.jacobian[entries]);
+            ws.value[*r] = c;
+            ws.velocity[*r] = cdot;
+            ws.bias[*r] = bias;
+        }
+        let n_expr = self.expr_rows.len();
         for (i, row) in self.custom_rows.iter().enumerate() {
             let r = n_expr + i;
             let len = row.coords.len();
@@ -306,19 +352,35 @@ impl ConstraintSet {
     /// C and J at (t, x) into `ws.value` and `ws.jacobian` (Cdot and bias untouched).
     /// Allocation-free.
     pub fn gradient(&self, t: f64, x: &[f64], ws: &mut ConstraintEval) {
-        let n_expr = self.expr_rows.len();
-        if n_expr > 0 {
+        let n_tape = self.tape_rows.len();
+        if n_tape > 0 {
             self.load_vars(t, x, None, ws);
-            let nnz_expr = self.row_start[n_expr];
+            let nnz_tape = self.gradient_tape.n_outputs() - n_tape;
             self.gradient_tape.eval(
                 &ws.vars,
                 &mut ws.scratch,
-                &mut ws.tape_out[..n_expr + nnz_expr],
+                &mut ws.tape_out[..n_tape + nnz_tape],
             );
             let out = &ws.tape_out;
-            ws.value[..n_expr].copy_from_slice(&out[..n_expr]);
-            ws.jacobian[..nnz_expr].copy_from_slice(&out[n_expr..n_expr + nnz_expr]);
+            if self.all_taped() {
+                ws.value[..n_tape].copy_from_slice(&out[..n_tape]);
+                ws.jacobian[..nnz_tape].copy_from_slice(&out[n_tape..n_tape + nnz_tape]);
+            } else {
+                let mut entry = n_tape;
+                for (j, &r) in self.tape_rows.iter().enumerate() {
+                    ws.value[r] = out[j];
+                    let entries = self.row_entries(r);
+                    let len = entries.len();
+                    ws.jacobian[entries].copy_from_slice(&out[entry..entry + len]);
+                    entry += len;
+                }
+            }
         }
+        for (r, row) in &self.native_rows {
+            let entries = self.row_start[*r]..self.row_start[r + 1];
+            ws.value[*r] = row.gradient(x, &mut ws.jacobian[entries]);
+        }
+        let n_expr = self.expr_rows.len();
         for (i, row) in self.custom_rows.iter().enumerate() {
             let r = n_expr + i;
             let len = row.coords.len();
@@ -340,12 +402,24 @@ impl ConstraintSet {
 
     /// C(x, t) into `ws.value`, nothing else. Allocation-free.
     pub fn residuals<'w>(&self, t: f64, x: &[f64], ws: &'w mut ConstraintEval) -> &'w [f64] {
-        let n_expr = self.expr_rows.len();
-        if n_expr > 0 {
+        let n_tape = self.tape_rows.len();
+        if n_tape > 0 {
             self.load_vars(t, x, None, ws);
-            self.value_tape
-                .eval(&ws.vars, &mut ws.scratch, &mut ws.value[..n_expr]);
+            if self.all_taped() {
+                self.value_tape
+                    .eval(&ws.vars, &mut ws.scratch, &mut ws.value[..n_tape]);
+            } else {
+                self.value_tape
+                    .eval(&ws.vars, &mut ws.scratch, &mut ws.tape_out[..n_tape]);
+                for (j, &r) in self.tape_rows.iter().enumerate() {
+                    ws.value[r] = ws.tape_out[j];
+                }
+            }
         }
+        for (r, row) in &self.native_rows {
+            ws.value[*r] = row.value(x);
+        }
+        let n_expr = self.expr_rows.len();
         for (i, row) in self.custom_rows.iter().enumerate() {
             let len = row.coords.len();
             for (j, &k) in row.coords.iter().enumerate() {

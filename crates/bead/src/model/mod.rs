@@ -18,6 +18,7 @@ mod constraint;
 mod edit;
 mod force;
 mod holonomic;
+mod native;
 mod parametric;
 
 pub(crate) use builder::MASS_RANGE;
