@@ -341,6 +341,8 @@ pub struct SceneInfo {
     pub view: [f64; 4],
     /// Distance constraints, drawn as rods.
     pub rods: Vec<Rod>,
+    /// Pin constraints: particles held at a fixed point (drawn as a square there).
+    pub pins: Vec<Pin>,
     pub has_implicit: bool,
     pub has_parametric: bool,
     /// Scene warnings (initial state off the constraints, ...).
@@ -356,6 +358,13 @@ pub struct Rod {
     pub b: Option<usize>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub anchor: Option<[f64; 2]>,
+}
+
+/// A `kind = "pin"` constraint: particle `particle` held at `anchor` (x-y).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Pin {
+    pub particle: usize,
+    pub anchor: [f64; 2],
 }
 
 /// A particle of the scene.
