@@ -6,6 +6,14 @@
   const $ = (id) => document.getElementById(id);
   const TRAIL = 120;        // trail points per particle
   const HISTORY = 900;      // chart points per panel
+  // Trails are on by default up to this many particles; above, the checkbox turns them on,
+  // with at most TRAIL_BUDGET trail points in all (e.g. 20 per particle for 1000).
+  const TRAIL_MAX_PARTICLES = 20;
+  const TRAIL_BUDGET = 20000;
+  const DRAW_SAMPLES = 240; // draw times kept per panel (window.__viewer, for the tests)
+  const FRAME_MAGIC = [0x62, 0x65, 0x61, 0x64]; // "bead": a binary frame (protocol.rs)
+  const LITTLE_ENDIAN = new Uint8Array(new Uint16Array([1]).buffer)[0] === 1;
+  const textDecoder = new TextDecoder();
 
   const state = {
     ws: null,
@@ -16,6 +24,8 @@
     panels: new Map(),
     drags: new Map(),       // panel id -> particle being dragged
     pendingMoves: new Map(),// panel id -> latest drag_move, sent once per animation frame
+    // Binary frames received, their bytes and the time spent decoding them (ms).
+    stats: { frames: 0, bytes: 0, decodeMs: 0, maxDecodeMs: 0 },
   };
   window.__viewer = state;  // for the end-to-end tests
 
@@ -60,11 +70,49 @@
     ws.onclose = () => {
       $("connection").textContent = "disconnected — reload to reconnect";
     };
+    ws.binaryType = "arraybuffer";
     ws.onmessage = (event) => {
-      let msg;
-      try { msg = JSON.parse(event.data); } catch (e) { return; }
-      handle(msg);
+      let msg = null;
+      if (event.data instanceof ArrayBuffer) {
+        const start = performance.now();
+        try { msg = decodeFrame(event.data); } catch (e) { msg = null; }
+        const ms = performance.now() - start;
+        const stats = state.stats;
+        stats.frames += 1;
+        stats.bytes += event.data.byteLength;
+        stats.decodeMs += ms;
+        stats.maxDecodeMs = Math.max(stats.maxDecodeMs, ms);
+      } else {
+        try { msg = JSON.parse(event.data); } catch (e) { msg = null; }
+      }
+      if (msg) handle(msg);
     };
+  }
+
+  // A binary frame (protocol.rs, "Frames"): "bead", u32 header length, JSON header, zero
+  // padding to a multiple of 8, then every panel's positions as little-endian f64. Each
+  // panel's `x` becomes a Float64Array view of its part (no copy on little-endian machines).
+  function decodeFrame(buffer) {
+    const bytes = new Uint8Array(buffer);
+    if (bytes.length < 8 || FRAME_MAGIC.some((b, i) => bytes[i] !== b)) return null;
+    const view = new DataView(buffer);
+    const headerLength = view.getUint32(4, true);
+    if (8 + headerLength > bytes.length) return null;
+    const msg = JSON.parse(textDecoder.decode(bytes.subarray(8, 8 + headerLength)));
+    const start = Math.min(Math.ceil((8 + headerLength) / 8) * 8, bytes.length);
+    const count = Math.floor((bytes.length - start) / 8);
+    let numbers;
+    if (LITTLE_ENDIAN) {
+      numbers = new Float64Array(buffer, start, count);
+    } else {
+      numbers = new Float64Array(count);
+      for (let i = 0; i < count; i++) numbers[i] = view.getFloat64(start + 8 * i, true);
+    }
+    for (const f of msg.panels) {
+      if (!(f.x_offset + f.x_count <= count)) return null;
+      f.x = numbers.subarray(f.x_offset, f.x_offset + f.x_count);
+    }
+    return msg;
   }
 
   function handle(msg) {

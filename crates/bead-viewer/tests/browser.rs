@@ -104,7 +104,10 @@ fn current(panel: u64, condition: &str) -> String {
 async fn frame(client: &Client, panel: u64) -> Value {
     js(
         client,
-        &format!("return window.__viewer.panels.get({panel}).frame;"),
+        // Positions are a Float64Array in the page: as an array here.
+        &format!(
+            "const f = window.__viewer.panels.get({panel}).frame; return {{...f, x: Array.from(f.x)}};"
+        ),
     )
     .await
 }

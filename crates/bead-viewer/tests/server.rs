@@ -4,6 +4,7 @@
 use std::net::SocketAddr;
 use std::time::Duration;
 
+use bead_viewer::protocol::{decode_frame, PROTOCOL_VERSION};
 use bead_viewer::server::{bind, serve};
 use bead_viewer::ServerConfig;
 use futures_util::{SinkExt, StreamExt};
@@ -27,7 +28,8 @@ async fn connect(addr: SocketAddr) -> Client {
     client
 }
 
-/// The next JSON message, within 5 s.
+/// The next message, within 5 s: JSON text, or a binary frame decoded to the same JSON
+/// (positions as `x` arrays) by the protocol's reference decoder.
 async fn next(client: &mut Client) -> Value {
     loop {
         let message = tokio::time::timeout(Duration::from_secs(5), client.next())
@@ -35,8 +37,10 @@ async fn next(client: &mut Client) -> Value {
             .expect("no message within 5 s")
             .expect("connection ended")
             .expect("transport error");
-        if let Message::Text(text) = message {
-            return serde_json::from_str(text.as_str()).unwrap();
+        match message {
+            Message::Text(text) => return serde_json::from_str(text.as_str()).unwrap(),
+            Message::Binary(bytes) => return decode_frame(&bytes).expect("a valid frame"),
+            _ => {}
         }
     }
 }
@@ -66,7 +70,7 @@ async fn streams_frames_over_a_websocket() {
     let mut c = connect(addr).await;
     let welcome = next(&mut c).await;
     assert_eq!(welcome["type"], "welcome");
-    assert_eq!(welcome["protocol"], 2);
+    assert_eq!(welcome["protocol"], PROTOCOL_VERSION);
     assert_eq!(next(&mut c).await["type"], "scene");
     let panels = next(&mut c).await;
     assert_eq!(panels["type"], "panels");

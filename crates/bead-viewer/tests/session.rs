@@ -6,8 +6,8 @@ use std::sync::Arc;
 use bead::integrate::IntegratorKind;
 use bead::simulate::{ConfigError, Requirement};
 use bead_viewer::protocol::{
-    parse_client_message, ClientMessage, ErrorCode, Limits, PanelFrame, PanelInfo, ServerMessage,
-    PROTOCOL_VERSION,
+    decode_frame, encode_frame, parse_client_message, ClientMessage, Encoded, ErrorCode, Limits,
+    PanelFrame, PanelInfo, ServerMessage, PROTOCOL_VERSION,
 };
 use bead_viewer::scenes::{Catalog, SHIPPED};
 use bead_viewer::session::Session;
@@ -97,10 +97,11 @@ fn greeting_has_welcome_scene_and_default_panels() {
     assert_eq!(panels[0].curve_source, "contour");
     assert_eq!(panels[1].curve_source, "parametric");
     assert!(!panels[0].curves.is_empty() && !panels[1].curves.is_empty());
-    // Every JSON message serializes.
+    // Every message encodes: JSON text, the frame binary.
     for m in &greeting {
-        serde_json::to_string(m).unwrap();
+        assert!(matches!(m.encode(), Ok(Encoded::Text(_))), "{m:?}");
     }
+    assert!(matches!(s.frame().encode(), Ok(Encoded::Binary(_))));
 }
 
 #[test]
@@ -436,8 +437,11 @@ fn divergence_stops_one_panel_only() {
     assert!(error.contains("diverged"), "{error}");
     assert_eq!(f[1].status, "running", "{:?}", f[1]);
     assert!(f[1].t > 2.5);
-    // Frames stay valid JSON (no NaN) and play does not restart a failed panel.
-    serde_json::to_string(&s.frame()).unwrap();
+    // Frames stay valid (no NaN) and play does not restart a failed panel.
+    let ServerMessage::Frame { time_scale, panels } = s.frame() else {
+        unreachable!()
+    };
+    decode_frame(&encode_frame(time_scale, &panels).unwrap()).unwrap();
     send(&mut s, r#"{"type":"play"}"#);
     assert_eq!(frames(&s)[0].status, "failed");
     send(&mut s, &format!(r#"{{"type":"reset","panel":{implicit}}}"#));
