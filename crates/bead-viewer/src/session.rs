@@ -168,8 +168,9 @@ pub struct Session {
     time_scale: f64,
 }
 
-/// Parse a scene, refusing more particles than any session allows and never panicking.
-pub(crate) fn parse_scene(text: &str, file: &str) -> Result<Scene, SceneError> {
+/// Parse a scene as a session would: refusing more particles than a session allows
+/// ([`Limits::max_particles`]) and never panicking. `bead serve` checks its scene with it.
+pub fn parse_scene(text: &str, file: &str) -> Result<Scene, SceneError> {
     let error = |message: String| SceneError {
         file: file.to_string(),
         line: 0,

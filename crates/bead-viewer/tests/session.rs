@@ -10,7 +10,7 @@ use bead_viewer::protocol::{
     PanelFrame, PanelInfo, ServerMessage, PROTOCOL_VERSION,
 };
 use bead_viewer::scenes::{Catalog, SHIPPED};
-use bead_viewer::session::Session;
+use bead_viewer::session::{parse_scene, Session};
 
 fn session() -> Session {
     Session::new(Arc::new(Catalog::shipped()), Limits::default())
@@ -541,18 +541,19 @@ fn large_scenes_stay_responsive() {
             start.elapsed()
         );
     }
-    // Too many particles are refused.
+    // Too many particles are refused (a scene given on the command line: a text sent by the
+    // page is smaller than the message limit).
+    let limit = Limits::default().max_particles;
     let mut text = String::from("title = \"too many\"\n[world]\ngravity = [0.0, 1.0]\n");
-    for i in 0..1001 {
+    for i in 0..=limit {
         text.push_str(&format!(
             "[[particle]]\nname = \"p{i}\"\nmass = 1\nposition = [0, 0]\n"
         ));
     }
-    let message = serde_json::json!({"type": "load_scene", "toml": text});
-    let replies = send(&mut s, &message.to_string());
-    assert!(
-        matches!(&replies[0], ServerMessage::SceneError { message, .. } if message.contains("too many particles")),
-        "{replies:?}"
+    let error = parse_scene(&text, "many.toml").unwrap_err();
+    assert_eq!(
+        error.message,
+        format!("too many particles: {} (limit {limit})", limit + 1)
     );
 }
 
