@@ -1033,6 +1033,24 @@ fn generated_chains_and_cloths_have_their_rods_and_pins() {
     assert_eq!(f.status, "running", "{f:?}");
     assert!(f.t > 0.0 && f.constraint_error < 1e-6, "{f:?}");
     assert_eq!(f.x.len(), 2 * rows * cols);
+
+    // The same cloth in 3D: the same rods and pins (drawn at their x-y), three numbers a
+    // particle in the frames, and the rows bowed along z.
+    let mut s = session_with("cloth.toml", generated::cloth_3d(rows, cols, "rattle"));
+    let scene = scene_of(&s);
+    assert_eq!(scene.dim, 3);
+    assert_eq!(scene.rods.len(), links.len());
+    assert_eq!(
+        scene.pins.iter().map(|p| p.anchor).collect::<Vec<_>>(),
+        vec![[0.0, 0.0], [1.0, 0.0]]
+    );
+    let bottom_middle = 3 * generated::index(cols, rows - 1, cols / 2) + 2;
+    assert!(frames(&s)[0].x[bottom_middle] > 0.9 * generated::BOW);
+    run(&mut s, 0.1);
+    let f = &frames(&s)[0];
+    assert_eq!(f.status, "running", "{f:?}");
+    assert!(f.t > 0.0 && f.constraint_error < 1e-6, "{f:?}");
+    assert_eq!(f.x.len(), 3 * rows * cols);
 }
 
 #[test]

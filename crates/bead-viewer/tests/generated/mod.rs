@@ -61,18 +61,25 @@ pub fn index(cols: usize, r: usize, c: usize) -> usize {
 
 /// The particles of a `rows` x `cols` cloth of width 1 in the x-y plane, row by row, at rest.
 /// The rows sag by [`SAG`] in the middle: a top row pinned at both ends must not be a taut
-/// straight line, where the rods and pins are singular (their gradients are dependent).
-fn cloth_particles(rows: usize, cols: usize, text: &mut String) {
+/// straight line, where the rods and pins are singular (their gradients are dependent). In
+/// 3D (`dim` 3) the rows also bow out of the plane, by up to [`BOW`] at the bottom row.
+fn cloth_particles(rows: usize, cols: usize, dim: usize, text: &mut String) {
     let spacing = 1.0 / (cols - 1).max(1) as f64;
     for r in 0..rows {
         for c in 0..cols {
             // A parabola through the ends (exactly 0 there: the pins sit at y = 0).
             let (u, w) = (c as f64, (cols - 1).max(1) as f64);
-            let sag = 4.0 * SAG * u * (w - u) / (w * w);
-            let (x, y) = (c as f64 * spacing, r as f64 * spacing + sag);
+            let arch = 4.0 * u * (w - u) / (w * w);
+            let (x, y) = (c as f64 * spacing, r as f64 * spacing + SAG * arch);
+            let position = if dim == 3 {
+                let z = BOW * arch * r as f64 / (rows - 1).max(1) as f64;
+                format!("[{x:?}, {y:?}, {z:?}]")
+            } else {
+                format!("[{x:?}, {y:?}]")
+            };
             writeln!(
                 text,
-                "[[particle]]\nname = \"{}\"\nmass = 1.0\nposition = [{x:?}, {y:?}]",
+                "[[particle]]\nname = \"{}\"\nmass = 1.0\nposition = {position}",
                 node(r, c)
             )
             .unwrap();
@@ -82,6 +89,8 @@ fn cloth_particles(rows: usize, cols: usize, text: &mut String) {
 
 /// How far the middle of each row of a cloth sags below its ends.
 pub const SAG: f64 = 0.05;
+/// How far the middle of the bottom row of a 3D cloth bows out of the x-y plane (along z).
+pub const BOW: f64 = 0.2;
 
 /// Pins at the two top corners.
 fn corner_pins(cols: usize, text: &mut String) {
@@ -96,11 +105,26 @@ fn corner_pins(cols: usize, text: &mut String) {
 }
 
 /// A `rows` x `cols` cloth of rods (distance constraints between neighbours along rows, then
-/// along columns, row by row) pinned at its two top corners.
+/// along columns, row by row) pinned at its two top corners, in the x-y plane (+y down).
 pub fn cloth(rows: usize, cols: usize, integrator: &str) -> String {
-    let mut text =
-        format!("title = \"Cloth {rows} x {cols}\"\n[world]\ngravity = [0.0, {GRAVITY:?}]\n");
-    cloth_particles(rows, cols, &mut text);
+    cloth_in(rows, cols, 2, integrator)
+}
+
+/// The cloth of [`cloth`] in 3D, as `scenes/cloth.toml` is: the same x and y (gravity along
+/// +y), its rows bowed out of the x-y plane along z (see [`BOW`]), so that it swings in 3D.
+/// The page draws it projected onto x-y.
+pub fn cloth_3d(rows: usize, cols: usize, integrator: &str) -> String {
+    cloth_in(rows, cols, 3, integrator)
+}
+
+fn cloth_in(rows: usize, cols: usize, dim: usize, integrator: &str) -> String {
+    let gravity = if dim == 3 {
+        format!("[0.0, {GRAVITY:?}, 0.0]")
+    } else {
+        format!("[0.0, {GRAVITY:?}]")
+    };
+    let mut text = format!("title = \"Cloth {rows} x {cols}\"\n[world]\ngravity = {gravity}\n");
+    cloth_particles(rows, cols, dim, &mut text);
     for (a, b) in cloth_links(rows, cols) {
         writeln!(
             text,
@@ -124,7 +148,7 @@ pub fn spring_cloth(rows: usize, cols: usize) -> String {
     let mut text = format!(
         "title = \"Spring cloth {rows} x {cols}\"\n[world]\ngravity = [0.0, {GRAVITY:?}]\n"
     );
-    cloth_particles(rows, cols, &mut text);
+    cloth_particles(rows, cols, 2, &mut text);
     let spacing = 1.0 / (cols - 1).max(1) as f64;
     for (a, b) in cloth_links(rows, cols) {
         writeln!(
