@@ -71,23 +71,29 @@
       $("connection").textContent = "disconnected — reload to reconnect";
     };
     ws.binaryType = "arraybuffer";
-    ws.onmessage = (event) => {
-      let msg = null;
-      if (event.data instanceof ArrayBuffer) {
-        const start = performance.now();
-        try { msg = decodeFrame(event.data); } catch (e) { msg = null; }
-        const ms = performance.now() - start;
-        const stats = state.stats;
-        stats.frames += 1;
-        stats.bytes += event.data.byteLength;
-        stats.decodeMs += ms;
-        stats.maxDecodeMs = Math.max(stats.maxDecodeMs, ms);
-      } else {
-        try { msg = JSON.parse(event.data); } catch (e) { msg = null; }
-      }
-      if (msg) handle(msg);
-    };
+    ws.onmessage = (event) => receive(event.data);
   }
+
+  // One message from the server: JSON text, or an ArrayBuffer holding a binary frame.
+  function receive(data) {
+    let msg = null;
+    if (data instanceof ArrayBuffer) {
+      const start = performance.now();
+      try { msg = decodeFrame(data); } catch (e) { msg = null; }
+      const ms = performance.now() - start;
+      const stats = state.stats;
+      stats.frames += 1;
+      stats.bytes += data.byteLength;
+      stats.decodeMs += ms;
+      stats.maxDecodeMs = Math.max(stats.maxDecodeMs, ms);
+    } else {
+      try { msg = JSON.parse(data); } catch (e) { msg = null; }
+    }
+    if (msg) handle(msg);
+  }
+  // For the tests: feed the page messages as the server would send them (after detaching
+  // the socket), e.g. a scene the server of a test could not simulate in time.
+  state.receive = receive;
 
   // A binary frame (protocol.rs, "Frames"): "bead", u32 header length, JSON header, zero
   // padding to a multiple of 8, then every panel's positions as little-endian f64. Each

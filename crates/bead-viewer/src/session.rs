@@ -610,8 +610,11 @@ impl Session {
     }
 }
 
-/// What the page draws of a scene that does not move.
-fn scene_info(name: &str, scene: &Scene) -> SceneInfo {
+/// What the page draws of a scene that does not move: the [`ServerMessage::Scene`] a session
+/// sends for `scene` loaded as `name`. Needs no simulation (the view box of a large scene is
+/// bounded work, see [`geometry::view_box`]), so a test can show the page a scene without
+/// running it.
+pub fn scene_info(name: &str, scene: &Scene) -> SceneInfo {
     let system = &scene.system;
     let declared = system.declared_constraints();
     // By name (unique): a scene may have thousands of constraints.
