@@ -69,3 +69,32 @@ fn serve_rejects_a_bad_scene_before_listening() {
         "{stderr}"
     );
 }
+
+#[test]
+fn serve_rejects_more_particles_than_the_viewer_takes() {
+    let limit = bead_viewer::protocol::Limits::default().max_particles;
+    let dir = std::env::temp_dir().join(format!("bead-serve-many-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let many = dir.join("many.toml");
+    let mut text = String::from("title = \"many\"\n[world]\ngravity = [0.0, 1.0]\n");
+    for i in 0..=limit {
+        text.push_str(&format!(
+            "[[particle]]\nname = \"p{i}\"\nmass = 1\nposition = [{i}, 0]\n"
+        ));
+    }
+    std::fs::write(&many, text).unwrap();
+    let output = Command::new(BEAD)
+        .args(["serve", many.to_str().unwrap(), "--port", "0"])
+        .output()
+        .unwrap();
+    let _ = std::fs::remove_dir_all(&dir);
+    assert_eq!(output.status.code(), Some(1));
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert!(
+        stderr.contains(&format!(
+            "many.toml: too many particles for the viewer: {} (limit {limit})",
+            limit + 1
+        )),
+        "{stderr}"
+    );
+}

@@ -6,6 +6,14 @@
   const $ = (id) => document.getElementById(id);
   const TRAIL = 120;        // trail points per particle
   const HISTORY = 900;      // chart points per panel
+  // Trails are on by default up to this many particles; above, the checkbox turns them on,
+  // with at most TRAIL_BUDGET trail points in all (e.g. 20 per particle for 1000).
+  const TRAIL_MAX_PARTICLES = 20;
+  const TRAIL_BUDGET = 20000;
+  const DRAW_SAMPLES = 240; // draw times kept per panel (window.__viewer, for the tests)
+  const FRAME_MAGIC = [0x62, 0x65, 0x61, 0x64]; // "bead": a binary frame (protocol.rs)
+  const LITTLE_ENDIAN = new Uint8Array(new Uint16Array([1]).buffer)[0] === 1;
+  const textDecoder = new TextDecoder();
 
   const state = {
     ws: null,
@@ -16,6 +24,8 @@
     panels: new Map(),
     drags: new Map(),       // panel id -> particle being dragged
     pendingMoves: new Map(),// panel id -> latest drag_move, sent once per animation frame
+    // Binary frames received, their bytes and the time spent decoding them (ms).
+    stats: { frames: 0, bytes: 0, decodeMs: 0, maxDecodeMs: 0 },
   };
   window.__viewer = state;  // for the end-to-end tests
 
@@ -60,11 +70,55 @@
     ws.onclose = () => {
       $("connection").textContent = "disconnected — reload to reconnect";
     };
-    ws.onmessage = (event) => {
-      let msg;
-      try { msg = JSON.parse(event.data); } catch (e) { return; }
-      handle(msg);
-    };
+    ws.binaryType = "arraybuffer";
+    ws.onmessage = (event) => receive(event.data);
+  }
+
+  // One message from the server: JSON text, or an ArrayBuffer holding a binary frame.
+  function receive(data) {
+    let msg = null;
+    if (data instanceof ArrayBuffer) {
+      const start = performance.now();
+      try { msg = decodeFrame(data); } catch (e) { msg = null; }
+      const ms = performance.now() - start;
+      const stats = state.stats;
+      stats.frames += 1;
+      stats.bytes += data.byteLength;
+      stats.decodeMs += ms;
+      stats.maxDecodeMs = Math.max(stats.maxDecodeMs, ms);
+    } else {
+      try { msg = JSON.parse(data); } catch (e) { msg = null; }
+    }
+    if (msg) handle(msg);
+  }
+  // For the tests: feed the page messages as the server would send them (after detaching
+  // the socket), e.g. a scene the server of a test could not simulate in time.
+  state.receive = receive;
+
+  // A binary frame (protocol.rs, "Frames"): "bead", u32 header length, JSON header, zero
+  // padding to a multiple of 8, then every panel's positions as little-endian f64. Each
+  // panel's `x` becomes a Float64Array view of its part (no copy on little-endian machines).
+  function decodeFrame(buffer) {
+    const bytes = new Uint8Array(buffer);
+    if (bytes.length < 8 || FRAME_MAGIC.some((b, i) => bytes[i] !== b)) return null;
+    const view = new DataView(buffer);
+    const headerLength = view.getUint32(4, true);
+    if (8 + headerLength > bytes.length) return null;
+    const msg = JSON.parse(textDecoder.decode(bytes.subarray(8, 8 + headerLength)));
+    const start = Math.min(Math.ceil((8 + headerLength) / 8) * 8, bytes.length);
+    const count = Math.floor((bytes.length - start) / 8);
+    let numbers;
+    if (LITTLE_ENDIAN) {
+      numbers = new Float64Array(buffer, start, count);
+    } else {
+      numbers = new Float64Array(count);
+      for (let i = 0; i < count; i++) numbers[i] = view.getFloat64(start + 8 * i, true);
+    }
+    for (const f of msg.panels) {
+      if (!(f.x_offset + f.x_count <= count)) return null;
+      f.x = numbers.subarray(f.x_offset, f.x_offset + f.x_count);
+    }
+    return msg;
   }
 
   function handle(msg) {
@@ -129,10 +183,33 @@
     const picker = $("scene-select");
     if ([...picker.options].some((o) => o.value === scene.name)) picker.value = scene.name;
     buildCurveEditors(scene);
+    prepareScene(scene);
     for (const p of state.panels.values()) p.dom.root.remove();
     state.panels.clear();
     state.drags.clear();
     state.pendingMoves.clear();
+  }
+
+  // What the drawing needs of a scene, once: rods between particles as pairs of indices,
+  // rods to anchors, pins; trails on by default for few particles only.
+  function prepareScene(scene) {
+    const pairs = [], anchored = [];
+    for (const rod of scene.rods) {
+      if (rod.b != null) pairs.push(rod.a, rod.b);
+      else if (rod.anchor) anchored.push(rod);
+    }
+    scene.draw = { pairs: Int32Array.from(pairs), anchored, pins: scene.pins || [] };
+    $("trails").checked = scene.particles.length <= TRAIL_MAX_PARTICLES;
+  }
+
+  function trailsOn() {
+    return $("trails").checked;
+  }
+
+  // Trail points kept per particle.
+  function trailLength() {
+    const n = state.scene ? state.scene.particles.length : 1;
+    return Math.max(2, Math.min(TRAIL, Math.floor(TRAIL_BUDGET / Math.max(n, 1))));
   }
 
   // ---------- curve editor ----------
@@ -193,13 +270,19 @@
       seen.add(info.id);
       let p = state.panels.get(info.id);
       if (!p) {
-        p = { info, frame: null, dom: buildPanel(info), trail: [], history: [] };
+        p = {
+          info, frame: null, dom: buildPanel(info), trail: [], history: [], dirty: true,
+          // What the last draw drew (counts, the frame and its time in ms) and the recent
+          // draw times: for the tests.
+          lastDraw: null, drawTimes: [],
+        };
         state.panels.set(info.id, p);
         $("panels").appendChild(p.dom.root);
       } else {
         // A new epoch: the panel restarted (configured, reset, new curve).
         if (p.info.epoch !== info.epoch) { p.trail = []; p.history = []; }
         p.info = info;
+        p.dirty = true;
       }
       p.dom.root.dataset.epoch = String(info.epoch);
       fillConfig(p);
@@ -230,6 +313,7 @@
     title.append(name, remove);
     const canvas = el("canvas", "view");
     canvas.width = 920; canvas.height = 680;
+    countCalls(canvas);
     const note = el("div", "note muted");
     const readout = el("div", "readout");
     const fields = {};
@@ -284,6 +368,17 @@
     return dom;
   }
 
+  // Count the canvas's painting calls (each stroke, fill, rect or text is one): a draw's cost
+  // grows with them, so the tests can check that drawing is batched whatever the scene's size.
+  function countCalls(canvas) {
+    const ctx = canvas.getContext("2d");
+    canvas.paintCalls = 0;
+    for (const name of ["stroke", "fill", "fillRect", "strokeRect", "fillText", "strokeText"]) {
+      const call = ctx[name].bind(ctx);
+      ctx[name] = (...args) => { canvas.paintCalls++; return call(...args); };
+    }
+  }
+
   function fillConfig(p) {
     const { info, dom } = p;
     dom.name.textContent = `#${info.id} ${info.method} · ${info.integrator} · dt ${fmt(info.dt)}` +
@@ -312,9 +407,15 @@
       const previous = p.frame;
       p.frame = f;
       if (previous && f.epoch !== previous.epoch) { p.trail = []; p.history = []; }
+      p.dirty = true;
       if (!previous || f.t !== previous.t || f.steps !== previous.steps || f.epoch !== previous.epoch) {
-        p.trail.push(f.x.slice());
-        if (p.trail.length > TRAIL) p.trail.shift();
+        if (trailsOn()) {
+          p.trail.push(f.x.slice());
+          const keep = trailLength();
+          if (p.trail.length > keep) p.trail.splice(0, p.trail.length - keep);
+        } else if (p.trail.length) {
+          p.trail = [];
+        }
         p.history.push([f.t, f.energy_error, f.constraint_error]);
         if (p.history.length > HISTORY) p.history.shift();
       }
@@ -387,53 +488,80 @@
     const scene = state.scene;
     ctx.fillStyle = "#ffffff";
     ctx.fillRect(0, 0, c.width, c.height);
-    if (!scene) return;
+    if (!scene) return null;
     const T = transform(p);
     drawAxes(ctx, T, c);
-    // Curves.
+    // Curves: one path (marching squares make hundreds of short pieces).
     ctx.save();
     ctx.strokeStyle = "#1f6feb";
     ctx.lineWidth = 2.5;
     ctx.lineCap = "round";
+    ctx.lineJoin = "round";
+    ctx.beginPath();
     for (const line of p.info.curves) {
-      ctx.beginPath();
       for (let i = 0; i + 1 < line.length; i += 2) {
         const px = T.x(line[i]), py = T.y(line[i + 1]);
         if (i === 0) ctx.moveTo(px, py); else ctx.lineTo(px, py);
       }
-      ctx.stroke();
     }
+    ctx.stroke();
     ctx.restore();
     const f = p.frame;
-    if (!f) return;
+    if (!f) return null;
     const dim = scene.dim;
-    const n = scene.particles.length;
-    // Trail.
-    ctx.save();
-    ctx.lineWidth = 5;
-    ctx.lineCap = "round";
-    for (let k = 0; k < n; k++) {
-      for (let i = 1; i < p.trail.length; i++) {
-        const a = p.trail[i - 1], b = p.trail[i];
-        ctx.strokeStyle = `rgba(240, 110, 0, ${(i / p.trail.length) * 0.75})`;
+    const n = Math.min(scene.particles.length, Math.floor(f.x.length / dim));
+    const X = (k) => T.x(f.x[k * dim]), Y = (k) => T.y(f.x[k * dim + 1]);
+    const failed = f.status === "failed";
+    const { pairs, anchored, pins } = scene.draw;
+    const size = sizes(p, T, f, n, dim);
+    // Trails: one path per band of age (8 shades), not one per segment.
+    if (p.trail.length > 1) {
+      ctx.save();
+      ctx.lineWidth = size.trail;
+      ctx.lineCap = "round";
+      ctx.lineJoin = "round";
+      const trail = p.trail, len = trail.length, bands = Math.min(8, len - 1);
+      for (let band = 0; band < bands; band++) {
+        const i0 = 1 + Math.floor((band * (len - 1)) / bands);
+        const i1 = 1 + Math.floor(((band + 1) * (len - 1)) / bands);
+        ctx.strokeStyle = `rgba(240, 110, 0, ${(i1 / len) * 0.75})`;
         ctx.beginPath();
-        ctx.moveTo(T.x(a[k * dim]), T.y(a[k * dim + 1]));
-        ctx.lineTo(T.x(b[k * dim]), T.y(b[k * dim + 1]));
+        for (let k = 0; k < n; k++) {
+          const a = trail[i0 - 1];
+          ctx.moveTo(T.x(a[k * dim]), T.y(a[k * dim + 1]));
+          for (let i = i0; i < i1; i++) ctx.lineTo(T.x(trail[i][k * dim]), T.y(trail[i][k * dim + 1]));
+        }
         ctx.stroke();
       }
+      ctx.restore();
     }
-    ctx.restore();
-    // Rods.
+    // Rods: one path for all of them, one for the rods to anchors.
     ctx.save();
     ctx.strokeStyle = "#333";
-    ctx.lineWidth = 3;
-    for (const rod of scene.rods) {
-      const ax = f.x[rod.a * dim], ay = f.x[rod.a * dim + 1];
-      let bx, by;
-      if (rod.b != null) { bx = f.x[rod.b * dim]; by = f.x[rod.b * dim + 1]; } else if (rod.anchor) { [bx, by] = rod.anchor; } else continue;
-      ctx.beginPath(); ctx.moveTo(T.x(ax), T.y(ay)); ctx.lineTo(T.x(bx), T.y(by)); ctx.stroke();
-      if (rod.anchor) { ctx.fillStyle = "#333"; ctx.fillRect(T.x(bx) - 5, T.y(by) - 5, 10, 10); }
+    ctx.fillStyle = "#333";
+    ctx.lineWidth = size.rod;
+    ctx.beginPath();
+    let rods = 0;
+    for (let i = 0; i + 1 < pairs.length; i += 2) {
+      const a = pairs[i], b = pairs[i + 1];
+      if (a >= n || b >= n) continue;
+      ctx.moveTo(X(a), Y(a));
+      ctx.lineTo(X(b), Y(b));
+      rods++;
     }
+    for (const rod of anchored) {
+      if (rod.a >= n) continue;
+      ctx.moveTo(X(rod.a), Y(rod.a));
+      ctx.lineTo(T.x(rod.anchor[0]), T.y(rod.anchor[1]));
+      rods++;
+    }
+    ctx.stroke();
+    // Anchors and pins: squares at the fixed points.
+    ctx.beginPath();
+    for (const rod of anchored) ctx.rect(T.x(rod.anchor[0]) - 5, T.y(rod.anchor[1]) - 5, 10, 10);
+    const pin = Math.max(10, 2 * size.radius + 6);
+    for (const q of pins) ctx.rect(T.x(q.anchor[0]) - pin / 2, T.y(q.anchor[1]) - pin / 2, pin, pin);
+    ctx.fill();
     ctx.restore();
     // Drag spring.
     if (f.drag) {
@@ -443,28 +571,62 @@
       ctx.setLineDash([8, 6]);
       ctx.lineWidth = 2;
       ctx.beginPath();
-      ctx.moveTo(T.x(f.x[k * dim]), T.y(f.x[k * dim + 1]));
+      ctx.moveTo(X(k), Y(k));
       ctx.lineTo(T.x(f.drag.target[0]), T.y(f.drag.target[1]));
       ctx.stroke();
       ctx.restore();
     }
-    // Particles.
-    for (let k = 0; k < n; k++) {
-      const px = T.x(f.x[k * dim]), py = T.y(f.x[k * dim + 1]);
-      ctx.beginPath();
-      ctx.arc(px, py, 11, 0, 2 * Math.PI);
-      ctx.fillStyle = f.status === "failed" ? "#b42318" : "#e67814";
-      ctx.fill();
+    // Particles: one path; circles with an outline when they are big enough to show one,
+    // squares (far cheaper to fill) when they are a few pixels.
+    ctx.save();
+    ctx.fillStyle = failed ? "#b42318" : "#e67814";
+    ctx.beginPath();
+    const r = size.radius;
+    if (r >= 3) {
+      for (let k = 0; k < n; k++) {
+        const px = X(k), py = Y(k);
+        ctx.moveTo(px + r, py);
+        ctx.arc(px, py, r, 0, 2 * Math.PI);
+      }
+    } else {
+      for (let k = 0; k < n; k++) ctx.rect(X(k) - r, Y(k) - r, 2 * r, 2 * r);
+    }
+    ctx.fill();
+    if (r >= 5) {
       ctx.lineWidth = 2;
       ctx.strokeStyle = "#222";
       ctx.stroke();
     }
-    if (f.status === "failed") {
+    ctx.restore();
+    if (failed) {
       ctx.fillStyle = "rgba(180, 35, 24, 0.9)";
       ctx.font = "22px system-ui, sans-serif";
       ctx.textAlign = "left";
       ctx.fillText("stopped: see the message below", 70, 40);
     }
+    return { rods, particles: n, pins: pins.length, frame: f };
+  }
+
+  // Sizes in canvas pixels: particles shrink with their number and their spacing on screen
+  // (a fraction of the median rod length, from the first frame drawn), from 11 down to 1.5.
+  function sizes(p, T, f, n, dim) {
+    if (p.sizes && p.sizes.epoch === f.epoch && p.sizes.scale === T.s) return p.sizes;
+    let radius = n <= 16 ? 11 : Math.max(1.5, 11 * Math.sqrt(16 / n));
+    const pairs = state.scene.draw.pairs, lengths = [];
+    for (let i = 0; i + 1 < pairs.length && lengths.length < 2000; i += 2) {
+      const a = pairs[i], b = pairs[i + 1];
+      if (a >= n || b >= n) continue;
+      const d = T.s * Math.hypot(f.x[a * dim] - f.x[b * dim], f.x[a * dim + 1] - f.x[b * dim + 1]);
+      if (Number.isFinite(d)) lengths.push(d);
+    }
+    if (lengths.length) {
+      lengths.sort((a, b) => a - b);
+      radius = Math.max(1.5, Math.min(radius, 0.35 * lengths[lengths.length >> 1]));
+    }
+    const rod = n <= 16 ? 3 : Math.max(1, Math.min(3, radius / 2));
+    const trail = n <= 16 ? 5 : Math.max(1, Math.min(5, radius));
+    p.sizes = { epoch: f.epoch, scale: T.s, radius, rod, trail };
+    return p.sizes;
   }
 
   function drawChart(canvas, history, index, label, color) {
@@ -516,9 +678,37 @@
     ctx.stroke();
   }
 
+  // Draw panel `p` and time it; `flush` reads a pixel back so that the time includes the
+  // rasterization, which the browser otherwise defers past the script.
+  function draw(p, flush) {
+    const start = performance.now();
+    const calls = p.dom.canvas.paintCalls;
+    const drawn = drawPanel(p);
+    if (flush) p.dom.canvas.getContext("2d").getImageData(0, 0, 1, 1);
+    const ms = performance.now() - start;
+    if (drawn) {
+      drawn.ms = ms;
+      drawn.paintCalls = p.dom.canvas.paintCalls - calls;
+      p.lastDraw = drawn;
+      p.drawTimes.push(ms);
+      if (p.drawTimes.length > DRAW_SAMPLES) p.drawTimes.shift();
+    }
+    return ms;
+  }
+  // For the tests: draw panel `id` `count` times, flushed; the times in ms.
+  state.drawTimes = (id, count) => {
+    const p = state.panels.get(id);
+    const times = [];
+    for (let i = 0; i < count; i++) times.push(draw(p, true));
+    return times;
+  };
+
+  // Panels are drawn when something changed: a frame, the panel's settings, the scene.
   function render() {
     for (const p of state.panels.values()) {
-      drawPanel(p);
+      if (!p.dirty) continue;
+      p.dirty = false;
+      draw(p, false);
       const f = p.frame;
       const energyLabel = !f || f.energy_conserved ? "relative energy error" :
         `energy (not conserved: ${f.not_conserved_by.join("; ")}): error of E − W`;
@@ -582,11 +772,20 @@
     return [r.left + T.x(x) * (r.width / p.dom.canvas.width), r.top + T.y(y) * (r.height / p.dom.canvas.height)];
   };
 
+  // Canvas pixel of scene point (x, y) in panel `id` (for tests).
+  state.canvasPoint = (id, x, y) => {
+    const T = transform(state.panels.get(id));
+    return [T.x(x), T.y(y)];
+  };
+
   // ---------- toolbar ----------
   $("play").onclick = () => {
     send({ type: $("play").textContent === "Pause" ? "pause" : "play" });
   };
   $("step").onclick = () => send({ type: "step" });
+  $("trails").onchange = () => {
+    for (const p of state.panels.values()) { p.trail = []; p.dirty = true; }
+  };
   $("reset").onclick = () => send({ type: "reset" });
   $("time-scale").onchange = () => send({ type: "set_time_scale", scale: Number($("time-scale").value) });
   $("scene-select").onchange = () => send({ type: "load_scene", name: $("scene-select").value });

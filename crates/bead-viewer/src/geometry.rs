@@ -3,7 +3,7 @@
 //! Curves are made on the server, once per scene or curve change, and sent as polylines:
 //! - implicit 2D constraints on a single particle are contoured by marching squares on a
 //!   [`GRID`] x [`GRID`] grid over the view box (other particles at their initial positions,
-//!   t = 0), for systems of at most 16 constraint rows;
+//!   t = 0), for systems of at most 16 constraint rows; pins are not (the page draws them);
 //! - a parametric form with one coordinate is sampled along x(q) and clipped to the view box.
 //!
 //! A parametric panel with one coordinate draws its map; otherwise contours are drawn when
@@ -14,7 +14,7 @@ use std::time::{Duration, Instant};
 
 use bead::formulation::Method;
 use bead::integrate::IntegratorKind;
-use bead::model::System;
+use bead::model::{DeclaredConstraint, Endpoint, System};
 use bead::simulate::{Simulation, SimulationConfig};
 
 /// Marching-squares resolution per side.
@@ -24,9 +24,21 @@ const MAX_CONTOUR_ROWS: usize = 16;
 /// Samples along a parametric curve.
 const PARAMETRIC_SAMPLES: usize = 1200;
 
+/// Systems up to this many particles and constraint rows get a trial run for their view box:
+/// a step of such a system costs microseconds (a dense solve of at most 64 rows), so the run's
+/// time budget bounds its work. Larger systems get the reach bound instead.
+pub const TRIAL_MAX_PARTICLES: usize = 64;
+/// See [`TRIAL_MAX_PARTICLES`].
+pub const TRIAL_MAX_ROWS: usize = 64;
+
 /// The view box `[x_min, y_min, x_max, y_max]` of a scene: its initial positions, `extra`
-/// points (anchors) and the motion of a short trial run (parametric form when there is one,
-/// else implicit; rk4 at `dt`; at most `duration` simulated seconds, 20000 steps, 150 ms).
+/// points (anchors), and where the particles may go:
+/// - small systems (at most [`TRIAL_MAX_PARTICLES`] particles and [`TRIAL_MAX_ROWS`]
+///   constraint rows): the motion of a short trial run (parametric form when there is one,
+///   else implicit; rk4 at `dt`; at most `duration` simulated seconds, 20000 steps, 150 ms);
+/// - larger ones, with no trial run (work linear in the particles and constraints): every
+///   place that rods and pins let a particle reach, see [`reach`]. Particles not held to a
+///   fixed point by rods and pins count at their initial positions only.
 pub fn view_box(system: &Arc<System>, dt: f64, duration: f64, extra: &[[f64; 2]]) -> [f64; 4] {
     let dim = system.dim();
     let mut bounds = [
@@ -50,30 +62,14 @@ pub fn view_box(system: &Arc<System>, dt: f64, duration: f64, extra: &[[f64; 2]]
     for a in extra {
         include(a[0], a[1]);
     }
-    let method = if system.parametric().is_some() {
-        Method::Parametric
+    let small = system.particles().len() <= TRIAL_MAX_PARTICLES
+        && system.constraints().n_rows() <= TRIAL_MAX_ROWS;
+    if small {
+        trial_run(system, dt, duration, &mut include);
     } else {
-        Method::Implicit
-    };
-    let config = SimulationConfig {
-        method,
-        integrator: IntegratorKind::Rk4,
-        dt,
-        ..SimulationConfig::default()
-    };
-    if let Ok(mut simulation) = Simulation::new(Arc::clone(system), config) {
-        let steps = (duration / dt).ceil().clamp(1.0, 20_000.0) as u64;
-        let start = Instant::now();
-        for _ in 0..steps {
-            if simulation.step().is_err() {
-                break;
-            }
-            for p in simulation.positions().chunks(dim) {
-                include(p[0], p[1]);
-            }
-            if start.elapsed() > Duration::from_millis(150) {
-                break;
-            }
+        for (center, radius) in reach(system).into_iter().flatten() {
+            include(center[0] - radius, center[1] - radius);
+            include(center[0] + radius, center[1] + radius);
         }
     }
     if !bounds[0].is_finite() {
@@ -93,6 +89,98 @@ pub fn view_box(system: &Arc<System>, dt: f64, duration: f64, extra: &[[f64; 2]]
     let half_w = 0.5 * w.max(0.4 * size) + pad;
     let half_h = 0.5 * h.max(0.4 * size) + pad;
     [cx - half_w, cy - half_h, cx + half_w, cy + half_h]
+}
+
+/// Include every position of a short trial run (see [`view_box`]).
+fn trial_run(system: &Arc<System>, dt: f64, duration: f64, include: &mut impl FnMut(f64, f64)) {
+    let dim = system.dim();
+    let method = if system.parametric().is_some() {
+        Method::Parametric
+    } else {
+        Method::Implicit
+    };
+    let config = SimulationConfig {
+        method,
+        integrator: IntegratorKind::Rk4,
+        dt,
+        ..SimulationConfig::default()
+    };
+    let Ok(mut simulation) = Simulation::new(Arc::clone(system), config) else {
+        return;
+    };
+    let steps = (duration / dt).ceil().clamp(1.0, 20_000.0) as u64;
+    let start = Instant::now();
+    for _ in 0..steps {
+        if simulation.step().is_err() {
+            break;
+        }
+        for p in simulation.positions().chunks(dim) {
+            include(p[0], p[1]);
+        }
+        if start.elapsed() > Duration::from_millis(150) {
+            break;
+        }
+    }
+}
+
+/// For each particle held to a fixed point by a path of rods (distance constraints) and pins,
+/// a disc `(center, radius)` in x-y that it cannot leave: a fixed point it is held to and
+/// the shortest length of rods between them (a pinned particle: its pin and 0; a rod to an
+/// anchor: the anchor and the rod's length). Shortest paths from every fixed point at once
+/// (Dijkstra), so the work is O((n + m) log n) for n particles and m constraints. `None`
+/// for particles held by nothing fixed (free, or only by expression constraints).
+pub fn reach(system: &System) -> Vec<Option<([f64; 2], f64)>> {
+    use std::cmp::Reverse;
+    use std::collections::BinaryHeap;
+
+    let n = system.particles().len();
+    let mut best: Vec<Option<([f64; 2], f64)>> = vec![None; n];
+    let mut edges: Vec<Vec<(usize, f64)>> = vec![Vec::new(); n];
+    let seed = |best: &mut Vec<Option<([f64; 2], f64)>>, p: usize, at: &[f64], d: f64| {
+        if p < n && at.len() >= 2 && d.is_finite() && best[p].is_none_or(|(_, r)| d < r) {
+            best[p] = Some(([at[0], at[1]], d));
+        }
+    };
+    for c in system.declared_constraints() {
+        match c {
+            DeclaredConstraint::Pin {
+                particle, anchor, ..
+            } => seed(&mut best, particle.0, anchor, 0.0),
+            DeclaredConstraint::Distance { a, b, length, .. } => match b {
+                Endpoint::Fixed(point) => seed(&mut best, a.0, point, length.abs()),
+                Endpoint::Particle(b) => {
+                    if a.0 < n && b.0 < n && length.is_finite() {
+                        edges[a.0].push((b.0, length.abs()));
+                        edges[b.0].push((a.0, length.abs()));
+                    }
+                }
+            },
+            _ => {}
+        }
+    }
+    // Non-negative f64 order as their bits.
+    let key = |d: f64| Reverse(d.to_bits());
+    let mut queue: BinaryHeap<(Reverse<u64>, usize)> = best
+        .iter()
+        .enumerate()
+        .filter_map(|(p, b)| b.map(|(_, d)| (key(d), p)))
+        .collect();
+    while let Some((Reverse(bits), p)) = queue.pop() {
+        let Some((center, d)) = best[p] else {
+            continue;
+        };
+        if d.to_bits() != bits {
+            continue; // an outdated entry
+        }
+        for &(q, length) in &edges[p] {
+            let through = d + length;
+            if best[q].is_none_or(|(_, r)| through < r) {
+                best[q] = Some((center, through));
+                queue.push((key(through), q));
+            }
+        }
+    }
+    best
 }
 
 /// The curves of a panel and how they were made (`"contour"`, `"parametric"`, `"none"`).
@@ -172,7 +260,19 @@ fn contour_curves(system: &System, view: [f64; 4]) -> Vec<Vec<f64>> {
         // Each grid point evaluates every row: too costly for large systems.
         return out;
     }
+    // A pin's rows are lines through its point: the page draws the pin itself instead.
+    let pins: Vec<&str> = system
+        .declared_constraints()
+        .into_iter()
+        .filter_map(|c| match c {
+            DeclaredConstraint::Pin { name, .. } => Some(name),
+            _ => None,
+        })
+        .collect();
     for row in 0..set.n_rows() {
+        if pins.contains(&set.info_of_row(row).name.as_str()) {
+            continue;
+        }
         let columns = set.row_columns(row);
         let Some(&first) = columns.first() else {
             continue;

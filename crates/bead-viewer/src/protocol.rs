@@ -1,9 +1,11 @@
 //! The viewer's WebSocket protocol, version [`PROTOCOL_VERSION`].
 //!
-//! One WebSocket connection (`GET /ws`) is one session. Every message is one text frame
-//! holding one JSON object with a `"type"` field naming the message; field names are
-//! `snake_case`. Binary frames, frames over [`Limits::max_message_bytes`] and anything that is
-//! not a valid message get an [`ServerMessage::Error`] reply; the connection stays open.
+//! One WebSocket connection (`GET /ws`) is one session. Control messages are text frames,
+//! each one JSON object with a `"type"` field naming the message; field names are
+//! `snake_case`. The state of the panels, sent about 60 times a second, is one binary frame
+//! per tick (see [Frames](#frames)). The client sends text only: binary frames, frames over
+//! [`Limits::max_message_bytes`] and anything that is not a valid message get an
+//! [`ServerMessage::Error`] reply; the connection stays open.
 //!
 //! Conversation:
 //!
@@ -12,8 +14,9 @@
 //!    [`ServerMessage::Panels`] for the initial scene with its default panels (one per
 //!    formulation the scene defines: implicit first, then parametric). A loaded scene's
 //!    panels start running; a panel added later runs when any other panel does.
-//! 2. About 60 times a second the server sends [`ServerMessage::Frame`] with the state of
-//!    every panel (also while paused, so that a fresh page can draw at once).
+//! 2. About 60 times a second the server sends a frame ([`ServerMessage::Frame`], binary)
+//!    with the state of every panel (also while paused, so that a fresh page can draw at
+//!    once).
 //! 3. The client sends [`ClientMessage`]s; after any change of the panel set or of a panel's
 //!    settings the server sends a new [`ServerMessage::Panels`]; after a scene change a new
 //!    [`ServerMessage::Scene`] and [`ServerMessage::Panels`].
@@ -28,12 +31,39 @@
 //! [`ErrorCode`] besides the human message; failed curve edits get
 //! [`ServerMessage::CurveError`], also with a code.
 //!
-//! Version 2 (this one) added `epoch`, the error codes and the energy ledger in frames
-//! (`energy_error`, which replaces version 1's `energy_rel_error`, `energy_conserved`,
-//! `work`, `not_conserved_by`).
+//! # Frames
+//!
+//! A frame is one binary WebSocket message: a small JSON header with everything but the
+//! positions, then the positions of every panel packed as little-endian IEEE 754 doubles.
+//!
+//! | offset | size | contents |
+//! |---|---|---|
+//! | 0 | 4 | the magic bytes `b"bead"` ([`FRAME_MAGIC`]) |
+//! | 4 | 4 | `h`: the header's length in bytes, u32 little-endian |
+//! | 8 | `h` | the header: UTF-8 JSON, `{"type": "frame", "time_scale": .., "panels": [..]}` |
+//! | 8 + `h` | 0-7 | zero bytes, so that the positions start at a multiple of 8 |
+//! | `p` = 8 + `h` rounded up to a multiple of 8 | 8 `n` | `n` positions, f64 little-endian |
+//!
+//! Each panel of the header is a [`PanelFrame`] without `x`, plus `x_offset` and `x_count`:
+//! its positions (`dim` numbers per particle, particle by particle) are the numbers
+//! `x_offset .. x_offset + x_count` of the block at `p` (counted in numbers, not bytes), and
+//! `n` is the sum of the panels' `x_count`. In a browser: `JSON.parse` of the header, then
+//! `new Float64Array(buffer, p, n)` (little-endian machines; the page reads through a
+//! `DataView` elsewhere). [`decode_frame`] is the reference decoder. The frame is binary
+//! because its size and cost grow with the particles: 16 bytes a particle in 2D against
+//! about 37 for the same numbers in JSON (16 368 bytes against 36 997 for a frame of 1000
+//! particles), and no number formatting or parsing (see DESIGN.md, Viewer, for the figures).
+//!
+//! # Versions
+//!
+//! Version 3 (this one) sends frames as binary messages (above) instead of JSON text, and
+//! adds the pins ([`SceneInfo::pins`]) to the scene. Version 2 added `epoch`, the error codes
+//! and the energy ledger in frames (`energy_error`, which replaces version 1's
+//! `energy_rel_error`, `energy_conserved`, `work`, `not_conserved_by`).
 //!
 //! Numbers must be finite JSON numbers. JSON has no NaN or infinity; a string such as
-//! `"NaN"` is a wrong type, and an out-of-range literal like `1e999` is rejected.
+//! `"NaN"` is a wrong type, and an out-of-range literal like `1e999` is rejected. The server
+//! sends non-finite values as 0 (positions included).
 //!
 //! Coordinates are the scene's own: `+y` points down in the shipped 2D scenes (screen
 //! coordinates, as in the article). 3D scenes are drawn projected onto x-y.
@@ -41,7 +71,7 @@
 use serde::{Deserialize, Serialize};
 
 /// The protocol version; bumped on any incompatible change.
-pub const PROTOCOL_VERSION: u32 = 2;
+pub const PROTOCOL_VERSION: u32 = 3;
 
 /// Which panels a message applies to: one panel by id, or all when absent / `null`.
 pub type PanelTarget = Option<u32>;
@@ -175,7 +205,8 @@ pub enum ServerMessage {
     Scene(SceneInfo),
     /// The full list of panels with their settings and static drawing data (curves).
     Panels { panels: Vec<PanelInfo> },
-    /// The state of every panel, ~60 times a second.
+    /// The state of every panel, ~60 times a second: a binary message (see
+    /// [Frames](self#frames) and [`ServerMessage::encode`]), not JSON text.
     Frame {
         /// Simulated seconds per wall-clock second.
         time_scale: f64,
@@ -297,6 +328,12 @@ pub struct IntegratorInfo {
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
 pub struct Limits {
     pub max_panels: usize,
+    /// Particles of a scene (a session refuses more). 10^4: what the viewer itself
+    /// sustains at 60 frames/s, measured (DESIGN.md, Viewer, Scale): a 2D frame is 160 kB,
+    /// encoded in 0.02 ms, 9.6 MB/s on the wire (most of a 100 Mbit/s link), decoded by the
+    /// page in 0.14 ms and drawn in 6-11 ms of a 16.7 ms frame with 2 x 10^4 rods. Whether
+    /// the simulation of so many particles keeps up is the core's affair: a panel that
+    /// cannot says `behind`.
     pub max_particles: usize,
     /// Steps per frame, summed over the connection's panels.
     pub max_steps_per_frame: u64,
@@ -313,7 +350,7 @@ impl Default for Limits {
     fn default() -> Self {
         Limits {
             max_panels: 8,
-            max_particles: 1000,
+            max_particles: 10_000,
             max_steps_per_frame: 20_000,
             max_message_bytes: 64 * 1024,
             max_expr_chars: 2000,
@@ -341,6 +378,8 @@ pub struct SceneInfo {
     pub view: [f64; 4],
     /// Distance constraints, drawn as rods.
     pub rods: Vec<Rod>,
+    /// Pin constraints: particles held at a fixed point (drawn as a square there).
+    pub pins: Vec<Pin>,
     pub has_implicit: bool,
     pub has_parametric: bool,
     /// Scene warnings (initial state off the constraints, ...).
@@ -356,6 +395,13 @@ pub struct Rod {
     pub b: Option<usize>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub anchor: Option<[f64; 2]>,
+}
+
+/// A `kind = "pin"` constraint: particle `particle` held at `anchor` (x-y).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Pin {
+    pub particle: usize,
+    pub anchor: [f64; 2],
 }
 
 /// A particle of the scene.
@@ -409,7 +455,9 @@ pub struct PanelFrame {
     pub t: f64,
     /// Steps taken since the last reset (accepted steps for adaptive integrators).
     pub steps: u64,
-    /// Particle positions, `dim` numbers per particle.
+    /// Particle positions, `dim` numbers per particle. Not in the frame's JSON header: they
+    /// are packed after it (see [Frames](self#frames)).
+    #[serde(skip)]
     pub x: Vec<f64>,
     /// Total mechanical energy E = T + V of the scene's system (the drag spring has no
     /// potential here: its work is in `work`).
@@ -485,4 +533,132 @@ pub fn message_type(text: &str) -> Option<String> {
     let value: serde_json::Value = serde_json::from_str(text).ok()?;
     let kind = value.get("type")?.as_str()?;
     Some(kind.chars().take(40).collect())
+}
+
+/// The first four bytes of every binary frame.
+pub const FRAME_MAGIC: [u8; 4] = *b"bead";
+
+/// A server message as it goes on the wire.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Encoded {
+    /// A JSON text frame (every message but [`ServerMessage::Frame`]).
+    Text(String),
+    /// A binary frame ([`ServerMessage::Frame`], see [Frames](self#frames)).
+    Binary(Vec<u8>),
+}
+
+/// One panel in a frame's JSON header: the frame without `x`, and where its positions are.
+#[derive(Serialize)]
+struct PanelHeader<'a> {
+    #[serde(flatten)]
+    frame: &'a PanelFrame,
+    x_offset: usize,
+    x_count: usize,
+}
+
+#[derive(Serialize)]
+struct FrameHeader<'a> {
+    #[serde(rename = "type")]
+    kind: &'static str,
+    time_scale: f64,
+    panels: Vec<PanelHeader<'a>>,
+}
+
+impl ServerMessage {
+    /// The message as sent: a binary frame for [`ServerMessage::Frame`], JSON text otherwise.
+    pub fn encode(&self) -> Result<Encoded, serde_json::Error> {
+        match self {
+            ServerMessage::Frame { time_scale, panels } => {
+                encode_frame(*time_scale, panels).map(Encoded::Binary)
+            }
+            other => serde_json::to_string(other).map(Encoded::Text),
+        }
+    }
+}
+
+/// A frame as a binary message (see [Frames](self#frames)).
+pub fn encode_frame(time_scale: f64, panels: &[PanelFrame]) -> Result<Vec<u8>, serde_json::Error> {
+    let mut offset = 0;
+    let headers = panels
+        .iter()
+        .map(|frame| {
+            let header = PanelHeader {
+                frame,
+                x_offset: offset,
+                x_count: frame.x.len(),
+            };
+            offset += frame.x.len();
+            header
+        })
+        .collect();
+    let header = serde_json::to_vec(&FrameHeader {
+        kind: "frame",
+        time_scale,
+        panels: headers,
+    })?;
+    let header_len = u32::try_from(header.len()).map_err(serde::ser::Error::custom)?;
+    let start = (8 + header.len()).next_multiple_of(8);
+    let mut out = Vec::with_capacity(start + 8 * offset);
+    out.extend_from_slice(&FRAME_MAGIC);
+    out.extend_from_slice(&header_len.to_le_bytes());
+    out.extend_from_slice(&header);
+    out.resize(start, 0);
+    for frame in panels {
+        for v in &frame.x {
+            out.extend_from_slice(&v.to_le_bytes());
+        }
+    }
+    Ok(out)
+}
+
+/// A binary frame that does not follow the layout.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum FrameError {
+    #[error("not a frame: {0}")]
+    Layout(&'static str),
+    #[error("bad frame header: {0}")]
+    Header(String),
+}
+
+/// The reference decoder of a binary frame: its JSON header with each panel's `x` filled in
+/// as an array of numbers (and `x_offset`, `x_count` kept), i.e. the frame as the JSON
+/// object of protocol version 2 had it. For tests and other clients.
+pub fn decode_frame(bytes: &[u8]) -> Result<serde_json::Value, FrameError> {
+    if bytes.len() < 8 || bytes[..4] != FRAME_MAGIC {
+        return Err(FrameError::Layout("no magic bytes"));
+    }
+    let header_len = u32::from_le_bytes([bytes[4], bytes[5], bytes[6], bytes[7]]) as usize;
+    let header = bytes
+        .get(8..8 + header_len)
+        .ok_or(FrameError::Layout("header past the end"))?;
+    let mut value: serde_json::Value =
+        serde_json::from_slice(header).map_err(|e| FrameError::Header(e.to_string()))?;
+    let start = (8 + header_len).next_multiple_of(8);
+    let block = bytes.get(start..).unwrap_or_default();
+    if block.len() % 8 != 0 {
+        return Err(FrameError::Layout("positions not a whole number of f64"));
+    }
+    let numbers: Vec<f64> = block
+        .chunks_exact(8)
+        .map(|c| f64::from_le_bytes(c.try_into().expect("8 bytes")))
+        .collect();
+    let panels = value
+        .get_mut("panels")
+        .and_then(|p| p.as_array_mut())
+        .ok_or_else(|| FrameError::Header("no panels".into()))?;
+    for panel in panels {
+        let field = |name: &str| {
+            panel
+                .get(name)
+                .and_then(|v| v.as_u64())
+                .map(|v| v as usize)
+                .ok_or_else(|| FrameError::Header(format!("a panel without `{name}`")))
+        };
+        let (offset, count) = (field("x_offset")?, field("x_count")?);
+        let x = numbers
+            .get(offset..offset.saturating_add(count))
+            .ok_or(FrameError::Layout("positions past the end"))?;
+        panel["x"] = x.iter().map(|&v| serde_json::json!(v)).collect();
+    }
+    Ok(value)
 }

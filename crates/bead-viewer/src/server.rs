@@ -2,8 +2,9 @@
 //! `GET /ws` (one [`Session`] per connection).
 //!
 //! Each connection runs one task: it waits for either a client message or the next frame tick
-//! (~60/s). Simulation work and message handling run on tokio's blocking pool
-//! (`spawn_blocking`), so that a busy session never stalls the other connections' I/O. A
+//! (~60/s). Simulation work, message handling and the encoding of frames run on tokio's
+//! blocking pool (`spawn_blocking`), so that a busy session never stalls the other
+//! connections' I/O. A
 //! connection whose client goes away ends its task; nothing is shared between connections
 //! except the read-only scene catalog.
 
@@ -19,7 +20,9 @@ use axum::routing::get;
 use axum::Router;
 use tokio::net::TcpListener;
 
-use crate::protocol::{message_type, parse_client_message, ErrorCode, Limits, ServerMessage};
+use crate::protocol::{
+    message_type, parse_client_message, Encoded, ErrorCode, Limits, ServerMessage,
+};
 use crate::scenes::Catalog;
 use crate::session::Session;
 
@@ -118,11 +121,20 @@ pub fn serve_blocking(
 
 /// Send one message; false when the client is gone (or too slow).
 async fn send(socket: &mut WebSocket, message: &ServerMessage) -> bool {
-    let Ok(text) = serde_json::to_string(message) else {
-        return true;
+    match message.encode() {
+        Ok(encoded) => send_encoded(socket, encoded).await,
+        Err(_) => true,
+    }
+}
+
+/// Send one encoded message; false when the client is gone (or too slow).
+async fn send_encoded(socket: &mut WebSocket, encoded: Encoded) -> bool {
+    let message = match encoded {
+        Encoded::Text(text) => Message::Text(text.into()),
+        Encoded::Binary(bytes) => Message::Binary(bytes.into()),
     };
     matches!(
-        tokio::time::timeout(SEND_TIMEOUT, socket.send(Message::Text(text.into()))).await,
+        tokio::time::timeout(SEND_TIMEOUT, socket.send(message)).await,
         Ok(Ok(()))
     )
 }
@@ -217,17 +229,18 @@ async fn connection(mut socket: WebSocket, config: Arc<ServerConfig>) {
                 let now = Instant::now();
                 let elapsed = now.duration_since(last).as_secs_f64();
                 last = now;
+                // Encoded on the blocking pool too: its cost grows with the particles.
                 let Some((s, frame)) = on_session(session, move |s| {
                     s.advance(elapsed);
-                    s.frame()
+                    s.frame().encode()
                 })
                 .await
                 else {
                     return;
                 };
                 session = s;
-                if let Ok(frame) = frame {
-                    if !send(&mut socket, &frame).await {
+                if let Ok(Ok(frame)) = frame {
+                    if !send_encoded(&mut socket, frame).await {
                         return;
                     }
                 }

@@ -2,6 +2,7 @@
 //! messages and advances the panels frame by frame. Independent of the network, so that it
 //! can be tested directly.
 
+use std::collections::HashMap;
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -15,7 +16,7 @@ use crate::geometry;
 use crate::panel::{DragError, Panel, PanelFailure, PanelSettings};
 use crate::protocol::{
     ClientMessage, ConstraintInfo, ErrorCode, IntegratorInfo, Limits, PanelSettingsPatch,
-    ParticleInfo, Rod, SceneInfo, ServerMessage, Welcome, PROTOCOL_VERSION,
+    ParticleInfo, Pin, Rod, SceneInfo, ServerMessage, Welcome, PROTOCOL_VERSION,
 };
 use crate::scenes::Catalog;
 
@@ -167,8 +168,9 @@ pub struct Session {
     time_scale: f64,
 }
 
-/// Parse a scene, refusing more particles than any session allows and never panicking.
-pub(crate) fn parse_scene(text: &str, file: &str) -> Result<Scene, SceneError> {
+/// Parse a scene as a session would: refusing more particles than a session allows
+/// ([`Limits::max_particles`]) and never panicking. `bead serve` checks its scene with it.
+pub fn parse_scene(text: &str, file: &str) -> Result<Scene, SceneError> {
     let error = |message: String| SceneError {
         file: file.to_string(),
         line: 0,
@@ -608,19 +610,27 @@ impl Session {
     }
 }
 
-/// What the page draws of a scene that does not move.
-fn scene_info(name: &str, scene: &Scene) -> SceneInfo {
+/// What the page draws of a scene that does not move: the [`ServerMessage::Scene`] a session
+/// sends for `scene` loaded as `name`. Needs no simulation (the view box of a large scene is
+/// bounded work, see [`geometry::view_box`]), so a test can show the page a scene without
+/// running it.
+pub fn scene_info(name: &str, scene: &Scene) -> SceneInfo {
     let system = &scene.system;
     let declared = system.declared_constraints();
-    let infos = system.constraints().infos();
+    // By name (unique): a scene may have thousands of constraints.
+    let descriptions: HashMap<&str, &str> = system
+        .constraints()
+        .infos()
+        .iter()
+        .map(|i| (i.name.as_str(), i.description.as_str()))
+        .collect();
     let constraints = declared
         .iter()
         .map(|c| ConstraintInfo {
             name: c.name().to_string(),
-            description: infos
-                .iter()
-                .find(|i| i.name == c.name())
-                .map(|i| i.description.clone())
+            description: descriptions
+                .get(c.name())
+                .map(|d| d.to_string())
                 .unwrap_or_default(),
             expr: c.source().map(str::to_string),
         })
@@ -643,7 +653,23 @@ fn scene_info(name: &str, scene: &Scene) -> SceneInfo {
             _ => None,
         })
         .collect();
-    let anchors: Vec<[f64; 2]> = rods.iter().filter_map(|r| r.anchor).collect();
+    let pins: Vec<Pin> = declared
+        .iter()
+        .filter_map(|c| match c {
+            DeclaredConstraint::Pin {
+                particle, anchor, ..
+            } if anchor.len() >= 2 => Some(Pin {
+                particle: particle.0,
+                anchor: [anchor[0], anchor[1]],
+            }),
+            _ => None,
+        })
+        .collect();
+    let anchors: Vec<[f64; 2]> = rods
+        .iter()
+        .filter_map(|r| r.anchor)
+        .chain(pins.iter().map(|p| p.anchor))
+        .collect();
     let dt = scene.run.dt.unwrap_or(1.0 / 60.0);
     let duration = scene
         .run
@@ -665,6 +691,7 @@ fn scene_info(name: &str, scene: &Scene) -> SceneInfo {
         constraints,
         view: geometry::view_box(system, dt, duration, &anchors),
         rods,
+        pins,
         has_implicit: system.constraints().n_rows() > 0,
         has_parametric: system.parametric().is_some(),
         warnings: scene.warnings(),

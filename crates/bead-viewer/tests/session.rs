@@ -6,11 +6,14 @@ use std::sync::Arc;
 use bead::integrate::IntegratorKind;
 use bead::simulate::{ConfigError, Requirement};
 use bead_viewer::protocol::{
-    parse_client_message, ClientMessage, ErrorCode, Limits, PanelFrame, PanelInfo, ServerMessage,
-    PROTOCOL_VERSION,
+    decode_frame, encode_frame, parse_client_message, ClientMessage, Encoded, ErrorCode, Limits,
+    PanelFrame, PanelInfo, Pin, Rod, SceneInfo, ServerMessage, FRAME_MAGIC, PROTOCOL_VERSION,
 };
 use bead_viewer::scenes::{Catalog, SHIPPED};
-use bead_viewer::session::Session;
+use bead_viewer::session::{parse_scene, Session};
+use bead_viewer::NamedScene;
+
+mod generated;
 
 fn session() -> Session {
     Session::new(Arc::new(Catalog::shipped()), Limits::default())
@@ -97,10 +100,11 @@ fn greeting_has_welcome_scene_and_default_panels() {
     assert_eq!(panels[0].curve_source, "contour");
     assert_eq!(panels[1].curve_source, "parametric");
     assert!(!panels[0].curves.is_empty() && !panels[1].curves.is_empty());
-    // Every JSON message serializes.
+    // Every message encodes: JSON text, the frame binary.
     for m in &greeting {
-        serde_json::to_string(m).unwrap();
+        assert!(matches!(m.encode(), Ok(Encoded::Text(_))), "{m:?}");
     }
+    assert!(matches!(s.frame().encode(), Ok(Encoded::Binary(_))));
 }
 
 #[test]
@@ -436,8 +440,11 @@ fn divergence_stops_one_panel_only() {
     assert!(error.contains("diverged"), "{error}");
     assert_eq!(f[1].status, "running", "{:?}", f[1]);
     assert!(f[1].t > 2.5);
-    // Frames stay valid JSON (no NaN) and play does not restart a failed panel.
-    serde_json::to_string(&s.frame()).unwrap();
+    // Frames stay valid (no NaN) and play does not restart a failed panel.
+    let ServerMessage::Frame { time_scale, panels } = s.frame() else {
+        unreachable!()
+    };
+    decode_frame(&encode_frame(time_scale, &panels).unwrap()).unwrap();
     send(&mut s, r#"{"type":"play"}"#);
     assert_eq!(frames(&s)[0].status, "failed");
     send(&mut s, &format!(r#"{{"type":"reset","panel":{implicit}}}"#));
@@ -537,19 +544,22 @@ fn large_scenes_stay_responsive() {
             start.elapsed()
         );
     }
-    // Too many particles are refused.
+    // Too many particles are refused (a scene given on the command line: a text sent by the
+    // page is smaller than the message limit).
+    let limit = Limits::default().max_particles;
     let mut text = String::from("title = \"too many\"\n[world]\ngravity = [0.0, 1.0]\n");
-    for i in 0..1001 {
+    for i in 0..=limit {
         text.push_str(&format!(
             "[[particle]]\nname = \"p{i}\"\nmass = 1\nposition = [0, 0]\n"
         ));
     }
-    let message = serde_json::json!({"type": "load_scene", "toml": text});
-    let replies = send(&mut s, &message.to_string());
-    assert!(
-        matches!(&replies[0], ServerMessage::SceneError { message, .. } if message.contains("too many particles")),
-        "{replies:?}"
+    let error = parse_scene(&text, "many.toml").unwrap_err();
+    assert_eq!(
+        error.message,
+        format!("too many particles: {} (limit {limit})", limit + 1)
     );
+    let s = session_with("many.toml", text);
+    assert_eq!(s.panel_count(), 0);
 }
 
 /// Drag panel `panel` towards `target`.
@@ -869,4 +879,200 @@ expr = "bead.x^2 + bead.y^2 - (1 + 0.2*sin(3*t))^2"
     );
     assert!(f.work.abs() > 1e-2, "{f:?}");
     assert!(f.energy_error < 1e-4, "{f:?}");
+}
+
+/// A session whose first scene is `text`.
+fn session_with(name: &str, text: String) -> Session {
+    let catalog = Catalog::with_first(NamedScene {
+        name: name.into(),
+        text,
+    });
+    Session::new(Arc::new(catalog), Limits::default())
+}
+
+fn scene_of(s: &Session) -> SceneInfo {
+    match &s.greeting()[1] {
+        ServerMessage::Scene(scene) => scene.clone(),
+        other => panic!("no scene: {other:?}"),
+    }
+}
+
+#[test]
+fn frames_are_binary_with_the_positions_packed_after_a_json_header() {
+    let mut s = session();
+    run(&mut s, 0.5);
+    let ServerMessage::Frame { time_scale, panels } = s.frame() else {
+        unreachable!()
+    };
+    let bytes = encode_frame(time_scale, &panels).unwrap();
+    assert_eq!(bytes[..4], FRAME_MAGIC);
+    let header_len = u32::from_le_bytes(bytes[4..8].try_into().unwrap()) as usize;
+    let header: serde_json::Value = serde_json::from_slice(&bytes[8..8 + header_len]).unwrap();
+    assert_eq!(header["type"], "frame");
+    let start = (8 + header_len).next_multiple_of(8);
+    assert!(bytes[8 + header_len..start].iter().all(|&b| b == 0));
+    // 2 panels of 1 particle in 2D: 4 numbers after the header, nothing else.
+    assert_eq!(bytes.len(), start + 8 * 4);
+    for (k, panel) in panels.iter().enumerate() {
+        let h = &header["panels"][k];
+        assert!(h.get("x").is_none(), "positions in the header: {h}");
+        assert_eq!(h["x_offset"], 2 * k);
+        assert_eq!(h["x_count"], 2);
+        assert_eq!(h["epoch"], panel.epoch);
+        for (i, &x) in panel.x.iter().enumerate() {
+            let at = start + 8 * (2 * k + i);
+            assert_eq!(f64::from_le_bytes(bytes[at..at + 8].try_into().unwrap()), x);
+        }
+    }
+    // The reference decoder gives the frame back, positions exact.
+    let decoded = decode_frame(&bytes).unwrap();
+    assert_eq!(decoded["time_scale"], time_scale);
+    for (k, panel) in panels.iter().enumerate() {
+        let x: Vec<f64> = decoded["panels"][k]["x"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|v| v.as_f64().unwrap())
+            .collect();
+        assert_eq!(x, panel.x);
+        assert_eq!(decoded["panels"][k]["t"], panel.t);
+    }
+    // Not frames: wrong magic, a header past the end, positions cut short.
+    assert!(decode_frame(b"beat\0\0\0\0").is_err());
+    assert!(decode_frame(&[b'b', b'e', b'a', b'd', 255, 0, 0, 0, b'{']).is_err());
+    assert!(decode_frame(&bytes[..bytes.len() - 8]).is_err());
+    assert!(decode_frame(&bytes[..bytes.len() - 3]).is_err());
+}
+
+#[test]
+fn generated_chains_and_cloths_have_their_rods_and_pins() {
+    // A chain: a rod to the anchor, then rods between neighbours.
+    let n = 100;
+    let s = session_with("chain.toml", generated::chain(n, "rattle"));
+    let scene = scene_of(&s);
+    assert_eq!(scene.particles.len(), n);
+    assert_eq!(scene.rods.len(), n);
+    assert_eq!(
+        scene.rods[0],
+        Rod {
+            a: 0,
+            b: None,
+            anchor: Some([0.0, 0.0])
+        }
+    );
+    for i in 1..n {
+        assert_eq!(
+            scene.rods[i],
+            Rod {
+                a: i - 1,
+                b: Some(i),
+                anchor: None
+            }
+        );
+    }
+    assert!(scene.pins.is_empty());
+    // The view holds everywhere the chain can swing: the disc around the anchor whose
+    // radius is the chain's length (no trial run for 100 particles: the reach of its rods).
+    let length = n as f64 * generated::LINK;
+    let v = scene.view;
+    assert!(
+        v[0] <= -length && v[1] <= -length && v[2] >= length && v[3] >= length,
+        "{v:?}"
+    );
+    assert!(
+        v[2] - v[0] < 3.0 * length && v[3] - v[1] < 3.0 * length,
+        "{v:?}"
+    );
+
+    // A cloth: rods along the rows and down the columns, pins at the top corners.
+    let (rows, cols) = (10, 10);
+    let s = session_with("cloth.toml", generated::cloth(rows, cols, "rattle"));
+    let scene = scene_of(&s);
+    assert_eq!(scene.particles.len(), rows * cols);
+    let links = generated::cloth_links(rows, cols);
+    assert_eq!(scene.rods.len(), links.len());
+    assert_eq!(links.len(), 2 * rows * (cols - 1));
+    for (rod, (a, b)) in scene.rods.iter().zip(&links) {
+        assert_eq!(
+            *rod,
+            Rod {
+                a: generated::index(cols, a.0, a.1),
+                b: Some(generated::index(cols, b.0, b.1)),
+                anchor: None
+            }
+        );
+    }
+    assert_eq!(
+        scene.pins,
+        vec![
+            Pin {
+                particle: 0,
+                anchor: [0.0, 0.0]
+            },
+            Pin {
+                particle: cols - 1,
+                anchor: [1.0, 0.0]
+            }
+        ]
+    );
+    // Every node stays within its rod distance of the nearer pin: the bottom corners 1, the
+    // bottom middle 1 + 4/9 (the view box holds the union of those discs).
+    let v = scene.view;
+    assert!(v[0] <= -1.5 && v[3] >= 1.5 && v[2] >= 2.5, "{v:?}");
+    // One panel (implicit, rattle), and it runs on the rods.
+    let mut s = s;
+    run(&mut s, 0.1);
+    let f = &frames(&s)[0];
+    assert_eq!(f.status, "running", "{f:?}");
+    assert!(f.t > 0.0 && f.constraint_error < 1e-6, "{f:?}");
+    assert_eq!(f.x.len(), 2 * rows * cols);
+
+    // The same cloth in 3D: the same rods and pins (drawn at their x-y), three numbers a
+    // particle in the frames, and the rows bowed along z.
+    let mut s = session_with("cloth.toml", generated::cloth_3d(rows, cols, "rattle"));
+    let scene = scene_of(&s);
+    assert_eq!(scene.dim, 3);
+    assert_eq!(scene.rods.len(), links.len());
+    assert_eq!(
+        scene.pins.iter().map(|p| p.anchor).collect::<Vec<_>>(),
+        vec![[0.0, 0.0], [1.0, 0.0]]
+    );
+    let bottom_middle = 3 * generated::index(cols, rows - 1, cols / 2) + 2;
+    assert!(frames(&s)[0].x[bottom_middle] > 0.9 * generated::BOW);
+    run(&mut s, 0.1);
+    let f = &frames(&s)[0];
+    assert_eq!(f.status, "running", "{f:?}");
+    assert!(f.t > 0.0 && f.constraint_error < 1e-6, "{f:?}");
+    assert_eq!(f.x.len(), 3 * rows * cols);
+}
+
+#[test]
+fn the_view_box_of_a_large_scene_is_bounded_work() {
+    // 1000 particles held by nothing: no trial run (the dense solver is not even built for
+    // the view), the initial positions padded.
+    let mut text = String::from("title = \"free\"\n[world]\ngravity = [0.0, 9.81]\n");
+    for i in 0..1000 {
+        text.push_str(&format!(
+            "[[particle]]\nname = \"p{i}\"\nmass = 1.0\nposition = [{}.0, 0.0]\nvelocity = [0.0, -1.0]\n",
+            i % 10
+        ));
+    }
+    let start = std::time::Instant::now();
+    let s = session_with("free.toml", text);
+    let scene = scene_of(&s);
+    assert!(
+        start.elapsed().as_secs_f64() < 20.0,
+        "{:?}",
+        start.elapsed()
+    );
+    // 9 wide: 0.15 * 9 padding on each side, 0.4 * 9 tall at least.
+    let v = scene.view;
+    assert!(
+        (v[0] + 1.35).abs() < 1e-9 && (v[2] - 10.35).abs() < 1e-9,
+        "{v:?}"
+    );
+    assert!(
+        (v[3] - v[1] - (0.4 * 9.0 + 2.0 * 1.35)).abs() < 1e-9,
+        "{v:?}"
+    );
 }

@@ -5,7 +5,8 @@ use std::net::SocketAddr;
 use std::path::Path;
 use std::sync::Arc;
 
-use anyhow::{Context, Result};
+use anyhow::{bail, Context, Result};
+use bead_viewer::protocol::Limits;
 use bead_viewer::{Catalog, NamedScene, ServerConfig};
 
 use super::{load_scene, warn};
@@ -15,8 +16,19 @@ use crate::args::ServeArgs;
 pub fn serve(args: &ServeArgs) -> Result<()> {
     let catalog = match &args.scene {
         Some(path) => {
-            // Validate up front so that a bad scene fails here, located, not in the page.
-            load_scene(path, &[])?;
+            // Validate up front so that a bad scene fails here, located, not in the page; the
+            // viewer's particle limit too (a session refuses more).
+            let scene = load_scene(path, &[])?;
+            let (count, limit) = (
+                scene.system.particles().len(),
+                Limits::default().max_particles,
+            );
+            if count > limit {
+                bail!(
+                    "{}: too many particles for the viewer: {count} (limit {limit})",
+                    path.display()
+                );
+            }
             let text = std::fs::read_to_string(path)
                 .with_context(|| format!("cannot read `{}`", path.display()))?;
             Catalog::with_first(NamedScene {
