@@ -154,20 +154,25 @@ impl ConstraintScales {
     }
 
     /// max_i max(0, |C_i| - rho_i max_{k in row i} |q_k|) / s_i for `set`'s rows; NaN when
-    /// any C_i is NaN.
+    /// any C_i is NaN. The rounding allowance (a pass over the row's coordinates) is worked
+    /// out only for rows whose |C_i| / s_i exceeds the largest so far: in a solve's last
+    /// iterations, a few rows.
     pub fn residual(&self, set: &ConstraintSet, q: &[f64], c: &[f64]) -> f64 {
         let mut worst: f64 = 0.0;
-        for (i, &value) in c.iter().enumerate() {
-            if value.is_nan() {
-                return f64::NAN;
-            }
-            let size = set
-                .row_columns(i)
-                .iter()
-                .fold(0.0, |s: f64, &k| s.max(q[k].abs()));
-            let excess = value.abs() - self.rounding[i] * size;
-            if excess > 0.0 {
-                worst = worst.max(excess / self.scale[i]);
+        for (i, (&value, &scale)) in c.iter().zip(&self.scale).enumerate() {
+            let size = value.abs();
+            if !(size <= worst * scale) {
+                if value.is_nan() {
+                    return f64::NAN;
+                }
+                let coordinates = set
+                    .row_columns(i)
+                    .iter()
+                    .fold(0.0, |s: f64, &k| s.max(q[k].abs()));
+                let excess = size - self.rounding[i] * coordinates;
+                if excess > 0.0 {
+                    worst = worst.max(excess / scale);
+                }
             }
         }
         worst
