@@ -78,7 +78,7 @@ fn toml_syntax_error() {
 fn unknown_key() {
     assert_eq!(
         error(&edit("mass = 1.0", "mass = 1.0\ncolour = \"red\"")),
-        "s.toml:9:1: unknown key `colour`, expected one of `name`, `mass`, `position`, `velocity`\n  colour = \"red\"\n  ^^^^^^"
+        "s.toml:9:1: unknown key `colour`, expected one of `for`, `name`, `mass`, `position`, `velocity`\n  colour = \"red\"\n  ^^^^^^"
     );
     assert_eq!(
         error(&format!("{BASE}[wrold]\n")),

@@ -36,7 +36,7 @@ mod parse;
 mod tape;
 
 pub use ast::{Expr, Func};
-pub use parse::{is_identifier, parse, ExprError, Resolved, Span, MAX_DEPTH};
+pub use parse::{is_identifier, name_spans, parse, ExprError, Resolved, Span, MAX_DEPTH};
 pub use tape::Tape;
 
 #[cfg(test)]

@@ -55,9 +55,11 @@
 mod file;
 mod load;
 mod location;
+mod template;
 
 pub use crate::model::EditError;
 
+use std::ops::Range;
 use std::path::Path;
 use std::sync::Arc;
 
@@ -81,12 +83,62 @@ pub struct Scene {
     pub params: Vec<(String, f64)>,
     /// The `[run]` table.
     pub run: RunDefaults,
+    /// The tables with a `for` key, in file order within each kind.
+    generated: Vec<Generated>,
     /// The text it was loaded from.
     text: Arc<str>,
     /// The parameter overrides it was loaded with.
     overrides: Vec<(String, f64)>,
     /// Constraint expressions replaced since (declared index, new expression), in order.
     edits: Vec<(usize, String)>,
+}
+
+/// The most repetitions the `for` keys of one scene may make in all (particles, constraints
+/// and forces together): ten times the largest scenes the solvers are meant for, few enough
+/// that a typo (`0..1e9`, a grid of `0..N` by `0..N` meant as `0..N` by `0..3`) is an error
+/// at once instead of minutes of loading and gigabytes of memory (a chain of 10^5 links takes
+/// about 10 s and 1 GB to load).
+pub const MAX_REPETITIONS: usize = 100_000;
+
+/// The kind of a table that a `for` key can repeat.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum TableKind {
+    /// `[[particle]]`
+    Particle,
+    /// `[[constraint]]`
+    Constraint,
+    /// `[[force]]`
+    Force,
+}
+
+impl TableKind {
+    /// `particle`, `constraint`, `force`: the table's name, as messages say it.
+    pub fn name(self) -> &'static str {
+        match self {
+            TableKind::Particle => "particle",
+            TableKind::Constraint => "constraint",
+            TableKind::Force => "force",
+        }
+    }
+}
+
+/// A `[[particle]]`, `[[constraint]]` or `[[force]]` table with a `for` key, and what its
+/// repetitions made (so that a description can summarize them instead of listing 10^4).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Generated {
+    /// What the table declares.
+    pub kind: TableKind,
+    /// Its number among the tables of its kind, 1-based, as messages count them
+    /// (`constraint 2 (i = 3)` is a repetition of the second `[[constraint]]` table).
+    pub table: usize,
+    /// The line of its header in the file.
+    pub line: usize,
+    /// Its loop variables and ranges as written: `i = 0..N, j = 0..H`.
+    pub ranges: String,
+    /// What it made, in order: indices into [`System::particles`], into the declared
+    /// constraints ([`crate::model::ConstraintSet::infos`]), or into [`System::forces`].
+    /// Empty when its ranges are.
+    pub items: Range<usize>,
 }
 
 /// Why [`Scene::with_param`] failed: the edit itself, or the scene's text with the new value
@@ -172,6 +224,12 @@ impl Scene {
     /// Load a scene from text; `file` names it in messages.
     pub fn parse(text: &str, file: &str, overrides: &[(String, f64)]) -> Result<Scene, SceneError> {
         load::load(text, file, overrides)
+    }
+
+    /// The tables with a `for` key and what each made, in file order within each kind
+    /// (empty when no table has one).
+    pub fn generated(&self) -> &[Generated] {
+        &self.generated
     }
 
     /// The text the scene was loaded from (without later edits).
