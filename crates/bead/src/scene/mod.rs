@@ -38,7 +38,8 @@
 //! - `[[force]]`: `kind = "constant"` (`particle`, `vector`); `"spring"` (`between = ["a", "b"]`
 //!   or `particle` and `anchor`; `stiffness`; `rest_length`, default 0); `"drag"`
 //!   (`coefficient`; `particle`, default all particles).
-//! - `[[constraint]]`: optional `name` (default `constraint N`, unique). `kind = "expression"`
+//! - `[[constraint]]`: optional `name` (default `constraint N`, `constraint N (i = 3)` in a
+//!   generated table; unique). `kind = "expression"`
 //!   (the default) has `expr`, an expression of particle coordinates `NAME.x|y|z`, `t` and
 //!   parameters; `"distance"` has `between` or `particle` and `anchor`, and `length` (default the
 //!   initial distance); `"pin"` has `particle` and `anchor` (default its initial position).
@@ -47,6 +48,16 @@
 //! - `[run]`: `method` (implicit, parametric), `integrator` (euler, symplectic-euler, midpoint,
 //!   rk4), `dt`, `duration` or `steps`, and `stabilize = [ks, kd]` or
 //!   `stabilize = { frequency = f, damping = zeta }` (damping default 1).
+//! - `for = { i = "START..STOP", j = ... }` on a `[[particle]]`, `[[constraint]]` or
+//!   `[[force]]` table repeats it for i = START, ..., STOP - 1 (the first variable outermost,
+//!   as written; bounds are integer expressions of the parameters and the earlier loop
+//!   variables). The loop variables may be used in every expression of the table, and
+//!   `{EXPR}` in its strings (names, particle references, `expr`) is replaced by EXPR's value,
+//!   a whole number >= 0: `name = "p{i}"`, `between = ["p{i-1}", "p{i}"]`. `{...}` works in
+//!   tables without `for` too, with the parameters. The `for` keys of a scene make at most
+//!   [`MAX_REPETITIONS`] repetitions in all. Expansion is the loader's (`template.rs`), before
+//!   the [`crate::model::SystemBuilder`]: the system has one particle or constraint per
+//!   repetition and no loops; [`Scene::generated`] tells which table made what.
 //! - Unknown keys, wrong types, missing keys, non-finite numbers (`nan`, `inf`) and values out of
 //!   range are errors located in the file. So are control characters (escape sequences, line
 //!   breaks, tabs) in `title` and constraint names: they are labels, shown on terminals and in
