@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use bead::integrate::IntegratorKind;
-use bead::scene::{Generated, Scene, TableKind, MAX_REPETITIONS};
+use bead::scene::{Generated, Scene, TableKind, MAX_LOOP_VARIABLES, MAX_REPETITIONS};
 use bead::simulate::{Simulation, SimulationConfig};
 
 fn scenes_dir() -> PathBuf {
@@ -359,6 +359,10 @@ fn generated_errors_are_located() {
             "s.toml:7:9: particle 1: `t` is reserved (t, pi, e, x, y, z) and cannot name a loop variable\n  for = { t = \"0..3\" }\n          ^",
         ),
         (
+            particle("for = { a = \"0..1\", b = \"0..1\", c = \"0..1\", d = \"0..1\", e1 = \"0..1\", f = \"0..1\", g = \"0..1\", h = \"0..1\", k = \"0..1\" }\nname = \"p\""),
+            "s.toml:7:106: particle 1: `for` has more than 8 loop variables\n  for = { a = \"0..1\", b = \"0..1\", c = \"0..1\", d = \"0..1\", e1 = \"0..1\", f = \"0..1\", g = \"0..1\", h = \"0..1\", k = \"0..1\" }\n                                                                                                           ^",
+        ),
+        (
             particle("for = { }\nname = \"p\""),
             "s.toml:7:7: particle 1: `for` names no loop variable; write e.g. `for = { i = \"0..N\" }`\n  for = { }\n        ^^^",
         ),
@@ -435,7 +439,7 @@ fn generated_constraint_errors_are_located() {
         let text = format!("{chain}{constraint}");
         assert_eq!(error(&text), want, "for:\n{text}");
     }
-    assert_eq!(MAX_REPETITIONS, 100_000);
+    assert_eq!((MAX_REPETITIONS, MAX_LOOP_VARIABLES), (100_000, 8));
 }
 
 /// The 1000-link chain, and `--set N=5` against the same chain written out by hand.

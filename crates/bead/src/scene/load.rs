@@ -13,7 +13,9 @@ use super::file::{
 };
 use super::location::Source;
 use super::template::{self, Expanded, Scope, StringError};
-use super::{Generated, RunDefaults, Scene, SceneError, TableKind, MAX_REPETITIONS};
+use super::{
+    Generated, RunDefaults, Scene, SceneError, TableKind, MAX_LOOP_VARIABLES, MAX_REPETITIONS,
+};
 use crate::expr::{parse, Expr, ExprError, Func, Resolved};
 use crate::formulation::{Feedback, Method};
 use crate::integrate::IntegratorKind;
@@ -327,6 +329,12 @@ impl Loader<'_> {
                 format!(
                     "{ctx}: `for` names no loop variable; write e.g. `for = {{ i = \"0..N\" }}`"
                 ),
+            ));
+        }
+        if let Some((key, _)) = ranges.get(MAX_LOOP_VARIABLES) {
+            return Err(self.src.error(
+                key.span(),
+                format!("{ctx}: `for` has more than {MAX_LOOP_VARIABLES} loop variables"),
             ));
         }
         for (k, (key, _)) in ranges.iter().enumerate() {

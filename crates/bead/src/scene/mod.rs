@@ -55,7 +55,7 @@
 //!   `{EXPR}` in its strings (names, particle references, `expr`) is replaced by EXPR's value,
 //!   a whole number >= 0: `name = "p{i}"`, `between = ["p{i-1}", "p{i}"]`. `{...}` works in
 //!   tables without `for` too, with the parameters. The `for` keys of a scene make at most
-//!   [`MAX_REPETITIONS`] repetitions in all. Expansion is the loader's (`template.rs`), before
+//!   [`MAX_REPETITIONS`] repetitions in all; one `for` has at most [`MAX_LOOP_VARIABLES`]. Expansion is the loader's (`template.rs`), before
 //!   the [`crate::model::SystemBuilder`]: the system has one particle or constraint per
 //!   repetition and no loops; [`Scene::generated`] tells which table made what.
 //! - Unknown keys, wrong types, missing keys, non-finite numbers (`nan`, `inf`) and values out of
@@ -110,6 +110,10 @@ pub struct Scene {
 /// at once instead of minutes of loading and gigabytes of memory (a chain of 10^5 links takes
 /// about 10 s and 1 GB to load).
 pub const MAX_REPETITIONS: usize = 100_000;
+
+/// The most loop variables one `for` may have: a grid takes two or three, and the loader
+/// nests one level per variable.
+pub const MAX_LOOP_VARIABLES: usize = 8;
 
 /// The kind of a table that a `for` key can repeat.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -259,7 +263,8 @@ impl Scene {
         &self.edits
     }
 
-    /// The scene with constraint `index` (0-based, the order of its `[[constraint]]` tables)
+    /// The scene with constraint `index` (0-based, the order of its `[[constraint]]` tables,
+    /// each repetition of a table with `for` counted)
     /// replaced by `source = 0`: see [`System::with_constraint_expr`]. Errors in the new
     /// expression carry byte spans into `source`.
     ///
