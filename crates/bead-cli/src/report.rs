@@ -8,7 +8,7 @@ use bead::formulation::Method;
 use bead::integrate::IntegratorKind;
 use bead::model::{Endpoint, ExprRow, Force, System};
 use bead::output::Summary;
-use bead::scene::Scene;
+use bead::scene::{Generated, Scene, TableKind};
 use bead::simulate::SetupError;
 
 use crate::plan::Plan;
@@ -536,6 +536,59 @@ fn setup_error(e: &SetupError) -> String {
     format!("{:#}", anyhow::Error::from(e.clone()))
 }
 
+/// One line, or a run of elided lines, of a list in `bead check`.
+enum Listed<'a> {
+    /// The item with this index (a particle, force or declared constraint).
+    Item(usize),
+    /// `skipped` items made by the table `generated`, not listed.
+    Elided {
+        skipped: usize,
+        generated: &'a Generated,
+    },
+}
+
+impl Listed<'_> {
+    /// The line that stands for an elided run (empty for an item).
+    fn elided(&self) -> String {
+        match self {
+            Listed::Item(_) => String::new(),
+            Listed::Elided { skipped, generated } => format!(
+                "  ... {skipped} more made by {} {} (line {}: for {})\n",
+                generated.kind.name(),
+                generated.table,
+                generated.line,
+                generated.ranges
+            ),
+        }
+    }
+}
+
+/// The `count` items of `kind` as `bead check` lists them: every one, except that of the
+/// items a table with `for` made, more than [`bead::LISTED_NAMES`] are cut like
+/// [`bead::name_list`] cuts names: the first ones, a line saying how many are left out, and
+/// the last. So a generated scene of 10^4 particles prints a few lines per table.
+fn listed(scene: &Scene, kind: TableKind, count: usize) -> Vec<Listed<'_>> {
+    let mut out = Vec::new();
+    let mut next = 0;
+    for generated in scene.generated().iter().filter(|g| g.kind == kind) {
+        let items = generated.items.clone();
+        if items.len() <= bead::LISTED_NAMES || items.end > count {
+            continue;
+        }
+        out.extend((next..items.start).map(Listed::Item));
+        let shown = bead::LISTED_NAMES - 2;
+        out.extend((items.start..items.start + shown).map(Listed::Item));
+        out.push(Listed::Elided {
+            skipped: items.len() - shown - 1,
+            generated,
+        });
+        out.push(Listed::Item(items.end - 1));
+        next = items.end;
+    }
+    out.extend((next..count).map(Listed::Item));
+    out
+}
+
 /// The description printed by `bead check`, ending with whether each formulation starts.
 pub fn check_text(scene: &Scene, start: &StartCheck) -> String {
     let system = &*scene.system;
@@ -557,28 +610,68 @@ pub fn check_text(scene: &Scene, start: &StartCheck) -> String {
         let _ = writeln!(s, "  parameters   {}", params.join(", "));
     }
 
-    let _ = writeln!(s, "\nparticles ({})", system.particles().len());
-    let width = system
-        .particles()
-        .iter()
-        .map(|p| p.name.chars().count())
-        .max()
-        .unwrap_or(0);
-    for p in system.particles() {
+    for (i, generated) in scene.generated().iter().enumerate() {
+        let made = generated.items.len();
+        let what = generated.kind.name();
         let _ = writeln!(
             s,
-            "  {:<width$}  mass {}, position {}, velocity {}",
-            p.name,
-            exact(p.mass),
-            vector(&p.position),
-            vector(&p.velocity)
+            "  {}{what} {} (line {}): {}, {}",
+            if i == 0 {
+                "generated    "
+            } else {
+                "             "
+            },
+            generated.table,
+            generated.line,
+            generated.ranges,
+            plural(made, what, &format!("{what}s"))
         );
     }
 
-    let _ = writeln!(s, "\nforces");
+    let particles = system.particles();
+    let _ = writeln!(s, "\nparticles ({})", particles.len());
+    let shown = listed(scene, TableKind::Particle, particles.len());
+    let width = shown
+        .iter()
+        .filter_map(|l| match l {
+            Listed::Item(p) => Some(particles[*p].name.chars().count()),
+            Listed::Elided { .. } => None,
+        })
+        .max()
+        .unwrap_or(0);
+    for item in &shown {
+        match item {
+            Listed::Item(p) => {
+                let p = &particles[*p];
+                let _ = writeln!(
+                    s,
+                    "  {:<width$}  mass {}, position {}, velocity {}",
+                    p.name,
+                    exact(p.mass),
+                    vector(&p.position),
+                    vector(&p.velocity)
+                );
+            }
+            Listed::Elided { .. } => s.push_str(&item.elided()),
+        }
+    }
+
+    let _ = writeln!(
+        s,
+        "\nforces ({})",
+        match system.forces().len() {
+            0 => "gravity only".to_string(),
+            n => format!("gravity and {}", plural(n, "other", "others")),
+        }
+    );
     let _ = writeln!(s, "  gravity {}", vector(system.gravity()));
-    for force in system.forces() {
-        let _ = writeln!(s, "  {}", describe_force(system, force));
+    for item in listed(scene, TableKind::Force, system.forces().len()) {
+        match item {
+            Listed::Item(f) => {
+                let _ = writeln!(s, "  {}", describe_force(system, &system.forces()[f]));
+            }
+            Listed::Elided { .. } => s.push_str(&item.elided()),
+        }
     }
 
     let set = system.constraints();
@@ -595,7 +688,14 @@ pub fn check_text(scene: &Scene, start: &StartCheck) -> String {
     if set.n_rows() > 0 {
         set.evaluate(0.0, &x0, &v0, &mut eval);
     }
-    for info in infos {
+    for item in listed(scene, TableKind::Constraint, infos.len()) {
+        let info = match item {
+            Listed::Item(c) => &infos[c],
+            Listed::Elided { .. } => {
+                s.push_str(&item.elided());
+                continue;
+            }
+        };
         let rows = if info.rows.len() == 1 {
             format!("row {}", info.rows.start)
         } else {

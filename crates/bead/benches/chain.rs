@@ -367,15 +367,18 @@ fn main() {
         "  {:>6}  {:<12} {:>12} {:>16} {:>10} {:>10}",
         "N", "variant", "frames/s", "ns/step/link", "stretch", "drift"
     );
+    let mut per_step = Vec::new();
     for &n in &sizes {
         let mut rows = Vec::new();
         if variants.contains("engine") {
-            rows.push(("engine", run_engine(n, duration)));
+            let figures = run_engine(n, duration);
+            per_step.push((n, figures.ns_per_step_per_link * n as f64));
+            rows.push(("engine", figures));
         }
         if variants.contains("hand") {
             rows.push(("hand-written", run_hand(n, duration)));
         }
-        for (name, figures) in rows {
+        for (name, figures) in &rows {
             println!(
                 "  {:>6}  {:<12} {:>12.1} {:>16.1} {:>10.1e} {:>10.1e}",
                 n,
@@ -387,5 +390,71 @@ fn main() {
             );
             black_box(figures.steps);
         }
+        if let [(_, engine), (_, hand)] = &rows[..] {
+            println!(
+                "  {:>6}  engine / hand-written: {:.2}x the time",
+                n,
+                hand.frames_per_second / engine.frames_per_second
+            );
+        }
     }
+    // Growth of the engine's time per step with N (linear: x10 per x10 links).
+    for pair in per_step.windows(2) {
+        let ((n0, t0), (n1, t1)) = (pair[0], pair[1]);
+        println!(
+            "  engine time per step, N = {n1} / N = {n0}: {:.1}",
+            t1 / t0
+        );
+    }
+    if variants.contains("cloth") || (benchmarking && std::env::var("BEAD_CHAIN_VARIANTS").is_err())
+    {
+        run_cloth(if benchmarking { 2.0 } else { 0.02 });
+    }
+}
+
+/// `scenes/cloth.toml` (50 x 50 masses in 3D, 4900 rods, two pinned corners) with its own
+/// run settings (rattle, dt = 1/120): frames of 1/60 s per second and the largest rod stretch
+/// |d - L| / L over `duration` simulated seconds.
+fn run_cloth(duration: f64) {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes/cloth.toml");
+    let scene = bead::scene::Scene::load(&path, &[]).unwrap_or_else(|e| panic!("{e}"));
+    let dt = scene.run.dt.unwrap_or(FRAME / 2.0);
+    let config = SimulationConfig {
+        method: Method::Implicit,
+        integrator: IntegratorKind::Rattle,
+        dt,
+        ..Default::default()
+    };
+    let system = Arc::clone(&scene.system);
+    let mut sim = Simulation::new(Arc::clone(&system), config).unwrap();
+    let set = system.constraints();
+    let mut ws = set.workspace();
+    let steps = (duration / dt).round() as u64;
+    let mut stretch = 0.0_f64;
+    let start = Instant::now();
+    for _ in 0..steps {
+        sim.step().unwrap_or_else(|e| panic!("cloth: {e}"));
+        // C = (|d|^2 - L^2) / (2 L), so |d| = sqrt(L^2 + 2 L C).
+        let c = set.residuals(sim.t(), sim.positions(), &mut ws);
+        for info in set.infos() {
+            if let Some(l) = info.length {
+                let r = info.rows.start;
+                let d = (l * l + 2.0 * l * c[r]).sqrt();
+                stretch = stretch.max((d - l).abs() / l);
+            }
+        }
+    }
+    let wall = start.elapsed().as_secs_f64();
+    println!();
+    println!(
+        "scenes/cloth.toml ({} particles, {} rows), rattle at dt = {dt:.5}, {duration} s simulated:",
+        system.particles().len(),
+        set.n_rows()
+    );
+    println!(
+        "  frames/s {:.1}, ns/step/rod {:.1}, stretch {:.1e}",
+        steps as f64 * dt / FRAME / wall,
+        wall * 1e9 / steps as f64 / set.n_rows() as f64,
+        stretch
+    );
 }

@@ -70,6 +70,45 @@ pub fn significant(x: f64, digits: usize) -> String {
     }
 }
 
+/// Names joined by `, ` for a message, at most [`LISTED_NAMES`] of them: a longer list shows
+/// its first names, `...`, its last name and how many there are, so that an error in a scene
+/// of 10^4 particles stays one readable line.
+///
+/// ```
+/// assert_eq!(bead::name_list(["a", "b"]), "a, b");
+/// let many: Vec<String> = (0..1000).map(|i| format!("p{i}")).collect();
+/// assert_eq!(bead::name_list(&many), "p0, p1, p2, p3, p4, p5, p6, p7, ..., p999 (1000 in all)");
+/// ```
+pub fn name_list<I>(names: I) -> String
+where
+    I: IntoIterator,
+    I::IntoIter: ExactSizeIterator,
+    I::Item: AsRef<str>,
+{
+    let names = names.into_iter();
+    let count = names.len();
+    if count <= LISTED_NAMES {
+        return names
+            .map(|n| n.as_ref().to_string())
+            .collect::<Vec<_>>()
+            .join(", ");
+    }
+    let mut out = String::new();
+    for (i, name) in names.enumerate() {
+        if i < LISTED_NAMES - 2 {
+            out.push_str(name.as_ref());
+            out.push_str(", ");
+        } else if i + 1 == count {
+            out.push_str("..., ");
+            out.push_str(name.as_ref());
+        }
+    }
+    format!("{out} ({count} in all)")
+}
+
+/// The longest list [`name_list`] writes out in full.
+pub const LISTED_NAMES: usize = 10;
+
 /// `text` with every control character escaped, so that it can be shown on a terminal or
 /// quoted in a message on one line: `\n`, `\r`, `\t`, other ASCII controls as `\x1b`, the C1
 /// controls (U+0080 to U+009F) as `\u{9b}`. Everything else, Unicode included, is kept.

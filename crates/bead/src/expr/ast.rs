@@ -990,6 +990,12 @@ impl Expr {
         super::diff::derivative(self, k)
     }
 
+    /// [`Self::derivative`] with respect to each slot of `ks`, in order: the same
+    /// expressions, for the cost of one traversal of the DAG plus the derivatives.
+    pub fn derivatives(&self, ks: &[usize]) -> Vec<Expr> {
+        super::diff::derivatives(self, ks)
+    }
+
     /// Number of distinct nodes in the DAG.
     pub fn node_count(&self) -> usize {
         topo([self]).nodes.len()

@@ -41,14 +41,32 @@ use super::{Expr, Func};
 
 /// The partial derivative of `root` with respect to variable slot `k`.
 pub(crate) fn derivative(root: &Expr, k: usize) -> Expr {
-    let zero = Expr::constant(0.0);
-    if let Node::Var(j) = &*root.0 {
-        return if *j == k { Expr::constant(1.0) } else { zero };
-    }
-    if matches!(&*root.0, Node::Const(_)) {
-        return zero;
+    derivatives(root, &[k]).swap_remove(0)
+}
+
+/// The partial derivatives of `root` with respect to each of the slots `ks`: each one the
+/// expression [`derivative`] gives, with the DAG sorted once for all of them (a constraint
+/// row takes one derivative per coordinate it reads, on a DAG whose sort costs as much as
+/// a derivative).
+pub(crate) fn derivatives(root: &Expr, ks: &[usize]) -> Vec<Expr> {
+    if matches!(&*root.0, Node::Var(_) | Node::Const(_)) {
+        return ks.iter().map(|&k| derivative_of_leaf(root, k)).collect();
     }
     let t = topo([root]);
+    ks.iter().map(|&k| derivative_sorted(&t, k)).collect()
+}
+
+/// The derivative of a variable or constant node.
+fn derivative_of_leaf(root: &Expr, k: usize) -> Expr {
+    match &*root.0 {
+        Node::Var(j) if *j == k => Expr::constant(1.0),
+        _ => Expr::constant(0.0),
+    }
+}
+
+/// The derivative with respect to slot `k` of the root of `t` (not a leaf).
+fn derivative_sorted(t: &ast::Topo<'_>, k: usize) -> Expr {
+    let zero = Expr::constant(0.0);
     let n = t.nodes.len();
     let mut depends = vec![false; n];
     let mut d: Vec<Expr> = Vec::with_capacity(n);
@@ -385,6 +403,40 @@ mod tests {
                 assert!(d.ptr_eq(&all[n - 1][*j].1), "d x_{i} / d q_{j} is shared");
             }
         }
+    }
+
+    #[test]
+    fn derivatives_together_are_the_derivatives_one_by_one() {
+        let mut rng = Rng::new(11);
+        let show = |e: &Expr| e.display_with(&|k| NAMES[k].to_string()).to_string();
+        for _ in 0..100 {
+            let mut pool = Vec::new();
+            let e = random_expr(&mut rng, 3, 5, &mut pool);
+            let together: Vec<String> = e.derivatives(&[2, 0, 1, 0]).iter().map(show).collect();
+            let one_by_one: Vec<String> = [2, 0, 1, 0]
+                .iter()
+                .map(|&k| show(&e.derivative(k)))
+                .collect();
+            assert_eq!(together, one_by_one, "{}", show(&e));
+        }
+        // Leaves, and no slot at all.
+        assert_eq!(
+            p("x")
+                .derivatives(&[0, 1])
+                .iter()
+                .map(show)
+                .collect::<Vec<_>>(),
+            ["1", "0"]
+        );
+        assert_eq!(
+            p("2")
+                .derivatives(&[0])
+                .iter()
+                .map(show)
+                .collect::<Vec<_>>(),
+            ["0"]
+        );
+        assert!(p("x*y").derivatives(&[]).is_empty());
     }
 
     #[test]

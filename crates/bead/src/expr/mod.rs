@@ -38,7 +38,7 @@ mod tape;
 pub(crate) use ast::{reads_any, share};
 pub use ast::{Expr, Func};
 pub(crate) use diff::gradients;
-pub use parse::{is_identifier, parse, ExprError, Resolved, Span, MAX_DEPTH};
+pub use parse::{is_identifier, name_spans, parse, ExprError, Resolved, Span, MAX_DEPTH};
 pub use tape::Tape;
 
 #[cfg(test)]

@@ -523,6 +523,36 @@ pub fn parse(
     }
 }
 
+/// The spans of the names in `source` (every name token, dotted names whole, functions and
+/// constants included), in order, as [`parse`] reads them; an error where the text does not
+/// tokenize. For rewriting a parsed expression's names, e.g. a scene's loop variables by
+/// their values.
+///
+/// ```
+/// use bead::expr::name_spans;
+/// let source = "p3.x - 2e1*i + sin(i)";
+/// let names: Vec<&str> = name_spans(source).unwrap().iter().map(|s| &source[s.start..s.end]).collect();
+/// assert_eq!(names, ["p3.x", "i", "sin", "i"]);
+/// ```
+pub fn name_spans(source: &str) -> Result<Vec<Span>, ExprError> {
+    let mut p = Parser {
+        src: source,
+        pos: 0,
+        peeked: None,
+        depth: 0,
+        resolve: &|_| Err(String::new()),
+    };
+    let mut names = Vec::new();
+    loop {
+        let t = p.next()?;
+        match t.tok {
+            Tok::End => return Ok(names),
+            Tok::Name => names.push(t.span),
+            _ => {}
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

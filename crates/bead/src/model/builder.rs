@@ -1,5 +1,6 @@
 //! Building and checking a [`System`].
 
+use std::collections::HashMap;
 use std::sync::Arc;
 
 use super::constraint::{ConstraintInfo, ConstraintSet, CustomRow, ExprRow};
@@ -106,6 +107,8 @@ pub struct SystemBuilder {
     pub(super) gravity: Vec<f64>,
     pub(super) params: Vec<(String, f64)>,
     pub(super) particles: Vec<Particle>,
+    /// Particle index by name, so that lookups stay O(1) in scenes of 10^4 particles.
+    index: HashMap<String, usize>,
     pub(super) forces: Vec<Force>,
     pub(super) constraints: Vec<(String, ConstraintSpec)>,
     pub(super) parametric: Option<ParametricSpec>,
@@ -132,6 +135,7 @@ impl SystemBuilder {
             gravity: gravity.to_vec(),
             params: Vec::new(),
             particles: Vec::new(),
+            index: HashMap::new(),
             forces: Vec::new(),
             constraints: Vec::new(),
             parametric: None,
@@ -177,7 +181,7 @@ impl SystemBuilder {
                 "particle name `{name}` must be a letter or `_` followed by letters, digits or `_`"
             )));
         }
-        if self.particles.iter().any(|p| p.name == name) {
+        if self.index.contains_key(name) {
             return Err(ModelError::Duplicate {
                 kind: "particle",
                 name: name.into(),
@@ -197,15 +201,15 @@ impl SystemBuilder {
             position: position.to_vec(),
             velocity: velocity.to_vec(),
         });
+        self.index.insert(name.into(), self.particles.len() - 1);
         Ok(ParticleId(self.particles.len() - 1))
     }
 
     /// Look a particle up by name.
     pub fn particle_id(&self, name: &str) -> Result<ParticleId, ModelError> {
-        self.particles
-            .iter()
-            .position(|p| p.name == name)
-            .map(ParticleId)
+        self.index
+            .get(name)
+            .map(|&p| ParticleId(p))
             .ok_or_else(|| ModelError::UnknownParticle(name.into()))
     }
 
@@ -233,7 +237,7 @@ impl SystemBuilder {
                 .map(|a| Resolved::Var(p * dim + a))
         };
         if let Some((particle, axis)) = name.split_once('.') {
-            if let Some(p) = self.particles.iter().position(|q| q.name == particle) {
+            if let Some(&p) = self.index.get(particle) {
                 return coordinate(p, axis).ok_or_else(|| {
                     format!(
                         "`{particle}` has no coordinate `{axis}`; in {dim}D use {}",
@@ -501,11 +505,7 @@ impl SystemBuilder {
     }
 
     fn particle_list(&self) -> String {
-        self.particles
-            .iter()
-            .map(|p| p.name.as_str())
-            .collect::<Vec<_>>()
-            .join(", ")
+        crate::name_list(self.particles.iter().map(|p| p.name.as_str()))
     }
     fn param_list(&self) -> String {
         if self.params.is_empty() {

@@ -53,24 +53,33 @@ impl ExprRow {
     pub fn new(value: Expr, n_coords: usize) -> ExprRow {
         let time = 2 * n_coords;
         let velocity_of = |k: usize| Expr::var(n_coords + k);
+        // The partial derivatives of f with respect to the coordinates it reads, in slot
+        // order, taken together (one traversal of f), and df/dt (0 when f does not read t).
+        let partials = |f: &Expr| {
+            let vars = f.vars();
+            let coordinates: Vec<usize> = vars.iter().copied().filter(|&k| k < n_coords).collect();
+            let by_coordinate: Vec<(usize, Expr)> = coordinates
+                .iter()
+                .copied()
+                .zip(f.derivatives(&coordinates))
+                .collect();
+            let by_time = if vars.contains(&time) {
+                f.derivative(time)
+            } else {
+                Expr::constant(0.0)
+            };
+            (by_coordinate, by_time)
+        };
         // Total time derivative along the motion, accelerations excluded:
         // d/dt f(x, v, t) = sum_k df/dx_k v_k + df/dt.
-        let total_derivative = |f: &Expr| {
-            f.vars()
+        let total_derivative = |(by_coordinate, by_time): (Vec<(usize, Expr)>, Expr)| {
+            by_coordinate
                 .into_iter()
-                .filter(|&k| k < n_coords)
-                .fold(f.derivative(time), |acc, k| {
-                    acc + f.derivative(k) * velocity_of(k)
-                })
+                .fold(by_time, |acc, (k, d)| acc + d * velocity_of(k))
         };
-        let gradient: Vec<(usize, Expr)> = value
-            .vars()
-            .into_iter()
-            .filter(|&k| k < n_coords)
-            .map(|k| (k, value.derivative(k)))
-            .collect();
-        let velocity = total_derivative(&value);
-        let bias = total_derivative(&velocity);
+        let (gradient, by_time) = partials(&value);
+        let velocity = total_derivative((gradient.clone(), by_time));
+        let bias = total_derivative(partials(&velocity));
         ExprRow {
             value,
             gradient,

@@ -36,6 +36,9 @@ pub(super) struct World {
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub(super) struct ParticleDef {
+    /// Repeat the table over integer ranges (see `template.rs`).
+    #[serde(rename = "for")]
+    pub repeat: Option<Spanned<Entries<RangeText>>>,
     pub name: Option<Spanned<String>>,
     pub mass: Option<Spanned<Num>>,
     pub position: Option<Spanned<NumVec>>,
@@ -45,6 +48,9 @@ pub(super) struct ParticleDef {
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub(super) struct ForceDef {
+    /// Repeat the table over integer ranges (see `template.rs`).
+    #[serde(rename = "for")]
+    pub repeat: Option<Spanned<Entries<RangeText>>>,
     pub kind: Option<Spanned<String>>,
     pub particle: Option<Spanned<String>>,
     pub between: Option<Spanned<Names>>,
@@ -58,6 +64,9 @@ pub(super) struct ForceDef {
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub(super) struct ConstraintDef {
+    /// Repeat the table over integer ranges (see `template.rs`).
+    #[serde(rename = "for")]
+    pub repeat: Option<Spanned<Entries<RangeText>>>,
     pub kind: Option<Spanned<String>>,
     pub name: Option<Spanned<String>>,
     pub expr: Option<Spanned<String>>,
@@ -107,6 +116,10 @@ pub(super) enum Num {
     Value(f64),
     Expr(String),
 }
+
+/// A range of a `for` key: `"START..STOP"`, as written.
+#[derive(Debug)]
+pub(super) struct RangeText(pub String);
 
 /// An array of [`Num`]s.
 #[derive(Debug)]
@@ -181,6 +194,22 @@ where
         }
     }
     d.deserialize_seq(V(expecting, PhantomData))
+}
+
+impl<'de> Deserialize<'de> for RangeText {
+    fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        struct V;
+        impl Visitor<'_> for V {
+            type Value = RangeText;
+            fn expecting(&self, f: &mut fmt::Formatter) -> fmt::Result {
+                f.write_str("a range as a string, \"START..STOP\"")
+            }
+            fn visit_str<E: de::Error>(self, v: &str) -> Result<RangeText, E> {
+                Ok(RangeText(v.to_string()))
+            }
+        }
+        d.deserialize_str(V)
+    }
 }
 
 impl<'de> Deserialize<'de> for NumVec {

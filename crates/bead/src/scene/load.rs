@@ -1,7 +1,7 @@
 //! From the deserialized file to a [`Scene`]: evaluate numbers, check everything, feed the
 //! [`SystemBuilder`], and turn every failure into a located [`SceneError`].
 
-use std::collections::HashSet;
+use std::collections::HashMap;
 use std::ops::Range;
 use std::sync::Arc;
 
@@ -9,17 +9,23 @@ use toml::Spanned;
 
 use super::file::{
     span_of, ConstraintDef, Entries, ForceDef, Names, Num, NumVec, ParametricDef, ParticleDef,
-    RunDef, SceneFile, Stabilize,
+    RangeText, RunDef, SceneFile, Stabilize,
 };
 use super::location::Source;
-use super::{RunDefaults, Scene, SceneError};
-use crate::expr::{parse, Expr, Func, Resolved};
+use super::template::{self, Expanded, Scope, StringError};
+use super::{
+    Generated, RunDefaults, Scene, SceneError, TableKind, MAX_LOOP_VARIABLES, MAX_REPETITIONS,
+};
+use crate::expr::{parse, Expr, ExprError, Func, Resolved};
 use crate::formulation::{Feedback, Method};
 use crate::integrate::IntegratorKind;
 use crate::model::{Endpoint, Force, ModelError, ParticleId, SystemBuilder};
 
 /// Names a parameter may not take (the model's reserved names).
 const RESERVED: [&str; 6] = ["t", "pi", "e", "x", "y", "z"];
+
+/// The largest integer a range bound may be: every integer up to it is exact in an f64.
+const LARGEST_INTEGER: f64 = 9_007_199_254_740_992.0;
 
 type Result<T> = std::result::Result<T, SceneError>;
 
@@ -29,6 +35,7 @@ pub(super) fn load(text: &str, file: &str, overrides: &[(String, f64)]) -> Resul
     let mut loader = Loader {
         src,
         params: Vec::new(),
+        scope: None,
     };
 
     let params = loader.params(doc.params.as_ref(), overrides)?;
@@ -75,10 +82,15 @@ pub(super) fn load(text: &str, file: &str, overrides: &[(String, f64)]) -> Resul
             .map_err(|e| loader.model(key.span(), &format!("parameter `{name}`"), e))?;
     }
     let mut l = Builder {
-        loader: &loader,
+        loader,
         b,
         dim,
         particles: Vec::new(),
+        particle_origins: Vec::new(),
+        constraint_names: HashMap::new(),
+        generated: Vec::new(),
+        forces: 0,
+        repeated: 0,
     };
 
     // [[particle]]
@@ -88,19 +100,40 @@ pub(super) fn load(text: &str, file: &str, overrides: &[(String, f64)]) -> Resul
         );
     }
     for (i, p) in doc.particle.0.iter().enumerate() {
-        l.particle(i, p)?;
+        l.repeat(TableKind::Particle, i, p, &p.get_ref().repeat, |l, i, p| {
+            l.particle(i, p)
+        })?;
+    }
+    if l.particles.is_empty() {
+        // Every particle table has a `for` with an empty range.
+        let first = doc.particle.0[0]
+            .get_ref()
+            .repeat
+            .as_ref()
+            .map(|f| f.span());
+        return Err(src.error(
+            first.unwrap_or(0..0),
+            "the scene has no particles: its `[[particle]]` tables repeat over empty ranges",
+        ));
     }
     for (i, f) in doc.force.0.iter().enumerate() {
-        l.force(i, f)?;
+        l.repeat(TableKind::Force, i, f, &f.get_ref().repeat, |l, i, f| {
+            l.force(i, f)
+        })?;
     }
-    let mut names: HashSet<String> = HashSet::new();
     for (i, c) in doc.constraint.0.iter().enumerate() {
-        l.constraint(i, c, &mut names)?;
+        l.repeat(
+            TableKind::Constraint,
+            i,
+            c,
+            &c.get_ref().repeat,
+            |l, i, c| l.constraint(i, c),
+        )?;
     }
     if let Some(p) = &doc.parametric {
         l.parametric(p)?;
     }
-    let run = loader.run(doc.run.as_ref(), doc.parametric.is_some())?;
+    let run = l.loader.run(doc.run.as_ref(), doc.parametric.is_some())?;
     let system = l.b.build().map_err(|e| src.error_at_start(e.to_string()))?;
     Ok(Scene {
         title,
@@ -108,6 +141,7 @@ pub(super) fn load(text: &str, file: &str, overrides: &[(String, f64)]) -> Resul
         system: Arc::new(system),
         params,
         run,
+        generated: l.generated,
         text: Arc::from(text),
         overrides: overrides.to_vec(),
         edits: Vec::new(),
@@ -118,6 +152,9 @@ struct Loader<'a> {
     src: Source<'a>,
     /// Parameters evaluated so far, in file order.
     params: Vec<(String, f64)>,
+    /// While a `[[particle]]`, `[[constraint]]` or `[[force]]` table is read: its loop
+    /// variables (empty without `for`), and `{...}` in its strings is expanded. None elsewhere.
+    scope: Option<Scope>,
 }
 
 impl Loader<'_> {
@@ -200,31 +237,9 @@ impl Loader<'_> {
         let v = match value.get_ref() {
             Num::Value(v) => *v,
             Num::Expr(source) => {
-                let resolve = |name: &str| {
-                    if let Some((_, v)) = self.params.iter().find(|(n, _)| n == name) {
-                        return Ok(Resolved::Value(*v));
-                    }
-                    if later.contains(&name) {
-                        return Err(format!(
-                            "parameter `{name}` is defined after this one; a parameter may use only the ones before it"
-                        ));
-                    }
-                    let list = if self.params.is_empty() {
-                        "none".to_string()
-                    } else {
-                        self.params
-                            .iter()
-                            .map(|(n, _)| n.as_str())
-                            .collect::<Vec<_>>()
-                            .join(", ")
-                    };
-                    Err(format!("unknown name `{name}`; numbers in a scene may use pi, e and parameters ({list})"))
-                };
-                let expr = parse(source, &resolve).map_err(|e| {
-                    self.src
-                        .expr_error(value.span(), source, &e, format!("{ctx}: {}", e.message))
-                })?;
-                constant_value(&expr)
+                let expanded = self.expand(value.span(), source, ctx)?;
+                self.evaluate(&expanded.text, later)
+                    .map_err(|e| self.string_error(value.span(), source, ctx, expanded.error(&e)))?
             }
         };
         if !v.is_finite() {
@@ -234,6 +249,239 @@ impl Loader<'_> {
             ));
         }
         Ok(v)
+    }
+
+    /// The value of expression `source`: pi, e, the parameters and the loop variables of the
+    /// table being read. `later` are the parameters after the one being evaluated.
+    fn evaluate(&self, source: &str, later: &[&str]) -> std::result::Result<f64, ExprError> {
+        let resolve = |name: &str| {
+            if let Some(v) = self.scope.as_ref().and_then(|s| s.value(name)) {
+                return Ok(Resolved::Value(v));
+            }
+            if let Some((_, v)) = self.params.iter().find(|(n, _)| n == name) {
+                return Ok(Resolved::Value(*v));
+            }
+            if later.contains(&name) {
+                return Err(format!(
+                    "parameter `{name}` is defined after this one; a parameter may use only the ones before it"
+                ));
+            }
+            let list = if self.params.is_empty() {
+                "none".to_string()
+            } else {
+                crate::name_list(self.params.iter().map(|(n, _)| n.as_str()))
+            };
+            match self.scope.as_ref().filter(|s| !s.vars.is_empty()) {
+                Some(scope) => Err(format!(
+                    "unknown name `{name}`; numbers here may use pi, e, parameters ({list}) and the loop variables ({})",
+                    crate::name_list(scope.vars.iter().map(|(n, _)| n.as_str()))
+                )),
+                None => Err(format!(
+                    "unknown name `{name}`; numbers in a scene may use pi, e and parameters ({list})"
+                )),
+            }
+        };
+        parse(source, &resolve).map(|e| constant_value(&e))
+    }
+
+    /// `source`, the string at `span`, with its `{...}` replaced when a
+    /// `[[particle]]`, `[[constraint]]` or `[[force]]` table is being read; as it is elsewhere.
+    fn expand<'s>(&self, span: Range<usize>, source: &'s str, ctx: &str) -> Result<Expanded<'s>> {
+        if self.scope.is_none() {
+            return Ok(Expanded::verbatim(source));
+        }
+        template::expand(source, &|inner| self.evaluate(inner, &[]))
+            .map_err(|e| self.string_error(span, source, ctx, e))
+    }
+
+    /// An error in the string `source` written at `span`, located inside it.
+    fn string_error(
+        &self,
+        span: Range<usize>,
+        source: &str,
+        ctx: &str,
+        error: StringError,
+    ) -> SceneError {
+        self.src.within_string(
+            span,
+            source,
+            error.span,
+            format!("{ctx}: {}", error.message),
+        )
+    }
+
+    /// The repetitions of a table with `for = { i = "START..STOP", ... }`: one scope per
+    /// combination of the loop variables' values, the first variable outermost. A bound is
+    /// an integer expression of the parameters and of the loop variables before its own.
+    /// `budget` is how many repetitions the scene may still make ([`MAX_REPETITIONS`] in
+    /// all); `is_particle` tells the names a loop variable must not take.
+    fn repetitions(
+        &self,
+        repeat: &Spanned<Entries<RangeText>>,
+        ctx: &str,
+        budget: usize,
+        is_particle: &dyn Fn(&str) -> bool,
+    ) -> Result<Vec<Scope>> {
+        let ranges = &repeat.get_ref().0;
+        if ranges.is_empty() {
+            return Err(self.src.error(
+                repeat.span(),
+                format!(
+                    "{ctx}: `for` names no loop variable; write e.g. `for = {{ i = \"0..N\" }}`"
+                ),
+            ));
+        }
+        if let Some((key, _)) = ranges.get(MAX_LOOP_VARIABLES) {
+            return Err(self.src.error(
+                key.span(),
+                format!("{ctx}: `for` has more than {MAX_LOOP_VARIABLES} loop variables"),
+            ));
+        }
+        for (k, (key, _)) in ranges.iter().enumerate() {
+            let name = key.get_ref();
+            let refuse = |why: String| Err(self.src.error(key.span(), format!("{ctx}: {why}")));
+            if !is_identifier(name) {
+                return refuse(format!(
+                    "loop variable `{}` must be a letter or `_` followed by letters, digits or `_`",
+                    crate::printable(name)
+                ));
+            }
+            if RESERVED.contains(&name.as_str()) {
+                return refuse(format!(
+                    "`{name}` is reserved (t, pi, e, x, y, z) and cannot name a loop variable"
+                ));
+            }
+            if Func::from_name(name).is_some() {
+                return refuse(format!(
+                    "`{name}` is a built-in function and cannot name a loop variable"
+                ));
+            }
+            if self.params.iter().any(|(n, _)| n == name) {
+                return refuse(format!(
+                    "loop variable `{name}` has the name of a parameter; rename one of them"
+                ));
+            }
+            if is_particle(name) {
+                return refuse(format!(
+                    "loop variable `{name}` has the name of a particle; rename one of them"
+                ));
+            }
+            // TOML refuses a key given twice, so this cannot happen; kept for safety.
+            if ranges[..k].iter().any(|(n, _)| n.get_ref() == name) {
+                return refuse(format!("loop variable `{name}` is given twice"));
+            }
+        }
+        let mut walk = Walk {
+            ranges,
+            span: repeat.span(),
+            table: ctx,
+            budget,
+            taken: vec![0; ranges.len()],
+            out: Vec::new(),
+        };
+        self.nest(&mut walk, &mut Scope::default())?;
+        Ok(walk.out)
+    }
+
+    /// Push every repetition of the loop variables `walk.ranges[scope.vars.len()..]` within
+    /// the outer values in `scope`.
+    fn nest(&self, walk: &mut Walk<'_>, scope: &mut Scope) -> Result<()> {
+        let k = scope.vars.len();
+        let Some((key, range)) = walk.ranges.get(k) else {
+            walk.out.push(scope.clone());
+            return Ok(());
+        };
+        let name = key.get_ref();
+        let table = walk.table;
+        let ctx = if scope.vars.is_empty() {
+            table.to_string()
+        } else {
+            format!("{table} ({})", scope.describe())
+        };
+        let text = &range.get_ref().0;
+        let Some(dots) = text.find("..") else {
+            return Err(self.src.error(
+                range.span(),
+                format!("{ctx}: the range of `{name}` must be `START..STOP` (START, START + 1, ..., STOP - 1), got `{}`", crate::printable(text)),
+            ));
+        };
+        let later: Vec<&str> = walk.ranges[k..]
+            .iter()
+            .map(|(n, _)| n.get_ref().as_str())
+            .collect();
+        let bound = |part: Range<usize>, which: &str| -> Result<i64> {
+            let source = &text[part.clone()];
+            // The caret goes under the bound itself, not the spaces around it.
+            let trimmed = {
+                let start = part.start + (source.len() - source.trim_start().len());
+                start..(start + source.trim().len()).max(start)
+            };
+            let shift = |e: ExprError| StringError {
+                span: part.start + e.span.start..part.start + e.span.end,
+                message: format!("the range of `{name}`: {}", e.message),
+            };
+            let resolve = |n: &str| {
+                if let Some(v) = scope.value(n) {
+                    return Ok(Resolved::Value(v));
+                }
+                if let Some((_, v)) = self.params.iter().find(|(p, _)| p == n) {
+                    return Ok(Resolved::Value(*v));
+                }
+                if n == name.as_str() {
+                    return Err(format!("a range cannot use its own variable `{n}`"));
+                }
+                if later.contains(&n) {
+                    return Err(format!("loop variable `{n}` comes after `{name}`; a range may use the loop variables before its own"));
+                }
+                Err(format!(
+                    "unknown name `{n}`; a range may use pi, e, parameters ({}) and the loop variables before its own",
+                    if self.params.is_empty() { "none".to_string() } else { crate::name_list(self.params.iter().map(|(p, _)| p.as_str())) }
+                ))
+            };
+            let v = parse(source, &resolve)
+                .map(|e| constant_value(&e))
+                .map_err(|e| self.string_error(range.span(), text, &ctx, shift(e)))?;
+            let problem = if !(v.is_finite() && v.fract() == 0.0) {
+                "not an integer"
+            } else if v.abs() > LARGEST_INTEGER {
+                "too large (at most 2^53 in size)"
+            } else {
+                return Ok(v as i64);
+            };
+            Err(self.string_error(
+                range.span(),
+                text,
+                &ctx,
+                StringError {
+                    span: trimmed,
+                    message: format!(
+                        "the range of `{name}`: its {which} `{}` is {}, {problem}",
+                        source.trim(),
+                        crate::readable(v)
+                    ),
+                },
+            ))
+        };
+        let start = bound(0..dots, "start")?;
+        let stop = bound(dots + 2..text.len(), "stop")?;
+        if stop < start {
+            return Err(self.src.error(
+                range.span(),
+                format!("{ctx}: the range of `{name}` is {start}..{stop}: its stop is below its start (an empty range is START..START)"),
+            ));
+        }
+        for value in start..stop {
+            // Counting the combinations taken at every level, not only the repetitions, also
+            // stops `i = "0..1e15", j = "0..0"` at once.
+            walk.taken[k] += 1;
+            if walk.taken[k] > walk.budget {
+                return Err(self.src.error(walk.span.clone(), walk.too_many(k)));
+            }
+            scope.vars.push((name.clone(), value));
+            self.nest(walk, scope)?;
+            scope.vars.pop();
+        }
+        Ok(())
     }
 
     /// A number that must be > 0.
@@ -327,7 +575,7 @@ impl Loader<'_> {
         }
         if let Some(s) = &r.steps {
             let v = self.number(s, ctx, "`steps`")?;
-            if !(v >= 1.0 && v.fract() == 0.0 && v <= 9_007_199_254_740_992.0) {
+            if !(v >= 1.0 && v.fract() == 0.0 && v <= LARGEST_INTEGER) {
                 return Err(self.src.error(
                     s.span(),
                     format!(
@@ -389,6 +637,47 @@ impl Loader<'_> {
     }
 }
 
+/// The state of [`Loader::repetitions`] while it goes through the ranges of one `for`.
+struct Walk<'r> {
+    ranges: &'r [(Spanned<String>, Spanned<RangeText>)],
+    /// The `for` value, where a count error points.
+    span: Range<usize>,
+    /// `particle 2`: the table, for messages.
+    table: &'r str,
+    /// How many repetitions the scene may still make.
+    budget: usize,
+    /// Per loop variable, how many values it has taken so far (over all outer values).
+    taken: Vec<usize>,
+    out: Vec<Scope>,
+}
+
+impl Walk<'_> {
+    /// The message for more than `budget` combinations of the first `level + 1` variables
+    /// (at the last level, more than `budget` repetitions).
+    fn too_many(&self, level: usize) -> String {
+        let what = if level + 1 == self.ranges.len() {
+            format!("repeats the table more than {} times", self.budget)
+        } else {
+            let names: Vec<String> = self.ranges[..=level]
+                .iter()
+                .map(|(n, _)| format!("`{}`", n.get_ref()))
+                .collect();
+            format!(
+                "goes through more than {} combinations of values of {}",
+                self.budget,
+                names.join(", ")
+            )
+        };
+        let made = MAX_REPETITIONS - self.budget;
+        let limit = if made == 0 {
+            format!("a scene may make at most {MAX_REPETITIONS} repetitions in all")
+        } else {
+            format!("the tables before it made {made} of the {MAX_REPETITIONS} repetitions a scene may make in all")
+        };
+        format!("{}: `for` {what}; {limit}", self.table)
+    }
+}
+
 /// The value of an expression without variables.
 fn constant_value(expr: &Expr) -> f64 {
     match expr.as_constant() {
@@ -421,16 +710,105 @@ fn is_identifier(name: &str) -> bool {
 }
 
 /// The system being built, with the particles' names and initial positions.
-struct Builder<'a, 'b> {
-    loader: &'a Loader<'b>,
+struct Builder<'a> {
+    loader: Loader<'a>,
     b: SystemBuilder,
     dim: usize,
     particles: Vec<(String, Vec<f64>)>,
+    /// Per particle, the table (and repetition) that made it, for messages about duplicates.
+    particle_origins: Vec<String>,
+    /// Constraint names taken so far, with the table (and repetition) that took each.
+    constraint_names: HashMap<String, String>,
+    /// The tables with a `for` key, and what they made.
+    generated: Vec<Generated>,
+    /// Forces added so far.
+    forces: usize,
+    /// Repetitions made so far by the tables with `for` (at most [`MAX_REPETITIONS`]).
+    repeated: usize,
 }
 
-impl Builder<'_, '_> {
+impl Builder<'_> {
     fn src(&self) -> &Source<'_> {
         &self.loader.src
+    }
+
+    /// Read table `i` of `kind` with `read`: once, or, with `for`, once per repetition with
+    /// its loop variables in scope.
+    fn repeat<T>(
+        &mut self,
+        kind: TableKind,
+        i: usize,
+        table: &Spanned<T>,
+        repeat: &Option<Spanned<Entries<RangeText>>>,
+        read: impl Fn(&mut Self, usize, &Spanned<T>) -> Result<()>,
+    ) -> Result<()> {
+        let Some(repeat) = repeat else {
+            self.loader.scope = Some(Scope::default());
+            read(self, i, table)?;
+            self.loader.scope = None;
+            return Ok(());
+        };
+        let b = &self.b;
+        let scopes = self.loader.repetitions(
+            repeat,
+            &format!("{} {}", kind.name(), i + 1),
+            MAX_REPETITIONS - self.repeated,
+            &|name| b.particle_id(name).is_ok(),
+        )?;
+        self.repeated += scopes.len();
+        let first = self.made(kind);
+        for scope in scopes {
+            self.loader.scope = Some(scope);
+            read(self, i, table)?;
+        }
+        self.loader.scope = None;
+        let ranges = repeat
+            .get_ref()
+            .0
+            .iter()
+            .map(|(name, range)| format!("{} = {}", name.get_ref(), range.get_ref().0))
+            .collect::<Vec<_>>()
+            .join(", ");
+        self.generated.push(Generated {
+            kind,
+            table: i + 1,
+            line: self.src().line_of(table.span().start),
+            ranges,
+            items: first..self.made(kind),
+        });
+        Ok(())
+    }
+
+    /// How many items of `kind` the scene has so far.
+    fn made(&self, kind: TableKind) -> usize {
+        match kind {
+            TableKind::Particle => self.particles.len(),
+            TableKind::Constraint => self.constraint_names.len(),
+            TableKind::Force => self.forces,
+        }
+    }
+
+    /// `particle 2`, or in a repetition of a generated table `particle 2 (i = 3, j = 0)`.
+    fn ctx(&self, kind: TableKind, i: usize) -> String {
+        match self.loader.scope.as_ref().filter(|s| !s.vars.is_empty()) {
+            Some(scope) => format!("{} {} ({})", kind.name(), i + 1, scope.describe()),
+            None => format!("{} {}", kind.name(), i + 1),
+        }
+    }
+
+    /// Whether the table being read has a `for` key.
+    fn generated_table(&self) -> bool {
+        self.loader
+            .scope
+            .as_ref()
+            .is_some_and(|s| !s.vars.is_empty())
+    }
+
+    /// A name as written, with its `{...}` replaced (particle and constraint names,
+    /// references to particles).
+    fn name(&self, value: &Spanned<String>, ctx: &str) -> Result<String> {
+        let expanded = self.loader.expand(value.span(), value.get_ref(), ctx)?;
+        Ok(expanded.text.into_owned())
     }
 
     /// A vector of this scene's dimension.
@@ -450,41 +828,62 @@ impl Builder<'_, '_> {
     }
 
     fn particle_list(&self) -> String {
-        self.particles
-            .iter()
-            .map(|(n, _)| n.as_str())
-            .collect::<Vec<_>>()
-            .join(", ")
+        crate::name_list(self.particles.iter().map(|(n, _)| n.as_str()))
     }
 
-    /// Look up a particle named by a string value.
+    /// Look up a particle named by a string value (with its `{...}` replaced).
     fn lookup(&self, name: &Spanned<String>, ctx: &str) -> Result<ParticleId> {
-        self.b.particle_id(name.get_ref()).map_err(|_| {
+        let expanded = self.name(name, ctx)?;
+        self.b.particle_id(&expanded).map_err(|_| {
             self.src().error(
                 name.span(),
                 format!(
                     "{ctx}: unknown particle `{}`; particles: {}",
-                    name.get_ref(),
+                    crate::printable(&expanded),
                     self.particle_list()
                 ),
             )
         })
     }
 
-    fn particle(&mut self, i: usize, p: &Spanned<ParticleDef>) -> Result<()> {
-        let ctx = format!("particle {}", i + 1);
-        let def = p.get_ref();
-        let l = self.loader;
-        let name = l.required(&def.name, p.span(), &ctx, "name")?;
-        let mass_def = l.required(&def.mass, p.span(), &ctx, "mass")?;
-        let position_def = l.required(&def.position, p.span(), &ctx, "position")?;
-        if self.b.particle_id(name.get_ref()).is_ok() {
-            return Err(self.src().error(
-                name.span(),
-                format!("{ctx}: duplicate particle name `{}`", name.get_ref()),
+    /// The message for a name given twice: where it was given first when either is in a
+    /// generated table, and, when a generated table gives the same name in every repetition,
+    /// how to vary it.
+    fn duplicate(&self, ctx: &str, what: &str, name: &str, written: &str, earlier: &str) -> String {
+        let mut message = format!("{ctx}: duplicate {what} name `{name}`");
+        if self.generated_table() || earlier.contains('(') {
+            message.push_str(&format!(", made before by {earlier}"));
+        }
+        if self.generated_table() && !written.contains('{') {
+            message.push_str(&format!(
+                "; every repetition gives the same name: put a loop variable in it, e.g. `{written}{{{}}}`",
+                self.loader.scope.as_ref().map_or("i", |s| s.vars[0].0.as_str())
             ));
         }
-        let mass = l.positive(mass_def, &ctx, "`mass`")?;
+        message
+    }
+
+    fn particle(&mut self, i: usize, p: &Spanned<ParticleDef>) -> Result<()> {
+        let ctx = self.ctx(TableKind::Particle, i);
+        let def = p.get_ref();
+        let l = &self.loader;
+        let name_def = l.required(&def.name, p.span(), &ctx, "name")?;
+        let mass_def = l.required(&def.mass, p.span(), &ctx, "mass")?;
+        let position_def = l.required(&def.position, p.span(), &ctx, "position")?;
+        let name = self.name(name_def, &ctx)?;
+        if let Ok(earlier) = self.b.particle_id(&name) {
+            return Err(self.src().error(
+                name_def.span(),
+                self.duplicate(
+                    &ctx,
+                    "particle",
+                    &name,
+                    name_def.get_ref(),
+                    &self.particle_origins[earlier.0],
+                ),
+            ));
+        }
+        let mass = self.loader.positive(mass_def, &ctx, "`mass`")?;
         let (lightest, heaviest) = crate::model::MASS_RANGE;
         if !(lightest..=heaviest).contains(&mass) {
             // The builder refuses it too, but located at the name; point at the mass.
@@ -504,9 +903,10 @@ impl Builder<'_, '_> {
             None => vec![0.0; self.dim],
         };
         self.b
-            .particle(name.get_ref(), mass, &position, &velocity)
-            .map_err(|e| l.model(name.span(), &ctx, e))?;
-        self.particles.push((name.get_ref().clone(), position));
+            .particle(&name, mass, &position, &velocity)
+            .map_err(|e| l.model(name_def.span(), &ctx, e))?;
+        self.particles.push((name, position));
+        self.particle_origins.push(ctx);
         Ok(())
     }
 
@@ -575,9 +975,9 @@ impl Builder<'_, '_> {
     }
 
     fn force(&mut self, i: usize, f: &Spanned<ForceDef>) -> Result<()> {
-        let ctx = format!("force {}", i + 1);
+        let ctx = self.ctx(TableKind::Force, i);
         let d = f.get_ref();
-        let l = self.loader;
+        let l = &self.loader;
         let kind = l.required(&d.kind, f.span(), &ctx, "kind")?;
         let force = match kind.get_ref().as_str() {
             "constant" => {
@@ -665,18 +1065,14 @@ impl Builder<'_, '_> {
         self.b
             .force(force)
             .map_err(|e| l.model(f.span(), &ctx, e))?;
+        self.forces += 1;
         Ok(())
     }
 
-    fn constraint(
-        &mut self,
-        i: usize,
-        c: &Spanned<ConstraintDef>,
-        names: &mut HashSet<String>,
-    ) -> Result<()> {
-        let ctx = format!("constraint {}", i + 1);
+    fn constraint(&mut self, i: usize, c: &Spanned<ConstraintDef>) -> Result<()> {
+        let ctx = self.ctx(TableKind::Constraint, i);
         let d = c.get_ref();
-        let l = self.loader;
+        let l = &self.loader;
         let name = match &d.name {
             Some(n) => {
                 if n.get_ref().trim().is_empty() {
@@ -685,17 +1081,19 @@ impl Builder<'_, '_> {
                         .error(n.span(), format!("{ctx}: `name` must not be empty")));
                 }
                 no_control_characters(self.src(), n, &format!("{ctx}: `name`"))?;
-                if names.contains(n.get_ref()) {
+                let name = self.name(n, &ctx)?;
+                if let Some(earlier) = self.constraint_names.get(&name) {
                     return Err(self.src().error(
                         n.span(),
-                        format!("{ctx}: duplicate constraint name `{}`", n.get_ref()),
+                        self.duplicate(&ctx, "constraint", &name, n.get_ref(), earlier),
                     ));
                 }
-                n.get_ref().clone()
+                name
             }
             None => {
-                let default = format!("constraint {}", i + 1);
-                if names.contains(&default) {
+                // `constraint 2`, or in a generated table `constraint 2 (i = 3)`.
+                let default = ctx.clone();
+                if self.constraint_names.contains_key(&default) {
                     return Err(self.src().error(
                         c.span(),
                         format!("{ctx}: its default name `{default}` is taken by an earlier constraint; give it a `name`"),
@@ -704,7 +1102,7 @@ impl Builder<'_, '_> {
                 default
             }
         };
-        names.insert(name.clone());
+        self.constraint_names.insert(name.clone(), ctx.clone());
         let kind = d
             .kind
             .as_ref()
@@ -724,10 +1122,24 @@ impl Builder<'_, '_> {
                 )?;
                 let e = l.required(&d.expr, c.span(), &ctx, "expr")?;
                 let source = e.get_ref();
-                let expr = self.b.parse_constraint_expr(source).map_err(|err| {
-                    self.src()
-                        .expr_error(e.span(), source, &err, format!("{ctx}: {}", err.message))
-                })?;
+                // `{...}` first (particle names like `p{i-1}.x`), then the loop variables as
+                // numbers, then the builder's names; errors point into the text as written.
+                let expanded = l.expand(e.span(), source, &ctx)?;
+                let scope = l.scope.as_ref();
+                let resolve = |name: &str| match scope.and_then(|s| s.value(name)) {
+                    Some(v) => Ok(Resolved::Value(v)),
+                    None => self.b.resolve_constraint_name(name).map_err(|message| {
+                        match scope.filter(|s| !s.vars.is_empty()) {
+                            Some(s) => format!(
+                                "{message}; here also the loop variables ({})",
+                                crate::name_list(s.vars.iter().map(|(n, _)| n.as_str()))
+                            ),
+                            None => message,
+                        }
+                    }),
+                };
+                let expr = parse(&expanded.text, &resolve)
+                    .map_err(|err| l.string_error(e.span(), source, &ctx, expanded.error(&err)))?;
                 let n = self.particles.len() * self.dim;
                 if !expr.vars().iter().any(|&k| k < n) {
                     return Err(self.src().error(
@@ -735,7 +1147,12 @@ impl Builder<'_, '_> {
                         format!("{ctx}: the expression does not depend on any particle coordinate"),
                     ));
                 }
-                self.b.add_constraint_expr(&name, expr, source);
+                // The system keeps a text that stands alone: no `{...}`, no loop variables.
+                let standalone = match scope {
+                    Some(scope) => scope.substitute(&expanded.text),
+                    None => expanded.text.into_owned(),
+                };
+                self.b.add_constraint_expr(&name, expr, &standalone);
             }
             "distance" => {
                 self.reject(&ctx, "a distance constraint", &[("expr", span_of(&d.expr))])?;
@@ -807,7 +1224,7 @@ impl Builder<'_, '_> {
     fn parametric(&mut self, p: &Spanned<ParametricDef>) -> Result<()> {
         let ctx = "parametric";
         let d = p.get_ref();
-        let l = self.loader;
+        let l = &self.loader;
         let coords_def = l.required(&d.coordinates, p.span(), ctx, "coordinates")?;
         let coords = &coords_def.get_ref().0;
         if coords.is_empty() {

@@ -77,9 +77,7 @@ impl<'a> Source<'a> {
     }
 
     /// An error in the expression `source`, written as the TOML string at `string_span`: the
-    /// caret goes under `error.span` inside the string when the string's text in the file is
-    /// its value (a one-line literal string, or a basic string without escapes), else under
-    /// the whole string.
+    /// caret goes under `error.span` inside the string (see [`Self::within_string`]).
     pub fn expr_error(
         &self,
         string_span: Range<usize>,
@@ -87,23 +85,48 @@ impl<'a> Source<'a> {
         error: &ExprError,
         message: String,
     ) -> SceneError {
+        self.within_string(
+            string_span,
+            source,
+            error.span.start..error.span.end,
+            message,
+        )
+    }
+
+    /// An error at bytes `inner` of the string value `value`, written as the TOML string at
+    /// `string_span`: the caret goes under `inner` when the string's text in the file is its
+    /// value (a one-line literal string, or a basic string without escapes), else under the
+    /// whole string.
+    pub fn within_string(
+        &self,
+        string_span: Range<usize>,
+        value: &str,
+        inner: Range<usize>,
+        message: String,
+    ) -> SceneError {
         let raw = self.text.get(string_span.clone()).unwrap_or("");
         let content = if raw.starts_with("\"\"\"") || raw.starts_with("'''") {
             None
-        } else if let Some(inner) = raw.strip_prefix('"').and_then(|r| r.strip_suffix('"')) {
-            (!inner.contains('\\')).then_some(inner)
+        } else if let Some(quoted) = raw.strip_prefix('"').and_then(|r| r.strip_suffix('"')) {
+            (!quoted.contains('\\')).then_some(quoted)
         } else {
             raw.strip_prefix('\'').and_then(|r| r.strip_suffix('\''))
         };
         match content {
-            Some(inner) if inner == source => {
-                let start = error.span.start.min(source.len());
-                let end = error.span.end.clamp(start, source.len());
+            Some(content) if content == value => {
+                let start = inner.start.min(value.len());
+                let end = inner.end.clamp(start, value.len());
                 let base = string_span.start + 1;
                 self.error(base + start..base + end, message)
             }
             _ => self.error(string_span, message),
         }
+    }
+
+    /// The 1-based line of byte `offset`.
+    pub fn line_of(&self, offset: usize) -> usize {
+        let offset = floor_boundary(self.text, offset);
+        self.text[..offset].matches('\n').count() + 1
     }
 }
 

@@ -38,7 +38,8 @@
 //! - `[[force]]`: `kind = "constant"` (`particle`, `vector`); `"spring"` (`between = ["a", "b"]`
 //!   or `particle` and `anchor`; `stiffness`; `rest_length`, default 0); `"drag"`
 //!   (`coefficient`; `particle`, default all particles).
-//! - `[[constraint]]`: optional `name` (default `constraint N`, unique). `kind = "expression"`
+//! - `[[constraint]]`: optional `name` (default `constraint N`, `constraint N (i = 3)` in a
+//!   generated table; unique). `kind = "expression"`
 //!   (the default) has `expr`, an expression of particle coordinates `NAME.x|y|z`, `t` and
 //!   parameters; `"distance"` has `between` or `particle` and `anchor`, and `length` (default the
 //!   initial distance); `"pin"` has `particle` and `anchor` (default its initial position).
@@ -47,6 +48,16 @@
 //! - `[run]`: `method` (implicit, parametric), `integrator` (euler, symplectic-euler, midpoint,
 //!   rk4), `dt`, `duration` or `steps`, and `stabilize = [ks, kd]` or
 //!   `stabilize = { frequency = f, damping = zeta }` (damping default 1).
+//! - `for = { i = "START..STOP", j = ... }` on a `[[particle]]`, `[[constraint]]` or
+//!   `[[force]]` table repeats it for i = START, ..., STOP - 1 (the first variable outermost,
+//!   as written; bounds are integer expressions of the parameters and the earlier loop
+//!   variables). The loop variables may be used in every expression of the table, and
+//!   `{EXPR}` in its strings (names, particle references, `expr`) is replaced by EXPR's value,
+//!   a whole number >= 0: `name = "p{i}"`, `between = ["p{i-1}", "p{i}"]`. `{...}` works in
+//!   tables without `for` too, with the parameters. The `for` keys of a scene make at most
+//!   [`MAX_REPETITIONS`] repetitions in all; one `for` has at most [`MAX_LOOP_VARIABLES`]. Expansion is the loader's (`template.rs`), before
+//!   the [`crate::model::SystemBuilder`]: the system has one particle or constraint per
+//!   repetition and no loops; [`Scene::generated`] tells which table made what.
 //! - Unknown keys, wrong types, missing keys, non-finite numbers (`nan`, `inf`) and values out of
 //!   range are errors located in the file. So are control characters (escape sequences, line
 //!   breaks, tabs) in `title` and constraint names: they are labels, shown on terminals and in
@@ -55,9 +66,11 @@
 mod file;
 mod load;
 mod location;
+mod template;
 
 pub use crate::model::EditError;
 
+use std::ops::Range;
 use std::path::Path;
 use std::sync::Arc;
 
@@ -81,12 +94,66 @@ pub struct Scene {
     pub params: Vec<(String, f64)>,
     /// The `[run]` table.
     pub run: RunDefaults,
+    /// The tables with a `for` key, in file order within each kind.
+    generated: Vec<Generated>,
     /// The text it was loaded from.
     text: Arc<str>,
     /// The parameter overrides it was loaded with.
     overrides: Vec<(String, f64)>,
     /// Constraint expressions replaced since (declared index, new expression), in order.
     edits: Vec<(usize, String)>,
+}
+
+/// The most repetitions the `for` keys of one scene may make in all (particles, constraints
+/// and forces together): ten times the largest scenes the solvers are meant for, few enough
+/// that a typo (`0..1e9`, a grid of `0..N` by `0..N` meant as `0..N` by `0..3`) is an error
+/// at once instead of minutes of loading and gigabytes of memory (a chain of 10^5 links takes
+/// about 10 s and 1 GB to load).
+pub const MAX_REPETITIONS: usize = 100_000;
+
+/// The most loop variables one `for` may have: a grid takes two or three, and the loader
+/// nests one level per variable.
+pub const MAX_LOOP_VARIABLES: usize = 8;
+
+/// The kind of a table that a `for` key can repeat.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum TableKind {
+    /// `[[particle]]`
+    Particle,
+    /// `[[constraint]]`
+    Constraint,
+    /// `[[force]]`
+    Force,
+}
+
+impl TableKind {
+    /// `particle`, `constraint`, `force`: the table's name, as messages say it.
+    pub fn name(self) -> &'static str {
+        match self {
+            TableKind::Particle => "particle",
+            TableKind::Constraint => "constraint",
+            TableKind::Force => "force",
+        }
+    }
+}
+
+/// A `[[particle]]`, `[[constraint]]` or `[[force]]` table with a `for` key, and what its
+/// repetitions made (so that a description can summarize them instead of listing 10^4).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Generated {
+    /// What the table declares.
+    pub kind: TableKind,
+    /// Its number among the tables of its kind, 1-based, as messages count them
+    /// (`constraint 2 (i = 3)` is a repetition of the second `[[constraint]]` table).
+    pub table: usize,
+    /// The line of its header in the file.
+    pub line: usize,
+    /// Its loop variables and ranges as written: `i = 0..N, j = 0..H`.
+    pub ranges: String,
+    /// What it made, in order: indices into [`System::particles`], into the declared
+    /// constraints ([`crate::model::ConstraintSet::infos`]), or into [`System::forces`].
+    /// Empty when its ranges are.
+    pub items: Range<usize>,
 }
 
 /// Why [`Scene::with_param`] failed: the edit itself, or the scene's text with the new value
@@ -174,6 +241,12 @@ impl Scene {
         load::load(text, file, overrides)
     }
 
+    /// The tables with a `for` key and what each made, in file order within each kind
+    /// (empty when no table has one).
+    pub fn generated(&self) -> &[Generated] {
+        &self.generated
+    }
+
     /// The text the scene was loaded from (without later edits).
     pub fn text(&self) -> &str {
         &self.text
@@ -190,7 +263,8 @@ impl Scene {
         &self.edits
     }
 
-    /// The scene with constraint `index` (0-based, the order of its `[[constraint]]` tables)
+    /// The scene with constraint `index` (0-based, the order of its `[[constraint]]` tables,
+    /// each repetition of a table with `for` counted)
     /// replaced by `source = 0`: see [`System::with_constraint_expr`]. Errors in the new
     /// expression carry byte spans into `source`.
     ///
