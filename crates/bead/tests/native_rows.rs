@@ -44,6 +44,8 @@ fn mixed(dim: usize) -> System {
     b.build().unwrap()
 }
 
+// `r` indexes the values, rates, biases and Jacobians of both paths, and names the row.
+#[allow(clippy::needless_range_loop)]
 fn agrees(system: &System, seed: u64) {
     let set = system.constraints();
     assert!(set.n_native_rows() > 0);

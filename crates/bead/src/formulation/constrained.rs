@@ -24,6 +24,8 @@
 //! Everything is allocation-free after construction, and O(n + nnz) in memory on the sparse
 //! path: the projections assemble and factor the formulation's own [`ConstraintMatrix`].
 
+use std::cmp::Ordering;
+
 use super::{Implicit, SecondOrderSystem, StepError};
 use crate::linalg::{max_abs, ConstraintMatrix, LinearSolver, RowStructure, Singular};
 use crate::model::{ConstraintEval, ConstraintSet, System};
@@ -161,7 +163,11 @@ impl ConstraintScales {
         let mut worst: f64 = 0.0;
         for (i, (&value, &scale)) in c.iter().zip(&self.scale).enumerate() {
             let size = value.abs();
-            if !(size <= worst * scale) {
+            // Not `size <= worst * scale`, NaN included.
+            if matches!(
+                size.partial_cmp(&(worst * scale)),
+                None | Some(Ordering::Greater)
+            ) {
                 if value.is_nan() {
                     return f64::NAN;
                 }
