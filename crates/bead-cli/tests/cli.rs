@@ -1349,14 +1349,7 @@ fn check_accepts_every_shipped_scene() {
     scenes.sort();
     assert!(scenes.len() >= 5, "{scenes:?}");
     for scene in &scenes {
-        // The 50 x 50 cloth is checked at 4 x 4: starting it at full size (4906 constraint
-        // rows) takes the dense solver minutes in a debug build. The 1000-link chain is
-        // checked at full size, here and in `check_summarizes_a_generated_scene`.
-        let mut args = vec!["check", p(scene)];
-        if scene.file_name().is_some_and(|n| n == "cloth.toml") {
-            args.extend(["--set", "W=4", "--set", "H=4"]);
-        }
-        let out = bead(&args);
+        let out = bead(&["check", p(scene)]);
         assert_eq!(stderr(&out), "", "{}", scene.display());
         let text = ok(out);
         assert!(text.contains("\ndegrees of freedom: "), "{text}");

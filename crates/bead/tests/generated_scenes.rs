@@ -527,12 +527,11 @@ fn cloth_scene_starts_on_its_constraints() {
 
 /// The two pins and the rods are independent at t = 0 (the top edge is an arc, not a
 /// straight line between the pins, which would over-constrain it): RATTLE's implicit form
-/// starts, for several sizes. The full 50 x 50 cloth (4906 rows) is checked in release by
-/// `bead check scenes/cloth.toml`; a dense solve of that size takes minutes in a debug build.
+/// starts, for several sizes up to the full 50 x 50 (4906 rows).
 #[test]
 fn cloth_is_not_over_constrained_at_any_size() {
     let path = scenes_dir().join("cloth.toml");
-    for (w, h) in [(3, 2), (4, 4), (5, 3), (8, 8), (12, 6)] {
+    for (w, h) in [(3, 2), (4, 4), (5, 3), (8, 8), (12, 6), (50, 50)] {
         let scene = Scene::load(&path, &set(&[("W", w as f64), ("H", h as f64)]))
             .unwrap_or_else(|e| panic!("{}", e.render()));
         assert_eq!(scene.system.particles().len(), w * h);
@@ -557,8 +556,8 @@ fn cloth_is_not_over_constrained_at_any_size() {
 }
 
 /// Both shipped generated scenes take steps with RATTLE at dt = 1/60 and stay on their
-/// constraints, at sizes a dense solver steps in a test's time (the chain at 100 links, the
-/// cloth at 4 x 4: a larger cloth needs its own smaller dt, see `scenes/cloth.toml`).
+/// constraints, at sizes where that step is stable (the chain at 100 links, the cloth at
+/// 4 x 4); at their full sizes they take their own smaller dt, see the next test.
 #[test]
 fn chain_and_cloth_run_with_rattle() {
     let chain = Scene::load(&scenes_dir().join("chain.toml"), &set(&[("N", 100.0)])).unwrap();
@@ -576,6 +575,27 @@ fn chain_and_cloth_run_with_rattle() {
         let error = sim.constraint_error();
         assert!(error < 1e-9, "{}: constraint error {error:e}", scene.file);
         assert!(sim.positions().iter().all(|x| x.is_finite()));
+    }
+}
+
+/// At full size (1000 links; 50 x 50 masses, 4906 rows) each scene takes steps with its own
+/// settings: RATTLE at the dt that shrinks with its size.
+#[test]
+fn chain_and_cloth_run_at_full_size_with_their_own_settings() {
+    for name in ["chain.toml", "cloth.toml"] {
+        let scene = Scene::load(&scenes_dir().join(name), &[]).unwrap();
+        assert_eq!(scene.run.integrator, Some(IntegratorKind::Rattle));
+        let config = SimulationConfig {
+            integrator: IntegratorKind::Rattle,
+            dt: scene.run.dt.unwrap(),
+            ..Default::default()
+        };
+        let mut sim = Simulation::new(Arc::clone(&scene.system), config).unwrap();
+        for _ in 0..10 {
+            sim.step().unwrap_or_else(|e| panic!("{name}: {e}"));
+        }
+        let error = sim.constraint_error();
+        assert!(error < 1e-9, "{name}: constraint error {error:e}");
     }
 }
 
