@@ -77,14 +77,19 @@ fn a_whipping_chain_runs_at_dt_1_60_with_automatic_substeps() {
         "the chain whips: some steps need splitting"
     );
     assert!(stats.substeps_max > 1 && stats.substeps_max <= 64);
+    // Steps, not attempts; and the steps after a retried one start from its substeps, so
+    // only a few steps pay for failed attempts.
+    assert!(stats.retried_steps * 10 < stats.steps, "{stats:?}");
     assert!(
         stretch(sim.positions()) < 1e-10,
         "{}",
         stretch(sim.positions())
     );
-    // m g L N (N + 1) / 2 = 4562: the energy the chain exchanges.
+    // m g L N (N + 1) / 2 = 4562: the energy the chain exchanges. RATTLE's energy error at
+    // steps of 1/60 s is bounded, not a drift: 1.4% to 2% of that at the end, depending on
+    // which steps were split (issue 8 measured 1.4% for 10 links).
     let drift = (sim.energy() - e0).abs() / (G * 30.0 * 31.0 / 2.0);
-    assert!(drift < 2e-2, "{drift}");
+    assert!(drift < 3e-2, "{drift}");
     println!(
         "30 links, dt = 1/60: {} steps retried, at most {} substeps, drift {drift:.2e}",
         stats.retried_steps, stats.substeps_max

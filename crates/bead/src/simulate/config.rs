@@ -32,7 +32,9 @@ pub struct SimulationConfig {
     pub substeps: u32,
     /// When an iteration of a step does not converge (RATTLE's Newton solve, a projection, an
     /// implicit kick or stage), retry the step with twice as many substeps, up to this many,
-    /// before failing. Default 64; equal to `substeps` to never retry.
+    /// before failing. The steps after a retried one start with the substeps it needed and
+    /// try half as many after 16 steps without a retry. Default 64; equal to `substeps` to
+    /// never retry.
     pub max_substeps: u32,
     /// Track the work W done on T + V (the energy ledger, see [`super::Simulation::work`]):
     /// `None` (the default) tracks it when the formulation does not conserve T + V (drag,

@@ -141,7 +141,17 @@ pub struct Simulation {
     substeps_max: u32,
     /// Steps retried with more substeps because an iteration did not converge
     retried_steps: u64,
+    /// The substeps the next fixed step starts with after retries: what a recent step
+    /// needed (a whipping chain needs them for many steps in a row), halved again after
+    /// `CALM_STEPS` steps that needed no retry. 0: none, start from `config.substeps`.
+    sticky_substeps: u32,
+    /// Steps since the last retry, at `sticky_substeps`
+    calm_steps: u32,
 }
+
+/// Steps without a retry after which a step tries half of the substeps its predecessors
+/// needed.
+const CALM_STEPS: u32 = 16;
 
 impl Simulation {
     /// A simulation of `system` as `config` says, at the system's initial state. Fails when
@@ -208,6 +218,8 @@ impl Simulation {
             projection_iterations_max: None,
             substeps_max: 0,
             retried_steps: 0,
+            sticky_substeps: 0,
+            calm_steps: 0,
             config,
             formulation,
         };
@@ -481,7 +493,11 @@ impl Simulation {
     /// One fixed step from the current state to `t_end`, then the projection and the checks.
     fn fixed_step(&mut self, t_end: f64) -> Result<(), RunError> {
         self.save();
-        let mut substeps = self.config.substeps.max(1);
+        let configured = self.config.substeps.max(1);
+        // Start from what recent steps needed, so that a run of hard steps does not pay for
+        // the same failed attempts again at every step.
+        let mut substeps = configured.max(self.sticky_substeps);
+        let mut retried = false;
         loop {
             match self.substeps(t_end, substeps) {
                 Ok(()) => break,
@@ -491,9 +507,20 @@ impl Simulation {
                 Err(e) if retryable(&e) && substeps * 2 <= self.config.max_substeps => {
                     self.restore_state_only();
                     substeps *= 2;
-                    self.retried_steps += 1;
+                    retried = true;
                 }
                 Err(e) => return Err(self.fail(e)),
+            }
+        }
+        if retried {
+            self.retried_steps += 1;
+            self.sticky_substeps = substeps;
+            self.calm_steps = 0;
+        } else if self.sticky_substeps > configured {
+            self.calm_steps += 1;
+            if self.calm_steps >= CALM_STEPS {
+                self.sticky_substeps /= 2;
+                self.calm_steps = 0;
             }
         }
         self.substeps_max = self.substeps_max.max(substeps);
@@ -699,6 +726,8 @@ impl Simulation {
         self.projection_iterations_max = None;
         self.substeps_max = 0;
         self.retried_steps = 0;
+        self.sticky_substeps = 0;
+        self.calm_steps = 0;
         self.stepper = Stepper::new(&self.config, state.q.len());
         self.state = state;
     }
