@@ -57,34 +57,45 @@ impl NativeRow {
         (d, u)
     }
 
+    /// A distance row's C = (|d|^2 - L^2) / (2L) from its separation d, with its Jacobian
+    /// entries d / L (for a) and -d / L (for b) written.
+    #[inline]
+    fn distance_value_and_gradient(&self, d: &[f64; 3], jacobian: &mut [f64]) -> f64 {
+        let NativeRow::Distance {
+            dim,
+            b,
+            length,
+            entries_a,
+            entries_b,
+            ..
+        } = self
+        else {
+            unreachable!("a distance row")
+        };
+        let mut dd = 0.0;
+        for axis in 0..*dim {
+            dd += d[axis] * d[axis];
+            jacobian[entries_a[axis]] = d[axis] / length;
+            if b.is_some() {
+                jacobian[entries_b[axis]] = -d[axis] / length;
+            }
+        }
+        (dd - length * length) / (2.0 * length)
+    }
+
     /// C, Cdot, bias and the row's Jacobian entries (in the row's column order) at (x, v).
     #[inline]
     pub(crate) fn evaluate(&self, x: &[f64], v: &[f64], jacobian: &mut [f64]) -> (f64, f64, f64) {
         match self {
-            NativeRow::Distance {
-                dim,
-                b,
-                length,
-                entries_a,
-                entries_b,
-                ..
-            } => {
+            NativeRow::Distance { dim, length, .. } => {
                 let (d, u) = self.separation(x, Some(v));
-                let (mut dd, mut du, mut uu) = (0.0, 0.0, 0.0);
+                let c = self.distance_value_and_gradient(&d, jacobian);
+                let (mut du, mut uu) = (0.0, 0.0);
                 for axis in 0..*dim {
-                    dd += d[axis] * d[axis];
                     du += d[axis] * u[axis];
                     uu += u[axis] * u[axis];
-                    jacobian[entries_a[axis]] = d[axis] / length;
-                    if b.is_some() {
-                        jacobian[entries_b[axis]] = -d[axis] / length;
-                    }
                 }
-                (
-                    (dd - length * length) / (2.0 * length),
-                    du / length,
-                    uu / length,
-                )
+                (c, du / length, uu / length)
             }
             NativeRow::Pin { coordinate, anchor } => {
                 jacobian[0] = 1.0;
@@ -97,24 +108,9 @@ impl NativeRow {
     #[inline]
     pub(crate) fn gradient(&self, x: &[f64], jacobian: &mut [f64]) -> f64 {
         match self {
-            NativeRow::Distance {
-                dim,
-                b,
-                length,
-                entries_a,
-                entries_b,
-                ..
-            } => {
+            NativeRow::Distance { .. } => {
                 let (d, _) = self.separation(x, None);
-                let mut dd = 0.0;
-                for axis in 0..*dim {
-                    dd += d[axis] * d[axis];
-                    jacobian[entries_a[axis]] = d[axis] / length;
-                    if b.is_some() {
-                        jacobian[entries_b[axis]] = -d[axis] / length;
-                    }
-                }
-                (dd - length * length) / (2.0 * length)
+                self.distance_value_and_gradient(&d, jacobian)
             }
             NativeRow::Pin { coordinate, anchor } => {
                 jacobian[0] = 1.0;
