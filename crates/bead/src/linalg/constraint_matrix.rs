@@ -86,7 +86,7 @@ impl<'a> RowStructure<'a> {
     }
 }
 
-/// One product J_i[a] w_k J_j[b] of an entry of J W J^T: entries a and b of J's flat values
+/// One product J_i(a) w_k J_j(b) of an entry of J W J^T: entries a and b of J's flat values
 /// (rows i <= j) that share coordinate k.
 #[derive(Clone, Copy, Debug)]
 struct Term {
@@ -99,7 +99,7 @@ struct Term {
 ///
 /// Two rows are coupled when they share a coordinate. At construction the coupled pairs are
 /// enumerated from the row structure, giving A's [`SymmetricPattern`] (upper triangle), and
-/// for every entry of A the products J_i[a] w_k J_j[b] that make it, each as the two entries
+/// for every entry of A the products J_i(a) w_k J_j(b) that make it, each as the two entries
 /// of J and the coordinate; the solver ([`LinearSolver`]) does its symbolic work on the
 /// pattern then. [`ConstraintMatrix::assemble`] writes each entry of A once from J's sparse
 /// values (no dense copy of J, nothing of size m x n), [`ConstraintMatrix::factor`] factors it
@@ -212,7 +212,7 @@ impl ConstraintMatrix {
     pub fn values(&self) -> &[f64] {
         &self.values
     }
-    /// Products J_i[a] w_k J_j[b] summed per assembly.
+    /// Products J_i(a) w_k J_j(b) summed per assembly.
     pub fn n_products(&self) -> usize {
         self.terms.len()
     }
