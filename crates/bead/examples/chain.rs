@@ -7,7 +7,7 @@
 //!
 //! ```text
 //! cargo run --release -p bead --example chain -- [N ...] [--integrator rk4|rattle ...]
-//!     [--seconds S] [--max-steps K] [--solver auto|dense|sparse]
+//!     [--seconds S] [--max-steps K] [--solver auto|dense|sparse|tridiagonal]
 //!     [--newton exact|simplified ...]
 //! ```
 //! Defaults: N = 10 100 1000 10000, both integrators, S = 2 (wall time per case, after one
@@ -69,6 +69,7 @@ fn main() {
                     Some("auto") => LinearSolver::Auto,
                     Some("dense") => LinearSolver::Dense,
                     Some("sparse") => LinearSolver::Sparse,
+                    Some("tridiagonal") => LinearSolver::Tridiagonal,
                     other => panic!("unknown solver {other:?}"),
                 }
             }

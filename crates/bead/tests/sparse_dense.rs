@@ -1,9 +1,11 @@
 //! The sparse and the dense linear algebra agree (issue 8).
 //!
-//! Law: J W J^T solved by faer's sparse LDL^T (any ordering) and by the dense Cholesky give
-//! the same accelerations and multipliers to 1e-12 (relative to the largest), the same
-//! projections and the same RATTLE steps, on random states of a chain, a tree, a closed ring,
-//! a cloth patch and every shipped scene. Dependent rows are named on both paths.
+//! Law: J W J^T solved by faer's sparse LDL^T (any ordering), by the tridiagonal LDL^T of
+//! chains (rows in their own or in path order; other structures fall back to faer) and by the
+//! dense Cholesky give the same accelerations and multipliers to 1e-12 (relative to the
+//! largest), the same projections and the same RATTLE steps, on random states of a chain (also
+//! declared out of order), a tree, a closed ring, a cloth patch and every shipped scene.
+//! Dependent rows are named on every path.
 
 mod common;
 
@@ -21,6 +23,10 @@ use common::{chain, cloth, ring, tree, Random};
 fn systems() -> Vec<(String, Arc<System>)> {
     let mut out: Vec<(String, Arc<System>)> = vec![
         ("chain of 20".into(), Arc::new(chain(20))),
+        (
+            "chain of 20, interleaved".into(),
+            Arc::new(chain_interleaved(20)),
+        ),
         ("tree".into(), Arc::new(tree())),
         ("ring of 12".into(), Arc::new(ring(12))),
         ("cloth 5 x 6".into(), Arc::new(cloth(5, 6))),
@@ -49,6 +55,26 @@ fn systems() -> Vec<(String, Arc<System>)> {
         }
     }
     out
+}
+
+/// The chain of [`chain`] with its rods declared even ones first (rod 0, 2, 4, ..., then 1,
+/// 3, ...): its rows couple in a path, but not in their own order.
+fn chain_interleaved(links: usize) -> System {
+    let mut b = SystemBuilder::new(&[0.0, common::G]);
+    let ids: Vec<ParticleId> = (0..links)
+        .map(|i| {
+            b.particle(&format!("p{i}"), 1.0, &[(i + 1) as f64, 0.0], &[0.0, 0.0])
+                .unwrap()
+        })
+        .collect();
+    for i in (0..links).step_by(2).chain((1..links).step_by(2)) {
+        let end = match i {
+            0 => Endpoint::Fixed(vec![0.0, 0.0]),
+            _ => Endpoint::Particle(ids[i - 1]),
+        };
+        b.distance(&format!("rod {i}"), ids[i], end, 1.0).unwrap();
+    }
+    b.build().unwrap()
 }
 
 /// The system's length and speed scales: its largest initial coordinate (at least 1) and
@@ -93,75 +119,108 @@ fn relative_difference(a: &[f64], b: &[f64]) -> f64 {
         / scale
 }
 
-const SOLVERS: [LinearSolver; 2] = [LinearSolver::Dense, LinearSolver::Sparse];
+/// The solvers compared with the dense Cholesky.
+const SPARSE_SOLVERS: [LinearSolver; 2] = [LinearSolver::Sparse, LinearSolver::Tridiagonal];
+const SOLVERS: [LinearSolver; 3] = [
+    LinearSolver::Dense,
+    LinearSolver::Sparse,
+    LinearSolver::Tridiagonal,
+];
 
 #[test]
 fn accelerations_and_multipliers_agree() {
     let feedback = Feedback { ks: 30.0, kd: 4.0 };
     for (name, system) in systems() {
-        let [mut dense, mut sparse] =
-            SOLVERS.map(|s| Implicit::with_solver(system.clone(), feedback, s));
-        let mut random = Random(0x5eed_0000 + name.len() as u64);
-        let n = system.n_coords();
-        let mut worst = (0.0f64, 0.0f64);
-        for _ in 0..5 {
-            let s = random_state(&system, &mut random, 0.01);
-            let (mut a_dense, mut a_sparse) = (vec![0.0; n], vec![0.0; n]);
-            dense
-                .acceleration(s.t, &s.q, &s.qdot, &mut a_dense)
-                .unwrap();
-            sparse
-                .acceleration(s.t, &s.q, &s.qdot, &mut a_sparse)
-                .unwrap();
-            let da = relative_difference(&a_sparse, &a_dense);
-            let dl = relative_difference(sparse.multipliers(), dense.multipliers());
-            assert!(
-                da <= 1e-12 && dl <= 1e-12,
-                "{name}: a {da:e}, lambda {dl:e}"
+        for solver in SPARSE_SOLVERS {
+            let mut dense = Implicit::with_solver(system.clone(), feedback, LinearSolver::Dense);
+            let mut sparse = Implicit::with_solver(system.clone(), feedback, solver);
+            let mut random = Random(0x5eed_0000 + name.len() as u64);
+            let n = system.n_coords();
+            let mut worst = (0.0f64, 0.0f64);
+            for _ in 0..5 {
+                let s = random_state(&system, &mut random, 0.01);
+                let (mut a_dense, mut a_sparse) = (vec![0.0; n], vec![0.0; n]);
+                dense
+                    .acceleration(s.t, &s.q, &s.qdot, &mut a_dense)
+                    .unwrap();
+                sparse
+                    .acceleration(s.t, &s.q, &s.qdot, &mut a_sparse)
+                    .unwrap();
+                let da = relative_difference(&a_sparse, &a_dense);
+                let dl = relative_difference(sparse.multipliers(), dense.multipliers());
+                assert!(
+                    da <= 1e-12 && dl <= 1e-12,
+                    "{name}, {solver:?}: a {da:e}, lambda {dl:e}"
+                );
+                worst = (worst.0.max(da), worst.1.max(dl));
+            }
+            println!(
+                "{name}: {} rows, {}: accelerations {:.1e}, multipliers {:.1e}",
+                system.constraints().n_rows(),
+                sparse.constraint_matrix().describe(),
+                worst.0,
+                worst.1
             );
-            worst = (worst.0.max(da), worst.1.max(dl));
         }
-        println!(
-            "{name}: {} rows, {}: accelerations {:.1e}, multipliers {:.1e}",
-            system.constraints().n_rows(),
-            sparse.constraint_matrix().describe(),
-            worst.0,
-            worst.1
-        );
+    }
+}
+
+/// The tridiagonal solver takes the chains, in their own order or in path order, and leaves
+/// the tree, the ring and the cloth to faer.
+#[test]
+fn chains_get_the_tridiagonal_solver() {
+    for (name, system) in systems() {
+        let f = Implicit::with_solver(system.clone(), Feedback::default(), LinearSolver::Auto);
+        let described = f.constraint_matrix().describe();
+        let expected = match name.as_str() {
+            "chain of 20" | "chain.toml" => Some("tridiagonal LDL^T (rows in their own order)"),
+            "chain of 20, interleaved" => Some("tridiagonal LDL^T (rows in path order)"),
+            "tree" | "ring of 12" | "cloth 5 x 6" | "cloth.toml" => Some("sparse LDL^T"),
+            _ => None,
+        };
+        if let Some(expected) = expected {
+            assert!(
+                described.starts_with(expected),
+                "{name}: {described}, expected {expected}"
+            );
+        }
     }
 }
 
 #[test]
 fn projections_agree() {
     for (name, system) in systems() {
-        let [mut dense, mut sparse] =
-            SOLVERS.map(|s| Implicit::with_solver(system.clone(), Feedback::default(), s));
-        let mut random = Random(0xab5 + name.len() as u64);
-        let (length, _) = scales(&system);
-        for _ in 0..3 {
-            let s = random_state(&system, &mut random, 1e-3);
-            let (mut q_dense, mut q_sparse) = (s.q.clone(), s.q.clone());
-            let tolerance = 1e-13 * length * length;
-            let k_dense = dense
-                .project_positions(s.t, &mut q_dense, tolerance, 50)
-                .unwrap();
-            let k_sparse = sparse
-                .project_positions(s.t, &mut q_sparse, tolerance, 50)
-                .unwrap();
-            let dq = relative_difference(&q_sparse, &q_dense);
-            assert!(
-                dq <= 1e-12,
-                "{name}: positions {dq:e} ({k_dense} vs {k_sparse})"
-            );
-            let (mut v_dense, mut v_sparse) = (s.qdot.clone(), s.qdot.clone());
-            dense
-                .project_velocities(s.t, &q_dense, &mut v_dense)
-                .unwrap();
-            sparse
-                .project_velocities(s.t, &q_dense, &mut v_sparse)
-                .unwrap();
-            let dv = relative_difference(&v_sparse, &v_dense);
-            assert!(dv <= 1e-12, "{name}: velocities {dv:e}");
+        for solver in SPARSE_SOLVERS {
+            let mut dense =
+                Implicit::with_solver(system.clone(), Feedback::default(), LinearSolver::Dense);
+            let mut sparse = Implicit::with_solver(system.clone(), Feedback::default(), solver);
+            let mut random = Random(0xab5 + name.len() as u64);
+            let (length, _) = scales(&system);
+            for _ in 0..3 {
+                let s = random_state(&system, &mut random, 1e-3);
+                let (mut q_dense, mut q_sparse) = (s.q.clone(), s.q.clone());
+                let tolerance = 1e-13 * length * length;
+                let k_dense = dense
+                    .project_positions(s.t, &mut q_dense, tolerance, 50)
+                    .unwrap();
+                let k_sparse = sparse
+                    .project_positions(s.t, &mut q_sparse, tolerance, 50)
+                    .unwrap();
+                let dq = relative_difference(&q_sparse, &q_dense);
+                assert!(
+                    dq <= 1e-12,
+                    "{name}, {solver:?}: positions {dq:e} ({k_dense} vs {k_sparse})"
+                );
+                let (mut v_dense, mut v_sparse) = (s.qdot.clone(), s.qdot.clone());
+                dense
+                    .project_velocities(s.t, &q_dense, &mut v_dense)
+                    .unwrap();
+                sparse
+                    .project_velocities(s.t, &q_dense, &mut v_sparse)
+                    .unwrap();
+                let dv = relative_difference(&v_sparse, &v_dense);
+                assert!(dv <= 1e-12, "{name}, {solver:?}: velocities {dv:e}");
+            }
         }
     }
 }
@@ -189,11 +248,15 @@ fn rattle_agrees() {
             ..IntegratorSettings::default()
         };
         let mut finals = Vec::new();
-        for (solver, newton) in [
+        let cases = [
             (LinearSolver::Dense, NewtonMatrix::Simplified),
             (LinearSolver::Sparse, NewtonMatrix::Simplified),
             (LinearSolver::Dense, NewtonMatrix::Exact),
-        ] {
+            (LinearSolver::Tridiagonal, NewtonMatrix::Simplified),
+            // The exact matrix by tridiagonal elimination on chains, densely elsewhere.
+            (LinearSolver::Tridiagonal, NewtonMatrix::Exact),
+        ];
+        for (solver, newton) in cases {
             let mut formulation =
                 Implicit::with_solver(system.clone(), Feedback::default(), solver);
             let mut state = start.clone();
@@ -208,8 +271,22 @@ fn rattle_agrees() {
         let dv = relative_difference(&sparse.qdot, &dense.qdot);
         println!("{name}: rattle sparse vs dense after 50 steps: q {dq:.1e}, v {dv:.1e}");
         assert!(dq <= 1e-12 && dv <= 1e-12, "{name}: q {dq:e}, v {dv:e}");
+        // Each converges to the tolerance (2e-13 of the largest coordinate here), the chains
+        // amplify the difference over 50 steps.
         let dq = relative_difference(&exact.q, &dense.q);
-        assert!(dq <= 1e-11, "{name}: exact vs simplified Newton: q {dq:e}");
+        assert!(dq <= 1e-10, "{name}: exact vs simplified Newton: q {dq:e}");
+        let [tridiagonal, tridiagonal_exact] = [&finals[3], &finals[4]];
+        let dq = relative_difference(&tridiagonal.q, &dense.q);
+        let dv = relative_difference(&tridiagonal.qdot, &dense.qdot);
+        assert!(
+            dq <= 1e-12 && dv <= 1e-12,
+            "{name}: tridiagonal q {dq:e}, v {dv:e}"
+        );
+        let dq = relative_difference(&tridiagonal_exact.q, &exact.q);
+        assert!(
+            dq <= 1e-12,
+            "{name}: exact Newton, tridiagonal vs dense: q {dq:e}"
+        );
     }
 }
 
@@ -246,5 +323,29 @@ fn dependent_rows_are_named_on_both_paths() {
             "{solver:?}: {text}"
         );
         assert!(text.contains("duplicates other constraints"), "{text}");
+    }
+}
+
+/// A rod whose ends coincide has a vanishing gradient: every solver, the tridiagonal one of
+/// the chain included (in its own order and in path order), names it.
+#[test]
+fn a_vanishing_rod_is_named_by_every_solver() {
+    for system in [chain(20), chain_interleaved(20)] {
+        let system = Arc::new(system);
+        let (mut q, qdot) = system.initial_particle_state();
+        // p7 onto p6: rod 7's gradient (x_7 - x_6) / L vanishes.
+        q[14] = q[12];
+        q[15] = q[13];
+        for solver in SOLVERS {
+            let mut f = Implicit::with_solver(system.clone(), Feedback::default(), solver);
+            let mut a = vec![0.0; q.len()];
+            let error = f.acceleration(0.0, &q, &qdot, &mut a).unwrap_err();
+            let text = error.to_string();
+            assert!(
+                text.contains("rod 7") && !text.contains("rod 8"),
+                "{solver:?}, {}: {text}",
+                f.constraint_matrix().describe()
+            );
+        }
     }
 }

@@ -70,6 +70,17 @@ pub trait ConstrainedSystem: SecondOrderSystem {
     /// J = dC/dq at (q, t): its nonzero entries (nnz), in the order of
     /// [`ConstrainedSystem::constraint_structure`], every one overwritten.
     fn constraint_jacobian(&mut self, t: f64, q: &[f64], jacobian: &mut [f64]);
+    /// C(q, t) into `c` (m) and J's nonzero entries into `jacobian` (nnz) in one evaluation.
+    fn constraint_values_and_jacobian(
+        &mut self,
+        t: f64,
+        q: &[f64],
+        c: &mut [f64],
+        jacobian: &mut [f64],
+    ) {
+        self.constraint_values(t, q, c);
+        self.constraint_jacobian(t, q, jacobian);
+    }
     /// The error to report when constraint row `row` is singular (vanishing gradient or
     /// dependent on earlier rows) at time t: names the declared constraint.
     fn singular_constraint(&mut self, t: f64, row: usize) -> StepError;
@@ -299,6 +310,19 @@ impl ConstrainedSystem for Implicit {
     fn constraint_jacobian(&mut self, t: f64, q: &[f64], jacobian: &mut [f64]) {
         let ws = &mut self.projection;
         self.system.constraints().gradient(t, q, &mut ws.eval);
+        jacobian.copy_from_slice(&ws.eval.jacobian);
+    }
+
+    fn constraint_values_and_jacobian(
+        &mut self,
+        t: f64,
+        q: &[f64],
+        c: &mut [f64],
+        jacobian: &mut [f64],
+    ) {
+        let ws = &mut self.projection;
+        self.system.constraints().gradient(t, q, &mut ws.eval);
+        c.copy_from_slice(&ws.eval.value);
         jacobian.copy_from_slice(&ws.eval.jacobian);
     }
 

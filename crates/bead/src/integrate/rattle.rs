@@ -83,13 +83,26 @@ use super::{Integrator, IntegratorSettings};
 use crate::formulation::{ConstrainedSystem, SecondOrderSystem, State, StepError};
 use crate::linalg::{max_abs, solve_general, ConstraintMatrix, LinearSolver, DENSE_MAX_ROWS};
 
-/// Buffers of the exact Newton iteration.
+/// Buffers of the exact Newton iteration: J(q^k) (nnz), J(q^k) W J(q_n)^T's upper and lower
+/// triangles on the pattern of J W J^T, and how it is solved.
 struct ExactNewton {
     jacobian: Vec<f64>,
     upper: Vec<f64>,
     lower: Vec<f64>,
-    dense: Vec<f64>,
-    column_scale: Vec<f64>,
+    solve: ExactSolve,
+}
+
+/// How the exact Newton matrix is solved.
+enum ExactSolve {
+    /// Gaussian elimination with partial pivoting of the dense matrix (m x m) with column
+    /// scales (m): small systems, or any system when asked for.
+    Dense {
+        dense: Vec<f64>,
+        column_scale: Vec<f64>,
+    },
+    /// Tridiagonal elimination in the path order of J W J^T's solver (chains), scratch (2m):
+    /// O(m) per iteration.
+    Path { scratch: Vec<f64> },
 }
 
 /// How RATTLE's position step solves C(q(nu), t_{n+1}) = 0 for nu (see the module
@@ -241,6 +254,7 @@ impl Rattle {
         if !same {
             self.structure = (starts.collect(), rows.columns().to_vec(), solver);
             let matrix = ConstraintMatrix::new(rows, solver);
+            let path = matrix.path().is_some();
             let exact = match self.newton {
                 NewtonMatrix::Exact => true,
                 NewtonMatrix::Simplified => false,
@@ -250,8 +264,16 @@ impl Rattle {
                 jacobian: vec![0.0; rows.n_nonzeros()],
                 upper: vec![0.0; matrix.pattern().nnz()],
                 lower: vec![0.0; matrix.pattern().nnz()],
-                dense: vec![0.0; m * m],
-                column_scale: vec![0.0; m],
+                solve: if path {
+                    ExactSolve::Path {
+                        scratch: vec![0.0; 2 * m],
+                    }
+                } else {
+                    ExactSolve::Dense {
+                        dense: vec![0.0; m * m],
+                        column_scale: vec![0.0; m],
+                    }
+                },
             });
             self.matrix = Some(matrix);
             self.jacobian_start = vec![0.0; rows.n_nonzeros()];
@@ -263,8 +285,10 @@ impl Rattle {
 
     /// Newton iterations for nu: q <- q - W J(q_n)^T dnu with M dnu = C(q, t) until
     /// max|C(q, t)| <= tolerance. Simplified: M = J(q_n) W J(q_n)^T, factored once (on the
-    /// first iteration that needs it) and reused; exact: M = J(q^k) W J(q_n)^T. Returns the
-    /// number of iterations. `jacobian_start` holds J(q_n).
+    /// first iteration that needs it) and reused; exact: M = J(q^k) W J(q_n)^T. An exact
+    /// matrix whose tridiagonal elimination meets a vanishing pivot (the step turned a rod
+    /// by about a right angle) hands the rest of the step to the simplified matrix. Returns
+    /// the number of iterations. `jacobian_start` holds J(q_n).
     fn solve_positions(
         &mut self,
         cs: &mut dyn ConstrainedSystem,
@@ -274,8 +298,19 @@ impl Rattle {
         let matrix = self.matrix.as_mut().expect("sized in reserve");
         self.nu.fill(0.0);
         let mut iterations = 0;
+        let mut exact = self.exact.as_mut();
+        let mut factored = false;
         loop {
-            cs.constraint_values(t, q, &mut self.residual);
+            // The exact matrix needs J(q^k): evaluated with C(q^k) in one pass.
+            match &mut exact {
+                Some(newton) => cs.constraint_values_and_jacobian(
+                    t,
+                    q,
+                    &mut self.residual,
+                    &mut newton.jacobian,
+                ),
+                None => cs.constraint_values(t, q, &mut self.residual),
+            }
             let residual = cs.constraint_residual(q, &self.residual);
             if residual <= self.tolerance {
                 return Ok(iterations);
@@ -287,47 +322,71 @@ impl Rattle {
                     residual: max_abs(&self.residual),
                 });
             }
-            if let Some(exact) = &mut self.exact {
-                // J(q^k) W J(q_n)^T, dense, solved by elimination with partial pivoting.
-                let m = self.residual.len();
-                cs.constraint_jacobian(t, q, &mut exact.jacobian);
+            let mut solved = false;
+            if let Some(newton) = &mut exact {
+                // J(q^k) W J(q_n)^T.
                 matrix.assemble_product(
-                    &exact.jacobian,
+                    &newton.jacobian,
                     &self.jacobian_start,
                     &self.inverse_mass,
-                    &mut exact.upper,
-                    &mut exact.lower,
+                    &mut newton.upper,
+                    &mut newton.lower,
                 );
-                exact.dense.fill(0.0);
-                let pattern = matrix.pattern();
-                for j in 0..m {
-                    for (s, &i) in pattern.column(j) {
-                        exact.dense[i * m + j] = exact.upper[s];
-                        exact.dense[j * m + i] = exact.lower[s];
+                match &mut newton.solve {
+                    ExactSolve::Dense {
+                        dense,
+                        column_scale,
+                    } => {
+                        let m = self.residual.len();
+                        dense.fill(0.0);
+                        let pattern = matrix.pattern();
+                        for j in 0..m {
+                            for (s, &i) in pattern.column(j) {
+                                dense[i * m + j] = newton.upper[s];
+                                dense[j * m + i] = newton.lower[s];
+                            }
+                        }
+                        if let Err(column) =
+                            solve_general(m, dense, &mut self.residual, column_scale)
+                        {
+                            return Err(cs.singular_constraint(t, column));
+                        }
+                        solved = true;
+                    }
+                    ExactSolve::Path { scratch } => {
+                        let path = matrix.path().expect("a path solver");
+                        let result = path.solve_general(
+                            &newton.upper,
+                            &newton.lower,
+                            &mut self.residual,
+                            scratch,
+                        );
+                        if result.is_ok() {
+                            solved = true;
+                        } else {
+                            // Simplified from here on: J(q_n) W J(q_n)^T is the one that
+                            // tells a dependent row from a large turn.
+                            exact = None;
+                            cs.constraint_values(t, q, &mut self.residual);
+                        }
                     }
                 }
-                if let Err(column) = solve_general(
-                    m,
-                    &mut exact.dense,
-                    &mut self.residual,
-                    &mut exact.column_scale,
-                ) {
-                    return Err(cs.singular_constraint(t, column));
-                }
-            } else if iterations == 0 {
-                matrix.assemble(&self.jacobian_start, &self.inverse_mass);
-                if let Err(singular) = matrix.factor() {
-                    return Err(if singular.finite {
-                        cs.singular_constraint(t, singular.row)
-                    } else {
-                        StepError::NonFinite {
-                            t,
-                            quantity: "the matrix J W J^T (overflow)".into(),
-                        }
-                    });
-                }
             }
-            if self.exact.is_none() {
+            if !solved {
+                if !factored {
+                    matrix.assemble(&self.jacobian_start, &self.inverse_mass);
+                    if let Err(singular) = matrix.factor() {
+                        return Err(if singular.finite {
+                            cs.singular_constraint(t, singular.row)
+                        } else {
+                            StepError::NonFinite {
+                                t,
+                                quantity: "the matrix J W J^T (overflow)".into(),
+                            }
+                        });
+                    }
+                    factored = true;
+                }
                 matrix.solve_in_place(&mut self.residual);
             }
             for (nu, d) in self.nu.iter_mut().zip(&self.residual) {

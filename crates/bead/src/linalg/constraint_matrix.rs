@@ -220,6 +220,11 @@ impl ConstraintMatrix {
     pub fn describe(&self) -> String {
         self.solver.describe()
     }
+    /// The order that makes A tridiagonal, when its solver works in one (chains; see
+    /// [`super::PathLdlt`]).
+    pub fn path(&self) -> Option<&super::PathOrder> {
+        self.solver.path()
+    }
 
     /// A = J W J^T from J's values `jacobian` (nnz, in the row structure's order) and the
     /// diagonal W (n). Allocation-free.

@@ -6,17 +6,20 @@
 //! - [`SymmetricSolver`]: factor a matrix given by those values, then solve with the factor
 //!   as many right-hand sides as needed. [`DenseCholesky`] for small systems, [`SparseLdlt`]
 //!   (faer's sparse LDL^T, symbolic analysis once, numeric factorization allocation-free) for
-//!   large ones; [`symmetric_solver`] picks one ([`LinearSolver`]).
+//!   large ones, [`PathLdlt`] (the Thomas algorithm) for large ones whose rows couple in
+//!   paths (chains, ropes); [`symmetric_solver`] picks one ([`LinearSolver`]).
 //! - [`RowStructure`] and [`ConstraintMatrix`]: the sparse rows of a constraint Jacobian J and
 //!   the matrix J W J^T assembled straight from them through slots computed once.
 
 mod constraint_matrix;
 mod dense;
+mod path;
 mod pattern;
 mod sparse;
 
 pub use constraint_matrix::{ConstraintMatrix, RowStructure};
 pub use dense::{cholesky_in_place, cholesky_substitute, dense_solve, DenseCholesky};
+pub use path::{PathLdlt, PathOrder};
 pub use pattern::SymmetricPattern;
 pub use sparse::{Ordering, SparseLdlt, SparseOptions};
 
@@ -63,18 +66,25 @@ pub trait SymmetricSolver: Send {
     fn solve_in_place(&mut self, rhs: &mut [f64]);
     /// What it is, for diagnostics (e.g. `sparse LDL^T (identity ordering, simplicial)`).
     fn describe(&self) -> String;
+    /// The order that makes A tridiagonal, when the solver works in one ([`PathLdlt`]).
+    fn path(&self) -> Option<&PathOrder> {
+        None
+    }
 }
 
 /// Which factorization solves the symmetric systems of a formulation.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum LinearSolver {
-    /// Dense for at most [`DENSE_MAX_ROWS`] rows, sparse above.
+    /// Dense for at most [`DENSE_MAX_ROWS`] rows; above, [`PathLdlt`] when the rows couple in
+    /// paths, else [`SparseLdlt`].
     #[default]
     Auto,
     /// [`DenseCholesky`] whatever the size: O(m^2) memory, O(m^3) time.
     Dense,
     /// [`SparseLdlt`] with its automatic ordering, whatever the size.
     Sparse,
+    /// [`PathLdlt`] whatever the size when the rows couple in paths, else [`SparseLdlt`].
+    Tridiagonal,
 }
 
 /// The largest system [`LinearSolver::Auto`] solves densely. Measured on chains (one step of
@@ -86,16 +96,18 @@ pub fn symmetric_solver(
     pattern: &SymmetricPattern,
     kind: LinearSolver,
 ) -> Box<dyn SymmetricSolver> {
-    let dense = match kind {
-        LinearSolver::Auto => pattern.dim() <= DENSE_MAX_ROWS,
-        LinearSolver::Dense => true,
-        LinearSolver::Sparse => false,
-    };
-    if dense {
-        Box::new(DenseCholesky::new(pattern))
-    } else {
-        Box::new(SparseLdlt::new(pattern, SparseOptions::default()))
+    let small = pattern.dim() <= DENSE_MAX_ROWS;
+    match kind {
+        LinearSolver::Dense => return Box::new(DenseCholesky::new(pattern)),
+        LinearSolver::Auto if small => return Box::new(DenseCholesky::new(pattern)),
+        LinearSolver::Auto | LinearSolver::Tridiagonal => {
+            if let Some(path) = PathLdlt::new(pattern) {
+                return Box::new(path);
+            }
+        }
+        LinearSolver::Sparse => {}
     }
+    Box::new(SparseLdlt::new(pattern, SparseOptions::default()))
 }
 
 /// A pivot below this fraction of its column's largest original entry counts as zero in

@@ -36,17 +36,17 @@ pub(crate) enum NativeRow {
 }
 
 impl NativeRow {
-    /// d = x_a - x_b (or minus the anchor) and u = v_a - v_b (v_a), per axis.
-    #[inline]
-    fn separation(&self, x: &[f64], v: Option<&[f64]>) -> ([f64; 3], [f64; 3]) {
-        let NativeRow::Distance {
-            dim, a, b, anchor, ..
-        } = self
-        else {
-            unreachable!("separation of a distance row")
-        };
-        let (mut d, mut u) = ([0.0; 3], [0.0; 3]);
-        for axis in 0..*dim {
+    /// d = x_a - x_b (or minus the anchor) and u = v_a - v_b (v_a) in `D` dimensions.
+    #[inline(always)]
+    fn separation<const D: usize>(
+        a: usize,
+        b: Option<usize>,
+        anchor: &[f64; 3],
+        x: &[f64],
+        v: Option<&[f64]>,
+    ) -> ([f64; D], [f64; D]) {
+        let (mut d, mut u) = ([0.0; D], [0.0; D]);
+        for axis in 0..D {
             let (xb, vb) = match b {
                 Some(b) => (x[b + axis], v.map_or(0.0, |v| v[b + axis])),
                 None => (anchor[axis], 0.0),
@@ -57,13 +57,20 @@ impl NativeRow {
         (d, u)
     }
 
-    /// A distance row's C = (|d|^2 - L^2) / (2L) from its separation d, with its Jacobian
-    /// entries d / L (for a) and -d / L (for b) written.
-    #[inline]
-    fn distance_value_and_gradient(&self, d: &[f64; 3], jacobian: &mut [f64]) -> f64 {
+    /// A distance row in `D` dimensions: C = (|d|^2 - L^2) / (2L), with the Jacobian entries
+    /// d / L (for a) and -d / L (for b) written when `jacobian` is given, and (Cdot, bias) =
+    /// (d.u / L, |u|^2 / L) when `v` is.
+    #[inline(always)]
+    fn distance<const D: usize>(
+        &self,
+        x: &[f64],
+        v: Option<&[f64]>,
+        jacobian: Option<&mut [f64]>,
+    ) -> (f64, f64, f64) {
         let NativeRow::Distance {
-            dim,
+            a,
             b,
+            anchor,
             length,
             entries_a,
             entries_b,
@@ -72,31 +79,52 @@ impl NativeRow {
         else {
             unreachable!("a distance row")
         };
-        let mut dd = 0.0;
-        for axis in 0..*dim {
-            dd += d[axis] * d[axis];
-            jacobian[entries_a[axis]] = d[axis] / length;
-            if b.is_some() {
-                jacobian[entries_b[axis]] = -d[axis] / length;
+        let (d, u) = Self::separation::<D>(*a, *b, anchor, x, v);
+        let inverse_length = 1.0 / length;
+        if let Some(jacobian) = jacobian {
+            for axis in 0..D {
+                let g = d[axis] * inverse_length;
+                jacobian[entries_a[axis]] = g;
+                if b.is_some() {
+                    jacobian[entries_b[axis]] = -g;
+                }
             }
         }
-        (dd - length * length) / (2.0 * length)
+        let (mut dd, mut du, mut uu) = (0.0, 0.0, 0.0);
+        for axis in 0..D {
+            dd += d[axis] * d[axis];
+            du += d[axis] * u[axis];
+            uu += u[axis] * u[axis];
+        }
+        (
+            (dd - length * length) * (0.5 * inverse_length),
+            du * inverse_length,
+            uu * inverse_length,
+        )
+    }
+
+    /// [`NativeRow::distance`] in the row's own dimension.
+    #[inline(always)]
+    fn distance_any(
+        &self,
+        dim: usize,
+        x: &[f64],
+        v: Option<&[f64]>,
+        jacobian: Option<&mut [f64]>,
+    ) -> (f64, f64, f64) {
+        debug_assert!((1..=3).contains(&dim), "dimension {dim}");
+        match dim {
+            1 => self.distance::<1>(x, v, jacobian),
+            2 => self.distance::<2>(x, v, jacobian),
+            _ => self.distance::<3>(x, v, jacobian),
+        }
     }
 
     /// C, Cdot, bias and the row's Jacobian entries (in the row's column order) at (x, v).
     #[inline]
     pub(crate) fn evaluate(&self, x: &[f64], v: &[f64], jacobian: &mut [f64]) -> (f64, f64, f64) {
         match self {
-            NativeRow::Distance { dim, length, .. } => {
-                let (d, u) = self.separation(x, Some(v));
-                let c = self.distance_value_and_gradient(&d, jacobian);
-                let (mut du, mut uu) = (0.0, 0.0);
-                for axis in 0..*dim {
-                    du += d[axis] * u[axis];
-                    uu += u[axis] * u[axis];
-                }
-                (c, du / length, uu / length)
-            }
+            NativeRow::Distance { dim, .. } => self.distance_any(*dim, x, Some(v), Some(jacobian)),
             NativeRow::Pin { coordinate, anchor } => {
                 jacobian[0] = 1.0;
                 (x[*coordinate] - anchor, v[*coordinate], 0.0)
@@ -108,10 +136,7 @@ impl NativeRow {
     #[inline]
     pub(crate) fn gradient(&self, x: &[f64], jacobian: &mut [f64]) -> f64 {
         match self {
-            NativeRow::Distance { .. } => {
-                let (d, _) = self.separation(x, None);
-                self.distance_value_and_gradient(&d, jacobian)
-            }
+            NativeRow::Distance { dim, .. } => self.distance_any(*dim, x, None, Some(jacobian)).0,
             NativeRow::Pin { coordinate, anchor } => {
                 jacobian[0] = 1.0;
                 x[*coordinate] - anchor
@@ -123,11 +148,7 @@ impl NativeRow {
     #[inline]
     pub(crate) fn value(&self, x: &[f64]) -> f64 {
         match self {
-            NativeRow::Distance { dim, length, .. } => {
-                let (d, _) = self.separation(x, None);
-                let dd: f64 = d[..*dim].iter().map(|c| c * c).sum();
-                (dd - length * length) / (2.0 * length)
-            }
+            NativeRow::Distance { dim, .. } => self.distance_any(*dim, x, None, None).0,
             NativeRow::Pin { coordinate, anchor } => x[*coordinate] - anchor,
         }
     }

@@ -170,6 +170,18 @@ impl ConstrainedSystem for WithWork<'_> {
         self.constrained().constraint_jacobian(t, &q[..n], jacobian);
     }
 
+    fn constraint_values_and_jacobian(
+        &mut self,
+        t: f64,
+        q: &[f64],
+        c: &mut [f64],
+        jacobian: &mut [f64],
+    ) {
+        let n = self.n();
+        self.constrained()
+            .constraint_values_and_jacobian(t, &q[..n], c, jacobian);
+    }
+
     fn singular_constraint(&mut self, t: f64, row: usize) -> StepError {
         self.constrained().singular_constraint(t, row)
     }
