@@ -21,7 +21,9 @@
 //!
 //! - **exact**: the Jacobian of that map, the non-symmetric m x m matrix J(q^k) W J(q_n)^T,
 //!   re-evaluated at each iterate q^k (a gradient evaluation and an assembly per iteration)
-//!   and solved by Gaussian elimination with partial pivoting. Quadratic convergence.
+//!   and solved by Gaussian elimination with partial pivoting, or, when the rows couple in
+//!   paths (chains: the system's solver is [`crate::linalg::PathLdlt`]), by tridiagonal
+//!   elimination in the path order, O(m). Quadratic convergence.
 //! - **simplified**: the symmetric J(q_n) W J(q_n)^T, assembled from J(q_n)'s sparse rows
 //!   and factored once per step by the system's solver (faer's sparse LDL^T above
 //!   [`DENSE_MAX_ROWS`] rows), every iteration then one evaluation of C and two triangular
@@ -46,13 +48,20 @@
 //! The simplified matrix is faster on chains of every size; the exact one is kept for small
 //! systems because it is robust to fast motion: on the article's parabola at dt = 1/60
 //! (speeds of hundreds) the simplified iteration needs up to 8 iterations where the exact
-//! one needs 3, and it diverges where h |v| |d2C| / |J| reaches 1. An exact Newton on
-//! the sparse path would need a sparse LU of J(q^k) W J(q_n)^T at each iteration; on the
-//! 1000-link chain one LDL^T factorization costs about as much as two pairs of triangular
-//! solves plus the W J^T update (perf: 7.6% + 2% of a step for two factorizations, 10% for
-//! about four solves), so an LU (at least an LDL^T's cost, plus a gradient evaluation and an
-//! assembly per iteration) at 1.76 iterations per step cannot beat 2.9 simplified iterations
-//! that reuse one factorization; faer's sparse LU also grows its buffers during the numeric
+//! one needs 3, and it diverges where h |v| |d2C| / |J| reaches 1. On chains the exact
+//! matrix is tridiagonal in path order and costs O(m) per iteration; measured with the
+//! tridiagonal solver at 1000 links (`cargo run --release -p bead --example chain -- 1000
+//! --newton simplified --newton exact`, at `Simulation`'s per-rod tolerance): simplified 10.9k
+//! steps/s at 4.05 iterations per step, exact 9.9k at 2.03 (a gradient evaluation and an
+//! assembly of J(q^k) W J(q_n)^T per iteration cost more than the two iterations saved), so
+//! the simplified matrix stays the default there too. A tridiagonal elimination that meets
+//! a vanishing pivot (a rod turned by about a right angle in one step) hands the rest of the
+//! step to the simplified matrix. On other sparse structures an exact Newton would need a
+//! sparse LU of J(q^k) W J(q_n)^T at each iteration; on the 1000-link chain one LDL^T
+//! factorization by faer cost about as much as two pairs of triangular solves plus the W J^T
+//! update, so an LU (at least an LDL^T's cost, plus a gradient evaluation and an assembly per
+//! iteration) at 1.76 iterations per step cannot beat 2.9 simplified iterations that reuse
+//! one factorization; faer's sparse LU also grows its buffers during the numeric
 //! factorization (partial pivoting changes the fill), which the step loop must not do. It is
 //! not implemented. The loop stops when max_i |C_i| <= `tolerance` (absolute, units of C);
 //! needing more than `max_iterations` Newton steps, or a NaN residual, is
