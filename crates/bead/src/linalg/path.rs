@@ -154,7 +154,9 @@ impl PathOrder {
                     value -= multiplier * y[p - 1];
                 }
             }
-            if !(pivot.abs() > RELATIVE_PIVOT_TOLERANCE * diagonal.abs()) {
+            // Written so that NaN counts as singular.
+            let usable = pivot.abs() > RELATIVE_PIVOT_TOLERANCE * diagonal.abs();
+            if !usable {
                 return Err(Singular {
                     row: self.order[p],
                     finite: diagonal.is_finite() && pivot.is_finite(),
