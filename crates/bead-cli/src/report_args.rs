@@ -41,16 +41,26 @@ pub struct PlotArgs {
     /// first)
     pub trace: PathBuf,
 
-    /// Columns to plot against t, comma-separated [default: energy and constraint_error when
-    /// present, else every column]
+    /// Columns to plot, comma-separated [default: energy and constraint_error when present,
+    /// else every column but t and the --x column]
     #[arg(long, value_name = "LIST", value_delimiter = ',')]
     pub columns: Option<Vec<String>>,
+
+    /// The horizontal axis: a column of the trace [default: t]. Another column gives a phase
+    /// plot (e.g. `--x bead.x --columns bead.vx`), drawn in time order.
+    #[arg(long, value_name = "COLUMN")]
+    pub x: Option<String>,
+
+    /// All columns in one panel, each its own colour and dash, instead of one panel each
+    #[arg(long)]
+    pub overlay: bool,
 
     /// Output file, .png or .svg [default: the trace with the extension .png]
     #[arg(short, long, value_name = "FILE")]
     pub output: Option<PathBuf>,
 
-    /// Logarithmic y axis (values at or below 1e-17, e.g. zeros, are drawn at 1e-17)
+    /// Logarithmic y axis (values at or below zero, e.g. exact zeros, are left out and
+    /// counted in a note under the plot)
     #[arg(long)]
     pub log: bool,
 }

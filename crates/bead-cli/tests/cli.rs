@@ -2349,6 +2349,71 @@ fn plot_errors_name_the_problem() {
     assert!(err.contains("no_t.csv:1:") && err.contains("`t`"), "{err}");
 }
 
+/// `bead plot --x` draws one column against another (a phase plot, points in time order) and
+/// `--overlay` puts every column in one panel; an unknown `--x` is named with the columns.
+#[test]
+fn plot_draws_phase_plots_and_overlays() {
+    let dir = TempDir::new("plot-phase");
+    let trace = run_trace(&dir);
+    let svg = dir.path("phase.svg");
+    ok(bead_in(
+        &dir.0,
+        &[
+            "plot",
+            p(&trace),
+            "--x",
+            "bead.x",
+            "--columns",
+            "bead.vx",
+            "-o",
+            p(&svg),
+        ],
+    ));
+    let text = std::fs::read_to_string(&svg).expect("svg");
+    roxmltree::Document::parse(&text).expect("the SVG parses");
+    assert!(text.contains("bead.vx against bead.x"), "panel title");
+    assert!(
+        text.contains("bead.x (scene units)"),
+        "x axis named by its column"
+    );
+
+    let overlay = dir.path("overlay.svg");
+    ok(bead_in(
+        &dir.0,
+        &[
+            "plot",
+            p(&trace),
+            "--columns",
+            "bead.x,bead.y",
+            "--overlay",
+            "-o",
+            p(&overlay),
+        ],
+    ));
+    let text = std::fs::read_to_string(&overlay).expect("svg");
+    assert!(
+        text.contains("bead.x, bead.y"),
+        "one panel titled by both columns"
+    );
+    // Two series, the second dashed: drawn dash by dash (a solid pair is a few polylines).
+    let polylines = text.matches("<polyline").count();
+    assert!(polylines > 50, "{polylines} polylines");
+
+    let err = fails(bead_in(&dir.0, &["plot", p(&trace), "--x", "bogus"]), 1);
+    assert!(
+        err.contains("--x: unknown column `bogus`") && err.contains("bead.x"),
+        "{err}"
+    );
+    let err = fails(
+        bead_in(
+            &dir.0,
+            &["plot", p(&trace), "--x", "bead.x", "--columns", "bead.x"],
+        ),
+        1,
+    );
+    assert!(err.contains("`bead.x` is the horizontal axis"), "{err}");
+}
+
 /// A scene whose `[run]` asks for rattle and that also has a parametric form: `bead run` uses
 /// the implicit form and works, so `bead check` passes, noting that the parametric form is not
 /// for rattle (as `bead compare` skips it), instead of failing the scene.

@@ -11,23 +11,25 @@
 //!   [`write_figure`] draws it to a file whose extension (`.png` or `.svg`) picks the format,
 //!   [`svg_string`] returns the SVG text.
 //!
-//! Log axes clamp values at or below [`LOG_FLOOR`] to it (the panel's `note` says so when it
-//! happens) and skip NaN and infinite points. Text is drawn with DejaVu Sans, embedded in this
-//! crate, so drawing a PNG needs no system font.
+//! Each series has its own [`Look`] (colour, dash, marker), so that runs stay apart in print
+//! and in grey; legends sit beside the data, never over it. Log axes leave out values at or
+//! below zero (the figure's [`Figure::note`] says how many, e.g. exact zeros) and every axis
+//! skips NaN and infinite points. Tick labels carry the digits their spacing needs. A panel
+//! may draw its y axis pointing down (a scene whose gravity is +y) and keep equal scales on
+//! both axes (trajectories). Text is drawn with DejaVu Sans, embedded in this crate, so
+//! drawing a PNG needs no system font.
 
 use std::path::Path;
 use std::sync::Once;
 
 use plotters::coord::Shift;
+use plotters::element::DashedPathElement;
 use plotters::prelude::*;
 use plotters::style::{register_font, FontStyle};
 
 /// DejaVu Sans (see `assets/DejaVuSans.LICENSE`): the only font the plots use.
 static FONT: &[u8] = include_bytes!("../assets/DejaVuSans.ttf");
 const FAMILY: &str = "sans-serif";
-
-/// Values at or below this are drawn at it on log axes.
-pub const LOG_FLOOR: f64 = 1e-17;
 
 /// Default number of min/max buckets of a [`MinMaxDecimator`]: at most 2000 points.
 pub const DEFAULT_BUCKETS: usize = 1000;
@@ -338,12 +340,67 @@ pub enum Style {
     Reference,
 }
 
+/// The dash pattern of a line.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Dash {
+    #[default]
+    Solid,
+    Dashed,
+    Dotted,
+    LongDashed,
+}
+
+impl Dash {
+    /// The patterns in the order [`Look`]s take them.
+    pub const ALL: [Dash; 4] = [Dash::Solid, Dash::Dashed, Dash::Dotted, Dash::LongDashed];
+
+    /// (dash, gap) in pixels, `None` for a solid line.
+    fn pattern(self) -> Option<(i32, i32)> {
+        match self {
+            Dash::Solid => None,
+            Dash::Dashed => Some((7, 4)),
+            Dash::Dotted => Some((2, 3)),
+            Dash::LongDashed => Some((14, 5)),
+        }
+    }
+}
+
+/// The marker shape of a series.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Marker {
+    Circle,
+    Square,
+    Triangle,
+    Cross,
+}
+
+impl Marker {
+    /// The shapes in the order [`Look`]s take them.
+    pub const ALL: [Marker; 4] = [
+        Marker::Circle,
+        Marker::Square,
+        Marker::Triangle,
+        Marker::Cross,
+    ];
+}
+
+/// How one series looks: a colour of the palette (`None`: the next one in the panel), a dash
+/// pattern and an optional marker. A line series with a marker shows it at about a dozen
+/// evenly spaced points (every point for [`Style::LineAndMarkers`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Look {
+    pub color: Option<usize>,
+    pub dash: Dash,
+    pub marker: Option<Marker>,
+}
+
 /// One named series of (x, y) points.
 #[derive(Clone, Debug)]
 pub struct Series {
     pub label: String,
     pub points: Vec<(f64, f64)>,
     pub style: Style,
+    pub look: Look,
 }
 
 impl Series {
@@ -352,7 +409,14 @@ impl Series {
             label: label.into(),
             points,
             style: Style::Line,
+            look: Look::default(),
         }
+    }
+
+    /// The same with `look`.
+    pub fn with_look(mut self, look: Look) -> Self {
+        self.look = look;
+        self
     }
 }
 
@@ -364,6 +428,11 @@ pub struct Panel {
     pub y_label: String,
     pub x_log: bool,
     pub y_log: bool,
+    /// Draw the y axis pointing down (larger y lower on the page), e.g. for a scene whose
+    /// gravity points along +y.
+    pub y_down: bool,
+    /// One unit of x and one of y take the same length on the page (trajectories).
+    pub equal_aspect: bool,
     pub series: Vec<Series>,
 }
 
@@ -379,40 +448,35 @@ pub struct Figure {
 }
 
 impl Figure {
-    /// Whether any point of a log axis is at or below [`LOG_FLOOR`] (and so drawn at it).
-    pub fn clamps(&self) -> bool {
-        self.panels.iter().any(|p| {
-            p.series.iter().any(|s| {
-                s.points.iter().any(|&(x, y)| {
-                    (p.x_log && x.is_finite() && x <= LOG_FLOOR)
-                        || (p.y_log && y.is_finite() && y <= LOG_FLOOR)
-                })
+    /// How many finite points of log axes are at or below zero, and so left out.
+    pub fn left_out(&self) -> usize {
+        self.panels
+            .iter()
+            .flat_map(|p| p.series.iter().map(move |s| (p, s)))
+            .map(|(p, s)| {
+                s.points
+                    .iter()
+                    .filter(|&&(x, y)| {
+                        (p.x_log && x.is_finite() && x <= 0.0)
+                            || (p.y_log && y.is_finite() && y <= 0.0)
+                    })
+                    .count()
             })
-        })
+            .sum()
     }
 
-    /// The note printed under the figure: how log axes treat zeros, when it matters.
+    /// The note printed under the figure: what log axes leave out, when they leave out
+    /// anything.
     pub fn note(&self) -> Option<String> {
-        self.clamps().then(|| {
+        let count = self.left_out();
+        (count > 0).then(|| {
             format!(
-                "values at or below {LOG_FLOOR:e} (e.g. exact zeros) are drawn at {LOG_FLOOR:e} on log axes"
+                "log axes leave out values at or below zero (e.g. exact zeros): {count} point{} not drawn",
+                if count == 1 { "" } else { "s" }
             )
         })
     }
 }
-
-const COLORS: [RGBColor; 10] = [
-    RGBColor(31, 119, 180),
-    RGBColor(214, 39, 40),
-    RGBColor(44, 160, 44),
-    RGBColor(255, 127, 14),
-    RGBColor(148, 103, 189),
-    RGBColor(140, 86, 75),
-    RGBColor(227, 119, 194),
-    RGBColor(127, 127, 127),
-    RGBColor(188, 189, 34),
-    RGBColor(23, 190, 207),
-];
 
 /// Write `figure` to `path`, as PNG or SVG by the extension.
 pub fn write_figure(figure: &Figure, path: &Path) -> Result<(), PlotError> {
@@ -518,19 +582,17 @@ pub fn svg_string(figure: &Figure) -> Result<String, String> {
     Ok(text)
 }
 
-/// Axis value -> drawn value (log10 on log axes); None when it cannot be drawn.
+/// Axis value -> drawn value (log10 on log axes); None when it cannot be drawn (not finite,
+/// or at or below zero on a log axis).
 fn transform(v: f64, log: bool) -> Option<f64> {
-    if !v.is_finite() {
+    if !v.is_finite() || (log && v <= 0.0) {
         return None;
     }
-    if log {
-        Some(v.max(LOG_FLOOR).log10())
-    } else {
-        Some(v)
-    }
+    Some(if log { v.log10() } else { v })
 }
 
-/// A drawn range covering `values` with a margin.
+/// A drawn range covering `values` with a margin. On linear axes a margin never crosses zero
+/// when the values do not: a non-negative quantity gets no negative tick.
 fn range(values: impl Iterator<Item = f64>, log: bool) -> (f64, f64) {
     let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
     for v in values {
@@ -540,36 +602,95 @@ fn range(values: impl Iterator<Item = f64>, log: bool) -> (f64, f64) {
     if !lo.is_finite() || !hi.is_finite() {
         return (0.0, 1.0);
     }
-    if hi - lo <= 0.0 {
+    let (mut low, mut high) = if hi - lo <= 0.0 {
         let pad = if log { 1.0 } else { lo.abs().max(1.0) * 0.1 };
-        return (lo - pad, hi + pad);
+        (lo - pad, hi + pad)
+    } else {
+        let pad = if log { 0.25 } else { 0.05 * (hi - lo) };
+        (lo - pad, hi + pad)
+    };
+    if !log {
+        if lo >= 0.0 && low < 0.0 {
+            low = 0.0;
+        }
+        if hi <= 0.0 && high > 0.0 {
+            high = 0.0;
+        }
     }
-    let pad = if log { 0.25 } else { 0.05 * (hi - lo) };
-    (lo - pad, hi + pad)
+    (low, high)
 }
 
-/// Tick label of a drawn value.
-fn tick(v: f64, log: bool) -> String {
-    if log {
-        if (v - v.round()).abs() < 1e-9 {
-            format!("1e{}", v.round() as i64)
-        } else {
-            let s = format!("{:.1e}", 10f64.powf(v));
-            s.replace(".0e", "e")
+/// Tick labels on an axis.
+const LABELS: usize = 8;
+
+/// The spacing of about [`LABELS`] round ticks (1, 2 or 5 times a power of ten) over a
+/// range of this width.
+fn tick_step(width: f64) -> f64 {
+    if !(width > 0.0 && width.is_finite()) {
+        return 1.0;
+    }
+    let raw = width / LABELS as f64;
+    let power = 10f64.powf(raw.log10().floor());
+    [1.0, 2.0, 5.0, 10.0]
+        .into_iter()
+        .map(|m| m * power)
+        .find(|&step| step >= raw)
+        .unwrap_or(10.0 * power)
+}
+
+/// How tick labels of one axis are written: with the digits their spacing needs, so that
+/// neighbouring ticks never read alike.
+#[derive(Clone, Copy, Debug)]
+struct TickFormat {
+    log: bool,
+    /// Labels show -v (an axis drawn pointing down is drawn negated).
+    negate: bool,
+    step: f64,
+    /// Exponent notation, when the values are very large or very small.
+    exponent: bool,
+}
+
+impl TickFormat {
+    fn new(range: (f64, f64), log: bool, negate: bool) -> Self {
+        let step = tick_step(range.1 - range.0);
+        let largest = range.0.abs().max(range.1.abs());
+        TickFormat {
+            log,
+            negate,
+            step,
+            exponent: !log && largest > 0.0 && !(1e-3..1e5).contains(&largest),
         }
-    } else {
-        let a = v.abs();
-        if a != 0.0 && !(1e-3..1e5).contains(&a) {
-            format!("{v:.1e}")
-        } else {
-            let s = format!("{v:.4}");
-            let s = s.trim_end_matches('0').trim_end_matches('.');
-            if s == "-0" {
-                "0".into()
-            } else {
-                s.to_string()
+    }
+
+    fn label(&self, drawn: f64) -> String {
+        let v = if self.negate { -drawn } else { drawn };
+        if self.log {
+            if (v - v.round()).abs() < 1e-9 {
+                return format!("1e{}", v.round() as i64);
             }
+            // Between powers of ten: two significant digits, in plain notation where short.
+            let value = 10f64.powf(v);
+            let rounded: f64 = format!("{value:.1e}").parse().unwrap_or(value);
+            return if (1e-3..1e5).contains(&rounded) {
+                format!("{rounded}")
+            } else {
+                bead::significant(rounded, 2)
+            };
         }
+        if v.abs() < 1e-9 * self.step {
+            return "0".into();
+        }
+        if self.exponent {
+            // Mantissa digits down to the spacing's.
+            let digits = (v.abs().log10().floor() - self.step.log10().floor()).max(0.0) as usize;
+            return format!("{:.*e}", digits, v);
+        }
+        let mut decimals = (-self.step.log10()).ceil().max(0.0) as usize;
+        let scaled = self.step * 10f64.powi(decimals as i32);
+        if (scaled - scaled.round()).abs() > 1e-6 {
+            decimals += 1;
+        }
+        format!("{:.*}", decimals.min(15), v)
     }
 }
 
@@ -623,6 +744,98 @@ fn segments(points: &[(f64, f64)]) -> Vec<Vec<(f64, f64)>> {
     segments
 }
 
+/// Margins of a panel's chart (pixels): around it, and the label areas below and left.
+const MARGIN: u32 = 8;
+const X_LABEL_AREA: u32 = 44;
+const Y_LABEL_AREA: u32 = 72;
+
+/// Widen the narrower of two drawn ranges about its centre so that a unit of each takes the
+/// same length on a plotting area of `width` x `height` pixels.
+fn equalize(x: (f64, f64), y: (f64, f64), width: u32, height: u32) -> ((f64, f64), (f64, f64)) {
+    let (w, h) = (width.max(1) as f64, height.max(1) as f64);
+    let (per_x, per_y) = ((x.1 - x.0) / w, (y.1 - y.0) / h);
+    let widen = |r: (f64, f64), per: f64, pixels: f64| {
+        let centre = 0.5 * (r.0 + r.1);
+        let half = 0.5 * per * pixels;
+        (centre - half, centre + half)
+    };
+    if per_x > per_y {
+        (x, widen(y, per_x, h))
+    } else {
+        (widen(x, per_y, w), y)
+    }
+}
+
+const COLORS: [RGBColor; 10] = [
+    RGBColor(31, 119, 180),
+    RGBColor(214, 39, 40),
+    RGBColor(44, 160, 44),
+    RGBColor(255, 127, 14),
+    RGBColor(148, 103, 189),
+    RGBColor(140, 86, 75),
+    RGBColor(227, 119, 194),
+    RGBColor(127, 127, 127),
+    RGBColor(188, 189, 34),
+    RGBColor(23, 190, 207),
+];
+
+/// The colour of palette entry `index`.
+fn palette(index: usize) -> RGBColor {
+    COLORS[index % COLORS.len()]
+}
+
+/// Draw `points` (already split at breaks) as a line with `dash`.
+fn draw_line<DB: DrawingBackend, CT: CoordTranslate>(
+    area: &DrawingArea<DB, CT>,
+    points: Vec<CT::From>,
+    dash: Dash,
+    style: ShapeStyle,
+) -> Result<(), String>
+where
+    CT::From: Clone,
+{
+    let result = match dash.pattern() {
+        None => area.draw(&PathElement::new(points, style)),
+        Some((on, off)) => area.draw(&DashedPathElement::new(points, on, off, style)),
+    };
+    result.map_err(|e| e.to_string())
+}
+
+/// A marker of `shape` centred at `at` (a coordinate of `area`).
+fn draw_marker<DB: DrawingBackend, CT: CoordTranslate>(
+    area: &DrawingArea<DB, CT>,
+    at: CT::From,
+    shape: Marker,
+    color: RGBColor,
+) -> Result<(), String>
+where
+    CT::From: Clone,
+{
+    let size = 4;
+    let result = match shape {
+        Marker::Circle => {
+            area.draw(&(EmptyElement::at(at) + Circle::new((0, 0), size, color.filled())))
+        }
+        Marker::Square => area.draw(
+            &(EmptyElement::at(at)
+                + Rectangle::new([(-size, -size), (size, size)], color.filled())),
+        ),
+        Marker::Triangle => area.draw(
+            &(EmptyElement::at(at)
+                + Polygon::new(
+                    vec![(0, -size - 1), (size + 1, size), (-size - 1, size)],
+                    color.filled(),
+                )),
+        ),
+        Marker::Cross => area.draw(
+            &(EmptyElement::at(at)
+                + PathElement::new(vec![(-size, -size), (size, size)], color.stroke_width(2))
+                + PathElement::new(vec![(-size, size), (size, -size)], color.stroke_width(2))),
+        ),
+    };
+    result.map_err(|e| e.to_string())
+}
+
 fn draw_panel<DB: DrawingBackend>(
     panel: &Panel,
     area: &DrawingArea<DB, Shift>,
@@ -637,7 +850,7 @@ fn draw_panel<DB: DrawingBackend>(
                 .iter()
                 .map(
                     |&(x, y)| match (transform(x, panel.x_log), transform(y, panel.y_log)) {
-                        (Some(x), Some(y)) => (x, y),
+                        (Some(x), Some(y)) => (x, if panel.y_down { -y } else { y }),
                         _ => (f64::NAN, f64::NAN),
                     },
                 )
@@ -645,28 +858,71 @@ fn draw_panel<DB: DrawingBackend>(
         })
         .collect();
     let finite = |p: &&(f64, f64)| p.0.is_finite() && p.1.is_finite();
-    let x_range = range(
+    let mut x_range = range(
         drawn.iter().flatten().filter(finite).map(|p| p.0),
         panel.x_log,
     );
-    let y_range = range(
+    let mut y_range = range(
         drawn.iter().flatten().filter(finite).map(|p| p.1),
         panel.y_log,
     );
-    let mut chart = ChartBuilder::on(area)
-        .caption(&panel.title, (FAMILY, 15))
-        .margin(8)
-        .x_label_area_size(40)
-        .y_label_area_size(64)
+    // Colours: the series' own, or the next free one of the panel.
+    let mut next_color = 0;
+    let colors: Vec<RGBColor> = panel
+        .series
+        .iter()
+        .map(|s| match (s.style, s.look.color) {
+            (Style::Reference, _) => RGBColor(190, 190, 190),
+            (_, Some(c)) => palette(c),
+            (_, None) => {
+                next_color += 1;
+                palette(next_color - 1)
+            }
+        })
+        .collect();
+    // The legend beside the data, when any series is named.
+    let labelled: Vec<usize> = (0..panel.series.len())
+        .filter(|&i| !panel.series[i].label.is_empty())
+        .collect();
+    let (width, _) = area.dim_in_pixel();
+    let (plot_area, legend_area) = if labelled.is_empty() {
+        (area.clone(), None)
+    } else {
+        let longest = labelled
+            .iter()
+            .map(|&i| panel.series[i].label.chars().count())
+            .max()
+            .unwrap_or(0) as u32;
+        let legend_width = (longest * 7 + 48).clamp(110, width * 2 / 5);
+        let (left, right) = area.split_horizontally(width.saturating_sub(legend_width));
+        (left, Some(right))
+    };
+    let plot_area = plot_area.titled(&panel.title, (FAMILY, 15)).map_err(err)?;
+    if panel.equal_aspect {
+        let (w, h) = plot_area.dim_in_pixel();
+        (x_range, y_range) = equalize(
+            x_range,
+            y_range,
+            w.saturating_sub(2 * MARGIN + Y_LABEL_AREA),
+            h.saturating_sub(2 * MARGIN + X_LABEL_AREA),
+        );
+    }
+    let mut chart = ChartBuilder::on(&plot_area)
+        .margin(MARGIN)
+        .x_label_area_size(X_LABEL_AREA)
+        .y_label_area_size(Y_LABEL_AREA)
         .build_cartesian_2d(x_range.0..x_range.1, y_range.0..y_range.1)
         .map_err(err)?;
-    let (x_log, y_log) = (panel.x_log, panel.y_log);
-    let x_fmt = move |v: &f64| tick(*v, x_log);
-    let y_fmt = move |v: &f64| tick(*v, y_log);
+    let x_format = TickFormat::new(x_range, panel.x_log, false);
+    let y_format = TickFormat::new(y_range, panel.y_log, panel.y_down);
+    let x_fmt = move |v: &f64| x_format.label(*v);
+    let y_fmt = move |v: &f64| y_format.label(*v);
     chart
         .configure_mesh()
         .x_desc(panel.x_label.as_str())
         .y_desc(panel.y_label.as_str())
+        .x_labels(LABELS)
+        .y_labels(LABELS)
         .x_label_formatter(&x_fmt)
         .y_label_formatter(&y_fmt)
         .label_style((FAMILY, 12))
@@ -675,76 +931,115 @@ fn draw_panel<DB: DrawingBackend>(
         .bold_line_style(BLACK.mix(0.08))
         .draw()
         .map_err(err)?;
-    let mut color_index = 0;
-    let mut any_label = false;
+    let data = chart.plotting_area();
     // References first, so that they lie under the runs.
     let order: Vec<usize> = (0..panel.series.len())
         .filter(|&i| panel.series[i].style == Style::Reference)
         .chain((0..panel.series.len()).filter(|&i| panel.series[i].style != Style::Reference))
         .collect();
-    for i in order {
+    for &i in &order {
         let series = &panel.series[i];
-        let points = &drawn[i];
-        let label = series.label.clone();
-        any_label |= !label.is_empty();
-        match series.style {
-            Style::Reference => {
-                let color = RGBColor(190, 190, 190);
-                let style = ShapeStyle::from(&color).stroke_width(6);
-                let drawn = chart
-                    .draw_series(
-                        segments(points)
-                            .into_iter()
-                            .map(move |segment| PathElement::new(segment, style)),
-                    )
-                    .map_err(err)?;
-                if !label.is_empty() {
-                    drawn
-                        .label(label)
-                        .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], style));
-                }
-            }
-            Style::Line | Style::LineAndMarkers => {
-                let color = COLORS[color_index % COLORS.len()];
-                color_index += 1;
-                let style = ShapeStyle::from(&color).stroke_width(1);
-                let drawn = chart
-                    .draw_series(
-                        segments(points)
-                            .into_iter()
-                            .map(move |segment| PathElement::new(segment, style)),
-                    )
-                    .map_err(err)?;
-                if !label.is_empty() {
-                    drawn.label(label).legend(move |(x, y)| {
-                        PathElement::new(vec![(x, y), (x + 20, y)], color.stroke_width(2))
-                    });
-                }
-                if series.style == Style::LineAndMarkers {
-                    chart
-                        .draw_series(PointSeries::of_element(
-                            points
-                                .iter()
-                                .copied()
-                                .filter(|p| p.0.is_finite() && p.1.is_finite()),
-                            3,
-                            color.filled(),
-                            &|c, s, st| Circle::new(c, s, st),
-                        ))
-                        .map_err(err)?;
-                }
+        let color = colors[i];
+        let style = match series.style {
+            Style::Reference => ShapeStyle::from(&color).stroke_width(6),
+            _ => ShapeStyle::from(&color).stroke_width(if series.look.dash == Dash::Solid {
+                1
+            } else {
+                2
+            }),
+        };
+        for segment in segments(&drawn[i]) {
+            draw_line(data, segment, series.look.dash, style)?;
+        }
+        let marker = match (series.style, series.look.marker) {
+            (Style::Reference, _) => None,
+            (Style::LineAndMarkers, None) => Some(Marker::Circle),
+            (_, marker) => marker,
+        };
+        if let Some(shape) = marker {
+            let points: Vec<(f64, f64)> = drawn[i]
+                .iter()
+                .copied()
+                .filter(|p| p.0.is_finite() && p.1.is_finite())
+                .collect();
+            // Every point of a work-precision curve; about a dozen along a time series,
+            // offset by the series' number so that markers of overlapping series do not
+            // hide each other.
+            let every = if series.style == Style::LineAndMarkers {
+                1
+            } else {
+                (points.len() / 12).max(1)
+            };
+            let offset = if every > 1 {
+                (i * every / 5) % every
+            } else {
+                0
+            };
+            for &p in points.iter().skip(offset).step_by(every) {
+                draw_marker(data, p, shape, color)?;
             }
         }
     }
-    if any_label {
-        chart
-            .configure_series_labels()
-            .position(SeriesLabelPosition::UpperLeft)
-            .background_style(WHITE.mix(0.85))
-            .border_style(BLACK.mix(0.3))
-            .label_font((FAMILY, 11))
-            .draw()
-            .map_err(err)?;
+    if let Some(legend) = legend_area {
+        draw_legend(panel, &labelled, &colors, &legend)?;
+    }
+    Ok(())
+}
+
+/// The legend of a panel in its own area beside the data: a line sample (dash, colour,
+/// marker) and the label per named series, as many as fit, then how many more there are.
+fn draw_legend<DB: DrawingBackend>(
+    panel: &Panel,
+    labelled: &[usize],
+    colors: &[RGBColor],
+    area: &DrawingArea<DB, Shift>,
+) -> Result<(), String> {
+    let (_, height) = area.dim_in_pixel();
+    let top = 34i32;
+    let available = height.saturating_sub(top as u32 + 8) as usize;
+    let (font, spacing) = if labelled.len() * 17 <= available {
+        (12, 17)
+    } else {
+        (11, 14)
+    };
+    let fits = (available / spacing).max(1);
+    let shown = if labelled.len() <= fits {
+        labelled.len()
+    } else {
+        fits - 1
+    };
+    for (row, &i) in labelled.iter().take(shown).enumerate() {
+        let series = &panel.series[i];
+        let y = top + (row * spacing) as i32 + spacing as i32 / 2;
+        let color = colors[i];
+        let style = match series.style {
+            Style::Reference => ShapeStyle::from(&color).stroke_width(6),
+            _ => ShapeStyle::from(&color).stroke_width(2),
+        };
+        draw_line(area, vec![(6, y), (34, y)], series.look.dash, style)?;
+        let marker = match (series.style, series.look.marker) {
+            (Style::Reference, _) => None,
+            (Style::LineAndMarkers, None) => Some(Marker::Circle),
+            (_, marker) => marker,
+        };
+        if let Some(shape) = marker {
+            draw_marker(area, (20, y), shape, color)?;
+        }
+        area.draw(&Text::new(
+            series.label.clone(),
+            (40, y - font / 2 - 1),
+            (FAMILY, font).into_font(),
+        ))
+        .map_err(|e| e.to_string())?;
+    }
+    if shown < labelled.len() {
+        let y = top + (shown * spacing) as i32;
+        area.draw(&Text::new(
+            format!("... and {} more", labelled.len() - shown),
+            (40, y),
+            (FAMILY, font).into_font().color(&BLACK.mix(0.7)),
+        ))
+        .map_err(|e| e.to_string())?;
     }
     Ok(())
 }
@@ -838,7 +1133,6 @@ mod tests {
                 title: "errors".into(),
                 x_label: "t (s)".into(),
                 y_label: "|C|".into(),
-                x_log: false,
                 y_log: true,
                 series: vec![
                     Series::line(
@@ -847,6 +1141,7 @@ mod tests {
                     ),
                     Series::line("b", vec![(0.0, 1e-8), (3.0, 1e-6)]),
                 ],
+                ..Panel::default()
             }],
             columns: 0,
             size: (640, 400),
@@ -860,7 +1155,12 @@ mod tests {
         assert_eq!(doc.root_element().tag_name().name(), "svg");
         assert!(svg.contains("Test figure"));
         assert!(svg.contains("t (s)"));
-        assert!(svg.contains("drawn at 1e-17"), "the clamping note");
+        assert!(
+            svg.contains(
+                "log axes leave out values at or below zero (e.g. exact zeros): 1 point not drawn"
+            ),
+            "the note on the left-out zero"
+        );
     }
 
     #[test]
@@ -881,6 +1181,55 @@ mod tests {
             .count();
         assert!(dark > 500, "too few dark pixels: {dark}");
         let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    /// Neighbouring ticks never read alike, zero reads "0", an axis drawn pointing down shows
+    /// the values it stands for, and log ticks between powers of ten are short.
+    #[test]
+    fn tick_labels_carry_the_digits_their_spacing_needs() {
+        // 110000..110070: the labels "1.1e5" seven times, before.
+        let format = TickFormat::new((110_000.0, 110_070.0), false, false);
+        let labels: Vec<String> = (0..8)
+            .map(|k| format.label(110_000.0 + 10.0 * k as f64))
+            .collect();
+        let mut distinct = labels.clone();
+        distinct.dedup();
+        assert_eq!(distinct.len(), 8, "{labels:?}");
+        assert_eq!(labels[1], "1.1001e5");
+        let format = TickFormat::new((-0.1, 3.0), false, false);
+        assert_eq!(format.label(1.5), "1.5");
+        assert_eq!(format.label(2.0), "2.0");
+        assert_eq!(format.label(1e-17), "0");
+        let down = TickFormat::new((-225.0, 10.0), false, true);
+        assert_eq!(down.label(-200.0), "200");
+        let log = TickFormat::new((2.5, 3.4), true, false);
+        assert_eq!(log.label(3.0), "1e3");
+        assert_eq!(log.label(2.8), "630");
+        assert_eq!(tick_step(0.8), 0.1);
+        assert_eq!(tick_step(70.0), 10.0);
+    }
+
+    /// A non-negative quantity gets no negative tick; one that crosses zero keeps its margin.
+    #[test]
+    fn ranges_do_not_cross_zero_for_one_signed_data() {
+        assert_eq!(range([0.0, 2.0].into_iter(), false).0, 0.0);
+        assert_eq!(range([-2.0, 0.0].into_iter(), false).1, 0.0);
+        let (lo, hi) = range([-1.0, 1.0].into_iter(), false);
+        assert!(lo < -1.0 && hi > 1.0);
+        // Log axes never see values at or below zero.
+        assert_eq!(transform(0.0, true), None);
+        assert_eq!(transform(-1.0, true), None);
+        assert_eq!(transform(100.0, true), Some(2.0));
+    }
+
+    /// Equal scales: the narrower range widens about its centre until a unit of x and one of
+    /// y take the same pixels.
+    #[test]
+    fn equal_aspect_widens_the_narrower_range() {
+        let (x, y) = equalize((-150.0, 150.0), (-10.0, 0.0), 600, 400);
+        assert_eq!(x, (-150.0, 150.0));
+        assert!(((y.1 - y.0) / 400.0 - 300.0 / 600.0).abs() < 1e-12, "{y:?}");
+        assert!((0.5 * (y.0 + y.1) + 5.0).abs() < 1e-12);
     }
 
     #[test]

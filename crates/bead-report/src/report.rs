@@ -21,7 +21,9 @@ use bead::integrate::IntegratorKind;
 use bead::model::System;
 use bead::simulate::{RunStats, Sample, Sink};
 
-use crate::plot::{self, Figure, HeadTail, MinMaxDecimator, Panel, PlotError, Series, Style};
+use crate::plot::{
+    self, Dash, Figure, HeadTail, Look, Marker, MinMaxDecimator, Panel, PlotError, Series, Style,
+};
 
 /// Detects the period of an oscillating signal from its upward zero crossings (negative to
 /// non-negative), each placed by linear interpolation between the two samples around it.
@@ -103,12 +105,14 @@ impl PeriodDetector {
 /// A [`Sink`] that records a run for a report in bounded memory: the constraint error and the
 /// relative error of the conserved energy ([`Sample::conserved_energy_error`]: |E - E0| / E_scale, or
 /// |E - W - E0| / E_scale when something does work on the system and the energy ledger runs)
-/// as min/max-decimated series, the particle positions of the first and last samples (see
+/// as min/max-decimated series (with and without its sign), the particle positions of the first and last samples (see
 /// [`HeadTail`]), and the period of each particle velocity component from every sample.
 pub struct Recorder {
     system: Arc<System>,
     constraint: MinMaxDecimator,
     energy: MinMaxDecimator,
+    /// (E - W - E0) / E_scale with its sign
+    energy_signed: MinMaxDecimator,
     trajectory: HeadTail,
     periods: Vec<PeriodDetector>,
     /// Whether the energy series is the balance E - W (the ledger ran).
@@ -126,6 +130,7 @@ impl Recorder {
         Recorder {
             constraint: MinMaxDecimator::new(buckets),
             energy: MinMaxDecimator::new(buckets),
+            energy_signed: MinMaxDecimator::new(buckets),
             trajectory: HeadTail::new(n + 1, buckets),
             periods: vec![PeriodDetector::new(); n],
             system,
@@ -158,6 +163,7 @@ impl Recorder {
         Recording {
             constraint_error: self.constraint.points(),
             energy_error: self.energy.points(),
+            energy_change: self.energy_signed.points(),
             trajectory: self.trajectory.rows(),
             period,
             samples: self.samples,
@@ -181,6 +187,9 @@ impl Sink for Recorder {
         self.balance = sample.work.is_some();
         self.constraint.push(sample.t, sample.constraint_error);
         self.energy.push(sample.t, sample.conserved_energy_error());
+        let change = sample.energy - sample.work.unwrap_or(0.0) - sample.energy_initial;
+        self.energy_signed
+            .push(sample.t, change / sample.energy_scale);
         // Row: t, then the particle coordinates.
         let n = sample.x.len().min(self.row.len() - 1);
         self.row[0] = sample.t;
@@ -211,6 +220,9 @@ pub struct Recording {
     pub constraint_error: Vec<(f64, f64)>,
     /// (t, |E - E0| / E_scale), or (t, |E - W - E0| / E_scale) when `energy_balance`
     pub energy_error: Vec<(f64, f64)>,
+    /// The same with its sign: (t, (E - E0) / E_scale) or (t, (E - W - E0) / E_scale); above
+    /// zero the run gained energy, below it lost some
+    pub energy_change: Vec<(f64, f64)>,
     /// Whether `energy_error` is the error of the balance E - W (something did work on the
     /// system and the energy ledger ran) rather than of T + V.
     pub energy_balance: bool,
@@ -259,7 +271,8 @@ impl ReportRun {
     }
 }
 
-/// A set of runs of one scene.
+/// A set of runs of one scene. Each run is drawn with its own [`Look`]: the colour of its
+/// integrator, the dash of its dt (largest first) and the marker of its method.
 #[derive(Clone, Debug)]
 pub struct Report {
     pub title: String,
@@ -277,6 +290,35 @@ pub struct Report {
 pub use bead::significant as sig;
 
 impl Report {
+    /// The look of `run` in every figure: colour by integrator (its place in
+    /// [`IntegratorKind::ALL`]), dash by dt (the report's dts from the largest), marker by
+    /// method (implicit: circle, implicit+project: square, parametric: triangle).
+    pub fn look(&self, run: &ReportRun) -> Look {
+        let color = IntegratorKind::ALL
+            .iter()
+            .position(|&k| k == run.integrator)
+            .unwrap_or(0);
+        let mut dts: Vec<f64> = self.runs.iter().map(|r| r.dt).collect();
+        dts.sort_by(|a, b| b.total_cmp(a));
+        dts.dedup();
+        let dash = dts.iter().position(|&dt| dt == run.dt).unwrap_or(0);
+        let marker = match (run.method, run.projected) {
+            (Method::Parametric, _) => Marker::Triangle,
+            (_, true) => Marker::Square,
+            _ => Marker::Circle,
+        };
+        Look {
+            color: Some(color),
+            dash: Dash::ALL[dash % Dash::ALL.len()],
+            marker: Some(marker),
+        }
+    }
+
+    /// The line of `run` in a time series figure.
+    fn series(&self, run: &ReportRun, points: &[(f64, f64)]) -> Series {
+        Series::line(run.label(), points.to_vec()).with_look(self.look(run))
+    }
+
     /// The comparison table: a header row, then one row per run. Columns: method,
     /// integrator, dt, final and max constraint error, max relative energy error, period
     /// (`-` when the motion is not periodic or shows fewer than two crossings), steps/s, and
@@ -350,48 +392,62 @@ impl Report {
                 title: "max_i |C_i| vs time (log scale)".into(),
                 x_label: "t (s)".into(),
                 y_label: "max |C_i| (constraint units)".into(),
-                x_log: false,
                 y_log: true,
                 series: self
                     .runs
                     .iter()
-                    .map(|r| Series::line(r.label(), r.recording.constraint_error.clone()))
+                    .map(|r| self.series(r, &r.recording.constraint_error))
                     .collect(),
+                ..Panel::default()
             }],
-            size: (960, 540),
+            size: (1100, 540),
         }
     }
 
-    /// Relative energy error vs time.
+    /// Energy error vs time: signed, so that gain and loss read apart (the article's
+    /// point: the parametric form loses energy), and its size on a log scale.
     pub fn energy_figure(&self) -> Figure {
         let balance = self.runs.iter().any(|r| r.recording.energy_balance);
-        Figure {
-            columns: 0,
-            title: if balance {
+        let (quantity, title) = if balance {
+            (
+                "E - W - E0",
                 format!(
-                    "{}: energy balance error (energy not conserved: E - W is)",
+                    "{}: energy balance error (energy not conserved: E - W is; W = work done on the system)",
                     self.title
-                )
-            } else {
-                format!("{}: energy error", self.title)
-            },
-            panels: vec![Panel {
-                title: if balance {
-                    "|E - W - E0| / E_scale vs time (log scale); W = work done on the system".into()
-                } else {
-                    "|E - E0| / E_scale vs time (log scale)".into()
+                ),
+            )
+        } else {
+            ("E - E0", format!("{}: energy error", self.title))
+        };
+        Figure {
+            columns: 1,
+            title,
+            panels: vec![
+                Panel {
+                    title: format!("({quantity}) / E_scale vs time: above 0 gained, below 0 lost"),
+                    x_label: "t (s)".into(),
+                    y_label: "relative energy change (1)".into(),
+                    series: self
+                        .runs
+                        .iter()
+                        .map(|r| self.series(r, &r.recording.energy_change))
+                        .collect(),
+                    ..Panel::default()
                 },
-                x_label: "t (s)".into(),
-                y_label: "relative energy error (1)".into(),
-                x_log: false,
-                y_log: true,
-                series: self
-                    .runs
-                    .iter()
-                    .map(|r| Series::line(r.label(), r.recording.energy_error.clone()))
-                    .collect(),
-            }],
-            size: (960, 540),
+                Panel {
+                    title: format!("|{quantity}| / E_scale vs time (log scale)"),
+                    x_label: "t (s)".into(),
+                    y_label: "relative energy error (1)".into(),
+                    y_log: true,
+                    series: self
+                        .runs
+                        .iter()
+                        .map(|r| self.series(r, &r.recording.energy_error))
+                        .collect(),
+                    ..Panel::default()
+                },
+            ],
+            size: (1100, 900),
         }
     }
 
@@ -414,6 +470,7 @@ impl Report {
                     .then(b.integrator.order().cmp(&a.integrator.order()))
             });
         let particles = self.system.particles();
+        let gravity = self.system.gravity();
         let panels = planes
             .iter()
             .map(|&(axis, axis_name)| {
@@ -428,6 +485,7 @@ impl Report {
                 if let Some(reference) = reference {
                     for p in 0..particles.len() {
                         series.push(Series {
+                            look: Look::default(),
                             label: if p == 0 {
                                 format!("constraint curve (from {})", reference.label())
                             } else {
@@ -450,23 +508,39 @@ impl Report {
                         } else {
                             run.label()
                         };
-                        series.push(Series::line(
-                            label,
-                            run.recording
-                                .trajectory
-                                .iter()
-                                .map(|r| coords(r, p))
-                                .collect(),
-                        ));
+                        let mut look = self.look(run);
+                        if particles.len() > 1 {
+                            // Particles of one run apart by marker.
+                            look.marker = Some(Marker::ALL[p % Marker::ALL.len()]);
+                        }
+                        series.push(
+                            Series::line(
+                                label,
+                                run.recording
+                                    .trajectory
+                                    .iter()
+                                    .map(|r| coords(r, p))
+                                    .collect(),
+                            )
+                            .with_look(look),
+                        );
                     }
                 }
+                // Gravity along +axis: that axis points down on the page, as the scene's
+                // world does (the article's +y down).
+                let down = gravity.get(axis).is_some_and(|&g| g > 0.0);
                 Panel {
-                    title: format!("x-{axis_name} plane"),
+                    title: format!("x-{axis_name} plane (equal scales)"),
                     x_label: "x (scene length units)".into(),
-                    y_label: format!("{axis_name} (scene length units)"),
-                    x_log: false,
-                    y_log: false,
+                    y_label: if down {
+                        format!("{axis_name}, pointing down (scene length units)")
+                    } else {
+                        format!("{axis_name} (scene length units)")
+                    },
+                    y_down: down,
+                    equal_aspect: true,
                     series,
+                    ..Panel::default()
                 }
             })
             .collect();
@@ -474,38 +548,44 @@ impl Report {
             columns: 0,
             title: format!("{}: trajectories", self.title),
             panels,
-            size: if dim == 3 { (1200, 560) } else { (960, 600) },
+            size: if dim == 3 { (1400, 620) } else { (1100, 640) },
         }
     }
 
-    /// Work-precision: max constraint error and max relative energy error vs wall time, one
-    /// series per method x integrator across the dts.
+    /// Work-precision: max constraint error and max relative energy error vs the number of
+    /// steps (deterministic, unlike wall time), one series per method x integrator across
+    /// the dts, in that integrator's colour and that method's marker.
     pub fn work_precision_figure(&self) -> Figure {
-        let mut keys: Vec<(String, IntegratorKind)> = Vec::new();
+        let mut keys: Vec<&ReportRun> = Vec::new();
         for r in &self.runs {
-            let key = (r.method_label(), r.integrator);
-            if !keys.contains(&key) {
-                keys.push(key);
+            if !keys
+                .iter()
+                .any(|k| k.method_label() == r.method_label() && k.integrator == r.integrator)
+            {
+                keys.push(r);
             }
         }
         let series = |error: fn(&RunStats) -> f64| -> Vec<Series> {
             keys.iter()
-                .map(|(method, integrator)| {
+                .map(|key| {
                     let mut points: Vec<(f64, f64)> = self
                         .runs
                         .iter()
                         .filter(|r| {
-                            &r.method_label() == method
-                                && r.integrator == *integrator
+                            r.method_label() == key.method_label()
+                                && r.integrator == key.integrator
                                 && r.error.is_none()
                         })
-                        .map(|r| (r.stats.wall_seconds, error(&r.stats)))
+                        .map(|r| (r.stats.steps as f64, error(&r.stats)))
                         .collect();
                     points.sort_by(|a, b| a.0.total_cmp(&b.0));
+                    let mut look = self.look(key);
+                    look.dash = Dash::Solid;
                     Series {
-                        label: format!("{method} {}", integrator.name()),
+                        label: format!("{} {}", key.method_label(), key.integrator.name()),
                         points,
                         style: Style::LineAndMarkers,
+                        look,
                     }
                 })
                 .collect()
@@ -515,23 +595,25 @@ impl Report {
             title: format!("{}: work-precision (one point per dt)", self.title),
             panels: vec![
                 Panel {
-                    title: "max constraint error vs wall time".into(),
-                    x_label: "wall time (s)".into(),
+                    title: "max constraint error vs steps".into(),
+                    x_label: "steps".into(),
                     y_label: "max |C_i| (constraint units)".into(),
                     x_log: true,
                     y_log: true,
                     series: series(|s| s.constraint_error_max),
+                    ..Panel::default()
                 },
                 Panel {
-                    title: "max relative energy error vs wall time".into(),
-                    x_label: "wall time (s)".into(),
+                    title: "max relative energy error vs steps".into(),
+                    x_label: "steps".into(),
                     y_label: "max |E - E0| / E_scale, or of E - W (1)".into(),
                     x_log: true,
                     y_log: true,
                     series: series(|s| s.conserved_energy_error_max()),
+                    ..Panel::default()
                 },
             ],
-            size: (1200, 540),
+            size: (1500, 560),
         }
     }
 }

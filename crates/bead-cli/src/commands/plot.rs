@@ -1,5 +1,7 @@
-//! `bead plot`: columns of a trace CSV against t, as PNG or SVG, read row by row and
-//! min/max-decimated so that a trace of any length gives a small file.
+//! `bead plot`: columns of a trace CSV against t (or against another column: a phase plot),
+//! one panel each or overlaid in one, as PNG or SVG, read row by row and decimated so that a
+//! trace of any length gives a small file (min/max buckets against t, every k-th row for a
+//! phase plot, whose points must stay in time order).
 
 use std::fs::File;
 use std::io::{BufRead, BufReader};
@@ -7,7 +9,8 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
 use bead_report::plot::{
-    write_figure, Figure, Format, MinMaxDecimator, Panel, Series, DEFAULT_BUCKETS,
+    write_figure, Dash, Figure, Format, Look, MinMaxDecimator, Panel, Series, StrideDecimator,
+    DEFAULT_BUCKETS,
 };
 
 use crate::outputs::Files;
@@ -48,11 +51,26 @@ pub fn plot(args: &PlotArgs) -> Result<()> {
     if columns.len() < 2 {
         bail!("{name}: nothing to plot: the trace has only the column `t`");
     }
-    let chosen = choose_columns(&columns, args.columns.as_deref())?;
+    let x_column = match &args.x {
+        None => 0,
+        Some(name) => {
+            let name = name.trim();
+            columns.iter().position(|c| c == name).ok_or_else(|| {
+                anyhow::anyhow!(
+                    "--x: unknown column `{name}`; the trace has {}",
+                    columns.join(", ")
+                )
+            })?
+        }
+    };
+    let chosen = choose_columns(&columns, args.columns.as_deref(), x_column)?;
     let mut decimators: Vec<MinMaxDecimator> = chosen
         .iter()
         .map(|_| MinMaxDecimator::new(DEFAULT_BUCKETS))
         .collect();
+    // A phase plot keeps whole rows (x and every chosen column) in time order.
+    let mut phase = (x_column != 0).then(|| StrideDecimator::new(1 + chosen.len(), 4000));
+    let mut row = vec![0.0; 1 + chosen.len()];
     let mut rows = 0u64;
     // Whether each chosen column has a finite value (NaN and infinities are not drawn).
     let mut finite = vec![false; chosen.len()];
@@ -80,12 +98,24 @@ pub fn plot(args: &PlotArgs) -> Result<()> {
                 )
             })
         };
-        let t = value(0)?;
+        let t = value(x_column)?;
         t_finite |= t.is_finite();
-        for ((decimator, &k), finite) in decimators.iter_mut().zip(&chosen).zip(&mut finite) {
+        row[0] = t;
+        for (((decimator, &k), finite), cell) in decimators
+            .iter_mut()
+            .zip(&chosen)
+            .zip(&mut finite)
+            .zip(&mut row[1..])
+        {
             let y = value(k)?;
             *finite |= y.is_finite() && t.is_finite();
-            decimator.push(t, y);
+            *cell = y;
+            if phase.is_none() {
+                decimator.push(t, y);
+            }
+        }
+        if let Some(phase) = &mut phase {
+            phase.push(&row);
         }
         rows += 1;
     }
@@ -98,7 +128,10 @@ pub fn plot(args: &PlotArgs) -> Result<()> {
         format!("in {rows} rows")
     };
     if !t_finite {
-        bail!("{name}: nothing to plot: column `t` has no finite value {in_rows}");
+        bail!(
+            "{name}: nothing to plot: column `{}` has no finite value {in_rows}",
+            columns[x_column]
+        );
     }
     let empty: Vec<&str> = chosen
         .iter()
@@ -129,62 +162,116 @@ pub fn plot(args: &PlotArgs) -> Result<()> {
             }
         ));
     }
-    let panels: Vec<Panel> = chosen
-        .iter()
-        .zip(&decimators)
-        .map(|(&k, d)| Panel {
-            title: columns[k].clone(),
-            x_label: "t (s)".into(),
-            y_label: unit_label(&columns[k]),
-            x_log: false,
+    let x_label = if x_column == 0 {
+        "t (s)".to_string()
+    } else {
+        unit_label(&columns[x_column])
+    };
+    // The points of chosen column j.
+    let phase_rows = phase.as_ref().map(StrideDecimator::rows);
+    let points = |j: usize| -> Vec<(f64, f64)> {
+        match &phase_rows {
+            Some(rows) => rows.iter().map(|r| (r[0], r[1 + j])).collect(),
+            None => decimators[j].points(),
+        }
+    };
+    let panels: Vec<Panel> = if args.overlay {
+        let series = chosen
+            .iter()
+            .enumerate()
+            .map(|(j, &k)| {
+                Series::line(columns[k].clone(), points(j)).with_look(Look {
+                    color: Some(j),
+                    dash: Dash::ALL[j % Dash::ALL.len()],
+                    marker: None,
+                })
+            })
+            .collect();
+        vec![Panel {
+            title: chosen
+                .iter()
+                .map(|&k| columns[k].as_str())
+                .collect::<Vec<_>>()
+                .join(", "),
+            x_label: x_label.clone(),
+            y_label: if chosen.len() == 1 {
+                unit_label(&columns[chosen[0]])
+            } else {
+                "value (scene units)".into()
+            },
             y_log: args.log,
-            series: vec![Series::line(columns[k].clone(), d.points())],
-        })
-        .collect();
+            series,
+            ..Panel::default()
+        }]
+    } else {
+        chosen
+            .iter()
+            .enumerate()
+            .map(|(j, &k)| Panel {
+                title: if x_column == 0 {
+                    columns[k].clone()
+                } else {
+                    format!("{} against {}", columns[k], columns[x_column])
+                },
+                x_label: x_label.clone(),
+                y_label: unit_label(&columns[k]),
+                y_log: args.log,
+                series: vec![Series::line(columns[k].clone(), points(j))],
+                ..Panel::default()
+            })
+            .collect()
+    };
     let n = panels.len() as u32;
     let figure = Figure {
         title: format!("{} ({rows} rows)", file_name(&args.trace)),
         panels,
         columns: 1,
-        size: (960, (60 + 280 * n).min(4000)),
+        size: (1100, (60 + 300 * n).min(4000)),
     };
     write_figure(&figure, &output)?;
     super::print(&format!("wrote {}\n", output.display()))
 }
 
 /// Column indices to plot: the requested ones, else energy and constraint_error when
-/// present, else every column but t.
-fn choose_columns(columns: &[String], requested: Option<&[String]>) -> Result<Vec<usize>> {
+/// present, else every column but t and the horizontal axis `x`.
+fn choose_columns(
+    columns: &[String],
+    requested: Option<&[String]>,
+    x: usize,
+) -> Result<Vec<usize>> {
+    let others = || {
+        columns
+            .iter()
+            .enumerate()
+            .filter(|&(k, _)| k != x)
+            .map(|(_, c)| c.as_str())
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
     match requested {
         Some(names) => names
             .iter()
             .map(|name| {
                 let name = name.trim();
-                if name == columns[0] {
+                if name == columns[x] {
                     bail!(
                         "`{name}` is the horizontal axis of every panel; choose among {}",
-                        columns[1..].join(", ")
+                        others()
                     );
                 }
-                columns
-                    .iter()
-                    .position(|c| c == name)
-                    .filter(|&k| k > 0)
-                    .ok_or_else(|| {
-                        anyhow::anyhow!(
-                            "unknown column `{name}`; the trace has {}",
-                            columns[1..].join(", ")
-                        )
-                    })
+                columns.iter().position(|c| c == name).ok_or_else(|| {
+                    anyhow::anyhow!("unknown column `{name}`; the trace has {}", others())
+                })
             })
             .collect(),
         None => {
             let preferred: Vec<usize> = ["energy", "constraint_error"]
                 .iter()
                 .filter_map(|n| columns.iter().position(|c| c == n))
+                .filter(|&k| k != x)
                 .collect();
             if preferred.is_empty() {
-                Ok((1..columns.len()).collect())
+                Ok((1..columns.len()).filter(|&k| k != x).collect())
             } else {
                 Ok(preferred)
             }

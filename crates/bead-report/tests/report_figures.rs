@@ -1,0 +1,144 @@
+//! What the report's figures say about the runs: each run its own look (colour by
+//! integrator, dash by dt, marker by method), the energy's sign (the article's parametric
+//! form loses energy: its signed change is below zero), the parabola drawn as the valley it
+//! is (+y down, equal scales) and work-precision against steps.
+
+use std::path::Path;
+use std::sync::Arc;
+
+use bead::formulation::Method;
+use bead::integrate::IntegratorKind;
+use bead::scene::Scene;
+use bead::simulate::{run, RunOptions, Simulation, SimulationConfig};
+use bead_report::plot::{Dash, Marker, DEFAULT_BUCKETS};
+use bead_report::report::{Recorder, Report, ReportRun};
+
+fn parabola_report() -> Report {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes/parabola.toml");
+    let scene = Scene::load(&path, &[]).unwrap_or_else(|e| panic!("{e}"));
+    let mut runs = Vec::new();
+    for (integrator, dt, label) in [
+        (IntegratorKind::Rk4, 1.0 / 60.0, "1/60"),
+        (IntegratorKind::Rk4, 1.0 / 120.0, "1/120"),
+        (IntegratorKind::Verlet, 1.0 / 60.0, "1/60"),
+    ] {
+        for method in [Method::Implicit, Method::Parametric] {
+            let config = SimulationConfig {
+                method,
+                integrator,
+                dt,
+                ..Default::default()
+            };
+            let mut simulation = Simulation::new(Arc::clone(&scene.system), config).unwrap();
+            let mut recorder = Recorder::new(Arc::clone(&scene.system), DEFAULT_BUCKETS);
+            let steps = (10.0 / dt).round() as u64;
+            let stats = run(
+                &mut simulation,
+                RunOptions { steps, every: 1 },
+                &mut recorder,
+            )
+            .unwrap_or_else(|e| panic!("{e}"));
+            runs.push(ReportRun {
+                method,
+                projected: false,
+                integrator,
+                dt,
+                dt_label: label.into(),
+                stats,
+                error: None,
+                recording: recorder.recording(),
+            });
+        }
+    }
+    Report {
+        title: "parabola".into(),
+        description: "test".into(),
+        system: Arc::clone(&scene.system),
+        runs,
+        skipped: vec![],
+    }
+}
+
+#[test]
+fn every_run_has_its_own_look_and_the_figures_tell_the_physics() {
+    let report = parabola_report();
+    let looks: Vec<_> = report.runs.iter().map(|r| report.look(r)).collect();
+    for (i, a) in looks.iter().enumerate() {
+        for b in &looks[i + 1..] {
+            assert_ne!(a, b, "two runs look alike");
+        }
+    }
+    // Colour by integrator, dash by dt (largest first), marker by method.
+    let look = |integrator, dt: f64, method| {
+        let run = report
+            .runs
+            .iter()
+            .find(|r| r.integrator == integrator && r.dt == dt && r.method == method)
+            .unwrap();
+        report.look(run)
+    };
+    let rk4 = look(IntegratorKind::Rk4, 1.0 / 60.0, Method::Implicit);
+    assert_eq!(
+        look(IntegratorKind::Rk4, 1.0 / 120.0, Method::Parametric).color,
+        rk4.color
+    );
+    assert_ne!(
+        look(IntegratorKind::Verlet, 1.0 / 60.0, Method::Implicit).color,
+        rk4.color
+    );
+    assert_eq!(rk4.dash, Dash::Solid);
+    assert_eq!(
+        look(IntegratorKind::Rk4, 1.0 / 120.0, Method::Implicit).dash,
+        Dash::Dashed
+    );
+    assert_eq!(rk4.marker, Some(Marker::Circle));
+    assert_eq!(
+        look(IntegratorKind::Rk4, 1.0 / 60.0, Method::Parametric).marker,
+        Some(Marker::Triangle)
+    );
+
+    // The energy figure: a signed panel, where the parametric rk4 run at 1/60 ends below
+    // zero (it loses energy, the article's observation), then the log panel.
+    let energy = report.energy_figure();
+    assert_eq!(energy.panels.len(), 2);
+    assert!(!energy.panels[0].y_log && energy.panels[1].y_log);
+    let parametric = energy.panels[0]
+        .series
+        .iter()
+        .find(|s| s.label == "parametric rk4 dt=1/60")
+        .unwrap();
+    let last = parametric.points.last().unwrap().1;
+    assert!(last < -1e-6, "parametric rk4 loses energy: {last:e}");
+    // The log panel holds the sizes of the same changes.
+    let sizes = energy.panels[1]
+        .series
+        .iter()
+        .find(|s| s.label == "parametric rk4 dt=1/60")
+        .unwrap();
+    assert!((sizes.points.last().unwrap().1 - last.abs()).abs() <= 1e-15);
+
+    // Trajectories: gravity along +y, so y points down, at equal scales.
+    let trajectories = report.trajectory_figure();
+    let panel = &trajectories.panels[0];
+    assert!(panel.y_down && panel.equal_aspect, "{panel:?}");
+    assert!(panel.y_label.contains("pointing down"));
+
+    // Work-precision against steps: 600 and 1200 steps for rk4.
+    let work = report.work_precision_figure();
+    let rk4_points = &work.panels[0]
+        .series
+        .iter()
+        .find(|s| s.label == "implicit rk4")
+        .unwrap()
+        .points;
+    let steps: Vec<f64> = rk4_points.iter().map(|p| p.0).collect();
+    assert_eq!(steps, vec![600.0, 1200.0]);
+    assert_eq!(work.panels[0].x_label, "steps");
+
+    // Every figure draws (SVG), legends and all.
+    for figure in [report.constraint_figure(), energy, trajectories, work] {
+        let svg = bead_report::plot::svg_string(&figure).unwrap();
+        // (Work-precision names a method and integrator, its points are the dts.)
+        assert!(svg.contains("parametric rk4"), "{}", figure.title);
+    }
+}
