@@ -173,6 +173,7 @@ fn main() {
                 ServerConfig {
                     catalog,
                     limits: Limits::default(),
+                    ..ServerConfig::default()
                 },
             ));
             let (mut client, _) = tokio_tungstenite::connect_async(format!("ws://{addr}/ws"))

@@ -1,6 +1,12 @@
 //! The HTTP and WebSocket server: `GET /` (the page), `GET /viewer.js`, `GET /viewer.css`,
 //! `GET /ws` (one [`Session`] per connection).
 //!
+//! `/ws` refuses a browser page of another origin (an `Origin` header whose host is not the
+//! `Host` the request was sent to: 403), and more than [`ServerConfig::max_connections`]
+//! open connections (503). A message beyond what the transport reads (16x
+//! [`Limits::max_message_bytes`]) gets a `too_large` error reply and a close frame 1009
+//! (message too big) before the connection ends.
+//!
 //! Each connection runs one task: it waits for either a client message or the next frame tick
 //! (~60/s). Simulation work, message handling and the encoding of frames run on tokio's
 //! blocking pool (`spawn_blocking`), so that a busy session never stalls the other
@@ -9,12 +15,13 @@
 //! except the read-only scene catalog.
 
 use std::net::SocketAddr;
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use axum::extract::ws::{Message, WebSocket, WebSocketUpgrade};
+use axum::extract::ws::{CloseFrame, Message, WebSocket, WebSocketUpgrade};
 use axum::extract::State;
-use axum::http::header;
+use axum::http::{header, HeaderMap, StatusCode};
 use axum::response::{Html, IntoResponse, Response};
 use axum::routing::get;
 use axum::Router;
@@ -35,11 +42,17 @@ const INDEX_HTML: &str = include_str!("../assets/index.html");
 const VIEWER_JS: &str = include_str!("../assets/viewer.js");
 const VIEWER_CSS: &str = include_str!("../assets/viewer.css");
 
+/// Open viewer connections a server accepts by default: each runs its own simulations on
+/// the machine's cores, so a few dozen already share them thinly.
+pub const DEFAULT_MAX_CONNECTIONS: usize = 32;
+
 /// What a server serves.
 #[derive(Clone, Debug)]
 pub struct ServerConfig {
     pub catalog: Arc<Catalog>,
     pub limits: Limits,
+    /// Open WebSocket connections at most; one more is refused with 503.
+    pub max_connections: usize,
 }
 
 impl Default for ServerConfig {
@@ -47,7 +60,36 @@ impl Default for ServerConfig {
         ServerConfig {
             catalog: Arc::new(Catalog::shipped()),
             limits: Limits::default(),
+            max_connections: DEFAULT_MAX_CONNECTIONS,
         }
+    }
+}
+
+/// The server's shared state: its configuration and the open connections.
+struct Shared {
+    config: ServerConfig,
+    open: AtomicUsize,
+}
+
+/// One open connection, counted while it lives.
+struct Slot(Arc<Shared>);
+
+impl Drop for Slot {
+    fn drop(&mut self) {
+        self.0.open.fetch_sub(1, Ordering::SeqCst);
+    }
+}
+
+impl Shared {
+    /// A slot when fewer than `max_connections` are open.
+    fn take_slot(self: &Arc<Self>) -> Option<Slot> {
+        let max = self.config.max_connections;
+        self.open
+            .fetch_update(Ordering::SeqCst, Ordering::SeqCst, |open| {
+                (open < max).then_some(open + 1)
+            })
+            .ok()
+            .map(|_| Slot(Arc::clone(self)))
     }
 }
 
@@ -59,7 +101,35 @@ pub fn router(config: ServerConfig) -> Router {
         .route("/viewer.js", get(script))
         .route("/viewer.css", get(style))
         .route("/ws", get(websocket))
-        .with_state(Arc::new(config))
+        .with_state(Arc::new(Shared {
+            config,
+            open: AtomicUsize::new(0),
+        }))
+}
+
+/// Whether a request with these headers comes from a page of the server's own origin, or
+/// from no page at all (no `Origin` header: a program, not a browser). The origin's host
+/// and port must equal the `Host` header's.
+fn same_origin(headers: &HeaderMap) -> Result<(), String> {
+    let Some(origin) = headers.get(header::ORIGIN) else {
+        return Ok(());
+    };
+    let origin = origin.to_str().unwrap_or("");
+    let host = headers
+        .get(header::HOST)
+        .and_then(|h| h.to_str().ok())
+        .unwrap_or("");
+    let origin_host = origin
+        .split_once("://")
+        .map_or(origin, |(_, rest)| rest)
+        .trim_end_matches('/');
+    if !host.is_empty() && origin_host.eq_ignore_ascii_case(host) {
+        Ok(())
+    } else {
+        Err(format!(
+            "a WebSocket from a page of origin `{origin}` is refused: this viewer serves `{host}` only"
+        ))
+    }
 }
 
 async fn index() -> Html<&'static str> {
@@ -82,14 +152,36 @@ async fn style() -> Response {
         .into_response()
 }
 
-async fn websocket(State(config): State<Arc<ServerConfig>>, upgrade: WebSocketUpgrade) -> Response {
+async fn websocket(
+    State(shared): State<Arc<Shared>>,
+    headers: HeaderMap,
+    upgrade: WebSocketUpgrade,
+) -> Response {
+    if let Err(message) = same_origin(&headers) {
+        return (StatusCode::FORBIDDEN, message).into_response();
+    }
+    let Some(slot) = shared.take_slot() else {
+        return (
+            StatusCode::SERVICE_UNAVAILABLE,
+            format!(
+                "too many viewer connections (at most {} at once); close one and retry",
+                shared.config.max_connections
+            ),
+        )
+            .into_response();
+    };
     // Messages up to 16x the protocol limit are read and answered with an error reply; beyond
-    // that the transport gives up on the connection (it cannot skip the rest of a frame).
-    let max = config.limits.max_message_bytes.saturating_mul(16);
+    // that the transport gives up on the connection (it cannot skip the rest of a frame),
+    // after a last error reply.
+    let max = shared.config.limits.max_message_bytes.saturating_mul(16);
+    let config = Arc::new(shared.config.clone());
     upgrade
         .max_message_size(max)
         .max_frame_size(max)
-        .on_upgrade(move |socket| connection(socket, config))
+        .on_upgrade(move |socket| async move {
+            connection(socket, config, max).await;
+            drop(slot);
+        })
 }
 
 /// Bind `addr` (port 0: any free port).
@@ -164,8 +256,34 @@ fn error_reply(code: ErrorCode, message: String, request: Option<String>) -> Ser
     }
 }
 
+/// The end of a connection whose client sent a message the transport would not read:
+/// a `too_large` error reply and a close frame 1009 (message too big), as far as the client
+/// still listens.
+async fn refuse_oversize(socket: &mut WebSocket, error: &axum::Error, transport_limit: usize) {
+    let reply = error_reply(
+        ErrorCode::TooLarge,
+        format!(
+            "message too large for the connection ({error}); messages over {transport_limit} bytes cannot be read, so the connection is closed"
+        ),
+        None,
+    );
+    if send(socket, &reply).await {
+        let close = Message::Close(Some(CloseFrame {
+            code: 1009,
+            reason: "message too big".into(),
+        }));
+        let _ = tokio::time::timeout(SEND_TIMEOUT, socket.send(close)).await;
+    }
+}
+
+/// Whether a receive error is the transport's size limit (a message or frame too long).
+fn is_oversize(error: &axum::Error) -> bool {
+    let text = error.to_string();
+    text.contains("too long") || text.contains("Space limit")
+}
+
 /// One connection, until the client leaves.
-async fn connection(mut socket: WebSocket, config: Arc<ServerConfig>) {
+async fn connection(mut socket: WebSocket, config: Arc<ServerConfig>, transport_limit: usize) {
     let catalog = Arc::clone(&config.catalog);
     let limits = config.limits;
     let Some((mut session, greeting)) =
@@ -185,7 +303,13 @@ async fn connection(mut socket: WebSocket, config: Arc<ServerConfig>) {
         tokio::select! {
             incoming = socket.recv() => {
                 let replies = match incoming {
-                    None | Some(Err(_)) => return,
+                    None => return,
+                    Some(Err(error)) => {
+                        if is_oversize(&error) {
+                            refuse_oversize(&mut socket, &error, transport_limit).await;
+                        }
+                        return;
+                    }
                     Some(Ok(Message::Text(text))) => {
                         match parse_client_message(text.as_str(), &limits) {
                             Ok(message) => {

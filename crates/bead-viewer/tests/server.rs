@@ -199,20 +199,39 @@ async fn hostile_clients_get_errors_and_the_server_survives() {
     send(&mut c, r#"{"type":"pause"}"#).await;
     next_of(&mut c, "frame").await;
 
-    // Far beyond the transport limit: this connection is dropped ...
+    // Beyond the transport limit (16 x 64 KB): an error reply, then a close frame 1009,
+    // then this connection is dropped ...
     let mut d = connect(addr).await;
     next_of(&mut d, "panels").await;
-    let _ = d.send(Message::text("y".repeat(4 << 20))).await;
-    let dropped = tokio::time::timeout(Duration::from_secs(5), async {
+    let _ = d.send(Message::text("y".repeat(1_100_000))).await;
+    let (mut replied, mut closed) = (None, None);
+    let ended = tokio::time::timeout(Duration::from_secs(10), async {
         loop {
             match d.next().await {
-                None | Some(Err(_)) | Some(Ok(Message::Close(_))) => return,
+                None | Some(Err(_)) => return,
+                Some(Ok(Message::Close(frame))) => {
+                    closed = frame.map(|f| u16::from(f.code));
+                    return;
+                }
+                Some(Ok(Message::Text(text))) => {
+                    let value: Value = serde_json::from_str(text.as_str()).unwrap();
+                    if value["type"] == "error" {
+                        replied = Some(value);
+                    }
+                }
                 Some(Ok(_)) => {}
             }
         }
     })
     .await;
-    assert!(dropped.is_ok(), "oversize connection not closed");
+    assert!(ended.is_ok(), "oversize connection not closed");
+    let reply = replied.expect("an error reply before the close");
+    assert_eq!(reply["code"], "too_large");
+    assert!(
+        reply["message"].as_str().unwrap().contains("1048576 bytes"),
+        "{reply}"
+    );
+    assert_eq!(closed, Some(1009));
 
     // ... clients that vanish mid-stream (no close handshake) ...
     for _ in 0..3 {
@@ -366,4 +385,74 @@ async fn a_2500_particle_cloth_streams_whole_frames_at_the_tick_rate() {
     assert!(rate >= 10.0, "{count} frames in {elapsed:?}: {rate:.1}/s");
     assert!(frame["panels"][0]["t"].as_f64().unwrap() > t0);
     assert!(frame["panels"][0]["t"].as_f64().unwrap() > 0.0);
+}
+
+/// A page of another origin cannot open the viewer's WebSocket (403); the viewer's own page
+/// and programs without an `Origin` can.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn websockets_from_other_origins_are_refused() {
+    use tokio_tungstenite::tungstenite::client::IntoClientRequest;
+    let addr = start().await;
+    let request = |origin: &str| {
+        let mut request = format!("ws://{addr}/ws").into_client_request().unwrap();
+        request
+            .headers_mut()
+            .insert("Origin", origin.parse().unwrap());
+        request
+    };
+    let refused = connect_async(request("http://evil.example")).await;
+    match refused {
+        Err(tokio_tungstenite::tungstenite::Error::Http(response)) => {
+            assert_eq!(response.status(), 403);
+            let body =
+                String::from_utf8_lossy(response.body().as_deref().unwrap_or(&[])).into_owned();
+            assert!(body.contains("evil.example"), "{body}");
+        }
+        other => panic!("expected 403, got {:?}", other.map(|(_, r)| r.status())),
+    }
+    let (mut own, _) = connect_async(request(&format!("http://{addr}")))
+        .await
+        .expect("the viewer's own origin");
+    assert_eq!(next(&mut own).await["type"], "welcome");
+    let mut program = connect(addr).await;
+    assert_eq!(next(&mut program).await["type"], "welcome");
+}
+
+/// More connections than the server's cap are refused with 503 until one closes.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn connections_beyond_the_cap_are_refused_until_one_closes() {
+    let addr = start_with(ServerConfig {
+        max_connections: 2,
+        ..ServerConfig::default()
+    })
+    .await;
+    let mut first = connect(addr).await;
+    next_of(&mut first, "welcome").await;
+    let mut second = connect(addr).await;
+    next_of(&mut second, "welcome").await;
+    match connect_async(format!("ws://{addr}/ws")).await {
+        Err(tokio_tungstenite::tungstenite::Error::Http(response)) => {
+            assert_eq!(response.status(), 503);
+            let body =
+                String::from_utf8_lossy(response.body().as_deref().unwrap_or(&[])).into_owned();
+            assert!(body.contains("at most 2"), "{body}");
+        }
+        other => panic!("expected 503, got {:?}", other.map(|(_, r)| r.status())),
+    }
+    // Close one; its slot frees when the server sees the close: retry until then.
+    first.close(None).await.unwrap();
+    let deadline = tokio::time::Instant::now() + Duration::from_secs(10);
+    let mut third = loop {
+        match connect_async(format!("ws://{addr}/ws")).await {
+            Ok((client, _)) => break client,
+            Err(_) => {
+                assert!(
+                    tokio::time::Instant::now() < deadline,
+                    "the closed connection's slot never freed"
+                );
+                tokio::task::yield_now().await;
+            }
+        }
+    };
+    next_of(&mut third, "welcome").await;
 }
