@@ -677,34 +677,49 @@ pub fn write_report(report: &Report, dir: &Path) -> Result<ReportFiles, ReportEr
         move |error| ReportError::Io { path, error }
     };
     std::fs::create_dir_all(dir).map_err(io(dir))?;
+    let balance = report.runs.iter().any(|r| r.recording.energy_balance);
+    let down = report
+        .system
+        .gravity()
+        .iter()
+        .enumerate()
+        .find(|&(_, &g)| g > 0.0)
+        .map(|(axis, _)| ["x", "y", "z"][axis.min(2)]);
+    let trajectory_caption = format!(
+        "Trajectories in particle space{}, over the constraint curve, at equal scales on both axes{}; for long runs the first and the last samples of each run (each at full resolution).",
+        if report.system.dim() == 3 {
+            ", projected onto the x-y plane (left) and the x-z plane (right)"
+        } else {
+            " (the x-y plane)"
+        },
+        match down {
+            Some(axis) => format!(", with {axis} pointing down as the scene's gravity does"),
+            None => String::new(),
+        }
+    );
     let figures = [
         (
             FIGURES[0],
+            "Constraint error",
             report.constraint_figure(),
-            "Constraint error max_i |C_i| against time, per run.",
+            "Constraint error max_i |C_i| against time, per run.".to_string(),
         ),
         (
             FIGURES[1],
+            "Energy",
             report.energy_figure(),
-            if report.runs.iter().any(|r| r.recording.energy_balance) {
-                "Energy is not conserved here (something does work on the system): the error of the conserved balance E - W, |E - W - E0| / E_scale, against time, per run (W: the work done on the system, integrated by the run's integrator; E_scale = max(|E0|, T0 + |V0|, T0 + M |g| L))."
+            if balance {
+                "Energy is not conserved here (something does work on the system): the change of the conserved balance E - W, (E - W - E0) / E_scale, with its sign (top: above zero the balance gained, below it lost) and its size on a log scale (bottom), against time, per run (W: the work done on the system, integrated by the run's integrator; E_scale = max(|E0|, T0 + |V0|, T0 + M |g| L)).".to_string()
             } else {
-                "Relative energy error |E - E0| / E_scale against time, per run (E_scale = max(|E0|, T0 + |V0|, T0 + M |g| L): M the total mass, L the largest initial coordinate magnitude)."
+                "Relative energy change (E - E0) / E_scale with its sign (top: above zero the run gained energy, below it lost some) and its size on a log scale (bottom), against time, per run (E_scale = max(|E0|, T0 + |V0|, T0 + M |g| L): M the total mass, L the largest initial coordinate magnitude).".to_string()
             },
         ),
-        (
-            FIGURES[2],
-            report.trajectory_figure(),
-            if report.system.dim() == 3 {
-                "Trajectories in particle space, projected onto the x-y plane (left) and the x-z plane (right); for long runs the first and the last samples of each run (each at full resolution)."
-            } else {
-                "Trajectories in particle space (the x-y plane), over the constraint curve; for long runs the first and the last samples of each run (each at full resolution)."
-            },
-        ),
+        (FIGURES[2], "Trajectories", report.trajectory_figure(), trajectory_caption),
         (
             FIGURES[3],
+            "Work-precision",
             report.work_precision_figure(),
-            "Work-precision: the largest error of each run against its wall time; one point per dt, one line per method and integrator.",
+            "Work-precision: the largest error of each run against its number of steps; one point per dt, one line per method and integrator (steps rather than wall time: they do not change from run to run).".to_string(),
         ),
     ];
     let mut html = String::new();
@@ -715,7 +730,27 @@ pub fn write_report(report: &Report, dir: &Path) -> Result<ReportFiles, ReportEr
         escape(&report.title),
         escape(&report.description)
     );
-    html.push_str("<table>\n");
+    // The setup: what was run, by which bead, on which system.
+    let system = &report.system;
+    let gravity: Vec<String> = system.gravity().iter().map(|g| sig(*g, 6)).collect();
+    let _ = write!(
+        html,
+        "<h2>Setup</h2>\n<ul>\n<li>bead {}</li>\n<li>{} in {}D, {}, gravity ({})</li>\n<li>runs: {}</li>\n</ul>\n",
+        env!("CARGO_PKG_VERSION"),
+        counted(system.particles().len(), "particle"),
+        system.dim(),
+        counted(system.constraints().n_rows(), "constraint row"),
+        gravity.join(", "),
+        escape(
+            &report
+                .runs
+                .iter()
+                .map(|r| r.label())
+                .collect::<Vec<_>>()
+                .join("; ")
+        )
+    );
+    html.push_str("<h2>Runs</h2>\n<table>\n");
     for (i, row) in report.rows().iter().enumerate() {
         let cell = if i == 0 { "th" } else { "td" };
         html.push_str("<tr>");
@@ -742,7 +777,7 @@ pub fn write_report(report: &Report, dir: &Path) -> Result<ReportFiles, ReportEr
         .collect();
     if !periods.is_empty() {
         html.push_str(
-            "<p>Periods, from linearly interpolated zero crossings of every sample:</p>\n<ul>\n",
+            "<h2>Periods</h2>\n<p>From linearly interpolated zero crossings of every sample:</p>\n<ul>\n",
         );
         for p in periods {
             let _ = writeln!(html, "<li>{}</li>", escape(&p));
@@ -757,7 +792,7 @@ pub fn write_report(report: &Report, dir: &Path) -> Result<ReportFiles, ReportEr
         html.push_str("</ul>\n");
     }
     let mut plots = Vec::new();
-    for (name, figure, caption) in &figures {
+    for (name, heading, figure, caption) in &figures {
         let png = dir.join(format!("{name}.png"));
         let svg_path = dir.join(format!("{name}.svg"));
         plot::write_figure(figure, &png)?;
@@ -774,7 +809,7 @@ pub fn write_report(report: &Report, dir: &Path) -> Result<ReportFiles, ReportEr
         }
         let _ = write!(
             html,
-            "<figure>\n{}\n<figcaption>{} Files: <a href=\"{name}.png\">{name}.png</a>, <a href=\"{name}.svg\">{name}.svg</a>.</figcaption>\n</figure>\n",
+            "<h2>{heading}</h2>\n<figure>\n{}\n<figcaption>{} Files: <a href=\"{name}.png\">{name}.png</a>, <a href=\"{name}.svg\">{name}.svg</a>.</figcaption>\n</figure>\n",
             strip_xml_declaration(&svg),
             escape(&caption)
         );
@@ -786,6 +821,15 @@ pub fn write_report(report: &Report, dir: &Path) -> Result<ReportFiles, ReportEr
     let path = dir.join("report.html");
     std::fs::write(&path, html).map_err(io(&path))?;
     Ok(ReportFiles { html: path, plots })
+}
+
+/// `1 particle`, `2 particles`.
+fn counted(n: usize, noun: &str) -> String {
+    if n == 1 {
+        format!("1 {noun}")
+    } else {
+        format!("{n} {noun}s")
+    }
 }
 
 fn strip_xml_declaration(svg: &str) -> &str {

@@ -142,3 +142,32 @@ fn every_run_has_its_own_look_and_the_figures_tell_the_physics() {
         assert!(svg.contains("parametric rk4"), "{}", figure.title);
     }
 }
+
+/// The HTML report has its sections, the bead version and the setup.
+#[test]
+fn the_report_names_its_sections_version_and_setup() {
+    let report = parabola_report();
+    let dir = std::env::temp_dir().join(format!("bead-report-sections-{}", std::process::id()));
+    let files = bead_report::report::write_report(&report, &dir).unwrap();
+    let html = std::fs::read_to_string(&files.html).unwrap();
+    for heading in [
+        "Setup",
+        "Runs",
+        "Constraint error",
+        "Energy",
+        "Trajectories",
+        "Work-precision",
+    ] {
+        assert!(html.contains(&format!("<h2>{heading}</h2>")), "{heading}");
+    }
+    assert!(html.contains(&format!("bead {}", env!("CARGO_PKG_VERSION"))));
+    assert!(
+        html.contains("1 particle in 2D, 1 constraint row, gravity (0, 500)"),
+        "setup line"
+    );
+    assert!(
+        html.contains("with y pointing down as the scene"),
+        "trajectory caption"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
