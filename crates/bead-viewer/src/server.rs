@@ -3,9 +3,11 @@
 //!
 //! `/ws` refuses a browser page of another origin (an `Origin` header whose host is not the
 //! `Host` the request was sent to: 403), and more than [`ServerConfig::max_connections`]
-//! open connections (503). A message beyond what the transport reads (16x
-//! [`Limits::max_message_bytes`]) gets a `too_large` error reply and a close frame 1009
-//! (message too big) before the connection ends.
+//! open connections (503). A message over [`Limits::max_message_bytes`] gets a `too_large`
+//! error reply and the connection stays, up to what the transport reads
+//! ([`TRANSPORT_LIMIT_FACTOR`] times that limit); beyond, the server sends the reply and a
+//! close frame 1009 (message too big) as far as the client still reads them, and ends the
+//! connection.
 //!
 //! Each connection runs one task: it waits for either a client message or the next frame tick
 //! (~60/s). Simulation work, message handling and the encoding of frames run on tokio's
@@ -41,6 +43,12 @@ const SEND_TIMEOUT: Duration = Duration::from_secs(10);
 const INDEX_HTML: &str = include_str!("../assets/index.html");
 const VIEWER_JS: &str = include_str!("../assets/viewer.js");
 const VIEWER_CSS: &str = include_str!("../assets/viewer.css");
+
+/// Messages up to this many times [`Limits::max_message_bytes`] are read whole (and answered
+/// with a `too_large` error); beyond, the transport cannot skip the rest of the frame and the
+/// connection ends. 64 x 64 KB = 4 MB: a hostile message is answered without buffering more
+/// than that per connection.
+pub const TRANSPORT_LIMIT_FACTOR: usize = 64;
 
 /// Open viewer connections a server accepts by default: each runs its own simulations on
 /// the machine's cores, so a few dozen already share them thinly.
@@ -170,10 +178,14 @@ async fn websocket(
         )
             .into_response();
     };
-    // Messages up to 16x the protocol limit are read and answered with an error reply; beyond
-    // that the transport gives up on the connection (it cannot skip the rest of a frame),
-    // after a last error reply.
-    let max = shared.config.limits.max_message_bytes.saturating_mul(16);
+    // Messages up to TRANSPORT_LIMIT_FACTOR x the protocol limit are read and answered with
+    // an error reply; beyond that the transport gives up on the connection (it cannot skip
+    // the rest of a frame), after a last error reply.
+    let max = shared
+        .config
+        .limits
+        .max_message_bytes
+        .saturating_mul(TRANSPORT_LIMIT_FACTOR);
     let config = Arc::new(shared.config.clone());
     upgrade
         .max_message_size(max)

@@ -199,39 +199,28 @@ async fn hostile_clients_get_errors_and_the_server_survives() {
     send(&mut c, r#"{"type":"pause"}"#).await;
     next_of(&mut c, "frame").await;
 
-    // Beyond the transport limit (16 x 64 KB): an error reply, then a close frame 1009,
-    // then this connection is dropped ...
+    // 1.1 MB: still read whole, answered, and the connection stays usable.
+    send(&mut c, &"y".repeat(1_100_000)).await;
+    let error = next_of(&mut c, "error").await;
+    assert_eq!(error["code"], "too_large");
+    send(&mut c, r#"{"type":"play"}"#).await;
+    next_of(&mut c, "frame").await;
+
+    // Beyond the transport limit (64 x 64 KB): this connection ends (its last error reply
+    // and close frame are sent, but a client still sending may not read them) ...
     let mut d = connect(addr).await;
     next_of(&mut d, "panels").await;
-    let _ = d.send(Message::text("y".repeat(1_100_000))).await;
-    let (mut replied, mut closed) = (None, None);
+    let _ = d.send(Message::text("y".repeat(5 << 20))).await;
     let ended = tokio::time::timeout(Duration::from_secs(10), async {
         loop {
             match d.next().await {
-                None | Some(Err(_)) => return,
-                Some(Ok(Message::Close(frame))) => {
-                    closed = frame.map(|f| u16::from(f.code));
-                    return;
-                }
-                Some(Ok(Message::Text(text))) => {
-                    let value: Value = serde_json::from_str(text.as_str()).unwrap();
-                    if value["type"] == "error" {
-                        replied = Some(value);
-                    }
-                }
+                None | Some(Err(_)) | Some(Ok(Message::Close(_))) => return,
                 Some(Ok(_)) => {}
             }
         }
     })
     .await;
     assert!(ended.is_ok(), "oversize connection not closed");
-    let reply = replied.expect("an error reply before the close");
-    assert_eq!(reply["code"], "too_large");
-    assert!(
-        reply["message"].as_str().unwrap().contains("1048576 bytes"),
-        "{reply}"
-    );
-    assert_eq!(closed, Some(1009));
 
     // ... clients that vanish mid-stream (no close handshake) ...
     for _ in 0..3 {
