@@ -376,6 +376,18 @@ async fn a_2500_particle_cloth_streams_whole_frames_at_the_tick_rate() {
     assert!(frame["panels"][0]["t"].as_f64().unwrap() > 0.0);
 }
 
+/// The HTTP status and body of a refused WebSocket handshake.
+fn refusal<T>(result: Result<T, tokio_tungstenite::tungstenite::Error>) -> (u16, String) {
+    match result {
+        Err(tokio_tungstenite::tungstenite::Error::Http(response)) => (
+            response.status().as_u16(),
+            String::from_utf8_lossy(response.body().as_deref().unwrap_or(&[])).into_owned(),
+        ),
+        Err(other) => panic!("expected an HTTP refusal, got {other}"),
+        Ok(_) => panic!("expected an HTTP refusal, the handshake succeeded"),
+    }
+}
+
 /// A page of another origin cannot open the viewer's WebSocket (403); the viewer's own page
 /// and programs without an `Origin` can.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -389,16 +401,9 @@ async fn websockets_from_other_origins_are_refused() {
             .insert("Origin", origin.parse().unwrap());
         request
     };
-    let refused = connect_async(request("http://evil.example")).await;
-    match refused {
-        Err(tokio_tungstenite::tungstenite::Error::Http(response)) => {
-            assert_eq!(response.status(), 403);
-            let body =
-                String::from_utf8_lossy(response.body().as_deref().unwrap_or(&[])).into_owned();
-            assert!(body.contains("evil.example"), "{body}");
-        }
-        other => panic!("expected 403, got {:?}", other.map(|(_, r)| r.status())),
-    }
+    let (status, body) = refusal(connect_async(request("http://evil.example")).await);
+    assert_eq!(status, 403);
+    assert!(body.contains("evil.example"), "{body}");
     let (mut own, _) = connect_async(request(&format!("http://{addr}")))
         .await
         .expect("the viewer's own origin");
@@ -419,15 +424,9 @@ async fn connections_beyond_the_cap_are_refused_until_one_closes() {
     next_of(&mut first, "welcome").await;
     let mut second = connect(addr).await;
     next_of(&mut second, "welcome").await;
-    match connect_async(format!("ws://{addr}/ws")).await {
-        Err(tokio_tungstenite::tungstenite::Error::Http(response)) => {
-            assert_eq!(response.status(), 503);
-            let body =
-                String::from_utf8_lossy(response.body().as_deref().unwrap_or(&[])).into_owned();
-            assert!(body.contains("at most 2"), "{body}");
-        }
-        other => panic!("expected 503, got {:?}", other.map(|(_, r)| r.status())),
-    }
+    let (status, body) = refusal(connect_async(format!("ws://{addr}/ws")).await);
+    assert_eq!(status, 503);
+    assert!(body.contains("at most 2"), "{body}");
     // Close one; its slot frees when the server sees the close: retry until then.
     first.close(None).await.unwrap();
     let deadline = tokio::time::Instant::now() + Duration::from_secs(10);
