@@ -152,6 +152,13 @@ pub fn run_text(scene: &Scene, plan: &Plan, summary: &Summary) -> String {
         row(&mut s, "steps", steps);
     }
     row(&mut s, "t_final", format!("{} s", exact(summary.t_final)));
+    if let Some(condition) = &summary.stop_when {
+        let outcome = match summary.stop_time {
+            Some(t) => format!("crossed zero at t = {} s; the run stopped there", exact(t)),
+            None => "did not cross zero".to_string(),
+        };
+        row(&mut s, "stop_when", format!("{condition}: {outcome}"));
+    }
     if let (Some(duration), true) = (plan.duration, plan.overshoot) {
         let _ = writeln!(
             s,

@@ -136,9 +136,9 @@ pub struct Member {
     /// `steps`. `None` when the member could not start (its scene or initial state is
     /// invalid). `wall_seconds` is the only figure that differs between two runs.
     pub stats: Option<RunStats>,
-    /// Why it failed, when it did: the scene with its values cannot be loaded, the
-    /// simulation cannot start, or the run stopped early (then `stats` holds the figures up
-    /// to the last good state).
+    /// Why it failed, when it did, on one line: the scene with its values cannot be loaded
+    /// (`file:line:column: message`), the simulation cannot start, or the run stopped early
+    /// (then `stats` holds the figures up to the last good state).
     pub error: Option<String>,
 }
 
@@ -311,7 +311,8 @@ impl Sweep {
             .collect();
         let scene = match self.scene.with_params(&overrides) {
             Ok(scene) => scene,
-            Err(e) => return fail(e.to_string()),
+            // `file:line:column: message`, without the snippet under it: one line per member.
+            Err(e) => return fail(e.to_string().lines().next().unwrap_or_default().to_string()),
         };
         let mut simulation = match Simulation::new(Arc::clone(&scene.system), self.config) {
             Ok(simulation) => simulation,

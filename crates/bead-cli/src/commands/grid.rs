@@ -12,7 +12,8 @@ use bead::simulate::{Sample, Sink};
 use bead_report::report::{report_files, write_report, Recorder, Report, ReportRun};
 
 use super::{
-    json, load_scene, print, report_error, run_method_with, warn_implicit_only, write_file,
+    json, load_scene, print, report_error, run_method_with, stop_when, warn_implicit_only,
+    write_file,
 };
 use crate::args::CompareArgs;
 use crate::outputs::Files;
@@ -38,6 +39,7 @@ impl Sink for Tee<'_> {
 pub fn compare_grid(args: &CompareArgs) -> Result<()> {
     let scene = load_scene(&args.scene, &args.sim.set)?;
     let plan = Plan::resolve(&scene, &args.sim)?;
+    let stop_when = stop_when(&scene, &args.sim)?;
     let integrators = match &args.grid.integrators {
         Some(list) => list.0.clone(),
         None => vec![plan.integrator],
@@ -147,6 +149,7 @@ pub fn compare_grid(args: &CompareArgs) -> Result<()> {
                 &scene,
                 &planned,
                 config,
+                stop_when.as_ref(),
                 trace.as_deref(),
                 Some(&mut recorder),
             )?;

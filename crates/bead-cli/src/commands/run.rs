@@ -2,7 +2,7 @@
 
 use anyhow::{bail, Result};
 
-use super::{json, load_scene, print, run_method, warn, write_file};
+use super::{json, load_scene, print, run_method, stop_when, warn, write_file};
 use crate::args::RunArgs;
 use crate::outputs::Files;
 use crate::plan::{run_method as resolve_method, Plan};
@@ -21,11 +21,18 @@ pub fn run(args: &RunArgs) -> Result<()> {
     files.check()?;
     let scene = load_scene(&args.scene, &args.sim.set)?;
     let plan = Plan::resolve(&scene, &args.sim)?;
+    let stop_when = stop_when(&scene, &args.sim)?;
     let method = resolve_method(&scene, args.method.map(|m| m.0))?;
     if plan.ignores_scene_feedback(method) {
         warn("the scene's [run] stabilize applies only to the implicit form; not used for this parametric run");
     }
-    let outcome = run_method(&scene, &plan, plan.config(method), args.trace.as_deref())?;
+    let outcome = run_method(
+        &scene,
+        &plan,
+        plan.config(method),
+        stop_when.as_ref(),
+        args.trace.as_deref(),
+    )?;
     let summary_json = json(&outcome.summary)?;
     if let Some(path) = &args.output.summary {
         write_file(path, &summary_json)?;
