@@ -9,7 +9,7 @@ use bead::formulation::{Feedback, Method};
 use super::{json, load_scene, print, report_error, run_method, warn_implicit_only, write_file};
 use crate::args::CompareArgs;
 use crate::outputs::Files;
-use crate::plan::{compare_methods, Plan};
+use crate::plan::{self, compare_methods};
 use crate::report;
 
 /// `bead compare`: run every formulation of the scene and print them side by side.
@@ -18,7 +18,7 @@ pub fn compare(args: &CompareArgs) -> Result<()> {
         return super::grid::compare_grid(args);
     }
     let scene = load_scene(&args.scene, &args.sim.set)?;
-    let plan = Plan::resolve(&scene, &args.sim)?;
+    let plan = plan::resolve(&scene, &args.sim, None)?;
     let methods = compare_methods(&scene);
     warn_implicit_only(&plan, &methods);
     let mut files = Files::new();
