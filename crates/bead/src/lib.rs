@@ -6,6 +6,7 @@ pub mod integrate;
 pub mod linalg;
 pub mod model;
 pub mod output;
+pub mod plan;
 pub mod scene;
 pub mod simulate;
 pub mod sweep;

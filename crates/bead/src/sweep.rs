@@ -2,14 +2,15 @@
 //! parallel on every core, each result in its place whatever the number of threads.
 //!
 //! A member is the scene with its parameters overridden, loaded again from its text exactly as
-//! `bead run --set NAME=VALUE` loads it ([`Scene::with_params`]), so that a member's run and
-//! that command's give the same numbers bit for bit. Its stop condition, when the sweep has
-//! one, is parsed against the member's own system (the parameters in it take the member's
-//! values).
+//! `bead run --set NAME=VALUE` loads it ([`Scene::with_params`]), its run resolved from the
+//! sweep's [`PlanRequest`] against that scene's `[run]` table ([`Plan::resolve`], as every
+//! front end resolves a run), so that a member's run and that command's give the same numbers
+//! bit for bit. Its stop condition (the sweep's, else the scene's `[run] stop_when`) is
+//! parsed against the member's own system: the parameters in it take the member's values.
 //!
 //! ```
+//! use bead::plan::PlanRequest;
 //! use bead::scene::Scene;
-//! use bead::simulate::{RunOptions, SimulationConfig};
 //! use bead::sweep::{Axis, Combine, Sweep};
 //! let scene = Scene::parse(
 //!     "[params]\nh = 1.0\n[world]\ngravity = [0.0, 10.0]\n[[particle]]\nname = \"ball\"\nmass = 1.0\nposition = [0.0, 0.0]\n",
@@ -20,8 +21,7 @@
 //!     &scene,
 //!     vec![Axis::linspace("h", 1.0, 4.0, 4)?],
 //!     Combine::Grid,
-//!     SimulationConfig { dt: 0.01, ..Default::default() },
-//!     RunOptions { steps: 200, every: 1 },
+//!     PlanRequest { dt: Some(0.01), steps: Some(200), ..Default::default() },
 //!     Some("ball.y - h".to_string()),
 //! )?;
 //! let results = sweep.run(2);
@@ -37,8 +37,10 @@ use std::ops::Range;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Arc;
 
+use crate::formulation::Method;
+use crate::plan::{Plan, PlanError, PlanRequest};
 use crate::scene::Scene;
-use crate::simulate::{run, Event, NullSink, RunOptions, RunStats, Simulation, SimulationConfig};
+use crate::simulate::{run, Event, NullSink, RunStats, Simulation};
 
 /// One swept parameter and its values.
 #[derive(Clone, Debug, PartialEq)]
@@ -113,6 +115,8 @@ pub enum SweepError {
         end: usize,
         len: usize,
     },
+    #[error(transparent)]
+    Plan(#[from] PlanError),
 }
 
 fn known_params(known: &[String]) -> String {
@@ -159,8 +163,9 @@ pub struct Sweep {
     scene: Scene,
     axes: Vec<Axis>,
     combine: Combine,
-    config: SimulationConfig,
-    options: RunOptions,
+    request: PlanRequest,
+    /// The formulation of the base scene's plan (the CSV's columns follow it)
+    method: Method,
     stop_when: Option<String>,
     /// Members per axis (grid) or the common length (zip, one entry)
     shape: Vec<usize>,
@@ -169,17 +174,18 @@ pub struct Sweep {
 
 impl Sweep {
     /// A sweep of `scene` (with the overrides it was loaded with) over `axes`, each member
-    /// simulated as `config` says for `options.steps` output intervals (recording nothing),
-    /// or until `stop_when` ([`Event`]) fires. Checks the axes: at least one, each a
-    /// parameter of the scene, once, with values; zipped axes of one length.
+    /// run as `request` asks over its own scene's `[run]` table (recording nothing), until
+    /// the end or until `stop_when` ([`Event`]; `None`: the scene's `[run] stop_when`, if
+    /// any) fires. Checks the axes (at least one, each a parameter of the scene, once, with
+    /// values; zipped axes of one length) and the request against the scene itself.
     pub fn new(
         scene: &Scene,
         axes: Vec<Axis>,
         combine: Combine,
-        config: SimulationConfig,
-        options: RunOptions,
+        request: PlanRequest,
         stop_when: Option<String>,
     ) -> Result<Sweep, SweepError> {
+        let method = Plan::resolve(scene, &request)?.method;
         if axes.is_empty() {
             return Err(SweepError::NoAxes);
         }
@@ -226,8 +232,8 @@ impl Sweep {
             scene: scene.clone(),
             axes,
             combine,
-            config,
-            options,
+            request,
+            method,
             stop_when,
             shape,
             len,
@@ -314,20 +320,26 @@ impl Sweep {
             // `file:line:column: message`, without the snippet under it: one line per member.
             Err(e) => return fail(e.to_string().lines().next().unwrap_or_default().to_string()),
         };
-        let mut simulation = match Simulation::new(Arc::clone(&scene.system), self.config) {
+        let plan = match Plan::resolve(&scene, &self.request) {
+            Ok(plan) => plan,
+            Err(e) => return fail(e.to_string()),
+        };
+        let config = plan.config(plan.method);
+        let mut simulation = match Simulation::new(Arc::clone(&scene.system), config) {
             Ok(simulation) => simulation,
             Err(e) => return fail(e.to_string()),
         };
-        if let Some(source) = &self.stop_when {
-            let event = match Event::parse(&scene.system, source) {
-                Ok(event) => event,
+        let event = match &self.stop_when {
+            Some(source) => match Event::parse(&scene.system, source) {
+                Ok(event) => Some(event),
                 Err(e) => return fail(format!("the stop condition `{source}`: {e}")),
-            };
-            if let Err(e) = simulation.set_stop_when(Some(event)) {
-                return fail(e.to_string());
-            }
+            },
+            None => scene.run.stop_when.clone(),
+        };
+        if let Err(e) = simulation.set_stop_when(event) {
+            return fail(e.to_string());
         }
-        match run(&mut simulation, self.options, &mut NullSink) {
+        match run(&mut simulation, plan.options(), &mut NullSink) {
             Ok(stats) => Member {
                 index,
                 params,
@@ -423,7 +435,7 @@ impl Sweep {
         }
         columns.extend((0..system.n_coords()).map(|k| system.coordinate_name(k)));
         columns.extend((0..system.n_coords()).map(|k| system.velocity_name(k)));
-        if self.config.method == crate::formulation::Method::Parametric {
+        if self.method == Method::Parametric {
             if let Some(map) = system.parametric() {
                 columns.extend(map.coordinates().iter().map(|c| format!("q.{c}")));
                 columns.extend(map.coordinates().iter().map(|c| format!("qdot.{c}")));
@@ -448,8 +460,8 @@ impl Sweep {
         }
         let _ = write!(row, ",{}", member.status());
         let system = &self.scene.system;
-        let n_q = match (self.config.method, system.parametric()) {
-            (crate::formulation::Method::Parametric, Some(map)) => map.coordinates().len(),
+        let n_q = match (self.method, system.parametric()) {
+            (Method::Parametric, Some(map)) => map.coordinates().len(),
             _ => 0,
         };
         match &member.stats {

@@ -6,8 +6,9 @@ use std::sync::Arc;
 
 use bead::formulation::Method;
 use bead::integrate::IntegratorKind;
+use bead::plan::{Plan, PlanRequest};
 use bead::scene::Scene;
-use bead::simulate::{run, Event, NullSink, RunOptions, RunStats, Simulation, SimulationConfig};
+use bead::simulate::{run, Event, NullSink, RunStats, Simulation};
 use bead::sweep::{Axis, Combine, Member, Sweep, SweepError};
 
 /// The article's parabola with its release point x0 and gravity g as parameters, and a
@@ -36,19 +37,16 @@ fn scene() -> Scene {
     Scene::parse(PARABOLA, "parabola.toml", &[]).unwrap()
 }
 
-fn config(method: Method) -> SimulationConfig {
-    SimulationConfig {
-        method,
-        integrator: IntegratorKind::Rk4,
-        dt: 1.0 / 60.0,
+/// rk4 at dt = 1/60 for `steps` steps.
+fn request(method: Method, steps: u64) -> PlanRequest {
+    PlanRequest {
+        method: Some(method),
+        integrator: Some(IntegratorKind::Rk4),
+        dt: Some(1.0 / 60.0),
+        steps: Some(steps),
         ..Default::default()
     }
 }
-
-const OPTIONS: RunOptions = RunOptions {
-    steps: 120,
-    every: 1,
-};
 
 /// Stats without the wall time, the one figure that differs between runs.
 fn figures(stats: &RunStats) -> RunStats {
@@ -80,8 +78,7 @@ fn grid_members_are_in_row_major_order_first_axis_outermost() {
             },
         ],
         Combine::Grid,
-        config(Method::Implicit),
-        OPTIONS,
+        request(Method::Implicit, 120),
         None,
     )
     .unwrap();
@@ -119,8 +116,7 @@ fn zipped_members_take_the_values_side_by_side() {
             Axis::linspace("g", 400.0, 100.0, 4).unwrap(),
         ],
         Combine::Zip,
-        config(Method::Parametric),
-        OPTIONS,
+        request(Method::Parametric, 120),
         None,
     )
     .unwrap();
@@ -143,8 +139,7 @@ fn zipped_members_take_the_values_side_by_side() {
             Axis::linspace("g", 400.0, 100.0, 3).unwrap(),
         ],
         Combine::Zip,
-        config(Method::Parametric),
-        OPTIONS,
+        request(Method::Parametric, 120),
         None,
     )
     .unwrap_err();
@@ -187,11 +182,7 @@ fn a_member_equals_a_run_of_the_scene_loaded_with_its_values() {
             &scene(),
             vec![Axis::linspace("x0", 10.0, 200.0, 5).unwrap()],
             Combine::Grid,
-            config(method),
-            RunOptions {
-                steps: 600,
-                every: 1,
-            },
+            request(method, 600),
             Some(stop_when.into()),
         )
         .unwrap();
@@ -203,20 +194,13 @@ fn a_member_equals_a_run_of_the_scene_loaded_with_its_values() {
                 &[("x0".into(), member.params[0])],
             )
             .unwrap();
+            let plan = Plan::resolve(&alone, &request(method, 600)).unwrap();
             let mut simulation =
-                Simulation::new(Arc::clone(&alone.system), config(method)).unwrap();
+                Simulation::new(Arc::clone(&alone.system), plan.config(method)).unwrap();
             simulation
                 .set_stop_when(Some(Event::parse(&alone.system, stop_when).unwrap()))
                 .unwrap();
-            let stats = run(
-                &mut simulation,
-                RunOptions {
-                    steps: 600,
-                    every: 1,
-                },
-                &mut NullSink,
-            )
-            .unwrap();
+            let stats = run(&mut simulation, plan.options(), &mut NullSink).unwrap();
             let swept = member.stats.as_ref().unwrap();
             assert_eq!(figures(swept), figures(&stats));
             // Every member reaches the bottom (x = 0) at a quarter of its period.
@@ -235,11 +219,7 @@ fn results_do_not_depend_on_threads_or_chunks() {
             Axis::linspace("g", 100.0, 900.0, 2).unwrap(),
         ],
         Combine::Grid,
-        config(Method::Implicit),
-        RunOptions {
-            steps: 600,
-            every: 1,
-        },
+        request(Method::Implicit, 600),
         Some("bead.y + x0^2/200".into()),
     )
     .unwrap();
@@ -279,8 +259,7 @@ fn a_failed_member_does_not_stop_the_sweep() {
             values: vec![1.0, -1.0, 2.0],
         }],
         Combine::Grid,
-        config(Method::Implicit),
-        OPTIONS,
+        request(Method::Implicit, 120),
         None,
     )
     .unwrap();
@@ -305,8 +284,7 @@ fn unknown_and_repeated_parameters_are_refused() {
             &scene(),
             axes,
             Combine::Grid,
-            config(Method::Implicit),
-            OPTIONS,
+            request(Method::Implicit, 120),
             None,
         )
         .unwrap_err()
@@ -332,8 +310,7 @@ fn csv_has_a_column_per_parameter_state_and_coordinate() {
         &scene(),
         vec![Axis::linspace("x0", 10.0, 20.0, 2).unwrap()],
         Combine::Grid,
-        config(Method::Parametric),
-        OPTIONS,
+        request(Method::Parametric, 120),
         None,
     )
     .unwrap();
@@ -355,4 +332,36 @@ fn csv_has_a_column_per_parameter_state_and_coordinate() {
     assert_eq!(fields[8].parse::<f64>().unwrap(), stats.x[0]);
     assert_eq!(fields[13].parse::<f64>().unwrap(), stats.qdot[0]);
     assert_eq!(fields[14], "");
+}
+
+/// Without a stop condition of its own, a sweep uses each member's `[run] stop_when`, and
+/// `[run]` values written with a swept parameter follow the member, as `bead run --set`.
+#[test]
+fn the_scenes_run_table_follows_each_member() {
+    let text = format!("{PARABOLA}[run]\nstop_when = \"bead.y + x0^2/200\"\nsteps = \"x0\"\n");
+    let scene = Scene::parse(&text, "parabola.toml", &[]).unwrap();
+    let sweep = Sweep::new(
+        &scene,
+        vec![Axis {
+            name: "x0".into(),
+            values: vec![3.0, 150.0],
+        }],
+        Combine::Grid,
+        PlanRequest::default(),
+        None,
+    )
+    .unwrap();
+    let members = sweep.run(2);
+    // x0 = 3: 3 steps of 1/60 s, too short to descend to half the height.
+    let short = members[0].stats.as_ref().unwrap();
+    assert_eq!((short.steps, short.stop_time), (3, None));
+    // x0 = 150: the event fires where y = -x0^2/200 (x^2 = x0^2 / 2).
+    let long = members[1].stats.as_ref().unwrap();
+    assert!(long.stop_time.is_some());
+    // (to the implicit form's drift off the curve at this dt)
+    assert!(
+        (long.x[0].abs() - 150.0 / 2f64.sqrt()).abs() < 1e-4,
+        "{}",
+        long.x[0]
+    );
 }

@@ -11,7 +11,7 @@ use super::{
 };
 use crate::args::CompareArgs;
 use crate::outputs::Files;
-use crate::plan::{compare_methods, Plan};
+use crate::plan::{self, compare_methods};
 use crate::report;
 
 /// `bead compare`: run every formulation of the scene and print them side by side.
@@ -20,7 +20,7 @@ pub fn compare(args: &CompareArgs) -> Result<()> {
         return super::grid::compare_grid(args);
     }
     let scene = load_scene(&args.scene, &args.sim.set)?;
-    let plan = Plan::resolve(&scene, &args.sim)?;
+    let plan = plan::resolve(&scene, &args.sim, None)?;
     let stop_when = stop_when(&scene, &args.sim)?;
     let methods = compare_methods(&scene);
     warn_implicit_only(&plan, &methods);

@@ -17,7 +17,7 @@ use super::{
 };
 use crate::args::CompareArgs;
 use crate::outputs::Files;
-use crate::plan::{compare_methods, steps_for, Plan};
+use crate::plan::{self, compare_methods, steps_for};
 use crate::report::{energy_note, exact, integrator_text, table, title, ADAPTIVE_NOTE};
 
 /// Two sinks fed the same samples.
@@ -38,7 +38,7 @@ impl Sink for Tee<'_> {
 /// `bead compare` with `--integrators`, `--dts` or `--report`.
 pub fn compare_grid(args: &CompareArgs) -> Result<()> {
     let scene = load_scene(&args.scene, &args.sim.set)?;
-    let plan = Plan::resolve(&scene, &args.sim)?;
+    let plan = plan::resolve(&scene, &args.sim, None)?;
     let stop_when = stop_when(&scene, &args.sim)?;
     let integrators = match &args.grid.integrators {
         Some(list) => list.0.clone(),

@@ -90,7 +90,7 @@ fn warn_implicit_only(plan: &Plan, methods: &[bead::formulation::Method]) {
         return;
     }
     let mut flags = Vec::new();
-    if plan.feedback_from_flags {
+    if plan.feedback_requested {
         flags.push("--stabilize");
     }
     if plan.project {

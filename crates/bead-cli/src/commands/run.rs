@@ -5,7 +5,7 @@ use anyhow::{bail, Result};
 use super::{json, load_scene, print, run_method, stop_when, warn, write_file};
 use crate::args::RunArgs;
 use crate::outputs::Files;
-use crate::plan::{run_method as resolve_method, Plan};
+use crate::plan;
 use crate::report;
 
 /// `bead run`: resolve the method and plan, run, write the trace and summary, report.
@@ -20,9 +20,9 @@ pub fn run(args: &RunArgs) -> Result<()> {
     }
     files.check()?;
     let scene = load_scene(&args.scene, &args.sim.set)?;
-    let plan = Plan::resolve(&scene, &args.sim)?;
+    let plan = plan::resolve(&scene, &args.sim, args.method.map(|m| m.0))?;
+    let method = plan.method;
     let stop_when = stop_when(&scene, &args.sim)?;
-    let method = resolve_method(&scene, args.method.map(|m| m.0))?;
     if plan.ignores_scene_feedback(method) {
         warn("the scene's [run] stabilize applies only to the implicit form; not used for this parametric run");
     }

@@ -11,7 +11,7 @@ use bead::sweep::{Axis, Combine, Sweep};
 use super::{load_scene, stop_when, warn, Usage};
 use crate::args::SweepArgs;
 use crate::outputs::Files;
-use crate::plan::{run_method as resolve_method, Plan};
+use crate::plan;
 
 /// `bead sweep`: resolve the plan as `run` does, run every member, write the CSV and a line
 /// of figures on stderr.
@@ -23,14 +23,14 @@ pub fn sweep(args: &SweepArgs) -> Result<()> {
     }
     files.check()?;
     let scene = load_scene(&args.scene, &args.sim.set)?;
-    let plan = Plan::resolve(&scene, &args.sim)?;
-    let method = resolve_method(&scene, args.method.map(|m| m.0))?;
+    let plan = plan::resolve(&scene, &args.sim, args.method.map(|m| m.0))?;
+    let method = plan.method;
     if plan.ignores_scene_feedback(method) {
         warn("the scene's [run] stabilize applies only to the implicit form; not used for this parametric run");
     }
     // Parsed here against the scene, for a located error before anything runs; each member
-    // parses it again against its own parameters.
-    let stop_when = stop_when(&scene, &args.sim)?.map(|e| e.source().to_string());
+    // parses it (or, without the flag, its scene's [run] stop_when) against its own values.
+    stop_when(&scene, &args.sim)?;
     let axes = args
         .params
         .iter()
@@ -46,9 +46,8 @@ pub fn sweep(args: &SweepArgs) -> Result<()> {
         &scene,
         axes,
         combine,
-        plan.config(method),
-        plan.options(),
-        stop_when,
+        plan::request(&args.sim, args.method.map(|m| m.0)),
+        args.sim.stop_when.clone(),
     )
     .map_err(|e| Usage(format!("--param: {e}")))?;
     // The output file is created before the members run, so that a missing directory is
