@@ -347,7 +347,7 @@ mod tests {
     use crate::model::SystemBuilder;
     use crate::simulate::RunError;
 
-    const KEYS: [&str; 16] = [
+    const KEYS: [&str; 18] = [
         "scene",
         "method",
         "integrator",
@@ -363,6 +363,8 @@ mod tests {
         "energy_conserved",
         "constraint_error_max",
         "constraint_error_final",
+        "stop_when",
+        "stop_time",
         "particles",
     ];
 
