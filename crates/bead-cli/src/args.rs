@@ -32,6 +32,10 @@ pub enum Command {
     /// [parametric] section; the parametric form runs when it has a [parametric] section.
     #[command(after_long_help = AFTER_RUN)]
     Compare(CompareArgs),
+    /// Run a scene many times over a grid of parameter values, in parallel; one CSV row per
+    /// member.
+    #[command(after_long_help = AFTER_SWEEP)]
+    Sweep(SweepArgs),
     /// Validate a scene and describe it, with the derivatives the engine will use.
     Check(CheckArgs),
     /// Plot columns of a trace CSV against t, as PNG or SVG.
@@ -118,6 +122,64 @@ pub struct CompareArgs {
     pub output: OutputArgs,
 }
 
+const AFTER_SWEEP: &str = "\
+Each --param NAME=START:STOP:COUNT takes COUNT values from START to STOP, both included, evenly
+spaced (numpy's linspace); START and STOP may be expressions like 2*pi. Several --param make the
+full grid of their combinations, the first outermost (member index = row-major order), or with
+--zip one member per position (all COUNTs equal). Each member is the scene with those [params]
+overridden, run exactly as `bead run --set NAME=VALUE ...` runs it (same method, integrator, dt,
+duration and stop condition), without a trace.
+
+CSV columns, one row per member in index order:
+  member                   the member's index
+  NAME...                  its parameter values, one column per --param
+  status                   ok (ran to the end), event (stopped at --stop-when) or failed
+  t_final                  time of the last good state
+  stop_time                the stop condition's crossing time (empty when it did not fire)
+  steps                    integrator steps taken
+  energy_error_max         max relative error of the conserved energy (T + V, or E - W)
+  constraint_error_max     max over the run of max_i |C_i|
+  P.x P.y [P.z] P.vx ...   every particle's final position and velocity
+  q.NAME qdot.NAME         final generalized coordinates (parametric runs)
+  error                    why the member failed (empty otherwise)
+Numbers are written exactly (shortest round-trip); a member that could not start has empty
+result columns. Exit status: 0 when the sweep ran, even if members failed (their rows say why);
+1 when the scene is invalid; 2 on a usage error.";
+
+/// `bead sweep`.
+#[derive(Debug, Args)]
+pub struct SweepArgs {
+    /// The scene file (TOML).
+    pub scene: PathBuf,
+    /// A parameter to sweep: NAME=START:STOP:COUNT, COUNT values from START to STOP
+    /// inclusive (repeatable: a grid, the first outermost)
+    #[arg(long = "param", value_name = "NAME=START:STOP:COUNT", value_parser = parse_param, required = true)]
+    pub params: Vec<ParamRange>,
+    /// Combine the parameters position by position instead of as a grid (equal COUNTs)
+    #[arg(long)]
+    pub zip: bool,
+    /// Formulation [default: as for run]
+    #[arg(long, value_name = "METHOD")]
+    pub method: Option<MethodArg>,
+    #[command(flatten)]
+    pub sim: SimArgs,
+    /// Write the CSV here instead of stdout
+    #[arg(long, value_name = "FILE.csv")]
+    pub out: Option<PathBuf>,
+    /// Threads to run members on [default: 0, one per core]
+    #[arg(long, value_name = "N", default_value_t = 0)]
+    pub threads: usize,
+}
+
+/// `--param NAME=START:STOP:COUNT` as written.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ParamRange {
+    pub name: String,
+    pub start: f64,
+    pub stop: f64,
+    pub count: usize,
+}
+
 /// `bead check`.
 #[derive(Debug, Args)]
 pub struct CheckArgs {
@@ -188,6 +250,12 @@ pub struct SimArgs {
     /// implicit kick or stage), retry it with twice as many substeps, up to M, before failing
     #[arg(long, value_name = "M", default_value_t = 64, value_parser = clap::value_parser!(u32).range(1..))]
     pub max_substeps: u32,
+    /// Stop where EXPR crosses zero upward (from < 0 to >= 0), located to 1e-10 of dt: an
+    /// expression of particle coordinates and velocities (bead.y, bead.vx), generalized
+    /// coordinates (NAME or q.NAME, rates qdot.NAME; parametric form), t and parameters,
+    /// e.g. "5 - bead.y" [default: the scene's [run] stop_when, else none]
+    #[arg(long, value_name = "EXPR", allow_hyphen_values = true)]
+    pub stop_when: Option<String>,
 }
 
 impl SimArgs {
@@ -207,6 +275,7 @@ impl SimArgs {
             project: false,
             substeps: 1,
             max_substeps: 64,
+            stop_when: None,
         }
     }
 }
@@ -314,6 +383,76 @@ fn parse_stabilize(s: &str) -> Result<Feedback, String> {
     Ok(Feedback {
         ks: number(parts[0], "KS:")?,
         kd: number(parts[1], "KD:")?,
+    })
+}
+
+/// `NAME=START:STOP:COUNT`: a name, two finite numbers (expressions) and a count >= 1; errors
+/// point at the offending part.
+fn parse_param(s: &str) -> Result<ParamRange, String> {
+    const USAGE: &str = "expected NAME=START:STOP:COUNT (e.g. x0=10:200:100)";
+    let Some(equals) = s.find('=') else {
+        return Err(NumberError::new(format!("{USAGE}: no `=`"), 0, s.len()).render(s));
+    };
+    let name = s[..equals].trim();
+    if !bead::expr::is_identifier(name) {
+        let what = if name.is_empty() {
+            "the name is empty".to_string()
+        } else {
+            format!("`{name}` is not a parameter name")
+        };
+        return Err(NumberError::new(format!("{USAGE}: {what}"), 0, equals).render(s));
+    }
+    let mut parts = Vec::new();
+    let mut start = equals + 1;
+    for (i, c) in s[equals + 1..].char_indices() {
+        if c == ':' {
+            parts.push((start, equals + 1 + i));
+            start = equals + 2 + i;
+        }
+    }
+    parts.push((start, s.len()));
+    if parts.len() != 3 {
+        return Err(NumberError::new(
+            format!(
+                "{USAGE}: got {} part{} after `=`",
+                parts.len(),
+                if parts.len() == 1 { "" } else { "s" }
+            ),
+            equals + 1,
+            s.len(),
+        )
+        .render(s));
+    }
+    let number = |(a, b): (usize, usize), which: &str| {
+        numbers::number(s, a, b, Bound::Finite, Context::Set).map_err(|e| {
+            NumberError::new(format!("{which}: {}", e.message), e.span.start, e.span.end).render(s)
+        })
+    };
+    let first = number(parts[0], "START")?;
+    let last = number(parts[1], "STOP")?;
+    let (a, b) = parts[2];
+    let text = s[a..b].trim();
+    let count: usize = match text.parse() {
+        Ok(0) => {
+            return Err(
+                NumberError::new("COUNT must be at least 1, got 0".to_string(), a, b).render(s),
+            )
+        }
+        Ok(n) => n,
+        Err(_) => {
+            return Err(NumberError::new(
+                format!("COUNT must be a whole number >= 1, got `{text}`"),
+                a,
+                b.max(a + 1).min(s.len().max(a)),
+            )
+            .render(s))
+        }
+    };
+    Ok(ParamRange {
+        name: name.to_string(),
+        start: first,
+        stop: last,
+        count,
     })
 }
 

@@ -152,6 +152,13 @@ pub fn run_text(scene: &Scene, plan: &Plan, summary: &Summary) -> String {
         row(&mut s, "steps", steps);
     }
     row(&mut s, "t_final", format!("{} s", exact(summary.t_final)));
+    if let Some(condition) = &summary.stop_when {
+        let outcome = match summary.stop_time {
+            Some(t) => format!("crossed zero at t = {} s; the run stopped there", exact(t)),
+            None => "did not cross zero".to_string(),
+        };
+        row(&mut s, "stop_when", format!("{condition}: {outcome}"));
+    }
     if let (Some(duration), true) = (plan.duration, plan.overshoot) {
         let _ = writeln!(
             s,
@@ -486,12 +493,10 @@ fn expression(e: &Expr, name: &dyn Fn(usize) -> String) -> String {
 pub struct StartCheck {
     /// The scene's `[run]` settings as `bead run` resolves them, or `bead run`'s error.
     pub plan: Result<Plan, String>,
-    /// `bead run`'s error when the scene's `[run]` method cannot run.
-    pub method: Option<String>,
     /// Each formulation the scene has (none when the plan failed) and whether it starts.
     pub forms: Vec<(Method, Result<(), SetupError>)>,
-    /// The formulation `bead run` picks without `--method` (None when that is refused).
-    pub run_method: Option<Method>,
+    /// The formulation `bead run` picks without `--method`.
+    pub run_method: Method,
 }
 
 impl StartCheck {
@@ -504,7 +509,6 @@ impl StartCheck {
         if let Err(e) = &self.plan {
             errors.push(e.clone());
         }
-        errors.extend(self.method.clone());
         for (method, result) in &self.forms {
             if let Err(e) = result {
                 if self.only_not_applicable(*method, e) {
@@ -519,7 +523,7 @@ impl StartCheck {
     /// Whether `e` only says that the scene's settings do not apply to `method`, a
     /// formulation `bead run` does not pick by default.
     fn only_not_applicable(&self, method: Method, e: &SetupError) -> bool {
-        self.run_method.is_some_and(|run| run != method) && matches!(e, SetupError::Config(_))
+        self.run_method != method && matches!(e, SetupError::Config(_))
     }
 
     /// The refusal of the implicit form for having more constraint rows than coordinates.
@@ -867,9 +871,6 @@ fn start_text(s: &mut String, start: &StartCheck) {
             Err(e) => format!("refused: {}", setup_error(e)),
         };
         let _ = writeln!(s, "  {:<12} {outcome}", method.name());
-    }
-    if let Some(e) = &start.method {
-        let _ = writeln!(s, "  [run] method refused: {e}");
     }
 }
 

@@ -6,8 +6,10 @@ pub mod integrate;
 pub mod linalg;
 pub mod model;
 pub mod output;
+pub mod plan;
 pub mod scene;
 pub mod simulate;
+pub mod sweep;
 
 /// A number type the engine can differentiate through: `f64` and num-dual's dual numbers.
 /// Constraints written as Rust types are generic over it (see [`model::Holonomic`]).

@@ -9,7 +9,7 @@ use bead::simulate::Simulation;
 
 use super::{load_scene, print, report_error};
 use crate::args::{CheckArgs, SimArgs};
-use crate::plan::{compare_methods, run_method, Plan};
+use crate::plan::{self, compare_methods};
 use crate::report::{self, StartCheck};
 
 /// `bead check`: load (which validates) and describe the scene, then report every reason
@@ -33,9 +33,7 @@ pub fn check(args: &CheckArgs) -> Result<()> {
 /// form, parametric when it has one) with the scene's `[run]` settings resolved as `bead run`
 /// resolves them. The library decides what can start ([`Simulation::new`]).
 fn start(scene: &Scene) -> StartCheck {
-    let plan = Plan::resolve(scene, &SimArgs::none()).map_err(|e| format!("{e:#}"));
-    let resolved = run_method(scene, None);
-    let method = resolved.as_ref().err().map(|e| format!("{e:#}"));
+    let plan = plan::resolve(scene, &SimArgs::none(), None).map_err(|e| format!("{e:#}"));
     let forms = match &plan {
         Ok(plan) => compare_methods(scene)
             .into_iter()
@@ -48,8 +46,7 @@ fn start(scene: &Scene) -> StartCheck {
     };
     StartCheck {
         plan,
-        method,
         forms,
-        run_method: resolved.ok(),
+        run_method: bead::plan::run_method(scene, None),
     }
 }

@@ -6,10 +6,12 @@ use std::path::{Path, PathBuf};
 use anyhow::{bail, Result};
 use bead::formulation::{Feedback, Method};
 
-use super::{json, load_scene, print, report_error, run_method, warn_implicit_only, write_file};
+use super::{
+    json, load_scene, print, report_error, run_method, stop_when, warn_implicit_only, write_file,
+};
 use crate::args::CompareArgs;
 use crate::outputs::Files;
-use crate::plan::{compare_methods, Plan};
+use crate::plan::{self, compare_methods};
 use crate::report;
 
 /// `bead compare`: run every formulation of the scene and print them side by side.
@@ -18,7 +20,8 @@ pub fn compare(args: &CompareArgs) -> Result<()> {
         return super::grid::compare_grid(args);
     }
     let scene = load_scene(&args.scene, &args.sim.set)?;
-    let plan = Plan::resolve(&scene, &args.sim)?;
+    let plan = plan::resolve(&scene, &args.sim, None)?;
+    let stop_when = stop_when(&scene, &args.sim)?;
     let methods = compare_methods(&scene);
     warn_implicit_only(&plan, &methods);
     let mut files = Files::new();
@@ -42,7 +45,7 @@ pub fn compare(args: &CompareArgs) -> Result<()> {
             config.feedback = Feedback::default();
             config.project = false;
         }
-        let outcome = run_method(&scene, &plan, config, trace.as_deref())?;
+        let outcome = run_method(&scene, &plan, config, stop_when.as_ref(), trace.as_deref())?;
         if let Err(failure) = &outcome.result {
             failures.push(format!("{}: {}", method.name(), failure.error));
         }

@@ -12,11 +12,12 @@ use bead::simulate::{Sample, Sink};
 use bead_report::report::{report_files, write_report, Recorder, Report, ReportRun};
 
 use super::{
-    json, load_scene, print, report_error, run_method_with, warn_implicit_only, write_file,
+    json, load_scene, print, report_error, run_method_with, stop_when, warn_implicit_only,
+    write_file,
 };
 use crate::args::CompareArgs;
 use crate::outputs::Files;
-use crate::plan::{compare_methods, steps_for, Plan};
+use crate::plan::{self, compare_methods, steps_for};
 use crate::report::{energy_note, exact, integrator_text, table, title, ADAPTIVE_NOTE};
 
 /// Two sinks fed the same samples.
@@ -37,7 +38,8 @@ impl Sink for Tee<'_> {
 /// `bead compare` with `--integrators`, `--dts` or `--report`.
 pub fn compare_grid(args: &CompareArgs) -> Result<()> {
     let scene = load_scene(&args.scene, &args.sim.set)?;
-    let plan = Plan::resolve(&scene, &args.sim)?;
+    let plan = plan::resolve(&scene, &args.sim, None)?;
+    let stop_when = stop_when(&scene, &args.sim)?;
     let integrators = match &args.grid.integrators {
         Some(list) => list.0.clone(),
         None => vec![plan.integrator],
@@ -147,6 +149,7 @@ pub fn compare_grid(args: &CompareArgs) -> Result<()> {
                 &scene,
                 &planned,
                 config,
+                stop_when.as_ref(),
                 trace.as_deref(),
                 Some(&mut recorder),
             )?;

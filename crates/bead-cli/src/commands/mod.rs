@@ -8,6 +8,7 @@ mod plot;
 mod progress;
 mod run;
 mod serve;
+mod sweep;
 
 use std::fs::File;
 use std::io::{self, Write};
@@ -17,9 +18,11 @@ use std::sync::Arc;
 use anyhow::{Context, Result};
 use bead::output::{CsvTrace, Summary};
 use bead::scene::Scene;
-use bead::simulate::{self, NullSink, RunFailure, RunStats, Simulation, SimulationConfig, Sink};
+use bead::simulate::{
+    self, Event, NullSink, RunFailure, RunStats, Simulation, SimulationConfig, Sink,
+};
 
-use crate::args::Command;
+use crate::args::{Command, SimArgs};
 use crate::plan::Plan;
 
 /// Run a parsed command line.
@@ -27,6 +30,7 @@ pub fn dispatch(command: Command) -> Result<()> {
     match command {
         Command::Run(args) => run::run(&args),
         Command::Compare(args) => compare::compare(&args),
+        Command::Sweep(args) => sweep::sweep(&args),
         Command::Check(args) => check::check(&args),
         Command::Plot(args) => plot::plot(&args),
         Command::Serve(args) => serve::serve(&args),
@@ -56,6 +60,24 @@ fn load_scene(path: &Path, overrides: &[(String, f64)]) -> Result<Scene> {
     Ok(scene)
 }
 
+/// The stop condition of a run: `--stop-when`, parsed against the scene's system, else the
+/// scene's `[run] stop_when`, else none. A bad `--stop-when` is a usage error showing where
+/// in the expression.
+fn stop_when(scene: &Scene, sim: &SimArgs) -> Result<Option<Event>> {
+    match &sim.stop_when {
+        Some(source) => match Event::parse(&scene.system, source) {
+            Ok(event) => Ok(Some(event)),
+            Err(e) => Err(Usage(format!(
+                "--stop-when: {}",
+                crate::numbers::NumberError::new(e.message, e.span.start, e.span.end)
+                    .render(source)
+            ))
+            .into()),
+        },
+        None => Ok(scene.run.stop_when.clone()),
+    }
+}
+
 /// Print `warning: MESSAGE` to stderr (a closed stderr is not worth a panic).
 fn warn(message: &str) {
     let _ = writeln!(io::stderr(), "warning: {}", terminal(message));
@@ -68,7 +90,7 @@ fn warn_implicit_only(plan: &Plan, methods: &[bead::formulation::Method]) {
         return;
     }
     let mut flags = Vec::new();
-    if plan.feedback_from_flags {
+    if plan.feedback_requested {
         flags.push("--stabilize");
     }
     if plan.project {
@@ -123,9 +145,10 @@ fn run_method(
     scene: &Scene,
     plan: &Plan,
     config: SimulationConfig,
+    stop_when: Option<&Event>,
     trace: Option<&Path>,
 ) -> Result<Outcome> {
-    run_method_with(scene, plan, config, trace, None)
+    run_method_with(scene, plan, config, stop_when, trace, None)
 }
 
 /// [`run_method`], also recording into `recorder` (for `compare --report`), with a progress
@@ -134,10 +157,12 @@ fn run_method_with(
     scene: &Scene,
     plan: &Plan,
     config: SimulationConfig,
+    stop_when: Option<&Event>,
     trace: Option<&Path>,
     recorder: Option<&mut dyn Sink>,
 ) -> Result<Outcome> {
     let mut simulation = Simulation::new(Arc::clone(&scene.system), config)?;
+    simulation.set_stop_when(stop_when.cloned())?;
     let coordinates = simulation.formulation().coordinate_names().to_vec();
     let mut sink: Box<dyn Sink> = match trace {
         Some(path) => {

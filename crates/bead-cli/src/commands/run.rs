@@ -2,10 +2,10 @@
 
 use anyhow::{bail, Result};
 
-use super::{json, load_scene, print, run_method, warn, write_file};
+use super::{json, load_scene, print, run_method, stop_when, warn, write_file};
 use crate::args::RunArgs;
 use crate::outputs::Files;
-use crate::plan::{run_method as resolve_method, Plan};
+use crate::plan;
 use crate::report;
 
 /// `bead run`: resolve the method and plan, run, write the trace and summary, report.
@@ -20,12 +20,19 @@ pub fn run(args: &RunArgs) -> Result<()> {
     }
     files.check()?;
     let scene = load_scene(&args.scene, &args.sim.set)?;
-    let plan = Plan::resolve(&scene, &args.sim)?;
-    let method = resolve_method(&scene, args.method.map(|m| m.0))?;
+    let plan = plan::resolve(&scene, &args.sim, args.method.map(|m| m.0))?;
+    let method = plan.method;
+    let stop_when = stop_when(&scene, &args.sim)?;
     if plan.ignores_scene_feedback(method) {
         warn("the scene's [run] stabilize applies only to the implicit form; not used for this parametric run");
     }
-    let outcome = run_method(&scene, &plan, plan.config(method), args.trace.as_deref())?;
+    let outcome = run_method(
+        &scene,
+        &plan,
+        plan.config(method),
+        stop_when.as_ref(),
+        args.trace.as_deref(),
+    )?;
     let summary_json = json(&outcome.summary)?;
     if let Some(path) = &args.output.summary {
         write_file(path, &summary_json)?;

@@ -35,6 +35,8 @@ use crate::simulate::{RunFailure, RunStats};
 /// | `substeps` | only when more than 1: substeps per step of dt asked for (`--substeps`) |
 /// | `substeps_max` | only when more than 1: the most substeps any step took, retries included |
 /// | `retried_steps` | only when some were: steps retried with more substeps because an iteration did not converge |
+/// | `stop_when` | the stop condition as written (`null` when none) |
+/// | `stop_time` | the time the stop condition fired and the run ended (`null` when it did not) |
 /// | `particles` | `{NAME: {"position": [..], "velocity": [..]}}` at the end, in particle order |
 /// | `coordinates` | parametric runs only: `{NAME: [q, qdot]}` at the end, in coordinate order |
 /// | `error` | only when the run stopped early: why |
@@ -124,6 +126,11 @@ pub struct Summary {
     /// when some were).
     #[serde(skip_serializing_if = "is_zero")]
     pub retried_steps: u64,
+    /// The stop condition watched, as written (`null` when none).
+    pub stop_when: Option<String>,
+    /// The time the stop condition fired, which ended the run (`null` when it did not).
+    #[serde(serialize_with = "optional_number")]
+    pub stop_time: Option<f64>,
     /// Final particle states, in particle order.
     pub particles: ParticleStates,
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -215,6 +222,8 @@ impl Summary {
             substeps: stats.substeps,
             substeps_max: stats.substeps_max,
             retried_steps: stats.retried_steps,
+            stop_when: stats.stop_when.clone(),
+            stop_time: stats.stop_time,
             particles: ParticleStates(particles),
             coordinates,
             error: None,
@@ -338,7 +347,7 @@ mod tests {
     use crate::model::SystemBuilder;
     use crate::simulate::RunError;
 
-    const KEYS: [&str; 16] = [
+    const KEYS: [&str; 18] = [
         "scene",
         "method",
         "integrator",
@@ -354,6 +363,8 @@ mod tests {
         "energy_conserved",
         "constraint_error_max",
         "constraint_error_final",
+        "stop_when",
+        "stop_time",
         "particles",
     ];
 
@@ -393,6 +404,8 @@ mod tests {
             substeps: 1,
             substeps_max: 1,
             retried_steps: 0,
+            stop_when: None,
+            stop_time: None,
         }
     }
 

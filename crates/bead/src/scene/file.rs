@@ -94,6 +94,7 @@ pub(super) struct RunDef {
     pub duration: Option<Spanned<Num>>,
     pub steps: Option<Spanned<Num>>,
     pub stabilize: Option<Spanned<Stabilize>>,
+    pub stop_when: Option<Spanned<String>>,
 }
 
 /// `stabilize = [ks, kd]` or `stabilize = { frequency = f, damping = zeta }`.

@@ -20,6 +20,7 @@ use crate::expr::{parse, Expr, ExprError, Func, Resolved};
 use crate::formulation::{Feedback, Method};
 use crate::integrate::IntegratorKind;
 use crate::model::{Endpoint, Force, ModelError, ParticleId, SystemBuilder};
+use crate::simulate::Event;
 
 /// Names a parameter may not take (the model's reserved names).
 const RESERVED: [&str; 6] = ["t", "pi", "e", "x", "y", "z"];
@@ -133,8 +134,24 @@ pub(super) fn load(text: &str, file: &str, overrides: &[(String, f64)]) -> Resul
     if let Some(p) = &doc.parametric {
         l.parametric(p)?;
     }
-    let run = l.loader.run(doc.run.as_ref(), doc.parametric.is_some())?;
+    let mut run = l.loader.run(doc.run.as_ref(), doc.parametric.is_some())?;
     let system = l.b.build().map_err(|e| src.error_at_start(e.to_string()))?;
+    if let Some(stop_when) = doc
+        .run
+        .as_ref()
+        .and_then(|r| r.get_ref().stop_when.as_ref())
+    {
+        let source = stop_when.get_ref();
+        let event = Event::parse(&system, source).map_err(|err| {
+            src.expr_error(
+                stop_when.span(),
+                source,
+                &err,
+                format!("run: `stop_when`: {}", err.message),
+            )
+        })?;
+        run.stop_when = Some(event);
+    }
     Ok(Scene {
         title,
         file: file.to_string(),

@@ -47,7 +47,11 @@
 //!   coordinates, `t` and parameters.
 //! - `[run]`: `method` (implicit, parametric), `integrator` (euler, symplectic-euler, midpoint,
 //!   rk4), `dt`, `duration` or `steps`, and `stabilize = [ks, kd]` or
-//!   `stabilize = { frequency = f, damping = zeta }` (damping default 1).
+//!   `stabilize = { frequency = f, damping = zeta }` (damping default 1), and
+//!   `stop_when = "EXPR"`: end the run where EXPR, an expression of the particles'
+//!   coordinates and velocities (`bead.y`, `bead.vx`), the generalized coordinates (`q` or
+//!   `q.q`, rates `qdot.q`), `t` and parameters, crosses zero upward
+//!   ([`crate::simulate::Event`]).
 //! - `for = { i = "START..STOP", j = ... }` on a `[[particle]]`, `[[constraint]]` or
 //!   `[[force]]` table repeats it for i = START, ..., STOP - 1 (the first variable outermost,
 //!   as written; bounds are integer expressions of the parameters and the earlier loop
@@ -77,6 +81,7 @@ use std::sync::Arc;
 use crate::formulation::{Feedback, Method};
 use crate::integrate::IntegratorKind;
 use crate::model::System;
+use crate::simulate::Event;
 
 /// Relative tolerance of the consistency checks of [`Scene::warnings`].
 const WARN_TOLERANCE: f64 = 1e-9;
@@ -181,6 +186,9 @@ pub struct RunDefaults {
     pub steps: Option<u64>,
     /// `stabilize = [ks, kd]` or `{ frequency = f, damping = zeta }` (implicit method only).
     pub stabilize: Option<Feedback>,
+    /// `stop_when = "EXPR"`: stop the run where EXPR crosses zero upward (see
+    /// [`crate::simulate::Event`]).
+    pub stop_when: Option<Event>,
 }
 
 /// A scene that cannot be loaded: what and where.
@@ -293,6 +301,29 @@ impl Scene {
     /// expressions of constraints and of the parametric form) follows; the constraint edits
     /// made before are applied again, parsed with the new value.
     pub fn with_param(&self, name: &str, value: f64) -> Result<Scene, SceneEditError> {
+        self.with_params(&[(name.to_string(), value)])
+    }
+
+    /// [`Scene::with_param`] for several parameters at once (one load): each name must be a
+    /// parameter of the scene and each value finite. The result is the scene as
+    /// `Scene::parse(text, file, overrides)` loads it with these overrides after the ones it
+    /// was loaded with, so a run of it equals `bead run --set NAME=VALUE ...` bit for bit.
+    pub fn with_params(&self, values: &[(String, f64)]) -> Result<Scene, SceneEditError> {
+        for (name, value) in values {
+            self.check_param(name, *value)?;
+        }
+        let mut overrides = self.overrides.clone();
+        overrides.retain(|(n, _)| !values.iter().any(|(name, _)| name == n));
+        overrides.extend(values.iter().cloned());
+        let mut scene = Scene::parse(&self.text, &self.file, &overrides)?;
+        for (index, source) in &self.edits {
+            scene = scene.with_constraint_expr(*index, source)?;
+        }
+        Ok(scene)
+    }
+
+    /// Whether `name` is a parameter of the scene and `value` finite.
+    fn check_param(&self, name: &str, value: f64) -> Result<(), SceneEditError> {
         if !value.is_finite() {
             return Err(EditError::Model(crate::model::ModelError::NotFinite {
                 what: format!("parameter `{name}`"),
@@ -307,14 +338,7 @@ impl Scene {
             }
             .into());
         }
-        let mut overrides = self.overrides.clone();
-        overrides.retain(|(n, _)| n != name);
-        overrides.push((name.to_string(), value));
-        let mut scene = Scene::parse(&self.text, &self.file, &overrides)?;
-        for (index, source) in &self.edits {
-            scene = scene.with_constraint_expr(*index, source)?;
-        }
-        Ok(scene)
+        Ok(())
     }
 
     /// Warnings about the scene that do not stop a run:

@@ -55,6 +55,7 @@
 //! vanish when a scene starts at the potential's zero.
 
 mod config;
+mod event;
 mod ledger;
 mod monitor;
 mod run;
@@ -63,6 +64,7 @@ use std::sync::Arc;
 
 pub use crate::readable;
 pub use config::{ConfigError, Requirement, SetupError, SimulationConfig};
+pub use event::{Event, EventError};
 pub use monitor::Quantity;
 pub use run::{
     run, run_with_progress, NoProgress, NullSink, Progress, RunError, RunFailure, RunOptions,
@@ -75,6 +77,7 @@ use crate::formulation::{
 };
 use crate::integrate::{Dopri5, Integrator, IntegratorKind};
 use crate::model::{Force, ModelError, System};
+use event::{Bracket, Watch};
 use ledger::{LedgerScratch, WithWork};
 use monitor::{Monitor, Rejection};
 
@@ -147,11 +150,28 @@ pub struct Simulation {
     sticky_substeps: u32,
     /// Steps since the last retry, at `sticky_substeps`
     calm_steps: u32,
+    /// The substeps the last fixed step took (an event re-integrates part of it with them)
+    last_substeps: u32,
+    /// The stop condition being watched, if any
+    watch: Option<Box<Watch>>,
+    /// The state at the upper end of an event's bracket while it is located (sized when the
+    /// event is set, so that locating allocates nothing)
+    event_state: State,
+    /// Adaptive integrators: the time of an event located in the last step, not yet reached
+    /// by the output
+    pending_event: Option<f64>,
+    /// The time the stop condition last fired
+    event_time: Option<f64>,
+    /// Whether the last `step` or `advance_to` ended at an event
+    stopped_at_event: bool,
 }
 
 /// Steps without a retry after which a step tries half of the substeps its predecessors
 /// needed.
 const CALM_STEPS: u32 = 16;
+
+/// An event's time is located to this fraction of dt (see [`Event`]).
+pub const EVENT_TOLERANCE: f64 = 1e-10;
 
 impl Simulation {
     /// A simulation of `system` as `config` says, at the system's initial state. Fails when
@@ -220,6 +240,16 @@ impl Simulation {
             retried_steps: 0,
             sticky_substeps: 0,
             calm_steps: 0,
+            last_substeps: 1,
+            watch: None,
+            event_state: State {
+                t: 0.0,
+                q: Vec::new(),
+                qdot: Vec::new(),
+            },
+            pending_event: None,
+            event_time: None,
+            stopped_at_event: false,
             config,
             formulation,
         };
@@ -407,15 +437,71 @@ impl Simulation {
         self.stop_time = t;
     }
 
+    /// Watch `event` from now on (or stop watching with `None`): [`Simulation::step`] and
+    /// [`Simulation::advance_to`] stop at the first time after the current one where the
+    /// event's expression g crosses zero upward (g < 0 before, g >= 0 after), located to
+    /// 1e-10 of dt (see [`Event`]), and [`Simulation::stopped_at_event`] says so. A g
+    /// already >= 0 now does not fire until it has gone below zero and come back. The
+    /// simulation can go on after an event (the next crossing fires again).
+    ///
+    /// Fails when the event was parsed for another system, or reads generalized
+    /// coordinates and the simulation runs the implicit form.
+    pub fn set_stop_when(&mut self, event: Option<Event>) -> Result<(), EventError> {
+        self.pending_event = None;
+        self.stopped_at_event = false;
+        let Some(event) = event else {
+            self.watch = None;
+            return Ok(());
+        };
+        event.check(self.system(), self.method() == Method::Parametric)?;
+        self.watch = Some(Box::new(Watch::new(event)));
+        self.rearm_event();
+        Ok(())
+    }
+
+    /// The stop condition being watched.
+    pub fn stop_when(&self) -> Option<&Event> {
+        self.watch.as_ref().map(|w| &w.event)
+    }
+
+    /// The time the stop condition last fired, if it has since the start (or the last reset).
+    pub fn event_time(&self) -> Option<f64> {
+        self.event_time
+    }
+
+    /// Whether the last [`Simulation::step`] or [`Simulation::advance_to`] stopped early, at
+    /// the stop condition's crossing (then [`Simulation::t`] is [`Simulation::event_time`]).
+    pub fn stopped_at_event(&self) -> bool {
+        self.stopped_at_event
+    }
+
+    /// g at the observed state, as the start of the next crossing test.
+    fn rearm_event(&mut self) {
+        let n = self.n;
+        let observed = if self.output_behind {
+            &self.output
+        } else {
+            &self.state
+        };
+        if let Some(watch) = &mut self.watch {
+            let x = &self.monitor.observation.x;
+            let xdot = &self.monitor.observation.xdot;
+            watch.g_last = watch.eval(observed.t, x, xdot, &observed.q[..n], &observed.qdot[..n]);
+        }
+    }
+
     /// One step: dt for fixed-step integrators; for adaptive ones one accepted step of their
     /// own size, never past the stop time (or t + dt when none is set).
     pub fn step(&mut self) -> Result<(), RunError> {
         let dt = self.config.dt;
+        self.stopped_at_event = false;
         match self.stepper {
             Stepper::Fixed(_) => {
                 let t_end = self.grid_origin + (self.grid_steps + 1) as f64 * dt;
                 self.fixed_step(t_end)?;
-                self.grid_steps += 1;
+                if !self.stopped_at_event {
+                    self.grid_steps += 1;
+                }
             }
             Stepper::Adaptive(_) => {
                 let t = self.state.t;
@@ -423,7 +509,13 @@ impl Simulation {
                     Some(stop) if stop > t => stop,
                     _ => t + dt,
                 };
-                self.adaptive_step(horizon)?;
+                if self.pending_event.is_none() {
+                    self.adaptive_step(horizon)?;
+                }
+                if let Some(te) = self.pending_event.take() {
+                    self.fire_adaptive(te);
+                    return Ok(());
+                }
             }
         }
         self.output_behind = false;
@@ -441,6 +533,7 @@ impl Simulation {
             return Err(RunError::TimeBehind { requested: t, now });
         }
         let dt = self.config.dt;
+        self.stopped_at_event = false;
         match self.stepper {
             Stepper::Fixed(_) => {
                 self.output_behind = false;
@@ -452,6 +545,9 @@ impl Simulation {
                     }
                     let on_target = (next - t).abs() <= tolerance;
                     self.fixed_step(if on_target { t } else { next })?;
+                    if self.stopped_at_event {
+                        return Ok(());
+                    }
                     self.grid_steps += 1;
                     if on_target {
                         return Ok(());
@@ -459,6 +555,9 @@ impl Simulation {
                 }
                 if self.state.t < t {
                     self.fixed_step(t)?;
+                    if self.stopped_at_event {
+                        return Ok(());
+                    }
                     self.grid_origin = t;
                     self.grid_steps = 0;
                 }
@@ -469,8 +568,15 @@ impl Simulation {
                     Some(stop) if stop >= t => stop,
                     _ => t,
                 };
-                while self.state.t < t {
+                while self.state.t < t && self.pending_event.is_none() {
                     self.adaptive_step(horizon)?;
+                }
+                if let Some(te) = self.pending_event {
+                    if te <= t {
+                        self.pending_event = None;
+                        self.fire_adaptive(te);
+                        return Ok(());
+                    }
                 }
                 if self.state.t > t {
                     if let Stepper::Adaptive(dopri) = &self.stepper {
@@ -524,6 +630,7 @@ impl Simulation {
             }
         }
         self.substeps_max = self.substeps_max.max(substeps);
+        self.last_substeps = substeps;
         self.steps += 1;
         self.accept()
     }
@@ -669,6 +776,9 @@ impl Simulation {
             .observe(&mut *self.formulation, t, q, qdot, work);
         match self.monitor.check_step(&*self.formulation, t, q) {
             Ok(()) => {
+                if let Some(g_end) = self.crossing() {
+                    return self.locate_event(g_end);
+                }
                 self.monitor.accumulate();
                 Ok(())
             }
@@ -692,6 +802,163 @@ impl Simulation {
                 })
             }
         }
+    }
+
+    /// With a stop condition: g at the step's end (observed), when it crossed zero upward
+    /// during the step; otherwise None, and g becomes the start of the next test.
+    fn crossing(&mut self) -> Option<f64> {
+        let n = self.n;
+        let watch = self.watch.as_mut()?;
+        let state = &self.state;
+        let observation = &self.monitor.observation;
+        let g_end = watch.eval(
+            state.t,
+            &observation.x,
+            &observation.xdot,
+            &state.q[..n],
+            &state.qdot[..n],
+        );
+        if watch.g_last < 0.0 && g_end >= 0.0 {
+            Some(g_end)
+        } else {
+            watch.g_last = g_end;
+            None
+        }
+    }
+
+    /// The tolerance of an event's time: 1e-10 of dt, or a few ulps of t when that is less.
+    fn event_tolerance(&self, t: f64) -> f64 {
+        (EVENT_TOLERANCE * self.config.dt).max(4.0 * f64::EPSILON * t.abs())
+    }
+
+    /// The step from `previous` to `state` crossed the stop condition (g_end >= 0 at its
+    /// end): locate the crossing. Fixed-step integrators end the step there; adaptive ones
+    /// keep their state and leave the crossing pending for the output to reach.
+    fn locate_event(&mut self, g_end: f64) -> Result<(), RunError> {
+        let g_start = self.watch.as_ref().map_or(f64::NAN, |w| w.g_last);
+        let bracket = Bracket::new(self.previous.t, g_start, self.state.t, g_end);
+        match self.stepper {
+            Stepper::Fixed(_) => self.locate_fixed(bracket),
+            Stepper::Adaptive(_) => {
+                self.locate_adaptive(bracket);
+                if let Some(watch) = &mut self.watch {
+                    watch.g_last = g_end;
+                }
+                Ok(())
+            }
+        }
+    }
+
+    /// g at the state last observed by the monitor, at time t with the formulation's
+    /// coordinates `state`.
+    fn event_value(&mut self, at_output: bool) -> f64 {
+        let n = self.n;
+        let state = if at_output { &self.output } else { &self.state };
+        let observation = &self.monitor.observation;
+        let watch = self.watch.as_mut().expect("an event is watched");
+        watch.eval(
+            state.t,
+            &observation.x,
+            &observation.xdot,
+            &state.q[..n],
+            &state.qdot[..n],
+        )
+    }
+
+    /// Fixed-step integrators: re-integrate the step from its start over a part of its
+    /// length until the crossing is bracketed to the tolerance, and end the step at the
+    /// bracket's upper end (g >= 0). The grid of steps restarts there.
+    fn locate_fixed(&mut self, mut bracket: Bracket) -> Result<(), RunError> {
+        self.event_state.clone_from(&self.state);
+        let tolerance = self.event_tolerance(bracket.hi);
+        while !bracket.done(tolerance) {
+            let t = bracket.next();
+            self.restore_state_only();
+            if let Err(e) = self.partial_step(t) {
+                return Err(self.fail(e));
+            }
+            let (q, qdot, work) = split(&self.state, self.n);
+            self.monitor
+                .observe(&mut *self.formulation, t, q, qdot, work);
+            let g = self.event_value(false);
+            if g >= 0.0 {
+                self.event_state.clone_from(&self.state);
+            }
+            bracket.update(t, g);
+        }
+        self.state.clone_from(&self.event_state);
+        let t = self.state.t;
+        let (q, qdot, work) = split(&self.state, self.n);
+        self.monitor
+            .observe(&mut *self.formulation, t, q, qdot, work);
+        self.monitor.accumulate();
+        let g = self.event_value(false);
+        if let Some(watch) = &mut self.watch {
+            watch.g_last = g;
+        }
+        self.grid_origin = t;
+        self.grid_steps = 0;
+        self.event_time = Some(t);
+        self.stopped_at_event = true;
+        Ok(())
+    }
+
+    /// The current step from its start (`previous`, already restored) to `t_end`, with the
+    /// substeps the whole step took, retried with more when an iteration does not converge.
+    fn partial_step(&mut self, t_end: f64) -> Result<(), StepError> {
+        let mut substeps = self.last_substeps.max(1);
+        loop {
+            match self.substeps(t_end, substeps) {
+                Ok(()) => return Ok(()),
+                Err(e) if retryable(&e) && substeps * 2 <= self.config.max_substeps => {
+                    self.restore_state_only();
+                    substeps *= 2;
+                }
+                Err(e) => return Err(e),
+            }
+        }
+    }
+
+    /// Adaptive integrators: find the crossing on the last step's dense output; the output
+    /// reaches it later ([`Simulation::fire_adaptive`]).
+    fn locate_adaptive(&mut self, mut bracket: Bracket) {
+        let tolerance = self.event_tolerance(bracket.hi);
+        while !bracket.done(tolerance) {
+            let t = bracket.next();
+            if let Stepper::Adaptive(dopri) = &self.stepper {
+                dopri.interpolate(t, &mut self.output.q, &mut self.output.qdot);
+            }
+            self.output.t = t;
+            let (q, qdot, work) = split(&self.output, self.n);
+            self.monitor
+                .observe(&mut *self.formulation, t, q, qdot, work);
+            let g = self.event_value(true);
+            bracket.update(t, g);
+        }
+        self.pending_event = Some(bracket.hi);
+    }
+
+    /// Adaptive integrators: the output reached the event located at `te`: it becomes the
+    /// observable state and the step or advance stops there.
+    fn fire_adaptive(&mut self, te: f64) {
+        if te == self.state.t {
+            self.output_behind = false;
+            let (q, qdot, work) = split(&self.state, self.n);
+            self.monitor
+                .observe(&mut *self.formulation, te, q, qdot, work);
+        } else {
+            if let Stepper::Adaptive(dopri) = &self.stepper {
+                dopri.interpolate(te, &mut self.output.q, &mut self.output.qdot);
+            }
+            self.output.t = te;
+            self.output_behind = true;
+            let (q, qdot, work) = split(&self.output, self.n);
+            self.monitor
+                .observe(&mut *self.formulation, te, q, qdot, work);
+        }
+        self.monitor.accumulate();
+        self.event_time = Some(te);
+        self.stopped_at_event = true;
     }
 
     /// Back to the initial state: monitors, statistics and the integrator's memory restart;
@@ -730,6 +997,10 @@ impl Simulation {
         self.calm_steps = 0;
         self.stepper = Stepper::new(&self.config, state.q.len());
         self.state = state;
+        self.pending_event = None;
+        self.event_time = None;
+        self.stopped_at_event = false;
+        self.rearm_event();
     }
 
     /// Back to the initial state moved onto the constraints (implicit form): positions onto
@@ -853,6 +1124,8 @@ impl Simulation {
             substeps: self.config.substeps.max(1),
             substeps_max: self.substeps_max.max(self.config.substeps.max(1)),
             retried_steps: self.retried_steps,
+            stop_when: self.stop_when().map(|e| e.source().to_string()),
+            stop_time: self.event_time,
         }
     }
 

@@ -127,6 +127,10 @@ pub struct RunStats {
     pub substeps_max: u32,
     /// Steps retried with more substeps because an iteration did not converge.
     pub retried_steps: u64,
+    /// The stop condition watched (see [`super::Event`]), as written.
+    pub stop_when: Option<String>,
+    /// The time it fired, when it did: the run ended there (`t_final`).
+    pub stop_time: Option<f64>,
 }
 
 impl RunStats {
@@ -200,7 +204,9 @@ impl Progress for NoProgress {
 }
 
 /// Run `simulation` from where it is over `options.steps` output intervals of dt, recording
-/// into `sink`. The step loop allocates nothing.
+/// into `sink`, or until its stop condition fires ([`Simulation::set_stop_when`]): then the
+/// last sample recorded is the state at the crossing, and [`RunStats::stop_time`] its time.
+/// The step loop allocates nothing.
 pub fn run(
     simulation: &mut Simulation,
     options: RunOptions,
@@ -242,6 +248,13 @@ pub fn run_with_progress(
         interval = next;
         if interval % progress_every == 0 {
             progress.advance(interval, options.steps);
+        }
+        if simulation.stopped_at_event() {
+            recorded_t = simulation.t();
+            if let Err(e) = sink.record(&simulation.sample(interval)) {
+                failure = Some(RunError::Io(e));
+            }
+            break;
         }
         if interval % every == 0 || interval == options.steps {
             recorded_t = simulation.t();

@@ -1,0 +1,365 @@
+//! Events: a run that stops where an expression of the state crosses zero upward.
+//!
+//! An [`Event`] is an expression g over the particle positions and velocities (`a.x`,
+//! `a.vy`, and with a single particle `x`, `vy`), the generalized coordinates of the
+//! parametric form (`theta` or `q.theta`, rates `qdot.theta`), the time `t`, the scene's
+//! parameters, `pi` and `e`. A simulation with an event ([`super::Simulation::set_stop_when`])
+//! evaluates g after every step and stops at the first time t* where g goes from g < 0 at
+//! the start of a step to g >= 0 at its end: an upward crossing. An expression already >= 0
+//! at the start does not fire there (there is no crossing); it fires once it has gone below
+//! zero and come back.
+//!
+//! t* is located to 1e-10 of the step dt: fixed-step integrators re-integrate the step from
+//! its saved start over a part of its length, so that every state tried is the integrator's
+//! own (with its substeps, retries and projection), and dopri5 evaluates its dense output,
+//! the continuous solution its error control is about. The root of g along that path is
+//! bracketed by the step and found by the Illinois variant of regula falsi, with a bisection
+//! whenever a secant point would not shrink the bracket by half in two iterations. The state
+//! the run ends at is the bracket's upper end, where g >= 0.
+
+use crate::expr::{parse, Expr, ExprError, Resolved, Tape};
+use crate::model::System;
+
+/// A stop condition: the expression g whose upward zero crossing ends a run (see the module
+/// documentation for the names it may use).
+///
+/// ```
+/// use bead::model::SystemBuilder;
+/// use bead::simulate::Event;
+/// let mut b = SystemBuilder::new(&[0.0, -9.81]);
+/// b.particle("ball", 1.0, &[0.0, 10.0], &[0.0, 0.0])?;
+/// let system = b.build()?;
+/// // The ball falls below y = 5.
+/// let event = Event::parse(&system, "5 - ball.y")?;
+/// assert_eq!(event.source(), "5 - ball.y");
+/// assert!(Event::parse(&system, "ball.w").is_err());
+/// # Ok::<(), Box<dyn std::error::Error>>(())
+/// ```
+#[derive(Clone, Debug)]
+pub struct Event {
+    source: String,
+    tape: Tape,
+    /// Particle coordinates n_c (positions and velocities each).
+    n_coords: usize,
+    /// Generalized coordinates the expression's slots leave room for.
+    n_q: usize,
+    /// Whether it reads a generalized coordinate or rate (parametric form only).
+    uses_coordinates: bool,
+}
+
+impl PartialEq for Event {
+    /// Two events are the same when they were parsed from the same text for systems of the
+    /// same shape.
+    fn eq(&self, other: &Event) -> bool {
+        self.source == other.source && self.n_coords == other.n_coords && self.n_q == other.n_q
+    }
+}
+
+/// An event that cannot be used by a simulation.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum EventError {
+    #[error("the stop condition `{source_text}` uses the generalized coordinates of the parametric form, and this run uses the implicit form; use particle coordinates (like a.x, a.vy) or the parametric method")]
+    NeedsParametric { source_text: String },
+    #[error("the stop condition `{source_text}` was parsed for another system (with {n_coords} particle coordinates and {n_q} generalized ones)")]
+    OtherSystem {
+        source_text: String,
+        n_coords: usize,
+        n_q: usize,
+    },
+}
+
+const AXES: [&str; 3] = ["x", "y", "z"];
+const VELOCITY_AXES: [&str; 3] = ["vx", "vy", "vz"];
+
+impl Event {
+    /// Parse `source` as a stop condition of `system`. The error's span points into `source`.
+    ///
+    /// Slots of the compiled expression: particle positions (n_c), velocities (n_c), t, then
+    /// the generalized coordinates q and rates qdot of the system's parametric form.
+    pub fn parse(system: &System, source: &str) -> Result<Event, ExprError> {
+        let n_coords = system.n_coords();
+        let coordinates: &[String] = system.parametric().map_or(&[], |p| p.coordinates());
+        let n_q = coordinates.len();
+        let resolve = |name: &str| resolve(system, coordinates, name);
+        let expr: Expr = parse(source, &resolve)?;
+        let first_q = 2 * n_coords + 1;
+        let uses_coordinates = expr.vars().iter().any(|&k| k >= first_q);
+        Ok(Event {
+            source: source.to_string(),
+            tape: Tape::compile(&[expr]),
+            n_coords,
+            n_q,
+            uses_coordinates,
+        })
+    }
+
+    /// The expression as written.
+    pub fn source(&self) -> &str {
+        &self.source
+    }
+
+    /// Whether it reads generalized coordinates (and so needs the parametric form).
+    pub fn uses_coordinates(&self) -> bool {
+        self.uses_coordinates
+    }
+
+    /// Whether a simulation of `system` by the parametric form (`parametric`) or the
+    /// implicit one can evaluate it.
+    pub(super) fn check(&self, system: &System, parametric: bool) -> Result<(), EventError> {
+        let n_q = system.parametric().map_or(0, |p| p.coordinates().len());
+        if self.n_coords != system.n_coords() || self.n_q != n_q {
+            return Err(EventError::OtherSystem {
+                source_text: self.source.clone(),
+                n_coords: self.n_coords,
+                n_q: self.n_q,
+            });
+        }
+        if self.uses_coordinates && !parametric {
+            return Err(EventError::NeedsParametric {
+                source_text: self.source.clone(),
+            });
+        }
+        Ok(())
+    }
+}
+
+/// A name of a stop condition: `t`, a parameter, `NAME.x|y|z|vx|vy|vz` (plain with a single
+/// particle), a generalized coordinate `NAME` or `q.NAME`, or its rate `qdot.NAME`.
+fn resolve(system: &System, coordinates: &[String], name: &str) -> Result<Resolved, String> {
+    let n_coords = system.n_coords();
+    let dim = system.dim();
+    if name == "t" {
+        return Ok(Resolved::Var(2 * n_coords));
+    }
+    if let Some((_, value)) = system.params().iter().find(|(p, _)| p == name) {
+        return Ok(Resolved::Value(*value));
+    }
+    let axis = |p: usize, axis: &str| {
+        if let Some(a) = AXES[..dim].iter().position(|a| *a == axis) {
+            return Some(Resolved::Var(p * dim + a));
+        }
+        VELOCITY_AXES[..dim]
+            .iter()
+            .position(|a| *a == axis)
+            .map(|a| Resolved::Var(n_coords + p * dim + a))
+    };
+    let coordinate = |c: &str| coordinates.iter().position(|q| q == c);
+    let first_q = 2 * n_coords + 1;
+    if let Some((prefix, rest)) = name.split_once('.') {
+        if let Some(p) = system.particle_id(prefix) {
+            return axis(p.0, rest).ok_or_else(|| {
+                format!(
+                    "`{prefix}` has no coordinate `{rest}`; in {dim}D use {} and {}",
+                    AXES[..dim].join(", "),
+                    VELOCITY_AXES[..dim].join(", ")
+                )
+            });
+        }
+        if prefix == "q" || prefix == "qdot" {
+            if let Some(j) = coordinate(rest) {
+                let slot = first_q
+                    + if prefix == "q" {
+                        j
+                    } else {
+                        coordinates.len() + j
+                    };
+                return Ok(Resolved::Var(slot));
+            }
+            return Err(if coordinates.is_empty() {
+                format!(
+                    "`{name}`: the scene has no generalized coordinates (no [parametric] table)"
+                )
+            } else {
+                format!(
+                    "`{name}`: no generalized coordinate `{rest}`; coordinates: {}",
+                    coordinates.join(", ")
+                )
+            });
+        }
+        return Err(format!(
+            "unknown particle `{prefix}`; particles: {}",
+            particle_list(system)
+        ));
+    }
+    if let Some(j) = coordinate(name) {
+        return Ok(Resolved::Var(first_q + j));
+    }
+    if system.particles().len() == 1 {
+        if let Some(r) = axis(0, name) {
+            return Ok(r);
+        }
+    }
+    let example = system
+        .particles()
+        .first()
+        .map(|p| format!("{0}.x, {0}.vx", p.name))
+        .unwrap_or_default();
+    let params: Vec<&str> = system.params().iter().map(|(p, _)| p.as_str()).collect();
+    let mut message = format!(
+        "unknown name `{name}`; a stop condition may use t, pi, e, parameters ({}) and particle coordinates and velocities like {example}",
+        if params.is_empty() {
+            "none".to_string()
+        } else {
+            params.join(", ")
+        }
+    );
+    if !coordinates.is_empty() {
+        message.push_str(&format!(
+            ", and the generalized coordinates ({}) as NAME or q.NAME, their rates as qdot.NAME",
+            coordinates.join(", ")
+        ));
+    }
+    Err(message)
+}
+
+fn particle_list(system: &System) -> String {
+    let names: Vec<&str> = system.particles().iter().map(|p| p.name.as_str()).collect();
+    crate::name_list(names.iter().copied())
+}
+
+/// An event being watched by a simulation: its buffers (sized once, so that stepping with an
+/// event allocates nothing) and g at the last step's end.
+#[derive(Debug)]
+pub(super) struct Watch {
+    pub(super) event: Event,
+    vars: Vec<f64>,
+    scratch: Vec<f64>,
+    /// g at the end of the last accepted step (the start of the next one)
+    pub(super) g_last: f64,
+}
+
+impl Watch {
+    pub(super) fn new(event: Event) -> Watch {
+        let tape_vars = event.tape.n_vars();
+        let slots = 2 * event.n_coords + 1 + 2 * event.n_q;
+        Watch {
+            vars: vec![0.0; slots.max(tape_vars)],
+            scratch: vec![0.0; event.tape.n_slots()],
+            event,
+            g_last: f64::NAN,
+        }
+    }
+
+    /// g at time t, particle state (x, xdot), generalized state (q, qdot) (empty for the
+    /// implicit form).
+    pub(super) fn eval(&mut self, t: f64, x: &[f64], xdot: &[f64], q: &[f64], qdot: &[f64]) -> f64 {
+        let n = self.event.n_coords;
+        self.vars[..n].copy_from_slice(x);
+        self.vars[n..2 * n].copy_from_slice(xdot);
+        self.vars[2 * n] = t;
+        if self.event.uses_coordinates {
+            let k = self.event.n_q;
+            self.vars[2 * n + 1..2 * n + 1 + k].copy_from_slice(q);
+            self.vars[2 * n + 1 + k..2 * n + 1 + 2 * k].copy_from_slice(qdot);
+        }
+        let mut out = [0.0];
+        self.event
+            .tape
+            .eval(&self.vars, &mut self.scratch, &mut out);
+        out[0]
+    }
+}
+
+/// The root finder's bracket of an upward crossing: g(lo) < 0 <= g(hi).
+#[derive(Clone, Copy, Debug)]
+pub(super) struct Bracket {
+    pub(super) lo: f64,
+    pub(super) g_lo: f64,
+    pub(super) hi: f64,
+    pub(super) g_hi: f64,
+    /// Which end the last two updates moved (Illinois: an end kept twice has its g halved)
+    last_side: i8,
+    /// Width before the last two iterations, to force a bisection when it did not halve
+    width_before: f64,
+    width_prev: f64,
+}
+
+impl Bracket {
+    pub(super) fn new(lo: f64, g_lo: f64, hi: f64, g_hi: f64) -> Bracket {
+        Bracket {
+            lo,
+            g_lo,
+            hi,
+            g_hi,
+            last_side: 0,
+            width_before: f64::INFINITY,
+            width_prev: f64::INFINITY,
+        }
+    }
+
+    /// The next time to try, strictly inside (lo, hi): the Illinois secant point, or the
+    /// midpoint when the bracket did not halve over the last two iterations or the secant
+    /// point falls at an end.
+    pub(super) fn next(&self) -> f64 {
+        let width = self.hi - self.lo;
+        let mid = self.lo + 0.5 * width;
+        if width > 0.5 * self.width_before {
+            return mid;
+        }
+        let secant = self.lo - self.g_lo * width / (self.g_hi - self.g_lo);
+        if secant > self.lo && secant < self.hi && secant.is_finite() {
+            secant
+        } else {
+            mid
+        }
+    }
+
+    /// Fold in g(t) at a time t inside the bracket.
+    pub(super) fn update(&mut self, t: f64, g: f64) {
+        self.width_before = self.width_prev;
+        self.width_prev = self.hi - self.lo;
+        if g >= 0.0 {
+            self.hi = t;
+            self.g_hi = g;
+            if self.last_side == 1 {
+                self.g_lo *= 0.5;
+            }
+            self.last_side = 1;
+        } else {
+            self.lo = t;
+            self.g_lo = g;
+            if self.last_side == -1 {
+                self.g_hi *= 0.5;
+            }
+            self.last_side = -1;
+        }
+    }
+
+    /// Whether the bracket is narrower than `tolerance`, or no time fits strictly inside it.
+    pub(super) fn done(&self, tolerance: f64) -> bool {
+        let mid = self.lo + 0.5 * (self.hi - self.lo);
+        self.hi - self.lo <= tolerance || mid <= self.lo || mid >= self.hi
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::Bracket;
+
+    /// The root finder alone: the root of a smooth function (a triple root too) found to the
+    /// tolerance, within the guarantee of a forced bisection at least every third iteration.
+    #[test]
+    fn the_bracket_closes_on_a_root() {
+        for (f, root) in [
+            (
+                Box::new(|t: f64| t * t - 0.3) as Box<dyn Fn(f64) -> f64>,
+                0.3f64.sqrt(),
+            ),
+            (Box::new(|t: f64| (t - 0.7).powi(3)), 0.7),
+            (Box::new(|t: f64| (20.0 * (t - 0.123)).tanh()), 0.123),
+        ] {
+            let mut b = Bracket::new(0.0, f(0.0), 1.0, f(1.0));
+            let mut evaluations = 0;
+            while !b.done(1e-10) {
+                let t = b.next();
+                assert!(t > b.lo && t < b.hi);
+                b.update(t, f(t));
+                evaluations += 1;
+                assert!(evaluations <= 3 * 34);
+            }
+            assert!(b.lo <= root && root <= b.hi, "{} {} {root}", b.lo, b.hi);
+            assert!(b.hi - b.lo <= 1e-10);
+            assert!(f(b.hi) >= 0.0);
+        }
+    }
+}
