@@ -559,7 +559,8 @@ async fn js_with(client: &Client, script: &str, args: Vec<Value>) -> Value {
 /// What panel `panel` drew last (the page's `lastDraw`: rods, particles and pins in its draw
 /// list, painting calls) and the checks of the canvas as it is, read in the same script (no
 /// draw in between): which rods have no ink at their middle and which particles none at
-/// their place, in the frame that was drawn (3D positions projected onto x-y, as drawn).
+/// their place, at the positions drawn (`lastDraw.x`: the state at the display time,
+/// interpolated between frames; 3D positions through the panel's projection).
 async fn drawn(client: &Client, panel: u64) -> Value {
     js(
         client,
@@ -567,19 +568,20 @@ async fn drawn(client: &Client, panel: u64) -> Value {
             "const v = window.__viewer, p = v.panels.get({panel}), d = p.lastDraw, f = d.frame;
              const dim = v.scene.dim, canvas = p.dom.canvas, ctx = canvas.getContext('2d');
              const image = ctx.getImageData(0, 0, canvas.width, canvas.height).data;
-             const inked = (x, y) => {{
-                 const [px, py] = v.canvasPoint({panel}, x, y);
+             const inked = (...point) => {{
+                 const [px, py] = v.canvasPoint({panel}, ...point);
                  for (let dy = -1; dy <= 1; dy++) for (let dx = -1; dx <= 1; dx++) {{
                      const i = 4 * (Math.round(py + dy) * canvas.width + Math.round(px + dx));
                      if (image[i] < 240 || image[i + 1] < 240 || image[i + 2] < 240) return true;
                  }}
                  return false;
              }};
-             const at = (k) => [f.x[dim * k], f.x[dim * k + 1]];
+             const at = (k) => Array.from(d.x.slice(dim * k, dim * k + dim));
+             const fixed = (q) => dim === 3 ? [q[0], q[1], q.length > 2 ? q[2] : 0] : q;
              const blankRods = [], blankParticles = [];
              v.scene.rods.forEach((rod, k) => {{
-                 const a = at(rod.a), b = rod.b != null ? at(rod.b) : rod.anchor;
-                 if (!inked((a[0] + b[0]) / 2, (a[1] + b[1]) / 2)) blankRods.push(k);
+                 const a = at(rod.a), b = rod.b != null ? at(rod.b) : fixed(rod.anchor);
+                 if (!inked(...a.map((c, i) => (c + b[i]) / 2))) blankRods.push(k);
              }});
              for (let k = 0; k < v.scene.particles.length; k++) {{
                  if (!inked(...at(k))) blankParticles.push(k);
@@ -807,6 +809,7 @@ async fn cloth_at_scale(client: &Client, addr: SocketAddr) {
         Encoded::Text(text) => Value::String(text),
         Encoded::Binary(_) => unreachable!("a frame"),
     };
+    let scene_view = info.view;
     let scene_message = text(ServerMessage::Scene(info));
     let panels_message = text(ServerMessage::Panels {
         panels: vec![PanelInfo {
@@ -821,6 +824,9 @@ async fn cloth_at_scale(client: &Client, addr: SocketAddr) {
             exprs,
             curves: Vec::new(),
             curve_source: "none".into(),
+            curves_move: false,
+            view: scene_view,
+            curve_note: None,
         }],
     });
 
@@ -867,6 +873,10 @@ async fn cloth_at_scale(client: &Client, addr: SocketAddr) {
             steps: k,
             x,
             energy: 0.0,
+            kinetic: 0.0,
+            potential: 0.0,
+            energy_initial: 0.0,
+            energy_scale: 1.0,
             energy_error: 0.0,
             energy_conserved: true,
             work: 0.0,
@@ -877,6 +887,8 @@ async fn cloth_at_scale(client: &Client, addr: SocketAddr) {
             error: None,
             behind: false,
             drag: None,
+            path: Vec::new(),
+            curves: None,
         };
         let bytes = encode_frame(1.0, &[panel]).unwrap();
         bytes_per_frame = bytes.len();
