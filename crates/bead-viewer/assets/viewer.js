@@ -969,8 +969,13 @@
     ctx.textAlign = "right";
     ctx.fillText(`t (s): ${fmt(t0, 3)} – ${fmt(t1, 3)}`, W - R, H - 8);
     if (log && exactZeros) {
+      // Said in words inside the plot (a log axis has no 0), on a white ground.
+      const note = `${exactZeros} × 0 (exact), not drawn`;
       ctx.textAlign = "left";
-      ctx.fillText(`${exactZeros} × 0 (exact), not drawn`, L + 4, H - 8);
+      ctx.fillStyle = "#fff";
+      ctx.fillRect(L + 2, Tp + 2, ctx.measureText(note).width + 6, 30);
+      ctx.fillStyle = "#55555a";
+      ctx.fillText(note, L + 5, Tp + 26);
     }
     if (unit) { ctx.textAlign = "left"; ctx.fillText(unit, 6, H - 8); }
     ctx.strokeStyle = color;
