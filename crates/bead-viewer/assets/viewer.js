@@ -4,7 +4,8 @@
 
 (function () {
   const $ = (id) => document.getElementById(id);
-  const TRAIL = 120;        // trail points per particle
+  const TRAIL = 1500;       // trail points per particle (the simulation's steps)
+  const SAMPLES = 400;      // states kept per panel for interpolation
   const HISTORY = 900;      // chart points per panel
   // Trails are on by default up to this many particles; above, the checkbox turns them on,
   // with at most TRAIL_BUDGET trail points in all (e.g. 20 per particle for 1000).
@@ -26,6 +27,7 @@
     pendingMoves: new Map(),// panel id -> latest drag_move, sent once per animation frame
     // Binary frames received, their bytes and the time spent decoding them (ms).
     stats: { frames: 0, bytes: 0, decodeMs: 0, maxDecodeMs: 0 },
+    timeScale: 1,
   };
   window.__viewer = state;  // for the end-to-end tests
 
@@ -117,6 +119,24 @@
     for (const f of msg.panels) {
       if (!(f.x_offset + f.x_count <= count)) return null;
       f.x = numbers.subarray(f.x_offset, f.x_offset + f.x_count);
+      // The simulation's steps since the last frame: samples of t then the positions.
+      const size = 1 + f.x_count;
+      if (!(f.path_offset + f.path_count * size <= count)) return null;
+      f.path = [];
+      for (let k = 0; k < f.path_count; k++) {
+        const at = f.path_offset + k * size;
+        f.path.push({ t: numbers[at], x: numbers.subarray(at + 1, at + size) });
+      }
+      // Moving curves, at this frame's t.
+      if (f.curve_counts) {
+        f.curves = [];
+        let at = f.curve_offset;
+        for (const c of f.curve_counts) {
+          if (!(at + c <= count)) return null;
+          f.curves.push(numbers.subarray(at, at + c));
+          at += c;
+        }
+      }
     }
     return msg;
   }
@@ -177,8 +197,11 @@
   function onScene(scene) {
     state.scene = scene;
     $("scene-error").hidden = true;
+    const up = sceneUp(scene);
+    const upName = scene.dim === 3 ?
+      ["x", "y", "z"].map((n, a) => (Math.abs(up[a]) > 0.99 ? (up[a] > 0 ? n : "−" + n) : null)).filter(Boolean)[0] : null;
     $("scene-title").textContent = `${scene.title} (${scene.name})` +
-      (scene.dim === 3 ? " — 3D, drawn projected onto x-y" : "");
+      (scene.dim === 3 ? ` — 3D view, ${upName ? upName + " up" : "up against gravity"}: drag empty space to orbit, shift-drag to pan, wheel to zoom` : "");
     $("scene-warnings").textContent = scene.warnings.map((w) => "warning: " + w).join("\n");
     const picker = $("scene-select");
     if ([...picker.options].some((o) => o.value === scene.name)) picker.value = scene.name;
@@ -271,7 +294,8 @@
       let p = state.panels.get(info.id);
       if (!p) {
         p = {
-          info, frame: null, dom: buildPanel(info), trail: [], history: [], dirty: true,
+          info, frame: null, dom: buildPanel(info), trail: [], history: [], samples: [], dirty: true,
+          chartsDirty: true, view: null, box: null, displayT: null,
           // What the last draw drew (counts, the frame and its time in ms) and the recent
           // draw times: for the tests.
           lastDraw: null, drawTimes: [],
@@ -280,9 +304,13 @@
         $("panels").appendChild(p.dom.root);
       } else {
         // A new epoch: the panel restarted (configured, reset, new curve).
-        if (p.info.epoch !== info.epoch) { p.trail = []; p.history = []; }
+        if (p.info.epoch !== info.epoch) { p.trail = []; p.history = []; p.samples = []; p.displayT = null; }
+        // New curves (a curve edit): fit the view to them again.
+        if (JSON.stringify(p.info.view) !== JSON.stringify(info.view) && p.view) p.view.auto = true;
         p.info = info;
+        p.box = null;
         p.dirty = true;
+        p.chartsDirty = true;
       }
       p.dom.root.dataset.epoch = String(info.epoch);
       fillConfig(p);
@@ -321,10 +349,23 @@
       fields[key] = el("span", "r-" + key);
       readout.appendChild(fields[key]);
     }
+    const tools = el("div", "view-tools");
+    const fitButton = el("button", "fit", "fit");
+    fitButton.title = "fit the view to the curves, the particles and the anchors (pan: drag empty space; zoom: wheel)";
+    fitButton.onclick = () => { const p = state.panels.get(info.id); if (p) fitView(p); };
+    const curveNote = el("span", "curve-note");
+    tools.append(fitButton, curveNote);
+    const bars = el("canvas", "chart chart-bars");
+    bars.width = 920; bars.height = 190;
+    const energyWhy = el("div", "energy-why");
     const charts = el("div", "charts");
     const chartE = el("canvas", "chart chart-energy");
     const chartC = el("canvas", "chart chart-cerr");
-    for (const c of [chartE, chartC]) { c.width = 454; c.height = 180; charts.appendChild(c); }
+    for (const c of [chartE, chartC]) { c.width = 454; c.height = 240; charts.appendChild(c); }
+    const logEnergy = el("input", "log-energy"); logEnergy.type = "checkbox";
+    logEnergy.onchange = () => { const p = state.panels.get(info.id); if (p) { p.chartsDirty = true; p.dirty = true; } };
+    const logLabel = el("label", "log-energy-label", " log |ΔE|");
+    logLabel.prepend(logEnergy);
     const config = el("div", "config");
     const method = el("select", "method");
     for (const m of state.welcome ? state.welcome.methods : ["implicit", "parametric"]) option(method, m, m);
@@ -362,8 +403,8 @@
       const running = p && p.frame && p.frame.status === "running";
       send({ type: running ? "pause" : "play", panel: info.id });
     };
-    root.append(title, canvas, note, readout, charts, config, configError, failure);
-    const dom = { root, name, canvas, note, fields, chartE, chartC, method, integrator, dt, ks, kd, project, configError, failure };
+    root.append(title, canvas, tools, note, bars, energyWhy, readout, charts, logLabel, config, configError, failure);
+    const dom = { root, name, canvas, note, curveNote, fields, bars, energyWhy, chartE, chartC, logEnergy, method, integrator, dt, ks, kd, project, configError, failure };
     installDrag(info.id, canvas);
     return dom;
   }
@@ -391,14 +432,18 @@
     dom.project.checked = info.project;
     const scene = state.scene;
     const notes = [];
-    if (scene && scene.dim === 3) notes.push("3D scene: projected onto x-y");
-    notes.push(info.curve_source === "contour" ? "curve: zero set of C (marching squares)" :
-      info.curve_source === "parametric" ? "curve: x(q) sampled" : "no curve drawn");
-    notes.push("+y down; drag a particle with the mouse");
+    if (scene && scene.dim === 3) notes.push("3D view: drag empty space to orbit");
+    notes.push((info.curve_source === "contour" ? "curve: zero set of C (marching squares)" :
+      info.curve_source === "parametric" ? "curve: x(q) sampled" : "no curve drawn") +
+      (info.curves_move ? ", drawn at the frame's t (it moves)" : ""));
+    if (scene && scene.dim === 2) notes.push(sceneUp(scene)[1] < 0 ? "+y down (gravity +y)" : "+y up");
+    notes.push("drag a particle with the mouse; wheel zooms, drag pans");
     dom.note.textContent = notes.join(" · ");
+    dom.curveNote.textContent = info.curve_note || "";
   }
 
   function onFrame(msg) {
+    state.timeScale = msg.time_scale;
     for (const f of msg.panels) {
       const p = state.panels.get(f.id);
       if (!p) continue;
@@ -406,18 +451,31 @@
       if (f.epoch < p.info.epoch) continue;
       const previous = p.frame;
       p.frame = f;
-      if (previous && f.epoch !== previous.epoch) { p.trail = []; p.history = []; }
+      if (previous && f.epoch !== previous.epoch) { p.trail = []; p.history = []; p.samples = []; p.displayT = null; }
       p.dirty = true;
       if (!previous || f.t !== previous.t || f.steps !== previous.steps || f.epoch !== previous.epoch) {
+        // The states to interpolate between and to draw trails along: the simulation's steps
+        // since the last frame (few particles), then the frame's state.
+        const last = p.samples.length ? p.samples[p.samples.length - 1].t : -Infinity;
+        const fresh = f.path.filter((s) => s.t > last);
+        if (!fresh.length || fresh[fresh.length - 1].t < f.t) fresh.push({ t: f.t, x: f.x });
+        if (f.t < last) { p.samples = []; p.trail = []; }
+        for (const s of fresh) p.samples.push(s);
+        if (p.samples.length > SAMPLES) p.samples.splice(0, p.samples.length - SAMPLES);
         if (trailsOn()) {
-          p.trail.push(f.x.slice());
+          for (const s of fresh) p.trail.push({ t: s.t, x: s.x.slice() });
           const keep = trailLength();
           if (p.trail.length > keep) p.trail.splice(0, p.trail.length - keep);
         } else if (p.trail.length) {
           p.trail = [];
         }
-        p.history.push([f.t, f.energy_error, f.constraint_error]);
+        // (E - W - E0)/E_scale, signed; W = 0 when nothing does work.
+        const signed = f.energy_scale > 0 ? (f.energy - f.work - f.energy_initial) / f.energy_scale : 0;
+        p.history.push([f.t, signed, f.constraint_error]);
         if (p.history.length > HISTORY) p.history.shift();
+        p.chartsDirty = true;
+      } else if (!p.lastBars) {
+        p.chartsDirty = true;
       }
       const r = p.dom.fields;
       r.t.textContent = `t = ${fmt(f.t)} s`;
@@ -425,14 +483,14 @@
       const reasons = f.not_conserved_by.join("; ");
       r.energy.textContent = f.energy_conserved ? `E = ${fmt(f.energy, 7)}` :
         `E = ${fmt(f.energy, 7)}, W = ${fmt(f.work, 5)}`;
-      r.erel.textContent = f.energy_conserved ? `|ΔE|/E_scale = ${fmt(f.energy_error)}` :
-        `|Δ(E − W)|/E_scale = ${fmt(f.energy_error)}`;
+      r.erel.textContent = (f.energy_conserved ? "|ΔE|/E_scale = " : "|Δ(E − W)|/E_scale = ") +
+        (f.energy_error === 0 ? "0 (exact)" : fmt(f.energy_error));
       r.erel.title = f.energy_conserved ? "relative energy error, |E - E0| / E_scale with E_scale = max(|E0|, T0 + |V0|, T0 + M g L)" :
         `energy not conserved (${reasons}): the error of E − W, W the work done on the system`;
       r.erel.dataset.value = String(f.energy_error);
-      r.cerr.textContent = `|C| = ${fmt(f.constraint_error)}`;
+      r.cerr.textContent = `|C| = ${f.constraint_error === 0 ? "0 (exact)" : fmt(f.constraint_error)}`;
       r.cerr.dataset.value = String(f.constraint_error);
-      r.sps.textContent = `steps/s = ${fmt(f.steps_per_second, 3)}`;
+      r.sps.textContent = `compute: ${fmt(f.steps_per_second, 3)} steps/s`;
       r.status.textContent = f.status + (f.behind ? " (behind real time)" : "");
       p.dom.failure.textContent = f.error || "";
     }
@@ -440,48 +498,207 @@
     $("play").textContent = anyRunning ? "Pause" : "Play";
   }
 
-  // ---------- drawing ----------
-  function transform(p) {
-    const c = p.dom.canvas;
-    const v = state.scene ? state.scene.view : [-1, -1, 1, 1];
-    const margin = { l: 56, r: 12, t: 12, b: 36 };
-    const w = c.width - margin.l - margin.r, h = c.height - margin.t - margin.b;
-    const s = Math.min(w / (v[2] - v[0]), h / (v[3] - v[1]));
-    const ox = margin.l + (w - s * (v[2] - v[0])) / 2, oy = margin.t + (h - s * (v[3] - v[1])) / 2;
-    return {
-      s, v, margin,
-      x: (x) => ox + (x - v[0]) * s,
-      y: (y) => oy + (y - v[1]) * s, // +y down, like the scenes
-      ix: (px) => v[0] + (px - ox) / s,
-      iy: (py) => v[1] + (py - oy) / s,
-    };
+  // ---------- view: camera, fit, pan, zoom, orbit ----------
+  // Every panel has its own view: `p.view = { auto, cx, cy, cz, s, yaw, pitch }`, a center in
+  // scene coordinates, pixels per unit and (3D) the orbit angles. With `auto` the view fits the
+  // panel's box (the server's view box, grown by every particle position since the epoch began,
+  // and in 3D the curves); panning or zooming turns `auto` off, the "fit" button back on.
+  // Canvas pixels; the canvas is shown at half size, so 26 px text is 13 px on screen.
+  const PLOT_MARGIN = { l: 84, r: 14, t: 14, b: 66 };
+
+  // The scene's "up": against gravity. 2D: screen up is -y when gravity points +y (the shipped
+  // scenes, y down), else +y. 3D: a unit vector against gravity (z without gravity).
+  function sceneUp(scene) {
+    const g = scene.gravity || [];
+    if (scene.dim === 2) return (g[1] || 0) >= 0 ? [0, -1] : [0, 1];
+    const n = Math.hypot(g[0] || 0, g[1] || 0, g[2] || 0);
+    return n > 0 ? [-g[0] / n, -g[1] / n, -g[2] / n] : [0, 0, 1];
+  }
+  const cross = (a, b) => [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]];
+  const dot = (a, b) => a[0] * b[0] + a[1] * b[1] + (a.length > 2 ? a[2] * b[2] : 0);
+  const unit = (a) => { const n = Math.hypot(...a); return a.map((v) => v / n); };
+
+  // The screen's right and up directions in scene coordinates. 3D: U against gravity, R0 the
+  // coordinate axis least along U, F0 = U x R0 (into the screen); yaw turns R0, F0 about U,
+  // pitch tilts the line of sight down by `pitch` (looking from above).
+  function axes(p) {
+    const scene = state.scene;
+    if (scene.dim === 2) return { R: [1, 0], S: sceneUp(scene) };
+    const U = sceneUp(scene);
+    const candidates = [[1, 0, 0], [0, 1, 0], [0, 0, 1]];
+    candidates.sort((a, b) => Math.abs(dot(a, U)) - Math.abs(dot(b, U)));
+    const R0 = unit(candidates[0].map((v, i) => v - dot(candidates[0], U) * U[i]));
+    const F0 = cross(U, R0);
+    const { yaw, pitch } = p.view;
+    const R = R0.map((v, i) => Math.cos(yaw) * v + Math.sin(yaw) * F0[i]);
+    const F = F0.map((v, i) => -Math.sin(yaw) * R0[i] + Math.cos(yaw) * v);
+    const S = U.map((v, i) => Math.cos(pitch) * v + Math.sin(pitch) * F[i]);
+    return { R, S, U };
   }
 
+  function plotRect(c) {
+    const m = PLOT_MARGIN;
+    return { x0: m.l, y0: m.t, x1: c.width - m.r, y1: c.height - m.b };
+  }
+
+  // The panel's box to fit, [min..., max...] over `dim` coordinates.
+  function fitBox(p) {
+    const scene = state.scene, dim = scene.dim;
+    if (!p.box || p.box.epoch !== p.info.epoch || p.box.info !== p.info) {
+      const v = p.info.view || scene.view;
+      const lo = dim === 2 ? [v[0], v[1]] : [Infinity, Infinity, Infinity];
+      const hi = dim === 2 ? [v[2], v[3]] : [-Infinity, -Infinity, -Infinity];
+      const grow = (x, o) => {
+        for (let a = 0; a < dim; a++) {
+          const q = x[o + a];
+          if (Number.isFinite(q)) { lo[a] = Math.min(lo[a], q); hi[a] = Math.max(hi[a], q); }
+        }
+      };
+      if (dim === 3) {
+        for (const line of p.info.curves) for (let i = 0; i + 2 < line.length; i += 3) grow(line, i);
+        for (const q of scene.pins) grow(q.anchor.length < 3 ? [q.anchor[0], q.anchor[1], 0] : q.anchor, 0);
+      }
+      p.box = { epoch: p.info.epoch, info: p.info, lo, hi, grow, counted: null };
+    }
+    // Every particle position seen (the box only grows within an epoch: no jitter).
+    const f = p.frame;
+    if (f && f.epoch === p.info.epoch && p.box.counted !== f) {
+      const n = Math.floor(f.x.length / dim);
+      for (let k = 0; k < n; k++) p.box.grow(f.x, k * dim);
+      p.box.counted = f;
+    }
+    return p.box;
+  }
+
+  // Fit the view to the panel's box (projected in 3D), padded by 8%.
+  function fit(p) {
+    const c = p.dom.canvas, r = plotRect(c), scene = state.scene, dim = scene.dim;
+    const { lo, hi } = fitBox(p);
+    if (!lo.every(Number.isFinite)) return;
+    const { R, S } = axes(p);
+    const center = lo.map((v, a) => 0.5 * (v + hi[a]));
+    let w = 0, h = 0;
+    const corners = dim === 2 ? 4 : 8;
+    for (let k = 0; k < corners; k++) {
+      const q = lo.map((v, a) => ((k >> a) & 1 ? hi[a] : v) - center[a]);
+      w = Math.max(w, Math.abs(dot(q, R)));
+      h = Math.max(h, Math.abs(dot(q, S)));
+    }
+    w = Math.max(w, 1e-9); h = Math.max(h, 1e-9);
+    p.view.s = 0.92 * Math.min((r.x1 - r.x0) / (2 * w), (r.y1 - r.y0) / (2 * h));
+    p.view.c = center;
+  }
+
+  // The panel's transform: scene point -> canvas pixel, and back (in 3D, in the plane
+  // through `ref` facing the screen).
+  function transform(p) {
+    if (!p.view) p.view = { auto: true, s: 1, c: [0, 0, 0], yaw: -0.6, pitch: 0.35 };
+    if (p.view.auto) fit(p);
+    const c = p.dom.canvas, r = plotRect(c), { s } = p.view, center = p.view.c;
+    const { R, S } = axes(p);
+    const ox = 0.5 * (r.x0 + r.x1), oy = 0.5 * (r.y0 + r.y1);
+    const dim = state.scene.dim;
+    const px = (x, o) => {
+      let u = 0;
+      for (let a = 0; a < dim; a++) u += (x[o + a] - center[a]) * R[a];
+      return ox + s * u;
+    };
+    const py = (x, o) => {
+      let u = 0;
+      for (let a = 0; a < dim; a++) u += (x[o + a] - center[a]) * S[a];
+      return oy - s * u;
+    };
+    const unproject = (cx, cy, ref) => {
+      const base = ref || center;
+      const [bx, by] = [px(base, 0), py(base, 0)];
+      return base.map((v, a) => v + ((cx - bx) / s) * R[a] - ((cy - by) / s) * S[a]);
+    };
+    return { s, r, R, S, px, py, unproject, center, dim };
+  }
+
+  function niceTicks(lo, hi, count) {
+    const step = niceStep(hi - lo, count), out = [];
+    for (let v = Math.ceil(lo / step) * step; v <= hi + 1e-9 * step; v += step) out.push(Math.abs(v) < 1e-12 * step ? 0 : v);
+    return out;
+  }
+
+  // 2D: a grid with tick labels in the margins, axis names with the units of the scene, and
+  // the up direction. 3D: an axis triad in the corner, the up axis marked.
   function drawAxes(ctx, T, c) {
     ctx.save();
+    const r = T.r, scene = state.scene;
     ctx.strokeStyle = "#e6e6e2";
-    ctx.fillStyle = "#6b6b70";
+    ctx.fillStyle = "#55555a";
     ctx.lineWidth = 1;
-    ctx.font = "20px system-ui, sans-serif";
-    const [x0, y0, x1, y1] = T.v;
-    const sx = niceStep(x1 - x0, 6), sy = niceStep(y1 - y0, 5);
-    ctx.textAlign = "center";
-    for (let x = Math.ceil(x0 / sx) * sx; x <= x1; x += sx) {
-      const px = T.x(x);
-      ctx.beginPath(); ctx.moveTo(px, T.y(y0)); ctx.lineTo(px, T.y(y1)); ctx.stroke();
-      ctx.fillText(fmt(x, 3), px, c.height - 10);
+    ctx.font = "26px system-ui, sans-serif";
+    if (scene.dim === 2) {
+      const down = T.S[1] < 0;
+      const xa = T.unproject(r.x0, 0)[0], xb = T.unproject(r.x1, 0)[0];
+      const ya = T.unproject(0, r.y0)[1], yb = T.unproject(0, r.y1)[1];
+      const [y0, y1] = [Math.min(ya, yb), Math.max(ya, yb)];
+      ctx.textAlign = "center";
+      ctx.beginPath();
+      const xs = niceTicks(xa, xb, 6), ys = niceTicks(y0, y1, 5);
+      for (const x of xs) { const px = T.px([x, 0], 0); ctx.moveTo(px, r.y0); ctx.lineTo(px, r.y1); }
+      for (const y of ys) { const py = T.py([0, y], 0); ctx.moveTo(r.x0, py); ctx.lineTo(r.x1, py); }
+      ctx.stroke();
+      for (const x of xs) ctx.fillText(fmt(x, 3), T.px([x, 0], 0), r.y1 + 28);
+      ctx.textAlign = "right";
+      for (const y of ys) ctx.fillText(fmt(y, 3), r.x0 - 6, T.py([0, y], 0) + 9);
+      ctx.strokeStyle = "#9a9a96";
+      ctx.beginPath();
+      if (xa <= 0 && xb >= 0) { const px = T.px([0, 0], 0); ctx.moveTo(px, r.y0); ctx.lineTo(px, r.y1); }
+      if (y0 <= 0 && y1 >= 0) { const py = T.py([0, 0], 0); ctx.moveTo(r.x0, py); ctx.lineTo(r.x1, py); }
+      ctx.stroke();
+      ctx.font = "24px system-ui, sans-serif";
+      ctx.textAlign = "right";
+      ctx.fillText("x →", r.x1, c.height - 6);
+      ctx.textAlign = "left";
+      ctx.fillText(down ? "y ↓ (gravity +y)" : "y ↑", 4, c.height - 6);
+    } else {
+      const names = ["x", "y", "z"], L = 42, ox = r.x0 + 50, oy = r.y1 - 50;
+      ctx.lineWidth = 3;
+      ctx.font = "26px system-ui, sans-serif";
+      const U = sceneUp(scene);
+      for (let a = 0; a < 3; a++) {
+        const e = [0, 0, 0]; e[a] = 1;
+        const dx = L * dot(e, T.R), dy = -L * dot(e, T.S);
+        ctx.strokeStyle = ["#c0392b", "#27ae60", "#2e6fd8"][a];
+        ctx.beginPath(); ctx.moveTo(ox, oy); ctx.lineTo(ox + dx, oy + dy); ctx.stroke();
+        ctx.fillStyle = ctx.strokeStyle;
+        const up = Math.abs(U[a]) > 0.99 ? (U[a] > 0 ? " up" : " down") : "";
+        ctx.fillText(names[a] + up, ox + 1.25 * dx - 6, oy + 1.25 * dy + 6);
+      }
+      ctx.fillStyle = "#55555a";
+      ctx.font = "24px system-ui, sans-serif";
+      ctx.textAlign = "right";
+      ctx.fillText("orthographic; drag to orbit", r.x1, c.height - 8);
     }
-    ctx.textAlign = "right";
-    for (let y = Math.ceil(y0 / sy) * sy; y <= y1; y += sy) {
-      const py = T.y(y);
-      ctx.beginPath(); ctx.moveTo(T.x(x0), py); ctx.lineTo(T.x(x1), py); ctx.stroke();
-      ctx.fillText(fmt(y, 3), T.margin.l - 6, py + 6);
-    }
-    ctx.strokeStyle = "#9a9a96";
-    if (x0 <= 0 && x1 >= 0) { ctx.beginPath(); ctx.moveTo(T.x(0), T.y(y0)); ctx.lineTo(T.x(0), T.y(y1)); ctx.stroke(); }
-    if (y0 <= 0 && y1 >= 0) { ctx.beginPath(); ctx.moveTo(T.x(x0), T.y(0)); ctx.lineTo(T.x(x1), T.y(0)); ctx.stroke(); }
+    ctx.strokeStyle = "#d8d8d4";
+    ctx.strokeRect(r.x0, r.y0, r.x1 - r.x0, r.y1 - r.y0);
     ctx.restore();
   }
+
+  // The positions to draw: the state at the panel's display time, interpolated between the
+  // two samples (path of steps and frames) around it; the newest state when none brackets it.
+  function drawnPositions(p) {
+    const f = p.frame, samples = p.samples;
+    if (!samples || samples.length < 2 || p.displayT == null) return f.x;
+    const t = p.displayT;
+    let k = samples.length - 1;
+    if (t >= samples[k].t) return samples[k].x;
+    while (k > 0 && samples[k - 1].t > t) k--;
+    if (k === 0) return samples[0].x;
+    const a = samples[k - 1], b = samples[k];
+    const u = (t - a.t) / (b.t - a.t);
+    if (!(u >= 0 && u <= 1) || a.x.length !== b.x.length) return b.x;
+    if (!p.lerp || p.lerp.length !== a.x.length) p.lerp = new Float64Array(a.x.length);
+    for (let i = 0; i < a.x.length; i++) p.lerp[i] = a.x[i] + u * (b.x[i] - a.x[i]);
+    return p.lerp;
+  }
+
+  // One colour per particle (trails and markers), for scenes with few particles.
+  const PARTICLE_COLORS = ["#e67814", "#7b3fc4", "#1a9c6b", "#d6336c", "#0c7bb3", "#8c6d1f"];
 
   function drawPanel(p) {
     const c = p.dom.canvas, ctx = c.getContext("2d");
@@ -490,48 +707,68 @@
     ctx.fillRect(0, 0, c.width, c.height);
     if (!scene) return null;
     const T = transform(p);
+    const r = T.r;
     drawAxes(ctx, T, c);
-    // Curves: one path (marching squares make hundreds of short pieces).
+    const dim = scene.dim;
+    ctx.save();
+    ctx.beginPath();
+    ctx.rect(r.x0, r.y0, r.x1 - r.x0, r.y1 - r.y0);
+    ctx.clip();
+    // Curves: one path (marching squares make hundreds of short pieces). Moving curves: the
+    // frame's, at its t.
+    const f = p.frame;
+    const curves = f && f.epoch === p.info.epoch && f.curves ? f.curves : p.info.curves;
     ctx.save();
     ctx.strokeStyle = "#1f6feb";
     ctx.lineWidth = 2.5;
     ctx.lineCap = "round";
     ctx.lineJoin = "round";
     ctx.beginPath();
-    for (const line of p.info.curves) {
-      for (let i = 0; i + 1 < line.length; i += 2) {
-        const px = T.x(line[i]), py = T.y(line[i + 1]);
+    for (const line of curves) {
+      for (let i = 0; i + dim - 1 < line.length; i += dim) {
+        const px = T.px(line, i), py = T.py(line, i);
         if (i === 0) ctx.moveTo(px, py); else ctx.lineTo(px, py);
       }
     }
     ctx.stroke();
     ctx.restore();
-    const f = p.frame;
-    if (!f) return null;
-    const dim = scene.dim;
-    const n = Math.min(scene.particles.length, Math.floor(f.x.length / dim));
-    const X = (k) => T.x(f.x[k * dim]), Y = (k) => T.y(f.x[k * dim + 1]);
+    p.drawnCurves = curves;
+    if (!f) { ctx.restore(); return null; }
+    const x = drawnPositions(p);
+    const n = Math.min(scene.particles.length, Math.floor(x.length / dim));
+    const X = (k) => T.px(x, k * dim), Y = (k) => T.py(x, k * dim);
     const failed = f.status === "failed";
     const { pairs, anchored, pins } = scene.draw;
     const size = sizes(p, T, f, n, dim);
-    // Trails: one path per band of age (8 shades), not one per segment.
-    if (p.trail.length > 1) {
+    // Trails: the simulation's own steps (the path of each frame), up to the drawn state;
+    // one colour per particle for few particles, one path per band of age (8 shades).
+    const trail = p.trail;
+    let trailEnd = trail.length;
+    while (trailEnd > 0 && trail[trailEnd - 1].t > (p.displayT == null ? Infinity : p.displayT)) trailEnd--;
+    if (trailEnd > 1) {
       ctx.save();
       ctx.lineWidth = size.trail;
       ctx.lineCap = "round";
       ctx.lineJoin = "round";
-      const trail = p.trail, len = trail.length, bands = Math.min(8, len - 1);
-      for (let band = 0; band < bands; band++) {
-        const i0 = 1 + Math.floor((band * (len - 1)) / bands);
-        const i1 = 1 + Math.floor(((band + 1) * (len - 1)) / bands);
-        ctx.strokeStyle = `rgba(240, 110, 0, ${(i1 / len) * 0.75})`;
-        ctx.beginPath();
-        for (let k = 0; k < n; k++) {
-          const a = trail[i0 - 1];
-          ctx.moveTo(T.x(a[k * dim]), T.y(a[k * dim + 1]));
-          for (let i = i0; i < i1; i++) ctx.lineTo(T.x(trail[i][k * dim]), T.y(trail[i][k * dim + 1]));
+      const len = trailEnd, bands = Math.min(8, len - 1);
+      const colored = n <= PARTICLE_COLORS.length;
+      const groups = colored ? n : 1;
+      for (let g = 0; g < groups; g++) {
+        const color = colored ? PARTICLE_COLORS[g] : "#f06e00";
+        for (let band = 0; band < bands; band++) {
+          const i0 = 1 + Math.floor((band * (len - 1)) / bands);
+          const i1 = 1 + Math.floor(((band + 1) * (len - 1)) / bands);
+          ctx.strokeStyle = color;
+          ctx.globalAlpha = (i1 / len) * 0.7;
+          ctx.beginPath();
+          for (let k = colored ? g : 0; k < (colored ? g + 1 : n); k++) {
+            const a = trail[i0 - 1].x;
+            ctx.moveTo(T.px(a, k * dim), T.py(a, k * dim));
+            for (let i = i0; i < i1; i++) ctx.lineTo(T.px(trail[i].x, k * dim), T.py(trail[i].x, k * dim));
+            if (i1 === len) ctx.lineTo(X(k), Y(k));
+          }
+          ctx.stroke();
         }
-        ctx.stroke();
       }
       ctx.restore();
     }
@@ -549,18 +786,26 @@
       ctx.lineTo(X(b), Y(b));
       rods++;
     }
+    const anchorPoint = (q) => (dim === 3 && q.length < 3 ? [q[0], q[1], 0] : q);
     for (const rod of anchored) {
       if (rod.a >= n) continue;
+      const q = anchorPoint(rod.anchor);
       ctx.moveTo(X(rod.a), Y(rod.a));
-      ctx.lineTo(T.x(rod.anchor[0]), T.y(rod.anchor[1]));
+      ctx.lineTo(T.px(q, 0), T.py(q, 0));
       rods++;
     }
     ctx.stroke();
     // Anchors and pins: squares at the fixed points.
     ctx.beginPath();
-    for (const rod of anchored) ctx.rect(T.x(rod.anchor[0]) - 5, T.y(rod.anchor[1]) - 5, 10, 10);
+    for (const rod of anchored) {
+      const q = anchorPoint(rod.anchor);
+      ctx.rect(T.px(q, 0) - 6, T.py(q, 0) - 6, 12, 12);
+    }
     const pin = Math.max(10, 2 * size.radius + 6);
-    for (const q of pins) ctx.rect(T.x(q.anchor[0]) - pin / 2, T.y(q.anchor[1]) - pin / 2, pin, pin);
+    for (const q of pins) {
+      const a = anchorPoint(q.anchor);
+      ctx.rect(T.px(a, 0) - pin / 2, T.py(a, 0) - pin / 2, pin, pin);
+    }
     ctx.fill();
     ctx.restore();
     // Drag spring.
@@ -572,7 +817,7 @@
       ctx.lineWidth = 2;
       ctx.beginPath();
       ctx.moveTo(X(k), Y(k));
-      ctx.lineTo(T.x(f.drag.target[0]), T.y(f.drag.target[1]));
+      ctx.lineTo(T.px(f.drag.target, 0), T.py(f.drag.target, 0));
       ctx.stroke();
       ctx.restore();
     }
@@ -581,30 +826,61 @@
     ctx.save();
     ctx.fillStyle = failed ? "#b42318" : "#e67814";
     ctx.beginPath();
-    const r = size.radius;
-    if (r >= 3) {
+    const rad = size.radius;
+    if (rad >= 3) {
       for (let k = 0; k < n; k++) {
         const px = X(k), py = Y(k);
-        ctx.moveTo(px + r, py);
-        ctx.arc(px, py, r, 0, 2 * Math.PI);
+        ctx.moveTo(px + rad, py);
+        ctx.arc(px, py, rad, 0, 2 * Math.PI);
       }
     } else {
-      for (let k = 0; k < n; k++) ctx.rect(X(k) - r, Y(k) - r, 2 * r, 2 * r);
+      for (let k = 0; k < n; k++) ctx.rect(X(k) - rad, Y(k) - rad, 2 * rad, 2 * rad);
     }
     ctx.fill();
-    if (r >= 5) {
+    if (rad >= 5) {
       ctx.lineWidth = 2;
       ctx.strokeStyle = "#222";
       ctx.stroke();
     }
     ctx.restore();
+    ctx.restore(); // the clip
+    // Particles outside the plot: a triangle at the edge pointing at each (the first 50).
+    const markers = [];
+    let offView = 0;
+    const cx = 0.5 * (r.x0 + r.x1), cy = 0.5 * (r.y0 + r.y1);
+    for (let k = 0; k < n; k++) {
+      const px = X(k), py = Y(k);
+      if (px >= r.x0 && px <= r.x1 && py >= r.y0 && py <= r.y1) continue;
+      offView++;
+      if (markers.length >= 50 || !Number.isFinite(px) || !Number.isFinite(py)) continue;
+      const dx = px - cx, dy = py - cy;
+      const scale = Math.min((r.x1 - r.x0 - 24) / 2 / Math.abs(dx || 1e-9), (r.y1 - r.y0 - 24) / 2 / Math.abs(dy || 1e-9));
+      markers.push({ particle: k, x: cx + dx * scale, y: cy + dy * scale, angle: Math.atan2(dy, dx) });
+    }
+    if (markers.length) {
+      ctx.save();
+      ctx.fillStyle = "#b42318";
+      ctx.beginPath();
+      for (const m of markers) {
+        const a = m.angle, s = 13;
+        ctx.moveTo(m.x + s * Math.cos(a), m.y + s * Math.sin(a));
+        ctx.lineTo(m.x + s * Math.cos(a + 2.4), m.y + s * Math.sin(a + 2.4));
+        ctx.lineTo(m.x + s * Math.cos(a - 2.4), m.y + s * Math.sin(a - 2.4));
+        ctx.closePath();
+      }
+      ctx.fill();
+      ctx.font = "26px system-ui, sans-serif";
+      ctx.textAlign = "left";
+      ctx.fillText(`${offView} off view — press fit`, r.x0 + 8, r.y0 + 28);
+      ctx.restore();
+    }
     if (failed) {
       ctx.fillStyle = "rgba(180, 35, 24, 0.9)";
       ctx.font = "22px system-ui, sans-serif";
       ctx.textAlign = "left";
-      ctx.fillText("stopped: see the message below", 70, 40);
+      ctx.fillText("stopped: see the message below", 80, 44);
     }
-    return { rods, particles: n, pins: pins.length, frame: f };
+    return { rods, particles: n, pins: pins.length, frame: f, x, markers, offView, t: p.displayT };
   }
 
   // Sizes in canvas pixels: particles shrink with their number and their spacing on screen
@@ -616,7 +892,7 @@
     for (let i = 0; i + 1 < pairs.length && lengths.length < 2000; i += 2) {
       const a = pairs[i], b = pairs[i + 1];
       if (a >= n || b >= n) continue;
-      const d = T.s * Math.hypot(f.x[a * dim] - f.x[b * dim], f.x[a * dim + 1] - f.x[b * dim + 1]);
+      const d = Math.hypot(T.px(f.x, a * dim) - T.px(f.x, b * dim), T.py(f.x, a * dim) - T.py(f.x, b * dim));
       if (Number.isFinite(d)) lengths.push(d);
     }
     if (lengths.length) {
@@ -624,58 +900,156 @@
       radius = Math.max(1.5, Math.min(radius, 0.35 * lengths[lengths.length >> 1]));
     }
     const rod = n <= 16 ? 3 : Math.max(1, Math.min(3, radius / 2));
-    const trail = n <= 16 ? 5 : Math.max(1, Math.min(5, radius));
+    const trail = n <= 16 ? 4 : Math.max(1, Math.min(4, radius));
     p.sizes = { epoch: f.epoch, scale: T.s, radius, rod, trail };
     return p.sizes;
   }
 
-  function drawChart(canvas, history, index, label, color) {
+  // ---------- charts ----------
+  // Signed relative energy change over time: (E - E0)/E_scale, or (E - W - E0)/E_scale when
+  // something does work on the system (then E itself changes, and that is physics, not
+  // error). Linear and signed by default, so that gain and loss show; log10 |.| on request.
+  // Exact zeros are said in words ("0 (exact)"), never drawn as a tiny number.
+  const CHART_FONT = "26px system-ui, sans-serif"; // canvas px; the canvas is shown at half size: 13 px
+
+  function chartFrame(ctx, W, H, title) {
+    ctx.fillStyle = "#fff";
+    ctx.fillRect(0, 0, W, H);
+    ctx.font = CHART_FONT;
+    ctx.fillStyle = "#3a3a3f";
+    ctx.textAlign = "left";
+    let text = title;
+    const room = W - 12;
+    if (ctx.measureText(text).width > room) {
+      while (text.length > 1 && ctx.measureText(text + "…").width > room) text = text.slice(0, -1);
+      text += "…";
+    }
+    ctx.fillText(text, 6, 26);
+  }
+
+  // history: [t, value] pairs; `log`: plot log10 |value|.
+  function drawSeries(canvas, history, options) {
+    const { title, color, log, unit } = options;
+    const ctx = canvas.getContext("2d");
+    const W = canvas.width, H = canvas.height;
+    chartFrame(ctx, W, H, title);
+    const L = 120, R = 10, Tp = 40, B = 40;
+    const pts = history.filter((h) => Number.isFinite(h[1]));
+    const t0 = pts.length ? pts[0][0] : 0, t1 = pts.length ? pts[pts.length - 1][0] : 1;
+    const span = t1 > t0 ? t1 - t0 : 1;
+    const px = (t) => L + ((t - t0) / span) * (W - L - R);
+    const exactZeros = pts.filter((h) => h[1] === 0).length;
+    let lo, hi, value, ticks, label;
+    if (log) {
+      const logs = pts.filter((h) => h[1] !== 0).map((h) => Math.log10(Math.abs(h[1])));
+      hi = Math.ceil(Math.max(-15, ...logs));
+      lo = Math.max(Math.floor(Math.min(hi - 1, ...logs)), hi - 18);
+      value = (v) => (v === 0 ? null : Math.max(lo, Math.log10(Math.abs(v))));
+      const step = Math.max(1, Math.ceil((hi - lo) / 4));
+      ticks = [];
+      for (let d = hi; d >= lo; d -= step) ticks.push(d);
+      label = (d) => "1e" + d;
+    } else {
+      const m = Math.max(...pts.map((h) => Math.abs(h[1])), 0);
+      const top = m > 0 ? m * 1.1 : 1;
+      lo = -top; hi = top;
+      value = (v) => v;
+      ticks = m > 0 ? niceTicks(lo, hi, 4) : [0];
+      label = (v) => (v === 0 ? (m === 0 ? "0 (exact)" : "0") : fmt(v, 2));
+    }
+    const py = (v) => Tp + (1 - (v - lo) / (hi - lo)) * (H - Tp - B);
+    ctx.strokeStyle = "#e6e6e2";
+    ctx.fillStyle = "#55555a";
+    ctx.textAlign = "right";
+    ctx.lineWidth = 1;
+    for (const d of ticks) {
+      ctx.beginPath(); ctx.moveTo(L, py(d)); ctx.lineTo(W - R, py(d)); ctx.stroke();
+      ctx.fillText(label(d), L - 6, py(d) + 9);
+    }
+    ctx.textAlign = "right";
+    ctx.fillText(`t (s): ${fmt(t0, 3)} – ${fmt(t1, 3)}`, W - R, H - 8);
+    if (log && exactZeros) {
+      // Said in words inside the plot (a log axis has no 0), on a white ground.
+      const note = `${exactZeros} × 0 (exact), not drawn`;
+      ctx.textAlign = "left";
+      ctx.fillStyle = "#fff";
+      ctx.fillRect(L + 2, Tp + 2, ctx.measureText(note).width + 6, 30);
+      ctx.fillStyle = "#55555a";
+      ctx.fillText(note, L + 5, Tp + 26);
+    }
+    if (unit) { ctx.textAlign = "left"; ctx.fillText(unit, 6, H - 8); }
+    ctx.strokeStyle = color;
+    ctx.lineWidth = 3;
+    ctx.beginPath();
+    let pen = false;
+    for (const h of pts) {
+      const v = value(h[1]);
+      if (v === null) { pen = false; continue; }
+      if (pen) ctx.lineTo(px(h[0]), py(v)); else ctx.moveTo(px(h[0]), py(v));
+      pen = true;
+    }
+    ctx.stroke();
+    return { lo, hi, exactZeros };
+  }
+
+  // Kinetic, potential and total energy as bars from a common zero (V may be negative), plus
+  // the work W and E - W when something does work on the system. Values are the frame's,
+  // which are the core's.
+  function drawBars(p) {
+    const f = p.frame, canvas = p.dom.bars;
+    if (!f) return null;
     const ctx = canvas.getContext("2d");
     const W = canvas.width, H = canvas.height;
     ctx.fillStyle = "#fff";
     ctx.fillRect(0, 0, W, H);
-    // Exact zeros (a parametric panel's |C| is often 0) are gaps: log scale has no 0.
-    const pts = history.filter((h) => Number.isFinite(h[index]));
-    const logs = pts.map((h) => (h[index] > 0 ? Math.log10(h[index]) : null));
-    const finiteLogs = logs.filter((v) => v !== null);
-    let lo = Math.floor(Math.min(-16, ...finiteLogs)), hi = Math.ceil(Math.max(-15, ...finiteLogs));
-    lo = Math.max(lo, hi - 18);
-    if (hi <= lo) hi = lo + 1;
-    const t0 = pts.length ? pts[0][0] : 0, t1 = pts.length ? pts[pts.length - 1][0] : 1;
-    const span = t1 > t0 ? t1 - t0 : 1;
-    const L = 52, R = 6, Tp = 18, B = 22;
-    const px = (t) => L + ((t - t0) / span) * (W - L - R);
-    const py = (v) => Tp + (1 - (v - lo) / (hi - lo)) * (H - Tp - B);
-    ctx.strokeStyle = "#e6e6e2";
-    ctx.fillStyle = "#6b6b70";
-    ctx.font = "16px system-ui, sans-serif";
-    ctx.textAlign = "right";
-    const step = Math.max(1, Math.ceil((hi - lo) / 4));
-    for (let d = hi; d >= lo; d -= step) {
-      ctx.beginPath(); ctx.moveTo(L, py(d)); ctx.lineTo(W - R, py(d)); ctx.stroke();
-      ctx.fillText("1e" + d, L - 4, py(d) + 5);
+    const rows = [
+      ["T kinetic", f.kinetic, "#e67814"],
+      ["V potential", f.potential, "#1a9c6b"],
+      ["E = T + V", f.energy, "#1f6feb"],
+    ];
+    if (!f.energy_conserved) {
+      rows.push(["W work done", f.work, "#7b3fc4"]);
+      rows.push(["E − W", f.energy - f.work, "#333"]);
     }
-    ctx.textAlign = "left";
-    let title = label;
-    const room = W - L - R - 8;
-    if (ctx.measureText(title).width > room) {
-      while (title.length > 1 && ctx.measureText(title + "…").width > room) title = title.slice(0, -1);
-      title += "…";
-    }
-    ctx.fillText(title, L + 4, 14);
-    ctx.textAlign = "right";
-    ctx.fillText(`t ${fmt(t0, 3)}–${fmt(t1, 3)} s`, W - R, H - 4);
-    ctx.strokeStyle = color;
-    ctx.lineWidth = 2;
-    ctx.beginPath();
-    let pen = false;
-    pts.forEach((h, i) => {
-      if (logs[i] === null) { pen = false; return; }
-      const x = px(h[0]), y = py(Math.max(logs[i], lo));
-      if (pen) ctx.lineTo(x, y); else ctx.moveTo(x, y);
-      pen = true;
+    rows.push(["E0 (start)", f.energy_initial, "#9a9a96"]);
+    const m = Math.max(...rows.map((r) => Math.abs(r[1])), 1e-300);
+    const anyNegative = rows.some((r) => r[1] < 0), anyPositive = rows.some((r) => r[1] > 0);
+    const L = 190, R = 200, row = (H - 10) / rows.length;
+    const width = W - L - R;
+    const zero = anyNegative && anyPositive ? L + width / 2 : anyNegative ? L + width : L;
+    const scale = (anyNegative && anyPositive ? width / 2 : width) / m;
+    ctx.font = CHART_FONT;
+    ctx.strokeStyle = "#9a9a96";
+    ctx.beginPath(); ctx.moveTo(zero, 4); ctx.lineTo(zero, H - 4); ctx.stroke();
+    rows.forEach(([name, v, color], i) => {
+      const y = 5 + i * row;
+      ctx.fillStyle = color;
+      const w = v * scale;
+      ctx.fillRect(Math.min(zero, zero + w), y + 4, Math.abs(w), row - 8);
+      ctx.fillStyle = "#3a3a3f";
+      ctx.textAlign = "left";
+      ctx.fillText(name, 6, y + row / 2 + 9);
+      ctx.textAlign = "right";
+      ctx.fillText(v === 0 ? "0 (exact) J" : `${fmt(v, 5)} J`, W - 6, y + row / 2 + 9);
     });
-    ctx.stroke();
+    return { kinetic: f.kinetic, potential: f.potential, total: f.energy, work: f.work, rows: rows.length };
+  }
+
+  function drawCharts(p) {
+    const f = p.frame;
+    const conserved = !f || f.energy_conserved;
+    const why = f && !conserved ? f.not_conserved_by.join("; ") : "";
+    const log = p.dom.logEnergy.checked;
+    const quantity = conserved ? "(E − E0)/E_scale" : "(E − W − E0)/E_scale";
+    const title = log ? `log10 |${quantity}|` : quantity;
+    p.dom.chartE.title = conserved ?
+      "relative energy change (E − E0)/E_scale, E_scale = max(|E0|, T0 + |V0|, T0 + M g L): 0 for exact conservation; its sign says gain or loss" :
+      `E changes because ${why}: that is physics, not error. E − W (W the work done on the system) is conserved; the chart shows its relative change (E − W − E0)/E_scale`;
+    p.dom.energyWhy.textContent = conserved ? "" : `E changes because ${why}; E − W is conserved (W: work done on the system)`;
+    const values = p.history.map((h) => [h[0], h[1]]);
+    p.lastChart = drawSeries(p.dom.chartE, values, { title, color: "#1f6feb", log });
+    drawSeries(p.dom.chartC, p.history.map((h) => [h[0], h[2]]), { title: "constraint error max |C|", color: "#b42318", log: true });
+    p.lastBars = drawBars(p);
   }
 
   // Draw panel `p` and time it; `flush` reads a pixel back so that the time includes the
@@ -703,57 +1077,105 @@
     return times;
   };
 
-  // Panels are drawn when something changed: a frame, the panel's settings, the scene.
-  function render() {
+  // The display clock of a running panel: it runs at the time scale, a little behind the
+  // newest state received (about two frames of simulated time plus a step), so that there is
+  // always a later sample to interpolate towards; it is pulled gently towards that lag and
+  // jumps when far off (a restart, a stall). Paused, stepped or failed: the newest state.
+  function advanceDisplay(p, wall) {
+    const samples = p.samples;
+    if (!p.frame || !samples.length) { p.displayT = null; return; }
+    const latest = samples[samples.length - 1].t;
+    const scale = state.timeScale;
+    if (p.frame.status !== "running" || scale <= 0) { p.displayT = latest; return; }
+    const lag = scale * 0.035 + p.info.dt;
+    const target = latest - lag;
+    if (p.displayT == null || Math.abs(p.displayT - target) > 4 * lag + 0.25 * scale) {
+      p.displayT = target;
+    } else {
+      p.displayT += scale * wall + 0.1 * (target - p.displayT);
+    }
+    p.displayT = Math.min(latest, Math.max(samples[0].t, p.displayT));
+  }
+
+  // Panels are drawn when something changed: a frame, the panel's settings, the scene, the
+  // view, or the display clock.
+  function render(now) {
+    const wall = state.lastRender == null ? 0 : Math.min(0.1, (now - state.lastRender) / 1000);
+    state.lastRender = now;
     for (const p of state.panels.values()) {
+      const before = p.displayT;
+      advanceDisplay(p, wall);
+      if (p.displayT !== before) p.dirty = true;
       if (!p.dirty) continue;
       p.dirty = false;
       draw(p, false);
-      const f = p.frame;
-      const energyLabel = !f || f.energy_conserved ? "relative energy error" :
-        `energy (not conserved: ${f.not_conserved_by.join("; ")}): error of E − W`;
-      p.dom.chartE.title = energyLabel;
-      drawChart(p.dom.chartE, p.history, 1, energyLabel, "#1f6feb");
-      drawChart(p.dom.chartC, p.history, 2, "constraint error |C|", "#b42318");
+      if (p.chartsDirty) { p.chartsDirty = false; drawCharts(p); }
     }
     for (const move of state.pendingMoves.values()) send(move);
     state.pendingMoves.clear();
     requestAnimationFrame(render);
   }
 
-  // ---------- dragging ----------
+  // ---------- pointer: drag a particle, pan (2D) or orbit (3D), wheel zoom ----------
   function canvasPoint(canvas, event) {
     const r = canvas.getBoundingClientRect();
     return [(event.clientX - r.left) * (canvas.width / r.width), (event.clientY - r.top) * (canvas.height / r.height)];
   }
 
+  function positionOf(x, k, dim) {
+    return Array.from(x.subarray ? x.subarray(k * dim, (k + 1) * dim) : x.slice(k * dim, (k + 1) * dim));
+  }
+
   function installDrag(id, canvas) {
+    let gesture = null; // { kind: "pan" | "orbit", x, y, view }
     canvas.addEventListener("pointerdown", (event) => {
       const p = state.panels.get(id);
       if (!p || !p.frame || !state.scene) return;
       const T = transform(p);
       const [cx, cy] = canvasPoint(canvas, event);
       const dim = state.scene.dim;
+      const x = p.lastDraw ? p.lastDraw.x : p.frame.x;
       let best = -1, bestD = 30;
       for (let k = 0; k < state.scene.particles.length; k++) {
-        const d = Math.hypot(T.x(p.frame.x[k * dim]) - cx, T.y(p.frame.x[k * dim + 1]) - cy);
+        const d = Math.hypot(T.px(x, k * dim) - cx, T.py(x, k * dim) - cy);
         if (d < bestD) { best = k; bestD = d; }
       }
-      if (best < 0) return;
       try { canvas.setPointerCapture(event.pointerId); } catch (e) { /* synthetic events */ }
-      state.drags.set(id, best);
-      send({ type: "drag_start", panel: id, particle: best, target: [T.ix(cx), T.iy(cy)] });
       event.preventDefault();
+      if (best < 0) {
+        // Empty space: pan the view (2D, or 3D with shift) or orbit (3D).
+        const orbit = dim === 3 && !event.shiftKey;
+        gesture = { kind: orbit ? "orbit" : "pan", x: cx, y: cy, view: { ...p.view, c: p.view.c.slice() } };
+        return;
+      }
+      const ref = positionOf(x, best, dim);
+      state.drags.set(id, { particle: best, ref });
+      send({ type: "drag_start", panel: id, particle: best, target: T.unproject(cx, cy, ref) });
     });
     canvas.addEventListener("pointermove", (event) => {
-      if (!state.drags.has(id)) return;
       const p = state.panels.get(id);
       if (!p) return;
-      const T = transform(p);
       const [cx, cy] = canvasPoint(canvas, event);
-      state.pendingMoves.set(id, { type: "drag_move", panel: id, target: [T.ix(cx), T.iy(cy)] });
+      if (gesture) {
+        const dx = cx - gesture.x, dy = cy - gesture.y, v0 = gesture.view;
+        if (gesture.kind === "orbit") {
+          p.view.yaw = v0.yaw - 0.008 * dx;
+          p.view.pitch = Math.max(-1.5, Math.min(1.5, v0.pitch + 0.008 * dy));
+        } else {
+          const T = transform(p);
+          p.view.auto = false;
+          p.view.c = v0.c.map((c, a) => c - (dx / T.s) * T.R[a] + (dy / T.s) * T.S[a]);
+        }
+        p.dirty = true;
+        return;
+      }
+      const drag = state.drags.get(id);
+      if (!drag) return;
+      const T = transform(p);
+      state.pendingMoves.set(id, { type: "drag_move", panel: id, target: T.unproject(cx, cy, drag.ref) });
     });
     const end = () => {
+      gesture = null;
       if (!state.drags.has(id)) return;
       const move = state.pendingMoves.get(id);
       if (move) { send(move); state.pendingMoves.delete(id); }
@@ -762,20 +1184,56 @@
     };
     canvas.addEventListener("pointerup", end);
     canvas.addEventListener("pointercancel", end);
+    canvas.addEventListener("wheel", (event) => {
+      const p = state.panels.get(id);
+      if (!p || !state.scene) return;
+      event.preventDefault();
+      zoom(p, canvasPoint(canvas, event), Math.exp(-0.0015 * event.deltaY));
+    }, { passive: false });
   }
 
-  // Client coordinates of scene point (x, y) in panel `id` (for tests).
-  state.clientPoint = (id, x, y) => {
-    const p = state.panels.get(id);
+  // Zoom panel `p` by `factor` about canvas point `at` (the scene point there stays put).
+  function zoom(p, at, factor) {
     const T = transform(p);
-    const r = p.dom.canvas.getBoundingClientRect();
-    return [r.left + T.x(x) * (r.width / p.dom.canvas.width), r.top + T.y(y) * (r.height / p.dom.canvas.height)];
+    const q = T.unproject(at[0], at[1], T.center);
+    p.view.auto = false;
+    p.view.s = T.s * factor;
+    p.view.c = q.map((v, a) => v - (v - T.center[a]) / factor);
+    p.dirty = true;
+  }
+  function fitView(p) {
+    p.view.auto = true;
+    p.box = null;
+    p.dirty = true;
+  }
+  // For the tests: zoom panel `id` by `factor` about its center, pan it by (dx, dy) canvas
+  // pixels, or fit it again.
+  state.zoom = (id, factor) => {
+    const p = state.panels.get(id), r = plotRect(p.dom.canvas);
+    zoom(p, [0.5 * (r.x0 + r.x1), 0.5 * (r.y0 + r.y1)], factor);
+    draw(p, false);
+  };
+  state.fit = (id) => { const p = state.panels.get(id); fitView(p); draw(p, false); };
+
+  // The panel's view as the tests read it: scale (px per unit), center, auto, plot rectangle.
+  state.viewOf = (id) => {
+    const p = state.panels.get(id), T = transform(p);
+    return { s: T.s, center: T.center, auto: p.view.auto, rect: T.r, yaw: p.view.yaw, pitch: p.view.pitch, R: T.R, S: T.S };
   };
 
-  // Canvas pixel of scene point (x, y) in panel `id` (for tests).
-  state.canvasPoint = (id, x, y) => {
+  // Client coordinates of scene point `point` (dim numbers; a missing z is 0) in panel `id`.
+  state.clientPoint = (id, ...point) => {
+    const p = state.panels.get(id);
+    const [px, py] = state.canvasPoint(id, ...point);
+    const r = p.dom.canvas.getBoundingClientRect();
+    return [r.left + px * (r.width / p.dom.canvas.width), r.top + py * (r.height / p.dom.canvas.height)];
+  };
+
+  // Canvas pixel of scene point `point` in panel `id` (for tests).
+  state.canvasPoint = (id, ...point) => {
     const T = transform(state.panels.get(id));
-    return [T.x(x), T.y(y)];
+    while (point.length < T.dim) point.push(0);
+    return [T.px(point, 0), T.py(point, 0)];
   };
 
   // ---------- toolbar ----------
@@ -809,6 +1267,9 @@
     if (method === "parametric") { msg.ks = 0; msg.kd = 0; }
     send(msg);
   };
+
+  // For the tests: the page's helpers for the scene's up direction.
+  state.sceneUp = () => sceneUp(state.scene);
 
   connect();
   requestAnimationFrame(render);

@@ -1,13 +1,19 @@
-//! What a panel draws that does not move: the view box and the curves.
+//! What a panel draws besides the particles: the view box and the curves.
 //!
-//! Curves are made on the server, once per scene or curve change, and sent as polylines:
-//! - implicit 2D constraints on a single particle are contoured by marching squares on a
-//!   [`GRID`] x [`GRID`] grid over the view box (other particles at their initial positions,
-//!   t = 0), for systems of at most 16 constraint rows; pins are not (the page draws them);
-//! - a parametric form with one coordinate is sampled along x(q) and clipped to the view box.
+//! Curves are made on the server and sent as polylines of points with the scene's `dim`
+//! coordinates each:
+//! - implicit 2D constraints on a single particle are contoured by marching squares over the
+//!   view box, for systems of at most 16 constraint rows; pins are not (the page draws them);
+//! - a parametric form with one coordinate is sampled along x(q) (clipped to the view box in
+//!   2D; whole in 3D, where the page projects it).
+//!
+//! A curve that depends on t (a driven constraint C(x, t) = 0 or a moving map x(q, t)) is
+//! [`Curves::moving`]: the panel makes it again for every frame at the frame's t, at
+//! [`Resolution::Frame`] (coarser: it is paid 60 times a second), so that the bead is drawn on
+//! the curve it is on now, never on the curve of t = 0.
 //!
 //! A parametric panel with one coordinate draws its map; otherwise contours are drawn when
-//! there are any, else the map (3D scenes, projected onto x-y).
+//! there are any, else the map.
 
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -17,12 +23,52 @@ use bead::integrate::IntegratorKind;
 use bead::model::{DeclaredConstraint, Endpoint, System};
 use bead::simulate::{Simulation, SimulationConfig};
 
-/// Marching-squares resolution per side.
+/// Marching-squares resolution per side, for curves made once.
 pub const GRID: usize = 160;
+/// Marching-squares resolution per side, for moving curves made every frame.
+pub const FRAME_GRID: usize = 72;
 /// Systems with more constraint rows than this get no contours.
 const MAX_CONTOUR_ROWS: usize = 16;
-/// Samples along a parametric curve.
+/// Samples along a parametric curve made once.
 const PARAMETRIC_SAMPLES: usize = 1200;
+/// Samples along a moving parametric curve made every frame.
+pub const FRAME_PARAMETRIC_SAMPLES: usize = 120;
+
+/// How finely to make curves.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Resolution {
+    /// Once per scene or curve edit: [`GRID`] cells a side, 1200 samples along a map.
+    Scene,
+    /// Every frame, for a moving curve: [`FRAME_GRID`] cells a side, [`FRAME_PARAMETRIC_SAMPLES`]
+    /// samples along a map (frame bytes and compute are paid 60 times a second).
+    Frame,
+}
+
+impl Resolution {
+    fn grid(self) -> usize {
+        match self {
+            Resolution::Scene => GRID,
+            Resolution::Frame => FRAME_GRID,
+        }
+    }
+    fn samples(self) -> usize {
+        match self {
+            Resolution::Scene => PARAMETRIC_SAMPLES,
+            Resolution::Frame => FRAME_PARAMETRIC_SAMPLES,
+        }
+    }
+}
+
+/// A panel's curves.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Curves {
+    /// Polylines, `dim` numbers a point (contours: 2D scenes only).
+    pub lines: Vec<Vec<f64>>,
+    /// How they were made: `"contour"`, `"parametric"` or `"none"`.
+    pub source: &'static str,
+    /// They depend on t: a driven constraint row was contoured, or the map x(q, t) moves.
+    pub moving: bool,
+}
 
 /// Systems up to this many particles and constraint rows get a trial run for their view box:
 /// a step of such a system costs microseconds (a dense solve of at most 64 rows), so the run's
@@ -34,8 +80,8 @@ pub const TRIAL_MAX_ROWS: usize = 64;
 /// The view box `[x_min, y_min, x_max, y_max]` of a scene: its initial positions, `extra`
 /// points (anchors), and where the particles may go:
 /// - small systems (at most [`TRIAL_MAX_PARTICLES`] particles and [`TRIAL_MAX_ROWS`]
-///   constraint rows): the motion of a short trial run (parametric form when there is one,
-///   else implicit; rk4 at `dt`; at most `duration` simulated seconds, 20000 steps, 150 ms);
+///   constraint rows): the motion of a short trial run (parametric form when there is one
+///   that satisfies the constraints, else implicit from the state moved onto them; rk4 at `dt`; at most `duration` simulated seconds, 20000 steps, 150 ms);
 /// - larger ones, with no trial run (work linear in the particles and constraints): every
 ///   place that rods and pins let a particle reach, see [`reach`]. Particles not held to a
 ///   fixed point by rods and pins count at their initial positions only.
@@ -47,14 +93,15 @@ pub fn view_box(system: &Arc<System>, dt: f64, duration: f64, extra: &[[f64; 2]]
         f64::NEG_INFINITY,
         f64::NEG_INFINITY,
     ];
-    let mut include = |x: f64, y: f64| {
+    fn grow(bounds: &mut [f64; 4], x: f64, y: f64) {
         if x.is_finite() && y.is_finite() && x.abs() < 1e12 && y.abs() < 1e12 {
             bounds[0] = bounds[0].min(x);
             bounds[1] = bounds[1].min(y);
             bounds[2] = bounds[2].max(x);
             bounds[3] = bounds[3].max(y);
         }
-    };
+    }
+    let mut include = |x: f64, y: f64| grow(&mut bounds, x, y);
     let (x0, _) = system.initial_particle_state();
     for p in x0.chunks(dim) {
         include(p[0], p[1]);
@@ -75,6 +122,13 @@ pub fn view_box(system: &Arc<System>, dt: f64, duration: f64, extra: &[[f64; 2]]
     if !bounds[0].is_finite() {
         return [-1.0, -1.0, 1.0, 1.0];
     }
+    // A closed curve is shown whole (the circle of a pendulum with its center, the pivot),
+    // when it closes within twice the box so far.
+    if system.dim() == 2 {
+        for [x, y] in closed_curve_points(system, bounds) {
+            grow(&mut bounds, x, y);
+        }
+    }
     let (w, h) = (bounds[2] - bounds[0], bounds[3] - bounds[1]);
     let size = w.max(h);
     let size = if size > 1e-9 {
@@ -91,13 +145,52 @@ pub fn view_box(system: &Arc<System>, dt: f64, duration: f64, extra: &[[f64; 2]]
     [cx - half_w, cy - half_h, cx + half_w, cy + half_h]
 }
 
+/// The points of the contours at t = 0 over `bounds` doubled about its center, when none of
+/// them comes within two cells of that region's border (every contour closes inside it);
+/// else none. Only for systems that get contours.
+fn closed_curve_points(system: &System, bounds: [f64; 4]) -> Vec<[f64; 2]> {
+    let (w, h) = (bounds[2] - bounds[0], bounds[3] - bounds[1]);
+    let size = w.max(h).max(1e-9);
+    let (cx, cy) = (0.5 * (bounds[0] + bounds[2]), 0.5 * (bounds[1] + bounds[3]));
+    // A square around the box: a circle through a short arc has its center a radius away.
+    let region = [cx - size, cy - size, cx + size, cy + size];
+    let lines = contour_curves(system, region, 0.0, Resolution::Frame.grid());
+    // contour_curves pads the region by 10% a side; a contour that reaches that border
+    // runs on outside it.
+    let (pad_w, pad_h) = (1.2 * (region[2] - region[0]), 1.2 * (region[3] - region[1]));
+    let cell = 2.0 * pad_w.max(pad_h) / Resolution::Frame.grid() as f64;
+    let (x_min, y_min) = (
+        region[0] - 0.1 * (region[2] - region[0]),
+        region[1] - 0.1 * (region[3] - region[1]),
+    );
+    let mut points = Vec::new();
+    for line in &lines {
+        for p in line.chunks(2) {
+            let near_border = p[0] - x_min < cell
+                || x_min + pad_w - p[0] < cell
+                || p[1] - y_min < cell
+                || y_min + pad_h - p[1] < cell;
+            if near_border {
+                return Vec::new();
+            }
+            points.push([p[0], p[1]]);
+        }
+    }
+    points
+}
+
 /// Include every position of a short trial run (see [`view_box`]).
 fn trial_run(system: &Arc<System>, dt: f64, duration: f64, include: &mut impl FnMut(f64, f64)) {
     let dim = system.dim();
-    let method = if system.parametric().is_some() {
-        Method::Parametric
-    } else {
-        Method::Implicit
+    // The map, when it stands for the constraints (not after a curve edit).
+    let method = match system.parametric() {
+        Some(map)
+            if system.constraints().n_rows() == 0
+                || map_satisfies_constraints(system, map, 0.0) =>
+        {
+            Method::Parametric
+        }
+        _ => Method::Implicit,
     };
     let config = SimulationConfig {
         method,
@@ -108,6 +201,11 @@ fn trial_run(system: &Arc<System>, dt: f64, duration: f64, include: &mut impl Fn
     let Ok(mut simulation) = Simulation::new(Arc::clone(system), config) else {
         return;
     };
+    // From the state the panels start from: on the constraints (an edited curve may not pass
+    // through the scene's initial state).
+    if simulation.reset_onto_constraints().is_err() {
+        return;
+    }
     let steps = (duration / dt).ceil().clamp(1.0, 20_000.0) as u64;
     let start = Instant::now();
     for _ in 0..steps {
@@ -183,29 +281,67 @@ pub fn reach(system: &System) -> Vec<Option<([f64; 2], f64)>> {
     best
 }
 
-/// The curves of a panel and how they were made (`"contour"`, `"parametric"`, `"none"`).
-pub fn curves(system: &System, method: Method, view: [f64; 4]) -> (Vec<Vec<f64>>, String) {
-    let one_coordinate = system.parametric().is_some_and(|m| m.n_q() == 1);
-    if method == Method::Parametric && one_coordinate {
-        return (parametric_curves(system, view), "parametric".into());
-    }
-    let contours = if system.dim() == 2 {
-        contour_curves(system, view)
-    } else {
-        Vec::new()
+/// The curves of a panel at time `t` (see the module doc): the map for a parametric panel
+/// with one coordinate, else the contours when there are any, else the map when it has one
+/// coordinate.
+pub fn curves(
+    system: &System,
+    method: Method,
+    view: [f64; 4],
+    t: f64,
+    resolution: Resolution,
+) -> Curves {
+    let map = system.parametric().filter(|m| m.n_q() == 1);
+    let parametric = |map: &bead::model::ParametricMap| Curves {
+        lines: parametric_curves(system, view, t, resolution.samples()),
+        source: "parametric",
+        moving: map.is_time_dependent(),
     };
-    if !contours.is_empty() {
-        return (contours, "contour".into());
+    if let (Method::Parametric, Some(map)) = (method, map) {
+        return parametric(map);
     }
-    if one_coordinate {
-        return (parametric_curves(system, view), "parametric".into());
+    if system.dim() == 2 {
+        let lines = contour_curves(system, view, t, resolution.grid());
+        if !lines.is_empty() {
+            let set = system.constraints();
+            return Curves {
+                lines,
+                source: "contour",
+                moving: contoured_rows(system).any(|row| set.is_time_dependent(row)),
+            };
+        }
     }
-    (Vec::new(), "none".into())
+    match map {
+        // The map stands for the implicit form only where it satisfies its constraints (a
+        // curve edit changes the constraints, not the map).
+        Some(map) if map_satisfies_constraints(system, map, t) => parametric(map),
+        _ => Curves {
+            lines: Vec::new(),
+            source: "none",
+            moving: false,
+        },
+    }
+}
+
+/// Whether the map's positions at its initial q and at q + 1 (every coordinate) satisfy the
+/// implicit constraints at `t` (to 1e-6 relative to the positions' size squared).
+fn map_satisfies_constraints(system: &System, map: &bead::model::ParametricMap, t: f64) -> bool {
+    let set = system.constraints();
+    let mut ws = set.workspace();
+    let mut map_ws = map.workspace();
+    let q0 = map.initial().to_vec();
+    let q1: Vec<f64> = q0.iter().map(|q| q + 1.0).collect();
+    let rates = vec![0.0; q0.len()];
+    [q0, q1].iter().all(|q| {
+        map.state_at(t, q, &rates, &mut map_ws);
+        let size = map_ws.position.iter().fold(1.0f64, |m, v| m.max(v.abs()));
+        set.max_abs_residual(t, &map_ws.position, &mut ws) <= 1e-6 * size * size
+    })
 }
 
 /// Sample x(q) of a one-coordinate parametric map, one polyline per particle, broken where
 /// it leaves the (padded) view box.
-fn parametric_curves(system: &System, view: [f64; 4]) -> Vec<Vec<f64>> {
+fn parametric_curves(system: &System, view: [f64; 4], t: f64, samples: usize) -> Vec<Vec<f64>> {
     let Some(map) = system.parametric() else {
         return Vec::new();
     };
@@ -213,25 +349,27 @@ fn parametric_curves(system: &System, view: [f64; 4]) -> Vec<Vec<f64>> {
     let q0 = map.initial()[0];
     let span = (3.0 * q0.abs()).max(2.0 * std::f64::consts::PI);
     let (w, h) = (view[2] - view[0], view[3] - view[1]);
+    // 3D curves are sent whole: the page projects them, and the view box is x-y only.
     let inside = |x: f64, y: f64| {
-        x >= view[0] - 0.2 * w
-            && x <= view[2] + 0.2 * w
-            && y >= view[1] - 0.2 * h
-            && y <= view[3] + 0.2 * h
+        dim == 3
+            || x >= view[0] - 0.2 * w
+                && x <= view[2] + 0.2 * w
+                && y >= view[1] - 0.2 * h
+                && y <= view[3] + 0.2 * h
     };
     let mut ws = map.workspace();
     let n_particles = system.particles().len();
     let mut lines: Vec<Vec<Vec<f64>>> = vec![vec![Vec::new()]; n_particles];
-    for i in 0..=PARAMETRIC_SAMPLES {
-        let q = q0 - span + 2.0 * span * i as f64 / PARAMETRIC_SAMPLES as f64;
-        map.state_at(0.0, &[q], &[0.0], &mut ws);
+    for i in 0..=samples {
+        let q = q0 - span + 2.0 * span * i as f64 / samples as f64;
+        map.state_at(t, &[q], &[0.0], &mut ws);
         for (p, particle_lines) in lines.iter_mut().enumerate() {
-            let (x, y) = (ws.position[p * dim], ws.position[p * dim + 1]);
+            let point = &ws.position[p * dim..(p + 1) * dim];
+            let finite = point.iter().all(|v| v.is_finite() && v.abs() < 1e12);
             let current = particle_lines.last_mut();
             match current {
-                Some(line) if x.is_finite() && y.is_finite() && inside(x, y) => {
-                    line.push(x);
-                    line.push(y);
+                Some(line) if finite && inside(point[0], point[1]) => {
+                    line.extend_from_slice(point);
                 }
                 Some(line) if !line.is_empty() => particle_lines.push(Vec::new()),
                 _ => {}
@@ -241,26 +379,16 @@ fn parametric_curves(system: &System, view: [f64; 4]) -> Vec<Vec<f64>> {
     lines
         .into_iter()
         .flatten()
-        .filter(|l| l.len() >= 4)
+        .filter(|l| l.len() >= 2 * dim)
         .collect()
 }
 
-/// Marching squares of every 2D constraint row that involves a single particle. Segments
-/// come as 2-point polylines.
-fn contour_curves(system: &System, view: [f64; 4]) -> Vec<Vec<f64>> {
+/// The constraint rows that are contoured: rows on a single particle that are not a pin's
+/// (a pin's rows are lines through its point: the page draws the pin itself instead). None
+/// for systems of more than [`MAX_CONTOUR_ROWS`] rows: each grid point evaluates every row.
+fn contoured_rows(system: &System) -> impl Iterator<Item = usize> + '_ {
     let dim = system.dim();
     let set = system.constraints();
-    let (x0, _) = system.initial_particle_state();
-    let mut ws = set.workspace();
-    let mut out = Vec::new();
-    let (w, h) = (view[2] - view[0], view[3] - view[1]);
-    let (x_min, y_min) = (view[0] - 0.1 * w, view[1] - 0.1 * h);
-    let (dx, dy) = (1.2 * w / GRID as f64, 1.2 * h / GRID as f64);
-    if set.n_rows() > MAX_CONTOUR_ROWS {
-        // Each grid point evaluates every row: too costly for large systems.
-        return out;
-    }
-    // A pin's rows are lines through its point: the page draws the pin itself instead.
     let pins: Vec<&str> = system
         .declared_constraints()
         .into_iter()
@@ -269,30 +397,49 @@ fn contour_curves(system: &System, view: [f64; 4]) -> Vec<Vec<f64>> {
             _ => None,
         })
         .collect();
-    for row in 0..set.n_rows() {
+    let rows = if set.n_rows() > MAX_CONTOUR_ROWS {
+        0
+    } else {
+        set.n_rows()
+    };
+    (0..rows).filter(move |&row| {
         if pins.contains(&set.info_of_row(row).name.as_str()) {
-            continue;
+            return false;
         }
         let columns = set.row_columns(row);
-        let Some(&first) = columns.first() else {
-            continue;
-        };
-        let particle = first / dim;
-        if columns.iter().any(|&c| c / dim != particle) {
-            continue;
+        match columns.first() {
+            Some(&first) => columns.iter().all(|&c| c / dim == first / dim),
+            None => false,
         }
+    })
+}
+
+/// Marching squares at time `t` of every contoured row (see [`contoured_rows`]) on a `grid`
+/// x `grid` grid over `view` padded by 10% a side. Segments come as 2-point polylines.
+fn contour_curves(system: &System, view: [f64; 4], t: f64, grid: usize) -> Vec<Vec<f64>> {
+    let dim = system.dim();
+    let set = system.constraints();
+    let (x0, _) = system.initial_particle_state();
+    let mut ws = set.workspace();
+    let mut out = Vec::new();
+    let (w, h) = (view[2] - view[0], view[3] - view[1]);
+    let (x_min, y_min) = (view[0] - 0.1 * w, view[1] - 0.1 * h);
+    let (dx, dy) = (1.2 * w / grid as f64, 1.2 * h / grid as f64);
+    let rows: Vec<usize> = contoured_rows(system).collect();
+    for row in rows {
+        let particle = set.row_columns(row)[0] / dim;
         let mut x = x0.clone();
-        let mut values = vec![0.0; (GRID + 1) * (GRID + 1)];
-        for j in 0..=GRID {
-            for i in 0..=GRID {
+        let mut values = vec![0.0; (grid + 1) * (grid + 1)];
+        for j in 0..=grid {
+            for i in 0..=grid {
                 x[particle * dim] = x_min + i as f64 * dx;
                 x[particle * dim + 1] = y_min + j as f64 * dy;
-                values[j * (GRID + 1) + i] = set.residuals(0.0, &x, &mut ws)[row];
+                values[j * (grid + 1) + i] = set.residuals(t, &x, &mut ws)[row];
             }
         }
-        let value = |i: usize, j: usize| values[j * (GRID + 1) + i];
-        for j in 0..GRID {
-            for i in 0..GRID {
+        let value = |i: usize, j: usize| values[j * (grid + 1) + i];
+        for j in 0..grid {
+            for i in 0..grid {
                 // Corners counter-clockwise from (i, j).
                 let corners = [
                     (i, j, value(i, j)),

@@ -17,7 +17,8 @@ use bead::model::{Endpoint, Force, ModelError, ParticleId};
 use bead::scene::Scene;
 use bead::simulate::{ForceId, RunError, SetupError, Simulation, SimulationConfig};
 
-use crate::protocol::{DragInfo, PanelFrame, PanelInfo};
+use crate::geometry::{Curves, Resolution};
+use crate::protocol::{DragInfo, PanelFrame, PanelInfo, PATH_MAX_NUMBERS, PATH_MAX_SAMPLES};
 
 /// What a panel runs.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -176,8 +177,17 @@ pub struct Panel {
     drag: Option<Drag>,
     /// Scene scale (largest side of the view box), for the drag spring.
     scale: f64,
-    curves: Vec<Vec<f64>>,
-    curve_source: String,
+    /// The view box the curves are made over.
+    view: [f64; 4],
+    /// The curves at t = 0.
+    curves: Curves,
+    /// What the page should say about the curve (e.g. a curve edit that did not apply here).
+    pub curve_note: Option<String>,
+    /// The states of the last advance, `1 + n_coords` numbers each (t, positions); see
+    /// [`PanelFrame::path`].
+    path: Vec<f64>,
+    /// Record every `path_stride`-th interval into `path`.
+    path_stride: u64,
 }
 
 impl Panel {
@@ -194,7 +204,8 @@ impl Panel {
         view: [f64; 4],
     ) -> Result<Panel, SetupError> {
         let simulation = Simulation::new(Arc::clone(&scene.system), settings.config())?;
-        let (curves, curve_source) = crate::geometry::curves(&scene.system, settings.method, view);
+        let curves =
+            crate::geometry::curves(&scene.system, settings.method, view, 0.0, Resolution::Scene);
         let mut panel = Panel {
             id,
             epoch,
@@ -209,8 +220,11 @@ impl Panel {
             steps_per_second: 0.0,
             drag: None,
             scale: (view[2] - view[0]).max(view[3] - view[1]),
+            view,
             curves,
-            curve_source,
+            curve_note: None,
+            path: Vec::new(),
+            path_stride: 1,
         };
         panel.start();
         Ok(panel)
@@ -254,6 +268,7 @@ impl Panel {
         self.behind = false;
         self.drag = None;
         self.failure = None;
+        self.path.clear();
         match Simulation::new(Arc::clone(&self.scene.system), self.settings.config()) {
             Ok(simulation) => {
                 self.simulation = simulation;
@@ -275,6 +290,7 @@ impl Panel {
         max_steps: u64,
         budget: Duration,
     ) -> u64 {
+        self.path.clear();
         if !self.running || self.failure.is_some() {
             self.behind = false;
             return 0;
@@ -283,6 +299,10 @@ impl Panel {
         self.debt += time_scale * elapsed;
         let wanted = (self.debt / dt).round().max(0.0);
         let wanted = if wanted.is_finite() { wanted as u64 } else { 0 };
+        self.path_stride = wanted
+            .min(max_steps)
+            .div_ceil(PATH_MAX_SAMPLES as u64)
+            .max(1);
         let taken = self.run_intervals(wanted.min(max_steps), budget);
         self.behind = taken < wanted;
         if self.behind {
@@ -298,6 +318,8 @@ impl Panel {
     /// integrator). The failure, when the step fails.
     pub fn single_step(&mut self) -> Result<(), &PanelFailure> {
         self.running = false;
+        self.path.clear();
+        self.path_stride = 1;
         if self.failure.is_none() {
             self.run_intervals(1, Duration::from_secs(5));
         }
@@ -323,6 +345,9 @@ impl Panel {
                 self.simulation.advance_to(target)?;
                 self.intervals += 1;
                 taken += 1;
+                if self.intervals.is_multiple_of(self.path_stride) {
+                    self.record_path();
+                }
                 if start.elapsed() > budget {
                     break;
                 }
@@ -353,6 +378,17 @@ impl Panel {
             };
         }
         taken
+    }
+
+    /// Add the current state to the path, for scenes small enough to send one.
+    fn record_path(&mut self) {
+        let x = self.simulation.positions();
+        if x.len() > PATH_MAX_NUMBERS || self.path.len() / (1 + x.len()) >= PATH_MAX_SAMPLES {
+            return;
+        }
+        let finite = |v: f64| if v.is_finite() { v } else { 0.0 };
+        self.path.push(finite(self.simulation.t()));
+        self.path.extend(x.iter().map(|&v| finite(v)));
     }
 
     fn fail(&mut self, failure: PanelFailure) {
@@ -480,15 +516,31 @@ impl Panel {
                 .iter()
                 .map(|c| c.source().map(str::to_string))
                 .collect(),
-            curves: self.curves.clone(),
-            curve_source: self.curve_source.clone(),
+            curves: self.curves.lines.clone(),
+            curve_source: self.curves.source.into(),
+            curves_move: self.curves.moving,
+            view: self.view,
+            curve_note: self.curve_note.clone(),
         }
     }
 
-    /// The current state for a frame.
+    /// The current state for a frame; with the curves at the current t when they move.
     pub fn frame(&self) -> PanelFrame {
         let finite = |v: f64| if v.is_finite() { v } else { 0.0 };
         let s = &self.simulation;
+        let curves = self.curves.moving.then(|| {
+            crate::geometry::curves(
+                s.system(),
+                self.settings.method,
+                self.view,
+                s.t(),
+                Resolution::Frame,
+            )
+            .lines
+            .into_iter()
+            .map(|line| line.into_iter().map(finite).collect())
+            .collect()
+        });
         PanelFrame {
             id: self.id,
             epoch: self.epoch,
@@ -496,6 +548,10 @@ impl Panel {
             steps: s.steps(),
             x: s.positions().iter().map(|&v| finite(v)).collect(),
             energy: finite(s.energy()),
+            kinetic: finite(s.system().kinetic_energy(s.velocities())),
+            potential: finite(s.system().potential_energy(s.positions())),
+            energy_initial: finite(s.energy_initial()),
+            energy_scale: finite(s.energy_scale()),
             energy_error: finite(s.energy_balance_error()),
             energy_conserved: s.energy_conserved(),
             work: finite(s.work()),
@@ -516,6 +572,8 @@ impl Panel {
                 particle: d.particle,
                 target: d.target.clone(),
             }),
+            path: self.path.clone(),
+            curves,
         }
     }
 }

@@ -42,12 +42,20 @@
 //! | 4 | 4 | `h`: the header's length in bytes, u32 little-endian |
 //! | 8 | `h` | the header: UTF-8 JSON, `{"type": "frame", "time_scale": .., "panels": [..]}` |
 //! | 8 + `h` | 0-7 | zero bytes, so that the positions start at a multiple of 8 |
-//! | `p` = 8 + `h` rounded up to a multiple of 8 | 8 `n` | `n` positions, f64 little-endian |
+//! | `p` = 8 + `h` rounded up to a multiple of 8 | 8 `n` | `n` numbers, f64 little-endian |
 //!
-//! Each panel of the header is a [`PanelFrame`] without `x`, plus `x_offset` and `x_count`:
-//! its positions (`dim` numbers per particle, particle by particle) are the numbers
-//! `x_offset .. x_offset + x_count` of the block at `p` (counted in numbers, not bytes), and
-//! `n` is the sum of the panels' `x_count`. In a browser: `JSON.parse` of the header, then
+//! Each panel of the header is a [`PanelFrame`] without `x`, `path` and `curves`, plus where
+//! they are in the block of numbers at `p` (counted in numbers, not bytes):
+//! - `x_offset`, `x_count`: its positions (`dim` numbers per particle, particle by particle)
+//!   are the numbers `x_offset .. x_offset + x_count`;
+//! - `path_offset`, `path_count`: `path_count` samples of `1 + x_count` numbers each, `t`
+//!   then the positions, of the states the simulation went through since the last frame
+//!   (see [`PanelFrame::path`]);
+//! - `curve_offset`, `curve_counts` (only when the panel's curves move, see
+//!   [`PanelFrame::curves`]): the polylines one after the other, `curve_counts[i]` numbers
+//!   for the i-th.
+//!
+//! `n` is the sum of all of these. In a browser: `JSON.parse` of the header, then
 //! `new Float64Array(buffer, p, n)` (little-endian machines; the page reads through a
 //! `DataView` elsewhere). [`decode_frame`] is the reference decoder. The frame is binary
 //! because its size and cost grow with the particles: 16 bytes a particle in 2D against
@@ -56,7 +64,13 @@
 //!
 //! # Versions
 //!
-//! Version 3 (this one) sends frames as binary messages (above) instead of JSON text, and
+//! Version 4 (this one) adds to frames the path of the simulation's own steps
+//! ([`PanelFrame::path`]), moving curves at the frame's t ([`PanelFrame::curves`]) and the
+//! energy split (`kinetic`, `potential`, `energy_initial`, `energy_scale`); to panels their own
+//! view box ([`PanelInfo::view`]), whether the curves move and a note on the curve; to the
+//! scene its gravity. The points of 3D curves have three coordinates (version 3: x-y only).
+//!
+//! Version 3 sent frames as binary messages (above) instead of JSON text, and
 //! adds the pins ([`SceneInfo::pins`]) to the scene. Version 2 added `epoch`, the error codes
 //! and the energy ledger in frames (`energy_error`, which replaces version 1's
 //! `energy_rel_error`, `energy_conserved`, `work`, `not_conserved_by`).
@@ -65,13 +79,14 @@
 //! `"NaN"` is a wrong type, and an out-of-range literal like `1e999` is rejected. The server
 //! sends non-finite values as 0 (positions included).
 //!
-//! Coordinates are the scene's own: `+y` points down in the shipped 2D scenes (screen
-//! coordinates, as in the article). 3D scenes are drawn projected onto x-y.
+//! Coordinates are the scene's own: `+y` points down in the shipped 2D scenes (gravity +y,
+//! screen coordinates, as in the article); the page draws "up" against gravity
+//! ([`SceneInfo::gravity`]). 3D scenes get a 3D view that the page projects.
 
 use serde::{Deserialize, Serialize};
 
 /// The protocol version; bumped on any incompatible change.
-pub const PROTOCOL_VERSION: u32 = 3;
+pub const PROTOCOL_VERSION: u32 = 4;
 
 /// Which panels a message applies to: one panel by id, or all when absent / `null`.
 pub type PanelTarget = Option<u32>;
@@ -368,8 +383,10 @@ pub struct SceneInfo {
     /// The name it was loaded by (a shipped scene's name or the file name).
     pub name: String,
     pub title: String,
-    /// 2 or 3. 3D scenes are drawn projected onto x-y.
+    /// 2 or 3.
     pub dim: usize,
+    /// The scene's gravity, `dim` numbers (m/s^2): the page draws "up" against it.
+    pub gravity: Vec<f64>,
     pub particles: Vec<ParticleInfo>,
     /// The scene's `[[constraint]]` tables, in order.
     pub constraints: Vec<ConstraintInfo>,
@@ -387,21 +404,21 @@ pub struct SceneInfo {
 }
 
 /// A `kind = "distance"` constraint: a rod from particle `a` to particle `b` or to the fixed
-/// point `anchor` (x-y).
+/// point `anchor` (`dim` numbers; version 3 sent x-y only).
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct Rod {
     pub a: usize,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub b: Option<usize>,
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub anchor: Option<[f64; 2]>,
+    pub anchor: Option<Vec<f64>>,
 }
 
-/// A `kind = "pin"` constraint: particle `particle` held at `anchor` (x-y).
+/// A `kind = "pin"` constraint: particle `particle` held at `anchor` (`dim` numbers).
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct Pin {
     pub particle: usize,
-    pub anchor: [f64; 2],
+    pub anchor: Vec<f64>,
 }
 
 /// A particle of the scene.
@@ -436,13 +453,23 @@ pub struct PanelInfo {
     /// The constraint expressions this panel runs with (index as in
     /// [`SceneInfo::constraints`]; `None` for non-expression constraints).
     pub exprs: Vec<Option<String>>,
-    /// The curve(s) to draw, as polylines of x-y points `[x0, y0, x1, y1, ...]` in scene
-    /// coordinates. Implicit 2D constraints on one particle are contoured (marching squares
-    /// over the view box, the other particles at their initial positions); a parametric
-    /// form with one coordinate is sampled along x(q). Empty when neither applies.
+    /// The curve(s) at t = 0, as polylines of points with `dim` coordinates each
+    /// (`[x0, y0, x1, y1, ...]` in 2D) in scene coordinates. Implicit 2D constraints on one
+    /// particle are contoured (marching squares over the view box); a parametric form with
+    /// one coordinate is sampled along x(q). Empty when neither applies. When `curves_move`,
+    /// frames carry the curves at their own t (see [`PanelFrame::curves`]).
     pub curves: Vec<Vec<f64>>,
     /// How the curves were made: `"contour"`, `"parametric"` or `"none"`.
     pub curve_source: String,
+    /// The curves depend on t (a driven constraint, a moving map): each frame carries them.
+    pub curves_move: bool,
+    /// This panel's view box `[x_min, y_min, x_max, y_max]`: the scene's, or made again for
+    /// the panel's edited curves (see [`SceneInfo::view`]).
+    pub view: [f64; 4],
+    /// Something to say about the curve, e.g. that a curve edit did not change this
+    /// (parametric) panel's map.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub curve_note: Option<String>,
 }
 
 /// One panel's state in a [`ServerMessage::Frame`].
@@ -462,6 +489,14 @@ pub struct PanelFrame {
     /// Total mechanical energy E = T + V of the scene's system (the drag spring has no
     /// potential here: its work is in `work`).
     pub energy: f64,
+    /// Kinetic energy T = 1/2 sum m |v|^2 (the core's).
+    pub kinetic: f64,
+    /// Potential energy V of the scene's conservative forces (the core's); T + V = `energy`.
+    pub potential: f64,
+    /// E0 = T + V when the epoch started.
+    pub energy_initial: f64,
+    /// E_scale, the denominator of `energy_error` (see there).
+    pub energy_scale: f64,
     /// The relative error of what the panel conserves, |E - W - E0| / E_scale since the
     /// epoch started: |E - E0| / E_scale when nothing does work on the system. E_scale =
     /// max(|E0|, T0 + |V0|, T0 + M |g| L) does not vanish at the potential's zero.
@@ -488,7 +523,24 @@ pub struct PanelFrame {
     /// The particle being dragged and the spring's end, while dragging.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub drag: Option<DragInfo>,
+    /// The states the simulation went through since the last frame, for trails drawn along
+    /// the motion rather than chords between frames: samples of `1 + x.len()` numbers, t
+    /// then the positions, at most [`PATH_MAX_SAMPLES`] (evenly spaced in steps when more
+    /// were taken). Empty for scenes of more than [`PATH_MAX_NUMBERS`] coordinates. Packed
+    /// after the positions (see [Frames](self#frames)).
+    #[serde(skip)]
+    pub path: Vec<f64>,
+    /// The curves at this frame's t, when they move ([`PanelInfo::curves_move`]); as in
+    /// [`PanelInfo::curves`] but made coarser ([`crate::geometry::Resolution::Frame`]).
+    /// Packed after the path (see [Frames](self#frames)).
+    #[serde(skip)]
+    pub curves: Option<Vec<Vec<f64>>>,
 }
+
+/// Most path samples a frame carries per panel.
+pub const PATH_MAX_SAMPLES: usize = 64;
+/// Scenes with more coordinates than this send no path (trails are off for them by default).
+pub const PATH_MAX_NUMBERS: usize = 60;
 
 /// A drag in progress.
 #[derive(Clone, Debug, PartialEq, Serialize)]
@@ -554,6 +606,12 @@ struct PanelHeader<'a> {
     frame: &'a PanelFrame,
     x_offset: usize,
     x_count: usize,
+    path_offset: usize,
+    path_count: usize,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    curve_offset: Option<usize>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    curve_counts: Option<Vec<usize>>,
 }
 
 #[derive(Serialize)]
@@ -582,13 +640,27 @@ pub fn encode_frame(time_scale: f64, panels: &[PanelFrame]) -> Result<Vec<u8>, s
     let headers = panels
         .iter()
         .map(|frame| {
-            let header = PanelHeader {
-                frame,
-                x_offset: offset,
-                x_count: frame.x.len(),
-            };
+            let x_offset = offset;
             offset += frame.x.len();
-            header
+            let path_offset = offset;
+            let sample = 1 + frame.x.len();
+            let path_count = frame.path.len() / sample;
+            offset += path_count * sample;
+            let curve_offset = frame.curves.as_ref().map(|_| offset);
+            let curve_counts = frame.curves.as_ref().map(|lines| {
+                let counts: Vec<usize> = lines.iter().map(Vec::len).collect();
+                offset += counts.iter().sum::<usize>();
+                counts
+            });
+            PanelHeader {
+                frame,
+                x_offset,
+                x_count: frame.x.len(),
+                path_offset,
+                path_count,
+                curve_offset,
+                curve_counts,
+            }
         })
         .collect();
     let header = serde_json::to_vec(&FrameHeader {
@@ -604,7 +676,10 @@ pub fn encode_frame(time_scale: f64, panels: &[PanelFrame]) -> Result<Vec<u8>, s
     out.extend_from_slice(&header);
     out.resize(start, 0);
     for frame in panels {
-        for v in &frame.x {
+        let sample = 1 + frame.x.len();
+        let path = &frame.path[..frame.path.len() / sample * sample];
+        let curves = frame.curves.iter().flatten().flatten();
+        for v in frame.x.iter().chain(path).chain(curves) {
             out.extend_from_slice(&v.to_le_bytes());
         }
     }
@@ -621,8 +696,9 @@ pub enum FrameError {
 }
 
 /// The reference decoder of a binary frame: its JSON header with each panel's `x` filled in
-/// as an array of numbers (and `x_offset`, `x_count` kept), i.e. the frame as the JSON
-/// object of protocol version 2 had it. For tests and other clients.
+/// as an array of numbers, `path` as an array of samples (each an array: t, then the
+/// positions) and, when the curves move, `curves` as an array of polylines (the offsets and
+/// counts kept). For tests and other clients.
 pub fn decode_frame(bytes: &[u8]) -> Result<serde_json::Value, FrameError> {
     if bytes.len() < 8 || bytes[..4] != FRAME_MAGIC {
         return Err(FrameError::Layout("no magic bytes"));
@@ -655,10 +731,44 @@ pub fn decode_frame(bytes: &[u8]) -> Result<serde_json::Value, FrameError> {
                 .ok_or_else(|| FrameError::Header(format!("a panel without `{name}`")))
         };
         let (offset, count) = (field("x_offset")?, field("x_count")?);
-        let x = numbers
-            .get(offset..offset.saturating_add(count))
-            .ok_or(FrameError::Layout("positions past the end"))?;
+        let (path_offset, path_count) = (field("path_offset")?, field("path_count")?);
+        let take = |from: usize, len: usize| {
+            numbers
+                .get(from..from.saturating_add(len))
+                .ok_or(FrameError::Layout("numbers past the end"))
+        };
+        let x = take(offset, count)?;
+        let path = take(path_offset, path_count.saturating_mul(count + 1))?;
+        let curves = match (panel.get("curve_offset"), panel.get("curve_counts")) {
+            (Some(from), Some(counts)) => {
+                let mut from = from
+                    .as_u64()
+                    .ok_or_else(|| FrameError::Header("bad `curve_offset`".into()))?
+                    as usize;
+                let counts = counts
+                    .as_array()
+                    .ok_or_else(|| FrameError::Header("bad `curve_counts`".into()))?;
+                let mut lines = Vec::new();
+                for c in counts {
+                    let c = c
+                        .as_u64()
+                        .ok_or_else(|| FrameError::Header("bad `curve_counts`".into()))?
+                        as usize;
+                    lines.push(serde_json::json!(take(from, c)?));
+                    from += c;
+                }
+                Some(serde_json::Value::Array(lines))
+            }
+            _ => None,
+        };
         panel["x"] = x.iter().map(|&v| serde_json::json!(v)).collect();
+        panel["path"] = path
+            .chunks(count + 1)
+            .map(|s| serde_json::json!(s))
+            .collect();
+        if let Some(curves) = curves {
+            panel["curves"] = curves;
+        }
     }
     Ok(value)
 }

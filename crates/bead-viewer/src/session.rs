@@ -332,17 +332,19 @@ impl Session {
             }
             ClientMessage::ConfigurePanel { panel, settings } => {
                 let index = self.index(panel)?;
-                let view = self.scene()?.info.view;
                 let old = &self.panels[index];
+                let view = old.info().view;
                 let new_settings = patch_settings(old.settings(), &settings, &self.limits)
                     .map_err(|e| (e, Some(panel)))?;
                 // The panel keeps its own scene, with its curve edits.
                 let scene = Arc::clone(old.scene());
                 let running = old.running;
+                let note = old.curve_note.clone();
                 let epoch = self.epoch();
                 let mut rebuilt = Panel::new(panel, epoch, new_settings, scene, view)
                     .map_err(|e| (e.into(), Some(panel)))?;
                 rebuilt.running = running && !rebuilt.failed();
+                rebuilt.curve_note = note;
                 self.panels[index] = rebuilt;
                 Ok(vec![self.panels_message()])
             }
@@ -547,7 +549,6 @@ impl Session {
                 limit: self.limits.max_expr_chars,
             });
         }
-        let view = self.scene()?.info.view;
         let indices: Vec<usize> = match panel {
             Some(id) => {
                 let index = self.index(id)?;
@@ -569,20 +570,22 @@ impl Session {
         }
         // Build every new panel first; replace them only when all succeeded. Panels that
         // share a scene share its edited copy.
-        let mut edited: Vec<(Arc<Scene>, Arc<Scene>)> = Vec::new();
+        // The view box is made again for the new curve, so that the page refits to it.
+        let mut edited: Vec<(Arc<Scene>, Arc<Scene>, [f64; 4])> = Vec::new();
         let mut rebuilt = Vec::new();
-        for index in indices {
+        for &index in &indices {
             let old = &self.panels[index];
-            let scene = match edited
+            let (scene, view) = match edited
                 .iter()
-                .find(|(from, _)| Arc::ptr_eq(from, old.scene()))
+                .find(|(from, _, _)| Arc::ptr_eq(from, old.scene()))
             {
-                Some((_, to)) => Arc::clone(to),
+                Some((_, to, view)) => (Arc::clone(to), *view),
                 None => match old.scene().with_constraint_expr(constraint, &expr) {
                     Ok(scene) => {
                         let scene = Arc::new(scene);
-                        edited.push((Arc::clone(old.scene()), Arc::clone(&scene)));
-                        scene
+                        let view = scene_view(&scene);
+                        edited.push((Arc::clone(old.scene()), Arc::clone(&scene), view));
+                        (scene, view)
                     }
                     Err(e) => return reply(CurveFailure::Edit(e)),
                 },
@@ -605,6 +608,23 @@ impl Session {
         }
         for (index, panel) in rebuilt {
             self.panels[index] = panel;
+        }
+        // Panels left as they were say so: a parametric panel's curve is its map x(q).
+        if panel.is_none() {
+            for (index, other) in self.panels.iter_mut().enumerate() {
+                if !indices.contains(&index) {
+                    other.curve_note = Some(format!(
+                        "curve edit not applied here: this panel's curve is its map x(q) ([parametric.positions] of the scene file), which still runs `{}` unchanged",
+                        other
+                            .scene()
+                            .system
+                            .declared_constraints()
+                            .get(constraint)
+                            .and_then(|c| c.source())
+                            .unwrap_or("the original constraint")
+                    ));
+                }
+            }
         }
         Ok(vec![self.panels_message()])
     }
@@ -647,7 +667,7 @@ pub fn scene_info(name: &str, scene: &Scene) -> SceneInfo {
                 Endpoint::Fixed(point) => Rod {
                     a: a.0,
                     b: None,
-                    anchor: Some([point[0], point[1]]),
+                    anchor: Some(point.to_vec()),
                 },
             }),
             _ => None,
@@ -660,26 +680,16 @@ pub fn scene_info(name: &str, scene: &Scene) -> SceneInfo {
                 particle, anchor, ..
             } if anchor.len() >= 2 => Some(Pin {
                 particle: particle.0,
-                anchor: [anchor[0], anchor[1]],
+                anchor: anchor.to_vec(),
             }),
             _ => None,
         })
         .collect();
-    let anchors: Vec<[f64; 2]> = rods
-        .iter()
-        .filter_map(|r| r.anchor)
-        .chain(pins.iter().map(|p| p.anchor))
-        .collect();
-    let dt = scene.run.dt.unwrap_or(1.0 / 60.0);
-    let duration = scene
-        .run
-        .duration
-        .or(scene.run.steps.map(|s| s as f64 * dt))
-        .unwrap_or(10.0);
     SceneInfo {
         name: name.to_string(),
         title: scene.title.clone(),
         dim: system.dim(),
+        gravity: system.gravity().to_vec(),
         particles: system
             .particles()
             .iter()
@@ -689,13 +699,41 @@ pub fn scene_info(name: &str, scene: &Scene) -> SceneInfo {
             })
             .collect(),
         constraints,
-        view: geometry::view_box(system, dt, duration, &anchors),
+        view: scene_view(scene),
         rods,
         pins,
         has_implicit: system.constraints().n_rows() > 0,
         has_parametric: system.parametric().is_some(),
         warnings: scene.warnings(),
     }
+}
+
+/// The view box of `scene` ([`geometry::view_box`]): its initial state, its fixed points
+/// (rods' anchors and pins, so that a pendulum's pivot is always in view), its closed
+/// curves and the motion of a short trial run at the scene's dt.
+pub fn scene_view(scene: &Scene) -> [f64; 4] {
+    let anchors: Vec<[f64; 2]> = scene
+        .system
+        .declared_constraints()
+        .iter()
+        .filter_map(|c| match c {
+            DeclaredConstraint::Distance {
+                b: Endpoint::Fixed(point),
+                ..
+            } if point.len() >= 2 => Some([point[0], point[1]]),
+            DeclaredConstraint::Pin { anchor, .. } if anchor.len() >= 2 => {
+                Some([anchor[0], anchor[1]])
+            }
+            _ => None,
+        })
+        .collect();
+    let dt = scene.run.dt.unwrap_or(1.0 / 60.0);
+    let duration = scene
+        .run
+        .duration
+        .or(scene.run.steps.map(|s| s as f64 * dt))
+        .unwrap_or(10.0);
+    geometry::view_box(&scene.system, dt, duration, &anchors)
 }
 
 /// The scene's defaults for a panel of `method` (default: the scene's run method, else the

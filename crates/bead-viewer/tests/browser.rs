@@ -559,7 +559,8 @@ async fn js_with(client: &Client, script: &str, args: Vec<Value>) -> Value {
 /// What panel `panel` drew last (the page's `lastDraw`: rods, particles and pins in its draw
 /// list, painting calls) and the checks of the canvas as it is, read in the same script (no
 /// draw in between): which rods have no ink at their middle and which particles none at
-/// their place, in the frame that was drawn (3D positions projected onto x-y, as drawn).
+/// their place, at the positions drawn (`lastDraw.x`: the state at the display time,
+/// interpolated between frames; 3D positions through the panel's projection).
 async fn drawn(client: &Client, panel: u64) -> Value {
     js(
         client,
@@ -567,19 +568,20 @@ async fn drawn(client: &Client, panel: u64) -> Value {
             "const v = window.__viewer, p = v.panels.get({panel}), d = p.lastDraw, f = d.frame;
              const dim = v.scene.dim, canvas = p.dom.canvas, ctx = canvas.getContext('2d');
              const image = ctx.getImageData(0, 0, canvas.width, canvas.height).data;
-             const inked = (x, y) => {{
-                 const [px, py] = v.canvasPoint({panel}, x, y);
+             const inked = (...point) => {{
+                 const [px, py] = v.canvasPoint({panel}, ...point);
                  for (let dy = -1; dy <= 1; dy++) for (let dx = -1; dx <= 1; dx++) {{
                      const i = 4 * (Math.round(py + dy) * canvas.width + Math.round(px + dx));
                      if (image[i] < 240 || image[i + 1] < 240 || image[i + 2] < 240) return true;
                  }}
                  return false;
              }};
-             const at = (k) => [f.x[dim * k], f.x[dim * k + 1]];
+             const at = (k) => Array.from(d.x.slice(dim * k, dim * k + dim));
+             const fixed = (q) => dim === 3 ? [q[0], q[1], q.length > 2 ? q[2] : 0] : q;
              const blankRods = [], blankParticles = [];
              v.scene.rods.forEach((rod, k) => {{
-                 const a = at(rod.a), b = rod.b != null ? at(rod.b) : rod.anchor;
-                 if (!inked((a[0] + b[0]) / 2, (a[1] + b[1]) / 2)) blankRods.push(k);
+                 const a = at(rod.a), b = rod.b != null ? at(rod.b) : fixed(rod.anchor);
+                 if (!inked(...a.map((c, i) => (c + b[i]) / 2))) blankRods.push(k);
              }});
              for (let k = 0; k < v.scene.particles.length; k++) {{
                  if (!inked(...at(k))) blankParticles.push(k);
@@ -807,6 +809,7 @@ async fn cloth_at_scale(client: &Client, addr: SocketAddr) {
         Encoded::Text(text) => Value::String(text),
         Encoded::Binary(_) => unreachable!("a frame"),
     };
+    let scene_view = info.view;
     let scene_message = text(ServerMessage::Scene(info));
     let panels_message = text(ServerMessage::Panels {
         panels: vec![PanelInfo {
@@ -821,6 +824,9 @@ async fn cloth_at_scale(client: &Client, addr: SocketAddr) {
             exprs,
             curves: Vec::new(),
             curve_source: "none".into(),
+            curves_move: false,
+            view: scene_view,
+            curve_note: None,
         }],
     });
 
@@ -867,6 +873,10 @@ async fn cloth_at_scale(client: &Client, addr: SocketAddr) {
             steps: k,
             x,
             energy: 0.0,
+            kinetic: 0.0,
+            potential: 0.0,
+            energy_initial: 0.0,
+            energy_scale: 1.0,
             energy_error: 0.0,
             energy_conserved: true,
             work: 0.0,
@@ -877,6 +887,8 @@ async fn cloth_at_scale(client: &Client, addr: SocketAddr) {
             error: None,
             behind: false,
             drag: None,
+            path: Vec::new(),
+            curves: None,
         };
         let bytes = encode_frame(1.0, &[panel]).unwrap();
         bytes_per_frame = bytes.len();
@@ -1008,4 +1020,306 @@ async fn measure(client: &Client, addr: SocketAddr, name: &str, cols: usize) {
     .await;
     eprintln!("{name}: {rate:.1} frames/s received; page's own draws (unflushed) {draws}");
     screenshot(client, name).await;
+}
+
+/// A bead in a valley shaken up and down: y = -x^2/2 - 0.3 sin(2t) (+y down), a driven
+/// constraint (the same scene as tests/truthful.rs).
+const SHAKEN: &str = r#"
+title = "Bead on a shaken parabola (driven)"
+[world]
+gravity = [0.0, 9.81]
+[[particle]]
+name = "bead"
+mass = 1.0
+position = [0.8, -0.32]
+velocity = [0.0, 0.0]
+[[constraint]]
+name = "shaken parabola"
+expr = "bead.y + 0.5*bead.x^2 + 0.3*sin(2*t)"
+[run]
+method = "implicit"
+integrator = "rk4"
+dt = 0.002
+duration = 6.0
+"#;
+
+#[test]
+fn the_page_draws_what_the_simulation_is() {
+    in_browser(serving("shaken.toml", SHAKEN.into()), |client, addr| {
+        truthful_checks(client, addr).boxed_local()
+    });
+}
+
+/// A JS expression: the largest |C(x, t)| over the curve panel 1 drew last, with `C` a JS
+/// function of (x, y, t), and t the time of the frame whose curves were drawn.
+fn drawn_curve_residual(c: &str) -> String {
+    format!(
+        "(() => {{ const p = window.__viewer.panels.get(1), d = p.lastDraw; const C = {c};
+           let worst = 0;
+           for (const line of p.drawnCurves) for (let i = 0; i + 1 < line.length; i += 2)
+             worst = Math.max(worst, Math.abs(C(line[i], line[i + 1], d.frame.t)));
+           return worst; }})()"
+    )
+}
+
+/// A JS condition: the first panel's latest frame belongs to its current epoch and
+/// satisfies `condition` on `p` (the panel) and `f` (the frame).
+fn first_current(condition: &str) -> String {
+    format!(
+        "(() => {{ const p = [...window.__viewer.panels.values()][0]; const f = p && p.frame; \
+         return !!(f && f.epoch === p.info.epoch && ({condition})); }})()"
+    )
+}
+
+async fn truthful_checks(client: &Client, addr: SocketAddr) {
+    client.goto(&format!("http://{addr}/")).await.unwrap();
+    let shaken = "(x, y, t) => y + 0.5 * x * x + 0.3 * Math.sin(2 * t)";
+    // 1. The moving curve is drawn at the frame's t, at two times: its samples satisfy
+    //    C(x, t) = 0 there (and not C(x, 0) = 0), and the bead sits on the blue curve drawn.
+    let mut last_t = 0.3;
+    for _ in 0..2 {
+        wait_until(
+            client,
+            &format!(
+                "(() => {{ const p = window.__viewer.panels.get(1), d = p && p.lastDraw;
+                   return d && d.frame.epoch === p.info.epoch && d.frame.t > {last_t} && d.frame.curves; }})()"
+            ),
+            "a drawing of the moving curve",
+        )
+        .await;
+        let checks = js(
+            client,
+            &format!(
+                "const p = window.__viewer.panels.get(1), d = p.lastDraw, c = p.dom.canvas;
+                 const worst = {}; const frozen = {};
+                 const [bx, by] = window.__viewer.canvasPoint(1, d.x[0], d.x[1]);
+                 const image = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;
+                 let blue = 0;
+                 for (let dy = -26; dy <= 26; dy++) for (let dx = -26; dx <= 26; dx++) {{
+                   const r = Math.hypot(dx, dy); if (r < 14 || r > 26) continue;
+                   const i = 4 * (Math.round(by + dy) * c.width + Math.round(bx + dx));
+                   if (image[i + 2] > 200 && image[i] < 80) blue++;
+                 }}
+                 return {{t: d.frame.t, worst, frozen, blue, moving: p.info.curves_move}};",
+                drawn_curve_residual(shaken),
+                drawn_curve_residual("(x, y, t) => y + 0.5 * x * x")
+            ),
+        )
+        .await;
+        assert_eq!(checks["moving"], true, "{checks}");
+        assert!(
+            checks["worst"].as_f64().unwrap() < 2e-3,
+            "curve off C(x, t) = 0: {checks}"
+        );
+        assert!(
+            checks["frozen"].as_f64().unwrap() > 0.05,
+            "curve of t = 0 drawn: {checks}"
+        );
+        assert!(
+            checks["blue"].as_u64().unwrap() > 8,
+            "no curve at the bead: {checks}"
+        );
+        last_t = checks["t"].as_f64().unwrap() + 0.4;
+    }
+    screenshot(client, "moving-constraint").await;
+
+    // 2. Energy: the bars are the frame's kinetic, potential and total (the core's); the
+    //    driven constraint's work is named as the reason energy changes.
+    js(
+        client,
+        "document.getElementById('play').click(); return null;",
+    )
+    .await;
+    wait_until(client, &current(1, "f.status === 'paused'"), "the pause").await;
+    wait_until(
+        client,
+        "(() => { const p = window.__viewer.panels.get(1), b = p.lastBars, f = p.frame;
+           return b && f.status === 'paused' && b.kinetic === f.kinetic && b.potential === f.potential && b.total === f.energy; })()",
+        "energy bars equal to the frame's energies",
+    )
+    .await;
+    let why = js(
+        client,
+        "return window.__viewer.panels.get(1).dom.energyWhy.textContent;",
+    )
+    .await;
+    assert!(
+        why.as_str().unwrap().contains("depends on t") && why.as_str().unwrap().contains("E − W"),
+        "{why}"
+    );
+    let bars = js(
+        client,
+        "const p = window.__viewer.panels.get(1); return [p.lastBars, p.frame.kinetic + p.frame.potential - p.frame.energy];",
+    )
+    .await;
+    assert!(bars[1].as_f64().unwrap().abs() < 1e-9, "T + V != E: {bars}");
+
+    // 3. Zoom, pan, edge marker, fit.
+    let before = js(client, "return window.__viewer.viewOf(1);").await;
+    js(client, "window.__viewer.zoom(1, 2); return null;").await;
+    let zoomed = js(client, "return window.__viewer.viewOf(1);").await;
+    let ratio = zoomed["s"].as_f64().unwrap() / before["s"].as_f64().unwrap();
+    assert!(
+        (ratio - 2.0).abs() < 1e-9 && zoomed["auto"] == false,
+        "{before} {zoomed}"
+    );
+    // Pan far away (a drag on empty space does this; here the view is set directly): the
+    // bead is off view and a marker on the plot's edge points at it.
+    js(
+        client,
+        "const p = window.__viewer.panels.get(1); p.view.auto = false; p.view.c = [50, 50]; p.dirty = true; return null;",
+    )
+    .await;
+    wait_until(
+        client,
+        "(() => { const d = window.__viewer.panels.get(1).lastDraw, r = window.__viewer.viewOf(1).rect;
+           const m = d.markers[0];
+           return d.offView === 1 && m && m.x >= r.x0 && m.x <= r.x1 && m.y >= r.y0 && m.y <= r.y1; })()",
+        "an edge marker for the bead off view",
+    )
+    .await;
+    screenshot(client, "off-view-marker").await;
+    js(
+        client,
+        "document.querySelector('.panel[data-panel=\"1\"] .fit').click(); return null;",
+    )
+    .await;
+    wait_until(
+        client,
+        "(() => { const d = window.__viewer.panels.get(1).lastDraw; return window.__viewer.viewOf(1).auto && d.offView === 0 && d.markers.length === 0; })()",
+        "the fitted view with the bead in it",
+    )
+    .await;
+    // A drag on empty space pans.
+    let center = js(client, "return window.__viewer.viewOf(1).center;").await;
+    for (kind, dx) in [
+        ("pointerdown", 0.0),
+        ("pointermove", 60.0),
+        ("pointerup", 60.0),
+    ] {
+        js(
+            client,
+            &format!(
+                "const v = window.__viewer, c = v.panels.get(1).dom.canvas, b = c.getBoundingClientRect();
+                 const r = v.viewOf(1).rect, k = b.width / c.width;
+                 c.dispatchEvent(new PointerEvent('{kind}', {{clientX: b.left + (r.x0 + 12 + {dx}) * k,
+                   clientY: b.top + (r.y0 + 12) * k, pointerId: 1, bubbles: true, isPrimary: true, button: 0, buttons: 1}}));
+                 return null;"
+            ),
+        )
+        .await;
+    }
+    let panned = js(client, "return window.__viewer.viewOf(1);").await;
+    assert_eq!(panned["auto"], false, "{panned}");
+    assert!(
+        panned["center"][0].as_f64().unwrap() < center[0].as_f64().unwrap(),
+        "dragging right moves the view left: {center} -> {panned}"
+    );
+
+    // 4. A curve edit redraws the new curve (at the frame's t) and refits.
+    js(
+        client,
+        "const row = document.querySelector('#curves .curve-edit[data-constraint=\"0\"]');
+         row.querySelector('.curve-expr').value = 'bead.y + 0.1*bead.x^2 + 0.3*sin(2*t)';
+         row.querySelector('.curve-apply').click(); return null;",
+    )
+    .await;
+    wait_until(
+        client,
+        &format!(
+            "(() => {{ const p = window.__viewer.panels.get(1), d = p.lastDraw;
+               return p.info.exprs[0] === 'bead.y + 0.1*bead.x^2 + 0.3*sin(2*t)' && d.frame.epoch === p.info.epoch
+                 && window.__viewer.viewOf(1).auto && {} < 2e-3; }})()",
+            drawn_curve_residual("(x, y, t) => y + 0.1 * x * x + 0.3 * Math.sin(2 * t)")
+        ),
+        "the edited curve drawn",
+    )
+    .await;
+
+    // 5. The helix in 3D: a 3D view, z up as the scene says, the climb visible, orbit.
+    js(
+        client,
+        "window.__viewer.ws.send(JSON.stringify({type: 'load_scene', name: 'helix'})); return null;",
+    )
+    .await;
+    wait_until(
+        client,
+        &format!(
+            "window.__viewer.scene.name === 'helix' && {}",
+            first_current("p.lastDraw && f.t > 0.5")
+        ),
+        "the helix running",
+    )
+    .await;
+    let helix = js(
+        client,
+        "const v = window.__viewer, p = [...v.panels.values()][0], id = p.info.id;
+         const ys = []; for (const line of p.drawnCurves) for (let i = 0; i + 2 < line.length; i += 3) ys.push(v.canvasPoint(id, line[i], line[i + 1], line[i + 2])[1]);
+         return {title: document.getElementById('scene-title').textContent, up: v.sceneUp(),
+                 note: p.dom.note.textContent, climb: Math.max(...ys) - Math.min(...ys),
+                 height: v.viewOf(id).rect.y1 - v.viewOf(id).rect.y0, yaw: v.viewOf(id).yaw};",
+    )
+    .await;
+    assert_eq!(helix["up"], json!([0, 0, 1]), "{helix}");
+    let title = helix["title"].as_str().unwrap();
+    assert!(
+        title.contains("3D view") && title.contains("z up"),
+        "{helix}"
+    );
+    assert!(
+        !helix["note"].as_str().unwrap().contains("y down"),
+        "{helix}"
+    );
+    assert!(
+        helix["climb"].as_f64().unwrap() > 0.3 * helix["height"].as_f64().unwrap(),
+        "the helix's climb is not visible: {helix}"
+    );
+    for (kind, dx) in [
+        ("pointerdown", 0.0),
+        ("pointermove", 80.0),
+        ("pointerup", 80.0),
+    ] {
+        js(
+            client,
+            &format!(
+                "const v = window.__viewer, p = [...v.panels.values()][0], c = p.dom.canvas, b = c.getBoundingClientRect();
+                 const r = v.viewOf(p.info.id).rect, k = b.width / c.width;
+                 c.dispatchEvent(new PointerEvent('{kind}', {{clientX: b.left + (r.x0 + 12 + {dx}) * k,
+                   clientY: b.top + (r.y0 + 12) * k, pointerId: 1, bubbles: true, isPrimary: true, button: 0, buttons: 1}}));
+                 return null;"
+            ),
+        )
+        .await;
+    }
+    let yaw = js(
+        client,
+        "const v = window.__viewer; return v.viewOf([...v.panels.values()][0].info.id).yaw;",
+    )
+    .await;
+    assert!(
+        (yaw.as_f64().unwrap() - helix["yaw"].as_f64().unwrap()).abs() > 0.3,
+        "no orbit: {yaw} {helix}"
+    );
+    screenshot(client, "helix-3d").await;
+
+    // Screenshots of the other scenes, to look at.
+    for name in ["circle", "double-pendulum", "parabola", "cycloid"] {
+        js(
+            client,
+            &format!("window.__viewer.ws.send(JSON.stringify({{type: 'load_scene', name: '{name}'}})); return null;"),
+        )
+        .await;
+        wait_until(
+            client,
+            &format!(
+                "window.__viewer.scene.name === '{name}' && {}",
+                first_current("p.lastDraw && f.t > 1.0")
+            ),
+            "the scene running",
+        )
+        .await;
+        screenshot(client, name).await;
+    }
+    let errors = js(client, "return window.__errors;").await;
+    assert_eq!(errors, json!([]), "errors in the page");
 }
