@@ -1,0 +1,116 @@
+"""Type stubs of the native module `bead._bead` (kept in sync by tests/test_stubs.py)."""
+
+import os
+from typing import Any, Dict, List, Mapping, Optional, Tuple, Union
+
+import numpy as np
+
+from ._run import Run
+
+__version__: str
+INTEGRATORS: List[str]
+METHODS: List[str]
+
+def load(
+    path: Union[str, os.PathLike[str]], params: Optional[Mapping[str, float]] = None
+) -> Scene:
+    """Load a scene file (TOML); `params` overrides `[params]` values. Raises bead.SceneError."""
+
+def loads(
+    text: str, params: Optional[Mapping[str, float]] = None, name: str = "<string>"
+) -> Scene:
+    """Load a scene from TOML text; `name` stands for the file in messages."""
+
+class Scene:
+    """A loaded scene (immutable)."""
+
+    @property
+    def title(self) -> str: ...
+    @property
+    def file(self) -> str: ...
+    @property
+    def particles(self) -> List[str]: ...
+    @property
+    def dimension(self) -> int: ...
+    @property
+    def params(self) -> Dict[str, float]: ...
+    @property
+    def methods(self) -> List[str]: ...
+    @property
+    def default_method(self) -> str: ...
+    @property
+    def coordinates(self) -> List[str]: ...
+    @property
+    def constraint_count(self) -> int: ...
+    @property
+    def run_defaults(self) -> Dict[str, Any]: ...
+    @property
+    def warnings(self) -> List[str]: ...
+    @property
+    def text(self) -> str: ...
+    def with_params(self, params: Mapping[str, float]) -> Scene: ...
+    def run(
+        self,
+        *,
+        method: Optional[str] = None,
+        integrator: Optional[str] = None,
+        dt: Optional[float] = None,
+        duration: Optional[float] = None,
+        steps: Optional[int] = None,
+        every: Optional[int] = None,
+        stabilize: Optional[Tuple[float, float]] = None,
+        rtol: Optional[float] = None,
+        atol: Optional[float] = None,
+        project: bool = False,
+        substeps: Optional[int] = None,
+        max_substeps: Optional[int] = None,
+    ) -> Run:
+        """Run the scene; arguments override its [run] table. Raises ValueError,
+        bead.SetupError, bead.RunError (with .run, the partial run)."""
+    def simulation(
+        self,
+        *,
+        method: Optional[str] = None,
+        integrator: Optional[str] = None,
+        dt: Optional[float] = None,
+        stabilize: Optional[Tuple[float, float]] = None,
+        rtol: Optional[float] = None,
+        atol: Optional[float] = None,
+        project: bool = False,
+        substeps: Optional[int] = None,
+        max_substeps: Optional[int] = None,
+    ) -> Simulation:
+        """A simulation to step by hand, at the scene's initial state."""
+
+class Simulation:
+    """A simulation stepped by hand (from Scene.simulation())."""
+
+    def step(self, count: int = 1) -> None: ...
+    def advance_to(self, t: float) -> None: ...
+    def reset(self) -> None: ...
+    @property
+    def t(self) -> float: ...
+    @property
+    def positions(self) -> np.ndarray: ...
+    @property
+    def velocities(self) -> np.ndarray: ...
+    @property
+    def q(self) -> np.ndarray: ...
+    @property
+    def qdot(self) -> np.ndarray: ...
+    @property
+    def energy(self) -> float: ...
+    @property
+    def constraint_error(self) -> float: ...
+    @property
+    def steps(self) -> int: ...
+    @property
+    def method(self) -> str: ...
+    @property
+    def integrator(self) -> str: ...
+    @property
+    def dt(self) -> float: ...
+    @property
+    def particles(self) -> List[str]: ...
+    @property
+    def coordinates(self) -> List[str]: ...

@@ -1,0 +1,882 @@
+//! `bead._bead`: the native half of the Python package `bead`. It drives the library's own
+//! objects ([`bead::plan::Plan`], [`bead::simulate::Simulation`], [`bead::simulate::run`],
+//! [`bead::output::Summary`]) and writes no physics of its own: it converts arguments into a
+//! [`bead::plan::PlanRequest`], runs with the GIL released, and hands numpy arrays back to the
+//! Python half (`python/bead`), which holds them in a `Run` and defines the exceptions.
+
+use std::panic::{catch_unwind, AssertUnwindSafe};
+use std::path::PathBuf;
+use std::sync::{Arc, Mutex};
+
+use bead::formulation::{Feedback, Method};
+use bead::integrate::IntegratorKind;
+use bead::output::{trace_header, Summary};
+use bead::plan::{self, Plan, PlanError, PlanRequest};
+use bead::scene::{Scene, SceneError};
+use bead::simulate::{self, RunError, RunFailure, RunStats, Sample, SetupError, Simulation, Sink};
+use numpy::ndarray::{Array2, Array3};
+use numpy::{IntoPyArray, PyArray1};
+use pyo3::exceptions::{PyTypeError, PyValueError};
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+
+/// Most values a run may record (8 bytes each) before it is refused: 2^30 values are 8 GiB.
+const MAX_RECORDED_VALUES: f64 = 1_073_741_824.0;
+
+/// The native module `bead._bead`; the package `bead` re-exports what users need.
+#[pymodule]
+fn _bead(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_function(wrap_pyfunction!(load, m)?)?;
+    m.add_function(wrap_pyfunction!(loads, m)?)?;
+    m.add_class::<PyScene>()?;
+    m.add_class::<PySimulation>()?;
+    m.add("__version__", env!("CARGO_PKG_VERSION"))?;
+    m.add(
+        "INTEGRATORS",
+        IntegratorKind::ALL
+            .iter()
+            .map(|k| k.name())
+            .collect::<Vec<_>>(),
+    )?;
+    m.add("METHODS", ["implicit", "parametric"])?;
+    Ok(())
+}
+
+// ---------------------------------------------------------------------------------------
+// Loading scenes
+
+/// Load a scene file (TOML) and return a `Scene`.
+///
+/// `params` overrides values of the scene's `[params]` table, e.g. `{"g": 9.81}`; an unknown
+/// name or a value that is not a finite number is an error. Raises `bead.SceneError` (a
+/// `ValueError`) with `.path`, `.line`, `.column` and `.message` when the file cannot be read or
+/// is not a valid scene; `str(error)` is the located message with the offending line and a
+/// caret under it.
+#[pyfunction]
+#[pyo3(signature = (path, params = None))]
+fn load(py: Python<'_>, path: PathBuf, params: Option<&Bound<'_, PyAny>>) -> PyResult<PyScene> {
+    let overrides = overrides(params)?;
+    let scene = py
+        .detach(|| Scene::load(&path, &overrides))
+        .map_err(|e| scene_error(py, &e))?;
+    Ok(PyScene::new(scene))
+}
+
+/// Load a scene from TOML text and return a `Scene`.
+///
+/// `name` stands for the file in messages and in the summary's `scene` key. `params` and the
+/// errors are as for `bead.load`.
+#[pyfunction]
+#[pyo3(signature = (text, params = None, name = "<string>"))]
+fn loads(
+    py: Python<'_>,
+    text: &str,
+    params: Option<&Bound<'_, PyAny>>,
+    name: &str,
+) -> PyResult<PyScene> {
+    let overrides = overrides(params)?;
+    let scene = Scene::parse(text, name, &overrides).map_err(|e| scene_error(py, &e))?;
+    Ok(PyScene::new(scene))
+}
+
+/// `params` as (name, value) pairs: any mapping of names to real numbers.
+fn overrides(params: Option<&Bound<'_, PyAny>>) -> PyResult<Vec<(String, f64)>> {
+    let Some(params) = params else {
+        return Ok(Vec::new());
+    };
+    let items = params.call_method0("items").map_err(|_| {
+        PyTypeError::new_err("params must be a mapping of parameter names to numbers")
+    })?;
+    let mut pairs = Vec::new();
+    for item in items.try_iter()? {
+        let (name, value): (Bound<'_, PyAny>, Bound<'_, PyAny>) = item?.extract()?;
+        let name: String = name.extract().map_err(|_| {
+            PyTypeError::new_err(format!("params: the name {name} is not a string"))
+        })?;
+        let number: f64 = value.extract().map_err(|_| {
+            PyTypeError::new_err(format!("params[{name:?}]: {value} is not a number"))
+        })?;
+        if !number.is_finite() {
+            return Err(PyValueError::new_err(format!(
+                "params[{name:?}]: {} is not a finite number",
+                bead::readable(number)
+            )));
+        }
+        pairs.push((name, number));
+    }
+    Ok(pairs)
+}
+
+// ---------------------------------------------------------------------------------------
+// Scenes
+
+/// A loaded scene: particles, constraints, forces, an optional parametric form and the `[run]`
+/// defaults. Immutable; `run()` and `simulation()` may be called any number of times, from any
+/// thread.
+#[pyclass(frozen, module = "bead", name = "Scene")]
+pub struct PyScene {
+    inner: Arc<Scene>,
+}
+
+impl PyScene {
+    fn new(scene: Scene) -> PyScene {
+        PyScene {
+            inner: Arc::new(scene),
+        }
+    }
+}
+
+/// Arguments shared by `Scene.run` and `Scene.simulation`, as Python passed them.
+struct Asked<'a> {
+    method: Option<&'a str>,
+    integrator: Option<&'a str>,
+    dt: Option<f64>,
+    stabilize: Option<(f64, f64)>,
+    rtol: Option<f64>,
+    atol: Option<f64>,
+    project: bool,
+    substeps: Option<i64>,
+    max_substeps: Option<i64>,
+}
+
+impl Asked<'_> {
+    /// The plan request, with names and counts checked (the values are checked by
+    /// [`Plan::resolve`]).
+    fn request(&self) -> PyResult<PlanRequest> {
+        let method = self
+            .method
+            .map(|m| m.parse::<Method>().map_err(PyValueError::new_err))
+            .transpose()?;
+        let integrator = self
+            .integrator
+            .map(|i| i.parse::<IntegratorKind>().map_err(PyValueError::new_err))
+            .transpose()?;
+        Ok(PlanRequest {
+            method,
+            integrator,
+            dt: self.dt,
+            duration: None,
+            steps: None,
+            every: None,
+            stabilize: self.stabilize.map(|(ks, kd)| Feedback { ks, kd }),
+            rtol: self.rtol,
+            atol: self.atol,
+            project: self.project,
+            substeps: count("substeps", self.substeps)?.map(saturate_u32),
+            max_substeps: count("max_substeps", self.max_substeps)?.map(saturate_u32),
+        })
+    }
+}
+
+/// A count from Python: None, or an integer the plan checks (a negative one is refused here,
+/// since the plan's counts are unsigned).
+fn count(name: &str, value: Option<i64>) -> PyResult<Option<u64>> {
+    match value {
+        Some(v) if v < 0 => Err(PyValueError::new_err(format!(
+            "{name}={v}: must be at least 1"
+        ))),
+        other => Ok(other.map(|v| v as u64)),
+    }
+}
+
+fn saturate_u32(v: u64) -> u32 {
+    u32::try_from(v).unwrap_or(u32::MAX)
+}
+
+/// The plan for `request`, warning when the scene's feedback is dropped for a parametric run
+/// (the CLI's warning, as a Python `UserWarning`).
+fn resolve(py: Python<'_>, scene: &Scene, request: &PlanRequest) -> PyResult<Plan> {
+    let plan = Plan::resolve(scene, request).map_err(plan_error)?;
+    if plan.ignores_scene_feedback(plan.method) {
+        PyErr::warn(
+            py,
+            &py.get_type::<pyo3::exceptions::PyUserWarning>(),
+            c"the scene's [run] stabilize applies only to the implicit form; not used for this parametric run",
+            1,
+        )?;
+    }
+    Ok(plan)
+}
+
+#[pymethods]
+impl PyScene {
+    /// The title, or the file stem when the scene has none.
+    #[getter]
+    fn title(&self) -> &str {
+        &self.inner.title
+    }
+
+    /// The file name as given (or the `name` given to `bead.loads`).
+    #[getter]
+    fn file(&self) -> &str {
+        &self.inner.file
+    }
+
+    /// Particle names, in scene order (the order of the P axis of positions and velocities).
+    #[getter]
+    fn particles(&self) -> Vec<String> {
+        self.inner
+            .system
+            .particles()
+            .iter()
+            .map(|p| p.name.clone())
+            .collect()
+    }
+
+    /// The dimension D: 2 or 3.
+    #[getter]
+    fn dimension(&self) -> usize {
+        self.inner.system.dim()
+    }
+
+    /// The `[params]` values after overrides, in file order, as a new dict.
+    #[getter]
+    fn params<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let dict = PyDict::new(py);
+        for (name, value) in &self.inner.params {
+            dict.set_item(name, value)?;
+        }
+        Ok(dict)
+    }
+
+    /// The formulations the scene defines: "implicit" when it has a constraint or no
+    /// parametric form, "parametric" when it has a parametric form.
+    #[getter]
+    fn methods(&self) -> Vec<&'static str> {
+        plan::methods(&self.inner)
+            .into_iter()
+            .map(Method::name)
+            .collect()
+    }
+
+    /// The method `run()` uses without `method=`: the scene's `[run]` method, else implicit
+    /// when the scene has constraints or no parametric form, else parametric.
+    #[getter]
+    fn default_method(&self) -> &'static str {
+        plan::run_method(&self.inner, None).name()
+    }
+
+    /// Names of the parametric form's generalized coordinates (the K axis of q and qdot);
+    /// empty when the scene has no parametric form.
+    #[getter]
+    fn coordinates(&self) -> Vec<String> {
+        match self.inner.system.parametric() {
+            Some(map) => map.coordinates().to_vec(),
+            None => Vec::new(),
+        }
+    }
+
+    /// The number of implicit constraints.
+    #[getter]
+    fn constraint_count(&self) -> usize {
+        self.inner.system.constraints().infos().len()
+    }
+
+    /// What the scene's `[run]` table sets (only the keys it sets).
+    #[getter]
+    fn run_defaults<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let run = &self.inner.run;
+        let dict = PyDict::new(py);
+        if let Some(m) = run.method {
+            dict.set_item("method", m.name())?;
+        }
+        if let Some(i) = run.integrator {
+            dict.set_item("integrator", i.name())?;
+        }
+        if let Some(dt) = run.dt {
+            dict.set_item("dt", dt)?;
+        }
+        if let Some(d) = run.duration {
+            dict.set_item("duration", d)?;
+        }
+        if let Some(s) = run.steps {
+            dict.set_item("steps", s)?;
+        }
+        if let Some(f) = run.stabilize {
+            dict.set_item("stabilize", (f.ks, f.kd))?;
+        }
+        Ok(dict)
+    }
+
+    /// Warnings about the scene (e.g. a parametric form that does not start where the
+    /// particles do), as `bead check` prints them.
+    #[getter]
+    fn warnings(&self) -> Vec<String> {
+        self.inner.warnings()
+    }
+
+    /// The scene text it was loaded from.
+    #[getter]
+    fn text(&self) -> &str {
+        self.inner.text()
+    }
+
+    /// A copy of this scene with parameters replaced, e.g. `scene.with_params({"g": 1.62})`:
+    /// the scene is loaded again from its text with these overrides on top of its own.
+    fn with_params(&self, py: Python<'_>, params: &Bound<'_, PyAny>) -> PyResult<PyScene> {
+        let mut all = self.inner.overrides().to_vec();
+        for (name, value) in overrides(Some(params))? {
+            all.retain(|(n, _)| *n != name);
+            all.push((name, value));
+        }
+        let scene = Scene::parse(self.inner.text(), &self.inner.file, &all)
+            .map_err(|e| scene_error(py, &e))?;
+        Ok(PyScene::new(scene))
+    }
+
+    /// Run the scene and return a `bead.Run` with its recorded states as numpy arrays.
+    ///
+    /// Every argument is optional and overrides the scene's `[run]` table, which overrides the
+    /// defaults (as the `bead run` flags do): method ("implicit" or "parametric"), integrator
+    /// (see `bead.INTEGRATORS`), dt (s, > 0), duration (s, > 0) or steps (>= 1), every (record
+    /// every K-th step; the first and last states are always recorded), stabilize ((ks, kd),
+    /// implicit form), rtol and atol (dopri5), project (implicit form), substeps and
+    /// max_substeps.
+    ///
+    /// Raises ValueError for a bad argument, `bead.SetupError` when the simulation cannot
+    /// start (e.g. rattle on the parametric form), and `bead.RunError` (`bead.DivergenceError`
+    /// when the state blew up) when a step fails, with the run up to the last good state as
+    /// `.run`. The GIL is released while the run steps.
+    #[pyo3(signature = (*, method = None, integrator = None, dt = None, duration = None, steps = None, every = None, stabilize = None, rtol = None, atol = None, project = false, substeps = None, max_substeps = None))]
+    #[allow(clippy::too_many_arguments)]
+    fn run(
+        &self,
+        py: Python<'_>,
+        method: Option<&str>,
+        integrator: Option<&str>,
+        dt: Option<f64>,
+        duration: Option<f64>,
+        steps: Option<i64>,
+        every: Option<i64>,
+        stabilize: Option<(f64, f64)>,
+        rtol: Option<f64>,
+        atol: Option<f64>,
+        project: bool,
+        substeps: Option<i64>,
+        max_substeps: Option<i64>,
+    ) -> PyResult<Py<PyAny>> {
+        let asked = Asked {
+            method,
+            integrator,
+            dt,
+            stabilize,
+            rtol,
+            atol,
+            project,
+            substeps,
+            max_substeps,
+        };
+        let mut request = asked.request()?;
+        request.duration = duration;
+        request.steps = count("steps", steps)?;
+        request.every = count("every", every)?;
+        let plan = resolve(py, &self.inner, &request)?;
+        run_plan(py, &self.inner, &plan)
+    }
+
+    /// A `bead.Simulation` to step by hand (`step()`, `advance_to(t)`), at the scene's
+    /// initial state. The arguments are those of `run()` without the run's length.
+    #[pyo3(signature = (*, method = None, integrator = None, dt = None, stabilize = None, rtol = None, atol = None, project = false, substeps = None, max_substeps = None))]
+    #[allow(clippy::too_many_arguments)]
+    fn simulation(
+        &self,
+        py: Python<'_>,
+        method: Option<&str>,
+        integrator: Option<&str>,
+        dt: Option<f64>,
+        stabilize: Option<(f64, f64)>,
+        rtol: Option<f64>,
+        atol: Option<f64>,
+        project: bool,
+        substeps: Option<i64>,
+        max_substeps: Option<i64>,
+    ) -> PyResult<PySimulation> {
+        let asked = Asked {
+            method,
+            integrator,
+            dt,
+            stabilize,
+            rtol,
+            atol,
+            project,
+            substeps,
+            max_substeps,
+        };
+        // Only the step matters here: the scene's run length is not used, and a request for
+        // one step keeps the scene's duration from being checked against the new dt.
+        let mut request = asked.request()?;
+        request.steps = Some(1);
+        let plan = resolve(py, &self.inner, &request)?;
+        let config = plan.config(plan.method);
+        let system = Arc::clone(&self.inner.system);
+        let simulation = detached(py, move || Simulation::new(system, config))?
+            .map_err(|e| setup_error(py, &e))?;
+        Ok(PySimulation {
+            inner: Mutex::new(simulation),
+            scene: Arc::clone(&self.inner),
+        })
+    }
+
+    fn __repr__(&self) -> String {
+        let scene = &self.inner;
+        format!(
+            "<bead.Scene {:?} from {:?}: {} in {}D, {}, methods {}>",
+            scene.title,
+            scene.file,
+            counted(scene.system.particles().len(), "particle"),
+            scene.system.dim(),
+            counted(scene.system.constraints().infos().len(), "constraint"),
+            self.methods().join(", ")
+        )
+    }
+}
+
+/// `n thing` or `n things`.
+fn counted(n: usize, thing: &str) -> String {
+    if n == 1 {
+        format!("1 {thing}")
+    } else {
+        format!("{n} {thing}s")
+    }
+}
+
+// ---------------------------------------------------------------------------------------
+// Runs
+
+/// Every recorded sample of a run, row after row (a [`Sink`]).
+#[derive(Default)]
+struct Recorder {
+    t: Vec<f64>,
+    x: Vec<f64>,
+    xdot: Vec<f64>,
+    energy: Vec<f64>,
+    constraint_error: Vec<f64>,
+    q: Vec<f64>,
+    qdot: Vec<f64>,
+    work: Vec<f64>,
+}
+
+impl Sink for Recorder {
+    fn record(&mut self, sample: &Sample) -> std::io::Result<()> {
+        self.t.push(sample.t);
+        self.x.extend_from_slice(sample.x);
+        self.xdot.extend_from_slice(sample.xdot);
+        self.energy.push(sample.energy);
+        self.constraint_error.push(sample.constraint_error);
+        self.q.extend_from_slice(sample.q);
+        self.qdot.extend_from_slice(sample.qdot);
+        if let Some(w) = sample.work {
+            self.work.push(w);
+        }
+        Ok(())
+    }
+}
+
+/// What a run left: the recorded rows, the outcome and its summary.
+struct Finished {
+    recorder: Recorder,
+    result: Result<RunStats, RunFailure>,
+    summary: Summary,
+    coordinates: Vec<String>,
+    tracks_work: bool,
+}
+
+/// Run `plan` on `scene` with the GIL released, and build the Python `Run` (or raise the
+/// `RunError` that carries it).
+fn run_plan(py: Python<'_>, scene: &Arc<Scene>, plan: &Plan) -> PyResult<Py<PyAny>> {
+    let system = &scene.system;
+    let rows = (plan.steps / plan.every) as f64 + 2.0;
+    let per_row = (2 * system.n_coords() + 3) as f64
+        + 2.0
+            * system
+                .parametric()
+                .map_or(0, |m| m.n_q())
+                .max(system.n_coords()) as f64;
+    if rows * per_row > MAX_RECORDED_VALUES {
+        return Err(PyValueError::new_err(format!(
+            "this run would record {} states of {} values ({} GB); record fewer with every=K",
+            bead::readable(rows),
+            per_row,
+            bead::significant(rows * per_row * 8e-9, 3)
+        )));
+    }
+    let config = plan.config(plan.method);
+    let options = plan.options();
+    let shared = Arc::clone(scene);
+    let finished = detached(py, move || -> Result<Finished, SetupError> {
+        let mut simulation = Simulation::new(Arc::clone(&shared.system), config)?;
+        let coordinates = simulation.formulation().coordinate_names().to_vec();
+        let tracks_work = simulation.tracks_work();
+        let mut recorder = Recorder::default();
+        let rows = (rows as usize).min(1 << 16);
+        recorder.t.reserve(rows);
+        let result = simulate::run(&mut simulation, options, &mut recorder);
+        let summary = Summary::from_result(&shared.file, &shared.system, &coordinates, &result);
+        Ok(Finished {
+            recorder,
+            result,
+            summary,
+            coordinates,
+            // The ledger may have started during the run (external forces); the rows say.
+            tracks_work: tracks_work || simulation.tracks_work(),
+        })
+    })?
+    .map_err(|e| setup_error(py, &e))?;
+    let Finished {
+        recorder,
+        result,
+        summary,
+        coordinates,
+        tracks_work,
+    } = finished;
+    let run = build_run(py, scene, &recorder, &summary, &coordinates, tracks_work)?;
+    match result {
+        Ok(_) => Ok(run),
+        Err(failure) => Err(run_error(py, &failure.error, Some(run))),
+    }
+}
+
+/// The Python `bead.Run` holding the recorded rows as numpy arrays.
+fn build_run(
+    py: Python<'_>,
+    scene: &Scene,
+    recorder: &Recorder,
+    summary: &Summary,
+    coordinates: &[String],
+    tracks_work: bool,
+) -> PyResult<Py<PyAny>> {
+    let system = &scene.system;
+    let (p, d) = (system.particles().len(), system.dim());
+    let rows = recorder.t.len();
+    let k = recorder.q.len().checked_div(rows).unwrap_or(0);
+    let shape_error = |e: numpy::ndarray::ShapeError| PyValueError::new_err(e.to_string());
+    let kwargs = PyDict::new(py);
+    kwargs.set_item("t", PyArray1::from_slice(py, &recorder.t))?;
+    kwargs.set_item(
+        "positions",
+        Array3::from_shape_vec((rows, p, d), recorder.x.clone())
+            .map_err(shape_error)?
+            .into_pyarray(py),
+    )?;
+    kwargs.set_item(
+        "velocities",
+        Array3::from_shape_vec((rows, p, d), recorder.xdot.clone())
+            .map_err(shape_error)?
+            .into_pyarray(py),
+    )?;
+    kwargs.set_item("energy", PyArray1::from_slice(py, &recorder.energy))?;
+    kwargs.set_item(
+        "constraint_error",
+        PyArray1::from_slice(py, &recorder.constraint_error),
+    )?;
+    kwargs.set_item(
+        "q",
+        Array2::from_shape_vec((rows, k), recorder.q.clone())
+            .map_err(shape_error)?
+            .into_pyarray(py),
+    )?;
+    kwargs.set_item(
+        "qdot",
+        Array2::from_shape_vec((rows, k), recorder.qdot.clone())
+            .map_err(shape_error)?
+            .into_pyarray(py),
+    )?;
+    let work = (tracks_work && recorder.work.len() == rows)
+        .then(|| PyArray1::from_slice(py, &recorder.work));
+    kwargs.set_item("work", work)?;
+    let json = summary
+        .to_json_pretty()
+        .map_err(|e| PyValueError::new_err(e.to_string()))?;
+    let summary_dict = py.import("json")?.call_method1("loads", (json,))?;
+    kwargs.set_item("summary", summary_dict)?;
+    kwargs.set_item("particles", particle_names(scene))?;
+    kwargs.set_item("coordinates", coordinates.to_vec())?;
+    kwargs.set_item(
+        "columns",
+        trace_header(
+            system,
+            coordinates,
+            tracks_work && recorder.work.len() == rows,
+        ),
+    )?;
+    let run_class = py.import("bead._run")?.getattr("Run")?;
+    Ok(run_class.call((), Some(&kwargs))?.unbind())
+}
+
+fn particle_names(scene: &Scene) -> Vec<String> {
+    scene
+        .system
+        .particles()
+        .iter()
+        .map(|p| p.name.clone())
+        .collect()
+}
+
+// ---------------------------------------------------------------------------------------
+// Simulations
+
+/// A simulation to step by hand: `step()`, `advance_to(t)`, and the current state. Made by
+/// `Scene.simulation()`. After an error it holds the last good state. The GIL is released
+/// while it steps; calls from several threads take turns.
+#[pyclass(frozen, module = "bead", name = "Simulation")]
+pub struct PySimulation {
+    inner: Mutex<Simulation>,
+    scene: Arc<Scene>,
+}
+
+impl PySimulation {
+    /// Read the simulation (with the GIL held: nothing steps it meanwhile for long, since
+    /// stepping happens with the lock taken only while detached).
+    fn read<T>(&self, py: Python<'_>, f: impl FnOnce(&Simulation) -> T + Send) -> PyResult<T>
+    where
+        T: Send,
+    {
+        // Wait for the lock detached, so that a thread stepping this simulation can re-attach.
+        let inner = &self.inner;
+        let out = py.detach(|| inner.lock().map(|s| f(&s)).map_err(|_| ()));
+        out.map_err(|_| poisoned())
+    }
+
+    /// Step the simulation with the GIL released.
+    fn advance(
+        &self,
+        py: Python<'_>,
+        f: impl FnOnce(&mut Simulation) -> Result<(), RunError> + Send,
+    ) -> PyResult<()> {
+        let inner = &self.inner;
+        let result = detached(py, move || match inner.lock() {
+            Ok(mut simulation) => Ok(f(&mut simulation)),
+            Err(_) => Err(()),
+        })?;
+        match result {
+            Ok(Ok(())) => Ok(()),
+            Ok(Err(e)) => Err(run_error(py, &e, None)),
+            Err(()) => Err(poisoned()),
+        }
+    }
+
+    /// An (n / dim, dim) array of `values`.
+    fn matrix<'py>(&self, py: Python<'py>, values: Vec<f64>) -> PyResult<Bound<'py, PyAny>> {
+        let d = self.scene.system.dim();
+        let shape = (values.len() / d, d);
+        Ok(Array2::from_shape_vec(shape, values)
+            .map_err(|e| PyValueError::new_err(e.to_string()))?
+            .into_pyarray(py)
+            .into_any())
+    }
+}
+
+#[pymethods]
+impl PySimulation {
+    /// Take `count` steps (default 1): dt each for fixed-step integrators, one accepted step
+    /// of its own size each for dopri5. Raises `bead.RunError` when a step fails.
+    #[pyo3(signature = (count = 1))]
+    fn step(&self, py: Python<'_>, count: i64) -> PyResult<()> {
+        if count < 0 {
+            return Err(PyValueError::new_err(format!(
+                "step(count={count}): count must be >= 0"
+            )));
+        }
+        self.advance(py, |simulation| {
+            for _ in 0..count {
+                simulation.step()?;
+            }
+            Ok(())
+        })
+    }
+
+    /// Advance to exactly time `t` (not before the current time): steps of dt and, when `t`
+    /// is not on the grid of steps, one shorter step to land on it.
+    fn advance_to(&self, py: Python<'_>, t: f64) -> PyResult<()> {
+        self.advance(py, |simulation| simulation.advance_to(t))
+    }
+
+    /// Back to the scene's initial state.
+    fn reset(&self, py: Python<'_>) -> PyResult<()> {
+        self.advance(py, |simulation| {
+            simulation.reset();
+            Ok(())
+        })
+    }
+
+    /// Time of the current state (s).
+    #[getter]
+    fn t(&self, py: Python<'_>) -> PyResult<f64> {
+        self.read(py, Simulation::t)
+    }
+
+    /// Particle positions now, a (P, D) array (a copy).
+    #[getter]
+    fn positions<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        let values = self.read(py, |s| s.positions().to_vec())?;
+        self.matrix(py, values)
+    }
+
+    /// Particle velocities now, a (P, D) array (a copy).
+    #[getter]
+    fn velocities<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        let values = self.read(py, |s| s.velocities().to_vec())?;
+        self.matrix(py, values)
+    }
+
+    /// The formulation's coordinates now, a (K,) array: the particle coordinates for the
+    /// implicit form, the generalized coordinates for the parametric one.
+    #[getter]
+    fn q<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray1<f64>>> {
+        let values = self.read(py, |s| s.q().to_vec())?;
+        Ok(values.into_pyarray(py))
+    }
+
+    /// Their rates, a (K,) array.
+    #[getter]
+    fn qdot<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray1<f64>>> {
+        let values = self.read(py, |s| s.qdot().to_vec())?;
+        Ok(values.into_pyarray(py))
+    }
+
+    /// Total mechanical energy T + V now.
+    #[getter]
+    fn energy(&self, py: Python<'_>) -> PyResult<f64> {
+        self.read(py, Simulation::energy)
+    }
+
+    /// max_i |C_i| now, over the scene's implicit constraints (for both forms).
+    #[getter]
+    fn constraint_error(&self, py: Python<'_>) -> PyResult<f64> {
+        self.read(py, Simulation::constraint_error)
+    }
+
+    /// Integrator steps taken (accepted steps for dopri5).
+    #[getter]
+    fn steps(&self, py: Python<'_>) -> PyResult<u64> {
+        self.read(py, Simulation::steps)
+    }
+
+    /// "implicit" or "parametric".
+    #[getter]
+    fn method(&self, py: Python<'_>) -> PyResult<&'static str> {
+        self.read(py, |s| s.method().name())
+    }
+
+    /// The integrator's name.
+    #[getter]
+    fn integrator(&self, py: Python<'_>) -> PyResult<&'static str> {
+        self.read(py, |s| s.integrator().name())
+    }
+
+    /// The step size (s).
+    #[getter]
+    fn dt(&self, py: Python<'_>) -> PyResult<f64> {
+        self.read(py, |s| s.config().dt)
+    }
+
+    /// Particle names, in the order of the rows of `positions`.
+    #[getter]
+    fn particles(&self) -> Vec<String> {
+        particle_names(&self.scene)
+    }
+
+    /// Names of the formulation's coordinates (the entries of `q`).
+    #[getter]
+    fn coordinates(&self, py: Python<'_>) -> PyResult<Vec<String>> {
+        self.read(py, |s| s.formulation().coordinate_names().to_vec())
+    }
+
+    fn __repr__(&self, py: Python<'_>) -> PyResult<String> {
+        self.read(py, |s| {
+            format!(
+                "<bead.Simulation {} {} dt={} at t={} after {} steps>",
+                s.method().name(),
+                s.integrator().name(),
+                bead::readable(s.config().dt),
+                bead::readable(s.t()),
+                s.steps()
+            )
+        })
+    }
+}
+
+// ---------------------------------------------------------------------------------------
+// Releasing the GIL, and errors
+
+/// Run `f` with the GIL released. A panic in `f` (a bug in bead) becomes a `bead.BeadError`
+/// instead of unwinding into Python.
+fn detached<T: Send>(py: Python<'_>, f: impl FnOnce() -> T + Send) -> PyResult<T> {
+    py.detach(|| catch_unwind(AssertUnwindSafe(f)))
+        .map_err(|panic| {
+            let what = panic
+                .downcast_ref::<&str>()
+                .map(|s| s.to_string())
+                .or_else(|| panic.downcast_ref::<String>().cloned())
+                .unwrap_or_else(|| "unknown panic".into());
+            bead_error(
+                py,
+                &format!("internal error (a bug in bead; please report it): {what}"),
+            )
+        })
+}
+
+/// A simulation whose lock was poisoned by a panic while it stepped.
+fn poisoned() -> PyErr {
+    Python::attach(|py| {
+        bead_error(
+            py,
+            "this simulation failed with an internal error earlier and cannot be used",
+        )
+    })
+}
+
+/// An instance of `bead._errors.NAME` made with `args`, as a `PyErr` (or the error of making
+/// it).
+fn python_error<'py>(py: Python<'py>, name: &str, args: impl pyo3::call::PyCallArgs<'py>) -> PyErr {
+    let made = py
+        .import("bead._errors")
+        .and_then(|m| m.getattr(name))
+        .and_then(|class| class.call1(args));
+    match made {
+        Ok(instance) => PyErr::from_value(instance),
+        Err(e) => e,
+    }
+}
+
+fn bead_error(py: Python<'_>, message: &str) -> PyErr {
+    python_error(py, "BeadError", (message,))
+}
+
+/// `bead.SceneError(text, path, line, column, message, snippet)`.
+fn scene_error(py: Python<'_>, e: &SceneError) -> PyErr {
+    python_error(
+        py,
+        "SceneError",
+        (
+            e.render(),
+            e.file.clone(),
+            e.line,
+            e.column,
+            e.message.clone(),
+            e.snippet.clone(),
+        ),
+    )
+}
+
+/// `bead.SetupError`: the simulation cannot start with these settings or this state.
+fn setup_error(py: Python<'_>, e: &SetupError) -> PyErr {
+    python_error(py, "SetupError", (e.to_string(),))
+}
+
+/// A plan that cannot be made: a bad argument (ValueError naming it as a keyword) or a bad
+/// `[run]` value of the scene.
+fn plan_error(e: PlanError) -> PyErr {
+    PyValueError::new_err(e.to_string())
+}
+
+/// `bead.RunError` (`bead.DivergenceError` when the state blew up) with the partial run.
+fn run_error(py: Python<'_>, e: &RunError, run: Option<Py<PyAny>>) -> PyErr {
+    let class = match e {
+        RunError::Diverged { .. } => "DivergenceError",
+        // advance_to(t) before the current time: a bad argument, nothing ran.
+        RunError::TimeBehind { .. } => return PyValueError::new_err(e.to_string()),
+        _ => "RunError",
+    };
+    python_error(py, class, (e.to_string(), run))
+}
