@@ -13,7 +13,9 @@ use bead::integrate::IntegratorKind;
 use bead::output::{trace_header, Summary};
 use bead::plan::{self, Plan, PlanError, PlanRequest};
 use bead::scene::{Scene, SceneError};
-use bead::simulate::{self, RunError, RunFailure, RunStats, Sample, SetupError, Simulation, Sink};
+use bead::simulate::{
+    self, Event, EventError, RunError, RunFailure, RunStats, Sample, SetupError, Simulation, Sink,
+};
 use numpy::ndarray::{Array2, Array3};
 use numpy::{IntoPyArray, PyArray1};
 use pyo3::exceptions::{PyTypeError, PyValueError};
@@ -331,13 +333,15 @@ impl PyScene {
     /// (see `bead.INTEGRATORS`), dt (s, > 0), duration (s, > 0) or steps (>= 1), every (record
     /// every K-th step; the first and last states are always recorded), stabilize ((ks, kd),
     /// implicit form), rtol and atol (dopri5), project (implicit form), substeps and
-    /// max_substeps.
+    /// max_substeps, and stop_when (an expression of the particles' coordinates and
+    /// velocities, t and params, e.g. "-bead.x": the run ends where it crosses zero upward,
+    /// located to 1e-10 of dt; default: the scene's `[run] stop_when`).
     ///
     /// Raises ValueError for a bad argument, `bead.SetupError` when the simulation cannot
     /// start (e.g. rattle on the parametric form), and `bead.RunError` (`bead.DivergenceError`
     /// when the state blew up) when a step fails, with the run up to the last good state as
     /// `.run`. The GIL is released while the run steps.
-    #[pyo3(signature = (*, method = None, integrator = None, dt = None, duration = None, steps = None, every = None, stabilize = None, rtol = None, atol = None, project = false, substeps = None, max_substeps = None))]
+    #[pyo3(signature = (*, method = None, integrator = None, dt = None, duration = None, steps = None, every = None, stabilize = None, rtol = None, atol = None, project = false, substeps = None, max_substeps = None, stop_when = None))]
     #[allow(clippy::too_many_arguments)]
     fn run(
         &self,
@@ -354,6 +358,7 @@ impl PyScene {
         project: bool,
         substeps: Option<i64>,
         max_substeps: Option<i64>,
+        stop_when: Option<&str>,
     ) -> PyResult<Py<PyAny>> {
         let asked = Asked {
             method,
@@ -371,12 +376,13 @@ impl PyScene {
         request.steps = count("steps", steps)?;
         request.every = count("every", every)?;
         let plan = resolve(py, &self.inner, &request)?;
-        run_plan(py, &self.inner, &plan)
+        let event = stop_event(&self.inner, stop_when)?;
+        run_plan(py, &self.inner, &plan, event)
     }
 
     /// A `bead.Simulation` to step by hand (`step()`, `advance_to(t)`), at the scene's
     /// initial state. The arguments are those of `run()` without the run's length.
-    #[pyo3(signature = (*, method = None, integrator = None, dt = None, stabilize = None, rtol = None, atol = None, project = false, substeps = None, max_substeps = None))]
+    #[pyo3(signature = (*, method = None, integrator = None, dt = None, stabilize = None, rtol = None, atol = None, project = false, substeps = None, max_substeps = None, stop_when = None))]
     #[allow(clippy::too_many_arguments)]
     fn simulation(
         &self,
@@ -390,6 +396,7 @@ impl PyScene {
         project: bool,
         substeps: Option<i64>,
         max_substeps: Option<i64>,
+        stop_when: Option<&str>,
     ) -> PyResult<PySimulation> {
         let asked = Asked {
             method,
@@ -409,8 +416,10 @@ impl PyScene {
         let plan = resolve(py, &self.inner, &request)?;
         let config = plan.config(plan.method);
         let system = Arc::clone(&self.inner.system);
-        let simulation = detached(py, move || Simulation::new(system, config))?
+        let event = stop_event(&self.inner, stop_when)?;
+        let mut simulation = detached(py, move || Simulation::new(system, config))?
             .map_err(|e| setup_error(py, &e))?;
+        simulation.set_stop_when(event).map_err(event_error)?;
         Ok(PySimulation {
             inner: Mutex::new(simulation),
             scene: Arc::clone(&self.inner),
@@ -483,7 +492,44 @@ struct Finished {
 
 /// Run `plan` on `scene` with the GIL released, and build the Python `Run` (or raise the
 /// `RunError` that carries it).
-fn run_plan(py: Python<'_>, scene: &Arc<Scene>, plan: &Plan) -> PyResult<Py<PyAny>> {
+/// The stop condition of a run: `stop_when`, parsed against the scene's system (a bad one is
+/// a ValueError showing where in the expression), else the scene's `[run] stop_when`, else
+/// none: as `bead run --stop-when` resolves it.
+fn stop_event(scene: &Scene, stop_when: Option<&str>) -> PyResult<Option<Event>> {
+    match stop_when {
+        None => Ok(scene.run.stop_when.clone()),
+        Some(source) => Event::parse(&scene.system, source).map(Some).map_err(|e| {
+            let start = source[..e.span.start.min(source.len())].chars().count();
+            let width = source
+                .get(e.span.start..e.span.end.max(e.span.start))
+                .map_or(1, |s| s.chars().count().max(1));
+            PyValueError::new_err(format!(
+                "stop_when: {}\n  {source}\n  {}{}",
+                e.message,
+                " ".repeat(start),
+                "^".repeat(width)
+            ))
+        }),
+    }
+}
+
+/// A stop condition that does not fit the run (generalized coordinates on the implicit form).
+fn event_error(e: EventError) -> PyErr {
+    PyValueError::new_err(format!("stop_when: {e}"))
+}
+
+/// Why a run could not start.
+enum StartError {
+    Setup(SetupError),
+    Event(EventError),
+}
+
+fn run_plan(
+    py: Python<'_>,
+    scene: &Arc<Scene>,
+    plan: &Plan,
+    event: Option<Event>,
+) -> PyResult<Py<PyAny>> {
     let system = &scene.system;
     let rows = (plan.steps / plan.every) as f64 + 2.0;
     let per_row = (2 * system.n_coords() + 3) as f64
@@ -503,8 +549,10 @@ fn run_plan(py: Python<'_>, scene: &Arc<Scene>, plan: &Plan) -> PyResult<Py<PyAn
     let config = plan.config(plan.method);
     let options = plan.options();
     let shared = Arc::clone(scene);
-    let finished = detached(py, move || -> Result<Finished, SetupError> {
-        let mut simulation = Simulation::new(Arc::clone(&shared.system), config)?;
+    let finished = detached(py, move || -> Result<Finished, StartError> {
+        let mut simulation =
+            Simulation::new(Arc::clone(&shared.system), config).map_err(StartError::Setup)?;
+        simulation.set_stop_when(event).map_err(StartError::Event)?;
         let coordinates = simulation.formulation().coordinate_names().to_vec();
         let tracks_work = simulation.tracks_work();
         let mut recorder = Recorder::default();
@@ -521,7 +569,10 @@ fn run_plan(py: Python<'_>, scene: &Arc<Scene>, plan: &Plan) -> PyResult<Py<PyAn
             tracks_work: tracks_work || simulation.tracks_work(),
         })
     })?
-    .map_err(|e| setup_error(py, &e))?;
+    .map_err(|e| match e {
+        StartError::Setup(e) => setup_error(py, &e),
+        StartError::Event(e) => event_error(e),
+    })?;
     let Finished {
         recorder,
         result,

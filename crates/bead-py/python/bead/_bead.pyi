@@ -64,9 +64,11 @@ class Scene:
         project: bool = False,
         substeps: Optional[int] = None,
         max_substeps: Optional[int] = None,
+        stop_when: Optional[str] = None,
     ) -> Run:
-        """Run the scene; arguments override its [run] table. Raises ValueError,
-        bead.SetupError, bead.RunError (with .run, the partial run)."""
+        """Run the scene; arguments override its [run] table. stop_when ends the run where
+        the expression (e.g. "bead.y - 100") crosses zero upward (summary["stop_time"]).
+        Raises ValueError, bead.SetupError, bead.RunError (with .run, the partial run)."""
     def simulation(
         self,
         *,
@@ -79,6 +81,7 @@ class Scene:
         project: bool = False,
         substeps: Optional[int] = None,
         max_substeps: Optional[int] = None,
+        stop_when: Optional[str] = None,
     ) -> Simulation:
         """A simulation to step by hand, at the scene's initial state."""
 
