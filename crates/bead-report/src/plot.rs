@@ -893,7 +893,8 @@ fn draw_panel<DB: DrawingBackend>(
             .map(|&i| panel.series[i].label.chars().count())
             .max()
             .unwrap_or(0) as u32;
-        let legend_width = (longest * 7 + 48).clamp(110, width * 2 / 5);
+        // At least 110 px, at most 2/5 of the panel (never a panic on a narrow one).
+        let legend_width = (longest * 7 + 48).max(110).min(width * 2 / 5);
         let (left, right) = area.split_horizontally(width.saturating_sub(legend_width));
         (left, Some(right))
     };
@@ -1220,6 +1221,14 @@ mod tests {
         assert_eq!(transform(0.0, true), None);
         assert_eq!(transform(-1.0, true), None);
         assert_eq!(transform(100.0, true), Some(2.0));
+    }
+
+    /// A panel too narrow for the legend's minimum width still draws.
+    #[test]
+    fn a_narrow_panel_with_a_legend_draws() {
+        let mut narrow = figure();
+        narrow.size = (200, 150);
+        assert!(svg_string(&narrow).is_ok());
     }
 
     /// Equal scales: the narrower range widens about its centre until a unit of x and one of
