@@ -1,88 +1,19 @@
 //! The `bead` binary, run for real in temporary directories: output formats, traces, and
 //! every error a user can cause, with its message and exit code.
 
+mod common;
+
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
-use std::sync::atomic::{AtomicUsize, Ordering};
+use std::process::Output;
 
-/// A fresh directory under the system's temp dir, removed on drop.
-struct TempDir(PathBuf);
-
-impl TempDir {
-    fn new(name: &str) -> TempDir {
-        static COUNTER: AtomicUsize = AtomicUsize::new(0);
-        let n = COUNTER.fetch_add(1, Ordering::Relaxed);
-        let dir =
-            std::env::temp_dir().join(format!("bead-cli-test-{}-{n}-{name}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
-        std::fs::create_dir_all(&dir).expect("create temp dir");
-        TempDir(dir)
-    }
-
-    fn path(&self, file: &str) -> PathBuf {
-        self.0.join(file)
-    }
-
-    /// Write `text` to `file` in this directory and return its path.
-    fn write(&self, file: &str, text: &str) -> PathBuf {
-        let path = self.path(file);
-        std::fs::write(&path, text).expect("write scene");
-        path
-    }
-}
-
-impl Drop for TempDir {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
-}
+use common::{bead_in, fails, ok, stderr, stdout, TempDir};
 
 fn parabola() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes/parabola.toml")
 }
 
-/// Run `bead` with `args` in `dir`.
-fn bead_in(dir: &Path, args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_bead"))
-        .args(args)
-        .current_dir(dir)
-        .output()
-        .expect("run bead")
-}
-
 fn bead(args: &[&str]) -> Output {
     bead_in(&std::env::temp_dir(), args)
-}
-
-fn stdout(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stdout).into_owned()
-}
-
-fn stderr(o: &Output) -> String {
-    String::from_utf8_lossy(&o.stderr).into_owned()
-}
-
-/// Assert success and return stdout.
-fn ok(o: Output) -> String {
-    assert!(
-        o.status.success(),
-        "bead failed ({:?}):\n{}",
-        o.status.code(),
-        stderr(&o)
-    );
-    stdout(&o)
-}
-
-/// Assert exit code `code` and return stderr.
-fn fails(o: Output, code: i32) -> String {
-    assert_eq!(
-        o.status.code(),
-        Some(code),
-        "stdout:\n{}\nstderr:\n{}",
-        stdout(&o),
-        stderr(&o)
-    );
-    stderr(&o)
 }
 
 fn p(path: &Path) -> &str {

@@ -2,67 +2,15 @@
 //! the summary and the trace, a sweep member equal to `bead run --set` bit for bit, grid
 //! order, zip, thread counts, and every error a user can cause.
 
-use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
-use std::sync::atomic::{AtomicUsize, Ordering};
+mod common;
 
-struct TempDir(PathBuf);
+use std::path::Path;
+use std::process::Output;
 
-impl TempDir {
-    fn new(name: &str) -> TempDir {
-        static COUNTER: AtomicUsize = AtomicUsize::new(0);
-        let n = COUNTER.fetch_add(1, Ordering::Relaxed);
-        let dir =
-            std::env::temp_dir().join(format!("bead-sweep-test-{}-{n}-{name}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
-        std::fs::create_dir_all(&dir).expect("create temp dir");
-        TempDir(dir)
-    }
-
-    fn path(&self, file: &str) -> PathBuf {
-        self.0.join(file)
-    }
-
-    fn write(&self, file: &str, text: &str) -> PathBuf {
-        let path = self.path(file);
-        std::fs::write(&path, text).expect("write scene");
-        path
-    }
-}
-
-impl Drop for TempDir {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
-}
+use common::{bead_in, fails, ok, TempDir};
 
 fn bead(dir: &Path, args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_bead"))
-        .args(args)
-        .current_dir(dir)
-        .output()
-        .expect("run bead")
-}
-
-fn ok(o: Output) -> String {
-    assert!(
-        o.status.success(),
-        "bead failed ({:?}):\n{}",
-        o.status.code(),
-        String::from_utf8_lossy(&o.stderr)
-    );
-    String::from_utf8_lossy(&o.stdout).into_owned()
-}
-
-fn fails(o: Output, code: i32) -> String {
-    assert_eq!(
-        o.status.code(),
-        Some(code),
-        "stdout:\n{}\nstderr:\n{}",
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr)
-    );
-    String::from_utf8_lossy(&o.stderr).into_owned()
+    bead_in(dir, args)
 }
 
 /// A bead dropped from rest (+y down) on the line x = 0, with the height h it falls to.
