@@ -1022,32 +1022,12 @@ async fn measure(client: &Client, addr: SocketAddr, name: &str, cols: usize) {
     screenshot(client, name).await;
 }
 
-/// A bead in a valley shaken up and down: y = -x^2/2 - 0.3 sin(2t) (+y down), a driven
-/// constraint (the same scene as tests/truthful.rs).
-const SHAKEN: &str = r#"
-title = "Bead on a shaken parabola (driven)"
-[world]
-gravity = [0.0, 9.81]
-[[particle]]
-name = "bead"
-mass = 1.0
-position = [0.8, -0.32]
-velocity = [0.0, 0.0]
-[[constraint]]
-name = "shaken parabola"
-expr = "bead.y + 0.5*bead.x^2 + 0.3*sin(2*t)"
-[run]
-method = "implicit"
-integrator = "rk4"
-dt = 0.002
-duration = 6.0
-"#;
-
 #[test]
 fn the_page_draws_what_the_simulation_is() {
-    in_browser(serving("shaken.toml", SHAKEN.into()), |client, addr| {
-        truthful_checks(client, addr).boxed_local()
-    });
+    in_browser(
+        serving("shaken.toml", generated::SHAKEN.into()),
+        |client, addr| truthful_checks(client, addr).boxed_local(),
+    );
 }
 
 /// A JS expression: the largest |C(x, t)| over the curve panel 1 drew last, with `C` a JS

@@ -13,26 +13,8 @@ use bead_viewer::protocol::{
 use bead_viewer::scenes::Catalog;
 use bead_viewer::session::Session;
 
-/// A bead in a valley that moves up and down: y = -x^2 / 2 - 0.3 sin(2 t) (+y down here as
-/// in the shipped scenes, so this is a valley), a driven constraint.
-pub const SHAKEN: &str = r#"
-title = "Bead on a shaken parabola (driven)"
-[world]
-gravity = [0.0, 9.81]
-[[particle]]
-name = "bead"
-mass = 1.0
-position = [0.8, -0.32]
-velocity = [0.0, 0.0]
-[[constraint]]
-name = "shaken parabola"
-expr = "bead.y + 0.5*bead.x^2 + 0.3*sin(2*t)"
-[run]
-method = "implicit"
-integrator = "rk4"
-dt = 0.002
-duration = 6.0
-"#;
+mod generated;
+use generated::SHAKEN;
 
 /// The shipped spinning hoop (not in the viewer's catalog).
 fn hoop() -> String {

@@ -1,5 +1,5 @@
-//! Scenes generated for the tests at scale: explicit `[[particle]]` and `[[constraint]]`
-//! tables, as a scene file spells them.
+//! Scenes for the viewer's tests: generated ones at scale (explicit `[[particle]]` and
+//! `[[constraint]]` tables, as a scene file spells them) and the shaken parabola.
 #![allow(dead_code)]
 
 use std::fmt::Write as _;
@@ -196,3 +196,24 @@ pub fn free(n: usize) -> String {
     text.push_str("[run]\nintegrator = \"rk4\"\ndt = \"1/120\"\n");
     text
 }
+
+/// A bead in a valley that moves up and down: y = -x^2 / 2 - 0.3 sin(2 t) (+y down here as
+/// in the shipped scenes, so this is a valley), a driven constraint.
+pub const SHAKEN: &str = r#"
+title = "Bead on a shaken parabola (driven)"
+[world]
+gravity = [0.0, 9.81]
+[[particle]]
+name = "bead"
+mass = 1.0
+position = [0.8, -0.32]
+velocity = [0.0, 0.0]
+[[constraint]]
+name = "shaken parabola"
+expr = "bead.y + 0.5*bead.x^2 + 0.3*sin(2*t)"
+[run]
+method = "implicit"
+integrator = "rk4"
+dt = 0.002
+duration = 6.0
+"#;
