@@ -23,6 +23,12 @@ pub struct GridArgs {
     #[arg(long, value_name = "LIST", value_parser = parse_dts, conflicts_with_all = ["dt", "steps"])]
     pub dts: Option<DtList>,
 
+    /// Run the adaptive integrator (dopri5) once per relative tolerance in LIST
+    /// (comma-separated, each > 0) instead of once at --rtol: it chooses its own steps, so it
+    /// runs once per tolerance, never once per dt (its output interval is the smallest dt)
+    #[arg(long, value_name = "LIST", value_parser = parse_rtols, conflicts_with = "rtol")]
+    pub rtols: Option<DtList>,
+
     /// Write DIR/report.html with the table and plots (PNG and SVG beside it): constraint and
     /// energy error vs time, trajectories, work-precision
     #[arg(long, value_name = "DIR")]
@@ -123,6 +129,11 @@ fn parse_dts(s: &str) -> Result<DtList, String> {
         dts.push((label, dt));
     }
     Ok(DtList(dts))
+}
+
+/// `--rtols`: comma-separated relative tolerances, each a number > 0, without repeats.
+fn parse_rtols(s: &str) -> Result<DtList, String> {
+    parse_dts(s)
 }
 
 #[cfg(test)]

@@ -2366,3 +2366,86 @@ fn check_passes_a_rattle_scene_that_also_has_a_parametric_form() {
     );
     ok(bead_in(&dir.0, &["run", "s.toml", "--steps", "10"]));
 }
+
+/// dopri5 chooses its own steps: on a grid it runs once per tolerance (`--rtols`), never once
+/// per dt (issue 9), and a tolerance list without it is refused rather than ignored.
+#[test]
+fn compare_runs_the_adaptive_integrator_once_per_tolerance() {
+    let scene = parabola();
+    let grid = |extra: &[&str]| -> Vec<serde_json::Value> {
+        let mut args = vec![
+            "compare",
+            p(&scene),
+            "--integrators",
+            "rk4,dopri5",
+            "--dts",
+            "1/60,1/120",
+            "--duration",
+            "2",
+        ];
+        args.extend_from_slice(extra);
+        args.push("--json");
+        let out = ok(bead(&args));
+        serde_json::from_str::<Vec<serde_json::Value>>(&out).expect("JSON array")
+    };
+    let of = |runs: &[serde_json::Value], method: &str, integrator: &str| -> Vec<u64> {
+        runs.iter()
+            .filter(|r| r["method"] == method && r["integrator"] == integrator)
+            .map(|r| r["steps"].as_u64().unwrap())
+            .collect()
+    };
+    let once = grid(&[]);
+    for method in ["implicit", "parametric"] {
+        assert_eq!(of(&once, method, "rk4"), vec![120, 240], "{once:?}");
+        assert_eq!(of(&once, method, "dopri5").len(), 1, "{once:?}");
+    }
+    let tolerances = grid(&["--rtols", "1e-5,1e-10"]);
+    for method in ["implicit", "parametric"] {
+        let steps = of(&tolerances, method, "dopri5");
+        assert_eq!(steps.len(), 2, "{tolerances:?}");
+        assert!(
+            steps[1] > 2 * steps[0],
+            "tighter takes more steps: {steps:?}"
+        );
+    }
+    let text = ok(bead(&[
+        "compare",
+        p(&parabola()),
+        "--integrators",
+        "rk4,dopri5",
+        "--dts",
+        "1/60,1/120",
+        "--duration",
+        "2",
+        "--rtols",
+        "1e-5,1e-10",
+    ]));
+    assert!(
+        text.contains("adaptive, rtol 1e-10 (output every 1/120)"),
+        "{text}"
+    );
+    let err = fails(
+        bead(&[
+            "compare",
+            p(&parabola()),
+            "--integrators",
+            "rk4",
+            "--rtols",
+            "1e-6",
+        ]),
+        1,
+    );
+    assert!(err.contains("--rtols") && err.contains("dopri5"), "{err}");
+    let err = fails(
+        bead(&[
+            "compare",
+            p(&parabola()),
+            "--integrators",
+            "dopri5",
+            "--rtols",
+            "1e-6,0",
+        ]),
+        2,
+    );
+    assert!(err.contains("--rtols"), "{err}");
+}

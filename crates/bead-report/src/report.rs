@@ -18,7 +18,7 @@ use std::sync::Arc;
 // Everything this module takes from the physics library, in one place.
 use bead::formulation::Method;
 use bead::integrate::IntegratorKind;
-use bead::model::System;
+use bead::model::{ConstraintEval, System};
 use bead::simulate::{RunStats, Sample, Sink};
 
 use crate::plot::{
@@ -110,6 +110,10 @@ impl PeriodDetector {
 pub struct Recorder {
     system: Arc<System>,
     constraint: MinMaxDecimator,
+    /// max_i |C_i| / |grad C_i|: the distance off the constraint set, to first order
+    deviation: MinMaxDecimator,
+    /// C and its gradient rows at a sample (for `deviation`)
+    eval: ConstraintEval,
     energy: MinMaxDecimator,
     /// (E - W - E0) / E_scale with its sign
     energy_signed: MinMaxDecimator,
@@ -129,6 +133,8 @@ impl Recorder {
         let n = system.n_coords();
         Recorder {
             constraint: MinMaxDecimator::new(buckets),
+            deviation: MinMaxDecimator::new(buckets),
+            eval: system.constraints().workspace(),
             energy: MinMaxDecimator::new(buckets),
             energy_signed: MinMaxDecimator::new(buckets),
             trajectory: HeadTail::new(n + 1, buckets),
@@ -162,6 +168,7 @@ impl Recorder {
             });
         Recording {
             constraint_error: self.constraint.points(),
+            deviation: self.deviation.points(),
             energy_error: self.energy.points(),
             energy_change: self.energy_signed.points(),
             trajectory: self.trajectory.rows(),
@@ -169,6 +176,30 @@ impl Recorder {
             samples: self.samples,
             energy_balance: self.balance,
         }
+    }
+}
+
+impl Recorder {
+    /// The distance of x off the constraint set to first order, max_i |C_i(x, t)| /
+    /// |grad C_i(x, t)| (the Newton step onto each row's level set C_i = 0), in length
+    /// units whatever the constraint's own units; `None` without constraints or where a
+    /// gradient vanishes (a singular point, where the estimate means nothing).
+    fn deviation_of(&mut self, t: f64, x: &[f64]) -> Option<f64> {
+        let set = self.system.constraints();
+        if set.n_rows() == 0 {
+            return None;
+        }
+        set.gradient(t, x, &mut self.eval);
+        let mut distance: f64 = 0.0;
+        for i in 0..set.n_rows() {
+            let row = &self.eval.jacobian[set.row_entries(i)];
+            let norm = row.iter().map(|j| j * j).sum::<f64>().sqrt();
+            if !(norm > 0.0) {
+                return None;
+            }
+            distance = distance.max(self.eval.value[i].abs() / norm);
+        }
+        Some(distance)
     }
 }
 
@@ -186,6 +217,9 @@ impl Sink for Recorder {
         self.samples += 1;
         self.balance = sample.work.is_some();
         self.constraint.push(sample.t, sample.constraint_error);
+        if let Some(distance) = self.deviation_of(sample.t, sample.x) {
+            self.deviation.push(sample.t, distance);
+        }
         self.energy.push(sample.t, sample.conserved_energy_error());
         let change = sample.energy - sample.work.unwrap_or(0.0) - sample.energy_initial;
         self.energy_signed
@@ -218,6 +252,9 @@ pub struct Period {
 pub struct Recording {
     /// (t, max_i |C_i|)
     pub constraint_error: Vec<(f64, f64)>,
+    /// (t, max_i |C_i| / |grad C_i|): the distance off the constraint set to first order,
+    /// in length units (left out where a gradient vanishes)
+    pub deviation: Vec<(f64, f64)>,
     /// (t, |E - E0| / E_scale), or (t, |E - W - E0| / E_scale) when `energy_balance`
     pub energy_error: Vec<(f64, f64)>,
     /// The same with its sign: (t, (E - E0) / E_scale) or (t, (E - W - E0) / E_scale); above
@@ -244,6 +281,10 @@ pub struct ReportRun {
     pub dt: f64,
     /// dt as the user wrote it (e.g. `1/60`).
     pub dt_label: String,
+    /// The relative tolerance of an adaptive run (dopri5), which chooses its own steps (dt
+    /// is then its output interval only): such a run is labelled, dashed and placed on the
+    /// work-precision figure by its tolerance. `None` for fixed-step runs.
+    pub rtol: Option<f64>,
     pub stats: RunStats,
     /// Why the run stopped early, if it did.
     pub error: Option<String>,
@@ -260,14 +301,35 @@ impl ReportRun {
         }
     }
 
-    /// `implicit rk4 dt=1/60`.
+    /// `implicit rk4 dt=1/60`, or `implicit dopri5 rtol=1e-9` for an adaptive run.
     pub fn label(&self) -> String {
-        format!(
-            "{} {} dt={}",
-            self.method_label(),
-            self.integrator.name(),
-            self.dt_label
-        )
+        match self.rtol {
+            Some(rtol) => format!(
+                "{} {} rtol={}",
+                self.method_label(),
+                self.integrator.name(),
+                sig(rtol, 4)
+            ),
+            None => format!(
+                "{} {} dt={}",
+                self.method_label(),
+                self.integrator.name(),
+                self.dt_label
+            ),
+        }
+    }
+
+    /// The dt column: the step size, or `adaptive, rtol R (output every dt)` for an adaptive
+    /// run.
+    pub fn dt_text(&self) -> String {
+        match self.rtol {
+            Some(rtol) => format!(
+                "adaptive, rtol {} (output every {})",
+                sig(rtol, 4),
+                self.dt_label
+            ),
+            None => self.dt_label.clone(),
+        }
     }
 }
 
@@ -289,19 +351,34 @@ pub struct Report {
 /// numbers alike.
 pub use bead::significant as sig;
 
+/// Significant digits of every figure in the comparison table (errors, period, rates).
+pub const TABLE_DIGITS: usize = 4;
+
+/// Significant digits of the periods listed under the table: runs' periods differ in the
+/// fifth digit and beyond, which the list is there to show.
+pub const PERIOD_DIGITS: usize = 6;
+
 impl Report {
     /// The look of `run` in every figure: colour by integrator (its place in
-    /// [`IntegratorKind::ALL`]), dash by dt (the report's dts from the largest), marker by
-    /// method (implicit: circle, implicit+project: square, parametric: triangle).
+    /// [`IntegratorKind::ALL`]), dash by dt (the report's dts from the largest; an adaptive
+    /// run's by its tolerance, the loosest first), marker by method (implicit: circle,
+    /// implicit+project: square, parametric: triangle).
     pub fn look(&self, run: &ReportRun) -> Look {
         let color = IntegratorKind::ALL
             .iter()
             .position(|&k| k == run.integrator)
             .unwrap_or(0);
-        let mut dts: Vec<f64> = self.runs.iter().map(|r| r.dt).collect();
-        dts.sort_by(|a, b| b.total_cmp(a));
-        dts.dedup();
-        let dash = dts.iter().position(|&dt| dt == run.dt).unwrap_or(0);
+        // Fixed-step runs are dashed by dt, adaptive ones by rtol: each from the largest.
+        let key = |r: &ReportRun| r.rtol.unwrap_or(r.dt);
+        let mut keys: Vec<f64> = self
+            .runs
+            .iter()
+            .filter(|r| r.rtol.is_some() == run.rtol.is_some())
+            .map(key)
+            .collect();
+        keys.sort_by(|a, b| b.total_cmp(a));
+        keys.dedup();
+        let dash = keys.iter().position(|&k| k == key(run)).unwrap_or(0);
         let marker = match (run.method, run.projected) {
             (Method::Parametric, _) => Marker::Triangle,
             (_, true) => Marker::Square,
@@ -351,20 +428,23 @@ impl Report {
             let mut row = vec![
                 run.method_label(),
                 run.integrator.name().to_string(),
-                run.dt_label.clone(),
-                sig(s.constraint_error_final, 4),
-                sig(s.constraint_error_max, 4),
+                run.dt_text(),
+                sig(s.constraint_error_final, TABLE_DIGITS),
+                sig(s.constraint_error_max, TABLE_DIGITS),
                 if s.energy_conserved {
-                    sig(s.energy_rel_error_max, 4)
+                    sig(s.energy_rel_error_max, TABLE_DIGITS)
                 } else {
-                    format!("{} (E-W)", sig(s.conserved_energy_error_max(), 4))
+                    format!(
+                        "{} (E-W)",
+                        sig(s.conserved_energy_error_max(), TABLE_DIGITS)
+                    )
                 },
                 run.recording
                     .period
                     .as_ref()
-                    .map(|p| sig(p.seconds, 6))
+                    .map(|p| sig(p.seconds, TABLE_DIGITS))
                     .unwrap_or_else(|| "-".into()),
-                sig(s.steps_per_second(), 4),
+                sig(s.steps_per_second(), TABLE_DIGITS),
             ];
             if adaptive {
                 row.push(match (s.accepted_steps, s.rejected_steps) {
@@ -383,24 +463,42 @@ impl Report {
         rows
     }
 
-    /// Constraint error vs time.
+    /// Constraint error vs time, and the deviation from the curve (the distance off the
+    /// constraint set) vs time.
     pub fn constraint_figure(&self) -> Figure {
         Figure {
-            columns: 0,
-            title: format!("{}: constraint error", self.title),
-            panels: vec![Panel {
-                title: "max_i |C_i| vs time (log scale)".into(),
-                x_label: "t (s)".into(),
-                y_label: "max |C_i| (constraint units)".into(),
-                y_log: true,
-                series: self
-                    .runs
-                    .iter()
-                    .map(|r| self.series(r, &r.recording.constraint_error))
-                    .collect(),
-                ..Panel::default()
-            }],
-            size: (1100, 540),
+            columns: 1,
+            title: format!(
+                "{}: constraint error and deviation from the curve",
+                self.title
+            ),
+            panels: vec![
+                Panel {
+                    title: "max_i |C_i| vs time (log scale)".into(),
+                    x_label: "t (s)".into(),
+                    y_label: "max |C_i| (constraint units)".into(),
+                    y_log: true,
+                    series: self
+                        .runs
+                        .iter()
+                        .map(|r| self.series(r, &r.recording.constraint_error))
+                        .collect(),
+                    ..Panel::default()
+                },
+                Panel {
+                    title: "deviation from the curve, max_i |C_i| / |grad C_i| (log scale)".into(),
+                    x_label: "t (s)".into(),
+                    y_label: "distance off the constraints (length units)".into(),
+                    y_log: true,
+                    series: self
+                        .runs
+                        .iter()
+                        .map(|r| self.series(r, &r.recording.deviation))
+                        .collect(),
+                    ..Panel::default()
+                },
+            ],
+            size: (1100, 900),
         }
     }
 
@@ -592,7 +690,10 @@ impl Report {
         };
         Figure {
             columns: 0,
-            title: format!("{}: work-precision (one point per dt)", self.title),
+            title: format!(
+                "{}: work-precision (one point per dt; per tolerance for adaptive runs)",
+                self.title
+            ),
             panels: vec![
                 Panel {
                     title: "max constraint error vs steps".into(),
@@ -702,7 +803,7 @@ pub fn write_report(report: &Report, dir: &Path) -> Result<ReportFiles, ReportEr
             FIGURES[0],
             "Constraint error",
             report.constraint_figure(),
-            "Constraint error max_i |C_i| against time, per run.".to_string(),
+            "Constraint error max_i |C_i| against time, per run (top), and the deviation from the curve it means: the distance off the constraint set to first order, max_i |C_i| / |grad C_i|, in the scene's length units (bottom).".to_string(),
         ),
         (
             FIGURES[1],
@@ -719,7 +820,7 @@ pub fn write_report(report: &Report, dir: &Path) -> Result<ReportFiles, ReportEr
             FIGURES[3],
             "Work-precision",
             report.work_precision_figure(),
-            "Work-precision: the largest error of each run against its number of steps; one point per dt, one line per method and integrator (steps rather than wall time: they do not change from run to run).".to_string(),
+            "Work-precision: the largest error of each run against its number of steps; one point per dt (per tolerance for the adaptive dopri5, which chooses its own steps), one line per method and integrator (steps rather than wall time: they do not change from run to run).".to_string(),
         ),
     ];
     let mut html = String::new();
@@ -768,7 +869,7 @@ pub fn write_report(report: &Report, dir: &Path) -> Result<ReportFiles, ReportEr
                 format!(
                     "{}: {} s over {} cycles (upward zero crossings of {})",
                     r.label(),
-                    sig(p.seconds, 6),
+                    sig(p.seconds, PERIOD_DIGITS),
                     p.cycles,
                     p.signal
                 )
@@ -777,7 +878,7 @@ pub fn write_report(report: &Report, dir: &Path) -> Result<ReportFiles, ReportEr
         .collect();
     if !periods.is_empty() {
         html.push_str(
-            "<h2>Periods</h2>\n<p>From linearly interpolated zero crossings of every sample:</p>\n<ul>\n",
+            "<h2>Periods</h2>\n<p>From linearly interpolated zero crossings of every sample, to 6 significant digits (the table rounds every figure to 4); a motion whose cycles differ by more than 5% has none:</p>\n<ul>\n",
         );
         for p in periods {
             let _ = writeln!(html, "<li>{}</li>", escape(&p));

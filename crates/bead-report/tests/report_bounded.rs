@@ -62,6 +62,7 @@ fn a_report_over_100_000_steps_keeps_at_most_the_bounded_points_per_series() {
             integrator: IntegratorKind::Rk4,
             dt: 1e-3,
             dt_label: "1/1000".into(),
+            rtol: None,
             stats,
             error: None,
             recording,

@@ -9,7 +9,7 @@ use std::sync::Arc;
 use bead::formulation::Method;
 use bead::integrate::IntegratorKind;
 use bead::scene::Scene;
-use bead::simulate::{run, RunOptions, Simulation, SimulationConfig};
+use bead::simulate::{run, RunOptions, Simulation, SimulationConfig, Sink};
 use bead_report::plot::{Dash, Marker, DEFAULT_BUCKETS};
 use bead_report::report::{Recorder, Report, ReportRun};
 
@@ -44,6 +44,7 @@ fn parabola_report() -> Report {
                 integrator,
                 dt,
                 dt_label: label.into(),
+                rtol: None,
                 stats,
                 error: None,
                 recording: recorder.recording(),
@@ -170,4 +171,95 @@ fn the_report_names_its_sections_version_and_setup() {
         "trajectory caption"
     );
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// The deviation from the curve is a distance, whatever C's units: a point placed a known
+/// distance d off the parabola along its normal reads d (to O(d / R), R >= 50 the radius of
+/// curvature), for C = x^2 + 100 y and for 1000 times that, whose max |C| is 1000 times
+/// larger.
+#[test]
+fn the_deviation_from_the_curve_is_the_distance_off_it() {
+    let scene_with = |expr: &str| {
+        let text = format!(
+            "[world]\ngravity = [0.0, 500.0]\n[[particle]]\nname = \"bead\"\nmass = 1.0\nposition = [150.0, -225.0]\n[[constraint]]\nexpr = \"{expr}\"\n"
+        );
+        Scene::parse(&text, "parabola.toml", &[]).unwrap_or_else(|e| panic!("{e}"))
+    };
+    for (expr, c_scale) in [
+        ("bead.x^2 + 100*bead.y", 1.0),
+        ("1000*(bead.x^2 + 100*bead.y)", 1000.0),
+    ] {
+        let scene = scene_with(expr);
+        let mut recorder = Recorder::new(Arc::clone(&scene.system), DEFAULT_BUCKETS);
+        // The point (u, -u^2/100) of the curve, moved by d along the unit normal
+        // (u/50, 1) / |(u/50, 1)|; C there is about d |grad C|.
+        let (u, d) = (37.0_f64, 1e-3);
+        let normal = [u / 50.0, 1.0];
+        let length = (normal[0] * normal[0] + 1.0).sqrt();
+        let x = [u + d * normal[0] / length, -u * u / 100.0 + d / length];
+        let c = c_scale * (x[0] * x[0] + 100.0 * x[1]);
+        for (t, point) in [(0.0, [u, -u * u / 100.0]), (1.0, x)] {
+            let c_here = c_scale * (point[0] * point[0] + 100.0 * point[1]);
+            recorder
+                .record(&bead::simulate::Sample {
+                    step: t as u64,
+                    t,
+                    x: &point,
+                    xdot: &[0.0, 0.0],
+                    energy: 0.0,
+                    constraint_error: c_here.abs(),
+                    q: &point,
+                    qdot: &[0.0, 0.0],
+                    work: None,
+                    energy_initial: 0.0,
+                    energy_scale: 1.0,
+                })
+                .unwrap();
+        }
+        let recording = recorder.recording();
+        let at = |series: &[(f64, f64)], t: f64| {
+            series
+                .iter()
+                .find(|p| p.0 == t)
+                .map(|p| p.1)
+                .unwrap_or_else(|| panic!("no point at t = {t} in {series:?}"))
+        };
+        assert_eq!(at(&recording.deviation, 0.0), 0.0, "{expr}: on the curve");
+        let deviation = at(&recording.deviation, 1.0);
+        assert!(
+            (deviation - d).abs() < 1e-4 * d,
+            "{expr}: deviation {deviation}, distance {d}"
+        );
+        // max |C| carries C's units: 1000 times larger for the scaled constraint.
+        let error = at(&recording.constraint_error, 1.0);
+        assert!((error - c.abs()).abs() <= 1e-9 * c.abs(), "{error} vs {c}");
+    }
+}
+
+/// A chaotic motion has no period (its cycles differ by far more than 5%), while the
+/// parabola's oscillation has one; the table then says `-`.
+#[test]
+fn a_motion_that_is_not_periodic_gets_no_period() {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes/double-pendulum.toml");
+    let scene = Scene::load(&path, &[]).unwrap_or_else(|e| panic!("{e}"));
+    let config = SimulationConfig {
+        method: Method::Parametric,
+        integrator: IntegratorKind::Rk4,
+        dt: 1e-3,
+        ..Default::default()
+    };
+    let mut simulation = Simulation::new(Arc::clone(&scene.system), config).unwrap();
+    let mut recorder = Recorder::new(Arc::clone(&scene.system), DEFAULT_BUCKETS);
+    run(
+        &mut simulation,
+        RunOptions {
+            steps: 20_000,
+            every: 1,
+        },
+        &mut recorder,
+    )
+    .unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(recorder.recording().period, None);
+    let report = parabola_report();
+    assert!(report.runs.iter().all(|r| r.recording.period.is_some()));
 }

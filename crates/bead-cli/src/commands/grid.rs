@@ -48,6 +48,14 @@ pub fn compare_grid(args: &CompareArgs) -> Result<()> {
         Some(list) => list.0.clone(),
         None => vec![(exact(plan.dt), plan.dt)],
     };
+    // The adaptive integrator runs once per tolerance (it chooses its own steps); a list of
+    // tolerances without it would do nothing, which is refused.
+    let rtols: Option<Vec<(String, f64)>> = args.grid.rtols.as_ref().map(|l| l.0.clone());
+    if rtols.is_some() && !integrators.iter().any(|k| k.is_adaptive()) {
+        bail!(
+            "--rtols sets the tolerances of the adaptive integrator (dopri5), which is not among the integrators compared; add it with --integrators"
+        );
+    }
     // Every dt covers the same time: the requested duration, else the planned run's.
     let duration = plan.duration.unwrap_or_else(|| plan.t_end());
     let methods = compare_methods(&scene);
@@ -94,7 +102,7 @@ pub fn compare_grid(args: &CompareArgs) -> Result<()> {
             trace_path(
                 path,
                 &format!(
-                    "{}{}.{}.dt{}",
+                    "{}{}.{}.{}",
                     method.name(),
                     if project { "-project" } else { "" },
                     integrator.name(),
@@ -107,15 +115,17 @@ pub fn compare_grid(args: &CompareArgs) -> Result<()> {
     let mut files = Files::new();
     files.input("the scene file", &args.scene);
     for &(method, project, integrator, _, _) in &combinations {
-        for (label, _) in &dts {
+        for (label, _, rtol) in runs_of(integrator, &dts, &rtols, plan.settings.rtol) {
+            let tag = run_tag(&label, rtol.as_ref());
             if let (Some(given), Some(path)) =
-                (&args.trace, trace_of(method, project, integrator, label))
+                (&args.trace, trace_of(method, project, integrator, &tag))
             {
                 let run = format!(
-                    "{}{} {} dt {label}",
+                    "{}{} {} {}",
                     method.name(),
                     if project { "+project" } else { "" },
-                    integrator.name()
+                    integrator.name(),
+                    tag.replacen("dt", "dt ", 1).replacen("rtol", "rtol ", 1)
                 );
                 files.derived("--trace", given, &path, Some(&run));
             }
@@ -132,19 +142,28 @@ pub fn compare_grid(args: &CompareArgs) -> Result<()> {
     }
     files.check()?;
     for (method, project, integrator, combination, config) in combinations {
-        for (dt_label, dt) in &dts {
+        for (dt_label, dt, rtol) in runs_of(integrator, &dts, &rtols, plan.settings.rtol) {
             let mut planned = combination.clone();
             if args.grid.dts.is_some() {
-                let (steps, _, overshoot) = steps_for(duration, *dt)?;
-                planned.dt = *dt;
+                let (steps, _, overshoot) = steps_for(duration, dt)?;
+                planned.dt = dt;
                 planned.steps = steps;
                 planned.overshoot = overshoot;
             }
-            let trace = trace_of(method, project, integrator, dt_label);
+            let trace = trace_of(
+                method,
+                project,
+                integrator,
+                &run_tag(&dt_label, rtol.as_ref()),
+            );
             let mut recorder =
                 Recorder::new(Arc::clone(&scene.system), (args.grid.points / 2) as usize);
             let mut config = config;
             config.dt = planned.dt;
+            if let Some((_, rtol)) = &rtol {
+                config.settings.rtol = *rtol;
+                planned.settings.rtol = *rtol;
+            }
             let outcome = run_method_with(
                 &scene,
                 &planned,
@@ -161,8 +180,9 @@ pub fn compare_grid(args: &CompareArgs) -> Result<()> {
                 method,
                 projected: planned.project,
                 integrator,
-                dt: *dt,
+                dt,
                 dt_label: dt_label.clone(),
+                rtol: rtol.map(|(_, rtol)| rtol),
                 stats,
                 error,
                 recording: recorder.recording(),
@@ -238,6 +258,41 @@ pub fn compare_grid(args: &CompareArgs) -> Result<()> {
             }
             bail!("{last}")
         }
+    }
+}
+
+/// The runs of one integrator on the grid: (dt label, dt, tolerance). A fixed-step integrator
+/// runs once per dt; the adaptive one once per tolerance (`rtols`, else once at `plan_rtol`),
+/// with the smallest dt as its output interval, so that its recording is as fine as the
+/// finest fixed-step run's.
+fn runs_of(
+    integrator: IntegratorKind,
+    dts: &[(String, f64)],
+    rtols: &Option<Vec<(String, f64)>>,
+    plan_rtol: f64,
+) -> Vec<(String, f64, Option<(String, f64)>)> {
+    if !integrator.is_adaptive() {
+        return dts.iter().map(|(l, dt)| (l.clone(), *dt, None)).collect();
+    }
+    let finest = dts
+        .iter()
+        .min_by(|a, b| a.1.total_cmp(&b.1))
+        .cloned()
+        .expect("at least one dt");
+    match rtols {
+        None => vec![(finest.0, finest.1, Some((exact(plan_rtol), plan_rtol)))],
+        Some(list) => list
+            .iter()
+            .map(|r| (finest.0.clone(), finest.1, Some(r.clone())))
+            .collect(),
+    }
+}
+
+/// A run's part of a trace file name: `dt1/60`, or `rtol1e-9` for a tolerance.
+fn run_tag(dt_label: &str, rtol: Option<&(String, f64)>) -> String {
+    match rtol {
+        Some((label, _)) => format!("rtol{label}"),
+        None => format!("dt{dt_label}"),
     }
 }
 
