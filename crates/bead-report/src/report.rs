@@ -194,7 +194,7 @@ impl Recorder {
         for i in 0..set.n_rows() {
             let row = &self.eval.jacobian[set.row_entries(i)];
             let norm = row.iter().map(|j| j * j).sum::<f64>().sqrt();
-            if !(norm > 0.0) {
+            if norm.is_nan() || norm <= 0.0 {
                 return None;
             }
             distance = distance.max(self.eval.value[i].abs() / norm);
