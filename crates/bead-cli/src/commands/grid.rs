@@ -261,6 +261,10 @@ pub fn compare_grid(args: &CompareArgs) -> Result<()> {
     }
 }
 
+/// One run of an integrator on the grid: dt as written, dt, and for the adaptive integrator
+/// its relative tolerance (as written, value).
+type GridRun = (String, f64, Option<(String, f64)>);
+
 /// The runs of one integrator on the grid: (dt label, dt, tolerance). A fixed-step integrator
 /// runs once per dt; the adaptive one once per tolerance (`rtols`, else once at `plan_rtol`),
 /// with the smallest dt as its output interval, so that its recording is as fine as the
@@ -270,7 +274,7 @@ fn runs_of(
     dts: &[(String, f64)],
     rtols: &Option<Vec<(String, f64)>>,
     plan_rtol: f64,
-) -> Vec<(String, f64, Option<(String, f64)>)> {
+) -> Vec<GridRun> {
     if !integrator.is_adaptive() {
         return dts.iter().map(|(l, dt)| (l.clone(), *dt, None)).collect();
     }
