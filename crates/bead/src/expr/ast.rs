@@ -310,6 +310,36 @@ pub(crate) fn topo<'a>(roots: impl IntoIterator<Item = &'a Expr>) -> Topo<'a> {
     }
 }
 
+/// Whether two lists of expressions are the same computation: DAGs of the same shape (the
+/// same operations on the same children, constants by bit pattern, variables by slot, in the
+/// same sharing). A DAG equal in value but shared differently reads as different: the
+/// answer errs only towards "different", never towards "same".
+pub(crate) fn same_structure(a: &[&Expr], b: &[&Expr]) -> bool {
+    if a.len() != b.len() {
+        return false;
+    }
+    let (ta, tb) = (topo(a.iter().copied()), topo(b.iter().copied()));
+    if ta.nodes.len() != tb.nodes.len() || ta.kids != tb.kids || ta.roots != tb.roots {
+        return false;
+    }
+    ta.nodes
+        .iter()
+        .zip(&tb.nodes)
+        .all(|(x, y)| match (&*x.0, &*y.0) {
+            (Node::Const(p), Node::Const(q)) => p.to_bits() == q.to_bits(),
+            (Node::Var(p), Node::Var(q)) => p == q,
+            (Node::Unary(f, _), Node::Unary(g, _)) => f == g,
+            (Node::Neg(_), Node::Neg(_))
+            | (Node::Add(..), Node::Add(..))
+            | (Node::Sub(..), Node::Sub(..))
+            | (Node::Mul(..), Node::Mul(..))
+            | (Node::Div(..), Node::Div(..))
+            | (Node::Pow(..), Node::Pow(..))
+            | (Node::Atan2(..), Node::Atan2(..)) => true,
+            _ => false,
+        })
+}
+
 /// The same expressions with structurally equal subexpressions merged into one node: same
 /// operation, same (merged) children, constants by bit pattern, variables by slot. Nothing is
 /// rewritten or reordered, so every value and every printed form stays the same; only sharing

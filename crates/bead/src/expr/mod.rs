@@ -35,6 +35,7 @@ mod display;
 mod parse;
 mod tape;
 
+pub(crate) use ast::same_structure;
 pub(crate) use ast::{reads_any, share};
 pub use ast::{Expr, Func};
 pub(crate) use diff::gradients;

@@ -794,7 +794,7 @@ mod tests {
             let ds: Vec<Expr> = outs.iter().map(|e| e.derivative(round % 3)).collect();
             outs.extend(ds);
             let t = Tape::compile(&outs);
-            let mut lanes = vec![[0.0; 3]; L];
+            let mut lanes = [[0.0; 3]; L];
             for (l, v) in lanes.iter_mut().enumerate() {
                 for c in v.iter_mut() {
                     *c = rng.uniform(-2.0, 2.0);

@@ -485,6 +485,138 @@ impl SystemBuilder {
         compile(Arc::new(self))
     }
 
+    /// Whether `self` and `other` declare the same equations of motion: the same gravity,
+    /// particles (names and masses), forces, constraints (expressions of the same structure
+    /// with the same constants, the same rods and pins, the same Rust constraint objects) and
+    /// parametric map, compared bit for bit; initial positions, velocities, parametric
+    /// initial values and parameter values may differ (parameters act through the numbers
+    /// and expressions they gave, which are compared).
+    pub(crate) fn same_dynamics(&self, other: &SystemBuilder) -> bool {
+        let bits = |a: &[f64], b: &[f64]| {
+            a.len() == b.len() && a.iter().zip(b).all(|(x, y)| x.to_bits() == y.to_bits())
+        };
+        let endpoints = |a: &Endpoint, b: &Endpoint| match (a, b) {
+            (Endpoint::Particle(p), Endpoint::Particle(q)) => p == q,
+            (Endpoint::Fixed(p), Endpoint::Fixed(q)) => bits(p, q),
+            _ => false,
+        };
+        let forces = |a: &Force, b: &Force| match (a, b) {
+            (
+                Force::Constant {
+                    particle: p,
+                    vector: u,
+                },
+                Force::Constant {
+                    particle: q,
+                    vector: v,
+                },
+            ) => p == q && bits(u, v),
+            (
+                Force::Spring {
+                    a: a1,
+                    b: b1,
+                    stiffness: k1,
+                    rest_length: l1,
+                },
+                Force::Spring {
+                    a: a2,
+                    b: b2,
+                    stiffness: k2,
+                    rest_length: l2,
+                },
+            ) => a1 == a2 && endpoints(b1, b2) && bits(&[*k1, *l1], &[*k2, *l2]),
+            (
+                Force::Drag {
+                    particle: p,
+                    coefficient: c,
+                },
+                Force::Drag {
+                    particle: q,
+                    coefficient: d,
+                },
+            ) => p == q && c.to_bits() == d.to_bits(),
+            _ => false,
+        };
+        let constraints = |(n1, a): &(String, ConstraintSpec),
+                           (n2, b): &(String, ConstraintSpec)| {
+            n1 == n2
+                && match (a, b) {
+                    (ConstraintSpec::Expression(e, s), ConstraintSpec::Expression(f, t)) => {
+                        s == t && crate::expr::same_structure(&[e], &[f])
+                    }
+                    (
+                        ConstraintSpec::Distance {
+                            a: a1,
+                            b: b1,
+                            length: l1,
+                        },
+                        ConstraintSpec::Distance {
+                            a: a2,
+                            b: b2,
+                            length: l2,
+                        },
+                    ) => a1 == a2 && endpoints(b1, b2) && l1.to_bits() == l2.to_bits(),
+                    (
+                        ConstraintSpec::Pin {
+                            particle: p,
+                            anchor: u,
+                        },
+                        ConstraintSpec::Pin {
+                            particle: q,
+                            anchor: v,
+                        },
+                    ) => p == q && bits(u, v),
+                    (ConstraintSpec::Custom(c, p), ConstraintSpec::Custom(d, q)) => {
+                        Arc::ptr_eq(c, d) && p == q
+                    }
+                    _ => false,
+                }
+        };
+        let parametric = match (&self.parametric, &other.parametric) {
+            (None, None) => true,
+            (Some(a), Some(b)) => {
+                a.coordinates == b.coordinates
+                    && a.initial.len() == b.initial.len()
+                    && a.rates.len() == b.rates.len()
+                    && a.positions.len() == b.positions.len()
+                    && a.positions
+                        .iter()
+                        .zip(&b.positions)
+                        .all(|(p, q)| match (p, q) {
+                            (None, None) => true,
+                            (Some(p), Some(q)) => {
+                                p.len() == q.len()
+                                    && p.iter().zip(q).all(|((e, s), (f, t))| {
+                                        s == t && crate::expr::same_structure(&[e], &[f])
+                                    })
+                            }
+                            _ => false,
+                        })
+            }
+            _ => false,
+        };
+        bits(&self.gravity, &other.gravity)
+            && self.particles.len() == other.particles.len()
+            && self
+                .particles
+                .iter()
+                .zip(&other.particles)
+                .all(|(p, q)| p.name == q.name && p.mass.to_bits() == q.mass.to_bits())
+            && self.forces.len() == other.forces.len()
+            && self
+                .forces
+                .iter()
+                .zip(&other.forces)
+                .all(|(a, b)| forces(a, b))
+            && self.constraints.len() == other.constraints.len()
+            && self
+                .constraints
+                .iter()
+                .zip(&other.constraints)
+                .all(|(a, b)| constraints(a, b))
+            && parametric
+    }
+
     fn check_particle(&self, p: ParticleId) -> Result<(), ModelError> {
         check_particle(self.particles.len(), p)
     }
@@ -526,6 +658,33 @@ impl SystemBuilder {
 /// Check a declaration and compile its constraints and parametric map: the one compile step
 /// of [`SystemBuilder::build`] and of the edits ([`System::with_constraint_expr`],
 /// [`System::with_param`]). The system keeps `declared`.
+/// Compile `declared`, reusing `previous`'s compiled equations when `declared` describes the
+/// same dynamics (see [`SystemBuilder::same_dynamics`]) and differs only in the initial
+/// state and parameter values: then the system is `previous` with `declared`'s particles
+/// (their initial positions and velocities), parametric initial values and parameters, and
+/// nothing is differentiated or compiled again. The result is the system [`compile`] would
+/// make: the same derivatives and tapes, since they are a function of the dynamics alone.
+pub(crate) fn compile_reusing(
+    declared: Arc<SystemBuilder>,
+    previous: &System,
+) -> Result<System, ModelError> {
+    if !declared.same_dynamics(&previous.declared) {
+        return compile(declared);
+    }
+    let b = &*declared;
+    let parametric = match (&previous.parametric, &b.parametric) {
+        (Some(map), Some(spec)) => Some(map.with_initial(&spec.initial, &spec.rates)),
+        _ => None,
+    };
+    Ok(System {
+        params: b.params.clone(),
+        particles: b.particles.clone(),
+        parametric,
+        declared,
+        ..previous.clone()
+    })
+}
+
 pub(super) fn compile(declared: Arc<SystemBuilder>) -> Result<System, ModelError> {
     let b = &*declared;
     let dim = b.dim();

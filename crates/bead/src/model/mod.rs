@@ -21,6 +21,7 @@ mod holonomic;
 mod native;
 mod parametric;
 
+pub(crate) use builder::compile_reusing;
 pub(crate) use builder::MASS_RANGE;
 pub use builder::{ModelError, SystemBuilder};
 pub use constraint::{ConstraintEval, ConstraintInfo, ConstraintSet, ExprRow};

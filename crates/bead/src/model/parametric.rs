@@ -82,6 +82,15 @@ pub struct ParametricEval {
 }
 
 impl ParametricMap {
+    /// The same map with other initial values q0 and rates qdot0 (lengths as before).
+    pub(crate) fn with_initial(&self, initial: &[f64], rates: &[f64]) -> ParametricMap {
+        ParametricMap {
+            initial: initial.to_vec(),
+            rates: rates.to_vec(),
+            ..self.clone()
+        }
+    }
+
     /// Derive J, xdot and h of `positions` (slots: q, qdot, t) and compile them.
     ///
     /// The positions are first merged structurally (a sum written out in full in every

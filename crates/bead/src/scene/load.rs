@@ -30,7 +30,15 @@ const LARGEST_INTEGER: f64 = 9_007_199_254_740_992.0;
 
 type Result<T> = std::result::Result<T, SceneError>;
 
-pub(super) fn load(text: &str, file: &str, overrides: &[(String, f64)]) -> Result<Scene> {
+/// Load a scene; with `previous` (the same scene's system at other parameter values), its
+/// compiled equations are reused when the dynamics did not change
+/// ([`crate::model::compile_reusing`]), which leaves every number as it would be.
+pub(super) fn load(
+    text: &str,
+    file: &str,
+    overrides: &[(String, f64)],
+    previous: Option<&crate::model::System>,
+) -> Result<Scene> {
     let src = Source { text, file };
     let doc: SceneFile = toml::from_str(text).map_err(|e| src.toml_error(&e))?;
     let mut loader = Loader {
@@ -135,7 +143,11 @@ pub(super) fn load(text: &str, file: &str, overrides: &[(String, f64)]) -> Resul
         l.parametric(p)?;
     }
     let mut run = l.loader.run(doc.run.as_ref(), doc.parametric.is_some())?;
-    let system = l.b.build().map_err(|e| src.error_at_start(e.to_string()))?;
+    let system = match previous {
+        Some(previous) => crate::model::compile_reusing(Arc::new(l.b), previous),
+        None => l.b.build(),
+    }
+    .map_err(|e| src.error_at_start(e.to_string()))?;
     if let Some(stop_when) = doc
         .run
         .as_ref()

@@ -246,7 +246,7 @@ impl Scene {
 
     /// Load a scene from text; `file` names it in messages.
     pub fn parse(text: &str, file: &str, overrides: &[(String, f64)]) -> Result<Scene, SceneError> {
-        load::load(text, file, overrides)
+        load::load(text, file, overrides, None)
     }
 
     /// The tables with a `for` key and what each made, in file order within each kind
@@ -315,7 +315,8 @@ impl Scene {
         let mut overrides = self.overrides.clone();
         overrides.retain(|(n, _)| !values.iter().any(|(name, _)| name == n));
         overrides.extend(values.iter().cloned());
-        let mut scene = Scene::parse(&self.text, &self.file, &overrides)?;
+        // The equations are compiled again only when the values change them.
+        let mut scene = load::load(&self.text, &self.file, &overrides, Some(&self.system))?;
         for (index, source) in &self.edits {
             scene = scene.with_constraint_expr(*index, source)?;
         }
@@ -508,6 +509,56 @@ fn fmt_vec(v: &[f64]) -> String {
 mod tests {
     use super::*;
     use crate::model::DeclaredConstraint;
+
+    /// `with_params` reuses the compiled equations exactly when the values leave them
+    /// unchanged: a release point does, gravity does not, and neither does a constant that
+    /// differs only in its sign bit (0 and -0 round differently downstream).
+    #[test]
+    fn with_params_recompiles_only_when_the_equations_change() {
+        let text = r#"
+[params]
+x0 = 150.0
+g = 500.0
+k = 0.0
+c = 100.0
+[world]
+gravity = ["k", "g"]
+[[particle]]
+name = "bead"
+mass = 1.0
+position = ["x0", "-x0^2/100"]
+[[constraint]]
+expr = "bead.x^2 + c*bead.y"
+[parametric]
+coordinates = ["q"]
+initial = ["x0"]
+[parametric.positions]
+bead = ["q", "-q^2/100"]
+"#;
+        let scene = Scene::parse(text, "p.toml", &[]).unwrap();
+        let declared = |s: &Scene| Arc::clone(&s.system.declared);
+        let same = |values: &[(&str, f64)]| {
+            let values: Vec<(String, f64)> =
+                values.iter().map(|(n, v)| (n.to_string(), *v)).collect();
+            let other = scene.with_params(&values).unwrap();
+            declared(&other).same_dynamics(&scene.system.declared)
+        };
+        assert!(same(&[("x0", 10.0)]));
+        assert!(same(&[("x0", -3.5), ("k", 0.0)]));
+        assert!(!same(&[("g", 9.81)]));
+        assert!(!same(&[("k", 1e-300)]));
+        assert!(!same(&[("k", -0.0)]));
+        // A constant inside a constraint's expression.
+        assert!(!same(&[("c", 101.0)]));
+        // The reused system starts where the new values say, in both forms.
+        let moved = scene.with_params(&[("x0".to_string(), 10.0)]).unwrap();
+        assert_eq!(moved.system.particles()[0].position, vec![10.0, -1.0]);
+        assert_eq!(
+            moved.system.parametric.as_ref().unwrap().initial,
+            vec![10.0]
+        );
+        assert_eq!(moved.params[0], ("x0".to_string(), 10.0));
+    }
 
     /// Two pendulum bobs: the first on a circle of radius L (an expression), the second on a
     /// rod of length L from it; masses and positions are expressions of L too.
