@@ -56,7 +56,7 @@ fn with_params_runs_as_the_scene_loaded_with_those_values() {
             // equations (then they are compiled again).
             // (A whole number stays whole: it may count repetitions.)
             let changed = match value {
-                v if v == 0.0 => 0.25,
+                0.0 => 0.25,
                 v if v.fract() == 0.0 => v + 1.0,
                 v => v * 1.05,
             };
