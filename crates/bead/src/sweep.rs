@@ -38,9 +38,12 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Arc;
 
 use crate::formulation::Method;
+use crate::model::System;
 use crate::plan::{Plan, PlanError, PlanRequest};
 use crate::scene::Scene;
-use crate::simulate::{run, Event, NullSink, RunStats, Simulation};
+use crate::simulate::lanes::{lanes_can_run, run_lanes, LaneOutcome, LANES};
+use crate::simulate::{run, Event, NullSink, RunOptions, RunStats, Simulation};
+use std::time::Instant;
 
 /// One swept parameter and its values.
 #[derive(Clone, Debug, PartialEq)]
@@ -285,29 +288,42 @@ impl Sweep {
     /// Run member `index` alone (on the calling thread). A panic inside the library (a bug)
     /// fails this member only, with the panic's message.
     pub fn run_member(&self, index: usize) -> Member {
-        let caught = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| self.member(index)));
-        caught.unwrap_or_else(|panic| {
-            let message = panic
-                .downcast_ref::<&str>()
-                .map(|s| s.to_string())
-                .or_else(|| panic.downcast_ref::<String>().cloned())
-                .unwrap_or_else(|| "unknown panic".into());
-            Member {
-                index,
-                params: self.params_of(index),
-                stats: None,
-                error: Some(format!("internal error (a bug in bead): {message}")),
-            }
-        })
+        self.guarded(index, || self.member(index))
+    }
+
+    /// Member `index` failed with a panic inside the library (a bug), with its message.
+    fn panicked(&self, index: usize, panic: Box<dyn std::any::Any + Send>) -> Member {
+        let message = panic
+            .downcast_ref::<&str>()
+            .map(|s| s.to_string())
+            .or_else(|| panic.downcast_ref::<String>().cloned())
+            .unwrap_or_else(|| "unknown panic".into());
+        Member {
+            index,
+            params: self.params_of(index),
+            stats: None,
+            error: Some(format!("internal error (a bug in bead): {message}")),
+        }
     }
 
     fn member(&self, index: usize) -> Member {
+        match self.prepare(index) {
+            Prepared::Finished(member) => *member,
+            Prepared::Ready(ready) => ready.run_alone(),
+        }
+    }
+
+    /// Member `index` set up to run (its scene with its values, its plan, its simulation and
+    /// stop condition), or its result when it cannot start.
+    fn prepare(&self, index: usize) -> Prepared {
         let params = self.params_of(index);
-        let fail = |error: String| Member {
-            index,
-            params: params.clone(),
-            stats: None,
-            error: Some(error),
+        let fail = |error: String| {
+            Prepared::Finished(Box::new(Member {
+                index,
+                params: params.clone(),
+                stats: None,
+                error: Some(error),
+            }))
         };
         let overrides: Vec<(String, f64)> = self
             .axes
@@ -339,20 +355,76 @@ impl Sweep {
         if let Err(e) = simulation.set_stop_when(event) {
             return fail(e.to_string());
         }
-        match run(&mut simulation, plan.options(), &mut NullSink) {
-            Ok(stats) => Member {
-                index,
-                params,
-                stats: Some(stats),
-                error: None,
-            },
-            Err(failure) => Member {
-                index,
-                params,
-                stats: Some(*failure.stats),
-                error: Some(failure.error.to_string()),
-            },
+        Prepared::Ready(Box::new(Ready {
+            index,
+            params,
+            system: Arc::clone(&scene.system),
+            simulation: Some(simulation),
+            options: plan.options(),
+        }))
+    }
+
+    /// Members `range` (at most [`LANES`]): those whose runs the lanes can take and that share
+    /// the first such member's equations and run are stepped together
+    /// ([`crate::simulate::lanes`]); the others, and any that leave the lanes, run alone.
+    /// Either way a member's figures are those of its run alone, bit for bit.
+    fn run_block(&self, range: Range<usize>) -> Vec<Member> {
+        let mut done: Vec<Member> = Vec::with_capacity(range.len());
+        let mut together: Vec<Ready> = Vec::new();
+        for index in range {
+            let prepared =
+                std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| self.prepare(index)));
+            match prepared {
+                Ok(Prepared::Finished(member)) => done.push(*member),
+                Ok(Prepared::Ready(ready)) => {
+                    let joins = lanes_can_run(ready.sim())
+                        && together.first().is_none_or(|first| first.runs_like(&ready));
+                    if joins {
+                        together.push(*ready);
+                    } else {
+                        done.push(self.guarded(index, || ready.run_alone()));
+                    }
+                }
+                Err(_) => done.push(self.run_member(index)),
+            }
         }
+        if let Some(first) = together.first() {
+            let system = Arc::clone(&first.system);
+            let steps = first.options.steps;
+            let mut simulations: Vec<Simulation> =
+                together.iter_mut().map(|r| r.take_simulation()).collect();
+            let start = Instant::now();
+            let outcomes = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+                run_lanes(&system, &mut simulations, steps)
+            }));
+            let wall = start.elapsed().as_secs_f64() / together.len() as f64;
+            match outcomes {
+                Ok(outcomes) => {
+                    for ((ready, simulation), outcome) in
+                        together.into_iter().zip(simulations).zip(outcomes)
+                    {
+                        done.push(match outcome {
+                            LaneOutcome::Done => Member {
+                                index: ready.index,
+                                params: ready.params,
+                                stats: Some(simulation.stats(wall)),
+                                error: None,
+                            },
+                            LaneOutcome::Leave => self.run_member(ready.index),
+                        });
+                    }
+                }
+                Err(_) => done.extend(together.iter().map(|r| self.run_member(r.index))),
+            }
+        }
+        done.sort_by_key(|m| m.index);
+        done
+    }
+
+    /// `f`'s member, or member `index` failed with the message of a panic inside it.
+    fn guarded(&self, index: usize, f: impl FnOnce() -> Member) -> Member {
+        std::panic::catch_unwind(std::panic::AssertUnwindSafe(f))
+            .unwrap_or_else(|panic| self.panicked(index, panic))
     }
 
     /// Every member, on `threads` threads (0: one per core).
@@ -381,13 +453,17 @@ impl Sweep {
             0 => std::thread::available_parallelism().map_or(1, |n| n.get()),
             n => n,
         }
-        .min(count.max(1));
+        .min(count.div_ceil(LANES).max(1));
+        let block = |start: usize| start..(start + LANES).min(range.end);
         if threads <= 1 {
-            return Ok(range.map(|i| self.run_member(i)).collect());
+            return Ok((range.start..range.end)
+                .step_by(LANES)
+                .flat_map(|start| self.run_block(block(start)))
+                .collect());
         }
-        // Each thread takes the next member from a shared counter (members differ in cost:
-        // an event or a failure ends one early), and keeps its results; they are put in order
-        // at the end.
+        // Each thread takes the next block of members from a shared counter (members differ
+        // in cost: an event or a failure ends one early), and keeps its results; they are put
+        // in order at the end.
         let next = AtomicUsize::new(range.start);
         let mut members: Vec<Member> = std::thread::scope(|scope| {
             let workers: Vec<_> = (0..threads)
@@ -395,11 +471,11 @@ impl Sweep {
                     scope.spawn(|| {
                         let mut done = Vec::new();
                         loop {
-                            let i = next.fetch_add(1, Ordering::Relaxed);
+                            let i = next.fetch_add(LANES, Ordering::Relaxed);
                             if i >= range.end {
                                 break done;
                             }
-                            done.push(self.run_member(i));
+                            done.extend(self.run_block(block(i)));
                         }
                     })
                 })
@@ -411,6 +487,59 @@ impl Sweep {
         });
         members.sort_by_key(|m| m.index);
         Ok(members)
+    }
+}
+
+/// A member set up, or its result when it could not start.
+enum Prepared {
+    Ready(Box<Ready>),
+    Finished(Box<Member>),
+}
+
+/// A member ready to run.
+struct Ready {
+    index: usize,
+    params: Vec<f64>,
+    /// Its scene's system (the member's initial state)
+    system: Arc<System>,
+    simulation: Option<Simulation>,
+    options: RunOptions,
+}
+
+impl Ready {
+    fn take_simulation(&mut self) -> Simulation {
+        self.simulation.take().expect("taken once")
+    }
+
+    /// Whether `other` runs the same equations the same way (the lanes step them together).
+    fn runs_like(&self, other: &Ready) -> bool {
+        let (a, b) = (self.sim(), other.sim());
+        self.options == other.options
+            && a.config() == b.config()
+            && self.system.same_dynamics_as(&other.system)
+    }
+
+    fn sim(&self) -> &Simulation {
+        self.simulation.as_ref().expect("not taken yet")
+    }
+
+    /// Run it on its own.
+    fn run_alone(mut self: Box<Self>) -> Member {
+        let mut simulation = self.take_simulation();
+        match run(&mut simulation, self.options, &mut NullSink) {
+            Ok(stats) => Member {
+                index: self.index,
+                params: self.params,
+                stats: Some(stats),
+                error: None,
+            },
+            Err(failure) => Member {
+                index: self.index,
+                params: self.params,
+                stats: Some(*failure.stats),
+                error: Some(failure.error.to_string()),
+            },
+        }
     }
 }
 

@@ -101,19 +101,47 @@ impl Implicit {
         self.solver
     }
 
-    /// J W J^T's pattern and factorization, e.g. for diagnostics
-    /// ([`ConstraintMatrix::describe`]).
-    pub fn constraint_matrix(&self) -> &ConstraintMatrix {
-        &self.matrix
+    /// The observation of (q, qdot) from C and J at (t, q) already in
+    /// [`Implicit::observation_evaluation_mut`]: what [`Formulation::observe`] does after
+    /// evaluating them (see [`Implicit::accelerate_evaluated`]).
+    pub(crate) fn observe_evaluated(&mut self, q: &[f64], qdot: &[f64], out: &mut Observation) {
+        out.x.copy_from_slice(q);
+        out.xdot.copy_from_slice(qdot);
+        let set = self.system.constraints();
+        if set.n_rows() == 0 {
+            return;
+        }
+        let ws = &mut self.projection.eval;
+        out.constraints.copy_from_slice(&ws.value);
+        let g = &mut out.gradients;
+        g.values.copy_from_slice(&ws.jacobian);
+        for i in 0..set.n_rows() {
+            let entries = set.row_entries(i);
+            let norm = ws.jacobian[entries]
+                .iter()
+                .map(|g| g * g)
+                .sum::<f64>()
+                .sqrt();
+            g.offset[i] = ws.value[i].abs() / norm;
+        }
     }
-}
 
-impl SecondOrderSystem for Implicit {
-    fn n_coords(&self) -> usize {
-        self.system.n_coords()
+    /// The evaluation of C and J that [`Implicit::observe_evaluated`] reads.
+    pub(crate) fn observation_evaluation_mut(&mut self) -> &mut ConstraintEval {
+        &mut self.projection.eval
     }
 
-    fn acceleration(
+    /// The constraint evaluation [`Implicit::accelerate_evaluated`] reads.
+    pub(crate) fn evaluation_mut(&mut self) -> &mut ConstraintEval {
+        &mut self.constraints
+    }
+
+    /// The acceleration at (t, x, v) from the constraint evaluation already in
+    /// [`Implicit::evaluation_mut`] (C, Cdot, bias, J at (t, x, v)): what
+    /// [`SecondOrderSystem::acceleration`] does after evaluating the constraints, so that an
+    /// ensemble that evaluates them for many members at once ([`crate::expr::Tape::eval_lanes`])
+    /// finishes each member with this same code.
+    pub(crate) fn accelerate_evaluated(
         &mut self,
         t: f64,
         x: &[f64],
@@ -126,7 +154,6 @@ impl SecondOrderSystem for Implicit {
         accumulate_all_forces(system, &self.external, x, v, &mut self.force);
         let m = set.n_rows();
         if m > 0 {
-            set.evaluate(t, x, v, &mut self.constraints);
             let ce = &self.constraints;
             self.matrix.assemble(&ce.jacobian, w);
             // rhs = -bias - J W F - ks C - kd Cdot.
@@ -159,6 +186,32 @@ impl SecondOrderSystem for Implicit {
             *a = w * f;
         }
         Ok(())
+    }
+
+    /// J W J^T's pattern and factorization, e.g. for diagnostics
+    /// ([`ConstraintMatrix::describe`]).
+    pub fn constraint_matrix(&self) -> &ConstraintMatrix {
+        &self.matrix
+    }
+}
+
+impl SecondOrderSystem for Implicit {
+    fn n_coords(&self) -> usize {
+        self.system.n_coords()
+    }
+
+    fn acceleration(
+        &mut self,
+        t: f64,
+        x: &[f64],
+        v: &[f64],
+        a: &mut [f64],
+    ) -> Result<(), StepError> {
+        let set = self.system.constraints();
+        if set.n_rows() > 0 {
+            set.evaluate(t, x, v, &mut self.constraints);
+        }
+        self.accelerate_evaluated(t, x, v, a)
     }
 
     /// True with any constraint row (the bias v^T H v + 2 C_xt v and the feedback kd Cdot
@@ -268,26 +321,11 @@ impl Formulation for Implicit {
     }
 
     fn observe(&mut self, t: f64, q: &[f64], qdot: &[f64], out: &mut Observation) {
-        out.x.copy_from_slice(q);
-        out.xdot.copy_from_slice(qdot);
         let set = self.system.constraints();
-        if set.n_rows() == 0 {
-            return;
+        if set.n_rows() > 0 {
+            set.gradient(t, q, &mut self.projection.eval);
         }
-        let ws = &mut self.projection.eval;
-        set.gradient(t, q, ws);
-        out.constraints.copy_from_slice(&ws.value);
-        let g = &mut out.gradients;
-        g.values.copy_from_slice(&ws.jacobian);
-        for i in 0..set.n_rows() {
-            let entries = set.row_entries(i);
-            let norm = ws.jacobian[entries]
-                .iter()
-                .map(|g| g * g)
-                .sum::<f64>()
-                .sqrt();
-            g.offset[i] = ws.value[i].abs() / norm;
-        }
+        self.observe_evaluated(q, qdot, out);
     }
 
     fn gradient_subject(&self, row: usize) -> Subject {

@@ -29,7 +29,7 @@ use crate::model::{ConstraintEval, Force, ParametricEval, ParametricMap, System}
 
 /// The parametric (generalized-coordinate) formulation.
 pub struct Parametric {
-    system: Arc<System>,
+    pub(crate) system: Arc<System>,
     /// Dense Cholesky of M (n_q x n_q)
     solver: DenseCholesky,
     map: ParametricEval,
@@ -92,11 +92,20 @@ impl Parametric {
 
     /// Evaluate the map and the forces at (t, q, qdot) and assemble M into `matrix` and
     /// Q - sum m J^T h into `rhs`. Allocation-free.
+    #[cfg(test)]
     fn assemble_at(&mut self, t: f64, q: &[f64], qdot: &[f64]) {
         let system = &*self.system;
         let map = system.parametric().expect("checked in Parametric::new");
+        map.evaluate(t, q, qdot, &mut self.map);
+        self.assemble_evaluated();
+    }
+
+    /// M and the right-hand side from the map's evaluation already in
+    /// [`Parametric::evaluation_mut`].
+    fn assemble_evaluated(&mut self) {
+        let system = &*self.system;
+        let map = system.parametric().expect("checked in Parametric::new");
         let ws = &mut self.map;
-        map.evaluate(t, q, qdot, ws);
         accumulate_all_forces(
             system,
             &self.external,
@@ -128,7 +137,62 @@ impl SecondOrderSystem for Parametric {
         qdot: &[f64],
         qddot: &mut [f64],
     ) -> Result<(), StepError> {
-        self.assemble_at(t, q, qdot);
+        let map = self
+            .system
+            .parametric()
+            .expect("checked in Parametric::new");
+        map.evaluate(t, q, qdot, &mut self.map);
+        self.accelerate_evaluated(t, q, qdot, qddot)
+    }
+
+    /// True with a velocity-dependent force (drag) or when h = xddot - J qddot depends on
+    /// qdot (the map is nonlinear in q or its J depends on t); decided at construction.
+    fn velocity_dependent(&self) -> bool {
+        self.velocity_dependent || self.external.iter().any(|f| f.depends_on_velocity())
+    }
+}
+
+impl Parametric {
+    /// The observation at time t from the map's x, xdot and J already in
+    /// [`Parametric::evaluation_mut`] (by [`ParametricMap::observe`]): what
+    /// [`Formulation::observe`] does after evaluating the map.
+    pub(crate) fn observe_evaluated(&mut self, t: f64, out: &mut Observation) {
+        let system = &*self.system;
+        let map = system.parametric().expect("checked in Parametric::new");
+        let ws = &self.map;
+        out.x.copy_from_slice(&ws.position);
+        out.xdot.copy_from_slice(&ws.velocity);
+        let mut values = out.gradients.values.iter_mut();
+        for j in 0..map.n_q() {
+            for (&entry, value) in map.column_entries(j).iter().zip(&mut values) {
+                *value = ws.jacobian[entry];
+            }
+        }
+        let set = system.constraints();
+        if set.n_rows() > 0 {
+            let values = set.residuals(t, &out.x, &mut self.constraints);
+            out.constraints.copy_from_slice(values);
+        }
+    }
+
+    /// The map's evaluation (x, xdot, h, J at (t, q, qdot)) that
+    /// [`Parametric::accelerate_evaluated`] reads.
+    pub(crate) fn evaluation_mut(&mut self) -> &mut ParametricEval {
+        &mut self.map
+    }
+
+    /// qddot at (t, q, qdot) from the map's evaluation already in
+    /// [`Parametric::evaluation_mut`]: what [`SecondOrderSystem::acceleration`] does after
+    /// evaluating the map, so that an ensemble evaluating it for many members at once
+    /// finishes each member with this same code.
+    pub(crate) fn accelerate_evaluated(
+        &mut self,
+        t: f64,
+        q: &[f64],
+        qdot: &[f64],
+        qddot: &mut [f64],
+    ) -> Result<(), StepError> {
+        self.assemble_evaluated();
         let system = &*self.system;
         let map = system.parametric().expect("checked in Parametric::new");
         let factored = self.solver.factor(&self.matrix);
@@ -148,12 +212,6 @@ impl SecondOrderSystem for Parametric {
         }
         qddot.copy_from_slice(&self.rhs);
         Ok(())
-    }
-
-    /// True with a velocity-dependent force (drag) or when h = xddot - J qddot depends on
-    /// qdot (the map is nonlinear in q or its J depends on t); decided at construction.
-    fn velocity_dependent(&self) -> bool {
-        self.velocity_dependent || self.external.iter().any(|f| f.depends_on_velocity())
     }
 }
 
@@ -255,23 +313,12 @@ impl Formulation for Parametric {
     /// Gradient row j: the column dx/dq_j of the map, over the particle coordinates that
     /// depend on q_j (its structural nonzeros; the others are 0 at every state).
     fn observe(&mut self, t: f64, q: &[f64], qdot: &[f64], out: &mut Observation) {
-        let system = &*self.system;
-        let map = system.parametric().expect("checked in Parametric::new");
+        let map = self
+            .system
+            .parametric()
+            .expect("checked in Parametric::new");
         map.observe(t, q, qdot, &mut self.map);
-        let ws = &self.map;
-        out.x.copy_from_slice(&ws.position);
-        out.xdot.copy_from_slice(&ws.velocity);
-        let mut values = out.gradients.values.iter_mut();
-        for j in 0..map.n_q() {
-            for (&entry, value) in map.column_entries(j).iter().zip(&mut values) {
-                *value = ws.jacobian[entry];
-            }
-        }
-        let set = system.constraints();
-        if set.n_rows() > 0 {
-            let values = set.residuals(t, &out.x, &mut self.constraints);
-            out.constraints.copy_from_slice(values);
-        }
+        self.observe_evaluated(t, out);
     }
 
     fn gradient_subject(&self, row: usize) -> Subject {

@@ -149,6 +149,14 @@ pub struct ConstraintEval {
     duals: DualScratch,
 }
 
+impl ConstraintEval {
+    /// Where the tapes write their outputs before they are unpacked (see
+    /// [`ConstraintSet::unpack_full`]).
+    pub(crate) fn tape_out_mut(&mut self) -> &mut [f64] {
+        &mut self.tape_out
+    }
+}
+
 impl ConstraintSet {
     /// The set of `expr_rows` (each with its native form, if any, in `native`) then
     /// `custom_rows`. Rows with a native form are evaluated by it; the tapes are compiled
@@ -302,6 +310,42 @@ impl ConstraintSet {
         ws.vars[2 * n] = t;
     }
 
+    /// Whether every row is evaluated by the tapes alone (no native distance or pin rows, no
+    /// Rust rows): an ensemble can then evaluate them for many members at once.
+    pub(crate) fn only_taped(&self) -> bool {
+        self.native_rows.is_empty() && self.custom_rows.is_empty()
+    }
+
+    /// The tape of C, Cdot, bias and J (outputs in that order), variables x, v, t.
+    pub(crate) fn full_tape(&self) -> &Tape {
+        &self.full_tape
+    }
+
+    /// The tape of C and J (outputs in that order), variables x, t (the slots of x, v, t).
+    pub(crate) fn gradient_tape(&self) -> &Tape {
+        &self.gradient_tape
+    }
+
+    /// The full tape's outputs in `ws.tape_out` into C, Cdot, bias and J (every row taped).
+    pub(crate) fn unpack_full(&self, ws: &mut ConstraintEval) {
+        let n_tape = self.tape_rows.len();
+        let nnz = self.row_start[n_tape];
+        let out = &ws.tape_out;
+        ws.value[..n_tape].copy_from_slice(&out[..n_tape]);
+        ws.velocity[..n_tape].copy_from_slice(&out[n_tape..2 * n_tape]);
+        ws.bias[..n_tape].copy_from_slice(&out[2 * n_tape..3 * n_tape]);
+        ws.jacobian[..nnz].copy_from_slice(&out[3 * n_tape..3 * n_tape + nnz]);
+    }
+
+    /// The gradient tape's outputs in `ws.tape_out` into C and J (every row taped).
+    pub(crate) fn unpack_gradient(&self, ws: &mut ConstraintEval) {
+        let n_tape = self.tape_rows.len();
+        let nnz_tape = self.gradient_tape.n_outputs() - n_tape;
+        let out = &ws.tape_out;
+        ws.value[..n_tape].copy_from_slice(&out[..n_tape]);
+        ws.jacobian[..nnz_tape].copy_from_slice(&out[n_tape..n_tape + nnz_tape]);
+    }
+
     /// Evaluate C, Cdot, bias and J at (t, x, v) into `ws`. Allocation-free.
     pub fn evaluate(&self, t: f64, x: &[f64], v: &[f64], ws: &mut ConstraintEval) {
         let n_tape = self.tape_rows.len();
@@ -309,14 +353,10 @@ impl ConstraintSet {
             self.load_vars(t, x, Some(v), ws);
             self.full_tape
                 .eval(&ws.vars, &mut ws.scratch, &mut ws.tape_out);
-            let out = &ws.tape_out;
             if self.all_taped() {
-                let nnz = self.row_start[n_tape];
-                ws.value[..n_tape].copy_from_slice(&out[..n_tape]);
-                ws.velocity[..n_tape].copy_from_slice(&out[n_tape..2 * n_tape]);
-                ws.bias[..n_tape].copy_from_slice(&out[2 * n_tape..3 * n_tape]);
-                ws.jacobian[..nnz].copy_from_slice(&out[3 * n_tape..3 * n_tape + nnz]);
+                self.unpack_full(ws);
             } else {
+                let out = &ws.tape_out;
                 let mut entry = 3 * n_tape;
                 for (j, &r) in self.tape_rows.iter().enumerate() {
                     ws.value[r] = out[j];
@@ -370,11 +410,10 @@ impl ConstraintSet {
                 &mut ws.scratch,
                 &mut ws.tape_out[..n_tape + nnz_tape],
             );
-            let out = &ws.tape_out;
             if self.all_taped() {
-                ws.value[..n_tape].copy_from_slice(&out[..n_tape]);
-                ws.jacobian[..nnz_tape].copy_from_slice(&out[n_tape..n_tape + nnz_tape]);
+                self.unpack_gradient(ws);
             } else {
+                let out = &ws.tape_out;
                 let mut entry = n_tape;
                 for (j, &r) in self.tape_rows.iter().enumerate() {
                     ws.value[r] = out[j];

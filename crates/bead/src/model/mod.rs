@@ -64,6 +64,12 @@ pub struct System {
 }
 
 impl System {
+    /// Whether `other` has the same equations of motion (it may start elsewhere): see
+    /// `SystemBuilder::same_dynamics`.
+    pub(crate) fn same_dynamics_as(&self, other: &System) -> bool {
+        self.declared.same_dynamics(&other.declared)
+    }
+
     /// Spatial dimension, 2 or 3.
     pub fn dim(&self) -> usize {
         self.dim

@@ -81,6 +81,14 @@ pub struct ParametricEval {
     out: Vec<f64>,
 }
 
+impl ParametricEval {
+    /// Where the tapes write their outputs before they are unpacked (see
+    /// [`ParametricMap::unpack_evaluation`]).
+    pub(crate) fn out_mut(&mut self) -> &mut [f64] {
+        &mut self.out
+    }
+}
+
 impl ParametricMap {
     /// The same map with other initial values q0 and rates qdot0 (lengths as before).
     pub(crate) fn with_initial(&self, initial: &[f64], rates: &[f64]) -> ParametricMap {
@@ -310,15 +318,39 @@ impl ParametricMap {
     /// Evaluate x, xdot, h and J at (t, q, qdot). Allocation-free.
     pub fn evaluate(&self, t: f64, q: &[f64], qdot: &[f64], ws: &mut ParametricEval) {
         let n_q = self.n_q();
-        let n = self.positions.len();
         ws.vars[..n_q].copy_from_slice(q);
         ws.vars[n_q..2 * n_q].copy_from_slice(qdot);
         ws.vars[2 * n_q] = t;
         self.tape.eval(&ws.vars, &mut ws.scratch, &mut ws.out);
+        self.unpack_evaluation(ws);
+    }
+
+    /// The tape of x, xdot, h and J (outputs in that order), variables q, qdot, t.
+    pub(crate) fn evaluation_tape(&self) -> &Tape {
+        &self.tape
+    }
+
+    /// The tape of x, xdot and J (outputs in that order), variables q, qdot, t.
+    pub(crate) fn observation_tape(&self) -> &Tape {
+        &self.observe_tape
+    }
+
+    /// [`ParametricMap::evaluate`]'s tape outputs, in `ws.out`, into x, xdot, h and J.
+    pub(crate) fn unpack_evaluation(&self, ws: &mut ParametricEval) {
+        let n = self.positions.len();
         ws.position.copy_from_slice(&ws.out[..n]);
         ws.velocity.copy_from_slice(&ws.out[n..2 * n]);
         ws.bias.copy_from_slice(&ws.out[2 * n..3 * n]);
         ws.jacobian.copy_from_slice(&ws.out[3 * n..]);
+    }
+
+    /// [`ParametricMap::observe`]'s tape outputs, in `ws.out`, into x, xdot and J.
+    pub(crate) fn unpack_observation(&self, ws: &mut ParametricEval) {
+        let n = self.positions.len();
+        let outputs = 2 * n + self.columns.len();
+        ws.position.copy_from_slice(&ws.out[..n]);
+        ws.velocity.copy_from_slice(&ws.out[n..2 * n]);
+        ws.jacobian.copy_from_slice(&ws.out[2 * n..outputs]);
     }
 
     /// x, xdot and J at (t, q, qdot), without h: what the run's monitors read. Allocation-free.
@@ -331,9 +363,7 @@ impl ParametricMap {
         let outputs = 2 * n + self.columns.len();
         self.observe_tape
             .eval(&ws.vars, &mut ws.scratch, &mut ws.out[..outputs]);
-        ws.position.copy_from_slice(&ws.out[..n]);
-        ws.velocity.copy_from_slice(&ws.out[n..2 * n]);
-        ws.jacobian.copy_from_slice(&ws.out[2 * n..outputs]);
+        self.unpack_observation(ws);
     }
 
     /// Particle positions and velocities x(q, t), xdot(q, qdot, t) only, into `ws.position`

@@ -56,6 +56,7 @@
 
 mod config;
 mod event;
+pub(crate) mod lanes;
 mod ledger;
 mod monitor;
 mod run;

@@ -13,15 +13,15 @@ pub(super) const BLOW_UP_FACTOR: f64 = 1e12;
 
 /// A gradient row shorter than this fraction of its longest length in the run has all but
 /// vanished (a candidate, confirmed by a search).
-const VANISHED: f64 = 1e-2;
+pub(super) const VANISHED: f64 = 1e-2;
 /// The lookahead: extrapolated along the motion, a gradient row that shrinks below this
 /// fraction of its length ...
-const AHEAD_FRACTION: f64 = 0.5;
+pub(super) const AHEAD_FRACTION: f64 = 0.5;
 /// ... or, for a singular point further ahead that a drifted state may already be on the
 /// wrong side of, below this fraction (nearly to zero, as at a crossing).
-const OFF_BRANCH_FRACTION: f64 = 0.1;
+pub(super) const OFF_BRANCH_FRACTION: f64 = 0.1;
 /// ... within this many steps, meets a singular point.
-const AHEAD_STEPS: f64 = 2.0;
+pub(super) const AHEAD_STEPS: f64 = 2.0;
 /// A state off its constraint by more than this fraction of the distance to a singular point
 /// ahead may follow another branch of the curve.
 const OFF_BRANCH: f64 = 0.01;
@@ -234,6 +234,16 @@ impl Monitor {
         self.energy = system.energy(&self.observation.x, &self.observation.xdot);
         self.work = work;
         self.constraint_error = self.observation.constraint_error();
+    }
+
+    /// The position and speed limits of the divergence test at time t (see [`Reach`]).
+    pub(super) fn limits(&self, t: f64) -> (f64, f64) {
+        self.reach.at(t)
+    }
+
+    /// The longest each gradient row has been in the run so far.
+    pub(super) fn longest(&self) -> &[f64] {
+        &self.longest
     }
 
     /// Fold the last observation into the maxima.
@@ -573,7 +583,7 @@ fn steps_to_vanish(row: &[f64], previous: &[f64], fraction: f64) -> Option<f64> 
 
 /// From |g|^2, g . p and |p|^2: the step count s at which g + s (g - p) is shortest and its
 /// squared length there, |g|^2 - (g.d)^2 / |d|^2 with d = g - p; (NaN, NaN) when g = p.
-fn lookahead(gg: f64, gp: f64, pp: f64) -> (f64, f64) {
+pub(super) fn lookahead(gg: f64, gp: f64, pp: f64) -> (f64, f64) {
     let gd = gg - gp;
     let dd = gg - 2.0 * gp + pp;
     if dd.is_nan() || dd <= 0.0 {
@@ -582,7 +592,7 @@ fn lookahead(gg: f64, gp: f64, pp: f64) -> (f64, f64) {
     (-gd / dd, (gg - gd * gd / dd).max(0.0))
 }
 
-fn norm(v: &[f64]) -> f64 {
+pub(super) fn norm(v: &[f64]) -> f64 {
     v.iter().map(|c| c * c).sum::<f64>().sqrt()
 }
 

@@ -1,0 +1,649 @@
+//! Ensemble stepping: up to [`LANES`] members of one system (the same equations, each its
+//! own initial state) advanced together, for sweeps.
+//!
+//! Each member is a [`Simulation`] set up as usual (its checks, energy scale and reach are
+//! its own); the lanes then take over its steps. Per RK4 stage the formulation's compiled
+//! tape runs once for all lanes ([`crate::expr::Tape::eval_lanes`], structure of arrays),
+//! and each lane is finished by the formulation's own code ([`Implicit::accelerate_evaluated`],
+//! [`Parametric::accelerate_evaluated`]), so that every number is the one the member's own
+//! `Simulation` would compute, bit for bit. The monitors after each step are the
+//! simulation's, per lane: the energy and constraint-error maxima, the divergence test, the
+//! regularity monitor's first-order candidate tests and the stop condition's crossing.
+//!
+//! Whatever needs more than the plain step (a non-finite or diverged state, a candidate
+//! singular point that the simulation would search for, a failed factorization, the stop
+//! condition firing) takes the member out of the lanes: [`LaneOutcome::Leave`], and its run is
+//! done again on its own from the start, which gives the numbers and the message its
+//! `Simulation` gives. The lanes are an acceleration, never a second behaviour.
+//!
+//! Which runs the lanes take ([`lanes_can_run`]): RK4 at a fixed step without substeps,
+//! projection, external forces or the energy ledger; the implicit form when all its rows are
+//! expression rows (no native rods or pins, no Rust rows), the parametric form always.
+
+use std::sync::Arc;
+
+use super::monitor::{lookahead, norm, AHEAD_FRACTION, AHEAD_STEPS, OFF_BRANCH_FRACTION, VANISHED};
+use super::{Simulation, Stepper};
+use crate::expr::Tape;
+use crate::formulation::{Implicit, Method, Observation, Parametric};
+use crate::integrate::IntegratorKind;
+use crate::linalg::max_nan;
+use crate::model::System;
+
+/// Members stepped together: the tapes' instructions are interpreted once per this many
+/// evaluations.
+pub(crate) const LANES: usize = 16;
+
+/// What became of a member given to [`run_lanes`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum LaneOutcome {
+    /// It ran its steps; its `Simulation` holds the end state and the run's figures.
+    Done,
+    /// It needs what only its own `Simulation` does (see the module): run it again alone.
+    Leave,
+}
+
+/// Whether the lanes can step `simulation`'s run (see the module).
+pub(crate) fn lanes_can_run(simulation: &Simulation) -> bool {
+    let config = &simulation.config;
+    let system = simulation.formulation.system();
+    matches!(simulation.stepper, Stepper::Fixed(_))
+        && config.integrator == IntegratorKind::Rk4
+        && !config.project
+        && config.substeps <= 1
+        && simulation.ledger.is_none()
+        && simulation.formulation.external_forces().is_empty()
+        && simulation.steps == 0
+        && match simulation.method() {
+            Method::Implicit => system.constraints().only_taped(),
+            Method::Parametric => system.parametric().is_some(),
+        }
+}
+
+/// The formulation that finishes every lane's evaluation.
+enum Kernel {
+    Implicit(Box<Implicit>),
+    Parametric(Box<Parametric>),
+}
+
+/// The lanes' state and scratch, structure of arrays: coordinate k of lane l at `k * LANES + l`.
+struct Lanes {
+    n: usize,
+    q: Vec<f64>,
+    qdot: Vec<f64>,
+    /// RK4's stage slopes and stage position
+    velocity: [Vec<f64>; 4],
+    acceleration: [Vec<f64>; 4],
+    q_stage: Vec<f64>,
+    /// Tape variables (q, qdot, t), scratch and outputs
+    vars: Vec<f64>,
+    scratch: Vec<f64>,
+    out: Vec<f64>,
+    /// One lane's q, qdot, acceleration and tape outputs
+    q_one: Vec<f64>,
+    qdot_one: Vec<f64>,
+    a_one: Vec<f64>,
+    out_one: Vec<f64>,
+}
+
+impl Lanes {
+    fn new(n: usize, tapes: &[&Tape]) -> Lanes {
+        let slots = tapes.iter().map(|t| t.n_slots()).max().unwrap_or(0);
+        let outputs = tapes.iter().map(|t| t.n_outputs()).max().unwrap_or(0);
+        let buffer = || vec![0.0; n * LANES];
+        Lanes {
+            n,
+            q: buffer(),
+            qdot: buffer(),
+            velocity: [buffer(), buffer(), buffer(), buffer()],
+            acceleration: [buffer(), buffer(), buffer(), buffer()],
+            q_stage: buffer(),
+            vars: vec![0.0; (2 * n + 1) * LANES],
+            scratch: vec![0.0; slots * LANES],
+            out: vec![0.0; outputs * LANES],
+            q_one: vec![0.0; n],
+            qdot_one: vec![0.0; n],
+            a_one: vec![0.0; n],
+            out_one: vec![0.0; outputs],
+        }
+    }
+
+    /// Lane l's part of a structure-of-arrays buffer into `one`.
+    fn gather(soa: &[f64], l: usize, one: &mut [f64]) {
+        for (k, value) in one.iter_mut().enumerate() {
+            *value = soa[k * LANES + l];
+        }
+    }
+
+    /// Load the tape variables (q, qdot, t) of every lane.
+    fn load_vars(&mut self, t: f64, q: &[f64], qdot: &[f64]) {
+        let n = self.n;
+        self.vars[..n * LANES].copy_from_slice(q);
+        self.vars[n * LANES..2 * n * LANES].copy_from_slice(qdot);
+        self.vars[2 * n * LANES..].fill(t);
+    }
+}
+
+/// Advance `members` (at most [`LANES`], all at t = 0 and set up for `system`'s equations:
+/// each member's system has the same dynamics, up to its initial state) over `steps` output intervals of dt, as
+/// [`super::run`] would with a null sink. Returns each member's outcome; a `Done` member's
+/// simulation then holds the end state and its [`Simulation::stats`] are the run's.
+pub(crate) fn run_lanes(
+    system: &Arc<System>,
+    members: &mut [Simulation],
+    steps: u64,
+) -> Vec<LaneOutcome> {
+    assert!(!members.is_empty() && members.len() <= LANES);
+    let count = members.len();
+    let system: Arc<System> = Arc::clone(system);
+    let config = members[0].config;
+    let method = members[0].method();
+    let mut kernel = match method {
+        Method::Implicit => Kernel::Implicit(Box::new(Implicit::new(
+            Arc::clone(&system),
+            config.feedback,
+        ))),
+        Method::Parametric => match Parametric::new(Arc::clone(&system)) {
+            Ok(p) => Kernel::Parametric(Box::new(p)),
+            Err(_) => return vec![LaneOutcome::Leave; count],
+        },
+    };
+    let n = members[0].n;
+    let (step_tape, observe_tape) = match &kernel {
+        Kernel::Implicit(_) => (
+            system.constraints().full_tape().clone(),
+            system.constraints().gradient_tape().clone(),
+        ),
+        Kernel::Parametric(_) => {
+            let map = system.parametric().expect("checked by lanes_can_run");
+            (
+                map.evaluation_tape().clone(),
+                map.observation_tape().clone(),
+            )
+        }
+    };
+    let mut lanes = Lanes::new(n, &[&step_tape, &observe_tape]);
+    // Every lane starts from its member's state; lanes beyond `count` repeat the first.
+    for l in 0..LANES {
+        let member = &members[l.min(count - 1)];
+        for k in 0..n {
+            lanes.q[k * LANES + l] = member.state.q[k];
+            lanes.qdot[k * LANES + l] = member.state.qdot[k];
+        }
+    }
+    let mut outcome = vec![LaneOutcome::Done; count];
+    let mut active = [false; LANES];
+    active[..count].fill(true);
+    // The monitor's reference per lane: the last accepted step's gradient rows and the
+    // longest each row has been.
+    let mut observation = members[0].monitor.observation.clone();
+    let mut last: Vec<Vec<f64>> = members
+        .iter()
+        .map(|m| m.monitor.observation.gradients.values.clone())
+        .collect();
+    let mut longest: Vec<Vec<f64>> = members
+        .iter()
+        .map(|m| m.monitor.longest().to_vec())
+        .collect();
+    let mut g_last: Vec<f64> = members
+        .iter()
+        .map(|m| m.watch.as_ref().map_or(f64::NAN, |w| w.g_last))
+        .collect();
+    let mut maxima: Vec<[f64; 3]> = members
+        .iter()
+        .map(|m| {
+            [
+                m.monitor.energy_rel_error_max,
+                m.monitor.balance_error_max,
+                m.monitor.constraint_error_max,
+            ]
+        })
+        .collect();
+    let n_gradient_rows = observation.gradients.n_rows();
+    let t0 = members[0].state.t;
+    let dt = config.dt;
+    let mut t = t0;
+    for k in 1..=steps {
+        // As `run` asks and `advance_to` steps: to t0 + k dt, one step of (t_end - t) / 1.
+        let t_end = t0 + k as f64 * dt;
+        let h = (t_end - t) / 1.0;
+        rk4_step(
+            &mut kernel,
+            &mut lanes,
+            &step_tape,
+            t,
+            h,
+            &mut active,
+            &mut outcome,
+        );
+        t = t_end;
+        // The checks of `Simulation::accept`, per lane.
+        observe_lanes(&mut lanes, &observe_tape, t);
+        for l in 0..count {
+            if !active[l] {
+                continue;
+            }
+            let member = &mut members[l];
+            Lanes::gather(&lanes.q, l, &mut lanes.q_one);
+            Lanes::gather(&lanes.qdot, l, &mut lanes.qdot_one);
+            let finite = lanes
+                .q_one
+                .iter()
+                .chain(&lanes.qdot_one)
+                .all(|c| c.is_finite());
+            if !finite {
+                leave(&mut active, &mut outcome, l);
+                continue;
+            }
+            let width = observe_tape.n_outputs();
+            Lanes::gather(&lanes.out[..width * LANES], l, &mut lanes.out_one[..width]);
+            finish_observation(
+                &mut kernel,
+                &system,
+                t,
+                &lanes.out_one[..width],
+                &lanes.q_one,
+                &lanes.qdot_one,
+                &mut observation,
+            );
+            let energy = system.energy(&observation.x, &observation.xdot);
+            let constraint_error = observation.constraint_error();
+            let (position_limit, speed_limit) = member.monitor.limits(t);
+            let diverged = !energy.is_finite()
+                || !constraint_error.is_finite()
+                || observation
+                    .x
+                    .iter()
+                    .any(|c| c.is_nan() || c.abs() > position_limit)
+                || observation
+                    .xdot
+                    .iter()
+                    .any(|c| c.is_nan() || c.abs() > speed_limit);
+            if diverged
+                || regularity_candidate(&observation, &last[l], &longest[l], n_gradient_rows)
+            {
+                leave(&mut active, &mut outcome, l);
+                continue;
+            }
+            if let Some(watch) = member.watch.as_mut() {
+                let g_end = watch.eval(
+                    t,
+                    &observation.x,
+                    &observation.xdot,
+                    &lanes.q_one,
+                    &lanes.qdot_one,
+                );
+                if g_last[l] < 0.0 && g_end >= 0.0 {
+                    leave(&mut active, &mut outcome, l);
+                    continue;
+                }
+                g_last[l] = g_end;
+            }
+            // Accepted: the monitor's reference and maxima move on.
+            last[l].copy_from_slice(&observation.gradients.values);
+            for (r, longest) in longest[l].iter_mut().enumerate() {
+                *longest = longest.max(norm(observation.gradients.row(r)));
+            }
+            let monitor = &member.monitor;
+            let error = (energy - monitor.energy_initial).abs() / monitor.energy_scale;
+            let balance = (energy - 0.0 - monitor.energy_initial).abs() / monitor.energy_scale;
+            let m = &mut maxima[l];
+            m[0] = max_nan(m[0], error);
+            m[1] = max_nan(m[1], balance);
+            m[2] = max_nan(m[2], constraint_error);
+        }
+        if !active[..count].iter().any(|&a| a) {
+            break;
+        }
+    }
+    // The members that ran to the end take their state and figures.
+    for l in 0..count {
+        if outcome[l] != LaneOutcome::Done {
+            continue;
+        }
+        let member = &mut members[l];
+        for k in 0..n {
+            member.state.q[k] = lanes.q[k * LANES + l];
+            member.state.qdot[k] = lanes.qdot[k * LANES + l];
+        }
+        member.state.t = t;
+        member.steps = steps;
+        member.grid_steps = steps;
+        if steps > 0 {
+            member.substeps_max = member.substeps_max.max(1);
+        }
+        let (q, qdot, work) = super::split(&member.state, n);
+        member
+            .monitor
+            .observe(&mut *member.formulation, t, q, qdot, work);
+        let [energy, balance, constraint] = maxima[l];
+        member.monitor.energy_rel_error_max = energy;
+        member.monitor.balance_error_max = balance;
+        member.monitor.constraint_error_max = constraint;
+        if let Some(watch) = member.watch.as_mut() {
+            watch.g_last = g_last[l];
+        }
+    }
+    outcome
+}
+
+fn leave(active: &mut [bool; LANES], outcome: &mut [LaneOutcome], l: usize) {
+    active[l] = false;
+    outcome[l] = LaneOutcome::Leave;
+}
+
+/// Whether the regularity monitor would raise a candidate for any gradient row (and so
+/// might search for a singular point): the tests of `Monitor::regularity`, without the
+/// memory of earlier fruitless searches (so this errs towards leaving the lanes).
+fn regularity_candidate(
+    observation: &Observation,
+    last: &[f64],
+    longest: &[f64],
+    rows: usize,
+) -> bool {
+    let g = &observation.gradients;
+    (0..rows).any(|r| {
+        let row = g.row(r);
+        let previous = &last[g.start[r]..g.start[r + 1]];
+        let (mut gg, mut gp, mut pp) = (0.0, 0.0, 0.0);
+        for (g, p) in row.iter().zip(previous) {
+            gg += g * g;
+            gp += g * p;
+            pp += p * p;
+        }
+        let length: f64 = gg.sqrt();
+        let (s, shortest) = lookahead(gg, gp, pp);
+        let ahead = s > 0.0 && shortest < AHEAD_FRACTION * AHEAD_FRACTION * gg && s <= AHEAD_STEPS;
+        let far_ahead = s > 0.0 && shortest < OFF_BRANCH_FRACTION * OFF_BRANCH_FRACTION * gg;
+        gp < 0.0 || ahead || length < VANISHED * longest[r] || far_ahead || length.is_nan()
+    })
+}
+
+/// One RK4 step of every lane from time t by h: `integrate::rk4`'s arithmetic, lane by lane.
+#[allow(clippy::too_many_arguments)]
+fn rk4_step(
+    kernel: &mut Kernel,
+    lanes: &mut Lanes,
+    tape: &Tape,
+    t: f64,
+    h: f64,
+    active: &mut [bool; LANES],
+    outcome: &mut [LaneOutcome],
+) {
+    let half = 0.5 * h;
+    // Stage 1: v1 = qdot, a1 = f(t, q, v1).
+    let (q, qdot) = (
+        std::mem::take(&mut lanes.q),
+        std::mem::take(&mut lanes.qdot),
+    );
+    lanes.velocity[0].copy_from_slice(&qdot);
+    let v1 = std::mem::take(&mut lanes.velocity[0]);
+    accelerate(kernel, lanes, tape, t, &q, &v1, 0, active, outcome);
+    // Stage 2.
+    axpy_into(&mut lanes.q_stage, &q, half, &v1);
+    let a1 = std::mem::take(&mut lanes.acceleration[0]);
+    axpy_into(&mut lanes.velocity[1], &qdot, half, &a1);
+    let stage = std::mem::take(&mut lanes.q_stage);
+    let v2 = std::mem::take(&mut lanes.velocity[1]);
+    accelerate(
+        kernel,
+        lanes,
+        tape,
+        t + half,
+        &stage,
+        &v2,
+        1,
+        active,
+        outcome,
+    );
+    lanes.q_stage = stage;
+    // Stage 3.
+    axpy_into(&mut lanes.q_stage, &q, half, &v2);
+    let a2 = std::mem::take(&mut lanes.acceleration[1]);
+    axpy_into(&mut lanes.velocity[2], &qdot, half, &a2);
+    let stage = std::mem::take(&mut lanes.q_stage);
+    let v3 = std::mem::take(&mut lanes.velocity[2]);
+    accelerate(
+        kernel,
+        lanes,
+        tape,
+        t + half,
+        &stage,
+        &v3,
+        2,
+        active,
+        outcome,
+    );
+    lanes.q_stage = stage;
+    // Stage 4.
+    axpy_into(&mut lanes.q_stage, &q, h, &v3);
+    let a3 = std::mem::take(&mut lanes.acceleration[2]);
+    axpy_into(&mut lanes.velocity[3], &qdot, h, &a3);
+    let stage = std::mem::take(&mut lanes.q_stage);
+    let v4 = std::mem::take(&mut lanes.velocity[3]);
+    accelerate(kernel, lanes, tape, t + h, &stage, &v4, 3, active, outcome);
+    lanes.q_stage = stage;
+    let a4 = std::mem::take(&mut lanes.acceleration[3]);
+    let sixth = h / 6.0;
+    let (mut q, mut qdot) = (q, qdot);
+    for i in 0..q.len() {
+        q[i] += sixth * (v1[i] + 2.0 * v2[i] + 2.0 * v3[i] + v4[i]);
+        qdot[i] += sixth * (a1[i] + 2.0 * a2[i] + 2.0 * a3[i] + a4[i]);
+    }
+    lanes.q = q;
+    lanes.qdot = qdot;
+    lanes.velocity = [v1, v2, v3, v4];
+    lanes.acceleration = [a1, a2, a3, a4];
+}
+
+/// y = x + h z, element by element (as `integrate::axpy_into`).
+fn axpy_into(y: &mut [f64], x: &[f64], h: f64, z: &[f64]) {
+    for ((y, x), z) in y.iter_mut().zip(x).zip(z) {
+        *y = x + h * z;
+    }
+}
+
+/// Accelerations of every lane at (t, q, qdot) into `lanes.acceleration[stage]`: the tape
+/// for all lanes, then the formulation's own finish per active lane. A lane whose
+/// evaluation fails leaves.
+#[allow(clippy::too_many_arguments)]
+fn accelerate(
+    kernel: &mut Kernel,
+    lanes: &mut Lanes,
+    tape: &Tape,
+    t: f64,
+    q: &[f64],
+    qdot: &[f64],
+    stage: usize,
+    active: &mut [bool; LANES],
+    outcome: &mut [LaneOutcome],
+) {
+    lanes.load_vars(t, q, qdot);
+    let width = tape.n_outputs();
+    tape.eval_lanes::<LANES>(
+        &lanes.vars,
+        &mut lanes.scratch,
+        &mut lanes.out[..width * LANES],
+    );
+    let mut acceleration = std::mem::take(&mut lanes.acceleration[stage]);
+    for l in 0..LANES {
+        if !active[l] {
+            continue;
+        }
+        Lanes::gather(q, l, &mut lanes.q_one);
+        Lanes::gather(qdot, l, &mut lanes.qdot_one);
+        let result = match kernel {
+            Kernel::Implicit(implicit) => {
+                let ws = implicit.evaluation_mut();
+                Lanes::gather(
+                    &lanes.out[..width * LANES],
+                    l,
+                    &mut ws.tape_out_mut()[..width],
+                );
+                let system = Arc::clone(&implicit.system);
+                system.constraints().unpack_full(implicit.evaluation_mut());
+                implicit.accelerate_evaluated(t, &lanes.q_one, &lanes.qdot_one, &mut lanes.a_one)
+            }
+            Kernel::Parametric(parametric) => {
+                let ws = parametric.evaluation_mut();
+                Lanes::gather(&lanes.out[..width * LANES], l, &mut ws.out_mut()[..width]);
+                let map = Arc::clone(&parametric.system);
+                map.parametric()
+                    .expect("checked by lanes_can_run")
+                    .unpack_evaluation(parametric.evaluation_mut());
+                parametric.accelerate_evaluated(t, &lanes.q_one, &lanes.qdot_one, &mut lanes.a_one)
+            }
+        };
+        if result.is_err() {
+            active[l] = false;
+            if l < outcome.len() {
+                outcome[l] = LaneOutcome::Leave;
+            }
+            lanes.a_one.fill(0.0);
+        }
+        for (k, a) in lanes.a_one.iter().enumerate() {
+            acceleration[k * LANES + l] = *a;
+        }
+    }
+    lanes.acceleration[stage] = acceleration;
+}
+
+/// The observation tape (C and J of the implicit form at x = q; x, xdot and J of the
+/// parametric map) for every lane at time t, into `lanes.out`.
+fn observe_lanes(lanes: &mut Lanes, tape: &Tape, t: f64) {
+    let (q, qdot) = (
+        std::mem::take(&mut lanes.q),
+        std::mem::take(&mut lanes.qdot),
+    );
+    lanes.load_vars(t, &q, &qdot);
+    let width = tape.n_outputs();
+    tape.eval_lanes::<LANES>(
+        &lanes.vars,
+        &mut lanes.scratch,
+        &mut lanes.out[..width * LANES],
+    );
+    lanes.q = q;
+    lanes.qdot = qdot;
+}
+
+/// One lane's observation from its observation-tape outputs, by the formulation's own code.
+fn finish_observation(
+    kernel: &mut Kernel,
+    system: &System,
+    t: f64,
+    out: &[f64],
+    q: &[f64],
+    qdot: &[f64],
+    observation: &mut Observation,
+) {
+    match kernel {
+        Kernel::Implicit(implicit) => {
+            if system.constraints().n_rows() > 0 {
+                let ws = implicit.observation_evaluation_mut();
+                ws.tape_out_mut()[..out.len()].copy_from_slice(out);
+                system.constraints().unpack_gradient(ws);
+            }
+            implicit.observe_evaluated(q, qdot, observation);
+        }
+        Kernel::Parametric(parametric) => {
+            let ws = parametric.evaluation_mut();
+            ws.out_mut()[..out.len()].copy_from_slice(out);
+            system
+                .parametric()
+                .expect("checked by lanes_can_run")
+                .unpack_observation(parametric.evaluation_mut());
+            parametric.observe_evaluated(t, observation);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scene::Scene;
+    use crate::simulate::{run, NullSink, RunOptions, SimulationConfig};
+
+    const PARABOLA: &str = "[params]\nx0 = 150.0\n[world]\ngravity = [0.0, 500.0]\n[[particle]]\nname = \"bead\"\nmass = 1.0\nposition = [\"x0\", \"-x0^2/100\"]\n[[constraint]]\nexpr = \"bead.x^2 + 100*bead.y\"\n[parametric]\ncoordinates = [\"q\"]\ninitial = [\"x0\"]\n[parametric.positions]\nbead = [\"q\", \"-q^2/100\"]\n";
+
+    fn members(method: Method, x0: &[f64]) -> (Arc<System>, Vec<Simulation>) {
+        let base = Scene::parse(PARABOLA, "p.toml", &[]).unwrap();
+        let config = SimulationConfig {
+            method,
+            dt: 1.0 / 60.0,
+            ..Default::default()
+        };
+        let sims = x0
+            .iter()
+            .map(|&x| {
+                let scene = base.with_params(&[("x0".to_string(), x)]).unwrap();
+                Simulation::new(Arc::clone(&scene.system), config).unwrap()
+            })
+            .collect();
+        (Arc::clone(&base.system), sims)
+    }
+
+    /// The lanes take the parabola's runs to the end, and each member's figures are its run's
+    /// alone, bit for bit.
+    #[test]
+    fn the_lanes_run_the_parabola_to_the_end_as_each_member_alone() {
+        let x0: Vec<f64> = (0..LANES - 3).map(|i| 10.0 + 12.5 * i as f64).collect();
+        for method in [Method::Implicit, Method::Parametric] {
+            let (system, mut together) = members(method, &x0);
+            assert!(together.iter().all(lanes_can_run));
+            let outcomes = run_lanes(&system, &mut together, 240);
+            assert!(
+                outcomes.iter().all(|&o| o == LaneOutcome::Done),
+                "{outcomes:?}"
+            );
+            let (_, mut alone) = members(method, &x0);
+            for (a, b) in together.iter().zip(&mut alone) {
+                let want = run(
+                    b,
+                    RunOptions {
+                        steps: 240,
+                        every: 1,
+                    },
+                    &mut NullSink,
+                )
+                .unwrap();
+                let got = a.stats(want.wall_seconds);
+                assert_eq!(format!("{got:?}"), format!("{want:?}"));
+            }
+        }
+    }
+
+    /// A member whose state stops being finite leaves the lanes; the others go on.
+    #[test]
+    fn a_member_that_diverges_leaves_and_the_others_go_on() {
+        let (system, mut together) = members(Method::Parametric, &[20.0, 40.0, 60.0]);
+        together[1].state.qdot[0] = f64::INFINITY;
+        let outcomes = run_lanes(&system, &mut together, 10);
+        assert_eq!(
+            outcomes,
+            [LaneOutcome::Done, LaneOutcome::Leave, LaneOutcome::Done]
+        );
+    }
+
+    #[test]
+    fn what_the_lanes_do_not_take() {
+        let base = Scene::parse(PARABOLA, "p.toml", &[]).unwrap();
+        let with = |config: SimulationConfig| {
+            let simulation = Simulation::new(Arc::clone(&base.system), config).unwrap();
+            lanes_can_run(&simulation)
+        };
+        let rk4 = SimulationConfig {
+            dt: 0.01,
+            ..Default::default()
+        };
+        assert!(with(rk4));
+        assert!(!with(SimulationConfig {
+            integrator: IntegratorKind::GaussLegendre,
+            ..rk4
+        }));
+        assert!(!with(SimulationConfig {
+            project: true,
+            ..rk4
+        }));
+        assert!(!with(SimulationConfig { substeps: 2, ..rk4 }));
+    }
+}

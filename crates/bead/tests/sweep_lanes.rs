@@ -1,0 +1,211 @@
+//! Sweeps step members of one system together (`simulate::lanes`): every member's figures
+//! must be those of its run alone, from its scene loaded from the text with its values, bit
+//! for bit, on systems where the lanes run to the end (the parabola, the double pendulum's
+//! parametric form, the helix in 3D), where members leave them (a stop condition that fires
+//! for some; a cusp that stops every run at its singular point; a rod system the lanes do
+//! not take) and over several blocks of lanes with a partial last one.
+
+use std::path::Path;
+use std::sync::Arc;
+
+use bead::formulation::Method;
+use bead::integrate::IntegratorKind;
+use bead::plan::{Plan, PlanRequest};
+use bead::scene::Scene;
+use bead::simulate::{run, Event, NullSink, RunStats, Simulation};
+use bead::sweep::{Axis, Combine, Member, Sweep};
+
+/// Member i's run alone: its scene parsed from the text with its values (the equations
+/// compiled afresh), planned, set up and run as `bead run --set` runs it.
+fn alone(
+    scene: &Scene,
+    sweep: &Sweep,
+    request: &PlanRequest,
+    stop_when: Option<&str>,
+    i: usize,
+) -> (Option<RunStats>, Option<String>) {
+    let overrides: Vec<(String, f64)> = sweep
+        .axes()
+        .iter()
+        .map(|a| a.name.clone())
+        .zip(sweep.params_of(i))
+        .collect();
+    let member = Scene::parse(scene.text(), &scene.file, &overrides).unwrap();
+    let plan = Plan::resolve(&member, request).unwrap();
+    let mut simulation = match Simulation::new(Arc::clone(&member.system), plan.config(plan.method))
+    {
+        Ok(s) => s,
+        Err(e) => return (None, Some(e.to_string())),
+    };
+    let event = match stop_when {
+        Some(source) => Some(Event::parse(&member.system, source).unwrap()),
+        None => member.run.stop_when.clone(),
+    };
+    simulation.set_stop_when(event).unwrap();
+    match run(&mut simulation, plan.options(), &mut NullSink) {
+        Ok(stats) => (Some(stats), None),
+        Err(failure) => (Some(*failure.stats), Some(failure.error.to_string())),
+    }
+}
+
+fn without_wall_time(stats: &RunStats) -> RunStats {
+    RunStats {
+        wall_seconds: 0.0,
+        ..stats.clone()
+    }
+}
+
+/// Sweep `scene` over `axes` and compare every member with its run alone; returns the
+/// members.
+fn check(
+    scene: &Scene,
+    axes: Vec<Axis>,
+    request: PlanRequest,
+    stop_when: Option<&str>,
+) -> Vec<Member> {
+    let sweep = Sweep::new(
+        scene,
+        axes,
+        Combine::Grid,
+        request.clone(),
+        stop_when.map(str::to_string),
+    )
+    .unwrap();
+    let members = sweep.run(2);
+    assert_eq!(members.len(), sweep.len());
+    for (i, member) in members.iter().enumerate() {
+        let (stats, error) = alone(scene, &sweep, &request, stop_when, i);
+        assert_eq!(member.error, error, "member {i} {:?}", member.params);
+        assert_eq!(
+            format!("{:?}", member.stats.as_ref().map(without_wall_time)),
+            format!("{:?}", stats.as_ref().map(without_wall_time)),
+            "member {i} {:?}",
+            member.params
+        );
+    }
+    members
+}
+
+fn shipped(name: &str) -> Scene {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../scenes")
+        .join(name);
+    Scene::load(&path, &[]).unwrap_or_else(|e| panic!("{e}"))
+}
+
+fn rk4(method: Method, dt: f64, steps: u64) -> PlanRequest {
+    PlanRequest {
+        method: Some(method),
+        integrator: Some(IntegratorKind::Rk4),
+        dt: Some(dt),
+        steps: Some(steps),
+        ..Default::default()
+    }
+}
+
+const PARABOLA: &str = r#"
+[params]
+g = 500.0
+x0 = 150.0
+[world]
+gravity = [0.0, "g"]
+[[particle]]
+name = "bead"
+mass = 1.0
+position = ["x0", "-x0^2/100"]
+[[constraint]]
+expr = "bead.x^2 + 100*bead.y"
+[parametric]
+coordinates = ["q"]
+initial = ["x0"]
+[parametric.positions]
+bead = ["q", "-q^2/100"]
+"#;
+
+#[test]
+fn the_parabola_in_lanes_is_the_parabola_alone() {
+    let scene = Scene::parse(PARABOLA, "parabola.toml", &[]).unwrap();
+    for method in [Method::Implicit, Method::Parametric] {
+        // 37 members: two full blocks of 16 and a partial one.
+        let members = check(
+            &scene,
+            vec![Axis::linspace("x0", 10.0, 200.0, 37).unwrap()],
+            rk4(method, 1.0 / 60.0, 300),
+            None,
+        );
+        assert!(members.iter().all(|m| m.status() == "ok"));
+    }
+}
+
+#[test]
+fn a_stop_condition_takes_its_members_out_of_the_lanes() {
+    // The bead passes x = 0 going right a quarter period after its release at x0 < 0:
+    // early for small swings, later for large ones (the period grows with the amplitude);
+    // some not within the run.
+    let scene = Scene::parse(PARABOLA, "parabola.toml", &[]).unwrap();
+    for method in [Method::Implicit, Method::Parametric] {
+        let members = check(
+            &scene,
+            vec![Axis::linspace("x0", -200.0, -10.0, 20).unwrap()],
+            rk4(method, 1.0 / 60.0, 35),
+            Some("bead.x"),
+        );
+        let fired = members.iter().filter(|m| m.status() == "event").count();
+        assert!(fired > 0 && fired < members.len(), "{fired} fired");
+    }
+}
+
+#[test]
+fn the_double_pendulum_over_a_grid_of_angles() {
+    let scene = shipped("double-pendulum.toml");
+    let axes = || {
+        vec![
+            Axis::linspace("th1", -3.0, 3.0, 5).unwrap(),
+            Axis::linspace("th2", -3.0, 3.0, 4).unwrap(),
+        ]
+    };
+    // The parametric form runs in lanes; the implicit form's rods are native rows, which
+    // the lanes leave to the members alone.
+    check(&scene, axes(), rk4(Method::Parametric, 1e-3, 1500), None);
+    check(&scene, axes(), rk4(Method::Implicit, 1e-3, 300), None);
+    // The lower bob falling below 1.5 L under the pivot stops the run.
+    let members = check(
+        &scene,
+        axes(),
+        rk4(Method::Parametric, 1e-3, 1500),
+        Some("b.y - 1.5"),
+    );
+    let fired = members.iter().filter(|m| m.status() == "event").count();
+    assert!(fired > 0 && fired < members.len(), "{fired} fired");
+}
+
+#[test]
+fn members_that_reach_a_singular_point_leave_with_its_message() {
+    let scene = shipped("cusp.toml");
+    for method in [Method::Implicit, Method::Parametric] {
+        let members = check(
+            &scene,
+            vec![Axis::linspace("s0", 0.5, 1.5, 18).unwrap()],
+            rk4(method, 1e-3, 1500),
+            None,
+        );
+        assert!(
+            members.iter().any(|m| m.status() == "failed"),
+            "{method:?}: some member reaches the cusp"
+        );
+    }
+}
+
+#[test]
+fn the_helix_in_three_dimensions() {
+    // w0 sets the initial rate only: the members share the helix's equations.
+    let scene = shipped("helix.toml");
+    for method in [Method::Implicit, Method::Parametric] {
+        check(
+            &scene,
+            vec![Axis::linspace("w0", -3.0, 6.0, 17).unwrap()],
+            rk4(method, 1e-3, 500),
+            None,
+        );
+    }
+}
