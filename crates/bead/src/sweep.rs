@@ -42,7 +42,9 @@ use crate::model::System;
 use crate::plan::{Plan, PlanError, PlanRequest};
 use crate::scene::Scene;
 use crate::simulate::lanes::{lanes_can_run, run_lanes, LaneOutcome, LANES};
-use crate::simulate::{run, Event, NullSink, RunOptions, RunStats, Simulation};
+use crate::simulate::{
+    run, run_rest, Event, NullSink, RunFailure, RunOptions, RunStats, Simulation,
+};
 use std::time::Instant;
 
 /// One swept parameter and its values.
@@ -410,6 +412,11 @@ impl Sweep {
                                 stats: Some(simulation.stats(wall)),
                                 error: None,
                             },
+                            LaneOutcome::Handover { intervals } => {
+                                let mut simulation = simulation;
+                                let rest = run_rest(&mut simulation, 0.0, intervals, ready.options);
+                                ready.finish(rest)
+                            }
                             LaneOutcome::Leave => self.run_member(ready.index),
                         });
                     }
@@ -526,7 +533,13 @@ impl Ready {
     /// Run it on its own.
     fn run_alone(mut self: Box<Self>) -> Member {
         let mut simulation = self.take_simulation();
-        match run(&mut simulation, self.options, &mut NullSink) {
+        let result = run(&mut simulation, self.options, &mut NullSink);
+        self.finish(result)
+    }
+
+    /// Its member, from the result of its run.
+    fn finish(self, result: Result<RunStats, RunFailure>) -> Member {
+        match result {
             Ok(stats) => Member {
                 index: self.index,
                 params: self.params,

@@ -12,9 +12,11 @@
 //!
 //! Whatever needs more than the plain step (a non-finite or diverged state, a candidate
 //! singular point that the simulation would search for, a failed factorization, the stop
-//! condition firing) takes the member out of the lanes: [`LaneOutcome::Leave`], and its run is
-//! done again on its own from the start, which gives the numbers and the message its
-//! `Simulation` gives. The lanes are an acceleration, never a second behaviour.
+//! condition firing) takes the member out of the lanes: its `Simulation` is handed the state
+//! and monitor of the step before ([`LaneOutcome::Handover`]), as if it had taken every step
+//! so far itself, and takes that step again alone, which gives the numbers and the message it
+//! always gives (a located event, a confirmed singular point, a divergence). The lanes are an
+//! acceleration, never a second behaviour.
 //!
 //! Which runs the lanes take ([`lanes_can_run`]): RK4 at a fixed step without substeps,
 //! projection, external forces or the energy ledger; the implicit form when all its rows are
@@ -39,7 +41,11 @@ pub(crate) const LANES: usize = 16;
 pub(crate) enum LaneOutcome {
     /// It ran its steps; its `Simulation` holds the end state and the run's figures.
     Done,
-    /// It needs what only its own `Simulation` does (see the module): run it again alone.
+    /// Its next step needs what only its own `Simulation` does (see the module): the
+    /// simulation stands after `intervals` output intervals, exactly as if it had taken them
+    /// itself, and goes on alone ([`super::run_rest`]).
+    Handover { intervals: u64 },
+    /// The lanes could not take it: run it again alone.
     Leave,
 }
 
@@ -54,6 +60,7 @@ pub(crate) fn lanes_can_run(simulation: &Simulation) -> bool {
         && simulation.ledger.is_none()
         && simulation.formulation.external_forces().is_empty()
         && simulation.steps == 0
+        && simulation.state.t == 0.0
         && match simulation.method() {
             Method::Implicit => system.constraints().only_taped(),
             Method::Parametric => system.parametric().is_some(),
@@ -75,6 +82,10 @@ struct Lanes {
     velocity: [Vec<f64>; 4],
     acceleration: [Vec<f64>; 4],
     q_stage: Vec<f64>,
+    /// The state one and two step ends back (for a handover)
+    q_back: Vec<f64>,
+    qdot_back: Vec<f64>,
+    q_back2: Vec<f64>,
     /// Tape variables (q, qdot, t), scratch and outputs
     vars: Vec<f64>,
     scratch: Vec<f64>,
@@ -98,6 +109,9 @@ impl Lanes {
             velocity: [buffer(), buffer(), buffer(), buffer()],
             acceleration: [buffer(), buffer(), buffer(), buffer()],
             q_stage: buffer(),
+            q_back: buffer(),
+            qdot_back: buffer(),
+            q_back2: buffer(),
             vars: vec![0.0; (2 * n + 1) * LANES],
             scratch: vec![0.0; slots * LANES],
             out: vec![0.0; outputs * LANES],
@@ -124,7 +138,7 @@ impl Lanes {
     }
 }
 
-/// Advance `members` (at most [`LANES`], all at t = 0 and set up for `system`'s equations:
+/// Advance `members` (at most [`LANES`], all at t = 0 before their first step and set up for `system`'s equations:
 /// each member's system has the same dynamics, up to its initial state) over `steps` output intervals of dt, as
 /// [`super::run`] would with a null sink. Returns each member's outcome; a `Done` member's
 /// simulation then holds the end state and its [`Simulation::stats`] are the run's.
@@ -181,6 +195,8 @@ pub(crate) fn run_lanes(
         .iter()
         .map(|m| m.monitor.observation.gradients.values.clone())
         .collect();
+    // The step end before `last` (none before the first step).
+    let mut before: Vec<Vec<f64>> = last.clone();
     let mut longest: Vec<Vec<f64>> = members
         .iter()
         .map(|m| m.monitor.longest().to_vec())
@@ -207,6 +223,10 @@ pub(crate) fn run_lanes(
         // As `run` asks and `advance_to` steps: to t0 + k dt, one step of (t_end - t) / 1.
         let t_end = t0 + k as f64 * dt;
         let h = (t_end - t) / 1.0;
+        std::mem::swap(&mut lanes.q_back2, &mut lanes.q_back);
+        lanes.q_back.copy_from_slice(&lanes.q);
+        lanes.qdot_back.copy_from_slice(&lanes.qdot);
+        let failed_before = active;
         rk4_step(
             &mut kernel,
             &mut lanes,
@@ -216,6 +236,24 @@ pub(crate) fn run_lanes(
             &mut active,
             &mut outcome,
         );
+        for l in 0..count {
+            if failed_before[l] && !active[l] {
+                handover(
+                    &mut members[l],
+                    &lanes,
+                    l,
+                    k,
+                    t,
+                    &last[l],
+                    &before[l],
+                    &longest[l],
+                    maxima[l],
+                    g_last[l],
+                );
+                outcome[l] = LaneOutcome::Handover { intervals: k - 1 };
+            }
+        }
+        let t_previous = t;
         t = t_end;
         // The checks of `Simulation::accept`, per lane.
         observe_lanes(&mut lanes, &observe_tape, t);
@@ -232,7 +270,20 @@ pub(crate) fn run_lanes(
                 .chain(&lanes.qdot_one)
                 .all(|c| c.is_finite());
             if !finite {
-                leave(&mut active, &mut outcome, l);
+                active[l] = false;
+                handover(
+                    member,
+                    &lanes,
+                    l,
+                    k,
+                    t_previous,
+                    &last[l],
+                    &before[l],
+                    &longest[l],
+                    maxima[l],
+                    g_last[l],
+                );
+                outcome[l] = LaneOutcome::Handover { intervals: k - 1 };
                 continue;
             }
             let width = observe_tape.n_outputs();
@@ -262,7 +313,20 @@ pub(crate) fn run_lanes(
             if diverged
                 || regularity_candidate(&observation, &last[l], &longest[l], n_gradient_rows)
             {
-                leave(&mut active, &mut outcome, l);
+                active[l] = false;
+                handover(
+                    member,
+                    &lanes,
+                    l,
+                    k,
+                    t_previous,
+                    &last[l],
+                    &before[l],
+                    &longest[l],
+                    maxima[l],
+                    g_last[l],
+                );
+                outcome[l] = LaneOutcome::Handover { intervals: k - 1 };
                 continue;
             }
             if let Some(watch) = member.watch.as_mut() {
@@ -274,12 +338,26 @@ pub(crate) fn run_lanes(
                     &lanes.qdot_one,
                 );
                 if g_last[l] < 0.0 && g_end >= 0.0 {
-                    leave(&mut active, &mut outcome, l);
+                    active[l] = false;
+                    handover(
+                        member,
+                        &lanes,
+                        l,
+                        k,
+                        t_previous,
+                        &last[l],
+                        &before[l],
+                        &longest[l],
+                        maxima[l],
+                        g_last[l],
+                    );
+                    outcome[l] = LaneOutcome::Handover { intervals: k - 1 };
                     continue;
                 }
                 g_last[l] = g_end;
             }
             // Accepted: the monitor's reference and maxima move on.
+            std::mem::swap(&mut before[l], &mut last[l]);
             last[l].copy_from_slice(&observation.gradients.values);
             for (r, longest) in longest[l].iter_mut().enumerate() {
                 *longest = longest.max(norm(observation.gradients.row(r)));
@@ -327,9 +405,48 @@ pub(crate) fn run_lanes(
     outcome
 }
 
-fn leave(active: &mut [bool; LANES], outcome: &mut [LaneOutcome], l: usize) {
-    active[l] = false;
-    outcome[l] = LaneOutcome::Leave;
+/// Hand lane l's member its state and monitor at the end of step k - 1 (time t), as its
+/// own `Simulation` would stand after taking steps 1 to k - 1: the state, the step count,
+/// the observation (taken again), the regularity monitor's last two step ends, the longest
+/// gradient lengths, the maxima and the stop condition's last value.
+#[allow(clippy::too_many_arguments)]
+fn handover(
+    member: &mut Simulation,
+    lanes: &Lanes,
+    l: usize,
+    k: u64,
+    t: f64,
+    last: &[f64],
+    before: &[f64],
+    longest: &[f64],
+    maxima: [f64; 3],
+    g_last: f64,
+) {
+    let n = lanes.n;
+    let done = k - 1;
+    let mut q_before = vec![0.0; n];
+    for i in 0..n {
+        member.state.q[i] = lanes.q_back[i * LANES + l];
+        member.state.qdot[i] = lanes.qdot_back[i * LANES + l];
+        q_before[i] = lanes.q_back2[i * LANES + l];
+    }
+    member.state.t = t;
+    member.previous.clone_from(&member.state);
+    member.steps = done;
+    member.grid_steps = done;
+    if done > 0 {
+        member.substeps_max = member.substeps_max.max(1);
+    }
+    let (q, qdot, work) = super::split(&member.state, n);
+    member
+        .monitor
+        .observe(&mut *member.formulation, t, q, qdot, work);
+    let before = (done > 0).then_some((q_before.as_slice(), before));
+    let q = member.state.q[..n].to_vec();
+    member.monitor.adopt(&q, last, before, longest, maxima);
+    if let Some(watch) = member.watch.as_mut() {
+        watch.g_last = g_last;
+    }
 }
 
 /// Whether the regularity monitor would raise a candidate for any gradient row (and so
@@ -466,31 +583,31 @@ fn accelerate(
         &mut lanes.out[..width * LANES],
     );
     let mut acceleration = std::mem::take(&mut lanes.acceleration[stage]);
+    let system = match kernel {
+        Kernel::Implicit(implicit) => Arc::clone(&implicit.system),
+        Kernel::Parametric(parametric) => Arc::clone(&parametric.system),
+    };
     for l in 0..LANES {
         if !active[l] {
             continue;
         }
         Lanes::gather(q, l, &mut lanes.q_one);
         Lanes::gather(qdot, l, &mut lanes.qdot_one);
+        let outputs = &lanes.out[..width * LANES];
         let result = match kernel {
             Kernel::Implicit(implicit) => {
                 let ws = implicit.evaluation_mut();
-                Lanes::gather(
-                    &lanes.out[..width * LANES],
-                    l,
-                    &mut ws.tape_out_mut()[..width],
-                );
-                let system = Arc::clone(&implicit.system);
-                system.constraints().unpack_full(implicit.evaluation_mut());
+                Lanes::gather(outputs, l, &mut ws.tape_out_mut()[..width]);
+                system.constraints().unpack_full(ws);
                 implicit.accelerate_evaluated(t, &lanes.q_one, &lanes.qdot_one, &mut lanes.a_one)
             }
             Kernel::Parametric(parametric) => {
                 let ws = parametric.evaluation_mut();
-                Lanes::gather(&lanes.out[..width * LANES], l, &mut ws.out_mut()[..width]);
-                let map = Arc::clone(&parametric.system);
-                map.parametric()
+                Lanes::gather(outputs, l, &mut ws.out_mut()[..width]);
+                system
+                    .parametric()
                     .expect("checked by lanes_can_run")
-                    .unpack_evaluation(parametric.evaluation_mut());
+                    .unpack_evaluation(ws);
                 parametric.accelerate_evaluated(t, &lanes.q_one, &lanes.qdot_one, &mut lanes.a_one)
             }
         };
@@ -612,7 +729,8 @@ mod tests {
         }
     }
 
-    /// A member whose state stops being finite leaves the lanes; the others go on.
+    /// A member whose state stops being finite is handed back before the step that broke it
+    /// (here the first); the others go on.
     #[test]
     fn a_member_that_diverges_leaves_and_the_others_go_on() {
         let (system, mut together) = members(Method::Parametric, &[20.0, 40.0, 60.0]);
@@ -620,7 +738,11 @@ mod tests {
         let outcomes = run_lanes(&system, &mut together, 10);
         assert_eq!(
             outcomes,
-            [LaneOutcome::Done, LaneOutcome::Leave, LaneOutcome::Done]
+            [
+                LaneOutcome::Done,
+                LaneOutcome::Handover { intervals: 0 },
+                LaneOutcome::Done
+            ]
         );
     }
 

@@ -67,6 +67,7 @@ pub use crate::readable;
 pub use config::{ConfigError, Requirement, SetupError, SimulationConfig};
 pub use event::{Event, EventError};
 pub use monitor::Quantity;
+pub(crate) use run::run_rest;
 pub use run::{
     run, run_with_progress, NoProgress, NullSink, Progress, RunError, RunFailure, RunOptions,
     RunStats, Sample, Sink,

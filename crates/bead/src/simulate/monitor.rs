@@ -236,6 +236,35 @@ impl Monitor {
         self.constraint_error = self.observation.constraint_error();
     }
 
+    /// The monitor as it stands after a run accepted step ends up to one at state `last_q`
+    /// with gradient values `last_gradients` (the ensemble lanes took those steps, see
+    /// `lanes`): `before` is the step end before it (none if `last` is the initial state),
+    /// `longest` each row's longest length so far, `maxima` the energy, balance and
+    /// constraint error maxima. The observation is [`Monitor::observe`]d again by the caller.
+    pub(super) fn adopt(
+        &mut self,
+        last_q: &[f64],
+        last_gradients: &[f64],
+        before: Option<(&[f64], &[f64])>,
+        longest: &[f64],
+        maxima: [f64; 3],
+    ) {
+        self.last.q.copy_from_slice(last_q);
+        self.last.gradients.values.copy_from_slice(last_gradients);
+        self.last.valid = true;
+        if let Some((q, gradients)) = before {
+            self.before.q.copy_from_slice(q);
+            self.before.gradients.values.copy_from_slice(gradients);
+            self.before.valid = true;
+        }
+        self.longest.copy_from_slice(longest);
+        [
+            self.energy_rel_error_max,
+            self.balance_error_max,
+            self.constraint_error_max,
+        ] = maxima;
+    }
+
     /// The position and speed limits of the divergence test at time t (see [`Reach`]).
     pub(super) fn limits(&self, t: f64) -> (f64, f64) {
         self.reach.at(t)

@@ -215,6 +215,42 @@ pub fn run(
     run_with_progress(simulation, options, sink, &mut NoProgress)
 }
 
+/// The rest of a run that started at `t0` and has done `from` of `options.steps` output
+/// intervals (another stepper took those: the ensemble lanes), recording nothing: the loop
+/// of [`run`] from there, with the same output times t0 + k dt.
+pub(crate) fn run_rest(
+    simulation: &mut Simulation,
+    t0: f64,
+    from: u64,
+    options: RunOptions,
+) -> Result<RunStats, RunFailure> {
+    let start = Instant::now();
+    let dt = simulation.config().dt;
+    simulation.set_stop_time(Some(t0 + options.steps as f64 * dt));
+    let mut failure = None;
+    let mut interval = from;
+    while interval < options.steps {
+        let next = interval + 1;
+        if let Err(e) = simulation.advance_to(t0 + next as f64 * dt) {
+            failure = Some(e);
+            break;
+        }
+        interval = next;
+        if simulation.stopped_at_event() {
+            break;
+        }
+    }
+    simulation.set_stop_time(None);
+    let stats = simulation.stats(start.elapsed().as_secs_f64());
+    match failure {
+        Some(error) => Err(RunFailure {
+            error,
+            stats: Box::new(stats),
+        }),
+        None => Ok(stats),
+    }
+}
+
 /// [`run`], telling `progress` how far it has got (see [`Progress`]).
 ///
 /// Output time k is t0 + k dt, computed from k so that it does not accumulate rounding; a
