@@ -425,11 +425,9 @@ fn handover(
     let n = lanes.n;
     let done = k - 1;
     let mut q_before = vec![0.0; n];
-    for i in 0..n {
-        member.state.q[i] = lanes.q_back[i * LANES + l];
-        member.state.qdot[i] = lanes.qdot_back[i * LANES + l];
-        q_before[i] = lanes.q_back2[i * LANES + l];
-    }
+    Lanes::gather(&lanes.q_back, l, &mut member.state.q[..n]);
+    Lanes::gather(&lanes.qdot_back, l, &mut member.state.qdot[..n]);
+    Lanes::gather(&lanes.q_back2, l, &mut q_before);
     member.state.t = t;
     member.previous.clone_from(&member.state);
     member.steps = done;
