@@ -16,8 +16,10 @@
 //! M = 1 + (q/50)^2, Q = -g q / 50, h = (0, -qdot^2/50)). Before timing, both are checked to
 //! agree on every member's final state (to 1e-7 of the swing: the same equations, rounded
 //! differently), so that the two measure the same work. Prints particle-steps per second
-//! and the floor's lead; the target is >= 1e8 particle-steps/s on 2 cores (within 4x of the
-//! floor).
+//! through the sweep (members stepped in lanes), through the same sweep with each member
+//! stepped alone (what the lanes gain; both give the same numbers, checked), and by hand,
+//! with the floor's lead; the target is >= 1e8 particle-steps/s on 2 cores (within 4x of the
+//! floor). All three run in the same process, so that the ratios hold on a loaded machine.
 //!
 //! `cargo bench -p bead --bench ensemble` (`-- --members N` for another ensemble size).
 
@@ -64,8 +66,10 @@ fn release_points(n: usize) -> Vec<f64> {
 }
 
 /// The sweep through the library: every member's scene loaded with its x0, its run planned
-/// and stepped by `Simulation`, on `threads` threads.
-fn through_bead(method: Method, x0: &[f64], threads: usize) -> (f64, Vec<Member>) {
+/// and stepped in lanes of members (`bead::simulate` lanes), on `threads` threads; with
+/// `alone`, each member stepped by its own `Simulation` instead (`Sweep::run_member`, the
+/// path of a single `bead run`), for the lanes' gain in the same run.
+fn through_bead(method: Method, x0: &[f64], threads: usize, alone: bool) -> (f64, Vec<Member>) {
     let scene = Scene::parse(SCENE, "parabola-x0.toml", &[]).expect("the scene loads");
     let sweep = Sweep::new(
         &scene,
@@ -85,7 +89,33 @@ fn through_bead(method: Method, x0: &[f64], threads: usize) -> (f64, Vec<Member>
     )
     .expect("the sweep is valid");
     let start = Instant::now();
-    let members = sweep.run(threads);
+    let members = if alone {
+        let next = std::sync::atomic::AtomicUsize::new(0);
+        let mut members: Vec<Member> = std::thread::scope(|scope| {
+            let workers: Vec<_> = (0..threads)
+                .map(|_| {
+                    scope.spawn(|| {
+                        let mut done = Vec::new();
+                        loop {
+                            let i = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                            if i >= sweep.len() {
+                                break done;
+                            }
+                            done.push(sweep.run_member(i));
+                        }
+                    })
+                })
+                .collect();
+            workers
+                .into_iter()
+                .flat_map(|w| w.join().unwrap())
+                .collect()
+        });
+        members.sort_by_key(|m| m.index);
+        members
+    } else {
+        sweep.run(threads)
+    };
     (start.elapsed().as_secs_f64(), members)
 }
 
@@ -188,12 +218,21 @@ fn main() {
         "ensemble: {members} beads on the article's parabola, x0 over [10, 200), {STEPS} rk4 steps of 1/60 s, {threads} thread(s)"
     );
     println!(
-        "{:<11} {:>22} {:>22} {:>12}",
-        "form", "bead particle-steps/s", "floor particle-steps/s", "floor/bead"
+        "{:<11} {:>16} {:>16} {:>16} {:>11} {:>11}",
+        "form", "bead (lanes)", "bead (alone)", "floor", "floor/bead", "lanes gain"
     );
     for method in [Method::Implicit, Method::Parametric] {
-        let (bead_seconds, results) = through_bead(method, &x0, threads);
+        let (alone_seconds, alone) = through_bead(method, &x0, threads, true);
+        let (bead_seconds, results) = through_bead(method, &x0, threads, false);
         let (floor_seconds, finals) = by_hand(method, &x0, threads);
+        // The lanes change no number.
+        for (a, b) in alone.iter().zip(&results) {
+            let (a, b) = (a.stats.as_ref().unwrap(), b.stats.as_ref().unwrap());
+            assert_eq!(
+                (&a.x, &a.xdot, a.energy_rel_error_max),
+                (&b.x, &b.xdot, b.energy_rel_error_max)
+            );
+        }
         // The same work: every member's final position agrees (rounding differs).
         for (member, hand) in results.iter().zip(&finals) {
             let stats = member.stats.as_ref().expect("every member runs");
@@ -209,13 +248,16 @@ fn main() {
             }
         }
         let bead_rate = work / bead_seconds;
+        let alone_rate = work / alone_seconds;
         let floor_rate = work / floor_seconds;
         println!(
-            "{:<11} {:>22.3e} {:>22.3e} {:>11.1}x",
+            "{:<11} {:>16.3e} {:>16.3e} {:>16.3e} {:>10.1}x {:>10.2}x",
             method.name(),
             bead_rate,
+            alone_rate,
             floor_rate,
-            floor_rate / bead_rate
+            floor_rate / bead_rate,
+            bead_rate / alone_rate
         );
     }
     println!("target: >= 1e8 particle-steps/s on 2 cores (within 4x of the floor)");

@@ -4,6 +4,8 @@
 
 use std::sync::Arc;
 
+mod common;
+
 use bead::formulation::Method;
 use bead::integrate::IntegratorKind;
 use bead::plan::{Plan, PlanRequest};
@@ -11,30 +13,8 @@ use bead::scene::Scene;
 use bead::simulate::{run, Event, NullSink, RunStats, Simulation};
 use bead::sweep::{Axis, Combine, Member, Sweep, SweepError};
 
-/// The article's parabola with its release point x0 and gravity g as parameters, and a
-/// `mass` that a member can make invalid.
-const PARABOLA: &str = r#"
-[params]
-g = 500.0
-x0 = 150.0
-mass = 1.0
-[world]
-gravity = [0.0, "g"]
-[[particle]]
-name = "bead"
-mass = "mass"
-position = ["x0", "-x0^2/100"]
-[[constraint]]
-expr = "bead.x^2 + 100*bead.y"
-[parametric]
-coordinates = ["q"]
-initial = ["x0"]
-[parametric.positions]
-bead = ["q", "-q^2/100"]
-"#;
-
 fn scene() -> Scene {
-    Scene::parse(PARABOLA, "parabola.toml", &[]).unwrap()
+    Scene::parse(common::PARABOLA_SWEPT, "parabola.toml", &[]).unwrap()
 }
 
 /// rk4 at dt = 1/60 for `steps` steps.
@@ -189,7 +169,7 @@ fn a_member_equals_a_run_of_the_scene_loaded_with_its_values() {
         let members = sweep.run(2);
         for member in &members {
             let alone = Scene::parse(
-                PARABOLA,
+                common::PARABOLA_SWEPT,
                 "parabola.toml",
                 &[("x0".into(), member.params[0])],
             )
@@ -338,7 +318,10 @@ fn csv_has_a_column_per_parameter_state_and_coordinate() {
 /// `[run]` values written with a swept parameter follow the member, as `bead run --set`.
 #[test]
 fn the_scenes_run_table_follows_each_member() {
-    let text = format!("{PARABOLA}[run]\nstop_when = \"bead.y + x0^2/200\"\nsteps = \"x0\"\n");
+    let text = format!(
+        "{}[run]\nstop_when = \"bead.y + x0^2/200\"\nsteps = \"x0\"\n",
+        common::PARABOLA_SWEPT
+    );
     let scene = Scene::parse(&text, "parabola.toml", &[]).unwrap();
     let sweep = Sweep::new(
         &scene,

@@ -8,6 +8,8 @@
 use std::path::Path;
 use std::sync::Arc;
 
+mod common;
+
 use bead::formulation::Method;
 use bead::integrate::IntegratorKind;
 use bead::plan::{Plan, PlanRequest};
@@ -103,28 +105,9 @@ fn rk4(method: Method, dt: f64, steps: u64) -> PlanRequest {
     }
 }
 
-const PARABOLA: &str = r#"
-[params]
-g = 500.0
-x0 = 150.0
-[world]
-gravity = [0.0, "g"]
-[[particle]]
-name = "bead"
-mass = 1.0
-position = ["x0", "-x0^2/100"]
-[[constraint]]
-expr = "bead.x^2 + 100*bead.y"
-[parametric]
-coordinates = ["q"]
-initial = ["x0"]
-[parametric.positions]
-bead = ["q", "-q^2/100"]
-"#;
-
 #[test]
 fn the_parabola_in_lanes_is_the_parabola_alone() {
-    let scene = Scene::parse(PARABOLA, "parabola.toml", &[]).unwrap();
+    let scene = Scene::parse(common::PARABOLA_SWEPT, "parabola.toml", &[]).unwrap();
     for method in [Method::Implicit, Method::Parametric] {
         // 37 members: two full blocks of 16 and a partial one.
         let members = check(
@@ -142,7 +125,7 @@ fn a_stop_condition_takes_its_members_out_of_the_lanes() {
     // The bead passes x = 0 going right a quarter period after its release at x0 < 0:
     // early for small swings, later for large ones (the period grows with the amplitude);
     // some not within the run.
-    let scene = Scene::parse(PARABOLA, "parabola.toml", &[]).unwrap();
+    let scene = Scene::parse(common::PARABOLA_SWEPT, "parabola.toml", &[]).unwrap();
     for method in [Method::Implicit, Method::Parametric] {
         let members = check(
             &scene,

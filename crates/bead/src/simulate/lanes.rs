@@ -474,7 +474,8 @@ fn regularity_candidate(
     })
 }
 
-/// One RK4 step of every lane from time t by h: `integrate::rk4`'s arithmetic, lane by lane.
+/// One RK4 step of every lane from time t by h: `integrate::rk4`'s arithmetic, lane by lane:
+/// stage s + 1 starts from q + c_s v_s, qdot + c_s a_s with c = (h/2, h/2, h).
 #[allow(clippy::too_many_arguments)]
 fn rk4_step(
     kernel: &mut Kernel,
@@ -486,69 +487,43 @@ fn rk4_step(
     outcome: &mut [LaneOutcome],
 ) {
     let half = 0.5 * h;
-    // Stage 1: v1 = qdot, a1 = f(t, q, v1).
-    let (q, qdot) = (
+    let (mut q, mut qdot) = (
         std::mem::take(&mut lanes.q),
         std::mem::take(&mut lanes.qdot),
     );
-    lanes.velocity[0].copy_from_slice(&qdot);
-    let v1 = std::mem::take(&mut lanes.velocity[0]);
-    accelerate(kernel, lanes, tape, t, &q, &v1, 0, active, outcome);
-    // Stage 2.
-    axpy_into(&mut lanes.q_stage, &q, half, &v1);
-    let a1 = std::mem::take(&mut lanes.acceleration[0]);
-    axpy_into(&mut lanes.velocity[1], &qdot, half, &a1);
-    let stage = std::mem::take(&mut lanes.q_stage);
-    let v2 = std::mem::take(&mut lanes.velocity[1]);
-    accelerate(
-        kernel,
-        lanes,
-        tape,
-        t + half,
-        &stage,
-        &v2,
-        1,
-        active,
-        outcome,
-    );
-    lanes.q_stage = stage;
-    // Stage 3.
-    axpy_into(&mut lanes.q_stage, &q, half, &v2);
-    let a2 = std::mem::take(&mut lanes.acceleration[1]);
-    axpy_into(&mut lanes.velocity[2], &qdot, half, &a2);
-    let stage = std::mem::take(&mut lanes.q_stage);
-    let v3 = std::mem::take(&mut lanes.velocity[2]);
-    accelerate(
-        kernel,
-        lanes,
-        tape,
-        t + half,
-        &stage,
-        &v3,
-        2,
-        active,
-        outcome,
-    );
-    lanes.q_stage = stage;
-    // Stage 4.
-    axpy_into(&mut lanes.q_stage, &q, h, &v3);
-    let a3 = std::mem::take(&mut lanes.acceleration[2]);
-    axpy_into(&mut lanes.velocity[3], &qdot, h, &a3);
-    let stage = std::mem::take(&mut lanes.q_stage);
-    let v4 = std::mem::take(&mut lanes.velocity[3]);
-    accelerate(kernel, lanes, tape, t + h, &stage, &v4, 3, active, outcome);
-    lanes.q_stage = stage;
-    let a4 = std::mem::take(&mut lanes.acceleration[3]);
+    let mut velocity = std::mem::take(&mut lanes.velocity);
+    let mut stage_q = std::mem::take(&mut lanes.q_stage);
+    velocity[0].copy_from_slice(&qdot);
+    accelerate(kernel, lanes, tape, t, &q, &velocity[0], 0, active, outcome);
+    for (s, (c, time)) in [(half, t + half), (half, t + half), (h, t + h)]
+        .into_iter()
+        .enumerate()
+    {
+        axpy_into(&mut stage_q, &q, c, &velocity[s]);
+        axpy_into(&mut velocity[s + 1], &qdot, c, &lanes.acceleration[s]);
+        accelerate(
+            kernel,
+            lanes,
+            tape,
+            time,
+            &stage_q,
+            &velocity[s + 1],
+            s + 1,
+            active,
+            outcome,
+        );
+    }
+    let [v1, v2, v3, v4] = &velocity;
+    let [a1, a2, a3, a4] = &lanes.acceleration;
     let sixth = h / 6.0;
-    let (mut q, mut qdot) = (q, qdot);
     for i in 0..q.len() {
         q[i] += sixth * (v1[i] + 2.0 * v2[i] + 2.0 * v3[i] + v4[i]);
         qdot[i] += sixth * (a1[i] + 2.0 * a2[i] + 2.0 * a3[i] + a4[i]);
     }
     lanes.q = q;
     lanes.qdot = qdot;
-    lanes.velocity = [v1, v2, v3, v4];
-    lanes.acceleration = [a1, a2, a3, a4];
+    lanes.velocity = velocity;
+    lanes.q_stage = stage_q;
 }
 
 /// y = x + h z, element by element (as `integrate::axpy_into`).

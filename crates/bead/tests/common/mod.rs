@@ -306,3 +306,25 @@ impl Random {
         (self.0 >> 11) as f64 / (1u64 << 53) as f64 - 0.5
     }
 }
+
+/// The article's parabola with its release point x0 and gravity g as parameters, and a
+/// `mass` that a member can make invalid.
+pub const PARABOLA_SWEPT: &str = r#"
+[params]
+g = 500.0
+x0 = 150.0
+mass = 1.0
+[world]
+gravity = [0.0, "g"]
+[[particle]]
+name = "bead"
+mass = "mass"
+position = ["x0", "-x0^2/100"]
+[[constraint]]
+expr = "bead.x^2 + 100*bead.y"
+[parametric]
+coordinates = ["q"]
+initial = ["x0"]
+[parametric.positions]
+bead = ["q", "-q^2/100"]
+"#;
