@@ -36,6 +36,7 @@
 use std::ops::Range;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Arc;
+use std::time::Instant;
 
 use crate::formulation::Method;
 use crate::model::System;
@@ -45,7 +46,6 @@ use crate::simulate::lanes::{lanes_can_run, run_lanes, LaneOutcome, LANES};
 use crate::simulate::{
     run, run_rest, Event, NullSink, RunFailure, RunOptions, RunStats, Simulation,
 };
-use std::time::Instant;
 
 /// One swept parameter and its values.
 #[derive(Clone, Debug, PartialEq)]
@@ -413,9 +413,12 @@ impl Sweep {
                                 error: None,
                             },
                             LaneOutcome::Handover { intervals } => {
+                                let index = ready.index;
                                 let mut simulation = simulation;
-                                let rest = run_rest(&mut simulation, 0.0, intervals, ready.options);
-                                ready.finish(rest)
+                                self.guarded(index, || {
+                                    let options = ready.options;
+                                    ready.finish(run_rest(&mut simulation, 0.0, intervals, options))
+                                })
                             }
                             LaneOutcome::Leave => self.run_member(ready.index),
                         });
