@@ -138,9 +138,9 @@ impl Lanes {
     }
 }
 
-/// Advance `members` (at most [`LANES`], all at t = 0 before their first step and set up for `system`'s equations:
-/// each member's system has the same dynamics, up to its initial state) over `steps` output intervals of dt, as
-/// [`super::run`] would with a null sink. Returns each member's outcome; a `Done` member's
+/// Advance `members` (at most [`LANES`], all at t = 0 before their first step, each set up
+/// for a system with `system`'s dynamics and its own initial state) over `steps` output
+/// intervals of dt, as [`super::run`] would with a null sink. Returns each member's outcome; a `Done` member's
 /// simulation then holds the end state and its [`Simulation::stats`] are the run's.
 pub(crate) fn run_lanes(
     system: &Arc<System>,
