@@ -131,6 +131,11 @@ impl Implicit {
         &mut self.projection.eval
     }
 
+    /// The constraint stabilization it applies.
+    pub(crate) fn feedback(&self) -> Feedback {
+        self.feedback
+    }
+
     /// The constraint evaluation [`Implicit::accelerate_evaluated`] reads.
     pub(crate) fn evaluation_mut(&mut self) -> &mut ConstraintEval {
         &mut self.constraints

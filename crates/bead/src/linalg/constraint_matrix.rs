@@ -237,6 +237,38 @@ impl ConstraintMatrix {
         }
     }
 
+    /// [`ConstraintMatrix::assemble`] for L members at once (structure of arrays: entry e of
+    /// member l at `jacobian[e * L + l]`), then A scattered into dense m x m matrices
+    /// (`dense[(i * m + j) * L + l]`, lower triangle, zero elsewhere) as
+    /// [`super::DenseCholesky`] does before factoring: the same arithmetic per member.
+    pub(crate) fn assemble_dense_lanes<const L: usize>(
+        &self,
+        jacobian: &[f64],
+        w: &[f64],
+        dense: &mut [f64],
+    ) {
+        let m = self.pattern.dim();
+        dense.fill(0.0);
+        for j in 0..m {
+            for (s, &i) in self.pattern.column(j) {
+                let target = &mut dense[(j * m + i) * L..(j * m + i + 1) * L];
+                // sum() of f64 starts from -0.0.
+                target.fill(-0.0);
+                for t in &self.terms[self.term_start[s]..self.term_start[s + 1]] {
+                    let (a, b, w) = (t.a as usize, t.b as usize, w[t.k as usize]);
+                    for (l, value) in target.iter_mut().enumerate() {
+                        *value += jacobian[a * L + l] * w * jacobian[b * L + l];
+                    }
+                }
+            }
+        }
+    }
+
+    /// The dense factorization's pivot tolerance, when A is factored densely.
+    pub(crate) fn dense_pivot_tolerance(&self) -> Option<f64> {
+        self.solver.dense_pivot_tolerance()
+    }
+
     /// The unsymmetric B = L W R^T of two Jacobians with this structure (RATTLE's exact Newton
     /// matrix J(q^k) W J(q_n)^T), on A's pattern mirrored: `upper[s]` = B_ij and `lower[s]` =
     /// B_ji for the slot s of (i, j), i <= j (both nnz). Allocation-free.

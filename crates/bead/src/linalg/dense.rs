@@ -16,46 +16,84 @@ pub fn cholesky_in_place(
     a: &mut [f64],
     relative_pivot_tolerance: f64,
 ) -> Result<(), Singular> {
-    let a = &mut a[..n * n];
+    let mut failed = [None];
+    cholesky_lanes::<1>(n, &mut a[..n * n], relative_pivot_tolerance, &mut failed);
+    match failed[0] {
+        None => Ok(()),
+        Some(singular) => Err(singular),
+    }
+}
+
+/// [`cholesky_in_place`] of L matrices at once (structure of arrays: entry e of matrix l at
+/// `a[e * L + l]`), the same arithmetic per matrix (the scalar function is this one for one
+/// lane). `failed[l]` gets matrix l's first singular row; its factor is then garbage, the
+/// others' are not affected.
+pub(crate) fn cholesky_lanes<const L: usize>(
+    n: usize,
+    a: &mut [f64],
+    relative_pivot_tolerance: f64,
+    failed: &mut [Option<Singular>; L],
+) {
+    let at = |r: usize, c: usize, l: usize| (r * n + c) * L + l;
     for j in 0..n {
         // Row j of L: entries k < j from the rows above, then the pivot.
         for i in 0..j {
-            let mut sum = a[j * n + i];
-            for k in 0..i {
-                sum -= a[j * n + k] * a[i * n + k];
+            for l in 0..L {
+                let mut sum = a[at(j, i, l)];
+                for k in 0..i {
+                    sum -= a[at(j, k, l)] * a[at(i, k, l)];
+                }
+                a[at(j, i, l)] = sum / a[at(i, i, l)];
             }
-            a[j * n + i] = sum / a[i * n + i];
         }
-        let diagonal = a[j * n + j];
-        let pivot = diagonal - (0..j).map(|k| a[j * n + k] * a[j * n + k]).sum::<f64>();
-        if !(diagonal > 0.0 && pivot > relative_pivot_tolerance * diagonal) {
-            return Err(Singular {
-                row: j,
-                finite: diagonal.is_finite() && pivot.is_finite(),
-            });
+        for l in 0..L {
+            let diagonal = a[at(j, j, l)];
+            // sum() of f64 starts from -0.0.
+            let mut squares = -0.0;
+            for k in 0..j {
+                squares += a[at(j, k, l)] * a[at(j, k, l)];
+            }
+            let pivot = diagonal - squares;
+            if !(diagonal > 0.0 && pivot > relative_pivot_tolerance * diagonal)
+                && failed[l].is_none()
+            {
+                failed[l] = Some(Singular {
+                    row: j,
+                    finite: diagonal.is_finite() && pivot.is_finite(),
+                });
+            }
+            a[at(j, j, l)] = pivot.sqrt();
         }
-        a[j * n + j] = pivot.sqrt();
     }
-    Ok(())
 }
 
 /// Solve L L^T z = b with the factor of [`cholesky_in_place`]; `b` (n) becomes z.
 pub fn cholesky_substitute(n: usize, a: &[f64], b: &mut [f64]) {
-    let b = &mut b[..n];
+    cholesky_substitute_lanes::<1>(n, a, &mut b[..n]);
+}
+
+/// [`cholesky_substitute`] for L systems at once (the layout of [`cholesky_lanes`]; element i
+/// of right-hand side l at `b[i * L + l]`).
+pub(crate) fn cholesky_substitute_lanes<const L: usize>(n: usize, a: &[f64], b: &mut [f64]) {
+    let at = |r: usize, c: usize, l: usize| (r * n + c) * L + l;
     // L y = b, then L^T z = y.
     for i in 0..n {
-        let mut sum = b[i];
-        for k in 0..i {
-            sum -= a[i * n + k] * b[k];
+        for l in 0..L {
+            let mut sum = b[i * L + l];
+            for k in 0..i {
+                sum -= a[at(i, k, l)] * b[k * L + l];
+            }
+            b[i * L + l] = sum / a[at(i, i, l)];
         }
-        b[i] = sum / a[i * n + i];
     }
     for i in (0..n).rev() {
-        let mut sum = b[i];
-        for k in i + 1..n {
-            sum -= a[k * n + i] * b[k];
+        for l in 0..L {
+            let mut sum = b[i * L + l];
+            for k in i + 1..n {
+                sum -= a[at(k, i, l)] * b[k * L + l];
+            }
+            b[i * L + l] = sum / a[at(i, i, l)];
         }
-        b[i] = sum / a[i * n + i];
     }
 }
 
@@ -118,5 +156,9 @@ impl SymmetricSolver for DenseCholesky {
 
     fn describe(&self) -> String {
         format!("dense Cholesky ({0} x {0})", self.pattern.dim())
+    }
+
+    fn dense_pivot_tolerance(&self) -> Option<f64> {
+        Some(self.relative_pivot_tolerance)
     }
 }

@@ -19,6 +19,7 @@ mod sparse;
 
 pub use constraint_matrix::{ConstraintMatrix, RowStructure};
 pub use dense::{cholesky_in_place, cholesky_substitute, dense_solve, DenseCholesky};
+pub(crate) use dense::{cholesky_lanes, cholesky_substitute_lanes};
 pub use path::{PathLdlt, PathOrder};
 pub use pattern::SymmetricPattern;
 pub use sparse::{Ordering, SparseLdlt, SparseOptions};
@@ -68,6 +69,12 @@ pub trait SymmetricSolver: Send {
     fn describe(&self) -> String;
     /// The order that makes A tridiagonal, when the solver works in one ([`PathLdlt`]).
     fn path(&self) -> Option<&PathOrder> {
+        None
+    }
+    /// The pivot tolerance of a dense Cholesky factorization ([`DenseCholesky`]), which an
+    /// ensemble can then run for many members at once with the same arithmetic; `None` for
+    /// the other solvers.
+    fn dense_pivot_tolerance(&self) -> Option<f64> {
         None
     }
 }

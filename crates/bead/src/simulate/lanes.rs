@@ -90,6 +90,11 @@ struct Lanes {
     vars: Vec<f64>,
     scratch: Vec<f64>,
     out: Vec<f64>,
+    /// The implicit form across lanes (see [`implicit_across_lanes`]): F (n), J W J^T dense
+    /// (m x m) and lambda (m), per lane
+    force: Vec<f64>,
+    dense: Vec<f64>,
+    lambda: Vec<f64>,
     /// One lane's q, qdot, acceleration and tape outputs
     q_one: Vec<f64>,
     qdot_one: Vec<f64>,
@@ -115,6 +120,9 @@ impl Lanes {
             vars: vec![0.0; (2 * n + 1) * LANES],
             scratch: vec![0.0; slots * LANES],
             out: vec![0.0; outputs * LANES],
+            force: buffer(),
+            dense: Vec::new(),
+            lambda: Vec::new(),
             q_one: vec![0.0; n],
             qdot_one: vec![0.0; n],
             a_one: vec![0.0; n],
@@ -556,6 +564,22 @@ fn accelerate(
         &mut lanes.out[..width * LANES],
     );
     let mut acceleration = std::mem::take(&mut lanes.acceleration[stage]);
+    if let Kernel::Implicit(implicit) = kernel {
+        if let Some(tolerance) = across_lanes(implicit) {
+            let mut failed = [None; LANES];
+            implicit_across_lanes(implicit, lanes, tolerance, &mut acceleration, &mut failed);
+            for l in 0..LANES {
+                if active[l] && failed[l].is_some() {
+                    active[l] = false;
+                    if l < outcome.len() {
+                        outcome[l] = LaneOutcome::Leave;
+                    }
+                }
+            }
+            lanes.acceleration[stage] = acceleration;
+            return;
+        }
+    }
     let system = match kernel {
         Kernel::Implicit(implicit) => Arc::clone(&implicit.system),
         Kernel::Parametric(parametric) => Arc::clone(&parametric.system),
@@ -596,6 +620,90 @@ fn accelerate(
         }
     }
     lanes.acceleration[stage] = acceleration;
+}
+
+/// The dense pivot tolerance when the implicit form's finish can run across lanes: gravity
+/// the only force and J W J^T factored densely; `None` otherwise (each lane is then finished
+/// by [`Implicit::accelerate_evaluated`]).
+fn across_lanes(implicit: &Implicit) -> Option<f64> {
+    let system = &implicit.system;
+    if !system.forces().is_empty() || !implicit.external.is_empty() {
+        return None;
+    }
+    implicit.matrix.dense_pivot_tolerance()
+}
+
+/// [`Implicit::accelerate_evaluated`] for every lane at once from the full tape's outputs in
+/// `lanes.out` (gravity the only force, J W J^T dense): the same operations in the same
+/// order per lane, lanes innermost.
+///
+/// ```text
+/// F = M g;  (J W J^T) lambda = -bias - J W F - ks C - kd Cdot;  a = W (F + J^T lambda)
+/// ```
+fn implicit_across_lanes(
+    implicit: &mut Implicit,
+    lanes: &mut Lanes,
+    tolerance: f64,
+    acceleration: &mut [f64],
+    failed: &mut [Option<crate::linalg::Singular>; LANES],
+) {
+    let system = Arc::clone(&implicit.system);
+    let set = system.constraints();
+    let w = &system.inverse_mass;
+    let dim = system.dim();
+    let gravity = system.gravity();
+    for (p, particle) in system.particles().iter().enumerate() {
+        for (a, g) in gravity.iter().enumerate() {
+            lanes.force[(p * dim + a) * LANES..(p * dim + a + 1) * LANES].fill(particle.mass * g);
+        }
+    }
+    let m = set.n_rows();
+    if m > 0 {
+        let feedback = implicit.feedback();
+        let out = &lanes.out;
+        let (value, velocity, bias, jacobian) = (
+            &out[..m * LANES],
+            &out[m * LANES..2 * m * LANES],
+            &out[2 * m * LANES..3 * m * LANES],
+            &out[3 * m * LANES..],
+        );
+        lanes.dense.resize(m * m * LANES, 0.0);
+        lanes.lambda.resize(m * LANES, 0.0);
+        implicit
+            .matrix
+            .assemble_dense_lanes::<LANES>(jacobian, w, &mut lanes.dense);
+        for i in 0..m {
+            let columns = set.row_columns(i);
+            let entries = set.row_entries(i);
+            for l in 0..LANES {
+                // sum() of f64 starts from -0.0.
+                let mut jwf = -0.0;
+                for (&k, e) in columns.iter().zip(entries.clone()) {
+                    jwf += jacobian[e * LANES + l] * w[k] * lanes.force[k * LANES + l];
+                }
+                let at = i * LANES + l;
+                lanes.lambda[at] =
+                    -bias[at] - jwf - feedback.ks * value[at] - feedback.kd * velocity[at];
+            }
+        }
+        crate::linalg::cholesky_lanes::<LANES>(m, &mut lanes.dense, tolerance, failed);
+        crate::linalg::cholesky_substitute_lanes::<LANES>(m, &lanes.dense, &mut lanes.lambda);
+        // F += J^T lambda.
+        for i in 0..m {
+            let columns = set.row_columns(i);
+            for (&k, e) in columns.iter().zip(set.row_entries(i)) {
+                for l in 0..LANES {
+                    lanes.force[k * LANES + l] +=
+                        jacobian[e * LANES + l] * lanes.lambda[i * LANES + l];
+                }
+            }
+        }
+    }
+    for (k, w) in w.iter().enumerate() {
+        for l in 0..LANES {
+            acceleration[k * LANES + l] = w * lanes.force[k * LANES + l];
+        }
+    }
 }
 
 /// The observation tape (C and J of the implicit form at x = q; x, xdot and J of the
