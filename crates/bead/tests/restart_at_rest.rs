@@ -9,7 +9,12 @@ use bead::simulate::{RestartError, Simulation, SimulationConfig};
 
 fn parabola() -> Scene {
     let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../../scenes/parabola.toml");
-    Scene::parse(&std::fs::read_to_string(path).unwrap(), "parabola.toml", &[]).unwrap()
+    Scene::parse(
+        &std::fs::read_to_string(path).unwrap(),
+        "parabola.toml",
+        &[],
+    )
+    .unwrap()
 }
 
 fn simulation(scene: &Scene, method: Method) -> Simulation {
@@ -35,12 +40,21 @@ fn a_dragged_state_lands_on_the_curve_at_rest_in_both_forms() {
         sim.restart_at_rest(&target).unwrap();
         assert_eq!(sim.t(), 0.0);
         let x = sim.positions().to_vec();
-        assert!((x[0] * x[0] + 100.0 * x[1]).abs() < 1e-6, "{method:?}: {x:?}");
-        assert!(sim.velocities().iter().all(|v| v.abs() < 1e-12), "{method:?}");
+        assert!(
+            (x[0] * x[0] + 100.0 * x[1]).abs() < 1e-6,
+            "{method:?}: {x:?}"
+        );
+        assert!(
+            sim.velocities().iter().all(|v| v.abs() < 1e-12),
+            "{method:?}"
+        );
         assert!((x[0] - target[0]).abs() < 1.0, "{method:?}: {x:?}");
         assert_eq!(sim.energy_error(), 0.0);
         sim.advance_to(0.2).unwrap();
-        assert!(sim.positions()[0] > x[0], "{method:?}: it slides down towards 0");
+        assert!(
+            sim.positions()[0] > x[0],
+            "{method:?}: it slides down towards 0"
+        );
         placed.push(x);
     }
     assert!((placed[0][0] - placed[1][0]).abs() < 0.1, "{placed:?}");
@@ -54,7 +68,10 @@ fn a_bad_state_is_refused_and_changes_nothing() {
     let before = sim.positions().to_vec();
     assert!(matches!(
         sim.restart_at_rest(&[1.0]),
-        Err(RestartError::Length { expected: 2, got: 1 })
+        Err(RestartError::Length {
+            expected: 2,
+            got: 1
+        })
     ));
     assert!(matches!(
         sim.restart_at_rest(&[f64::NAN, 0.0]),

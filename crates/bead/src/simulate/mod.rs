@@ -1263,7 +1263,11 @@ fn closest_coordinates(
     let mut ws = map.workspace();
     let columns = map.jacobian_columns();
     let residual = |ws: &crate::model::ParametricEval| -> f64 {
-        ws.position.iter().zip(x).map(|(p, t)| (p - t) * (p - t)).sum()
+        ws.position
+            .iter()
+            .zip(x)
+            .map(|(p, t)| (p - t) * (p - t))
+            .sum()
     };
     for _ in 0..50 {
         map.observe(0.0, &q, &zero, &mut ws);
@@ -1271,11 +1275,11 @@ fn closest_coordinates(
         // Normal equations J^T J dq = J^T (x - x(q)), dense (n_q is small).
         let mut a = vec![0.0; n_q * n_q];
         let mut b = vec![0.0; n_q];
-        for k in 0..x.len() {
+        for (k, (&xk, &pk)) in x.iter().zip(&ws.position).enumerate() {
             let entries = map.row_entries(k);
             for e in entries.clone() {
                 let (i, ji) = (columns[e], ws.jacobian[e]);
-                b[i] += ji * (x[k] - ws.position[k]);
+                b[i] += ji * (xk - pk);
                 for f in entries.clone() {
                     a[i * n_q + columns[f]] += ji * ws.jacobian[f];
                 }
@@ -1317,7 +1321,8 @@ fn closest_coordinates(
 /// pivoting; `None` when singular.
 fn solve_dense(mut a: Vec<f64>, mut b: Vec<f64>, n: usize) -> Option<Vec<f64>> {
     for col in 0..n {
-        let pivot = (col..n).max_by(|&i, &j| a[i * n + col].abs().total_cmp(&a[j * n + col].abs()))?;
+        let pivot =
+            (col..n).max_by(|&i, &j| a[i * n + col].abs().total_cmp(&a[j * n + col].abs()))?;
         if a[pivot * n + col].abs() < 1e-300 || !a[pivot * n + col].is_finite() {
             return None;
         }
