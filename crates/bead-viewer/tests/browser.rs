@@ -1712,7 +1712,7 @@ fn docs_screenshots() {
 }
 
 async fn take_docs_screenshots(client: &Client, addr: SocketAddr) {
-    client.set_window_size(1280, 1100).await.unwrap();
+    client.set_window_size(1280, 1350).await.unwrap();
     let docs = workspace_root().join("docs");
     std::fs::create_dir_all(&docs).unwrap();
     for (scene, file, overlay) in [
