@@ -1343,7 +1343,7 @@ fn comparison_and_teaching_in_the_page() {
 async fn generation(client: &Client) -> u64 {
     js(
         client,
-        "return window.__viewer.clock ? window.__viewer.clock.generation : -1;",
+        "const v = window.__viewer; return v && v.clock ? v.clock.generation : -1;",
     )
     .await
     .as_u64()
@@ -1354,7 +1354,7 @@ async fn generation(client: &Client) -> u64 {
 /// frame belongs to its current epoch and satisfies `condition` on `f`.
 fn all_after(after: u64, condition: &str) -> String {
     format!(
-        "(() => {{ const v = window.__viewer; if (!v.clock || v.clock.generation <= {after}) return false;
+        "(() => {{ const v = window.__viewer; if (!v || !v.clock || v.clock.generation <= {after}) return false;
             const ps = [...v.panels.values()];
             return ps.length > 0 && ps.every(p => {{ const f = p.frame; return !!(f && f.epoch === p.info.epoch && ({condition})); }}); }})()"
     )
