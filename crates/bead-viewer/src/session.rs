@@ -360,27 +360,28 @@ impl Session {
                 .map(Panel::t)
                 .fold(f64::INFINITY, f64::min)
         };
-        let before = earliest(&self.panels);
         // A panel resumed or stepped on its own is caught up with, not overtaken.
-        self.clock = self.clock.max(before);
-        let target = self.clock + self.time_scale * elapsed;
+        self.clock = self.clock.max(earliest(&self.panels));
+        let start = self.clock;
+        let target = start + self.time_scale * elapsed;
         let max_steps = (self.limits.max_steps_per_frame / running).max(1);
         let budget = FRAME_BUDGET / running as u32;
+        // The first panel that could not get there, and the earliest time such a panel
+        // reached (a panel of a coarser dt short of the target by less than its dt is not
+        // behind: it waits for its next whole step).
         let mut limited = None;
+        let mut reached = f64::INFINITY;
         for panel in &mut self.panels {
-            if !panel.advance_until(target, max_steps, budget) && limited.is_none() {
-                limited = Some(panel.id);
+            if !panel.advance_until(target, max_steps, budget) {
+                limited.get_or_insert(panel.id);
+                reached = reached.min(panel.t());
             }
         }
-        let after = earliest(&self.panels);
         self.limited_by = limited;
-        self.clock = match limited {
-            // Do not try to catch up later: fall behind real time instead, all together.
-            Some(_) if after.is_finite() => after,
-            _ => target,
-        };
-        if elapsed > 0.0 && after.is_finite() && before.is_finite() {
-            let rate = ((after - before) / elapsed).max(0.0);
+        // Do not try to catch up later: fall behind real time instead, all together.
+        self.clock = if reached.is_finite() { reached } else { target };
+        if elapsed > 0.0 {
+            let rate = ((self.clock - start) / elapsed).max(0.0);
             self.sim_rate = if self.sim_rate > 0.0 {
                 0.9 * self.sim_rate + 0.1 * rate
             } else {

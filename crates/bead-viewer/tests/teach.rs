@@ -109,7 +109,8 @@ fn a_slow_panel_slows_every_panel_and_is_named() {
     assert!(panels[1].behind);
     // The fast panel waited: it is at most one frame of real time ahead.
     assert!(panels[0].t <= panels[1].t + 1.0 / 60.0 + 1e-9, "{panels:?}");
-    assert!(clock.sim_rate < 0.5, "{clock:?}");
+    // Below real time: at most 10^4 steps of 1e-6 s per panel in a frame of 1/60 s, 0.6 s/s.
+    assert!(clock.sim_rate <= 0.6 + 1e-6, "{clock:?}");
 }
 
 /// A slider change reloads the scene with the new value and restarts every panel: a new
