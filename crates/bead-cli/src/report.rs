@@ -387,35 +387,12 @@ pub fn table(rows: &[Vec<String>]) -> String {
 
 /// Name of a slot of a constraint expression: x (n), v (n), t.
 fn constraint_slot_name(system: &System, slot: usize) -> String {
-    let n = system.n_coords();
-    if slot < n {
-        system.coordinate_name(slot)
-    } else if slot < 2 * n {
-        // `bead.x` -> `bead.vx`
-        let name = system.coordinate_name(slot - n);
-        match name.rsplit_once('.') {
-            Some((particle, axis)) => format!("{particle}.v{axis}"),
-            None => format!("{name}'"),
-        }
-    } else if slot == 2 * n {
-        "t".into()
-    } else {
-        format!("slot{slot}")
-    }
+    bead::describe::constraint_slot_name(system, slot)
 }
 
 /// Name of a slot of a parametric map expression: q (n_q), qdot (n_q), t.
 fn parametric_slot_name(coordinates: &[String], slot: usize) -> String {
-    let n_q = coordinates.len();
-    if slot < n_q {
-        coordinates[slot].clone()
-    } else if slot < 2 * n_q {
-        format!("{}'", coordinates[slot - n_q])
-    } else if slot == 2 * n_q {
-        "t".into()
-    } else {
-        format!("slot{slot}")
-    }
+    bead::describe::parametric_slot_name(coordinates, slot)
 }
 
 fn particle_name(system: &System, id: usize) -> String {
@@ -476,16 +453,12 @@ fn plural(n: usize, one: &str, many: &str) -> String {
     format!("{n} {}", if n == 1 { one } else { many })
 }
 
-/// Longest expression `bead check` prints, in characters: a longer one is cut there and says
-/// how many characters are left (derivatives written out can be far larger than the scene).
-pub const EXPRESSION_LIMIT: usize = 400;
-
-/// `e` as `bead check` prints it: numeric factors collected, at most [`EXPRESSION_LIMIT`]
-/// characters (plus the last token and the count of what is left).
+/// `e` as `bead check` prints it: numeric factors collected, at most
+/// [`bead::describe::EXPRESSION_LIMIT`] characters (plus the last token and the count of what
+/// is left; derivatives written out can be far larger than the scene). The library's
+/// formatter, which the viewer's equations use too.
 fn expression(e: &Expr, name: &dyn Fn(usize) -> String) -> String {
-    let tidy = e.for_display();
-    let text = tidy.display_bounded(name, EXPRESSION_LIMIT).to_string();
-    text
+    bead::describe::expression(e, name)
 }
 
 /// What `bead check` found when it started each formulation of a scene as `bead run` starts

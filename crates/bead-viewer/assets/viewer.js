@@ -28,6 +28,12 @@
     // Binary frames received, their bytes and the time spent decoding them (ms).
     stats: { frames: 0, bytes: 0, decodeMs: 0, maxDecodeMs: 0 },
     timeScale: 1,
+    // The session's clock of the last frame: generation (restarts), sim_rate, limited_by.
+    clock: null,
+    // A share URL being restored: { scene, params: [[name, value]], panels: [...], ts }.
+    restore: null,
+    // Overlay mode: the canvas with every panel's particles, and its own view.
+    overlay: { on: false, view: null, box: null, history: new Map(), lastDraw: null, dirty: true },
   };
   window.__viewer = state;  // for the end-to-end tests
 
@@ -144,8 +150,8 @@
   function handle(msg) {
     switch (msg.type) {
       case "welcome": onWelcome(msg); break;
-      case "scene": onScene(msg); break;
-      case "panels": onPanels(msg.panels); break;
+      case "scene": onScene(msg); restoreStep(msg); break;
+      case "panels": onPanels(msg.panels); restoreStep(msg); break;
       case "frame": onFrame(msg); break;
       case "error":
         // msg.code is the machine-readable reason (protocol.rs, ErrorCode).
@@ -156,12 +162,16 @@
         } else {
           showMessage(`${msg.request ? msg.request + ": " : ""}${msg.message}`);
         }
+        // A refused parameter: the slider goes back to the scene's value.
+        if (msg.request === "set_param" && state.scene) buildParams(state.scene);
+        restoreStep(msg);
         break;
       case "scene_error":
         $("scene-error").hidden = false;
         $("scene-error").textContent = msg.message;
         break;
       case "curve_error": onCurveError(msg); break;
+      case "equations": onEquations(msg); break;
       default: break;
     }
   }
@@ -187,12 +197,115 @@
     }
     $("new-method").innerHTML = "";
     for (const m of msg.methods) option($("new-method"), m, m);
-    // `?scene=NAME` opens another shipped scene first.
-    const wanted = new URLSearchParams(location.search).get("scene");
-    if (wanted && msg.scenes.includes(wanted) && wanted !== msg.scenes[0]) {
-      send({ type: "load_scene", name: wanted });
+    // A share URL (`?scene=NAME&param.g=9.81&panel=implicit:rk4:0.01&ts=1`) opens its
+    // scene, then sets its parameters, panels and time scale (see `restoreStep`).
+    const restore = parseShareUrl(location.search, msg);
+    if (restore) {
+      state.restore = restore;
+      if (restore.ts != null) {
+        send({ type: "set_time_scale", scale: restore.ts });
+        $("time-scale").value = String(restore.ts);
+      }
+      if (restore.scene !== msg.scenes[0]) send({ type: "load_scene", name: restore.scene });
     }
   }
+
+  // ---------- share URL ----------
+  // The page's state as a URL: scene, parameter values, panels (method:integrator:dt, and
+  // ks, kd, projection when set) and time scale.
+  function shareUrl() {
+    const q = new URLSearchParams();
+    if (state.scene) q.set("scene", state.scene.name);
+    for (const prm of (state.scene && state.scene.params) || []) q.append("param." + prm.name, String(prm.value));
+    for (const p of state.panels.values()) {
+      const i = p.info;
+      let spec = `${i.method}:${i.integrator}:${i.dt}`;
+      if (i.ks || i.kd || i.project) spec += `:${i.ks}:${i.kd}` + (i.project ? ":project" : "");
+      q.append("panel", spec);
+    }
+    q.set("ts", String(state.timeScale));
+    return `${location.origin}${location.pathname}?${q.toString()}`;
+  }
+
+  // What a share URL asks for, or null when it asks for nothing; bad parts are said on the
+  // page and left out.
+  function parseShareUrl(search, welcome) {
+    const q = new URLSearchParams(search);
+    if (![...q.keys()].length) return null;
+    const bad = (text) => showMessage("share URL: " + text);
+    const out = { scene: welcome.scenes[0], params: [], panels: [], ts: null, stage: "scene" };
+    const scene = q.get("scene");
+    if (scene != null) {
+      if (welcome.scenes.includes(scene)) out.scene = scene;
+      else bad(`unknown scene \`${scene}\`; use one of ${welcome.scenes.join(", ")}`);
+    }
+    for (const [key, value] of q) {
+      if (!key.startsWith("param.")) continue;
+      const v = Number(value);
+      if (value.trim() === "" || !Number.isFinite(v)) { bad(`parameter ${key.slice(6)}: \`${value}\` is not a number`); continue; }
+      out.params.push([key.slice(6), v]);
+    }
+    const integrators = welcome.integrators.map((k) => k.name);
+    for (const spec of q.getAll("panel")) {
+      const parts = spec.split(":");
+      const [method, integrator, dt] = parts;
+      const panel = { method, integrator, dt: Number(dt) };
+      if (!welcome.methods.includes(method)) { bad(`panel \`${spec}\`: unknown method \`${method}\``); continue; }
+      if (!integrators.includes(integrator)) { bad(`panel \`${spec}\`: unknown integrator \`${integrator}\``); continue; }
+      if (!(dt && Number.isFinite(panel.dt) && panel.dt > 0)) { bad(`panel \`${spec}\`: dt must be a number > 0`); continue; }
+      if (parts.length >= 5) {
+        panel.ks = Number(parts[3]); panel.kd = Number(parts[4]);
+        if (!Number.isFinite(panel.ks) || !Number.isFinite(panel.kd)) { bad(`panel \`${spec}\`: ks and kd must be numbers`); continue; }
+        panel.project = parts[5] === "project";
+      }
+      out.panels.push(panel);
+    }
+    const ts = q.get("ts");
+    if (ts != null) {
+      const v = Number(ts);
+      const allowed = [...$("time-scale").options].map((o) => Number(o.value));
+      if (allowed.includes(v)) out.ts = v; else bad(`time scale \`${ts}\` is not one of ${allowed.join(", ")}`);
+    }
+    return out;
+  }
+
+  // Restoring a share URL, one stage per server reply: the scene is loaded (stage "scene"),
+  // then the parameters are set (each reloads the scene), then the panels are replaced.
+  function restoreStep(msg) {
+    const r = state.restore;
+    if (!r) return;
+    if (msg.type === "scene") {
+      if (msg.name !== r.scene) return;
+      if (r.stage === "scene") {
+        // Each set_param is answered by a scene (and panels) or an error, in order.
+        r.awaiting = 0;
+        const known = new Map(msg.params.map((prm) => [prm.name, prm]));
+        for (const [name, value] of r.params) {
+          const prm = known.get(name);
+          if (prm && sameNumber(prm.value, value)) continue;
+          send({ type: "set_param", name, value });
+          r.awaiting++;
+        }
+        r.stage = r.awaiting ? "params" : "panels";
+      } else if (r.stage === "params") {
+        r.awaiting--;
+        if (r.awaiting <= 0) r.stage = "panels";
+      }
+    } else if (msg.type === "error" && r.stage === "params" && msg.request === "set_param") {
+      // Refused (said on the page): go on with the panels as they are.
+      r.awaiting--;
+      if (r.awaiting <= 0) {
+        r.stage = "panels";
+        restoreStep({ type: "panels", panels: [...state.panels.values()].map((p) => p.info) });
+      }
+    } else if (msg.type === "panels" && r.stage === "panels") {
+      state.restore = null;
+      if (!r.panels.length) return;
+      for (const p of msg.panels) send({ type: "remove_panel", panel: p.id });
+      for (const panel of r.panels) send({ type: "add_panel", ...panel });
+    }
+  }
+  const sameNumber = (a, b) => a === b || Math.abs(a - b) <= 1e-12 * Math.max(Math.abs(a), Math.abs(b));
 
   function onScene(scene) {
     state.scene = scene;
@@ -204,9 +317,20 @@
       (scene.dim === 3 ? ` — 3D view, ${upName ? upName + " up" : "up against gravity"}: drag empty space to orbit, shift-drag to pan, wheel to zoom` : "");
     $("scene-warnings").textContent = scene.warnings.map((w) => "warning: " + w).join("\n");
     const picker = $("scene-select");
-    if ([...picker.options].some((o) => o.value === scene.name)) picker.value = scene.name;
+    // A file loaded in the page joins the picker once (picking it again reloads the shipped
+    // or command-line scene of that name only; a file is loaded again from disk).
+    if (![...picker.options].some((o) => o.value === scene.name)) {
+      const o = option(picker, scene.name, `${scene.name} (file)`);
+      o.disabled = true;
+      o.title = "loaded from a file in this page: use “load file…” to load it again";
+    }
+    picker.value = scene.name;
     buildCurveEditors(scene);
+    buildParams(scene);
     prepareScene(scene);
+    state.overlay.view = null;
+    state.overlay.box = null;
+    state.overlay.history.clear();
     for (const p of state.panels.values()) p.dom.root.remove();
     state.panels.clear();
     state.drags.clear();
@@ -234,6 +358,38 @@
     const n = state.scene ? state.scene.particles.length : 1;
     return Math.max(2, Math.min(TRAIL, Math.floor(TRAIL_BUDGET / Math.max(n, 1))));
   }
+
+  // ---------- parameter sliders ----------
+  // One slider per `[params]` value, over the range the server accepts; a change reloads the
+  // scene with that value on the server and restarts every panel.
+  function buildParams(scene) {
+    const box = $("params");
+    box.innerHTML = "";
+    for (const prm of scene.params || []) {
+      const row = el("label", "param");
+      row.dataset.param = prm.name;
+      row.title = `${prm.name}: ${fmt(prm.min)} to ${fmt(prm.max)}; the scene reloads with the new value and every panel restarts`;
+      const slider = el("input");
+      slider.type = "range";
+      slider.min = String(prm.min);
+      slider.max = String(prm.max);
+      slider.step = "any";
+      slider.value = String(prm.value);
+      const value = el("span", "value", fmt(prm.value));
+      slider.oninput = () => { value.textContent = fmt(Number(slider.value)); };
+      slider.onchange = () => send({ type: "set_param", name: prm.name, value: Number(slider.value) });
+      row.append(`${prm.name} `, slider, " ", value);
+      box.appendChild(row);
+    }
+  }
+  // For the tests: set parameter `name` to exactly `value` (a range input would clamp an
+  // out-of-range value; the server must refuse it).
+  state.setParam = (name, value) => {
+    const slider = document.querySelector(`#params .param[data-param="${name}"] input`);
+    slider.value = String(value);
+    slider.dispatchEvent(new Event("input"));
+    send({ type: "set_param", name, value });
+  };
 
   // ---------- curve editor ----------
   function buildCurveEditors(scene) {
@@ -269,6 +425,13 @@
       row.append(label, error);
       box.appendChild(row);
     });
+  }
+
+  function onEquations(msg) {
+    const p = state.panels.get(msg.panel);
+    if (!p) return;
+    p.dom.equations.textContent = msg.text;
+    p.dom.equations.hidden = false;
   }
 
   function onCurveError(msg) {
@@ -378,9 +541,18 @@
     const apply = el("button", "apply", "Apply");
     const playOne = el("button", "play-one", "▶/❚❚");
     playOne.title = "play / pause this panel";
-    const labelled = (text, input) => { const l = el("label", null, text + " "); l.appendChild(input); return l; };
-    config.append(method, integrator, labelled("dt", dt), labelled("ks", ks), labelled("kd", kd),
-      labelled("project", project), apply, playOne);
+    const showEquations = el("button", "show-equations", "equations");
+    showEquations.title = "the equations this formulation derived (as `bead check` prints them)";
+    const equations = el("pre", "equations");
+    equations.hidden = true;
+    showEquations.onclick = () => {
+      if (!equations.hidden) { equations.hidden = true; return; }
+      send({ type: "equations", panel: info.id });
+    };
+    const labelled = (text, input, cls) => { const l = el("label", cls, text + " "); l.appendChild(input); return l; };
+    const ksLabel = labelled("ks", ks, "feedback"), kdLabel = labelled("kd", kd, "feedback");
+    const projectLabel = labelled("project", project, "projection");
+    config.append(method, integrator, labelled("dt", dt), ksLabel, kdLabel, projectLabel, apply, playOne, showEquations);
     const configError = el("div", "panel-error error");
     const failure = el("div", "panel-failure error");
     apply.onclick = () => {
@@ -403,8 +575,8 @@
       const running = p && p.frame && p.frame.status === "running";
       send({ type: running ? "pause" : "play", panel: info.id });
     };
-    root.append(title, canvas, tools, note, bars, energyWhy, readout, charts, logLabel, config, configError, failure);
-    const dom = { root, name, canvas, note, curveNote, fields, bars, energyWhy, chartE, chartC, logEnergy, method, integrator, dt, ks, kd, project, configError, failure };
+    root.append(title, canvas, tools, note, bars, energyWhy, readout, charts, logLabel, config, configError, failure, equations);
+    const dom = { root, name, canvas, note, curveNote, fields, bars, energyWhy, chartE, chartC, logEnergy, method, integrator, dt, ks, kd, project, configError, failure, equations, ksLabel, kdLabel, projectLabel };
     installDrag(info.id, canvas);
     return dom;
   }
@@ -430,6 +602,11 @@
     dom.ks.value = String(info.ks);
     dom.kd.value = String(info.kd);
     dom.project.checked = info.project;
+    // Settings that do nothing for this method and integrator are hidden: the server says
+    // which apply, from the library's own legality check.
+    const applies = info.applies || { feedback: true, project: true };
+    dom.ksLabel.hidden = dom.kdLabel.hidden = !applies.feedback;
+    dom.projectLabel.hidden = !applies.project;
     const scene = state.scene;
     const notes = [];
     if (scene && scene.dim === 3) notes.push("3D view: drag empty space to orbit");
@@ -437,7 +614,7 @@
       info.curve_source === "parametric" ? "curve: x(q) sampled" : "no curve drawn") +
       (info.curves_move ? ", drawn at the frame's t (it moves)" : ""));
     if (scene && scene.dim === 2) notes.push(sceneUp(scene)[1] < 0 ? "+y down (gravity +y)" : "+y up");
-    notes.push("drag a particle with the mouse; wheel zooms, drag pans");
+    notes.push("drag a particle (paused: sets the start state); wheel zooms, drag pans");
     dom.note.textContent = notes.join(" · ");
     dom.curveNote.textContent = info.curve_note || "";
   }
@@ -490,12 +667,31 @@
       r.erel.dataset.value = String(f.energy_error);
       r.cerr.textContent = `|C| = ${f.constraint_error === 0 ? "0 (exact)" : fmt(f.constraint_error)}`;
       r.cerr.dataset.value = String(f.constraint_error);
-      r.sps.textContent = `compute: ${fmt(f.steps_per_second, 3)} steps/s`;
-      r.status.textContent = f.status + (f.behind ? " (behind real time)" : "");
+      r.sps.textContent = `compute rate: ${fmt(f.steps_per_second, 3)} steps/s`;
+      r.sps.title = "compute rate: integrator steps per second of compute time";
+      r.status.textContent = f.status + (f.behind ? " (cannot keep up: holds every panel back)" : "");
+      if (f.distance != null) {
+        let h = state.overlay.history.get(f.id);
+        if (!h || h.epoch !== f.epoch) { h = { epoch: f.epoch, points: [] }; state.overlay.history.set(f.id, h); }
+        const last = h.points.length ? h.points[h.points.length - 1][0] : -Infinity;
+        if (f.t > last) { h.points.push([f.t, f.distance]); if (h.points.length > HISTORY) h.points.shift(); }
+      }
       p.dom.failure.textContent = f.error || "";
     }
     const anyRunning = msg.panels.some((f) => f.status === "running");
     $("play").textContent = anyRunning ? "Pause" : "Play";
+    // One clock for all panels: the simulation rate (simulated seconds per wall second) and
+    // the panel that holds the others back, if one does.
+    const clock = msg.clock || { generation: 0, sim_rate: 0, limited_by: null };
+    state.clock = clock;
+    const rate = $("rate");
+    rate.textContent = anyRunning ?
+      `simulation rate ×${clock.sim_rate.toFixed(2)} real time` + (clock.limited_by != null ?
+        ` — all panels slowed to panel #${clock.limited_by}'s pace (it cannot keep up)` : "") :
+      "simulation rate: paused";
+    rate.classList.toggle("limited", clock.limited_by != null);
+    rate.dataset.limitedBy = clock.limited_by == null ? "" : String(clock.limited_by);
+    state.overlay.dirty = true;
   }
 
   // ---------- view: camera, fit, pan, zoom, orbit ----------
@@ -821,6 +1017,24 @@
       ctx.stroke();
       ctx.restore();
     }
+    // A particle being placed while paused: where the new start state puts it.
+    if (p.placing) {
+      const q = p.placing.target;
+      ctx.save();
+      ctx.strokeStyle = "#1f6feb";
+      ctx.setLineDash([6, 5]);
+      ctx.lineWidth = 2;
+      ctx.beginPath();
+      ctx.moveTo(X(p.placing.particle), Y(p.placing.particle));
+      ctx.lineTo(T.px(q, 0), T.py(q, 0));
+      ctx.stroke();
+      ctx.setLineDash([]);
+      ctx.lineWidth = 3;
+      ctx.beginPath();
+      ctx.arc(T.px(q, 0), T.py(q, 0), size.radius + 3, 0, 2 * Math.PI);
+      ctx.stroke();
+      ctx.restore();
+    }
     // Particles: one path; circles with an outline when they are big enough to show one,
     // squares (far cheaper to fill) when they are a few pixels.
     ctx.save();
@@ -1111,6 +1325,8 @@
       draw(p, false);
       if (p.chartsDirty) { p.chartsDirty = false; drawCharts(p); }
     }
+    if (state.overlay.on) { for (const p of state.panels.values()) if (p.displayT != null) state.overlay.dirty = true; }
+    updateOverlay();
     for (const move of state.pendingMoves.values()) send(move);
     state.pendingMoves.clear();
     requestAnimationFrame(render);
@@ -1149,6 +1365,14 @@
         return;
       }
       const ref = positionOf(x, best, dim);
+      if (p.frame.status !== "running") {
+        // Paused: the drag sets the start state, on release (the server projects it onto
+        // the constraints and restarts every panel from it).
+        gesture = { kind: "place", particle: best, ref };
+        p.placing = { particle: best, target: T.unproject(cx, cy, ref) };
+        p.dirty = true;
+        return;
+      }
       state.drags.set(id, { particle: best, ref });
       send({ type: "drag_start", panel: id, particle: best, target: T.unproject(cx, cy, ref) });
     });
@@ -1156,6 +1380,11 @@
       const p = state.panels.get(id);
       if (!p) return;
       const [cx, cy] = canvasPoint(canvas, event);
+      if (gesture && gesture.kind === "place") {
+        p.placing = { particle: gesture.particle, target: transform(p).unproject(cx, cy, gesture.ref) };
+        p.dirty = true;
+        return;
+      }
       if (gesture) {
         const dx = cx - gesture.x, dy = cy - gesture.y, v0 = gesture.view;
         if (gesture.kind === "orbit") {
@@ -1175,6 +1404,14 @@
       state.pendingMoves.set(id, { type: "drag_move", panel: id, target: T.unproject(cx, cy, drag.ref) });
     });
     const end = () => {
+      if (gesture && gesture.kind === "place") {
+        const p = state.panels.get(id);
+        if (p && p.placing) {
+          send({ type: "set_start", panel: id, particle: p.placing.particle, target: p.placing.target });
+          p.placing = null;
+          p.dirty = true;
+        }
+      }
       gesture = null;
       if (!state.drags.has(id)) return;
       const move = state.pendingMoves.get(id);
@@ -1236,7 +1473,192 @@
     return [T.px(point, 0), T.py(point, 0)];
   };
 
+  // ---------- overlay mode ----------
+  // Every panel's particles in one canvas, each panel in its own colour (legend beside it),
+  // drawn in the first panel's view; and the distance between each panel and the first
+  // over time, as the server computed it at the same t (`frame.distance`).
+  const PANEL_COLORS = ["#e67814", "#1f6feb", "#1a9c6b", "#d6336c", "#7b3fc4", "#8c6d1f", "#0c7bb3", "#333333"];
+
+  function drawOverlay() {
+    const ov = state.overlay, canvas = $("overlay-canvas"), ctx = canvas.getContext("2d");
+    const panels = [...state.panels.values()];
+    const first = panels[0];
+    ctx.fillStyle = "#fff";
+    ctx.fillRect(0, 0, canvas.width, canvas.height);
+    if (!first || !first.frame || !state.scene) return null;
+    // A stand-in panel for the view: the first panel's box, the overlay canvas.
+    ov.info = first.info; ov.frame = first.frame; ov.dom = { canvas };
+    const T = transform(ov), r = T.r, dim = state.scene.dim;
+    drawAxes(ctx, T, canvas);
+    ctx.save();
+    ctx.beginPath();
+    ctx.rect(r.x0, r.y0, r.x1 - r.x0, r.y1 - r.y0);
+    ctx.clip();
+    const curves = first.frame.epoch === first.info.epoch && first.frame.curves ? first.frame.curves : first.info.curves;
+    ctx.strokeStyle = "#9db9e8";
+    ctx.lineWidth = 2;
+    ctx.beginPath();
+    for (const line of curves) {
+      for (let i = 0; i + dim - 1 < line.length; i += dim) {
+        if (i === 0) ctx.moveTo(T.px(line, i), T.py(line, i)); else ctx.lineTo(T.px(line, i), T.py(line, i));
+      }
+    }
+    ctx.stroke();
+    const drawn = [];
+    const { pairs, anchored } = state.scene.draw;
+    panels.forEach((p, k) => {
+      if (!p.frame) return;
+      const x = drawnPositions(p), n = Math.min(state.scene.particles.length, Math.floor(x.length / dim));
+      const color = PANEL_COLORS[k % PANEL_COLORS.length];
+      ctx.strokeStyle = color;
+      ctx.fillStyle = color;
+      ctx.lineWidth = 3;
+      ctx.beginPath();
+      for (let i = 0; i + 1 < pairs.length; i += 2) {
+        if (pairs[i] >= n || pairs[i + 1] >= n) continue;
+        ctx.moveTo(T.px(x, pairs[i] * dim), T.py(x, pairs[i] * dim));
+        ctx.lineTo(T.px(x, pairs[i + 1] * dim), T.py(x, pairs[i + 1] * dim));
+      }
+      for (const rod of anchored) {
+        if (rod.a >= n) continue;
+        const q = dim === 3 && rod.anchor.length < 3 ? [rod.anchor[0], rod.anchor[1], 0] : rod.anchor;
+        ctx.moveTo(T.px(x, rod.a * dim), T.py(x, rod.a * dim));
+        ctx.lineTo(T.px(q, 0), T.py(q, 0));
+      }
+      ctx.stroke();
+      const rad = n <= 16 ? 11 - 2 * k : Math.max(1.5, 6 * Math.sqrt(16 / n));
+      const points = [];
+      ctx.beginPath();
+      for (let i = 0; i < n; i++) {
+        const px = T.px(x, i * dim), py = T.py(x, i * dim);
+        ctx.moveTo(px + Math.max(rad, 3), py);
+        ctx.arc(px, py, Math.max(rad, 3), 0, 2 * Math.PI);
+        points.push([px, py]);
+      }
+      ctx.fill();
+      drawn.push({ id: p.info.id, color, points, t: p.displayT, epoch: p.frame.epoch });
+    });
+    ctx.restore();
+    // Legend, also in the canvas (so that a screenshot says which colour is which).
+    ctx.font = "24px system-ui, sans-serif";
+    ctx.textAlign = "left";
+    panels.forEach((p, k) => {
+      const y = r.y0 + 30 + 30 * k;
+      ctx.fillStyle = PANEL_COLORS[k % PANEL_COLORS.length];
+      ctx.beginPath(); ctx.arc(r.x0 + 20, y - 8, 9, 0, 2 * Math.PI); ctx.fill();
+      ctx.fillStyle = "#222";
+      ctx.fillText(`#${p.info.id} ${p.info.method} · ${p.info.integrator} · dt ${fmt(p.info.dt)}`, r.x0 + 36, y);
+    });
+    ov.lastDraw = { panels: drawn };
+    return ov.lastDraw;
+  }
+
+  function drawDistance() {
+    const canvas = $("distance-chart"), ctx = canvas.getContext("2d");
+    const W = canvas.width, H = canvas.height;
+    const panels = [...state.panels.values()];
+    chartFrame(ctx, W, H, panels.length > 1 ? `distance to panel #${panels[0].info.id}: max over particles |x − x₁| (scene units)` : "distance between formulations: add a second panel");
+    const series = [];
+    panels.forEach((p, k) => {
+      const h = state.overlay.history.get(p.info.id);
+      if (k > 0 && h && h.epoch === p.info.epoch && h.points.length) series.push({ color: PANEL_COLORS[k % PANEL_COLORS.length], points: h.points });
+    });
+    const L = 120, R = 10, Tp = 40, B = 40;
+    const all = series.flatMap((s) => s.points);
+    if (!all.length) return null;
+    const t0 = Math.min(...all.map((q) => q[0])), t1 = Math.max(...all.map((q) => q[0]));
+    const span = t1 > t0 ? t1 - t0 : 1;
+    const m = Math.max(...all.map((q) => q[1]));
+    const top = m > 0 ? m * 1.1 : 1;
+    const px = (t) => L + ((t - t0) / span) * (W - L - R);
+    const py = (v) => Tp + (1 - v / top) * (H - Tp - B);
+    ctx.strokeStyle = "#e6e6e2";
+    ctx.fillStyle = "#55555a";
+    ctx.textAlign = "right";
+    ctx.lineWidth = 1;
+    for (const v of m > 0 ? niceTicks(0, top, 4) : [0]) {
+      ctx.beginPath(); ctx.moveTo(L, py(v)); ctx.lineTo(W - R, py(v)); ctx.stroke();
+      ctx.fillText(v === 0 ? (m === 0 ? "0 (exact)" : "0") : fmt(v, 2), L - 6, py(v) + 9);
+    }
+    ctx.fillText(`t (s): ${fmt(t0, 3)} – ${fmt(t1, 3)}`, W - R, H - 8);
+    ctx.lineWidth = 3;
+    for (const sr of series) {
+      ctx.strokeStyle = sr.color;
+      ctx.beginPath();
+      sr.points.forEach((q, i) => (i ? ctx.lineTo(px(q[0]), py(q[1])) : ctx.moveTo(px(q[0]), py(q[1]))));
+      ctx.stroke();
+    }
+    return { series: series.length, max: m };
+  }
+
+  function updateOverlay() {
+    const ov = state.overlay;
+    if (!ov.on || !ov.dirty) return;
+    ov.dirty = false;
+    drawOverlay();
+    drawDistance();
+    const panels = [...state.panels.values()];
+    const legend = $("overlay-legend");
+    legend.innerHTML = "";
+    panels.forEach((p, k) => {
+      const item = el("div", "legend-item");
+      item.dataset.panel = String(p.info.id);
+      const sw = el("span", "swatch");
+      sw.style.background = PANEL_COLORS[k % PANEL_COLORS.length];
+      item.append(sw, `#${p.info.id} ${p.info.method} · ${p.info.integrator} · dt ${fmt(p.info.dt)}`);
+      legend.appendChild(item);
+    });
+    // The latest distances the server sent, as numbers (the chart's last points).
+    const readout = $("distance-readout");
+    readout.innerHTML = "";
+    panels.slice(1).forEach((p) => {
+      const f = p.frame;
+      const line = el("div", "distance");
+      line.dataset.panel = String(p.info.id);
+      if (f && f.distance != null) {
+        line.dataset.value = String(f.distance);
+        line.dataset.t = String(f.t);
+        line.textContent = `panel #${p.info.id} − panel #${panels[0].info.id} at t = ${fmt(f.t)} s: ${f.distance === 0 ? "0 (exact)" : fmt(f.distance)}`;
+      } else {
+        line.textContent = `panel #${p.info.id}: not at the same t as panel #${panels[0].info.id} (a different dt)`;
+      }
+      readout.appendChild(line);
+    });
+  }
+
+  function setOverlay(on) {
+    state.overlay.on = on;
+    $("overlay").checked = on;
+    $("overlay-view").hidden = !on;
+    state.overlay.dirty = true;
+  }
+  // For the tests.
+  state.setOverlay = setOverlay;
+  state.overlayPixel = (x, y) => Array.from($("overlay-canvas").getContext("2d").getImageData(Math.round(x), Math.round(y), 1, 1).data);
+
+  // ---------- keyboard ----------
+  // space: play / pause, s: one step, r: reset (not while typing in a field).
+  document.addEventListener("keydown", (event) => {
+    const t = event.target;
+    if (event.ctrlKey || event.metaKey || event.altKey) return;
+    if (t && (t.tagName === "INPUT" || t.tagName === "SELECT" || t.tagName === "TEXTAREA" || t.isContentEditable)) return;
+    // A focused button would click itself on the space's release: take the focus away.
+    if (event.key === " ") { event.preventDefault(); if (t && t.blur && t.tagName === "BUTTON") t.blur(); $("play").click(); }
+    else if (event.key === "s") { event.preventDefault(); $("step").click(); }
+    else if (event.key === "r") { event.preventDefault(); $("reset").click(); }
+  });
+
   // ---------- toolbar ----------
+  $("overlay").onchange = () => setOverlay($("overlay").checked);
+  $("share").onclick = () => {
+    const url = shareUrl();
+    $("share-box").hidden = false;
+    $("share-url").value = url;
+    $("share-url").select();
+    history.replaceState(null, "", url);
+    if (navigator.clipboard && window.isSecureContext) navigator.clipboard.writeText(url).catch(() => {});
+  };
+  state.shareUrl = shareUrl;
   $("play").onclick = () => {
     send({ type: $("play").textContent === "Pause" ? "pause" : "play" });
   };

@@ -129,7 +129,10 @@ fn main() {
         let start = Instant::now();
         let frame = session.frame();
         build.push(start.elapsed().as_secs_f64() * 1e3);
-        let ServerMessage::Frame { time_scale, panels } = &frame else {
+        let ServerMessage::Frame {
+            time_scale, panels, ..
+        } = &frame
+        else {
             unreachable!()
         };
         let start = Instant::now();

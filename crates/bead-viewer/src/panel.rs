@@ -18,7 +18,9 @@ use bead::scene::Scene;
 use bead::simulate::{ForceId, RunError, SetupError, Simulation, SimulationConfig};
 
 use crate::geometry::{Curves, Resolution};
-use crate::protocol::{DragInfo, PanelFrame, PanelInfo, PATH_MAX_NUMBERS, PATH_MAX_SAMPLES};
+use crate::protocol::{
+    Applies, DragInfo, PanelFrame, PanelInfo, PATH_MAX_NUMBERS, PATH_MAX_SAMPLES,
+};
 
 /// What a panel runs.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -170,8 +172,6 @@ pub struct Panel {
     /// Output intervals of dt taken since the epoch started: the next target time is
     /// (intervals + 1) dt.
     intervals: u64,
-    /// Simulated time owed to real time (s).
-    debt: f64,
     behind: bool,
     steps_per_second: f64,
     drag: Option<Drag>,
@@ -215,7 +215,6 @@ impl Panel {
             running: false,
             failure: None,
             intervals: 0,
-            debt: 0.0,
             behind: false,
             steps_per_second: 0.0,
             drag: None,
@@ -264,7 +263,6 @@ impl Panel {
     pub fn reset(&mut self, epoch: u64) {
         self.epoch = epoch;
         self.intervals = 0;
-        self.debt = 0.0;
         self.behind = false;
         self.drag = None;
         self.failure = None;
@@ -281,37 +279,83 @@ impl Panel {
         }
     }
 
-    /// Advance by the real time `elapsed` times `time_scale`, at most `max_steps` intervals
-    /// of dt and roughly `budget` of compute time. Returns the intervals taken.
-    pub fn advance(
-        &mut self,
-        elapsed: f64,
-        time_scale: f64,
-        max_steps: u64,
-        budget: Duration,
-    ) -> u64 {
+    /// Advance to the session clock's `target` time: the whole intervals of dt that end at
+    /// or before it, at most `max_steps` of them and roughly `budget` of compute time. False
+    /// when the panel could not get there (it is then `behind`).
+    pub fn advance_until(&mut self, target: f64, max_steps: u64, budget: Duration) -> bool {
         self.path.clear();
         if !self.running || self.failure.is_some() {
             self.behind = false;
-            return 0;
+            return true;
         }
         let dt = self.settings.dt;
-        self.debt += time_scale * elapsed;
-        let wanted = (self.debt / dt).round().max(0.0);
-        let wanted = if wanted.is_finite() { wanted as u64 } else { 0 };
+        // The same rounding for every panel, so that panels of the same dt meet exactly.
+        let end = (target / dt + 1e-9).floor().max(0.0);
+        let end = if end.is_finite() { end as u64 } else { 0 };
+        let wanted = end.saturating_sub(self.intervals);
         self.path_stride = wanted
             .min(max_steps)
             .div_ceil(PATH_MAX_SAMPLES as u64)
             .max(1);
         let taken = self.run_intervals(wanted.min(max_steps), budget);
-        self.behind = taken < wanted;
-        if self.behind {
-            // Do not try to catch up later: fall behind real time instead.
-            self.debt = 0.0;
-        } else {
-            self.debt -= taken as f64 * dt;
+        self.behind = taken < wanted && self.failure.is_none();
+        !self.behind
+    }
+
+    /// The simulated time (s).
+    pub fn t(&self) -> f64 {
+        self.simulation.t()
+    }
+
+    /// The particle positions (`dim` numbers per particle).
+    pub fn positions(&self) -> &[f64] {
+        self.simulation.positions()
+    }
+
+    /// The panel's compute rate: integrator steps per second of compute (recent average).
+    pub fn steps_per_second(&self) -> f64 {
+        self.steps_per_second
+    }
+
+    /// This panel restarted at t = 0 at rest from positions `x` (see
+    /// [`Simulation::restart_at_rest`]), as a new panel in epoch `epoch`; `self` is left as
+    /// it was, so that a session can replace its panels only when all of them can start.
+    pub fn restarted_at_rest(&self, epoch: u64, x: &[f64]) -> Result<Panel, String> {
+        let mut panel = Panel::new(
+            self.id,
+            epoch,
+            self.settings,
+            Arc::clone(&self.scene),
+            self.view,
+        )
+        .map_err(|e| e.to_string())?;
+        panel
+            .simulation
+            .restart_at_rest(x)
+            .map_err(|e| e.to_string())?;
+        panel.failure = None;
+        panel.running = self.running;
+        panel.curve_note = self.curve_note.clone();
+        Ok(panel)
+    }
+
+    /// Which settings apply, by the library's legality check: feedback and projection are
+    /// offered when a configuration with them passes [`SimulationConfig::check`].
+    fn applies(&self) -> Applies {
+        let system = &self.scene.system;
+        let base = self.settings.config();
+        let feedback = SimulationConfig {
+            feedback: Feedback { ks: 1.0, kd: 1.0 },
+            ..base
+        };
+        let project = SimulationConfig {
+            project: true,
+            ..base
+        };
+        Applies {
+            feedback: feedback.check(system).is_ok(),
+            project: project.check(system).is_ok(),
         }
-        taken
     }
 
     /// Pause, then advance by exactly one interval of dt (one step of a fixed-step
@@ -521,6 +565,7 @@ impl Panel {
             curves_move: self.curves.moving,
             view: self.view,
             curve_note: self.curve_note.clone(),
+            applies: self.applies(),
         }
     }
 
@@ -558,6 +603,7 @@ impl Panel {
             not_conserved_by: s.nonconservation().iter().map(|r| r.to_string()).collect(),
             constraint_error: finite(s.constraint_error()),
             steps_per_second: finite(self.steps_per_second),
+            distance: None,
             status: if self.failure.is_some() {
                 "failed"
             } else if self.running {

@@ -64,7 +64,14 @@
 //!
 //! # Versions
 //!
-//! Version 4 (this one) adds to frames the path of the simulation's own steps
+//! Version 5 (this one) runs the panels on one clock: frames carry the session's
+//! [`Clock`] (a `generation` that counts restarts, the simulation rate and the panel that
+//! limits it) and each panel's `distance` to the first panel at the same t (overlay mode);
+//! `add_panel`, `configure_panel` and `reset` restart every panel; new requests
+//! `set_param`, `set_start` and `equations`; the scene lists its `params`, panels say which
+//! settings apply to them (`applies`), and a new reply `equations`.
+//!
+//! Version 4 adds to frames the path of the simulation's own steps
 //! ([`PanelFrame::path`]), moving curves at the frame's t ([`PanelFrame::curves`]) and the
 //! energy split (`kinetic`, `potential`, `energy_initial`, `energy_scale`); to panels their own
 //! view box ([`PanelInfo::view`]), whether the curves move and a note on the curve; to the
@@ -86,7 +93,7 @@
 use serde::{Deserialize, Serialize};
 
 /// The protocol version; bumped on any incompatible change.
-pub const PROTOCOL_VERSION: u32 = 4;
+pub const PROTOCOL_VERSION: u32 = 5;
 
 /// Which panels a message applies to: one panel by id, or all when absent / `null`.
 pub type PanelTarget = Option<u32>;
@@ -169,6 +176,24 @@ pub enum ClientMessage {
     DragMove { panel: u32, target: Vec<f64> },
     /// Release: the spring and the damping are removed (the work they did stays counted).
     DragEnd { panel: u32 },
+    /// Reload the scene with parameter `name` (one of [`SceneInfo::params`]) set to `value`
+    /// (within the parameter's `min`..`max`), and restart every panel with its settings.
+    /// The reply is a new [`ServerMessage::Scene`] and [`ServerMessage::Panels`].
+    SetParam { name: String, value: f64 },
+    /// Set the start state (while paused): particle `particle` of panel `panel` moved to
+    /// `target` (2 or 3 numbers; a missing z is the particle's), the others where they are in
+    /// that panel, all at rest. Every panel restarts from it at t = 0 (implicit: projected
+    /// onto the constraints; parametric: the closest coordinates, see
+    /// `bead::simulate::Simulation::restart_at_rest`); if one cannot, nothing changes and the
+    /// reply is an error saying why.
+    SetStart {
+        panel: u32,
+        particle: usize,
+        target: Vec<f64>,
+    },
+    /// Ask for the equations panel `panel`'s formulation derived (the text `bead check`
+    /// prints for it); the reply is [`ServerMessage::Equations`].
+    Equations { panel: u32 },
 }
 
 impl ClientMessage {
@@ -188,6 +213,9 @@ impl ClientMessage {
             ClientMessage::DragStart { .. } => "drag_start",
             ClientMessage::DragMove { .. } => "drag_move",
             ClientMessage::DragEnd { .. } => "drag_end",
+            ClientMessage::SetParam { .. } => "set_param",
+            ClientMessage::SetStart { .. } => "set_start",
+            ClientMessage::Equations { .. } => "equations",
         }
     }
 }
@@ -225,6 +253,8 @@ pub enum ServerMessage {
     Frame {
         /// Simulated seconds per wall-clock second.
         time_scale: f64,
+        /// The session's clock.
+        clock: Clock,
         panels: Vec<PanelFrame>,
     },
     /// A request was rejected; nothing changed (except for `step_failed`: the step ran and
@@ -238,6 +268,12 @@ pub enum ServerMessage {
         request: Option<String>,
         #[serde(skip_serializing_if = "Option::is_none")]
         panel: Option<u32>,
+    },
+    /// The equations panel `panel`'s formulation derived, as `bead check` prints them.
+    Equations {
+        panel: u32,
+        method: String,
+        text: String,
     },
     /// A `load_scene` failed: the rendered scene error (`file:line:column: message` and a
     /// caret snippet) and its position (0 when unknown).
@@ -256,6 +292,22 @@ pub enum ServerMessage {
         #[serde(skip_serializing_if = "Option::is_none")]
         columns: Option<[usize; 2]>,
     },
+}
+
+/// The session's clock, in every frame: the panels advance to the same simulated time
+/// together.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct Clock {
+    /// Counts the restarts of the panels (scene load, parameter change, reset, add,
+    /// configure, curve edit, new start state): a client waiting for the effect of such a
+    /// request waits for a frame of a larger generation.
+    pub generation: u64,
+    /// Simulated seconds per wall-clock second over the last frames (recent average): the
+    /// time scale when every panel keeps up, less when one cannot.
+    pub sim_rate: f64,
+    /// The panel that could not keep up in the last frame (all panels were held back to its
+    /// time), when one could not.
+    pub limited_by: Option<u32>,
 }
 
 /// Why a request was rejected: stable names (`snake_case` in JSON) for programs.
@@ -308,6 +360,10 @@ pub enum ErrorCode {
     NoImplicitPanel,
     /// `set_curve` on a parametric panel, whose curve is its map x(q).
     ParametricPanel,
+    /// `set_start`: a panel cannot start from that state (the message says which and why).
+    StartFailed,
+    /// `set_param` with a name that is not one of the scene's parameters.
+    UnknownParam,
 }
 
 /// Contents of [`ServerMessage::Welcome`].
@@ -401,6 +457,28 @@ pub struct SceneInfo {
     pub has_parametric: bool,
     /// Scene warnings (initial state off the constraints, ...).
     pub warnings: Vec<String>,
+    /// The scene's `[params]`, in file order, with the range `set_param` accepts (a decade
+    /// either side of the value the scene was loaded with).
+    pub params: Vec<ParamInfo>,
+}
+
+/// A `[params]` value of the scene and the range of its slider.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct ParamInfo {
+    pub name: String,
+    pub value: f64,
+    pub min: f64,
+    pub max: f64,
+}
+
+/// Which settings do something for a panel's method and integrator, decided by the
+/// library's legality check (`SimulationConfig::check`): the page hides the others.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct Applies {
+    /// Baumgarte feedback ks, kd (implicit form only).
+    pub feedback: bool,
+    /// Projection after every step (implicit form, fixed-step integrators).
+    pub project: bool,
 }
 
 /// A `kind = "distance"` constraint: a rod from particle `a` to particle `b` or to the fixed
@@ -470,6 +548,8 @@ pub struct PanelInfo {
     /// (parametric) panel's map.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub curve_note: Option<String>,
+    /// Which settings apply to this panel (the others do nothing or are refused).
+    pub applies: Applies,
 }
 
 /// One panel's state in a [`ServerMessage::Frame`].
@@ -511,8 +591,12 @@ pub struct PanelFrame {
     pub not_conserved_by: Vec<String>,
     /// max_i |C_i| over the scene's implicit constraints.
     pub constraint_error: f64,
-    /// Steps per second of compute time (recent average).
+    /// Steps per second of compute time (recent average): the compute rate.
     pub steps_per_second: f64,
+    /// max over particles of |x - x_first|, the distance of this panel's particles to the
+    /// first panel's at the same t (`None` for the first panel, and when the two are not
+    /// at the same t or have different particles).
+    pub distance: Option<f64>,
     /// `"running"`, `"paused"` or `"failed"`.
     pub status: String,
     /// Why the panel failed (divergence, singular constraints, ...), when it did.
@@ -619,6 +703,7 @@ struct FrameHeader<'a> {
     #[serde(rename = "type")]
     kind: &'static str,
     time_scale: f64,
+    clock: Clock,
     panels: Vec<PanelHeader<'a>>,
 }
 
@@ -626,16 +711,27 @@ impl ServerMessage {
     /// The message as sent: a binary frame for [`ServerMessage::Frame`], JSON text otherwise.
     pub fn encode(&self) -> Result<Encoded, serde_json::Error> {
         match self {
-            ServerMessage::Frame { time_scale, panels } => {
-                encode_frame(*time_scale, panels).map(Encoded::Binary)
-            }
+            ServerMessage::Frame {
+                time_scale,
+                clock,
+                panels,
+            } => encode_frame_with(*time_scale, clock, panels).map(Encoded::Binary),
             other => serde_json::to_string(other).map(Encoded::Text),
         }
     }
 }
 
-/// A frame as a binary message (see [Frames](self#frames)).
+/// A frame as a binary message (see [Frames](self#frames)), with a default [`Clock`].
 pub fn encode_frame(time_scale: f64, panels: &[PanelFrame]) -> Result<Vec<u8>, serde_json::Error> {
+    encode_frame_with(time_scale, &Clock::default(), panels)
+}
+
+/// A frame as a binary message (see [Frames](self#frames)).
+pub fn encode_frame_with(
+    time_scale: f64,
+    clock: &Clock,
+    panels: &[PanelFrame],
+) -> Result<Vec<u8>, serde_json::Error> {
     let mut offset = 0;
     let headers = panels
         .iter()
@@ -666,6 +762,7 @@ pub fn encode_frame(time_scale: f64, panels: &[PanelFrame]) -> Result<Vec<u8>, s
     let header = serde_json::to_vec(&FrameHeader {
         kind: "frame",
         time_scale,
+        clock: *clock,
         panels: headers,
     })?;
     let header_len = u32::try_from(header.len()).map_err(serde::ser::Error::custom)?;

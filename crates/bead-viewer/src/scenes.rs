@@ -2,7 +2,7 @@
 //! scene given on the command line.
 
 /// The shipped scenes (`scenes/*.toml`), embedded at build time.
-pub const SHIPPED: [(&str, &str); 5] = [
+pub const SHIPPED: [(&str, &str); 6] = [
     ("parabola", include_str!("../../../scenes/parabola.toml")),
     ("circle", include_str!("../../../scenes/circle.toml")),
     ("cycloid", include_str!("../../../scenes/cycloid.toml")),
@@ -11,6 +11,10 @@ pub const SHIPPED: [(&str, &str); 5] = [
         include_str!("../../../scenes/double-pendulum.toml"),
     ),
     ("helix", include_str!("../../../scenes/helix.toml")),
+    (
+        "spinning-hoop",
+        include_str!("../../../scenes/spinning-hoop.toml"),
+    ),
 ];
 
 /// A named scene text.
@@ -41,10 +45,13 @@ impl Catalog {
     }
 
     /// The shipped scenes with `extra` first (it is loaded on connect). A shipped scene of the
-    /// same name is replaced.
+    /// same name, or with the same text (`bead serve scenes/parabola.toml`), is replaced, so
+    /// that the picker lists no scene twice.
     pub fn with_first(extra: NamedScene) -> Catalog {
         let mut catalog = Catalog::shipped();
-        catalog.scenes.retain(|s| s.name != extra.name);
+        catalog
+            .scenes
+            .retain(|s| s.name != extra.name && s.text != extra.text);
         catalog.scenes.insert(0, extra);
         catalog
     }

@@ -15,8 +15,9 @@ use bead::simulate::{ConfigError, RunError, SetupError};
 use crate::geometry;
 use crate::panel::{DragError, Panel, PanelFailure, PanelSettings};
 use crate::protocol::{
-    ClientMessage, ConstraintInfo, ErrorCode, IntegratorInfo, Limits, PanelSettingsPatch,
-    ParticleInfo, Pin, Rod, SceneInfo, ServerMessage, Welcome, PROTOCOL_VERSION,
+    ClientMessage, Clock, ConstraintInfo, ErrorCode, IntegratorInfo, Limits, PanelFrame,
+    PanelSettingsPatch, ParamInfo, ParticleInfo, Pin, Rod, SceneInfo, ServerMessage, Welcome,
+    PROTOCOL_VERSION,
 };
 use crate::scenes::Catalog;
 
@@ -27,6 +28,9 @@ const FRAME_BUDGET: Duration = Duration::from_millis(25);
 struct CurrentScene {
     scene: Arc<Scene>,
     info: SceneInfo,
+    /// The `[params]` as first loaded, with their ranges: a parameter change keeps them, so
+    /// that a slider's range does not move under it.
+    params: Vec<ParamInfo>,
 }
 
 /// Why a request was rejected. Each has an [`ErrorCode`] for the reply.
@@ -63,6 +67,20 @@ pub enum SessionError {
     /// A `step` request made the panel fail.
     #[error("{message}")]
     StepFailed { message: String },
+    #[error("unknown parameter `{name}`; the scene's parameters: {}", if known.is_empty() { "none".to_string() } else { known.join(", ") })]
+    UnknownParam { name: String, known: Vec<String> },
+    #[error("parameter `{name}` must be a number in [{}, {}]", bead::readable(*min), bead::readable(*max))]
+    ParamRange { name: String, min: f64, max: f64 },
+    /// The scene does not load or start with the new value (the library's message).
+    #[error("cannot use this value: {0}")]
+    ParamFailed(String),
+    /// A panel cannot start from the dragged state.
+    #[error("cannot start from this state: panel {panel} ({method}): {message}")]
+    StartFailed {
+        panel: u32,
+        method: &'static str,
+        message: String,
+    },
 }
 
 impl SessionError {
@@ -79,6 +97,10 @@ impl SessionError {
             SessionError::Drag(DragError::NoDrag) => ErrorCode::NoDrag,
             SessionError::Drag(_) => ErrorCode::BadValue,
             SessionError::StepFailed { .. } => ErrorCode::StepFailed,
+            SessionError::UnknownParam { .. } => ErrorCode::UnknownParam,
+            SessionError::ParamRange { .. } => ErrorCode::BadValue,
+            SessionError::ParamFailed(_) => ErrorCode::SetupFailed,
+            SessionError::StartFailed { .. } => ErrorCode::StartFailed,
         }
     }
 }
@@ -166,6 +188,14 @@ pub struct Session {
     next_id: u32,
     next_epoch: u64,
     time_scale: f64,
+    /// The shared clock: the simulated time every running panel advances to.
+    clock: f64,
+    /// Counts restarts of the panels ([`Clock::generation`]).
+    generation: u64,
+    /// Simulated seconds per wall second (recent average).
+    sim_rate: f64,
+    /// The panel that held the others back in the last frame.
+    limited_by: Option<u32>,
 }
 
 /// Parse a scene as a session would: refusing more particles than a session allows
@@ -203,6 +233,10 @@ impl Session {
             next_id: 1,
             next_epoch: 1,
             time_scale: 1.0,
+            clock: 0.0,
+            generation: 0,
+            sim_rate: 0.0,
+            limited_by: None,
         };
         if let Some(first) = session.catalog.first().cloned() {
             // A bad command-line scene was reported by the CLI already; leave it empty.
@@ -249,12 +283,48 @@ impl Session {
         }
     }
 
-    /// The current state of every panel.
+    /// The current state of every panel, with each panel's distance to the first panel when
+    /// both are at the same t.
     pub fn frame(&self) -> ServerMessage {
+        let mut panels: Vec<PanelFrame> = self.panels.iter().map(Panel::frame).collect();
+        if let Some((first, others)) = self.panels.split_first() {
+            for (frame, other) in panels.iter_mut().skip(1).zip(others) {
+                frame.distance = distance(first, other);
+            }
+        }
         ServerMessage::Frame {
             time_scale: self.time_scale,
-            panels: self.panels.iter().map(Panel::frame).collect(),
+            clock: Clock {
+                generation: self.generation,
+                sim_rate: self.sim_rate,
+                limited_by: self.limited_by,
+            },
+            panels,
         }
+    }
+
+    /// The restart count ([`Clock::generation`]).
+    pub fn generation(&self) -> u64 {
+        self.generation
+    }
+
+    /// Every panel restarted (or a new set of panels): the clock starts again at 0.
+    fn restarted(&mut self) {
+        self.generation += 1;
+        self.clock = 0.0;
+        self.limited_by = None;
+    }
+
+    /// Restart every panel but those at `except` (rebuilt already) from the scene's initial
+    /// state, in new epochs: the panels share one clock.
+    fn restart_others(&mut self, except: &[usize]) {
+        for index in 0..self.panels.len() {
+            if !except.contains(&index) {
+                let epoch = self.epoch();
+                self.panels[index].reset(epoch);
+            }
+        }
+        self.restarted();
     }
 
     /// Number of panels.
@@ -270,21 +340,53 @@ impl Session {
     }
 
     /// Advance the running panels by `elapsed` wall seconds (times the time scale), within the
-    /// per-frame step limit and compute budget.
+    /// per-frame step limit and compute budget, on one clock: every running panel advances
+    /// to the same simulated time. When one cannot get there, the clock stops at the
+    /// earliest time a running panel reached (all panels slow together; the others wait
+    /// there) and the frame names that panel ([`Clock::limited_by`]).
     pub fn advance(&mut self, elapsed: f64) {
         let elapsed = elapsed.clamp(0.0, 0.1);
-        let running = self
-            .panels
-            .iter()
-            .filter(|p| p.running && !p.failed())
-            .count() as u64;
+        let active = |p: &&Panel| p.running && !p.failed();
+        let running = self.panels.iter().filter(active).count() as u64;
         if running == 0 {
+            self.sim_rate = 0.0;
+            self.limited_by = None;
             return;
         }
+        let earliest = |panels: &[Panel]| {
+            panels
+                .iter()
+                .filter(active)
+                .map(Panel::t)
+                .fold(f64::INFINITY, f64::min)
+        };
+        // A panel resumed or stepped on its own is caught up with, not overtaken.
+        self.clock = self.clock.max(earliest(&self.panels));
+        let start = self.clock;
+        let target = start + self.time_scale * elapsed;
         let max_steps = (self.limits.max_steps_per_frame / running).max(1);
         let budget = FRAME_BUDGET / running as u32;
+        // The first panel that could not get there, and the earliest time such a panel
+        // reached (a panel of a coarser dt short of the target by less than its dt is not
+        // behind: it waits for its next whole step).
+        let mut limited = None;
+        let mut reached = f64::INFINITY;
         for panel in &mut self.panels {
-            panel.advance(elapsed, self.time_scale, max_steps, budget);
+            if !panel.advance_until(target, max_steps, budget) {
+                limited.get_or_insert(panel.id);
+                reached = reached.min(panel.t());
+            }
+        }
+        self.limited_by = limited;
+        // Do not try to catch up later: fall behind real time instead, all together.
+        self.clock = if reached.is_finite() { reached } else { target };
+        if elapsed > 0.0 {
+            let rate = ((self.clock - start) / elapsed).max(0.0);
+            self.sim_rate = if self.sim_rate > 0.0 {
+                0.9 * self.sim_rate + 0.1 * rate
+            } else {
+                rate
+            };
         }
     }
 
@@ -323,6 +425,9 @@ impl Session {
                 panel.running = self.panels.iter().any(|p| p.running);
                 self.next_id += 1;
                 self.panels.push(panel);
+                // One clock: the others start again with the new panel.
+                let new = self.panels.len() - 1;
+                self.restart_others(&[new]);
                 Ok(vec![self.panels_message()])
             }
             ClientMessage::RemovePanel { panel } => {
@@ -346,6 +451,7 @@ impl Session {
                 rebuilt.running = running && !rebuilt.failed();
                 rebuilt.curve_note = note;
                 self.panels[index] = rebuilt;
+                self.restart_others(&[index]);
                 Ok(vec![self.panels_message()])
             }
             ClientMessage::Play { panel } => {
@@ -378,14 +484,11 @@ impl Session {
                 }
             }
             ClientMessage::Reset { panel } => {
-                let targets: Vec<usize> = match panel {
-                    Some(id) => vec![self.index(id)?],
-                    None => (0..self.panels.len()).collect(),
-                };
-                for index in targets {
-                    let epoch = self.epoch();
-                    self.panels[index].reset(epoch);
+                // One clock: a reset restarts every panel (a `panel` must still exist).
+                if let Some(id) = panel {
+                    self.index(id)?;
                 }
+                self.restart_others(&[]);
                 Ok(vec![self.panels_message()])
             }
             ClientMessage::SetTimeScale { scale } => {
@@ -467,7 +570,140 @@ impl Session {
                 self.panels[index].drag_end();
                 Ok(Vec::new())
             }
+            ClientMessage::SetParam { name, value } => self.set_param(&name, value),
+            ClientMessage::SetStart {
+                panel,
+                particle,
+                target,
+            } => self.set_start(panel, particle, target),
+            ClientMessage::Equations { panel } => {
+                let index = self.index(panel)?;
+                let p = &self.panels[index];
+                Ok(vec![ServerMessage::Equations {
+                    panel,
+                    method: p.method().name().into(),
+                    text: bead::describe::equations(&p.scene().system, p.method(), 200),
+                }])
+            }
         }
+    }
+
+    /// Reload the scene with one parameter changed and restart every panel with its
+    /// settings; nothing changes when the value is out of range or a panel cannot start.
+    fn set_param(&mut self, name: &str, value: f64) -> Result<Vec<ServerMessage>, Rejection> {
+        let current = self.scene()?;
+        let Some(range) = current.params.iter().find(|p| p.name == name) else {
+            return Err((
+                SessionError::UnknownParam {
+                    name: truncate(name, 80),
+                    known: current.params.iter().map(|p| p.name.clone()).collect(),
+                },
+                None,
+            ));
+        };
+        if !(value.is_finite() && value >= range.min && value <= range.max) {
+            return Err((
+                SessionError::ParamRange {
+                    name: range.name.clone(),
+                    min: range.min,
+                    max: range.max,
+                },
+                None,
+            ));
+        }
+        let params = current.params.clone();
+        let scene = current
+            .scene
+            .with_param(name, value)
+            .map_err(|e| (SessionError::ParamFailed(e.to_string()), None))?;
+        let scene = Arc::new(scene);
+        let mut info = scene_info(&current.info.name, &scene);
+        info.params = params_with_ranges(&scene, &params);
+        let view = info.view;
+        // Every panel again, with its settings, on the new scene (curve edits of single
+        // panels are dropped: the scene's own expressions follow the parameter).
+        let mut rebuilt = Vec::new();
+        for old in &self.panels {
+            let epoch = self.next_epoch + rebuilt.len() as u64;
+            let mut panel = Panel::new(old.id, epoch, old.settings(), Arc::clone(&scene), view)
+                .map_err(|e| (SessionError::from(e), Some(old.id)))?;
+            if let Some(failure) = panel.failure() {
+                return Err((
+                    SessionError::ParamFailed(format!("panel {}: {failure}", old.id)),
+                    Some(old.id),
+                ));
+            }
+            panel.running = old.running;
+            rebuilt.push(panel);
+        }
+        self.next_epoch += rebuilt.len() as u64;
+        self.panels = rebuilt;
+        self.scene = Some(CurrentScene {
+            scene,
+            info,
+            params,
+        });
+        self.restarted();
+        Ok(self.scene_messages())
+    }
+
+    /// A new start state: particle `particle` of panel `panel` at `target`, the others where
+    /// that panel has them, at rest; every panel restarts from it, or none does.
+    fn set_start(
+        &mut self,
+        panel: u32,
+        particle: usize,
+        target: Vec<f64>,
+    ) -> Result<Vec<ServerMessage>, Rejection> {
+        let index = self.index(panel)?;
+        let source = &self.panels[index];
+        let dim = source.scene().system.dim();
+        let mut x = source.positions().to_vec();
+        let count = x.len() / dim.max(1);
+        if particle >= count {
+            return Err((
+                SessionError::Drag(DragError::NoParticle { particle, count }),
+                Some(panel),
+            ));
+        }
+        let mut target = target;
+        if target.len() == 2 && dim == 3 {
+            target.push(x[particle * dim + 2]);
+        }
+        if target.len() != dim {
+            return Err((
+                SessionError::Drag(DragError::TargetDimension {
+                    dim,
+                    got: target.len(),
+                }),
+                Some(panel),
+            ));
+        }
+        if target.iter().any(|v| !v.is_finite() || v.abs() > 1e12) {
+            return Err((SessionError::Drag(DragError::TargetRange), Some(panel)));
+        }
+        x[particle * dim..(particle + 1) * dim].copy_from_slice(&target);
+        let mut rebuilt = Vec::new();
+        for (k, old) in self.panels.iter().enumerate() {
+            let epoch = self.next_epoch + k as u64;
+            match old.restarted_at_rest(epoch, &x) {
+                Ok(panel) => rebuilt.push(panel),
+                Err(message) => {
+                    return Err((
+                        SessionError::StartFailed {
+                            panel: old.id,
+                            method: old.method().name(),
+                            message,
+                        },
+                        Some(old.id),
+                    ))
+                }
+            }
+        }
+        self.next_epoch += rebuilt.len() as u64;
+        self.panels = rebuilt;
+        self.restarted();
+        Ok(vec![self.panels_message()])
     }
 
     fn index(&self, panel: u32) -> Result<usize, Rejection> {
@@ -524,7 +760,13 @@ impl Session {
         self.next_id += panels.len() as u32;
         self.next_epoch += panels.len() as u64;
         self.panels = panels;
-        self.scene = Some(CurrentScene { scene, info });
+        let params = info.params.clone();
+        self.scene = Some(CurrentScene {
+            scene,
+            info,
+            params,
+        });
+        self.restarted();
         Ok(())
     }
 
@@ -609,6 +851,7 @@ impl Session {
         for (index, panel) in rebuilt {
             self.panels[index] = panel;
         }
+        self.restart_others(&indices);
         // Panels left as they were say so: a parametric panel's curve is its map x(q).
         if panel.is_none() {
             for (index, other) in self.panels.iter_mut().enumerate() {
@@ -705,7 +948,73 @@ pub fn scene_info(name: &str, scene: &Scene) -> SceneInfo {
         has_implicit: system.constraints().n_rows() > 0,
         has_parametric: system.parametric().is_some(),
         warnings: scene.warnings(),
+        params: scene
+            .params
+            .iter()
+            .map(|(name, value)| {
+                let (min, max) = param_range(*value);
+                ParamInfo {
+                    name: name.clone(),
+                    value: *value,
+                    min,
+                    max,
+                }
+            })
+            .collect(),
     }
+}
+
+/// A slider's range for a parameter of value `value`: a decade either side (through 0 for
+/// a value of 0: -1..1).
+fn param_range(value: f64) -> (f64, f64) {
+    if value == 0.0 || !value.is_finite() {
+        (-1.0, 1.0)
+    } else if value > 0.0 {
+        (value / 10.0, value * 10.0)
+    } else {
+        (value * 10.0, value / 10.0)
+    }
+}
+
+/// The scene's current parameter values with the ranges of `first` (as first loaded).
+fn params_with_ranges(scene: &Scene, first: &[ParamInfo]) -> Vec<ParamInfo> {
+    first
+        .iter()
+        .map(|p| ParamInfo {
+            value: scene
+                .params
+                .iter()
+                .find(|(n, _)| *n == p.name)
+                .map(|(_, v)| *v)
+                .unwrap_or(p.value),
+            ..p.clone()
+        })
+        .collect()
+}
+
+/// max over particles of |x_a - x_b| between two panels at the same t, when they are.
+fn distance(a: &Panel, b: &Panel) -> Option<f64> {
+    let (ta, tb) = (a.t(), b.t());
+    if (ta - tb).abs() > 1e-9 * ta.abs().max(1.0) {
+        return None;
+    }
+    let (xa, xb) = (a.positions(), b.positions());
+    let dim = a.scene().system.dim();
+    if xa.len() != xb.len() || dim == 0 {
+        return None;
+    }
+    let d = xa
+        .chunks(dim)
+        .zip(xb.chunks(dim))
+        .map(|(p, q)| {
+            p.iter()
+                .zip(q)
+                .map(|(u, v)| (u - v) * (u - v))
+                .sum::<f64>()
+                .sqrt()
+        })
+        .fold(0.0, f64::max);
+    d.is_finite().then_some(d)
 }
 
 /// The view box of `scene` ([`geometry::view_box`]): its initial state, its fixed points

@@ -26,7 +26,7 @@ use std::process::{Child, Command, Stdio};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use bead_viewer::protocol::{encode_frame, Encoded, PanelFrame, PanelInfo, ServerMessage};
+use bead_viewer::protocol::{encode_frame, Applies, Encoded, PanelFrame, PanelInfo, ServerMessage};
 use bead_viewer::server::{bind, serve};
 use bead_viewer::session::{parse_scene, scene_info};
 use bead_viewer::{Catalog, NamedScene, ServerConfig};
@@ -358,22 +358,39 @@ async fn checks(client: &Client, addr: SocketAddr) {
         "the rattle panel",
     )
     .await;
-    // Pause (the bead is fast at the bottom), grab both beads, play again.
-    js(client, "document.getElementById('play').textContent === 'Pause' && document.getElementById('play').click(); return null;").await;
+    // Grab both beads while they run (a drag while paused sets the start state instead, see
+    // `comparison_and_teaching_in_the_page`), at a tenth of real time so that they are slow.
+    js(
+        client,
+        "const s = document.getElementById('time-scale'); s.value = '0.1'; s.dispatchEvent(new Event('change')); return null;",
+    )
+    .await;
     wait_until(
         client,
         &format!(
-            "window.__viewer.panels.get(1).info.integrator === 'rattle' && {} && {}",
-            current(1, "f.status === 'paused'"),
-            current(2, "f.status === 'paused'")
+            "window.__viewer.timeScale === 0.1 && window.__viewer.panels.get(1).info.integrator === 'rattle' && {} && {}",
+            current(1, "f.status === 'running'"),
+            current(2, "f.status === 'running'")
         ),
-        "the pause",
+        "the slow run",
     )
     .await;
     for panel in [1, 2] {
+        // Down where the page drew the bead last, in one script (it moves between scripts).
+        js(
+            client,
+            &format!(
+                "const v = window.__viewer, p = v.panels.get({panel}), x = p.lastDraw.x;
+                 const [cx, cy] = v.clientPoint({panel}, x[0], x[1]);
+                 p.dom.canvas.dispatchEvent(new PointerEvent('pointerdown', {{clientX: cx, clientY: cy,
+                     pointerId: 1, bubbles: true, isPrimary: true, button: 0, buttons: 1}}));
+                 return null;"
+            ),
+        )
+        .await;
+        wait_until(client, &current(panel, "!!f.drag"), "the grab").await;
         let f = frame(client, panel).await;
         let (x, y) = (f["x"][0].as_f64().unwrap(), f["x"][1].as_f64().unwrap());
-        pointer(client, panel, "pointerdown", x, y).await;
         for k in 1..=10 {
             let s = k as f64 / 10.0;
             pointer(
@@ -389,7 +406,7 @@ async fn checks(client: &Client, addr: SocketAddr) {
     }
     js(
         client,
-        "document.getElementById('play').click(); return null;",
+        "const s = document.getElementById('time-scale'); s.value = '1'; s.dispatchEvent(new Event('change')); return null;",
     )
     .await;
     // The beads follow the cursor: wait for that, however long the machine takes.
@@ -827,6 +844,10 @@ async fn cloth_at_scale(client: &Client, addr: SocketAddr) {
             curves_move: false,
             view: scene_view,
             curve_note: None,
+            applies: Applies {
+                feedback: true,
+                project: true,
+            },
         }],
     });
 
@@ -883,6 +904,7 @@ async fn cloth_at_scale(client: &Client, addr: SocketAddr) {
             not_conserved_by: Vec::new(),
             constraint_error: 0.0,
             steps_per_second: 0.0,
+            distance: None,
             status: "running".into(),
             error: None,
             behind: false,
@@ -1302,4 +1324,440 @@ async fn truthful_checks(client: &Client, addr: SocketAddr) {
     }
     let errors = js(client, "return window.__errors;").await;
     assert_eq!(errors, json!([]), "errors in the page");
+}
+
+/// Issue 9's comparison and teaching features in the page, each waited for by a restart
+/// counter (the clock's `generation`) or an epoch, never by a time or a value that a frame
+/// from before the request could also show: overlay mode (both panels' particles in one
+/// canvas in their colours; the distance chart and its readout, equal to the server's
+/// distance, which is the distance of the two frames' positions), the keyboard shortcuts,
+/// a slider change, a share URL round trip and a drag while paused.
+#[test]
+fn comparison_and_teaching_in_the_page() {
+    in_browser(ServerConfig::default(), |client, addr| {
+        teaching_checks(client, addr).boxed_local()
+    });
+}
+
+/// The clock's generation in the newest frame the page holds.
+async fn generation(client: &Client) -> u64 {
+    js(
+        client,
+        "const v = window.__viewer; return v && v.clock ? v.clock.generation : -1;",
+    )
+    .await
+    .as_u64()
+    .unwrap_or(0)
+}
+
+/// A JS condition: the newest frame is of a generation after `after` and every panel's
+/// frame belongs to its current epoch and satisfies `condition` on `f`.
+fn all_after(after: u64, condition: &str) -> String {
+    format!(
+        "(() => {{ const v = window.__viewer; if (!v || !v.clock || v.clock.generation <= {after}) return false;
+            const ps = [...v.panels.values()];
+            return ps.length > 0 && ps.every(p => {{ const f = p.frame; return !!(f && f.epoch === p.info.epoch && ({condition})); }}); }})()"
+    )
+}
+
+/// Press and release `key` (a real key event, to the focused page).
+async fn press(client: &Client, key: char) {
+    use fantoccini::actions::{InputSource, KeyAction, KeyActions};
+    let keys = KeyActions::new("keyboard".into())
+        .then(KeyAction::Down { value: key })
+        .then(KeyAction::Up { value: key });
+    client.perform_actions(keys).await.expect("key press");
+}
+
+async fn teaching_checks(client: &Client, addr: SocketAddr) {
+    client.goto(&format!("http://{addr}/")).await.unwrap();
+    wait_until(
+        client,
+        &all_after(0, "f.status === 'running' && f.t > 0.2"),
+        "two running panels",
+    )
+    .await;
+    let rate = js(
+        client,
+        "return document.getElementById('rate').textContent;",
+    )
+    .await;
+    assert!(
+        rate.as_str().unwrap().starts_with("simulation rate ×"),
+        "{rate}"
+    );
+    let sps = js(
+        client,
+        "return document.querySelector('.panel .r-sps').textContent;",
+    )
+    .await;
+    assert!(sps.as_str().unwrap().starts_with("compute rate"), "{sps}");
+    // Settings that do nothing are hidden: feedback and projection on the parametric panel.
+    let hidden = js(
+        client,
+        "return [1, 2].map(id => { const r = document.querySelector(`.panel[data-panel=\"${id}\"]`);
+           return [r.querySelector('label.feedback').hidden, r.querySelector('label.projection').hidden]; });",
+    )
+    .await;
+    assert_eq!(hidden, json!([[false, false], [true, true]]));
+
+    // Keyboard: space pauses every panel, s steps once, r restarts, space plays again.
+    press(client, ' ').await;
+    wait_until(client, &all_after(0, "f.status === 'paused'"), "the pause").await;
+    let steps: Vec<u64> = js(
+        client,
+        "return [...window.__viewer.panels.values()].map(p => p.frame.steps);",
+    )
+    .await
+    .as_array()
+    .unwrap()
+    .iter()
+    .map(|v| v.as_u64().unwrap())
+    .collect();
+    press(client, 's').await;
+    wait_until(
+        client,
+        &format!(
+            "[...window.__viewer.panels.values()].every((p, k) => p.frame.steps === {steps:?}[k] + 1)"
+        ),
+        "one step",
+    )
+    .await;
+    let before = generation(client).await;
+    press(client, 'r').await;
+    wait_until(
+        client,
+        &all_after(before, "f.t === 0 && f.status === 'paused'"),
+        "the reset",
+    )
+    .await;
+    press(client, ' ').await;
+    wait_until(
+        client,
+        &all_after(before, "f.status === 'running' && f.t > 0.3"),
+        "play again",
+    )
+    .await;
+
+    // Overlay: both panels' particles in one canvas, each in its colour; the distance chart
+    // and readout show the server's distance.
+    js(client, "window.__viewer.setOverlay(true); return null;").await;
+    wait_until(
+        client,
+        "window.__viewer.overlay.lastDraw && window.__viewer.overlay.lastDraw.panels.length === 2 && !document.getElementById('overlay-view').hidden",
+        "the overlay",
+    )
+    .await;
+    // Paused, so that the drawn state is the frame's and stays put while pixels are read.
+    press(client, ' ').await;
+    wait_until(
+        client,
+        &all_after(before, "f.status === 'paused'"),
+        "the pause",
+    )
+    .await;
+    wait_until(
+        client,
+        "(() => { const v = window.__viewer, d = v.overlay.lastDraw; return d.panels.every(q => q.t === v.panels.get(q.id).frame.t); })()",
+        "the overlay to draw the paused state",
+    )
+    .await;
+    let overlay = js(
+        client,
+        "const v = window.__viewer, d = v.overlay.lastDraw;
+         return d.panels.map(q => ({ id: q.id, color: q.color, point: q.points[0], pixel: v.overlayPixel(q.points[0][0], q.points[0][1]) }));",
+    )
+    .await;
+    let hex = |p: &Value| {
+        let c: Vec<u64> = p
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|v| v.as_u64().unwrap())
+            .collect();
+        format!("#{:02x}{:02x}{:02x}", c[0], c[1], c[2])
+    };
+    // The second panel is drawn last: its colour is at its bead. The first panel's bead is
+    // under it when they coincide, so look for its colour in a ring around its centre.
+    let second = &overlay[1];
+    assert_eq!(
+        hex(&second["pixel"]),
+        second["color"].as_str().unwrap(),
+        "{overlay}"
+    );
+    let first_seen = js(
+        client,
+        "const v = window.__viewer, q = v.overlay.lastDraw.panels[0];
+         const want = q.color; let found = false;
+         for (let a = 0; a < 32 && !found; a++) {
+           const px = v.overlayPixel(q.points[0][0] + 10 * Math.cos(a / 5), q.points[0][1] + 10 * Math.sin(a / 5));
+           const h = '#' + px.slice(0, 3).map(c => c.toString(16).padStart(2, '0')).join('');
+           found = h === want;
+         }
+         return found;",
+    )
+    .await;
+    assert_eq!(
+        first_seen,
+        Value::Bool(true),
+        "first panel's colour not drawn: {overlay}"
+    );
+    let legend = js(
+        client,
+        "return document.querySelectorAll('#overlay-legend .legend-item').length;",
+    )
+    .await;
+    assert_eq!(legend, json!(2));
+    let distance = js(
+        client,
+        "const v = window.__viewer, [a, b] = [...v.panels.values()];
+         const e = document.querySelector('#distance-readout .distance[data-panel=\"' + b.info.id + '\"]');
+         let by_hand = 0;
+         for (let k = 0; k < a.frame.x.length; k += 2) by_hand = Math.max(by_hand, Math.hypot(a.frame.x[k] - b.frame.x[k], a.frame.x[k + 1] - b.frame.x[k + 1]));
+         return { shown: Number(e.dataset.value), server: b.frame.distance, by_hand, same_t: a.frame.t === b.frame.t,
+                  chart: v.overlay.history.get(b.info.id).points.length };",
+    )
+    .await;
+    assert_eq!(distance["same_t"], Value::Bool(true), "{distance}");
+    assert_eq!(distance["shown"], distance["server"], "{distance}");
+    let (server, by_hand) = (
+        distance["server"].as_f64().unwrap(),
+        distance["by_hand"].as_f64().unwrap(),
+    );
+    assert!(
+        (server - by_hand).abs() <= 1e-12 * by_hand.max(1.0),
+        "{distance}"
+    );
+    assert!(distance["chart"].as_u64().unwrap() > 5, "{distance}");
+    screenshot(client, "overlay").await;
+    js(client, "window.__viewer.setOverlay(false); return null;").await;
+
+    // A slider change: the scene restarts with g doubled (a new generation, the parameter's
+    // new value, and the start energy E0 = m g h doubled).
+    let g = js(
+        client,
+        "return window.__viewer.scene.params.find(p => p.name === 'g').value;",
+    )
+    .await
+    .as_f64()
+    .unwrap();
+    let e0 = frame(client, 1).await["energy_initial"].as_f64().unwrap();
+    let before = generation(client).await;
+    js(
+        client,
+        &format!("window.__viewer.setParam('g', {}); return null;", 2.0 * g),
+    )
+    .await;
+    wait_until(
+        client,
+        &format!(
+            "window.__viewer.scene.params.find(p => p.name === 'g').value === {} && {}",
+            2.0 * g,
+            all_after(before, "true")
+        ),
+        "the scene with the new g",
+    )
+    .await;
+    let ids: Vec<u64> = js(client, "return [...window.__viewer.panels.keys()];")
+        .await
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_u64().unwrap())
+        .collect();
+    let e1 = frame(client, ids[0]).await["energy_initial"]
+        .as_f64()
+        .unwrap();
+    assert!((e1 - 2.0 * e0).abs() < 1e-9 * e0.abs(), "E0 {e0} -> {e1}");
+    let slider = js(
+        client,
+        "return Number(document.querySelector('#params .param[data-param=\"g\"] input').value);",
+    )
+    .await;
+    assert_eq!(slider.as_f64().unwrap(), 2.0 * g);
+    // Out of range: said on the page, nothing restarts.
+    let before = generation(client).await;
+    js(client, "window.__viewer.setParam('g', 1e9); return null;").await;
+    wait_until(
+        client,
+        "document.getElementById('messages').textContent.includes('must be a number in')",
+        "the range message",
+    )
+    .await;
+    assert_eq!(generation(client).await, before);
+
+    // Change a panel so that the share URL has something to restore: dt of panel 2.
+    let second = ids[1];
+    js(
+        client,
+        &format!(
+            "const r = document.querySelector('.panel[data-panel=\"{second}\"]');
+             r.querySelector('input.dt').value = '0.005'; r.querySelector('button.apply').click(); return null;"
+        ),
+    )
+    .await;
+    wait_until(
+        client,
+        &format!("window.__viewer.panels.get({second}).info.dt === 0.005"),
+        "dt 0.005",
+    )
+    .await;
+    js(
+        client,
+        "const s = document.getElementById('time-scale'); s.value = '0.5'; s.dispatchEvent(new Event('change')); return null;",
+    )
+    .await;
+    wait_until(
+        client,
+        "window.__viewer.timeScale === 0.5",
+        "time scale 0.5",
+    )
+    .await;
+    js(
+        client,
+        "document.getElementById('share').click(); return null;",
+    )
+    .await;
+    let url = js(client, "return document.getElementById('share-url').value;").await;
+    let url = url.as_str().unwrap().to_string();
+    assert!(
+        url.contains("scene=parabola") && url.contains("param.g="),
+        "{url}"
+    );
+    let wanted = js(
+        client,
+        "return [...window.__viewer.panels.values()].map(p => [p.info.method, p.info.integrator, p.info.dt]);",
+    )
+    .await;
+
+    // The URL in a fresh page: the same scene, parameter, panels and time scale come back.
+    client.goto("about:blank").await.unwrap();
+    client.goto(&url).await.unwrap();
+    wait_until(
+        client,
+        &format!(
+            "window.__viewer && window.__viewer.scene && window.__viewer.scene.params.find(p => p.name === 'g').value === {} && window.__viewer.restore === null && JSON.stringify([...window.__viewer.panels.values()].map(p => [p.info.method, p.info.integrator, p.info.dt])) === JSON.stringify({wanted}) && window.__viewer.timeScale === 0.5",
+            2.0 * g
+        ),
+        "the shared state back",
+    )
+    .await;
+
+    // A bad share URL: each bad part said on the page, the rest used.
+    client
+        .goto(&format!(
+            "http://{addr}/?scene=nowhere&param.g=abc&panel=implicit:warp:0.01&ts=7"
+        ))
+        .await
+        .unwrap();
+    wait_until(
+        client,
+        "(() => { const t = document.getElementById('messages').textContent;
+            return t.includes('unknown scene `nowhere`') && t.includes('`abc` is not a number') && t.includes('unknown integrator `warp`') && t.includes('time scale `7`'); })()",
+        "the bad URL's messages",
+    )
+    .await;
+
+    // Drag while paused: the start state. Both panels restart from the dragged place, on the
+    // curve, at rest.
+    client.goto(&format!("http://{addr}/")).await.unwrap();
+    wait_until(client, &all_after(0, "f.t > 0.1"), "the page").await;
+    press(client, ' ').await;
+    wait_until(client, &all_after(0, "f.status === 'paused'"), "the pause").await;
+    let before = generation(client).await;
+    let f = frame(client, 1).await;
+    let (x, y) = (f["x"][0].as_f64().unwrap(), f["x"][1].as_f64().unwrap());
+    pointer(client, 1, "pointerdown", x, y).await;
+    // To (-90, -80), just off the curve (y = -81 there).
+    pointer(client, 1, "pointermove", -80.0, -60.0).await;
+    pointer(client, 1, "pointermove", -90.0, -80.0).await;
+    pointer(client, 1, "pointerup", -90.0, -80.0).await;
+    wait_until(
+        client,
+        &all_after(
+            before,
+            "f.t === 0 && f.status === 'paused' && f.kinetic === 0",
+        ),
+        "the new start state",
+    )
+    .await;
+    for panel in [1, 2] {
+        let f = frame(client, panel).await;
+        let (x, y) = (f["x"][0].as_f64().unwrap(), f["x"][1].as_f64().unwrap());
+        assert!((x * x + 100.0 * y).abs() < 1e-6, "panel {panel}: {f}");
+        assert!((x + 90.0).abs() < 1.0, "panel {panel}: {f}");
+    }
+    // The equations on demand.
+    js(client, "document.querySelector('.panel[data-panel=\"2\"] button.show-equations').click(); return null;").await;
+    wait_until(
+        client,
+        "(() => { const e = document.querySelector('.panel[data-panel=\"2\"] pre.equations'); return !e.hidden && e.textContent.includes('acceleration = J q\\'\\' + h'); })()",
+        "the parametric equations",
+    )
+    .await;
+
+    let errors = js(client, "return window.__errors;").await;
+    assert_eq!(errors, json!([]), "errors in the page");
+}
+
+/// The screenshots of the docs (`docs/viewer*.png`), from headless Chromium:
+/// `cargo test -p bead-viewer --test browser -- --ignored docs_screenshots`. Each scene runs
+/// for a few seconds first, so that trails and charts have something to show.
+#[test]
+#[ignore]
+fn docs_screenshots() {
+    in_browser(ServerConfig::default(), |client, addr| {
+        take_docs_screenshots(client, addr).boxed_local()
+    });
+}
+
+async fn take_docs_screenshots(client: &Client, addr: SocketAddr) {
+    client.set_window_size(1280, 1350).await.unwrap();
+    let docs = workspace_root().join("docs");
+    std::fs::create_dir_all(&docs).unwrap();
+    for (scene, file, overlay) in [
+        ("parabola", "viewer.png", false),
+        ("double-pendulum", "viewer-double-pendulum.png", false),
+        ("helix", "viewer-helix-3d.png", false),
+        ("spinning-hoop", "viewer-spinning-hoop.png", false),
+        ("parabola", "viewer-overlay.png", true),
+    ] {
+        client
+            .goto(&format!("http://{addr}/?scene={scene}"))
+            .await
+            .unwrap();
+        wait_until(
+            client,
+            &format!(
+                "window.__viewer && window.__viewer.scene && window.__viewer.scene.name === '{scene}' && window.__viewer.restore === null && {}",
+                all_after(0, "f.status === 'running' && f.t > 0.1")
+            ),
+            "the scene",
+        )
+        .await;
+        if overlay {
+            // Two integrators on the implicit form beside the parametric one.
+            js(client, "window.__viewer.setOverlay(true); return null;").await;
+            js(
+                client,
+                "document.getElementById('new-method').value = 'implicit';
+                 document.getElementById('new-integrator').value = 'euler';
+                 document.getElementById('add-panel').click(); return null;",
+            )
+            .await;
+            wait_until(
+                client,
+                "window.__viewer.panels.size === 3",
+                "the third panel",
+            )
+            .await;
+        }
+        tokio::time::sleep(Duration::from_millis(4000)).await;
+        if overlay {
+            // The overlay first: scroll so that it and the toolbar show.
+            js(client, "window.scrollTo(0, 0); return null;").await;
+        }
+        let png = client.screenshot().await.expect("screenshot");
+        std::fs::write(docs.join(file), &png).unwrap();
+    }
 }

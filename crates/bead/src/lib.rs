@@ -1,5 +1,6 @@
 //! bead: constrained particle dynamics.
 #![forbid(unsafe_code)]
+pub mod describe;
 pub mod expr;
 pub mod formulation;
 pub mod integrate;

@@ -1,0 +1,251 @@
+//! Issue 9's comparison and teaching requests, on a session without a network: one clock
+//! for all panels, the distance between formulations, parameter changes, a start state set
+//! by dragging while paused, the equations, and the settings each panel offers.
+
+use std::sync::Arc;
+
+use bead_viewer::protocol::{
+    parse_client_message, Clock, ErrorCode, Limits, PanelFrame, PanelInfo, SceneInfo, ServerMessage,
+};
+use bead_viewer::scenes::Catalog;
+use bead_viewer::session::Session;
+
+fn session() -> Session {
+    Session::new(Arc::new(Catalog::shipped()), Limits::default())
+}
+
+fn send(session: &mut Session, json: &str) -> Vec<ServerMessage> {
+    match parse_client_message(json, &Limits::default()) {
+        Ok(message) => session.handle(message),
+        Err(e) => panic!("{json} did not parse: {e}"),
+    }
+}
+
+fn frame(session: &Session) -> (Clock, Vec<PanelFrame>) {
+    match session.frame() {
+        ServerMessage::Frame { clock, panels, .. } => (clock, panels),
+        other => panic!("not a frame: {other:?}"),
+    }
+}
+
+fn run(session: &mut Session, seconds: f64) {
+    for _ in 0..(seconds * 60.0).round() as usize {
+        session.advance(1.0 / 60.0);
+    }
+}
+
+fn scene_of(replies: &[ServerMessage]) -> Option<SceneInfo> {
+    replies.iter().find_map(|m| match m {
+        ServerMessage::Scene(info) => Some(info.clone()),
+        _ => None,
+    })
+}
+
+fn panels_of(replies: &[ServerMessage]) -> Option<Vec<PanelInfo>> {
+    replies.iter().find_map(|m| match m {
+        ServerMessage::Panels { panels } => Some(panels.clone()),
+        _ => None,
+    })
+}
+
+fn error_of(replies: &[ServerMessage]) -> Option<(ErrorCode, String)> {
+    replies.iter().find_map(|m| match m {
+        ServerMessage::Error { code, message, .. } => Some((*code, message.clone())),
+        _ => None,
+    })
+}
+
+/// Panels of different formulations advance to the same t together, and the frame carries
+/// each panel's distance to the first at that t, which is what the positions say.
+#[test]
+fn panels_share_one_clock_and_the_frame_has_their_distance() {
+    let mut s = session();
+    run(&mut s, 1.0);
+    let (clock, panels) = frame(&s);
+    assert_eq!(panels.len(), 2);
+    assert_eq!(panels[0].t, panels[1].t, "{panels:?}");
+    assert!(panels[0].t > 0.0);
+    assert!(clock.sim_rate > 0.0, "{clock:?}");
+    assert_eq!(panels[0].distance, None);
+    let d = panels[1].distance.expect("same t: a distance");
+    let by_hand = panels[0]
+        .x
+        .chunks(2)
+        .zip(panels[1].x.chunks(2))
+        .map(|(a, b)| ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2)).sqrt())
+        .fold(0.0, f64::max);
+    assert_eq!(d, by_hand);
+    // The two formulations of rk4 at dt = 1/60 agree closely on the parabola.
+    assert!(d < 1.0, "{d}");
+}
+
+/// Adding a panel restarts every panel (one clock), and a reset of one panel resets all.
+#[test]
+fn add_and_reset_act_on_all_panels() {
+    let mut s = session();
+    run(&mut s, 0.5);
+    let generation = frame(&s).0.generation;
+    let replies = send(&mut s, r#"{"type":"add_panel","integrator":"verlet"}"#);
+    assert_eq!(panels_of(&replies).unwrap().len(), 3);
+    let (clock, panels) = frame(&s);
+    assert!(clock.generation > generation);
+    assert!(panels.iter().all(|p| p.t == 0.0), "{panels:?}");
+    run(&mut s, 0.5);
+    let panels = frame(&s).1;
+    assert!(panels.iter().all(|p| p.t == panels[0].t && p.t > 0.0));
+    send(&mut s, r#"{"type":"reset","panel":2}"#);
+    assert!(frame(&s).1.iter().all(|p| p.t == 0.0));
+}
+
+/// A panel that cannot keep up holds the others back, and the frame names it.
+#[test]
+fn a_slow_panel_slows_every_panel_and_is_named() {
+    let mut s = session();
+    // 1e-6 s steps: real time needs 10^6 steps a second, far beyond a frame's budget.
+    send(&mut s, r#"{"type":"configure_panel","panel":2,"dt":1e-6}"#);
+    run(&mut s, 0.5);
+    let (clock, panels) = frame(&s);
+    assert_eq!(clock.limited_by, Some(2), "{clock:?}");
+    assert!(panels[1].behind);
+    // The fast panel waited: it is at most one frame of real time ahead.
+    assert!(panels[0].t <= panels[1].t + 1.0 / 60.0 + 1e-9, "{panels:?}");
+    // Below real time: at most 10^4 steps of 1e-6 s per panel in a frame of 1/60 s, 0.6 s/s.
+    assert!(clock.sim_rate <= 0.6 + 1e-6, "{clock:?}");
+}
+
+/// A slider change reloads the scene with the new value and restarts every panel: a new
+/// generation, the parameter's new value, and physics that follows it (the potential of the
+/// same start state scales with g).
+#[test]
+fn a_parameter_change_reloads_the_scene_and_restarts_the_panels() {
+    let mut s = session();
+    let scene = scene_of(&s.greeting()).unwrap();
+    let g = scene
+        .params
+        .iter()
+        .find(|p| p.name == "g")
+        .expect("parabola has g");
+    assert!(g.min < g.value && g.value < g.max);
+    run(&mut s, 0.3);
+    let (before, panels) = frame(&s);
+    let v0 = panels[0].energy_initial;
+    let replies = send(
+        &mut s,
+        &format!(
+            r#"{{"type":"set_param","name":"g","value":{}}}"#,
+            2.0 * g.value
+        ),
+    );
+    let scene = scene_of(&replies).expect("a new scene");
+    assert_eq!(
+        scene.params.iter().find(|p| p.name == "g").unwrap().value,
+        2.0 * g.value
+    );
+    // The range stays the first one.
+    assert_eq!(
+        scene.params.iter().find(|p| p.name == "g").unwrap().max,
+        g.max
+    );
+    assert_eq!(panels_of(&replies).unwrap().len(), 2);
+    let (after, panels) = frame(&s);
+    assert!(after.generation > before.generation);
+    assert!(panels.iter().all(|p| p.t == 0.0));
+    assert!(
+        (panels[0].energy_initial - 2.0 * v0).abs() < 1e-9 * v0.abs(),
+        "{} vs {v0}",
+        panels[0].energy_initial
+    );
+    // Out of range, unknown, not finite: an error, and nothing changes.
+    for (json, code) in [
+        (
+            format!(
+                r#"{{"type":"set_param","name":"g","value":{}}}"#,
+                100.0 * g.max
+            ),
+            ErrorCode::BadValue,
+        ),
+        (
+            r#"{"type":"set_param","name":"gee","value":1}"#.to_string(),
+            ErrorCode::UnknownParam,
+        ),
+    ] {
+        let replies = send(&mut s, &json);
+        let (got, message) = error_of(&replies).expect("an error");
+        assert_eq!(got, code, "{message}");
+        assert!(message.contains('g'), "{message}");
+        assert_eq!(frame(&s).0.generation, after.generation);
+    }
+    assert!(parse_client_message(
+        r#"{"type":"set_param","name":"g","value":"NaN"}"#,
+        &Limits::default()
+    )
+    .is_err());
+}
+
+/// Dragging while paused sets the start state: every panel restarts at t = 0 from it, on the
+/// curve and at rest, both formulations at the same place.
+#[test]
+fn a_start_state_set_while_paused_restarts_every_panel_on_the_curve() {
+    let mut s = session();
+    send(&mut s, r#"{"type":"pause"}"#);
+    let generation = frame(&s).0.generation;
+    let replies = send(
+        &mut s,
+        r#"{"type":"set_start","panel":1,"particle":0,"target":[-70,-45]}"#,
+    );
+    assert!(panels_of(&replies).is_some(), "{replies:?}");
+    let (clock, panels) = frame(&s);
+    assert!(clock.generation > generation);
+    for p in &panels {
+        assert_eq!(p.t, 0.0);
+        assert_eq!(p.status, "paused");
+        let (x, y) = (p.x[0], p.x[1]);
+        assert!((x * x + 100.0 * y).abs() < 1e-6, "{p:?}");
+        assert!((x + 70.0).abs() < 5.0, "{p:?}");
+        assert_eq!(p.kinetic, 0.0);
+    }
+    assert!(panels[1].distance.unwrap() < 0.5, "{panels:?}");
+    // Bad targets are refused and change nothing.
+    for json in [
+        r#"{"type":"set_start","panel":1,"particle":7,"target":[0,0]}"#,
+        r#"{"type":"set_start","panel":1,"particle":0,"target":[0]}"#,
+        r#"{"type":"set_start","panel":1,"particle":0,"target":[1e300,0]}"#,
+        r#"{"type":"set_start","panel":9,"particle":0,"target":[0,0]}"#,
+    ] {
+        let replies = send(&mut s, json);
+        assert!(error_of(&replies).is_some(), "{json}: {replies:?}");
+        assert_eq!(frame(&s).0.generation, clock.generation, "{json}");
+    }
+}
+
+/// The equations each formulation derived, as `bead check` prints them.
+#[test]
+fn the_equations_of_each_formulation() {
+    let mut s = session();
+    for (panel, words) in [(1, "Cddot = J a + bias"), (2, "acceleration = J q'' + h")] {
+        let replies = send(
+            &mut s,
+            &format!(r#"{{"type":"equations","panel":{panel}}}"#),
+        );
+        let Some(ServerMessage::Equations { text, .. }) = replies.first() else {
+            panic!("{replies:?}");
+        };
+        assert!(text.contains(words), "{text}");
+    }
+}
+
+/// Which settings a panel offers comes from the library's legality check.
+#[test]
+fn settings_that_do_nothing_are_marked() {
+    let s = session();
+    let panels = panels_of(&s.greeting()).unwrap();
+    assert!(panels[0].applies.feedback && panels[0].applies.project);
+    assert!(!panels[1].applies.feedback && !panels[1].applies.project);
+    let mut s = session();
+    let replies = send(
+        &mut s,
+        r#"{"type":"configure_panel","panel":1,"integrator":"dopri5"}"#,
+    );
+    let panels = panels_of(&replies).unwrap();
+    assert!(!panels[0].applies.project, "{:?}", panels[0].applies);
+}
