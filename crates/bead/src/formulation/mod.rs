@@ -20,6 +20,7 @@ use std::sync::Arc;
 pub use constrained::{ConstrainedSystem, ConstraintScales};
 pub use gradients::{Gradients, Observation, SingularSearch};
 pub use implicit::{Feedback, Implicit};
+pub(crate) use parametric::LaneScratch;
 pub use parametric::Parametric;
 
 use crate::model::{Force, System};

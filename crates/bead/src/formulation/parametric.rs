@@ -27,6 +27,14 @@ use super::{
 use crate::linalg::{DenseCholesky, SymmetricPattern, SymmetricSolver};
 use crate::model::{ConstraintEval, Force, ParametricEval, ParametricMap, System};
 
+/// Buffers of [`Parametric::accelerate_across_lanes`], sized on first use.
+#[derive(Debug, Default)]
+pub(crate) struct LaneScratch {
+    force: Vec<f64>,
+    matrix: Vec<f64>,
+    dense: Vec<f64>,
+}
+
 /// The parametric (generalized-coordinate) formulation.
 pub struct Parametric {
     pub(crate) system: Arc<System>,
@@ -173,6 +181,84 @@ impl Parametric {
             let values = set.residuals(t, &out.x, &mut self.constraints);
             out.constraints.copy_from_slice(values);
         }
+    }
+
+    /// Whether [`Parametric::accelerate_across_lanes`] applies: gravity is the only force.
+    pub(crate) fn across_lanes(&self) -> bool {
+        self.system.forces().is_empty() && self.external.is_empty()
+    }
+
+    /// [`Parametric::accelerate_evaluated`] for L members at once from the evaluation tape's
+    /// outputs (structure of arrays: output o of member l at `out[o * L + l]`), gravity the
+    /// only force: the same operations in the same order per member, members innermost, into
+    /// `qddot` (n_q x L). `scratch` holds F, M (packed and dense) and the right-hand side.
+    /// `failed[l]` is set when member l's mass matrix is singular (its qddot is then garbage).
+    ///
+    /// ```text
+    /// F = M g;  M = sum_k m_k J_k^T J_k;  M qddot = sum_k J_k^T (F_k - m_k h_k)
+    /// ```
+    pub(crate) fn accelerate_across_lanes<const L: usize>(
+        &self,
+        out: &[f64],
+        scratch: &mut LaneScratch,
+        qddot: &mut [f64],
+        failed: &mut [Option<crate::linalg::Singular>; L],
+    ) {
+        let system = &*self.system;
+        let map = system.parametric().expect("checked in Parametric::new");
+        let (n, n_q, dim) = (map.positions.len(), map.n_q(), system.dim());
+        scratch.force.resize(n * L, 0.0);
+        scratch.matrix.resize(n_q * (n_q + 1) / 2 * L, 0.0);
+        scratch.dense.resize(n_q * n_q * L, 0.0);
+        let force = &mut scratch.force;
+        for (p, particle) in system.particles().iter().enumerate() {
+            for (a, g) in system.gravity().iter().enumerate() {
+                force[(p * dim + a) * L..(p * dim + a + 1) * L].fill(particle.mass * g);
+            }
+        }
+        // assemble(): M and the right-hand side, lanes innermost.
+        let (matrix, rhs) = (&mut scratch.matrix, &mut qddot[..n_q * L]);
+        matrix.fill(0.0);
+        rhs.fill(0.0);
+        let (bias, jacobian) = (&out[2 * n * L..3 * n * L], &out[3 * n * L..]);
+        let columns = map.jacobian_columns();
+        for (k, &m) in self.coordinate_mass.iter().enumerate() {
+            let entries = map.row_entries(k);
+            let start = entries.start;
+            let mut reduced = [0.0; L];
+            for (l, r) in reduced.iter_mut().enumerate() {
+                *r = force[k * L + l] - m * bias[k * L + l];
+            }
+            for (a, &j) in columns[entries].iter().enumerate() {
+                let e = start + a;
+                let mut weighted = [0.0; L];
+                for l in 0..L {
+                    rhs[j * L + l] += jacobian[e * L + l] * reduced[l];
+                    weighted[l] = m * jacobian[e * L + l];
+                }
+                let row = j * (j + 1) / 2;
+                for run in self.runs.of_row(k) {
+                    if run.entry > a {
+                        break;
+                    }
+                    let len = run.len.min(a + 1 - run.entry);
+                    for c in 0..len {
+                        let (target, other) = (row + run.column + c, start + run.entry + c);
+                        for l in 0..L {
+                            matrix[target * L + l] += weighted[l] * jacobian[other * L + l];
+                        }
+                    }
+                }
+            }
+        }
+        self.solver.scatter_lanes::<L>(matrix, &mut scratch.dense);
+        crate::linalg::cholesky_lanes::<L>(
+            n_q,
+            &mut scratch.dense,
+            self.solver.relative_pivot_tolerance,
+            failed,
+        );
+        crate::linalg::cholesky_substitute_lanes::<L>(n_q, &scratch.dense, rhs);
     }
 
     /// The map's evaluation (x, xdot, h, J at (t, q, qdot)) that

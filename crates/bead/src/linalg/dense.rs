@@ -137,6 +137,22 @@ impl DenseCholesky {
     }
 }
 
+impl DenseCholesky {
+    /// What [`SymmetricSolver::factor`] factors, for L matrices at once: the pattern's values
+    /// (`values[slot * L + l]`) scattered into dense m x m matrices (`dense[(i * m + j) * L +
+    /// l]`, lower triangle, zero elsewhere), to factor with [`cholesky_lanes`].
+    pub(crate) fn scatter_lanes<const L: usize>(&self, values: &[f64], dense: &mut [f64]) {
+        let m = self.pattern.dim();
+        dense.fill(0.0);
+        for j in 0..m {
+            for (slot, &i) in self.pattern.column(j) {
+                dense[(j * m + i) * L..(j * m + i + 1) * L]
+                    .copy_from_slice(&values[slot * L..(slot + 1) * L]);
+            }
+        }
+    }
+}
+
 impl SymmetricSolver for DenseCholesky {
     fn factor(&mut self, values: &[f64]) -> Result<(), Singular> {
         let m = self.pattern.dim();

@@ -27,7 +27,7 @@ use std::sync::Arc;
 use super::monitor::{lookahead, norm, AHEAD_FRACTION, AHEAD_STEPS, OFF_BRANCH_FRACTION, VANISHED};
 use super::{Simulation, Stepper};
 use crate::expr::Tape;
-use crate::formulation::{Implicit, Method, Observation, Parametric};
+use crate::formulation::{Implicit, LaneScratch, Method, Observation, Parametric};
 use crate::integrate::IntegratorKind;
 use crate::linalg::max_nan;
 use crate::model::System;
@@ -95,6 +95,8 @@ struct Lanes {
     force: Vec<f64>,
     dense: Vec<f64>,
     lambda: Vec<f64>,
+    /// The parametric form across lanes (see [`Parametric::accelerate_across_lanes`])
+    parametric: LaneScratch,
     /// One lane's q, qdot, acceleration and tape outputs
     q_one: Vec<f64>,
     qdot_one: Vec<f64>,
@@ -123,6 +125,7 @@ impl Lanes {
             force: buffer(),
             dense: Vec::new(),
             lambda: Vec::new(),
+            parametric: LaneScratch::default(),
             q_one: vec![0.0; n],
             qdot_one: vec![0.0; n],
             a_one: vec![0.0; n],
@@ -568,6 +571,27 @@ fn accelerate(
         if let Some(tolerance) = across_lanes(implicit) {
             let mut failed = [None; LANES];
             implicit_across_lanes(implicit, lanes, tolerance, &mut acceleration, &mut failed);
+            for l in 0..LANES {
+                if active[l] && failed[l].is_some() {
+                    active[l] = false;
+                    if l < outcome.len() {
+                        outcome[l] = LaneOutcome::Leave;
+                    }
+                }
+            }
+            lanes.acceleration[stage] = acceleration;
+            return;
+        }
+    }
+    if let Kernel::Parametric(parametric) = kernel {
+        if parametric.across_lanes() {
+            let mut failed = [None; LANES];
+            parametric.accelerate_across_lanes::<LANES>(
+                &lanes.out[..width * LANES],
+                &mut lanes.parametric,
+                &mut acceleration,
+                &mut failed,
+            );
             for l in 0..LANES {
                 if active[l] && failed[l].is_some() {
                     active[l] = false;
