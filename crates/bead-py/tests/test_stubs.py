@@ -30,7 +30,7 @@ def public(obj):
 def test_stubs_cover_the_native_module():
     names, members = stubbed()
     assert names == public(_bead) | {"__version__"}
-    for cls in ("Scene", "Simulation"):
+    for cls in ("Scene", "Simulation", "SweepPlan"):
         assert members[cls] == public(getattr(_bead, cls)), cls
 
 
