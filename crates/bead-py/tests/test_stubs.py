@@ -19,7 +19,8 @@ def stubbed():
         elif isinstance(node, ast.AnnAssign):
             names.add(node.target.id)
         if isinstance(node, ast.ClassDef):
-            members[node.name] = {n.name for n in node.body if isinstance(n, ast.FunctionDef)}
+            members[node.name] = {n.name for n in node.body
+                                  if isinstance(n, ast.FunctionDef) and not n.name.startswith("_")}
     return names, members
 
 
