@@ -127,8 +127,9 @@ def main(argv=None) -> int:
         f"{len(result) / wall:.0f} members/s, {steps / wall:.3g} steps/s"
     )
     title = (
-        f"Double pendulum from rest: time until an arm flips ({args.n}×{args.n}, "
-        f"{args.duration:g} s, rk4 dt={args.dt:g}; {wall:.0f} s wall on {result.threads} threads)"
+        f"Double pendulum released from rest: time until an arm flips over\n"
+        f"{args.n}×{args.n} members, {args.duration:g} s, rk4 dt = {args.dt:g} s, "
+        f"m1 = m2, L1 = L2 = 1 m; {wall:.0f} s wall on {result.threads} threads"
     )
     draw(values, result, args.out, title)
     print(f"wrote {args.out}")
