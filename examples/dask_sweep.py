@@ -79,8 +79,10 @@ def main(argv=None) -> int:
         client = Client(cluster)
     try:
         workers = len(client.scheduler_info()["workers"])
-        where = args.scheduler or f"a LocalCluster of {workers} worker processes"
-        print(f"dask: {where}, {workers} workers")
+        if args.scheduler:
+            print(f"dask: the scheduler at {args.scheduler}, {workers} workers")
+        else:
+            print(f"dask: a LocalCluster of {workers} worker processes")
         start = time.perf_counter()
         shared = client.scatter(sweep, broadcast=True)
         ranges = sweep.chunks(args.chunks)

@@ -22,6 +22,7 @@ cannot flip at all, not having the energy to lift either arm over the top.
 from __future__ import annotations
 
 import argparse
+import os
 import time
 from pathlib import Path
 from typing import Tuple
@@ -132,7 +133,7 @@ def main(argv=None) -> int:
         f"m1 = m2, L1 = L2 = 1 m; {wall:.0f} s wall on {result.threads} threads"
     )
     draw(values, result, args.out, title)
-    print(f"wrote {args.out}")
+    print(f"wrote {os.path.relpath(args.out)}")
     return 1 if counts["failed"] else 0
 
 

@@ -381,7 +381,7 @@ class Sweep:
     def __repr__(self) -> str:
         joined = " zip " if self._zip else " x "
         grid = joined.join(f"{n}[{len(v)}]" for n, v in zip(self._names, self._values))
-        options = ", ".join(f"{k}={v!r}" for k, v in self._options.items())
+        options = ", ".join(f"{k}={v!r}" for k, v in self._options.items() if k != "method")
         return (
             f"<bead.Sweep {self._scene.title!r}: {grid} = {len(self)} members, "
             f"{self.method}{', ' + options if options else ''}>"
