@@ -132,7 +132,7 @@ def test_a_sweep_and_a_scene_pickle_as_plain_data():
 
 
 def test_to_pandas_and_table_equal_the_cli_csv(cli, tmp_path):
-    pandas = pytest.importorskip("pandas")
+    pytest.importorskip("pandas")
     out = tmp_path / "sweep.csv"
     code, _, err = cli("sweep", PENDULUM, "--param", "th1=-3:3:4", "--param", "th2=0.5:2.5:3",
                        "--method", "parametric", "--dt", "0.01", "--duration", "2",
