@@ -7,6 +7,7 @@
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::path::PathBuf;
 use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
 
 use bead::formulation::{Feedback, Method};
 use bead::integrate::IntegratorKind;
@@ -16,9 +17,10 @@ use bead::scene::{Scene, SceneError};
 use bead::simulate::{
     self, Event, EventError, RunError, RunFailure, RunStats, Sample, SetupError, Simulation, Sink,
 };
+use bead::sweep::{Axis, Combine, Member, Sweep, SweepError};
 use numpy::ndarray::{Array2, Array3};
-use numpy::{IntoPyArray, PyArray1};
-use pyo3::exceptions::{PyTypeError, PyValueError};
+use numpy::{IntoPyArray, PyArray1, PyReadonlyArray1};
+use pyo3::exceptions::{PyIndexError, PyTypeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
@@ -32,6 +34,7 @@ fn _bead(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(loads, m)?)?;
     m.add_class::<PyScene>()?;
     m.add_class::<PySimulation>()?;
+    m.add_class::<PySweepPlan>()?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     m.add(
         "INTEGRATORS",
@@ -128,11 +131,16 @@ impl PyScene {
     }
 }
 
-/// Arguments shared by `Scene.run` and `Scene.simulation`, as Python passed them.
+/// The run options of `Scene.run`, `Scene.simulation` (without the run's length) and
+/// `bead.sweep` (without `every`), as Python passed them: one conversion for all three.
+#[derive(Default)]
 struct Asked<'a> {
     method: Option<&'a str>,
     integrator: Option<&'a str>,
     dt: Option<f64>,
+    duration: Option<f64>,
+    steps: Option<i64>,
+    every: Option<i64>,
     stabilize: Option<(f64, f64)>,
     rtol: Option<f64>,
     atol: Option<f64>,
@@ -157,9 +165,9 @@ impl Asked<'_> {
             method,
             integrator,
             dt: self.dt,
-            duration: None,
-            steps: None,
-            every: None,
+            duration: self.duration,
+            steps: count("steps", self.steps)?,
+            every: count("every", self.every)?,
             stabilize: self.stabilize.map(|(ks, kd)| Feedback { ks, kd }),
             rtol: self.rtol,
             atol: self.atol,
@@ -364,6 +372,9 @@ impl PyScene {
             method,
             integrator,
             dt,
+            duration,
+            steps,
+            every,
             stabilize,
             rtol,
             atol,
@@ -371,10 +382,7 @@ impl PyScene {
             substeps,
             max_substeps,
         };
-        let mut request = asked.request()?;
-        request.duration = duration;
-        request.steps = count("steps", steps)?;
-        request.every = count("every", every)?;
+        let request = asked.request()?;
         let plan = resolve(py, &self.inner, &request)?;
         let event = stop_event(&self.inner, stop_when)?;
         run_plan(py, &self.inner, &plan, event)
@@ -408,6 +416,7 @@ impl PyScene {
             project,
             substeps,
             max_substeps,
+            ..Asked::default()
         };
         // Only the step matters here: the scene's run length is not used, and a request for
         // one step keeps the scene's duration from being checked against the new dt.
@@ -424,6 +433,19 @@ impl PyScene {
             inner: Mutex::new(simulation),
             scene: Arc::clone(&self.inner),
         })
+    }
+
+    /// Pickled as its text, file name and parameter overrides (loaded again with
+    /// `bead.loads`), so that a scene can be sent to another process or machine.
+    fn __reduce__<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        let loads = py.import("bead._bead")?.getattr("loads")?;
+        let params = PyDict::new(py);
+        for (name, value) in self.inner.overrides() {
+            params.set_item(name, value)?;
+        }
+        (loads, (self.inner.text(), params, &self.inner.file))
+            .into_pyobject(py)
+            .map(|t| t.into_any())
     }
 
     fn __repr__(&self) -> String {
@@ -522,6 +544,69 @@ fn event_error(e: EventError) -> PyErr {
 enum StartError {
     Setup(SetupError),
     Event(EventError),
+    /// Not a start error: Ctrl-C (or another signal whose handler raised) during the run.
+    Interrupted(PyErr),
+}
+
+/// Ctrl-C while a run goes on with the GIL released: every few steps, at most every 20 ms of
+/// wall time, the run's thread takes the GIL back for a moment and lets Python run its
+/// signal handlers (`PyErr_CheckSignals`); when one raises (KeyboardInterrupt), the run
+/// stops there ([`simulate::Progress::interrupted`]) and the exception is raised once the
+/// run has let go. Only on the main thread, the only one where Python runs signal handlers.
+struct Interrupt {
+    watch: bool,
+    countdown: u32,
+    last: Instant,
+    error: Option<PyErr>,
+}
+
+impl Interrupt {
+    /// Steps between two looks at the clock.
+    const EVERY: u32 = 16;
+
+    fn new(py: Python<'_>) -> PyResult<Interrupt> {
+        let threading = py.import("threading")?;
+        let main = threading
+            .call_method0("current_thread")?
+            .is(&threading.call_method0("main_thread")?);
+        Ok(Interrupt {
+            watch: main,
+            countdown: Self::EVERY,
+            last: Instant::now(),
+            error: None,
+        })
+    }
+
+    /// Whether a signal handler raised (then `error` holds its exception).
+    fn check(&mut self) -> bool {
+        if self.error.is_some() {
+            return true;
+        }
+        if !self.watch {
+            return false;
+        }
+        self.countdown -= 1;
+        if self.countdown > 0 {
+            return false;
+        }
+        self.countdown = Self::EVERY;
+        if self.last.elapsed() < Duration::from_millis(20) {
+            return false;
+        }
+        self.last = Instant::now();
+        if let Err(e) = Python::attach(|py| py.check_signals()) {
+            self.error = Some(e);
+        }
+        self.error.is_some()
+    }
+}
+
+impl simulate::Progress for Interrupt {
+    fn advance(&mut self, _: u64, _: u64) {}
+
+    fn interrupted(&mut self) -> bool {
+        self.check()
+    }
 }
 
 fn run_plan(
@@ -549,6 +634,7 @@ fn run_plan(
     let config = plan.config(plan.method);
     let options = plan.options();
     let shared = Arc::clone(scene);
+    let mut watch = Interrupt::new(py)?;
     let finished = detached(py, move || -> Result<Finished, StartError> {
         let mut simulation =
             Simulation::new(Arc::clone(&shared.system), config).map_err(StartError::Setup)?;
@@ -558,7 +644,11 @@ fn run_plan(
         let mut recorder = Recorder::default();
         let rows = (rows as usize).min(1 << 16);
         recorder.t.reserve(rows);
-        let result = simulate::run(&mut simulation, options, &mut recorder);
+        let result =
+            simulate::run_with_progress(&mut simulation, options, &mut recorder, &mut watch);
+        if let Some(interrupt) = watch.error {
+            return Err(StartError::Interrupted(interrupt));
+        }
         let summary = Summary::from_result(&shared.file, &shared.system, &coordinates, &result);
         Ok(Finished {
             recorder,
@@ -572,6 +662,7 @@ fn run_plan(
     .map_err(|e| match e {
         StartError::Setup(e) => setup_error(py, &e),
         StartError::Event(e) => event_error(e),
+        StartError::Interrupted(e) => e,
     })?;
     let Finished {
         recorder,
@@ -664,6 +755,333 @@ fn particle_names(scene: &Scene) -> Vec<String> {
 }
 
 // ---------------------------------------------------------------------------------------
+// Sweeps
+
+/// The native half of `bead.Sweep` (python/bead/_sweep.py): a [`Sweep`] of a scene over
+/// axes of parameter values, each member run as `Scene.run` would run it with those values.
+/// `run_range` runs a chunk of the members on threads with the GIL released, in segments
+/// between which Ctrl-C is honoured, and returns flat arrays.
+#[pyclass(frozen, module = "bead._bead", name = "SweepPlan")]
+pub struct PySweepPlan {
+    inner: Arc<Sweep>,
+    method: Method,
+}
+
+/// A sweep that cannot be set up, in Python's terms (`params[...]`, `zip=True`).
+fn sweep_error(e: SweepError) -> PyErr {
+    match e {
+        SweepError::UnknownParam { name, known } => {
+            let known = if known.is_empty() {
+                "the scene has no [params] table".to_string()
+            } else {
+                format!("the scene's parameters are {}", known.join(", "))
+            };
+            PyValueError::new_err(format!(
+                "params[{name:?}]: not a parameter of the scene; {known}. A swept name must be \
+                 in the scene's [params] table: add it there (e.g. `{name} = 1.0`) and write \
+                 the numbers it should change as expressions of it"
+            ))
+        }
+        SweepError::NoValues { name } => {
+            PyValueError::new_err(format!("params[{name:?}]: no values to sweep"))
+        }
+        SweepError::ZipLengths { .. } => PyValueError::new_err(format!("zip=True: {e}")),
+        SweepError::OutOfRange { .. } => PyIndexError::new_err(e.to_string()),
+        SweepError::Plan(e) => plan_error(e),
+        other => PyValueError::new_err(other.to_string()),
+    }
+}
+
+/// Threads to use: `threads`, or one per core for 0.
+fn thread_count(threads: usize) -> usize {
+    match threads {
+        0 => std::thread::available_parallelism().map_or(1, |n| n.get()),
+        n => n,
+    }
+}
+
+#[pymethods]
+impl PySweepPlan {
+    /// A sweep of `scene` over `names` (parameters of its `[params]` table) taking `values`
+    /// (one 1-D float64 array per name): every combination (first name outermost), or with
+    /// `zip=True` value i of each. The keyword arguments are those of `Scene.run` without
+    /// `every` (each member records nothing but its figures).
+    #[new]
+    #[pyo3(signature = (scene, names, values, zip = false, *, method = None, integrator = None, dt = None, duration = None, steps = None, stabilize = None, rtol = None, atol = None, project = false, substeps = None, max_substeps = None, stop_when = None))]
+    #[allow(clippy::too_many_arguments)]
+    fn new(
+        py: Python<'_>,
+        scene: &Bound<'_, PyScene>,
+        names: Vec<String>,
+        values: Vec<PyReadonlyArray1<'_, f64>>,
+        zip: bool,
+        method: Option<&str>,
+        integrator: Option<&str>,
+        dt: Option<f64>,
+        duration: Option<f64>,
+        steps: Option<i64>,
+        stabilize: Option<(f64, f64)>,
+        rtol: Option<f64>,
+        atol: Option<f64>,
+        project: bool,
+        substeps: Option<i64>,
+        max_substeps: Option<i64>,
+        stop_when: Option<&str>,
+    ) -> PyResult<PySweepPlan> {
+        let scene = &scene.get().inner;
+        if names.len() != values.len() {
+            return Err(PyValueError::new_err(format!(
+                "{} names and {} arrays of values",
+                names.len(),
+                values.len()
+            )));
+        }
+        let mut axes = Vec::with_capacity(names.len());
+        for (name, values) in names.into_iter().zip(values) {
+            let values = values.as_array().to_vec();
+            if let Some(bad) = values.iter().find(|v| !v.is_finite()) {
+                return Err(PyValueError::new_err(format!(
+                    "params[{name:?}]: {} is not a finite number",
+                    bead::readable(*bad)
+                )));
+            }
+            axes.push(Axis { name, values });
+        }
+        let asked = Asked {
+            method,
+            integrator,
+            dt,
+            duration,
+            steps,
+            stabilize,
+            rtol,
+            atol,
+            project,
+            substeps,
+            max_substeps,
+            ..Asked::default()
+        };
+        let request = asked.request()?;
+        let plan = resolve(py, scene, &request)?;
+        // A stop condition that does not parse, or does not fit the formulation, is refused
+        // here with its place marked, rather than failing every member.
+        let event = stop_event(scene, stop_when)?;
+        if event.is_some() && stop_when.is_some() {
+            let config = plan.config(plan.method);
+            let system = Arc::clone(&scene.system);
+            let mut simulation = detached(py, move || Simulation::new(system, config))?
+                .map_err(|e| setup_error(py, &e))?;
+            simulation.set_stop_when(event).map_err(event_error)?;
+        }
+        let combine = if zip { Combine::Zip } else { Combine::Grid };
+        let sweep = Sweep::new(scene, axes, combine, request, stop_when.map(str::to_string))
+            .map_err(sweep_error)?;
+        Ok(PySweepPlan {
+            inner: Arc::new(sweep),
+            method: plan.method,
+        })
+    }
+
+    /// The number of members.
+    fn __len__(&self) -> usize {
+        self.inner.len()
+    }
+
+    /// The shape of the results: the axes' lengths (grid) or (n,) (zip).
+    #[getter]
+    fn shape(&self) -> Vec<usize> {
+        self.inner.shape().to_vec()
+    }
+
+    /// The swept parameters' names, in order.
+    #[getter]
+    fn names(&self) -> Vec<String> {
+        self.inner.axes().iter().map(|a| a.name.clone()).collect()
+    }
+
+    /// The formulation every member runs: "implicit" or "parametric".
+    #[getter]
+    fn method(&self) -> &'static str {
+        self.method.name()
+    }
+
+    /// The columns of `bead sweep`'s CSV, as its header line.
+    #[getter]
+    fn csv_header(&self) -> String {
+        self.inner.csv_header()
+    }
+
+    /// Particle names (the P axis of positions).
+    #[getter]
+    fn particles(&self) -> Vec<String> {
+        particle_names(self.inner.scene())
+    }
+
+    /// The dimension D.
+    #[getter]
+    fn dimension(&self) -> usize {
+        self.inner.scene().system.dim()
+    }
+
+    /// The generalized coordinates of a parametric sweep (the K axis of q); empty for the
+    /// implicit form.
+    #[getter]
+    fn coordinates(&self) -> Vec<String> {
+        match (self.method, self.inner.scene().system.parametric()) {
+            (Method::Parametric, Some(map)) => map.coordinates().to_vec(),
+            _ => Vec::new(),
+        }
+    }
+
+    /// Run members `start` to `stop` (exclusive) on `threads` threads (0: one per core) with
+    /// the GIL released, and return their figures as a dict of flat arrays (one row per
+    /// member, in index order). Raises KeyboardInterrupt on Ctrl-C, between two segments of
+    /// members (each about a quarter of a second of work).
+    #[pyo3(signature = (start, stop, threads = 0))]
+    fn run_range<'py>(
+        &self,
+        py: Python<'py>,
+        start: usize,
+        stop: usize,
+        threads: usize,
+    ) -> PyResult<Bound<'py, PyDict>> {
+        if start > stop || stop > self.inner.len() {
+            return Err(sweep_error(SweepError::OutOfRange {
+                start,
+                end: stop,
+                len: self.inner.len(),
+            }));
+        }
+        let threads = thread_count(threads).min((stop - start).max(1));
+        let clock = Instant::now();
+        let mut members: Vec<Member> = Vec::with_capacity(stop - start);
+        // Segments grow while they take under a quarter of a second and shrink past one, so
+        // that Ctrl-C is noticed quickly while threads seldom wait for each other at the end
+        // of a segment. A member's numbers depend on its index alone, so segments change none.
+        let mut size = threads;
+        let mut next = start;
+        while next < stop {
+            let end = (next + size).min(stop);
+            let segment = Instant::now();
+            let sweep = &self.inner;
+            let done =
+                detached(py, move || sweep.run_range(next..end, threads))?.map_err(sweep_error)?;
+            members.extend(done);
+            py.check_signals()?;
+            let seconds = segment.elapsed().as_secs_f64();
+            if seconds < 0.25 {
+                size = size.saturating_mul(2).min(1 << 20);
+            } else if seconds > 1.0 {
+                size = (size / 2).max(threads);
+            }
+            next = end;
+        }
+        members_dict(py, &self.inner, self.method, &members, threads, clock)
+    }
+
+    fn __repr__(&self) -> String {
+        format!(
+            "<bead._bead.SweepPlan of {:?}: {} members, {} {}>",
+            self.inner.scene().title,
+            self.inner.len(),
+            self.names().join(" x "),
+            self.method.name()
+        )
+    }
+}
+
+/// The figures of `members` as flat arrays (NaN and 0 where a member has none).
+fn members_dict<'py>(
+    py: Python<'py>,
+    sweep: &Sweep,
+    method: Method,
+    members: &[Member],
+    threads: usize,
+    clock: Instant,
+) -> PyResult<Bound<'py, PyDict>> {
+    let system = &sweep.scene().system;
+    let (n, k, nc) = (members.len(), sweep.axes().len(), system.n_coords());
+    let (p, d) = (system.particles().len(), system.dim());
+    let nq = match (method, system.parametric()) {
+        (Method::Parametric, Some(map)) => map.coordinates().len(),
+        _ => 0,
+    };
+    let mut params = Vec::with_capacity(n * k);
+    let mut status = Vec::with_capacity(n);
+    let mut errors = Vec::with_capacity(n);
+    let (mut t_final, mut stop_time, mut energy, mut constraint) = (
+        Vec::with_capacity(n),
+        Vec::with_capacity(n),
+        Vec::with_capacity(n),
+        Vec::with_capacity(n),
+    );
+    let mut steps: Vec<i64> = Vec::with_capacity(n);
+    let (mut x, mut xdot) = (Vec::with_capacity(n * nc), Vec::with_capacity(n * nc));
+    let (mut q, mut qdot) = (Vec::with_capacity(n * nq), Vec::with_capacity(n * nq));
+    for member in members {
+        params.extend_from_slice(&member.params);
+        status.push(member.status());
+        errors.push(member.error.clone());
+        match &member.stats {
+            Some(stats) => {
+                t_final.push(stats.t_final);
+                stop_time.push(stats.stop_time.unwrap_or(f64::NAN));
+                energy.push(stats.conserved_energy_error_max());
+                constraint.push(stats.constraint_error_max);
+                steps.push(i64::try_from(stats.steps).unwrap_or(i64::MAX));
+                x.extend_from_slice(&stats.x);
+                xdot.extend_from_slice(&stats.xdot);
+                if nq > 0 {
+                    q.extend_from_slice(&stats.q);
+                    qdot.extend_from_slice(&stats.qdot);
+                }
+            }
+            None => {
+                for column in [&mut t_final, &mut stop_time, &mut energy, &mut constraint] {
+                    column.push(f64::NAN);
+                }
+                steps.push(0);
+                x.resize(x.len() + nc, f64::NAN);
+                xdot.resize(xdot.len() + nc, f64::NAN);
+                q.resize(q.len() + nq, f64::NAN);
+                qdot.resize(qdot.len() + nq, f64::NAN);
+            }
+        }
+    }
+    let shape_error = |e: numpy::ndarray::ShapeError| PyValueError::new_err(e.to_string());
+    let dict = PyDict::new(py);
+    dict.set_item(
+        "params",
+        Array2::from_shape_vec((n, k), params)
+            .map_err(shape_error)?
+            .into_pyarray(py),
+    )?;
+    dict.set_item("status", status)?;
+    dict.set_item("errors", errors)?;
+    dict.set_item("t_final", t_final.into_pyarray(py))?;
+    dict.set_item("stop_time", stop_time.into_pyarray(py))?;
+    dict.set_item("steps", steps.into_pyarray(py))?;
+    dict.set_item("energy_error_max", energy.into_pyarray(py))?;
+    dict.set_item("constraint_error_max", constraint.into_pyarray(py))?;
+    for (key, values) in [("positions", x), ("velocities", xdot)] {
+        let array = Array3::from_shape_vec((n, p, d), values).map_err(shape_error)?;
+        dict.set_item(key, array.into_pyarray(py))?;
+    }
+    if nq > 0 {
+        for (key, values) in [("q", q), ("qdot", qdot)] {
+            let array = Array2::from_shape_vec((n, nq), values).map_err(shape_error)?;
+            dict.set_item(key, array.into_pyarray(py))?;
+        }
+    } else {
+        dict.set_item("q", py.None())?;
+        dict.set_item("qdot", py.None())?;
+    }
+    dict.set_item("threads", threads)?;
+    dict.set_item("wall_seconds", clock.elapsed().as_secs_f64())?;
+    Ok(dict)
+}
+
+// ---------------------------------------------------------------------------------------
 // Simulations
 
 /// A simulation to step by hand: `step()`, `advance_to(t)`, and the current state. Made by
@@ -728,12 +1146,19 @@ impl PySimulation {
                 "step(count={count}): count must be >= 0"
             )));
         }
-        self.advance(py, |simulation| {
+        // Ctrl-C stops a long call between two steps, at a good state.
+        let mut watch = Interrupt::new(py)?;
+        let checking = &mut watch;
+        self.advance(py, move |simulation| {
             for _ in 0..count {
                 simulation.step()?;
+                if checking.check() {
+                    break;
+                }
             }
             Ok(())
-        })
+        })?;
+        watch.error.map_or(Ok(()), Err)
     }
 
     /// Advance to exactly time `t` (not before the current time): steps of dt and, when `t`
@@ -895,19 +1320,43 @@ fn bead_error(py: Python<'_>, message: &str) -> PyErr {
 }
 
 /// `bead.SceneError(text, path, line, column, message, snippet)`.
+/// The message says what to change in Python: an override the loader refuses names the
+/// command line's `--set NAME=VALUE`, which Python users did not write; it becomes
+/// `params["NAME"]: ...`.
 fn scene_error(py: Python<'_>, e: &SceneError) -> PyErr {
+    let message = python_wording(&e.message);
+    let text = e.render().replacen(&e.message, &message, 1);
     python_error(
         py,
         "SceneError",
         (
-            e.render(),
+            text,
             e.file.clone(),
             e.line,
             e.column,
-            e.message.clone(),
+            message,
             e.snippet.clone(),
         ),
     )
+}
+
+/// `--set NAME=VALUE: unknown parameter ...` as `params["NAME"]: unknown parameter ...`, with
+/// what a Python user can do about it; any other message unchanged.
+fn python_wording(message: &str) -> String {
+    let Some((assignment, rest)) = message
+        .strip_prefix("--set ")
+        .and_then(|m| m.split_once(": "))
+    else {
+        return message.to_string();
+    };
+    let name = assignment.split('=').next().unwrap_or(assignment);
+    let hint = if rest.starts_with("unknown parameter") {
+        " (the keys of params= must be names of the scene's [params] table; to vary another \
+         number, add it there and write the number as its name)"
+    } else {
+        ""
+    };
+    format!("params[{name:?}]: {rest}{hint}")
 }
 
 /// `bead.SetupError`: the simulation cannot start with these settings or this state.

@@ -66,3 +66,40 @@ fn long_free_fall_is_not_divergence() {
     let t: f64 = 1e5;
     assert!((stats.x[1] - 250.0 * t * t).abs() <= 1e-9 * 250.0 * t * t);
 }
+
+/// Stops the run once `after` intervals have gone by.
+struct StopAfter {
+    calls: u64,
+    after: u64,
+}
+
+impl bead::simulate::Progress for StopAfter {
+    fn advance(&mut self, _: u64, _: u64) {}
+    fn interrupted(&mut self) -> bool {
+        self.calls += 1;
+        self.calls >= self.after
+    }
+}
+
+#[test]
+fn an_interrupted_run_stops_at_a_good_state_and_says_so() {
+    let mut b = SystemBuilder::new(&[0.0, 500.0]);
+    b.particle("stone", 1.0, &[0.0, 0.0], &[0.0, 0.0]).unwrap();
+    let system = Arc::new(b.build().unwrap());
+    let free = formulate(system, Method::Implicit, Feedback::default()).unwrap();
+    let options = Options {
+        dt: 0.5,
+        steps: 1000,
+        every: 100,
+        ..Options::default()
+    };
+    let mut progress = StopAfter { calls: 0, after: 7 };
+    let failure = common::run_with_progress(free, &options, &mut NullSink, &mut progress)
+        .expect_err("interrupted");
+    match failure.error {
+        RunError::Interrupted { t, step } => assert_eq!((t, step), (3.5, 7)),
+        other => panic!("expected an interruption, got {other}"),
+    }
+    assert_eq!(failure.stats.steps, 7);
+    assert_eq!(failure.stats.t_final, 3.5);
+}

@@ -8,12 +8,16 @@
     sim = scene.simulation(method="parametric", integrator="gauss-legendre", dt=1e-3)
     sim.advance_to(2.5); sim.positions, sim.energy
 
+    result = bead.sweep(scene, params={"x0": np.linspace(10, 200, 10_000)}, steps=1000)
+    result.t_final, result.positions, result.status, result.to_pandas()
+
 The physics is the Rust library's (the same as the `bead` command line): the run's
 `summary` has the keys and values of `bead run --json`.
 """
 
 from ._errors import BeadError, DivergenceError, RunError, SceneError, SetupError
 from ._run import Run
+from ._sweep import Sweep, SweepResult, sweep
 from ._bead import (
     INTEGRATORS,
     METHODS,
@@ -35,7 +39,10 @@ __all__ = [
     "SceneError",
     "SetupError",
     "Simulation",
+    "Sweep",
+    "SweepResult",
     "__version__",
     "load",
     "loads",
+    "sweep",
 ]

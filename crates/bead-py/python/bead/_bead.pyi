@@ -117,3 +117,44 @@ class Simulation:
     def particles(self) -> List[str]: ...
     @property
     def coordinates(self) -> List[str]: ...
+
+class SweepPlan:
+    """The native half of bead.Sweep (use bead.sweep or bead.Sweep instead)."""
+
+    def __init__(
+        self,
+        scene: Scene,
+        names: List[str],
+        values: List[np.ndarray],
+        zip: bool = False,
+        *,
+        method: Optional[str] = None,
+        integrator: Optional[str] = None,
+        dt: Optional[float] = None,
+        duration: Optional[float] = None,
+        steps: Optional[int] = None,
+        stabilize: Optional[Tuple[float, float]] = None,
+        rtol: Optional[float] = None,
+        atol: Optional[float] = None,
+        project: bool = False,
+        substeps: Optional[int] = None,
+        max_substeps: Optional[int] = None,
+        stop_when: Optional[str] = None,
+    ) -> None: ...
+    def __len__(self) -> int: ...
+    @property
+    def shape(self) -> List[int]: ...
+    @property
+    def names(self) -> List[str]: ...
+    @property
+    def method(self) -> str: ...
+    @property
+    def csv_header(self) -> str: ...
+    @property
+    def particles(self) -> List[str]: ...
+    @property
+    def dimension(self) -> int: ...
+    @property
+    def coordinates(self) -> List[str]: ...
+    def run_range(self, start: int, stop: int, threads: int = 0) -> Dict[str, Any]:
+        """Run members start..stop-1 with the GIL released; flat arrays, one row per member."""

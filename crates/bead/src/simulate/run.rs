@@ -169,6 +169,10 @@ pub enum RunError {
     },
     #[error("cannot advance to t = {} from t = {}: time only moves forward, to a finite time", crate::readable(*requested), crate::readable(*now))]
     TimeBehind { requested: f64, now: f64 },
+    /// The run's [`Progress::interrupted`] asked it to stop (e.g. Ctrl-C in Python); the
+    /// state at `t` is good.
+    #[error("interrupted at t = {} (step {step})", crate::readable(*t))]
+    Interrupted { t: f64, step: u64 },
     /// The message includes the I/O error; it is not also the [`std::error::Error::source`],
     /// so that printing the chain shows it once.
     #[error("writing output failed: {0}")]
@@ -195,6 +199,13 @@ pub struct RunFailure {
 pub trait Progress {
     /// `step` of `total` output intervals done.
     fn advance(&mut self, step: u64, total: u64);
+
+    /// Asked after every output interval: `true` ends the run there, at a good state, with
+    /// [`RunError::Interrupted`] (what a front end does on Ctrl-C). It is called often, so
+    /// an implementation should look at a clock or a flag only every so many calls.
+    fn interrupted(&mut self) -> bool {
+        false
+    }
 }
 
 /// A [`Progress`] that ignores everything.
@@ -297,6 +308,12 @@ pub fn run_with_progress(
             if let Err(e) = sink.record(&simulation.sample(interval)) {
                 failure = Some(RunError::Io(e));
             }
+        }
+        if failure.is_none() && interval < options.steps && progress.interrupted() {
+            failure = Some(RunError::Interrupted {
+                t: simulation.t(),
+                step: interval,
+            });
         }
     }
     if failure.is_some()

@@ -1,0 +1,453 @@
+"""Sweeps: one scene run over a grid of parameter values, on every core, as numpy arrays.
+
+The members run in the Rust library (`bead::sweep::Sweep::run_range`) with the GIL released;
+this module only shapes what comes back and cuts a sweep into chunks for other processes or
+machines (a `Sweep` pickles as the scene's text, its file name, its parameters, the values
+swept and the run options).
+"""
+
+from __future__ import annotations
+
+import csv
+from typing import Any, Dict, Iterable, List, Mapping, Optional, Sequence, Tuple, Union
+
+import numpy as np
+
+from . import _bead
+
+# The run options of `Scene.run` that a sweep takes (all but `every`), with their defaults.
+_OPTIONS: Dict[str, Any] = {
+    "method": None,
+    "integrator": None,
+    "dt": None,
+    "duration": None,
+    "steps": None,
+    "stabilize": None,
+    "rtol": None,
+    "atol": None,
+    "project": False,
+    "substeps": None,
+    "max_substeps": None,
+    "stop_when": None,
+}
+
+# The per-member arrays a result holds, with their trailing dimensions besides the grid's.
+_FIELDS = (
+    "t_final",
+    "stop_time",
+    "steps",
+    "energy_error_max",
+    "constraint_error_max",
+    "positions",
+    "velocities",
+    "q",
+    "qdot",
+)
+
+
+def _axes(params: Mapping[str, Any]) -> Tuple[List[str], List[np.ndarray]]:
+    """Names and float64 value arrays (1-D, C-contiguous) of `params`."""
+    if not hasattr(params, "items"):
+        raise TypeError("params must be a mapping of parameter names to arrays of values")
+    names, values = [], []
+    for name, value in params.items():
+        if not isinstance(name, str):
+            raise TypeError(f"params: the name {name!r} is not a string")
+        try:
+            array = np.asarray(value, dtype=np.float64)
+        except (TypeError, ValueError) as e:
+            raise TypeError(f"params[{name!r}]: not an array of numbers ({e})") from None
+        if array.ndim > 1:
+            raise ValueError(
+                f"params[{name!r}]: a 1-D array of values is needed, got shape {array.shape} "
+                "(several parameters make the grid themselves: give each its own values)"
+            )
+        names.append(name)
+        values.append(np.ascontiguousarray(np.atleast_1d(array)))
+    return names, values
+
+
+class SweepResult:
+    """What the members of a sweep did, as numpy arrays shaped like the parameter grid.
+
+    ``shape`` is the grid's: the lengths of the swept arrays in the order given (the first
+    outermost), or ``(n,)`` for ``zip=True``, or ``(stop - start,)`` for a chunk (``members``
+    says which). With P particles in D dimensions and K generalized coordinates:
+
+    - ``params``: dict name -> array ``shape``, each member's value of each swept parameter
+    - ``status`` ``shape`` (str): "ok" (ran to the end), "event" (stopped at its stop_when),
+      "failed" (``errors`` says why)
+    - ``t_final``, ``stop_time`` (NaN where the event did not fire), ``steps`` (int64),
+      ``energy_error_max`` (the largest relative error of the conserved energy),
+      ``constraint_error_max``: ``shape``
+    - ``positions``, ``velocities`` ``shape + (P, D)``: the final state
+    - ``q``, ``qdot`` ``shape + (K,)`` for the parametric form, else None
+    - ``errors`` ``shape`` (object): each member's error message, or None
+
+    A member that failed keeps the figures up to its last good state; one that could not
+    start has NaN (and 0 steps). ``to_pandas()`` gives one row per member with the columns of
+    ``bead sweep``'s CSV.
+    """
+
+    names: List[str]
+    axes: Dict[str, np.ndarray]
+    shape: Tuple[int, ...]
+    members: range
+    params: Dict[str, np.ndarray]
+    status: np.ndarray
+    t_final: np.ndarray
+    stop_time: np.ndarray
+    steps: np.ndarray
+    energy_error_max: np.ndarray
+    constraint_error_max: np.ndarray
+    positions: np.ndarray
+    velocities: np.ndarray
+    q: Optional[np.ndarray]
+    qdot: Optional[np.ndarray]
+    errors: np.ndarray
+    particles: List[str]
+    coordinates: List[str]
+    columns: List[str]
+    method: str
+    title: str
+    threads: int
+    wall_seconds: float
+
+    def __init__(
+        self,
+        flat: Dict[str, Any],
+        *,
+        names: List[str],
+        axes: Dict[str, np.ndarray],
+        shape: Tuple[int, ...],
+        members: range,
+        particles: List[str],
+        coordinates: List[str],
+        columns: List[str],
+        method: str,
+        title: str,
+        total: int,
+    ) -> None:
+        self._flat = flat
+        self._total = total
+        self.names = list(names)
+        self.axes = axes
+        self.shape = tuple(shape)
+        self.members = members
+        self.particles = particles
+        self.coordinates = coordinates
+        self.columns = columns
+        self.method = method
+        self.title = title
+        self.threads = int(flat["threads"])
+        self.wall_seconds = float(flat["wall_seconds"])
+        self.params = {
+            name: flat["params"][:, i].reshape(self.shape) for i, name in enumerate(self.names)
+        }
+        self.status = np.asarray(flat["status"], dtype="<U6").reshape(self.shape)
+        errors = np.empty(len(flat["errors"]), dtype=object)
+        errors[:] = flat["errors"]
+        self.errors = errors.reshape(self.shape)
+        for field in _FIELDS:
+            value = flat[field]
+            setattr(
+                self,
+                field,
+                None if value is None else value.reshape(self.shape + value.shape[1:]),
+            )
+
+    def __len__(self) -> int:
+        return len(self.members)
+
+    @property
+    def members_per_second(self) -> float:
+        """Members run per second of wall time."""
+        return len(self) / self.wall_seconds if self.wall_seconds > 0 else float("inf")
+
+    def counts(self) -> Dict[str, int]:
+        """How many members ended "ok", "event" and "failed"."""
+        return {s: int(np.count_nonzero(self.status == s)) for s in ("ok", "event", "failed")}
+
+    def table(self) -> Dict[str, np.ndarray]:
+        """One flat array per column of ``bead sweep``'s CSV (``columns``), in that order."""
+        flat = self._flat
+        n = len(self)
+        data: Dict[str, np.ndarray] = {"member": np.arange(self.members.start, self.members.stop)}
+        for i, name in enumerate(self.names):
+            data[name] = flat["params"][:, i]
+        data["status"] = np.asarray(flat["status"], dtype="<U6")
+        for key in ("t_final", "stop_time", "steps", "energy_error_max", "constraint_error_max"):
+            data[key] = flat[key]
+        parts = [flat["positions"].reshape(n, -1), flat["velocities"].reshape(n, -1)]
+        if flat["q"] is not None:
+            parts += [flat["q"], flat["qdot"]]
+        state = np.hstack(parts) if parts else np.empty((n, 0))
+        first = 2 + len(self.names) + 5
+        for j, column in enumerate(self.columns[first:-1]):
+            data[column] = state[:, j]
+        errors = np.empty(n, dtype=object)
+        errors[:] = flat["errors"]
+        data["error"] = errors
+        return data
+
+    def to_pandas(self) -> Any:
+        """One row per member, with the columns of ``bead sweep``'s CSV: member, the swept
+        parameters, status, t_final, stop_time, steps, energy_error_max,
+        constraint_error_max, each particle's final position and velocity (P.x, P.vx, ...),
+        q.NAME and qdot.NAME for the parametric form, error. Needs pandas."""
+        try:
+            import pandas
+        except ImportError as e:
+            raise ImportError(
+                "SweepResult.to_pandas() needs pandas: pip install pandas "
+                "(or use the numpy arrays: result.t_final, result.positions, ...)"
+            ) from e
+        return pandas.DataFrame(self.table(), columns=self.columns)
+
+    def __repr__(self) -> str:
+        counts = self.counts()
+        grid = " x ".join(f"{name}[{len(self.axes[name])}]" for name in self.names)
+        chunk = ""
+        if len(self.members) != self._total:
+            chunk = f", members {self.members.start}..{self.members.stop} of {self._total}"
+        return (
+            f"<bead.SweepResult {self.title!r} {self.method}: {grid}, shape {self.shape}"
+            f"{chunk}; {counts['ok']} ok, {counts['event']} stopped at the event, "
+            f"{counts['failed']} failed; {self.wall_seconds:.3g} s on {self.threads} "
+            f"thread(s)>"
+        )
+
+
+class Sweep:
+    """A scene swept over parameter values: ``Sweep(scene, params, zip=False, **options)``.
+
+    ``params`` maps names of the scene's ``[params]`` table to 1-D arrays of values; with
+    several names the members are every combination (the first name outermost, like a C
+    array of shape ``tuple(len(v) for v in params.values())``), or with ``zip=True`` value i
+    of each (all of one length). ``options`` are ``Scene.run``'s keyword arguments without
+    ``every``: each member is exactly ``scene.with_params({...}).run(**options)``, bit for bit.
+
+    ``run(threads=0)`` runs every member; ``run_range(start, stop)`` runs a chunk of them
+    (members are numbered row-major over the grid) and ``assemble(chunks)`` joins chunks into
+    the whole result, equal bit for bit to ``run()`` whatever the chunking or the number of
+    threads. A ``Sweep`` pickles as plain data (the scene's text, its file name and
+    parameters, the values and the options), so chunks can run in other processes or on
+    other machines (``examples/dask_sweep.py``). ``chunks(count)`` proposes the ranges.
+    """
+
+    def __init__(
+        self,
+        scene: _bead.Scene,
+        params: Mapping[str, Any],
+        *,
+        zip: bool = False,
+        **options: Any,
+    ) -> None:
+        unknown = sorted(set(options) - set(_OPTIONS))
+        if unknown:
+            hint = " (a sweep records no states)" if "every" in unknown else ""
+            raise TypeError(
+                f"Sweep: unexpected keyword argument(s) {', '.join(unknown)}{hint}; the run "
+                f"options are {', '.join(_OPTIONS)}"
+            )
+        if not isinstance(scene, _bead.Scene):
+            raise TypeError(f"Sweep: scene must be a bead.Scene, got {type(scene).__name__}")
+        names, values = _axes(params)
+        self._scene = scene
+        self._names = names
+        self._values = values
+        self._zip = bool(zip)
+        # Only what was given, so that the pickled form is short and says what was asked.
+        self._options = {k: v for k, v in options.items() if v != _OPTIONS[k]}
+        self._plan = self._make_plan()
+
+    def _make_plan(self) -> _bead.SweepPlan:
+        return _bead.SweepPlan(self._scene, self._names, self._values, self._zip, **self._options)
+
+    def __getstate__(self) -> Dict[str, Any]:
+        state = dict(self.__dict__)
+        del state["_plan"]
+        return state
+
+    def __setstate__(self, state: Dict[str, Any]) -> None:
+        self.__dict__.update(state)
+        self._plan = self._make_plan()
+
+    @property
+    def scene(self) -> _bead.Scene:
+        """The scene swept."""
+        return self._scene
+
+    @property
+    def names(self) -> List[str]:
+        """The swept parameters, in order."""
+        return list(self._names)
+
+    @property
+    def axes(self) -> Dict[str, np.ndarray]:
+        """Each swept parameter's values (copies)."""
+        return {n: v.copy() for n, v in zip(self._names, self._values)}
+
+    @property
+    def zip(self) -> bool:
+        """Whether the axes are zipped (else the full grid)."""
+        return self._zip
+
+    @property
+    def options(self) -> Dict[str, Any]:
+        """The run options given (those that differ from the defaults)."""
+        return dict(self._options)
+
+    @property
+    def shape(self) -> Tuple[int, ...]:
+        """The shape of the results: the axes' lengths, or (n,) when zipped."""
+        return tuple(self._plan.shape)
+
+    @property
+    def method(self) -> str:
+        """The formulation the members run: "implicit" or "parametric"."""
+        return self._plan.method
+
+    def __len__(self) -> int:
+        return len(self._plan)
+
+    def chunks(self, count: int) -> List[Tuple[int, int]]:
+        """`count` ranges (start, stop) of about equal size covering the members in order."""
+        if count < 1:
+            raise ValueError(f"chunks(count={count}): count must be >= 1")
+        n = len(self)
+        count = min(count, n)
+        bounds = [n * i // count for i in range(count + 1)]
+        return [(a, b) for a, b in zip(bounds, bounds[1:])]
+
+    def _result(self, flat: Dict[str, Any], members: range, shape: Tuple[int, ...]) -> SweepResult:
+        plan = self._plan
+        return SweepResult(
+            flat,
+            names=self.names,
+            axes=self.axes,
+            shape=shape,
+            members=members,
+            particles=plan.particles,
+            coordinates=plan.coordinates,
+            columns=next(csv.reader([plan.csv_header])),
+            method=plan.method,
+            title=self._scene.title,
+            total=len(self),
+        )
+
+    def run_range(self, start: int, stop: int, threads: int = 0) -> SweepResult:
+        """Run members `start` .. `stop` - 1 on `threads` threads (0: one per core) with the
+        GIL released; a result of shape (stop - start,), to `assemble` with the others.
+        Ctrl-C raises KeyboardInterrupt within about a second."""
+        flat = self._plan.run_range(int(start), int(stop), int(threads))
+        return self._result(flat, range(int(start), int(stop)), (int(stop) - int(start),))
+
+    def run(self, threads: int = 0) -> SweepResult:
+        """Run every member on `threads` threads (0: one per core); arrays shaped like the
+        grid."""
+        flat = self._plan.run_range(0, len(self), int(threads))
+        return self._result(flat, range(len(self)), self.shape)
+
+    def assemble(self, chunks: Iterable[SweepResult]) -> SweepResult:
+        """The whole sweep's result from chunks (`run_range` results, in any order) that
+        cover every member once; arrays shaped like the grid. ``wall_seconds`` is the sum of
+        the chunks' and ``threads`` the most any chunk used."""
+        parts = sorted(chunks, key=lambda c: c.members.start)
+        at = 0
+        for part in parts:
+            if part.members.start != at:
+                what = "overlap" if part.members.start < at else "leave a gap"
+                raise ValueError(
+                    f"assemble: the chunks {what} at member {min(at, part.members.start)} "
+                    f"(a chunk starts at {part.members.start}, the members before end at {at})"
+                )
+            if part.names != self._names:
+                raise ValueError("assemble: a chunk of another sweep (other parameters)")
+            at = part.members.stop
+        if at != len(self):
+            raise ValueError(f"assemble: the chunks end at member {at} of {len(self)}")
+        flats = [p._flat for p in parts]
+        flat: Dict[str, Any] = {}
+        for key in ("params",) + _FIELDS:
+            arrays = [f[key] for f in flats]
+            flat[key] = None if arrays[0] is None else np.concatenate(arrays)
+        flat["status"] = [s for f in flats for s in f["status"]]
+        flat["errors"] = [e for f in flats for e in f["errors"]]
+        flat["threads"] = max(int(f["threads"]) for f in flats)
+        flat["wall_seconds"] = sum(float(f["wall_seconds"]) for f in flats)
+        return self._result(flat, range(len(self)), self.shape)
+
+    def __repr__(self) -> str:
+        joined = " zip " if self._zip else " x "
+        grid = joined.join(f"{n}[{len(v)}]" for n, v in zip(self._names, self._values))
+        options = ", ".join(f"{k}={v!r}" for k, v in self._options.items() if k != "method")
+        return (
+            f"<bead.Sweep {self._scene.title!r}: {grid} = {len(self)} members, "
+            f"{self.method}{', ' + options if options else ''}>"
+        )
+
+
+def sweep(
+    scene: _bead.Scene,
+    params: Mapping[str, Any],
+    *,
+    zip: bool = False,
+    members: Optional[Union[range, Sequence[int]]] = None,
+    threads: int = 0,
+    method: Optional[str] = None,
+    integrator: Optional[str] = None,
+    dt: Optional[float] = None,
+    duration: Optional[float] = None,
+    steps: Optional[int] = None,
+    stabilize: Optional[Tuple[float, float]] = None,
+    rtol: Optional[float] = None,
+    atol: Optional[float] = None,
+    project: bool = False,
+    substeps: Optional[int] = None,
+    max_substeps: Optional[int] = None,
+    stop_when: Optional[str] = None,
+) -> SweepResult:
+    """Run `scene` once per combination of parameter values, on every core, and return a
+    `bead.SweepResult` of numpy arrays shaped like the parameter grid.
+
+    ``params`` maps names of the scene's ``[params]`` table to 1-D arrays of values, e.g.
+    ``{"x0": np.linspace(10, 200, 10_000)}``. Several names make the full grid (the first
+    outermost; the result's shape is the arrays' lengths), or with ``zip=True`` one member
+    per position (all arrays of one length n; shape (n,)). Each member is exactly
+    ``scene.with_params({...}).run(...)`` with the same options, bit for bit: method,
+    integrator, dt, duration or steps, stabilize, rtol, atol, project, substeps,
+    max_substeps and stop_when are those of `Scene.run` (the scene's ``[run]`` table
+    supplies what is not given). A member that fails is reported (status "failed", its
+    message in ``errors``), not raised.
+
+    The members run on ``threads`` threads (0: one per core) with the GIL released; the
+    numbers do not depend on the thread count. Ctrl-C raises KeyboardInterrupt within about
+    a second. ``members=range(a, b)`` runs only those members (row-major numbering over the
+    grid) and returns a result of shape (b - a,): see `bead.Sweep` to cut a sweep into
+    chunks for other processes or machines and join them.
+
+    Raises ValueError for an unknown parameter name, values that are not finite, or a bad
+    option.
+    """
+    options = {
+        "method": method,
+        "integrator": integrator,
+        "dt": dt,
+        "duration": duration,
+        "steps": steps,
+        "stabilize": stabilize,
+        "rtol": rtol,
+        "atol": atol,
+        "project": project,
+        "substeps": substeps,
+        "max_substeps": max_substeps,
+        "stop_when": stop_when,
+    }
+    plan = Sweep(scene, params, zip=zip, **options)
+    if members is None:
+        return plan.run(threads)
+    picked = members if isinstance(members, range) else range(*members)
+    if picked.step != 1:
+        raise ValueError("members: a range of consecutive members (step 1) is needed")
+    return plan.run_range(picked.start, picked.stop, threads)

@@ -1,0 +1,72 @@
+"""Ctrl-C interrupts a long sweep, a long run and a long step(n): a child process starts one
+that would take minutes, the test waits until the child is computing inside it (its CPU time
+grows past the moment it said so), sends SIGINT and waits for the child to exit with
+KeyboardInterrupt caught."""
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from conftest import scene_path
+
+CHILD = r"""
+import sys
+import numpy as np
+import bead
+
+scene = bead.load(sys.argv[2])
+kind = sys.argv[1]
+print("ready", flush=True)
+try:
+    if kind == "run":
+        scene.run(steps=10**9, every=10**9)  # hours: records only the first and last states
+    elif kind == "step":
+        scene.simulation().step(10**9)
+    else:
+        bead.sweep(scene, {"th1": np.linspace(0.0, 1.0, 10**5)}, steps=10**5)
+except KeyboardInterrupt:
+    print("interrupted", flush=True)
+    sys.exit(3)
+print("finished", flush=True)
+"""
+
+
+def cpu_seconds(pid):
+    """User + system CPU time of process `pid` so far (Linux /proc)."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs Linux /proc")
+@pytest.mark.parametrize("kind", ["run", "step", "sweep"])
+def test_ctrl_c_interrupts_promptly(kind):
+    child = subprocess.Popen([sys.executable, "-c", CHILD, kind,
+                              scene_path("double-pendulum.toml")],
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert child.stdout.readline().strip() == "ready"
+        # Wait until the child has burnt half a second of CPU past "ready": it is inside the
+        # call, not before it (a SIGINT before the call would be raised by Python anyway).
+        base = cpu_seconds(child.pid)
+        deadline = time.monotonic() + 60
+        while cpu_seconds(child.pid) < base + 0.5:
+            assert child.poll() is None, child.stderr.read()
+            assert time.monotonic() < deadline, "the child never got busy"
+            time.sleep(0.02)
+        sent = time.monotonic()
+        child.send_signal(signal.SIGINT)
+        code = child.wait(timeout=30)
+        took = time.monotonic() - sent
+    finally:
+        if child.poll() is None:
+            child.kill()
+            child.wait()
+    out, err = child.communicate()
+    assert code == 3, (code, out, err)
+    assert out.strip() == "interrupted"
+    assert took < 5.0, f"KeyboardInterrupt came {took:.1f} s after SIGINT"
