@@ -3,10 +3,12 @@
 //!
 //! Each member is a [`Simulation`] set up as usual (its checks, energy scale and reach are
 //! its own); the lanes then take over its steps. Per RK4 stage the formulation's compiled
-//! tape runs once for all lanes ([`crate::expr::Tape::eval_lanes`], structure of arrays),
-//! and each lane is finished by the formulation's own code ([`Implicit::accelerate_evaluated`],
-//! [`Parametric::accelerate_evaluated`]), so that every number is the one the member's own
-//! `Simulation` would compute, bit for bit. The monitors after each step are the
+//! tape runs once for all lanes ([`crate::expr::Tape::eval_lanes`], structure of arrays).
+//! With gravity as the only force the evaluation is finished across the lanes too
+//! ([`implicit_across_lanes`], [`Parametric::accelerate_across_lanes`]: the same operations in
+//! the same order per member); otherwise each lane is finished by the formulation's own code
+//! ([`Implicit::accelerate_evaluated`], [`Parametric::accelerate_evaluated`]). Either way every
+//! number is the one the member's own `Simulation` would compute, bit for bit. The monitors after each step are the
 //! simulation's, per lane: the energy and constraint-error maxima, the divergence test, the
 //! regularity monitor's first-order candidate tests and the stop condition's crossing.
 //!
