@@ -268,6 +268,26 @@ pub(crate) fn run_lanes(
         }
         let t_previous = t;
         t = t_end;
+        // Lane l leaves the lanes: its member is handed the state of the step before.
+        macro_rules! hand_back {
+            ($member:expr, $l:expr) => {{
+                let l = $l;
+                active[l] = false;
+                handover(
+                    $member,
+                    &lanes,
+                    l,
+                    k,
+                    t_previous,
+                    &last[l],
+                    &before[l],
+                    &longest[l],
+                    maxima[l],
+                    g_last[l],
+                );
+                outcome[l] = LaneOutcome::Handover { intervals: k - 1 };
+            }};
+        }
         // The checks of `Simulation::accept`, per lane.
         observe_lanes(&mut lanes, &observe_tape, t);
         for l in 0..count {
@@ -283,20 +303,7 @@ pub(crate) fn run_lanes(
                 .chain(&lanes.qdot_one)
                 .all(|c| c.is_finite());
             if !finite {
-                active[l] = false;
-                handover(
-                    member,
-                    &lanes,
-                    l,
-                    k,
-                    t_previous,
-                    &last[l],
-                    &before[l],
-                    &longest[l],
-                    maxima[l],
-                    g_last[l],
-                );
-                outcome[l] = LaneOutcome::Handover { intervals: k - 1 };
+                hand_back!(member, l);
                 continue;
             }
             let width = observe_tape.n_outputs();
@@ -326,20 +333,7 @@ pub(crate) fn run_lanes(
             if diverged
                 || regularity_candidate(&observation, &last[l], &longest[l], n_gradient_rows)
             {
-                active[l] = false;
-                handover(
-                    member,
-                    &lanes,
-                    l,
-                    k,
-                    t_previous,
-                    &last[l],
-                    &before[l],
-                    &longest[l],
-                    maxima[l],
-                    g_last[l],
-                );
-                outcome[l] = LaneOutcome::Handover { intervals: k - 1 };
+                hand_back!(member, l);
                 continue;
             }
             if let Some(watch) = member.watch.as_mut() {
@@ -351,20 +345,7 @@ pub(crate) fn run_lanes(
                     &lanes.qdot_one,
                 );
                 if g_last[l] < 0.0 && g_end >= 0.0 {
-                    active[l] = false;
-                    handover(
-                        member,
-                        &lanes,
-                        l,
-                        k,
-                        t_previous,
-                        &last[l],
-                        &before[l],
-                        &longest[l],
-                        maxima[l],
-                        g_last[l],
-                    );
-                    outcome[l] = LaneOutcome::Handover { intervals: k - 1 };
+                    hand_back!(member, l);
                     continue;
                 }
                 g_last[l] = g_end;
