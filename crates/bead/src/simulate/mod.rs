@@ -1228,6 +1228,11 @@ impl Simulation {
             energy_balance_error_max: self.tracks_work().then_some(m.balance_error_max),
             constraint_error_max: m.constraint_error_max,
             constraint_error_final: m.constraint_error,
+            constraint_distance_max: (self.method() == Method::Implicit)
+                .then_some(m.constraint_distance_max),
+            constraint_distance_final: (self.method() == Method::Implicit)
+                .then_some(m.constraint_distance),
+            length_scale: m.length_scale(),
             x: m.observation.x.clone(),
             xdot: m.observation.xdot.clone(),
             q: observed.q[..self.n].to_vec(),

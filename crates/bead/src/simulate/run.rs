@@ -129,6 +129,14 @@ pub struct RunStats {
     pub energy_balance_error_max: Option<f64>,
     pub constraint_error_max: f64,
     pub constraint_error_final: f64,
+    /// The implicit form: max over the run and at the end of max_i |C_i| / |grad C_i|, how
+    /// far the state is off the constraints in length units (what |C| alone cannot say when
+    /// C is not a distance). `None` for the parametric form, which cannot leave its curve.
+    pub constraint_distance_max: Option<f64>,
+    pub constraint_distance_final: Option<f64>,
+    /// The scene's length scale: the largest initial coordinate magnitude (1 when all are
+    /// 0), to read the distance against.
+    pub length_scale: f64,
     /// Final particle positions and velocities (n_coords each).
     pub x: Vec<f64>,
     pub xdot: Vec<f64>,
