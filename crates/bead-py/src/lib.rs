@@ -787,6 +787,15 @@ fn sweep_error(e: SweepError) -> PyErr {
         }
         SweepError::ZipLengths { .. } => PyValueError::new_err(format!("zip=True: {e}")),
         SweepError::OutOfRange { .. } => PyIndexError::new_err(e.to_string()),
+        SweepError::OtherLayout { ref expected, .. } => PyValueError::new_err(format!(
+            "{e}: a sweep's arrays have the scene's particles and coordinates (positions shaped \
+             grid + (P, D) with P = {}, D = {}; q grid + ({},)); sweep each particle count \
+             on its own, or write one row per member and coordinate with `bead sweep \
+             --format long`",
+            expected.particles.len(),
+            expected.dim,
+            expected.coordinates.len()
+        )),
         SweepError::Plan(e) => plan_error(e),
         other => PyValueError::new_err(other.to_string()),
     }
@@ -845,7 +854,7 @@ impl PySweepPlan {
                     bead::readable(*bad)
                 )));
             }
-            axes.push(Axis { name, values });
+            axes.push(Axis::new(&name, values));
         }
         let asked = Asked {
             method,
@@ -935,8 +944,10 @@ impl PySweepPlan {
 
     /// Run members `start` to `stop` (exclusive) on `threads` threads (0: one per core) with
     /// the GIL released, and return their figures as a dict of flat arrays (one row per
-    /// member, in index order). Raises KeyboardInterrupt on Ctrl-C, between two segments of
-    /// members (each about a quarter of a second of work).
+    /// member, in index order), streamed into the arrays as members finish. Refuses (before
+    /// running) a range whose arrays would pass [`MAX_SWEEP_BYTES`], and (as it arrives) a
+    /// member whose particles or coordinates are not the scene's. Raises KeyboardInterrupt
+    /// on Ctrl-C, between two segments of members (each about a quarter of a second of work).
     #[pyo3(signature = (start, stop, threads = 0))]
     fn run_range<'py>(
         &self,
@@ -945,16 +956,36 @@ impl PySweepPlan {
         stop: usize,
         threads: usize,
     ) -> PyResult<Bound<'py, PyDict>> {
-        if start > stop || stop > self.inner.len() {
+        let sweep = &*self.inner;
+        if start > stop || stop > sweep.len() {
             return Err(sweep_error(SweepError::OutOfRange {
                 start,
                 end: stop,
-                len: self.inner.len(),
+                len: sweep.len(),
             }));
         }
-        let threads = thread_count(threads).min((stop - start).max(1));
+        let count = stop - start;
+        let per_member = Columns::bytes_per_member(sweep);
+        let bytes = (count as u64).saturating_mul(per_member);
+        if bytes > MAX_SWEEP_BYTES {
+            let layout = sweep.layout();
+            return Err(PyValueError::new_err(format!(
+                "{count} members need about {} for their result arrays ({per_member} bytes each: \
+                 {} parameter(s), {} particle(s) in {}D, {} generalized coordinate(s)), more than \
+                 the 8 GiB a sweep returns at once; run it in chunks that fit and keep what you \
+                 need of each: sweep = bead.Sweep(scene, params, ...), then \
+                 sweep.run_range(start, stop) for each (start, stop) in sweep.chunks({})",
+                bead::byte_size(bytes),
+                sweep.axes().len(),
+                layout.particles.len(),
+                layout.dim,
+                layout.coordinates.len(),
+                bytes.div_ceil(MAX_SWEEP_BYTES / 2).max(2)
+            )));
+        }
+        let threads = thread_count(threads).min(count.max(1));
         let clock = Instant::now();
-        let mut members: Vec<Member> = Vec::with_capacity(stop - start);
+        let mut columns = Columns::new(sweep, count);
         // Segments grow while they take under a quarter of a second and shrink past one, so
         // that Ctrl-C is noticed quickly while threads seldom wait for each other at the end
         // of a segment. A member's numbers depend on its index alone, so segments change none.
@@ -963,10 +994,11 @@ impl PySweepPlan {
         while next < stop {
             let end = (next + size).min(stop);
             let segment = Instant::now();
-            let sweep = &self.inner;
-            let done =
-                detached(py, move || sweep.run_range(next..end, threads))?.map_err(sweep_error)?;
-            members.extend(done);
+            let columns = &mut columns;
+            detached(py, move || {
+                sweep.run_each(next..end, threads, |member| columns.push(sweep, member))
+            })?
+            .map_err(sweep_error)?;
             py.check_signals()?;
             let seconds = segment.elapsed().as_secs_f64();
             if seconds < 0.25 {
@@ -976,7 +1008,7 @@ impl PySweepPlan {
             }
             next = end;
         }
-        members_dict(py, &self.inner, self.method, &members, threads, clock)
+        columns.into_dict(py, threads, clock)
     }
 
     fn __repr__(&self) -> String {
@@ -990,95 +1022,173 @@ impl PySweepPlan {
     }
 }
 
-/// The figures of `members` as flat arrays (NaN and 0 where a member has none).
-fn members_dict<'py>(
-    py: Python<'py>,
-    sweep: &Sweep,
-    method: Method,
-    members: &[Member],
-    threads: usize,
-    clock: Instant,
-) -> PyResult<Bound<'py, PyDict>> {
-    let system = &sweep.scene().system;
-    let (n, k, nc) = (members.len(), sweep.axes().len(), system.n_coords());
-    let (p, d) = (system.particles().len(), system.dim());
-    let nq = match (method, system.parametric()) {
-        (Method::Parametric, Some(map)) => map.coordinates().len(),
-        _ => 0,
-    };
-    let mut params = Vec::with_capacity(n * k);
-    let mut status = Vec::with_capacity(n);
-    let mut errors = Vec::with_capacity(n);
-    let (mut t_final, mut stop_time, mut energy, mut constraint) = (
-        Vec::with_capacity(n),
-        Vec::with_capacity(n),
-        Vec::with_capacity(n),
-        Vec::with_capacity(n),
-    );
-    let mut steps: Vec<i64> = Vec::with_capacity(n);
-    let (mut x, mut xdot) = (Vec::with_capacity(n * nc), Vec::with_capacity(n * nc));
-    let (mut q, mut qdot) = (Vec::with_capacity(n * nq), Vec::with_capacity(n * nq));
-    for member in members {
-        params.extend_from_slice(&member.params);
-        status.push(member.status());
-        errors.push(member.error.clone());
+/// The most bytes a sweep's result may take in Python (8 GiB; see
+/// [`Columns::bytes_per_member`]): above, `run_range` refuses and suggests chunks.
+const MAX_SWEEP_BYTES: u64 = 8 << 30;
+
+/// A sweep's figures as flat columns, one row per member (NaN and 0 where a member has none),
+/// filled as members arrive and moved into numpy arrays without a copy.
+struct Columns {
+    /// Parameters swept.
+    k: usize,
+    /// Particle coordinates and generalized coordinates of the scene swept.
+    n_coords: usize,
+    n_q: usize,
+    particles: usize,
+    dim: usize,
+    params: Vec<f64>,
+    /// 0 ok, 1 event, 2 failed (Python turns them into strings).
+    status: Vec<u8>,
+    errors: Vec<Option<String>>,
+    t_final: Vec<f64>,
+    stop_time: Vec<f64>,
+    energy_rel: Vec<f64>,
+    energy_balance: Vec<f64>,
+    constraint: Vec<f64>,
+    steps: Vec<i64>,
+    x: Vec<f64>,
+    xdot: Vec<f64>,
+    q: Vec<f64>,
+    qdot: Vec<f64>,
+}
+
+impl Columns {
+    /// Bytes one member takes at the peak of a sweep in Python: 8 per float64 (the K
+    /// parameters, t_final, stop_time, steps, the three error maxima, 2 x P x D of
+    /// positions and velocities, 2 x Q of q and qdot), its status (1 byte here, 24 as
+    /// numpy's `<U6`) and its error slot (24 here while it is converted, 8 in the list, 8 in
+    /// the object array). An error message itself is not counted.
+    fn bytes_per_member(sweep: &Sweep) -> u64 {
+        let layout = sweep.layout();
+        let floats = sweep.axes().len() + 7 + 2 * (layout.n_coords() + layout.coordinates.len());
+        8 * floats as u64 + 1 + 24 + 24 + 8 + 8
+    }
+
+    /// Empty columns for `count` members of `sweep`, reserved in full.
+    fn new(sweep: &Sweep, count: usize) -> Columns {
+        let layout = sweep.layout();
+        let (k, nc, nq) = (
+            sweep.axes().len(),
+            layout.n_coords(),
+            layout.coordinates.len(),
+        );
+        let floats = || Vec::with_capacity(count);
+        Columns {
+            k,
+            n_coords: nc,
+            n_q: nq,
+            particles: layout.particles.len(),
+            dim: layout.dim,
+            params: Vec::with_capacity(count * k),
+            status: Vec::with_capacity(count),
+            errors: Vec::with_capacity(count),
+            t_final: floats(),
+            stop_time: floats(),
+            energy_rel: floats(),
+            energy_balance: floats(),
+            constraint: floats(),
+            steps: Vec::with_capacity(count),
+            x: Vec::with_capacity(count * nc),
+            xdot: Vec::with_capacity(count * nc),
+            q: Vec::with_capacity(count * nq),
+            qdot: Vec::with_capacity(count * nq),
+        }
+    }
+
+    /// Append `member`'s row; a member whose particles or coordinates are not the scene's
+    /// does not fit the arrays (grid + (P, D)) and is refused.
+    fn push(&mut self, sweep: &Sweep, member: Member) -> Result<(), SweepError> {
+        sweep.check_layout(&member)?;
+        let (nc, nq) = (self.n_coords, self.n_q);
+        self.params.extend_from_slice(&member.params);
+        self.status.push(match member.status() {
+            "ok" => 0,
+            "event" => 1,
+            _ => 2,
+        });
         match &member.stats {
             Some(stats) => {
-                t_final.push(stats.t_final);
-                stop_time.push(stats.stop_time.unwrap_or(f64::NAN));
-                energy.push(stats.conserved_energy_error_max());
-                constraint.push(stats.constraint_error_max);
-                steps.push(i64::try_from(stats.steps).unwrap_or(i64::MAX));
-                x.extend_from_slice(&stats.x);
-                xdot.extend_from_slice(&stats.xdot);
+                self.t_final.push(stats.t_final);
+                self.stop_time.push(stats.stop_time.unwrap_or(f64::NAN));
+                self.energy_rel.push(stats.energy_rel_error_max);
+                self.energy_balance
+                    .push(stats.energy_balance_error_max.unwrap_or(f64::NAN));
+                self.constraint.push(stats.constraint_error_max);
+                self.steps
+                    .push(i64::try_from(stats.steps).unwrap_or(i64::MAX));
+                self.x.extend_from_slice(&stats.x);
+                self.xdot.extend_from_slice(&stats.xdot);
                 if nq > 0 {
-                    q.extend_from_slice(&stats.q);
-                    qdot.extend_from_slice(&stats.qdot);
+                    self.q.extend_from_slice(&stats.q);
+                    self.qdot.extend_from_slice(&stats.qdot);
                 }
             }
             None => {
-                for column in [&mut t_final, &mut stop_time, &mut energy, &mut constraint] {
+                for column in [
+                    &mut self.t_final,
+                    &mut self.stop_time,
+                    &mut self.energy_rel,
+                    &mut self.energy_balance,
+                    &mut self.constraint,
+                ] {
                     column.push(f64::NAN);
                 }
-                steps.push(0);
-                x.resize(x.len() + nc, f64::NAN);
-                xdot.resize(xdot.len() + nc, f64::NAN);
-                q.resize(q.len() + nq, f64::NAN);
-                qdot.resize(qdot.len() + nq, f64::NAN);
+                self.steps.push(0);
+                self.x.resize(self.x.len() + nc, f64::NAN);
+                self.xdot.resize(self.xdot.len() + nc, f64::NAN);
+                self.q.resize(self.q.len() + nq, f64::NAN);
+                self.qdot.resize(self.qdot.len() + nq, f64::NAN);
             }
         }
+        self.errors.push(member.error);
+        Ok(())
     }
-    let shape_error = |e: numpy::ndarray::ShapeError| PyValueError::new_err(e.to_string());
-    let dict = PyDict::new(py);
-    dict.set_item(
-        "params",
-        Array2::from_shape_vec((n, k), params)
-            .map_err(shape_error)?
-            .into_pyarray(py),
-    )?;
-    dict.set_item("status", status)?;
-    dict.set_item("errors", errors)?;
-    dict.set_item("t_final", t_final.into_pyarray(py))?;
-    dict.set_item("stop_time", stop_time.into_pyarray(py))?;
-    dict.set_item("steps", steps.into_pyarray(py))?;
-    dict.set_item("energy_error_max", energy.into_pyarray(py))?;
-    dict.set_item("constraint_error_max", constraint.into_pyarray(py))?;
-    for (key, values) in [("positions", x), ("velocities", xdot)] {
-        let array = Array3::from_shape_vec((n, p, d), values).map_err(shape_error)?;
-        dict.set_item(key, array.into_pyarray(py))?;
-    }
-    if nq > 0 {
-        for (key, values) in [("q", q), ("qdot", qdot)] {
-            let array = Array2::from_shape_vec((n, nq), values).map_err(shape_error)?;
+
+    /// The columns as a dict of numpy arrays (`status` as codes 0 ok, 1 event, 2 failed).
+    fn into_dict<'py>(
+        self,
+        py: Python<'py>,
+        threads: usize,
+        clock: Instant,
+    ) -> PyResult<Bound<'py, PyDict>> {
+        let n = self.status.len();
+        let (k, p, d, nq) = (self.k, self.particles, self.dim, self.n_q);
+        let shape_error = |e: numpy::ndarray::ShapeError| PyValueError::new_err(e.to_string());
+        let dict = PyDict::new(py);
+        dict.set_item(
+            "params",
+            Array2::from_shape_vec((n, k), self.params)
+                .map_err(shape_error)?
+                .into_pyarray(py),
+        )?;
+        dict.set_item("status", self.status.into_pyarray(py))?;
+        dict.set_item("errors", self.errors)?;
+        dict.set_item("t_final", self.t_final.into_pyarray(py))?;
+        dict.set_item("stop_time", self.stop_time.into_pyarray(py))?;
+        dict.set_item("steps", self.steps.into_pyarray(py))?;
+        dict.set_item("energy_rel_error_max", self.energy_rel.into_pyarray(py))?;
+        dict.set_item(
+            "energy_balance_error_max",
+            self.energy_balance.into_pyarray(py),
+        )?;
+        dict.set_item("constraint_error_max", self.constraint.into_pyarray(py))?;
+        for (key, values) in [("positions", self.x), ("velocities", self.xdot)] {
+            let array = Array3::from_shape_vec((n, p, d), values).map_err(shape_error)?;
             dict.set_item(key, array.into_pyarray(py))?;
         }
-    } else {
-        dict.set_item("q", py.None())?;
-        dict.set_item("qdot", py.None())?;
+        if nq > 0 {
+            for (key, values) in [("q", self.q), ("qdot", self.qdot)] {
+                let array = Array2::from_shape_vec((n, nq), values).map_err(shape_error)?;
+                dict.set_item(key, array.into_pyarray(py))?;
+            }
+        } else {
+            dict.set_item("q", py.None())?;
+            dict.set_item("qdot", py.None())?;
+        }
+        dict.set_item("threads", threads)?;
+        dict.set_item("wall_seconds", clock.elapsed().as_secs_f64())?;
+        Ok(dict)
     }
-    dict.set_item("threads", threads)?;
-    dict.set_item("wall_seconds", clock.elapsed().as_secs_f64())?;
-    Ok(dict)
 }
 
 // ---------------------------------------------------------------------------------------

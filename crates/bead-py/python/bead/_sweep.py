@@ -14,6 +14,7 @@ from typing import Any, Dict, Iterable, List, Mapping, Optional, Sequence, Tuple
 import numpy as np
 
 from . import _bead
+from ._errors import RunError
 
 # The run options of `Scene.run` that a sweep takes (all but `every`), with their defaults.
 _OPTIONS: Dict[str, Any] = {
@@ -36,13 +37,22 @@ _FIELDS = (
     "t_final",
     "stop_time",
     "steps",
-    "energy_error_max",
+    "energy_rel_error_max",
+    "energy_balance_error_max",
     "constraint_error_max",
     "positions",
     "velocities",
     "q",
     "qdot",
 )
+
+
+# A member's status by the code the native side gives it.
+_STATUS = np.array(["ok", "event", "failed"], dtype="<U6")
+
+# The columns of `bead sweep`'s CSV before the final state: member, the parameters, then these.
+_FIGURES = ("status", "t_final", "stop_time", "steps", "energy_rel_error_max",
+            "energy_balance_error_max", "constraint_error_max")
 
 
 def _axes(params: Mapping[str, Any]) -> Tuple[List[str], List[np.ndarray]]:
@@ -78,15 +88,18 @@ class SweepResult:
     - ``status`` ``shape`` (str): "ok" (ran to the end), "event" (stopped at its stop_when),
       "failed" (``errors`` says why)
     - ``t_final``, ``stop_time`` (NaN where the event did not fire), ``steps`` (int64),
-      ``energy_error_max`` (the largest relative error of the conserved energy),
-      ``constraint_error_max``: ``shape``
+      ``energy_rel_error_max`` (max of |E - E0| / E_scale, as ``run.summary``),
+      ``energy_balance_error_max`` (max of |E - W - E0| / E_scale where something does
+      work on the system, else NaN), ``constraint_error_max``: ``shape``
     - ``positions``, ``velocities`` ``shape + (P, D)``: the final state
     - ``q``, ``qdot`` ``shape + (K,)`` for the parametric form, else None
     - ``errors`` ``shape`` (object): each member's error message, or None
 
     A member that failed keeps the figures up to its last good state; one that could not
     start has NaN (and 0 steps). ``to_pandas()`` gives one row per member with the columns of
-    ``bead sweep``'s CSV.
+    ``bead sweep``'s CSV. Every member has the scene's particles and coordinates: a sweep
+    whose parameter changes them (a chain's ``N``) raises ValueError naming the first member
+    that differs.
     """
 
     names: List[str]
@@ -98,7 +111,8 @@ class SweepResult:
     t_final: np.ndarray
     stop_time: np.ndarray
     steps: np.ndarray
-    energy_error_max: np.ndarray
+    energy_rel_error_max: np.ndarray
+    energy_balance_error_max: np.ndarray
     constraint_error_max: np.ndarray
     positions: np.ndarray
     velocities: np.ndarray
@@ -144,7 +158,7 @@ class SweepResult:
         self.params = {
             name: flat["params"][:, i].reshape(self.shape) for i, name in enumerate(self.names)
         }
-        self.status = np.asarray(flat["status"], dtype="<U6").reshape(self.shape)
+        self.status = _STATUS[flat["status"]].reshape(self.shape)
         errors = np.empty(len(flat["errors"]), dtype=object)
         errors[:] = flat["errors"]
         self.errors = errors.reshape(self.shape)
@@ -175,14 +189,14 @@ class SweepResult:
         data: Dict[str, np.ndarray] = {"member": np.arange(self.members.start, self.members.stop)}
         for i, name in enumerate(self.names):
             data[name] = flat["params"][:, i]
-        data["status"] = np.asarray(flat["status"], dtype="<U6")
-        for key in ("t_final", "stop_time", "steps", "energy_error_max", "constraint_error_max"):
+        data["status"] = _STATUS[flat["status"]]
+        for key in _FIGURES[1:]:
             data[key] = flat[key]
         parts = [flat["positions"].reshape(n, -1), flat["velocities"].reshape(n, -1)]
         if flat["q"] is not None:
             parts += [flat["q"], flat["qdot"]]
         state = np.hstack(parts) if parts else np.empty((n, 0))
-        first = 2 + len(self.names) + 5
+        first = 1 + len(self.names) + len(_FIGURES)
         for j, column in enumerate(self.columns[first:-1]):
             data[column] = state[:, j]
         errors = np.empty(n, dtype=object)
@@ -192,9 +206,10 @@ class SweepResult:
 
     def to_pandas(self) -> Any:
         """One row per member, with the columns of ``bead sweep``'s CSV: member, the swept
-        parameters, status, t_final, stop_time, steps, energy_error_max,
-        constraint_error_max, each particle's final position and velocity (P.x, P.vx, ...),
-        q.NAME and qdot.NAME for the parametric form, error. Needs pandas."""
+        parameters, status, t_final, stop_time, steps, energy_rel_error_max,
+        energy_balance_error_max, constraint_error_max, each particle's final position and
+        velocity (P.x, P.vx, ...), q.NAME and qdot.NAME for the parametric form, error. Needs
+        pandas."""
         try:
             import pandas
         except ImportError as e:
@@ -339,20 +354,33 @@ class Sweep:
     def run_range(self, start: int, stop: int, threads: int = 0) -> SweepResult:
         """Run members `start` .. `stop` - 1 on `threads` threads (0: one per core) with the
         GIL released; a result of shape (stop - start,), to `assemble` with the others.
-        Ctrl-C raises KeyboardInterrupt within about a second."""
-        flat = self._plan.run_range(int(start), int(stop), int(threads))
-        return self._result(flat, range(int(start), int(stop)), (int(stop) - int(start),))
+        Members that all fail are returned, not raised (a chunk is judged when assembled).
+        Ctrl-C raises KeyboardInterrupt within about a second.
+
+        Raises IndexError for a range that is not inside ``0 .. len(self)``, and ValueError
+        when the result would take more than 8 GiB (the message says how much; run smaller
+        chunks) or a member's particles are not the scene's (see `SweepResult`)."""
+        start, stop, threads = _index("start", start), _index("stop", stop), _index(
+            "threads", threads)
+        if not start <= stop <= len(self):
+            raise IndexError(
+                f"run_range(start={start}, stop={stop}): a range of members within 0 .. "
+                f"{len(self)} is needed (start <= stop)")
+        flat = self._plan.run_range(start, stop, threads)
+        return self._result(flat, range(start, stop), (stop - start,))
 
     def run(self, threads: int = 0) -> SweepResult:
         """Run every member on `threads` threads (0: one per core); arrays shaped like the
-        grid."""
-        flat = self._plan.run_range(0, len(self), int(threads))
-        return self._result(flat, range(len(self)), self.shape)
+        grid. Raises `bead.RunError` when every member failed (its ``result`` holds the
+        `SweepResult`, its message the first member's error)."""
+        flat = self._plan.run_range(0, len(self), _index("threads", threads))
+        return _unless_all_failed(self._result(flat, range(len(self)), self.shape))
 
     def assemble(self, chunks: Iterable[SweepResult]) -> SweepResult:
         """The whole sweep's result from chunks (`run_range` results, in any order) that
         cover every member once; arrays shaped like the grid. ``wall_seconds`` is the sum of
-        the chunks' and ``threads`` the most any chunk used."""
+        the chunks' and ``threads`` the most any chunk used. Raises `bead.RunError`, as
+        `run` does, when every member failed."""
         parts = sorted(chunks, key=lambda c: c.members.start)
         at = 0
         for part in parts:
@@ -369,14 +397,13 @@ class Sweep:
             raise ValueError(f"assemble: the chunks end at member {at} of {len(self)}")
         flats = [p._flat for p in parts]
         flat: Dict[str, Any] = {}
-        for key in ("params",) + _FIELDS:
+        for key in ("params", "status") + _FIELDS:
             arrays = [f[key] for f in flats]
             flat[key] = None if arrays[0] is None else np.concatenate(arrays)
-        flat["status"] = [s for f in flats for s in f["status"]]
         flat["errors"] = [e for f in flats for e in f["errors"]]
         flat["threads"] = max(int(f["threads"]) for f in flats)
         flat["wall_seconds"] = sum(float(f["wall_seconds"]) for f in flats)
-        return self._result(flat, range(len(self)), self.shape)
+        return _unless_all_failed(self._result(flat, range(len(self)), self.shape))
 
     def __repr__(self) -> str:
         joined = " zip " if self._zip else " x "
@@ -386,6 +413,32 @@ class Sweep:
             f"<bead.Sweep {self._scene.title!r}: {grid} = {len(self)} members, "
             f"{self.method}{', ' + options if options else ''}>"
         )
+
+
+def _index(name: str, value: Any) -> int:
+    """`value` as a whole number >= 0, or a TypeError/ValueError naming the argument."""
+    try:
+        number = int(value)
+    except (TypeError, ValueError):
+        raise TypeError(f"{name}={value!r}: a whole number is needed") from None
+    if number != value or number < 0:
+        raise ValueError(f"{name}={value!r}: a whole number >= 0 is needed")
+    return number
+
+
+def _unless_all_failed(result: SweepResult) -> SweepResult:
+    """`result`, or `bead.RunError` (with ``result`` attached) when every member failed."""
+    failed = result.status == "failed"
+    if len(result) == 0 or not failed.all():
+        return result
+    first = int(np.flatnonzero(failed.ravel())[0])
+    values = ", ".join(f"{n} = {float(result.params[n].ravel()[first])!r}" for n in result.names)
+    message = result.errors.ravel()[first] or "it could not start"
+    error = RunError(
+        f"every member of the sweep failed ({len(result)} of {len(result)}); the first, "
+        f"member {result.members.start + first} ({values}): {message}")
+    error.result = result  # type: ignore[attr-defined]
+    raise error
 
 
 def sweep(
@@ -419,7 +472,9 @@ def sweep(
     integrator, dt, duration or steps, stabilize, rtol, atol, project, substeps,
     max_substeps and stop_when are those of `Scene.run` (the scene's ``[run]`` table
     supplies what is not given). A member that fails is reported (status "failed", its
-    message in ``errors``), not raised.
+    message in ``errors``), not raised; but when every member fails (the whole sweep, not a
+    chunk given by ``members=``) `bead.RunError` is raised, with the first member's error as
+    its message and the `SweepResult` as its ``result``.
 
     The members run on ``threads`` threads (0: one per core) with the GIL released; the
     numbers do not depend on the thread count. Ctrl-C raises KeyboardInterrupt within about
@@ -427,8 +482,11 @@ def sweep(
     grid) and returns a result of shape (b - a,): see `bead.Sweep` to cut a sweep into
     chunks for other processes or machines and join them.
 
-    Raises ValueError for an unknown parameter name, values that are not finite, or a bad
-    option.
+    Raises ValueError for an unknown parameter name, values that are not finite, a bad
+    option, more than 2^32 members, a result that would take more than 8 GiB (the message
+    says how much; run it in chunks with `bead.Sweep.run_range`), or a member whose particles
+    are not the scene's (a swept ``N`` that sets their number: the arrays are shaped grid +
+    (P, D) with the scene's P; the message names the member).
     """
     options = {
         "method": method,
