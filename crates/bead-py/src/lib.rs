@@ -1162,9 +1162,22 @@ impl PySimulation {
     }
 
     /// Advance to exactly time `t` (not before the current time): steps of dt and, when `t`
-    /// is not on the grid of steps, one shorter step to land on it.
+    /// is not on the grid of steps, one shorter step to land on it. Ctrl-C stops it within a
+    /// fraction of a second at the end of a step (KeyboardInterrupt); the simulation holds
+    /// that state and can go on.
     fn advance_to(&self, py: Python<'_>, t: f64) -> PyResult<()> {
-        self.advance(py, |simulation| simulation.advance_to(t))
+        let mut watch = Interrupt::new(py)?;
+        let checking = &mut watch;
+        let stepped = self.advance(py, move |simulation| {
+            match simulation.advance_to_with(t, &mut || checking.check()) {
+                Err(RunError::Interrupted { .. }) => Ok(()),
+                other => other,
+            }
+        });
+        match watch.error {
+            Some(interrupt) => Err(interrupt),
+            None => stepped,
+        }
     }
 
     /// Back to the scene's initial state.
