@@ -22,7 +22,9 @@ use numpy::ndarray::{Array2, Array3};
 use numpy::{IntoPyArray, PyArray1, PyReadonlyArray1};
 use pyo3::exceptions::{PyIndexError, PyTypeError, PyValueError};
 use pyo3::prelude::*;
-use pyo3::types::PyDict;
+use pyo3::types::{PyDict, PyString};
+
+mod args;
 
 /// Most values a run may record (8 bytes each) before it is refused: 2^30 values are 8 GiB.
 const MAX_RECORDED_VALUES: f64 = 1_073_741_824.0;
@@ -98,9 +100,7 @@ fn overrides(params: Option<&Bound<'_, PyAny>>) -> PyResult<Vec<(String, f64)>> 
         let name: String = name.extract().map_err(|_| {
             PyTypeError::new_err(format!("params: the name {name} is not a string"))
         })?;
-        let number: f64 = value.extract().map_err(|_| {
-            PyTypeError::new_err(format!("params[{name:?}]: {value} is not a number"))
-        })?;
+        let number = args::real_value(&format!("params[{name:?}]"), &value, "a finite number")?;
         if !number.is_finite() {
             return Err(PyValueError::new_err(format!(
                 "params[{name:?}]: {} is not a finite number",
@@ -134,24 +134,25 @@ impl PyScene {
 /// The run options of `Scene.run`, `Scene.simulation` (without the run's length) and
 /// `bead.sweep` (without `every`), as Python passed them: one conversion for all three.
 #[derive(Default)]
-struct Asked<'a> {
+struct Asked<'a, 'py> {
     method: Option<&'a str>,
     integrator: Option<&'a str>,
-    dt: Option<f64>,
-    duration: Option<f64>,
-    steps: Option<i64>,
-    every: Option<i64>,
-    stabilize: Option<(f64, f64)>,
-    rtol: Option<f64>,
-    atol: Option<f64>,
+    dt: Option<&'a Bound<'py, PyAny>>,
+    duration: Option<&'a Bound<'py, PyAny>>,
+    steps: Option<&'a Bound<'py, PyAny>>,
+    every: Option<&'a Bound<'py, PyAny>>,
+    stabilize: Option<&'a Bound<'py, PyAny>>,
+    rtol: Option<&'a Bound<'py, PyAny>>,
+    atol: Option<&'a Bound<'py, PyAny>>,
     project: bool,
-    substeps: Option<i64>,
-    max_substeps: Option<i64>,
+    substeps: Option<&'a Bound<'py, PyAny>>,
+    max_substeps: Option<&'a Bound<'py, PyAny>>,
 }
 
-impl Asked<'_> {
-    /// The plan request, with names and counts checked (the values are checked by
-    /// [`Plan::resolve`]).
+impl Asked<'_, '_> {
+    /// The plan request, every value converted with errors that name the argument and its
+    /// range ([`args`]); the plan checks the ranges of the real numbers ([`Plan::resolve`]),
+    /// in the same words.
     fn request(&self) -> PyResult<PlanRequest> {
         let method = self
             .method
@@ -161,36 +162,48 @@ impl Asked<'_> {
             .integrator
             .map(|i| i.parse::<IntegratorKind>().map_err(PyValueError::new_err))
             .transpose()?;
+        let positive = "a finite number > 0";
+        let substeps = |name, value| {
+            args::integer(name, value, 1, u32::MAX.into(), "").map(|n| n.map(|n| n as u32))
+        };
         Ok(PlanRequest {
             method,
             integrator,
-            dt: self.dt,
-            duration: self.duration,
-            steps: count("steps", self.steps)?,
-            every: count("every", self.every)?,
-            stabilize: self.stabilize.map(|(ks, kd)| Feedback { ks, kd }),
-            rtol: self.rtol,
-            atol: self.atol,
+            dt: args::real("dt", self.dt, positive)?,
+            duration: args::real("duration", self.duration, positive)?,
+            steps: args::integer("steps", self.steps, 1, args::MAX_STEPS, "")?,
+            every: args::integer("every", self.every, 1, args::MAX_STEPS, "")?,
+            stabilize: stabilize(self.stabilize)?,
+            rtol: args::real("rtol", self.rtol, positive)?,
+            atol: args::real("atol", self.atol, "a finite number >= 0")?,
             project: self.project,
-            substeps: count("substeps", self.substeps)?.map(saturate_u32),
-            max_substeps: count("max_substeps", self.max_substeps)?.map(saturate_u32),
+            substeps: substeps("substeps", self.substeps)?,
+            max_substeps: substeps("max_substeps", self.max_substeps)?,
         })
     }
 }
 
-/// A count from Python: None, or an integer the plan checks (a negative one is refused here,
-/// since the plan's counts are unsigned).
-fn count(name: &str, value: Option<i64>) -> PyResult<Option<u64>> {
-    match value {
-        Some(v) if v < 0 => Err(PyValueError::new_err(format!(
-            "{name}={v}: must be at least 1"
-        ))),
-        other => Ok(other.map(|v| v as u64)),
-    }
-}
-
-fn saturate_u32(v: u64) -> u32 {
-    u32::try_from(v).unwrap_or(u32::MAX)
+/// `stabilize=(ks, kd)`: two real numbers (their range is checked by the plan).
+fn stabilize(value: Option<&Bound<'_, PyAny>>) -> PyResult<Option<Feedback>> {
+    let Some(value) = value.filter(|v| !v.is_none()) else {
+        return Ok(None);
+    };
+    let accepts = "two finite numbers >= 0, (ks, kd)";
+    let pair: Option<(Bound<'_, PyAny>, Bound<'_, PyAny>)> = if value.is_instance_of::<PyString>() {
+        None
+    } else {
+        value.extract().ok()
+    };
+    let Some((ks, kd)) = pair else {
+        return Err(PyTypeError::new_err(format!(
+            "stabilize={}: must be {accepts}",
+            args::shown(value)
+        )));
+    };
+    Ok(Some(Feedback {
+        ks: args::real_value("stabilize[0] (ks)", &ks, "a finite number >= 0")?,
+        kd: args::real_value("stabilize[1] (kd)", &kd, "a finite number >= 0")?,
+    }))
 }
 
 /// The plan for `request`, warning when the scene's feedback is dropped for a parametric run
@@ -356,16 +369,16 @@ impl PyScene {
         py: Python<'_>,
         method: Option<&str>,
         integrator: Option<&str>,
-        dt: Option<f64>,
-        duration: Option<f64>,
-        steps: Option<i64>,
-        every: Option<i64>,
-        stabilize: Option<(f64, f64)>,
-        rtol: Option<f64>,
-        atol: Option<f64>,
+        dt: Option<&Bound<'_, PyAny>>,
+        duration: Option<&Bound<'_, PyAny>>,
+        steps: Option<&Bound<'_, PyAny>>,
+        every: Option<&Bound<'_, PyAny>>,
+        stabilize: Option<&Bound<'_, PyAny>>,
+        rtol: Option<&Bound<'_, PyAny>>,
+        atol: Option<&Bound<'_, PyAny>>,
         project: bool,
-        substeps: Option<i64>,
-        max_substeps: Option<i64>,
+        substeps: Option<&Bound<'_, PyAny>>,
+        max_substeps: Option<&Bound<'_, PyAny>>,
         stop_when: Option<&str>,
     ) -> PyResult<Py<PyAny>> {
         let asked = Asked {
@@ -397,13 +410,13 @@ impl PyScene {
         py: Python<'_>,
         method: Option<&str>,
         integrator: Option<&str>,
-        dt: Option<f64>,
-        stabilize: Option<(f64, f64)>,
-        rtol: Option<f64>,
-        atol: Option<f64>,
+        dt: Option<&Bound<'_, PyAny>>,
+        stabilize: Option<&Bound<'_, PyAny>>,
+        rtol: Option<&Bound<'_, PyAny>>,
+        atol: Option<&Bound<'_, PyAny>>,
         project: bool,
-        substeps: Option<i64>,
-        max_substeps: Option<i64>,
+        substeps: Option<&Bound<'_, PyAny>>,
+        max_substeps: Option<&Bound<'_, PyAny>>,
         stop_when: Option<&str>,
     ) -> PyResult<PySimulation> {
         let asked = Asked {
@@ -792,6 +805,18 @@ fn sweep_error(e: SweepError) -> PyErr {
     }
 }
 
+/// `threads=`: 0 or None (one per core) to [`args::MAX_THREADS`].
+fn threads_arg(threads: Option<&Bound<'_, PyAny>>) -> PyResult<usize> {
+    let n = args::integer(
+        "threads",
+        threads,
+        0,
+        args::MAX_THREADS,
+        " (0: one per core)",
+    )?;
+    Ok(n.unwrap_or(0) as usize)
+}
+
 /// Threads to use: `threads`, or one per core for 0.
 fn thread_count(threads: usize) -> usize {
     match threads {
@@ -817,15 +842,15 @@ impl PySweepPlan {
         zip: bool,
         method: Option<&str>,
         integrator: Option<&str>,
-        dt: Option<f64>,
-        duration: Option<f64>,
-        steps: Option<i64>,
-        stabilize: Option<(f64, f64)>,
-        rtol: Option<f64>,
-        atol: Option<f64>,
+        dt: Option<&Bound<'_, PyAny>>,
+        duration: Option<&Bound<'_, PyAny>>,
+        steps: Option<&Bound<'_, PyAny>>,
+        stabilize: Option<&Bound<'_, PyAny>>,
+        rtol: Option<&Bound<'_, PyAny>>,
+        atol: Option<&Bound<'_, PyAny>>,
         project: bool,
-        substeps: Option<i64>,
-        max_substeps: Option<i64>,
+        substeps: Option<&Bound<'_, PyAny>>,
+        max_substeps: Option<&Bound<'_, PyAny>>,
         stop_when: Option<&str>,
     ) -> PyResult<PySweepPlan> {
         let scene = &scene.get().inner;
@@ -937,14 +962,18 @@ impl PySweepPlan {
     /// the GIL released, and return their figures as a dict of flat arrays (one row per
     /// member, in index order). Raises KeyboardInterrupt on Ctrl-C, between two segments of
     /// members (each about a quarter of a second of work).
-    #[pyo3(signature = (start, stop, threads = 0))]
+    #[pyo3(signature = (start, stop, threads = None), text_signature = "($self, start, stop, threads=0)")]
     fn run_range<'py>(
         &self,
         py: Python<'py>,
-        start: usize,
-        stop: usize,
-        threads: usize,
+        start: &Bound<'py, PyAny>,
+        stop: &Bound<'py, PyAny>,
+        threads: Option<&Bound<'py, PyAny>>,
     ) -> PyResult<Bound<'py, PyDict>> {
+        let len = self.inner.len() as u64;
+        let start = args::integer_value("start", start, 0, len, "")? as usize;
+        let stop = args::integer_value("stop", stop, 0, len, "")? as usize;
+        let threads = threads_arg(threads)?;
         if start > stop || stop > self.inner.len() {
             return Err(sweep_error(SweepError::OutOfRange {
                 start,
@@ -1139,13 +1168,9 @@ impl PySimulation {
 impl PySimulation {
     /// Take `count` steps (default 1): dt each for fixed-step integrators, one accepted step
     /// of its own size each for dopri5. Raises `bead.RunError` when a step fails.
-    #[pyo3(signature = (count = 1))]
-    fn step(&self, py: Python<'_>, count: i64) -> PyResult<()> {
-        if count < 0 {
-            return Err(PyValueError::new_err(format!(
-                "step(count={count}): count must be >= 0"
-            )));
-        }
+    #[pyo3(signature = (count = None), text_signature = "($self, count=1)")]
+    fn step(&self, py: Python<'_>, count: Option<&Bound<'_, PyAny>>) -> PyResult<()> {
+        let count = args::integer("count", count, 0, u64::MAX, "")?.unwrap_or(1);
         // Ctrl-C stops a long call between two steps, at a good state.
         let mut watch = Interrupt::new(py)?;
         let checking = &mut watch;
@@ -1165,7 +1190,8 @@ impl PySimulation {
     /// is not on the grid of steps, one shorter step to land on it. Ctrl-C stops it within a
     /// fraction of a second at the end of a step (KeyboardInterrupt); the simulation holds
     /// that state and can go on.
-    fn advance_to(&self, py: Python<'_>, t: f64) -> PyResult<()> {
+    fn advance_to(&self, py: Python<'_>, t: &Bound<'_, PyAny>) -> PyResult<()> {
+        let t = args::real_value("t", t, "a finite time (s) >= the current time")?;
         let mut watch = Interrupt::new(py)?;
         let checking = &mut watch;
         let stepped = self.advance(py, move |simulation| {

@@ -9,6 +9,8 @@ swept and the run options).
 from __future__ import annotations
 
 import csv
+import json
+import operator
 from typing import Any, Dict, Iterable, List, Mapping, Optional, Sequence, Tuple, Union
 
 import numpy as np
@@ -45,6 +47,27 @@ _FIELDS = (
 )
 
 
+def _quoted(name: str) -> str:
+    """`name` in double quotes, as the native side's messages write it: params["g"]."""
+    return json.dumps(name, ensure_ascii=False)
+
+
+def _integer(name: str, value: Any, low: int) -> int:
+    """`value` as an int >= `low` (any integer type, not a bool or a float), or an error
+    naming `name` and the range."""
+    if isinstance(value, bool):
+        raise TypeError(f"{name}={value!r}: must be an integer >= {low}, not a bool")
+    try:
+        n = operator.index(value)
+    except TypeError:
+        raise TypeError(
+            f"{name}={value!r}: must be an integer >= {low}, not a {type(value).__name__}"
+        ) from None
+    if n < low:
+        raise ValueError(f"{name}={n}: must be an integer >= {low}")
+    return n
+
+
 def _axes(params: Mapping[str, Any]) -> Tuple[List[str], List[np.ndarray]]:
     """Names and float64 value arrays (1-D, C-contiguous) of `params`."""
     if not hasattr(params, "items"):
@@ -55,11 +78,16 @@ def _axes(params: Mapping[str, Any]) -> Tuple[List[str], List[np.ndarray]]:
             raise TypeError(f"params: the name {name!r} is not a string")
         try:
             array = np.asarray(value, dtype=np.float64)
+        except OverflowError:
+            raise ValueError(
+                f"params[{_quoted(name)}]: a value is beyond the range of a float (about 1.8e308); "
+                "the values must be finite numbers"
+            ) from None
         except (TypeError, ValueError) as e:
-            raise TypeError(f"params[{name!r}]: not an array of numbers ({e})") from None
+            raise TypeError(f"params[{_quoted(name)}]: not an array of numbers ({e})") from None
         if array.ndim > 1:
             raise ValueError(
-                f"params[{name!r}]: a 1-D array of values is needed, got shape {array.shape} "
+                f"params[{_quoted(name)}]: a 1-D array of values is needed, got shape {array.shape} "
                 "(several parameters make the grid themselves: give each its own values)"
             )
         names.append(name)
@@ -313,8 +341,7 @@ class Sweep:
 
     def chunks(self, count: int) -> List[Tuple[int, int]]:
         """`count` ranges (start, stop) of about equal size covering the members in order."""
-        if count < 1:
-            raise ValueError(f"chunks(count={count}): count must be >= 1")
+        count = _integer("count", count, 1)
         n = len(self)
         count = min(count, n)
         bounds = [n * i // count for i in range(count + 1)]
@@ -340,13 +367,15 @@ class Sweep:
         """Run members `start` .. `stop` - 1 on `threads` threads (0: one per core) with the
         GIL released; a result of shape (stop - start,), to `assemble` with the others.
         Ctrl-C raises KeyboardInterrupt within about a second."""
-        flat = self._plan.run_range(int(start), int(stop), int(threads))
-        return self._result(flat, range(int(start), int(stop)), (int(stop) - int(start),))
+        flat = self._plan.run_range(start, stop, threads)
+        # The native side accepted them as integers in range.
+        start, stop = operator.index(start), operator.index(stop)
+        return self._result(flat, range(start, stop), (stop - start,))
 
     def run(self, threads: int = 0) -> SweepResult:
         """Run every member on `threads` threads (0: one per core); arrays shaped like the
         grid."""
-        flat = self._plan.run_range(0, len(self), int(threads))
+        flat = self._plan.run_range(0, len(self), threads)
         return self._result(flat, range(len(self)), self.shape)
 
     def assemble(self, chunks: Iterable[SweepResult]) -> SweepResult:
@@ -447,7 +476,16 @@ def sweep(
     plan = Sweep(scene, params, zip=zip, **options)
     if members is None:
         return plan.run(threads)
-    picked = members if isinstance(members, range) else range(*members)
-    if picked.step != 1:
-        raise ValueError("members: a range of consecutive members (step 1) is needed")
+    try:
+        picked = members if isinstance(members, range) else range(*members)
+    except TypeError:
+        raise TypeError(
+            f"members={members!r}: must be a range of member indices (or (start, stop))"
+        ) from None
+    n = len(plan)
+    if picked.step != 1 or not 0 <= picked.start <= picked.stop <= n:
+        raise ValueError(
+            f"members={members!r}: must be a range of consecutive members (step 1) within "
+            f"range(0, {n})"
+        )
     return plan.run_range(picked.start, picked.stop, threads)
