@@ -20,7 +20,7 @@ use bead::simulate::{
 use bead::sweep::{Axis, Combine, Member, Sweep, SweepError};
 use numpy::ndarray::{Array2, Array3};
 use numpy::{IntoPyArray, PyArray1, PyReadonlyArray1};
-use pyo3::exceptions::{PyIndexError, PyTypeError, PyValueError};
+use pyo3::exceptions::{PyIndexError, PyTypeError, PyUserWarning, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyString};
 
@@ -34,6 +34,7 @@ const MAX_RECORDED_VALUES: f64 = 1_073_741_824.0;
 fn _bead(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(load, m)?)?;
     m.add_function(wrap_pyfunction!(loads, m)?)?;
+    m.add_function(wrap_pyfunction!(_unpickle, m)?)?;
     m.add_class::<PyScene>()?;
     m.add_class::<PySimulation>()?;
     m.add_class::<PySweepPlan>()?;
@@ -66,6 +67,7 @@ fn load(py: Python<'_>, path: PathBuf, params: Option<&Bound<'_, PyAny>>) -> PyR
     let scene = py
         .detach(|| Scene::load(&path, &overrides))
         .map_err(|e| scene_error(py, &e))?;
+    warn_scene(py, &scene)?;
     Ok(PyScene::new(scene))
 }
 
@@ -83,7 +85,60 @@ fn loads(
 ) -> PyResult<PyScene> {
     let overrides = overrides(params)?;
     let scene = Scene::parse(text, name, &overrides).map_err(|e| scene_error(py, &e))?;
+    warn_scene(py, &scene)?;
     Ok(PyScene::new(scene))
+}
+
+/// A pickled `Scene` loaded again (`Scene.__reduce__`): as `loads`, without raising the
+/// scene's warnings again, which were raised where it was first loaded.
+#[pyfunction]
+fn _unpickle(
+    py: Python<'_>,
+    text: &str,
+    params: &Bound<'_, PyAny>,
+    name: &str,
+) -> PyResult<PyScene> {
+    let overrides = overrides(Some(params))?;
+    let scene = Scene::parse(text, name, &overrides).map_err(|e| scene_error(py, &e))?;
+    Ok(PyScene::new(scene))
+}
+
+/// Raise each of the scene's warnings (a start off a constraint, a parametric form that
+/// starts elsewhere) as a `UserWarning` located at the scene file and line it is about, as
+/// Python shows a warning of its own code. The warnings registry is the calling module's,
+/// as for `warnings.warn`: under the default filter a warning is shown once per caller.
+fn warn_scene(py: Python<'_>, scene: &Scene) -> PyResult<()> {
+    let warnings = scene.located_warnings();
+    if warnings.is_empty() {
+        return Ok(());
+    }
+    let module = py.import("warnings")?;
+    let category = py.get_type::<PyUserWarning>();
+    // The frame that called this native function (a native call adds no frame); none when
+    // called from outside any Python code.
+    let registry = py
+        .import("sys")?
+        .call_method1("_getframe", (0,))
+        .and_then(|frame| frame.getattr("f_globals"))
+        .and_then(|globals| {
+            globals.call_method1("setdefault", ("__warningregistry__", PyDict::new(py)))
+        })
+        .ok();
+    for warning in warnings {
+        let kwargs = PyDict::new(py);
+        kwargs.set_item("registry", &registry)?;
+        module.call_method(
+            "warn_explicit",
+            (
+                warning.message,
+                &category,
+                &scene.file,
+                warning.line.unwrap_or(1),
+            ),
+            Some(&kwargs),
+        )?;
+    }
+    Ok(())
 }
 
 /// `params` as (name, value) pairs: any mapping of names to real numbers.
@@ -322,7 +377,8 @@ impl PyScene {
     }
 
     /// Warnings about the scene (e.g. a parametric form that does not start where the
-    /// particles do), as `bead check` prints them.
+    /// particles do), as `bead check` prints them. Loading the scene raised each as a
+    /// `UserWarning` at the scene file and line it is about; `repr(scene)` shows them.
     #[getter]
     fn warnings(&self) -> Vec<String> {
         self.inner.warnings()
@@ -344,6 +400,7 @@ impl PyScene {
         }
         let scene = Scene::parse(self.inner.text(), &self.inner.file, &all)
             .map_err(|e| scene_error(py, &e))?;
+        warn_scene(py, &scene)?;
         Ok(PyScene::new(scene))
     }
 
@@ -448,10 +505,11 @@ impl PyScene {
         })
     }
 
-    /// Pickled as its text, file name and parameter overrides (loaded again with
-    /// `bead.loads`), so that a scene can be sent to another process or machine.
+    /// Pickled as its text, file name and parameter overrides (loaded again as
+    /// `bead.loads` does, without raising its warnings again), so that a scene can be sent to
+    /// another process or machine.
     fn __reduce__<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
-        let loads = py.import("bead._bead")?.getattr("loads")?;
+        let loads = py.import("bead._bead")?.getattr("_unpickle")?;
         let params = PyDict::new(py);
         for (name, value) in self.inner.overrides() {
             params.set_item(name, value)?;
@@ -461,10 +519,33 @@ impl PyScene {
             .map(|t| t.into_any())
     }
 
+    /// The title, the file, the counts, the methods and the warnings (the first three, with
+    /// their lines).
     fn __repr__(&self) -> String {
         let scene = &self.inner;
+        let warnings = scene.located_warnings();
+        let mut shown: Vec<String> = warnings
+            .iter()
+            .take(3)
+            .map(|w| match w.line {
+                Some(line) => format!("line {line}: {}", w.message),
+                None => w.message.clone(),
+            })
+            .collect();
+        if warnings.len() > 3 {
+            shown.push(format!("{} more in .warnings", warnings.len() - 3));
+        }
+        let warned = if warnings.is_empty() {
+            String::new()
+        } else {
+            format!(
+                "; {}: {}",
+                counted(warnings.len(), "warning"),
+                shown.join("; ")
+            )
+        };
         format!(
-            "<bead.Scene {:?} from {:?}: {} in {}D, {}, methods {}>",
+            "<bead.Scene {:?} from {:?}: {} in {}D, {}, methods {}{warned}>",
             scene.title,
             scene.file,
             counted(scene.system.particles().len(), "particle"),
