@@ -26,8 +26,8 @@ use pyo3::types::{PyDict, PyString};
 
 mod args;
 
-/// Most values a run may record (8 bytes each) before it is refused: 2^30 values are 8 GiB.
-const MAX_RECORDED_VALUES: f64 = 1_073_741_824.0;
+/// Most bytes of arrays a run may record before it is refused: 8 GiB.
+const MAX_RECORDED_BYTES: u64 = 8 << 30;
 
 /// The native module `bead._bead`; the package `bead` re-exports what users need.
 #[pymodule]
@@ -581,6 +581,75 @@ struct Recorder {
     work: Vec<f64>,
 }
 
+/// The numbers in one recorded row: t, energy, constraint_error and work, the particles'
+/// positions and velocities (`coordinates` each), q and qdot (`k` each).
+#[derive(Clone, Copy)]
+struct RowWidth {
+    coordinates: usize,
+    k: usize,
+}
+
+impl RowWidth {
+    fn values(self) -> u64 {
+        4 + 2 * self.coordinates as u64 + 2 * self.k as u64
+    }
+}
+
+/// The most rows `plan` can record: the first state, every `every`-th, the last (or the
+/// last good one); refused with what it would take and how to take less when their arrays
+/// would pass [`MAX_RECORDED_BYTES`]. The arrays are the whole of the memory a run's
+/// recording takes at its peak: the recorder's vectors become the numpy arrays without a
+/// copy ([`build_run`]).
+fn record_guard(plan: &Plan, width: RowWidth) -> PyResult<u64> {
+    let rows = plan.steps / plan.every + 2;
+    let per_row = width.values();
+    let bytes = (rows as f64) * (per_row as f64) * 8.0;
+    if bytes <= MAX_RECORDED_BYTES as f64 {
+        return Ok(rows);
+    }
+    // The smallest every=K whose rows fit, when one does: steps / K + 2 rows fit when
+    // steps / K <= n, i.e. K > steps / (n + 1).
+    let fitting_rows = MAX_RECORDED_BYTES / 8 / per_row;
+    let every = match fitting_rows.checked_sub(2) {
+        None => String::new(),
+        Some(n) => format!(" (every={} or more fits)", plan.steps / (n + 1) + 1),
+    };
+    Err(PyValueError::new_err(format!(
+        "this run would record {rows} states of {per_row} numbers, {} bytes ({} GB) of arrays, \
+         more than the {MAX_RECORDED_BYTES} bytes (8 GiB) a run may record; record every K-th \
+         state with every=K{every}, or run a shorter duration (fewer steps)",
+        bead::readable(bytes),
+        bead::significant(bytes * 1e-9, 3)
+    )))
+}
+
+impl Recorder {
+    /// A recorder with room for `rows` rows reserved up front, so that no vector is moved
+    /// while it grows: the peak is then the arrays themselves. When the system will not
+    /// reserve that much at once (a run may stop long before its end), they grow as needed.
+    fn with_room(rows: u64, width: RowWidth, work: bool) -> Recorder {
+        let rows = usize::try_from(rows).unwrap_or(usize::MAX);
+        let room = |per_row: usize| {
+            let mut v = Vec::new();
+            let wanted = rows.saturating_mul(per_row);
+            if v.try_reserve_exact(wanted).is_err() {
+                v.reserve(wanted.min(1 << 16));
+            }
+            v
+        };
+        Recorder {
+            t: room(1),
+            x: room(width.coordinates),
+            xdot: room(width.coordinates),
+            energy: room(1),
+            constraint_error: room(1),
+            q: room(width.k),
+            qdot: room(width.k),
+            work: if work { room(1) } else { Vec::new() },
+        }
+    }
+}
+
 impl Sink for Recorder {
     fn record(&mut self, sample: &Sample) -> std::io::Result<()> {
         self.t.push(sample.t);
@@ -710,21 +779,13 @@ fn run_plan(
     event: Option<Event>,
 ) -> PyResult<Py<PyAny>> {
     let system = &scene.system;
-    let rows = (plan.steps / plan.every) as f64 + 2.0;
-    let per_row = (2 * system.n_coords() + 3) as f64
-        + 2.0
-            * system
-                .parametric()
-                .map_or(0, |m| m.n_q())
-                .max(system.n_coords()) as f64;
-    if rows * per_row > MAX_RECORDED_VALUES {
-        return Err(PyValueError::new_err(format!(
-            "this run would record {} states of {} values ({} GB); record fewer with every=K",
-            bead::readable(rows),
-            per_row,
-            bead::significant(rows * per_row * 8e-9, 3)
-        )));
-    }
+    let coordinates = system.n_coords();
+    let k = match plan.method {
+        Method::Parametric => system.parametric().map_or(0, |m| m.n_q()),
+        Method::Implicit => coordinates,
+    };
+    let width = RowWidth { coordinates, k };
+    let rows = record_guard(plan, width)?;
     let config = plan.config(plan.method);
     let options = plan.options();
     let shared = Arc::clone(scene);
@@ -735,9 +796,7 @@ fn run_plan(
         simulation.set_stop_when(event).map_err(StartError::Event)?;
         let coordinates = simulation.formulation().coordinate_names().to_vec();
         let tracks_work = simulation.tracks_work();
-        let mut recorder = Recorder::default();
-        let rows = (rows as usize).min(1 << 16);
-        recorder.t.reserve(rows);
+        let mut recorder = Recorder::with_room(rows, width, tracks_work);
         let result =
             simulate::run_with_progress(&mut simulation, options, &mut recorder, &mut watch);
         if let Some(interrupt) = watch.error {
@@ -765,18 +824,19 @@ fn run_plan(
         coordinates,
         tracks_work,
     } = finished;
-    let run = build_run(py, scene, &recorder, &summary, &coordinates, tracks_work)?;
+    let run = build_run(py, scene, recorder, &summary, &coordinates, tracks_work)?;
     match result {
         Ok(_) => Ok(run),
         Err(failure) => Err(run_error(py, &failure.error, Some(run))),
     }
 }
 
-/// The Python `bead.Run` holding the recorded rows as numpy arrays.
+/// The Python `bead.Run` holding the recorded rows as numpy arrays, each made from the
+/// recorder's vector without a copy (numpy's array owns the Rust buffer).
 fn build_run(
     py: Python<'_>,
     scene: &Scene,
-    recorder: &Recorder,
+    recorder: Recorder,
     summary: &Summary,
     coordinates: &[String],
     tracks_work: bool,
@@ -786,40 +846,36 @@ fn build_run(
     let rows = recorder.t.len();
     let k = recorder.q.len().checked_div(rows).unwrap_or(0);
     let shape_error = |e: numpy::ndarray::ShapeError| PyValueError::new_err(e.to_string());
+    let Recorder {
+        t,
+        x,
+        xdot,
+        energy,
+        constraint_error,
+        q,
+        qdot,
+        work,
+    } = recorder;
+    // A run that stopped early leaves room it did not use: give it back (in place for the
+    // large buffers, which the allocator maps on their own) before numpy owns them.
+    let exact = |mut v: Vec<f64>| {
+        v.shrink_to_fit();
+        v
+    };
+    let has_work = tracks_work && work.len() == rows;
     let kwargs = PyDict::new(py);
-    kwargs.set_item("t", PyArray1::from_slice(py, &recorder.t))?;
-    kwargs.set_item(
-        "positions",
-        Array3::from_shape_vec((rows, p, d), recorder.x.clone())
-            .map_err(shape_error)?
-            .into_pyarray(py),
-    )?;
-    kwargs.set_item(
-        "velocities",
-        Array3::from_shape_vec((rows, p, d), recorder.xdot.clone())
-            .map_err(shape_error)?
-            .into_pyarray(py),
-    )?;
-    kwargs.set_item("energy", PyArray1::from_slice(py, &recorder.energy))?;
-    kwargs.set_item(
-        "constraint_error",
-        PyArray1::from_slice(py, &recorder.constraint_error),
-    )?;
-    kwargs.set_item(
-        "q",
-        Array2::from_shape_vec((rows, k), recorder.q.clone())
-            .map_err(shape_error)?
-            .into_pyarray(py),
-    )?;
-    kwargs.set_item(
-        "qdot",
-        Array2::from_shape_vec((rows, k), recorder.qdot.clone())
-            .map_err(shape_error)?
-            .into_pyarray(py),
-    )?;
-    let work = (tracks_work && recorder.work.len() == rows)
-        .then(|| PyArray1::from_slice(py, &recorder.work));
-    kwargs.set_item("work", work)?;
+    kwargs.set_item("t", exact(t).into_pyarray(py))?;
+    for (key, values) in [("positions", x), ("velocities", xdot)] {
+        let array = Array3::from_shape_vec((rows, p, d), exact(values)).map_err(shape_error)?;
+        kwargs.set_item(key, array.into_pyarray(py))?;
+    }
+    kwargs.set_item("energy", exact(energy).into_pyarray(py))?;
+    kwargs.set_item("constraint_error", exact(constraint_error).into_pyarray(py))?;
+    for (key, values) in [("q", q), ("qdot", qdot)] {
+        let array = Array2::from_shape_vec((rows, k), exact(values)).map_err(shape_error)?;
+        kwargs.set_item(key, array.into_pyarray(py))?;
+    }
+    kwargs.set_item("work", has_work.then(|| exact(work).into_pyarray(py)))?;
     let json = summary
         .to_json_pretty()
         .map_err(|e| PyValueError::new_err(e.to_string()))?;
@@ -827,14 +883,7 @@ fn build_run(
     kwargs.set_item("summary", summary_dict)?;
     kwargs.set_item("particles", particle_names(scene))?;
     kwargs.set_item("coordinates", coordinates.to_vec())?;
-    kwargs.set_item(
-        "columns",
-        trace_header(
-            system,
-            coordinates,
-            tracks_work && recorder.work.len() == rows,
-        ),
-    )?;
+    kwargs.set_item("columns", trace_header(system, coordinates, has_work))?;
     let run_class = py.import("bead._run")?.getattr("Run")?;
     Ok(run_class.call((), Some(&kwargs))?.unbind())
 }
