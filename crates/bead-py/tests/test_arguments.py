@@ -220,3 +220,14 @@ def test_sweep_values_beyond_a_float_name_the_parameter(scene):
     with pytest.raises(ValueError, match=r'^params\["g"\]: a value is beyond the range of a '
                                          r'float'):
         sweep_values(scene, 10**400)
+
+
+def test_unaligned_values_are_swept_not_a_panic(scene):
+    # An array over a buffer at an odd offset (as Dask may unpickle one from a frame): the
+    # native side read it in place and panicked ("The pointer must be aligned").
+    buffer = bytearray(8 * 3 + 1)
+    values = np.frombuffer(buffer, dtype=np.float64, offset=1, count=3)
+    values[:] = [400.0, 500.0, 600.0]
+    assert not values.flags.aligned
+    result = bead.sweep(scene, {"g": values}, steps=1)
+    assert result.params["g"].tolist() == [400.0, 500.0, 600.0]

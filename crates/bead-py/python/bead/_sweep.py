@@ -290,7 +290,10 @@ class Sweep:
         self._plan = self._make_plan()
 
     def _make_plan(self) -> _bead.SweepPlan:
-        return _bead.SweepPlan(self._scene, self._names, self._values, self._zip, **self._options)
+        # The native side reads the values in place: C-contiguous and aligned (an array from
+        # a buffer, or unpickled by Dask from a frame, may be neither).
+        values = [np.require(v, np.float64, ["C", "A"]) for v in self._values]
+        return _bead.SweepPlan(self._scene, self._names, values, self._zip, **self._options)
 
     def __getstate__(self) -> Dict[str, Any]:
         state = dict(self.__dict__)
