@@ -453,9 +453,9 @@ def sweep(
     supplies what is not given). A member that fails is reported (status "failed", its
     message in ``errors``), not raised.
 
-    The members run on ``threads`` threads (0: one per core) with the GIL released; the
-    numbers do not depend on the thread count. Ctrl-C raises KeyboardInterrupt within about
-    a second. ``members=range(a, b)`` runs only those members (row-major numbering over the
+    The members run on ``threads`` threads (0: one per core; at most 1024) with the GIL
+    released; the numbers do not depend on the thread count. Ctrl-C raises KeyboardInterrupt
+    within about a second. ``members=range(a, b)`` runs only those members (row-major numbering over the
     grid) and returns a result of shape (b - a,): see `bead.Sweep` to cut a sweep into
     chunks for other processes or machines and join them.
 
