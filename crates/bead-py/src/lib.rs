@@ -19,7 +19,7 @@ use bead::simulate::{
 };
 use bead::sweep::{Axis, Combine, Member, Sweep, SweepError};
 use numpy::ndarray::{Array2, Array3};
-use numpy::{IntoPyArray, PyArray1, PyReadonlyArray1};
+use numpy::{IntoPyArray, PyArray1, PyArrayMethods, PyReadonlyArray1};
 use pyo3::exceptions::{PyIndexError, PyTypeError, PyUserWarning, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyString};
@@ -993,6 +993,13 @@ impl PySweepPlan {
         }
         let mut axes = Vec::with_capacity(names.len());
         for (name, values) in names.into_iter().zip(values) {
+            // Read in place, which needs aligned data (bead.Sweep passes aligned copies).
+            if !(values.data() as usize).is_multiple_of(std::mem::align_of::<f64>()) {
+                return Err(PyValueError::new_err(format!(
+                    "params[{name:?}]: the values must be an aligned float64 array \
+                     (numpy.require(values, numpy.float64, ['C', 'A']))"
+                )));
+            }
             let values = values.as_array().to_vec();
             if let Some(bad) = values.iter().find(|v| !v.is_finite()) {
                 return Err(PyValueError::new_err(format!(

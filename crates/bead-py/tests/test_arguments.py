@@ -231,3 +231,11 @@ def test_unaligned_values_are_swept_not_a_panic(scene):
     assert not values.flags.aligned
     result = bead.sweep(scene, {"g": values}, steps=1)
     assert result.params["g"].tolist() == [400.0, 500.0, 600.0]
+
+
+def test_the_native_sweep_plan_refuses_unaligned_values_in_words(scene):
+    buffer = bytearray(8 * 2 + 1)
+    values = np.frombuffer(buffer, dtype=np.float64, offset=1, count=2)
+    with pytest.raises(ValueError, match=r'^params\["g"\]: the values must be an aligned '
+                                         r'float64 array'):
+        bead._bead.SweepPlan(scene, ["g"], [values], steps=1)
