@@ -9,6 +9,8 @@ swept and the run options).
 from __future__ import annotations
 
 import csv
+import json
+import operator
 from typing import Any, Dict, Iterable, List, Mapping, Optional, Sequence, Tuple, Union
 
 import numpy as np
@@ -55,6 +57,27 @@ _FIGURES = ("status", "t_final", "stop_time", "steps", "energy_rel_error_max",
             "energy_balance_error_max", "constraint_error_max")
 
 
+def _quoted(name: str) -> str:
+    """`name` in double quotes, as the native side's messages write it: params["g"]."""
+    return json.dumps(name, ensure_ascii=False)
+
+
+def _integer(name: str, value: Any, low: int) -> int:
+    """`value` as an int >= `low` (any integer type, not a bool or a float), or an error
+    naming `name` and the range."""
+    if isinstance(value, bool):
+        raise TypeError(f"{name}={value!r}: must be an integer >= {low}, not a bool")
+    try:
+        n = operator.index(value)
+    except TypeError:
+        raise TypeError(
+            f"{name}={value!r}: must be an integer >= {low}, not a {type(value).__name__}"
+        ) from None
+    if n < low:
+        raise ValueError(f"{name}={n}: must be an integer >= {low}")
+    return n
+
+
 def _axes(params: Mapping[str, Any]) -> Tuple[List[str], List[np.ndarray]]:
     """Names and float64 value arrays (1-D, C-contiguous) of `params`."""
     if not hasattr(params, "items"):
@@ -65,11 +88,16 @@ def _axes(params: Mapping[str, Any]) -> Tuple[List[str], List[np.ndarray]]:
             raise TypeError(f"params: the name {name!r} is not a string")
         try:
             array = np.asarray(value, dtype=np.float64)
+        except OverflowError:
+            raise ValueError(
+                f"params[{_quoted(name)}]: a value is beyond the range of a float (about 1.8e308); "
+                "the values must be finite numbers"
+            ) from None
         except (TypeError, ValueError) as e:
-            raise TypeError(f"params[{name!r}]: not an array of numbers ({e})") from None
+            raise TypeError(f"params[{_quoted(name)}]: not an array of numbers ({e})") from None
         if array.ndim > 1:
             raise ValueError(
-                f"params[{name!r}]: a 1-D array of values is needed, got shape {array.shape} "
+                f"params[{_quoted(name)}]: a 1-D array of values is needed, got shape {array.shape} "
                 "(several parameters make the grid themselves: give each its own values)"
             )
         names.append(name)
@@ -277,7 +305,10 @@ class Sweep:
         self._plan = self._make_plan()
 
     def _make_plan(self) -> _bead.SweepPlan:
-        return _bead.SweepPlan(self._scene, self._names, self._values, self._zip, **self._options)
+        # The native side reads the values in place: C-contiguous and aligned (an array from
+        # a buffer, or unpickled by Dask from a frame, may be neither).
+        values = [np.require(v, np.float64, ["C", "A"]) for v in self._values]
+        return _bead.SweepPlan(self._scene, self._names, values, self._zip, **self._options)
 
     def __getstate__(self) -> Dict[str, Any]:
         state = dict(self.__dict__)
@@ -328,8 +359,7 @@ class Sweep:
 
     def chunks(self, count: int) -> List[Tuple[int, int]]:
         """`count` ranges (start, stop) of about equal size covering the members in order."""
-        if count < 1:
-            raise ValueError(f"chunks(count={count}): count must be >= 1")
+        count = _integer("count", count, 1)
         n = len(self)
         count = min(count, n)
         bounds = [n * i // count for i in range(count + 1)]
@@ -357,23 +387,20 @@ class Sweep:
         Members that all fail are returned, not raised (a chunk is judged when assembled).
         Ctrl-C raises KeyboardInterrupt within about a second.
 
-        Raises IndexError for a range that is not inside ``0 .. len(self)``, and ValueError
-        when the result would take more than 8 GiB (the message says how much; run smaller
-        chunks) or a member's particles are not the scene's (see `SweepResult`)."""
-        start, stop, threads = _index("start", start), _index("stop", stop), _index(
-            "threads", threads)
-        if not start <= stop <= len(self):
-            raise IndexError(
-                f"run_range(start={start}, stop={stop}): a range of members within 0 .. "
-                f"{len(self)} is needed (start <= stop)")
+        Raises ValueError for a range that is not inside ``0 .. len(self)`` (the message
+        names the argument), when the result would take more than 8 GiB (the message says
+        how much; run smaller chunks) or when a member's particles are not the scene's (see
+        `SweepResult`)."""
         flat = self._plan.run_range(start, stop, threads)
+        # The native side accepted them as integers in range.
+        start, stop = operator.index(start), operator.index(stop)
         return self._result(flat, range(start, stop), (stop - start,))
 
     def run(self, threads: int = 0) -> SweepResult:
         """Run every member on `threads` threads (0: one per core); arrays shaped like the
         grid. Raises `bead.RunError` when every member failed (its ``result`` holds the
         `SweepResult`, its message the first member's error)."""
-        flat = self._plan.run_range(0, len(self), _index("threads", threads))
+        flat = self._plan.run_range(0, len(self), threads)
         return _unless_all_failed(self._result(flat, range(len(self)), self.shape))
 
     def assemble(self, chunks: Iterable[SweepResult]) -> SweepResult:
@@ -413,17 +440,6 @@ class Sweep:
             f"<bead.Sweep {self._scene.title!r}: {grid} = {len(self)} members, "
             f"{self.method}{', ' + options if options else ''}>"
         )
-
-
-def _index(name: str, value: Any) -> int:
-    """`value` as a whole number >= 0, or a TypeError/ValueError naming the argument."""
-    try:
-        number = int(value)
-    except (TypeError, ValueError):
-        raise TypeError(f"{name}={value!r}: a whole number is needed") from None
-    if number != value or number < 0:
-        raise ValueError(f"{name}={value!r}: a whole number >= 0 is needed")
-    return number
 
 
 def _unless_all_failed(result: SweepResult) -> SweepResult:
@@ -476,9 +492,9 @@ def sweep(
     chunk given by ``members=``) `bead.RunError` is raised, with the first member's error as
     its message and the `SweepResult` as its ``result``.
 
-    The members run on ``threads`` threads (0: one per core) with the GIL released; the
-    numbers do not depend on the thread count. Ctrl-C raises KeyboardInterrupt within about
-    a second. ``members=range(a, b)`` runs only those members (row-major numbering over the
+    The members run on ``threads`` threads (0: one per core; at most 1024) with the GIL
+    released; the numbers do not depend on the thread count. Ctrl-C raises KeyboardInterrupt
+    within about a second. ``members=range(a, b)`` runs only those members (row-major numbering over the
     grid) and returns a result of shape (b - a,): see `bead.Sweep` to cut a sweep into
     chunks for other processes or machines and join them.
 
@@ -505,7 +521,16 @@ def sweep(
     plan = Sweep(scene, params, zip=zip, **options)
     if members is None:
         return plan.run(threads)
-    picked = members if isinstance(members, range) else range(*members)
-    if picked.step != 1:
-        raise ValueError("members: a range of consecutive members (step 1) is needed")
+    try:
+        picked = members if isinstance(members, range) else range(*members)
+    except TypeError:
+        raise TypeError(
+            f"members={members!r}: must be a range of member indices (or (start, stop))"
+        ) from None
+    n = len(plan)
+    if picked.step != 1 or not 0 <= picked.start <= picked.stop <= n:
+        raise ValueError(
+            f"members={members!r}: must be a range of consecutive members (step 1) within "
+            f"range(0, {n})"
+        )
     return plan.run_range(picked.start, picked.stop, threads)

@@ -15,8 +15,8 @@ use super::file::{
 use super::location::Source;
 use super::template::{self, Expanded, Scope, StringError};
 use super::{
-    Generated, RunDefaults, Scene, SceneError, TableKind, MAX_EXPANDED_BYTES, MAX_LOOP_VARIABLES,
-    MAX_REPETITIONS,
+    Generated, Lines, RunDefaults, Scene, SceneError, TableKind, MAX_EXPANDED_BYTES,
+    MAX_LOOP_VARIABLES, MAX_REPETITIONS,
 };
 use crate::expr::{parse, Expr, ExprError, Func, Resolved};
 use crate::formulation::{Feedback, Method};
@@ -115,6 +115,7 @@ fn load_limited(
         generated: Vec::new(),
         forces: 0,
         repeated: 0,
+        lines: Lines::default(),
     };
 
     // [[particle]]
@@ -189,6 +190,7 @@ fn load_limited(
         text: Arc::from(text),
         overrides: overrides.to_vec(),
         edits: Vec::new(),
+        lines: l.lines,
     })
 }
 
@@ -798,6 +800,8 @@ struct Builder<'a> {
     forces: usize,
     /// Repetitions made so far by the tables with `for` (at most [`MAX_REPETITIONS`]).
     repeated: usize,
+    /// Where each particle and constraint is given, for the scene's warnings.
+    lines: Lines,
 }
 
 impl Builder<'_> {
@@ -1015,6 +1019,14 @@ impl Builder<'_> {
             .map_err(|e| l.model(name_def.span(), &ctx, e))?;
         self.particles.push((name, position));
         self.particle_origins.push(ctx);
+        let line = |span: Range<usize>| self.loader.src.line_of(span.start);
+        let position_line = line(position_def.span());
+        let velocity_line = def
+            .velocity
+            .as_ref()
+            .map_or(position_line, |v| line(v.span()));
+        self.lines.position.push(position_line);
+        self.lines.velocity.push(velocity_line);
         Ok(())
     }
 
@@ -1180,6 +1192,10 @@ impl Builder<'_> {
     fn constraint(&mut self, i: usize, c: &Spanned<ConstraintDef>) -> Result<()> {
         let ctx = self.ctx(TableKind::Constraint, i);
         let d = c.get_ref();
+        let at = d.expr.as_ref().map_or(c.span(), |e| e.span());
+        self.lines
+            .constraint
+            .push(self.loader.src.line_of(at.start));
         let l = &self.loader;
         let name = match &d.name {
             Some(n) => {
