@@ -87,9 +87,10 @@ def test_table_and_to_pandas_equal_the_cli_trace(cli, tmp_path):
 
 def test_failed_run_summary_matches_the_cli(cli_json):
     path = scene_path("parabola.toml")
-    code, expected, _ = cli_json(path, "--integrator", "euler", "--dt", "5", "--duration", "100000")
+    code, expected, _ = cli_json(path, "--method", "parametric", "--integrator", "euler", "--dt",
+                                 "5", "--duration", "100000")
     assert code == 1 and expected["completed"] is False
     with pytest.raises(bead.DivergenceError) as failure:
-        bead.load(path).run(integrator="euler", dt=5, duration=100000)
+        bead.load(path).run(method="parametric", integrator="euler", dt=5, duration=100000)
     assert comparable(failure.value.run.summary) == comparable(expected)
     assert str(failure.value) == expected["error"]

@@ -98,3 +98,23 @@ def test_stepping_releases_the_gil():
     sim = bead.load(scene_path("double-pendulum.toml")).simulation()
     progress = _progress_while(lambda: sim.step(200_000))
     assert progress > 0
+
+
+@pytest.mark.parametrize("integrator", ["rk4", "verlet", "dopri5"])
+def test_a_run_ends_exactly_at_a_duration_off_the_grid_as_in_the_cli(integrator, cli_json):
+    # Regression (issue 15): run(duration=1, dt=0.3) ended at t = 1.2, and dt=100 at 100.
+    scene = bead.load(scene_path("circle.toml"))
+    for dt, duration, rows in [(0.3, 1.0, 5), (100.0, 0.01, 2)]:
+        run = scene.run(integrator=integrator, dt=dt, duration=duration)
+        assert run.t[-1] == duration and run.summary["t_final"] == duration
+        if integrator != "dopri5":
+            assert len(run.t) == rows
+            np.testing.assert_array_equal(run.t[:-1], np.arange(rows - 1) * dt)
+        sim = scene.simulation(integrator=integrator, dt=dt)
+        sim.advance_to(duration)
+        np.testing.assert_array_equal(sim.positions, run.positions[-1])
+        code, cli, err = cli_json(scene_path("circle.toml"), "--integrator", integrator,
+                                  "--dt", repr(dt), "--duration", repr(duration))
+        assert code == 0, err
+        assert cli["t_final"] == duration
+        assert cli["particles"]["bead"]["position"] == list(run.positions[-1, 0])
