@@ -214,10 +214,6 @@ pub(crate) fn run_lanes(
         .iter()
         .map(|m| m.monitor.longest().to_vec())
         .collect();
-    let mut g_last: Vec<f64> = members
-        .iter()
-        .map(|m| m.watch.as_ref().map_or(f64::NAN, |w| w.g_last))
-        .collect();
     let mut maxima: Vec<[f64; 3]> = members
         .iter()
         .map(|m| {
@@ -261,7 +257,6 @@ pub(crate) fn run_lanes(
                     &before[l],
                     &longest[l],
                     maxima[l],
-                    g_last[l],
                 );
                 outcome[l] = LaneOutcome::Handover { intervals: k - 1 };
             }
@@ -283,7 +278,6 @@ pub(crate) fn run_lanes(
                     &before[l],
                     &longest[l],
                     maxima[l],
-                    g_last[l],
                 );
                 outcome[l] = LaneOutcome::Handover { intervals: k - 1 };
             }};
@@ -336,19 +330,16 @@ pub(crate) fn run_lanes(
                 hand_back!(member, l);
                 continue;
             }
+            // The stop condition's screen (`Watch::screen`, which remembers this step end
+            // when nothing needs a look); a look is the member's own to take.
             if let Some(watch) = member.watch.as_mut() {
-                let g_end = watch.eval(
-                    t,
-                    &observation.x,
-                    &observation.xdot,
-                    &lanes.q_one,
-                    &lanes.qdot_one,
-                );
-                if g_last[l] < 0.0 && g_end >= 0.0 {
+                let (x, xdot) = (&observation.x, &observation.xdot);
+                let (q, qdot) = (&lanes.q_one, &lanes.qdot_one);
+                let g_end = watch.eval(t, x, xdot, q, qdot);
+                if watch.screen(t, x, xdot, q, qdot, g_end) {
                     hand_back!(member, l);
                     continue;
                 }
-                g_last[l] = g_end;
             }
             // Accepted: the monitor's reference and maxima move on.
             std::mem::swap(&mut before[l], &mut last[l]);
@@ -392,9 +383,6 @@ pub(crate) fn run_lanes(
         member.monitor.energy_rel_error_max = energy;
         member.monitor.balance_error_max = balance;
         member.monitor.constraint_error_max = constraint;
-        if let Some(watch) = member.watch.as_mut() {
-            watch.g_last = g_last[l];
-        }
     }
     outcome
 }
@@ -402,7 +390,8 @@ pub(crate) fn run_lanes(
 /// Hand lane l's member its state and monitor at the end of step k - 1 (time t), as its
 /// own `Simulation` would stand after taking steps 1 to k - 1: the state, the step count,
 /// the observation (taken again), the regularity monitor's last two step ends, the longest
-/// gradient lengths, the maxima and the stop condition's last value.
+/// gradient lengths and the maxima. The stop condition's watch is the member's own, which the
+/// lanes screened with, so it already remembers the end of step k - 1.
 #[allow(clippy::too_many_arguments)]
 fn handover(
     member: &mut Simulation,
@@ -414,7 +403,6 @@ fn handover(
     before: &[f64],
     longest: &[f64],
     maxima: [f64; 3],
-    g_last: f64,
 ) {
     let n = lanes.n;
     let done = k - 1;
@@ -436,9 +424,6 @@ fn handover(
     let before = (done > 0).then_some((q_before.as_slice(), before));
     let q = member.state.q[..n].to_vec();
     member.monitor.adopt(&q, last, before, longest, maxima);
-    if let Some(watch) = member.watch.as_mut() {
-        watch.g_last = g_last;
-    }
 }
 
 /// Whether the regularity monitor would raise a candidate for any gradient row (and so
