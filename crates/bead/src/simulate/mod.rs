@@ -59,6 +59,7 @@ mod event;
 pub(crate) mod lanes;
 mod ledger;
 mod monitor;
+mod restart;
 mod run;
 
 use std::sync::Arc;
@@ -1248,22 +1249,14 @@ impl Simulation {
     }
 
     /// Restart at t = 0 at rest from the particle positions `x` (n_coords numbers), e.g. a
-    /// state a user dragged: implicit form, `x` moved onto C(x, 0) = 0 by the same
-    /// mass-weighted projection as [`Simulation::reset_onto_constraints`] (velocities zero,
-    /// then onto J qdot + C_t = 0); parametric form, the coordinates q whose x(q, 0) is
-    /// closest to `x` (Gauss-Newton from the current q, at most 50 iterations), qdot = 0.
-    /// The energy reference restarts there. On error nothing changes.
+    /// state a user dragged, moved onto the constraints at [`Simulation::closest_start`]:
+    /// the point of C(y, 0) = 0 closest to `x` in the kinetic metric, the same for both
+    /// forms. Implicit form: there, velocities zero (then onto J qdot + C_t = 0); parametric
+    /// form: the coordinates q whose x(q, 0) is closest to it (Gauss-Newton from the current
+    /// q and from the scene's initial q, the better fit), qdot = 0. The energy reference
+    /// restarts there. On error nothing changes.
     pub fn restart_at_rest(&mut self, x: &[f64]) -> Result<(), RestartError> {
-        let n_coords = self.system().n_coords();
-        if x.len() != n_coords {
-            return Err(RestartError::Length {
-                expected: n_coords,
-                got: x.len(),
-            });
-        }
-        if x.iter().any(|v| !v.is_finite()) {
-            return Err(RestartError::NotFinite);
-        }
+        let target = self.closest_start(x)?;
         let current_q = self.state.q[..self.n].to_vec();
         let mut state = self.formulation.initial_state();
         if self.ledger.is_some() {
@@ -1275,10 +1268,13 @@ impl Simulation {
         state.qdot[..n].iter_mut().for_each(|v| *v = 0.0);
         match (self.method(), self.system().parametric()) {
             (Method::Parametric, Some(map)) => {
-                state.q[..n].copy_from_slice(&closest_coordinates(map, &current_q, x)?);
+                let seeds = [current_q.as_slice(), map.initial()];
+                let masses = self.masses();
+                let q = restart::fit_coordinates(map, &seeds, &target, &masses)?;
+                state.q[..n].copy_from_slice(&q);
             }
             _ => {
-                state.q[..n].copy_from_slice(x);
+                state.q[..n].copy_from_slice(&target);
                 let config = self.config;
                 let Simulation {
                     formulation,
@@ -1295,6 +1291,55 @@ impl Simulation {
         self.refresh_nonconservation();
         self.start_from(state);
         Ok(())
+    }
+
+    /// Where [`Simulation::restart_at_rest`] puts the particles for positions `x`: the point
+    /// y of the system's constraints C(y, 0) = 0 closest to `x` in the kinetic metric
+    /// sum_k m_k (y_k - x_k)^2 (for one particle the Euclidean closest point; see
+    /// `restart.rs` for the iteration), whichever form this simulation runs, so that every
+    /// form restarts from the same place. Without constraint rows (a parametric form only):
+    /// x(q*, 0) for the best fit q* of the map. `x` itself on a system without either.
+    pub fn closest_start(&self, x: &[f64]) -> Result<Vec<f64>, RestartError> {
+        let n_coords = self.system().n_coords();
+        if x.len() != n_coords {
+            return Err(RestartError::Length {
+                expected: n_coords,
+                got: x.len(),
+            });
+        }
+        if x.iter().any(|v| !v.is_finite()) {
+            return Err(RestartError::NotFinite);
+        }
+        let system = self.system();
+        if system.constraints().n_rows() > 0 {
+            return restart::closest_on_constraints(
+                self.formulation.shared_system(),
+                x,
+                &self.config,
+            );
+        }
+        match system.parametric() {
+            Some(map) => {
+                let current = &self.state.q[..self.n];
+                let seeds: Vec<&[f64]> = if self.method() == Method::Parametric {
+                    vec![current, map.initial()]
+                } else {
+                    vec![map.initial()]
+                };
+                let q = restart::fit_coordinates(map, &seeds, x, &self.masses())?;
+                Ok(restart::map_positions(map, &q))
+            }
+            None => Ok(x.to_vec()),
+        }
+    }
+
+    /// The mass of each particle coordinate.
+    fn masses(&self) -> Vec<f64> {
+        self.system()
+            .inverse_mass()
+            .iter()
+            .map(|w| 1.0 / w)
+            .collect()
     }
 
     /// Apply `force` from outside the system from now on (e.g. a spring dragged with the
@@ -1473,108 +1518,6 @@ pub enum RestartError {
     /// The parametric form's least-squares fit failed.
     #[error("no coordinates of the parametric form put the particles near these positions: {0}")]
     NoCoordinates(&'static str),
-}
-
-/// The coordinates q whose x(q, 0) is closest to `x` (least squares), by Gauss-Newton from
-/// `q0`, with a little Levenberg damping so that a singular J^T J (a point where the map
-/// does not depend on q) does not stop it.
-fn closest_coordinates(
-    map: &crate::model::ParametricMap,
-    q0: &[f64],
-    x: &[f64],
-) -> Result<Vec<f64>, RestartError> {
-    let n_q = map.n_q();
-    if n_q > 256 {
-        return Err(RestartError::NoCoordinates("more than 256 coordinates"));
-    }
-    let mut q = q0.to_vec();
-    let zero = vec![0.0; n_q];
-    let mut ws = map.workspace();
-    let columns = map.jacobian_columns();
-    let residual = |ws: &crate::model::ParametricEval| -> f64 {
-        ws.position
-            .iter()
-            .zip(x)
-            .map(|(p, t)| (p - t) * (p - t))
-            .sum()
-    };
-    for _ in 0..50 {
-        map.observe(0.0, &q, &zero, &mut ws);
-        let r0 = residual(&ws);
-        // Normal equations J^T J dq = J^T (x - x(q)), dense (n_q is small).
-        let mut a = vec![0.0; n_q * n_q];
-        let mut b = vec![0.0; n_q];
-        for (k, (&xk, &pk)) in x.iter().zip(&ws.position).enumerate() {
-            let entries = map.row_entries(k);
-            for e in entries.clone() {
-                let (i, ji) = (columns[e], ws.jacobian[e]);
-                b[i] += ji * (xk - pk);
-                for f in entries.clone() {
-                    a[i * n_q + columns[f]] += ji * ws.jacobian[f];
-                }
-            }
-        }
-        let scale = (0..n_q).map(|i| a[i * n_q + i]).fold(0.0_f64, f64::max);
-        for i in 0..n_q {
-            a[i * n_q + i] += 1e-9 * scale.max(1e-300);
-        }
-        let Some(dq) = solve_dense(a, b, n_q) else {
-            return Err(RestartError::NoCoordinates("singular least-squares system"));
-        };
-        // Halve the step until the distance does not grow.
-        let mut step = 1.0;
-        let mut trial = q.clone();
-        loop {
-            for i in 0..n_q {
-                trial[i] = q[i] + step * dq[i];
-            }
-            map.observe(0.0, &trial, &zero, &mut ws);
-            if residual(&ws) <= r0 || step < 1e-6 {
-                break;
-            }
-            step *= 0.5;
-        }
-        let moved = dq.iter().map(|d| (step * d).abs()).fold(0.0, f64::max);
-        q.copy_from_slice(&trial);
-        if moved <= 1e-12 * (1.0 + q.iter().map(|v| v.abs()).fold(0.0, f64::max)) {
-            break;
-        }
-    }
-    if q.iter().any(|v| !v.is_finite()) {
-        return Err(RestartError::NoCoordinates("the fit diverged"));
-    }
-    Ok(q)
-}
-
-/// Solve the dense n x n system `a` y = `b` (row-major) by Gaussian elimination with partial
-/// pivoting; `None` when singular.
-fn solve_dense(mut a: Vec<f64>, mut b: Vec<f64>, n: usize) -> Option<Vec<f64>> {
-    for col in 0..n {
-        let pivot =
-            (col..n).max_by(|&i, &j| a[i * n + col].abs().total_cmp(&a[j * n + col].abs()))?;
-        if a[pivot * n + col].abs() < 1e-300 || !a[pivot * n + col].is_finite() {
-            return None;
-        }
-        if pivot != col {
-            for k in 0..n {
-                a.swap(pivot * n + k, col * n + k);
-            }
-            b.swap(pivot, col);
-        }
-        for row in col + 1..n {
-            let f = a[row * n + col] / a[col * n + col];
-            for k in col..n {
-                a[row * n + k] -= f * a[col * n + k];
-            }
-            b[row] -= f * b[col];
-        }
-    }
-    let mut y = vec![0.0; n];
-    for row in (0..n).rev() {
-        let s: f64 = (row + 1..n).map(|k| a[row * n + k] * y[k]).sum();
-        y[row] = (b[row] - s) / a[row * n + row];
-    }
-    Some(y)
 }
 
 /// Project `state` onto C = 0 and J qdot + C_t = 0; returns the position iterations.
