@@ -344,3 +344,45 @@ fn run_loop_with_projection_allocates_nothing_per_step() {
         }
     }
 }
+
+// Watching a stop condition adds nothing per step either: its screen inside every step (the
+// samples on the interpolant, dopri5's samples of its dense output) runs in buffers sized
+// when it is set, so a run with one that never fires makes as many allocator calls in 10
+// steps as in 10000.
+#[test]
+fn run_loop_with_a_stop_condition_allocates_nothing_per_step() {
+    let system = parabola();
+    for kind in IntegratorKind::ALL {
+        for method in [Method::Implicit, Method::Parametric] {
+            if method == Method::Parametric && kind.needs_constraints() {
+                continue;
+            }
+            let calls = |steps: u64| {
+                let formulation = formulate(system.clone(), method, Feedback::default()).unwrap();
+                let options = Options {
+                    integrator: kind,
+                    dt: 1.0 / 600.0,
+                    steps,
+                    every: 1,
+                    ..Default::default()
+                };
+                let mut simulation = common::simulation(formulation, &options);
+                let event = bead::simulate::Event::parse(&system, "-1e9 - bead.x").unwrap();
+                simulation.set_stop_when(Some(event)).unwrap();
+                let run = bead::simulate::RunOptions { steps, every: 1 };
+                let (calls, result) =
+                    allocator_calls(|| bead::simulate::run(&mut simulation, run, &mut NullSink));
+                assert_eq!(result.unwrap().stop_time, None);
+                calls
+            };
+            let (short, long) = (calls(10), calls(10_000));
+            assert_eq!(
+                short,
+                long,
+                "{} {} with a stop condition: {short} allocator calls in 10 steps, {long} in 10000",
+                method.name(),
+                kind.name()
+            );
+        }
+    }
+}

@@ -18,6 +18,7 @@
 //! the run ends at is the bracket's upper end, where g >= 0.
 
 use crate::expr::{parse, Expr, ExprError, Resolved, Tape};
+use crate::formulation::Formulation;
 use crate::model::System;
 
 /// A stop condition: the expression g whose upward zero crossing ends a run (see the module
@@ -272,6 +273,13 @@ pub(super) struct Watch {
     t_last: f64,
     start: Vec<f64>,
     end: Vec<f64>,
+    /// The interpolant's weights at each interior sample s = i / (samples + 1) (see
+    /// [`Watch::screen`]): h00, h10, h01, h11, 6 s (s - 1), 3s^2 - 4s + 1, 3s^2 - 2s.
+    weights: Vec<[f64; 7]>,
+    /// Particle positions and velocities of a state given in the formulation's coordinates
+    /// ([`Watch::eval_state`])
+    x: Vec<f64>,
+    xdot: Vec<f64>,
 }
 
 impl Watch {
@@ -279,6 +287,7 @@ impl Watch {
         let tape_vars = event.tape.n_vars();
         let slots = 2 * event.n_coords + 1 + 2 * event.n_q;
         let pairs = event.pairs.len();
+        let n_coords = event.n_coords;
         Watch {
             vars: vec![0.0; slots.max(tape_vars)],
             scratch: vec![0.0; event.tape.n_slots()],
@@ -288,6 +297,23 @@ impl Watch {
             t_last: f64::NAN,
             start: vec![0.0; 2 * pairs],
             end: vec![0.0; 2 * pairs],
+            weights: (1..=samples)
+                .map(|i| {
+                    let s = i as f64 / (samples as f64 + 1.0);
+                    let (s2, s3) = (s * s, s * s * s);
+                    [
+                        2.0 * s3 - 3.0 * s2 + 1.0,
+                        s3 - 2.0 * s2 + s,
+                        3.0 * s2 - 2.0 * s3,
+                        s3 - s2,
+                        6.0 * (s2 - s),
+                        3.0 * s2 - 4.0 * s + 1.0,
+                        3.0 * s2 - 2.0 * s,
+                    ]
+                })
+                .collect(),
+            x: vec![0.0; n_coords],
+            xdot: vec![0.0; n_coords],
         }
     }
 
@@ -296,6 +322,23 @@ impl Watch {
     pub(super) fn eval(&mut self, t: f64, x: &[f64], xdot: &[f64], q: &[f64], qdot: &[f64]) -> f64 {
         self.load(t, x, xdot, q, qdot);
         self.eval_loaded()
+    }
+
+    /// g at time t of the formulation's state (q, qdot) (for the parametric form, positions
+    /// and velocities from the map; for the implicit form they are q and qdot): dopri5's
+    /// samples of its dense output, without observing them.
+    pub(super) fn eval_state(
+        &mut self,
+        formulation: &mut dyn Formulation,
+        t: f64,
+        q: &[f64],
+        qdot: &[f64],
+    ) -> f64 {
+        let (mut x, mut xdot) = (std::mem::take(&mut self.x), std::mem::take(&mut self.xdot));
+        formulation.particle_state(t, q, qdot, &mut x, &mut xdot);
+        let g = self.eval(t, &x, &xdot, q, qdot);
+        (self.x, self.xdot) = (x, xdot);
+        g
     }
 
     /// Put a state into the tape's variables.
@@ -377,26 +420,15 @@ impl Watch {
             }
             let t_slot = 2 * self.event.n_coords;
             for i in 1..=self.samples {
-                let ti = sample_time(t0, t, i, self.samples);
-                let s = (ti - t0) / h;
-                let (s2, s3) = (s * s, s * s * s);
-                let (h00, h10, h01, h11) = (
-                    2.0 * s3 - 3.0 * s2 + 1.0,
-                    s3 - 2.0 * s2 + s,
-                    3.0 * s2 - 2.0 * s3,
-                    s3 - s2,
-                );
-                let (d0, d10, d11) = (
-                    6.0 * (s2 - s) / h,
-                    3.0 * s2 - 4.0 * s + 1.0,
-                    3.0 * s2 - 2.0 * s,
-                );
+                let [h00, h10, h01, h11, d00, d10, d11] = self.weights[i as usize - 1];
+                let (h10, h11, d00) = (h10 * h, h11 * h, d00 / h);
                 for (k, &(pos, vel)) in self.event.pairs.iter().enumerate() {
                     let (y0, v0) = (self.start[2 * k], self.start[2 * k + 1]);
                     let (y1, v1) = (self.end[2 * k], self.end[2 * k + 1]);
-                    self.vars[pos] = h00 * y0 + h10 * h * v0 + h01 * y1 + h11 * h * v1;
-                    self.vars[vel] = d0 * (y0 - y1) + d10 * v0 + d11 * v1;
+                    self.vars[pos] = h00 * y0 + h10 * v0 + h01 * y1 + h11 * v1;
+                    self.vars[vel] = d00 * (y0 - y1) + d10 * v0 + d11 * v1;
                 }
+                let ti = sample_time(t0, t, i, self.samples);
                 self.vars[t_slot] = ti;
                 let g = self.eval_loaded();
                 if g.is_nan() || (before < 0.0 && g >= 0.0) {

@@ -861,28 +861,15 @@ impl Simulation {
                 if let Err(e) = self.scan_dense(start, g_start, g_end, start) {
                     self.steps -= 1;
                     self.restore();
+                    self.rearm_event();
                     return Err(e);
                 }
                 if self.pending_event.is_none() {
-                    self.observe_current();
                     self.monitor.accumulate();
                 }
                 Ok(())
             }
         }
-    }
-
-    /// Observe the observable state again (after samples or trials clobbered the
-    /// observation).
-    fn observe_current(&mut self) {
-        let state = if self.output_behind {
-            &self.output
-        } else {
-            &self.state
-        };
-        let (q, qdot, work) = split(state, self.n);
-        self.monitor
-            .observe(&mut *self.formulation, state.t, q, qdot, work);
     }
 
     /// The error for a g that is not a number at time t (the watch holds the state it was
@@ -1070,8 +1057,7 @@ impl Simulation {
             watch.not_a_number(t, stopped)
         };
         if g_from.is_nan() {
-            self.observe_state_at(from);
-            self.event_value(true);
+            self.dense_value(from);
             return Err(not_a_number(self, from));
         }
         let mut before = (from, g_from);
@@ -1081,14 +1067,12 @@ impl Simulation {
                 continue;
             }
             let g = if i <= samples {
-                self.observe_state_at(ti);
-                self.event_value(true)
+                self.dense_value(ti)
             } else {
                 g_end
             };
             if g.is_nan() {
-                self.observe_state_at(ti);
-                self.event_value(true);
+                self.dense_value(ti);
                 return Err(not_a_number(self, ti));
             }
             if before.1 < 0.0 && g >= 0.0 {
@@ -1097,6 +1081,23 @@ impl Simulation {
             before = (ti, g);
         }
         Ok(())
+    }
+
+    /// Adaptive integrators: g at time t of the last step's dense output (put into
+    /// `output`, not observed: the watch maps it to particle space itself).
+    fn dense_value(&mut self, t: f64) -> f64 {
+        if let Stepper::Adaptive(dopri) = &self.stepper {
+            dopri.interpolate(t, &mut self.output.q, &mut self.output.qdot);
+        }
+        self.output.t = t;
+        let n = self.n;
+        let watch = self.watch.as_mut().expect("an event is watched");
+        watch.eval_state(
+            &mut *self.formulation,
+            t,
+            &self.output.q[..n],
+            &self.output.qdot[..n],
+        )
     }
 
     /// Adaptive integrators: the dense output at time t of the last step into `output`,
@@ -1117,8 +1118,7 @@ impl Simulation {
         let tolerance = self.event_tolerance(bracket.hi);
         while !bracket.done(tolerance) {
             let t = bracket.next();
-            self.observe_state_at(t);
-            let g = self.event_value(true);
+            let g = self.dense_value(t);
             if g.is_nan() {
                 let watch = self.watch.as_ref().expect("an event is watched");
                 return Err(watch.not_a_number(t, stopped));
@@ -1139,13 +1139,13 @@ impl Simulation {
         if self.watch.is_none() || self.pending_event.is_some() || from >= self.state.t {
             return Ok(());
         }
-        let (q, qdot, work) = split(&self.state, self.n);
-        self.monitor
-            .observe(&mut *self.formulation, self.state.t, q, qdot, work);
-        let g_end = self.event_value(false);
-        if let Some(watch) = &mut self.watch {
-            watch.g_last = g_end;
-        }
+        let n = self.n;
+        let Some(watch) = self.watch.as_mut() else {
+            return Ok(());
+        };
+        let (q, qdot) = (&self.state.q[..n], &self.state.qdot[..n]);
+        let g_end = watch.eval_state(&mut *self.formulation, self.state.t, q, qdot);
+        watch.g_last = g_end;
         let result = self.scan_dense(from, g_from, g_end, from);
         if result.is_err() {
             // The last good state is the output at `from`: the integrator starts again there.
@@ -1155,7 +1155,6 @@ impl Simulation {
             self.output_behind = false;
             self.rearm_event();
         }
-        self.observe_current();
         result
     }
 
@@ -1171,7 +1170,7 @@ impl Simulation {
         } else {
             self.observe_state_at(te);
             self.output_behind = true;
-            let g = self.event_value(true);
+            let g = self.dense_value(te);
             self.resume_event = Some((te, g));
         }
         self.monitor.accumulate();
