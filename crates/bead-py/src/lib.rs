@@ -147,6 +147,7 @@ struct Asked<'a> {
     project: bool,
     substeps: Option<i64>,
     max_substeps: Option<i64>,
+    event_samples: Option<i64>,
 }
 
 impl Asked<'_> {
@@ -174,6 +175,14 @@ impl Asked<'_> {
             project: self.project,
             substeps: count("substeps", self.substeps)?.map(saturate_u32),
             max_substeps: count("max_substeps", self.max_substeps)?.map(saturate_u32),
+            event_samples: match self.event_samples {
+                Some(k) if k < 0 => {
+                    return Err(PyValueError::new_err(format!(
+                        "event_samples={k}: must be at least 0"
+                    )))
+                }
+                other => other.map(|k| saturate_u32(k as u64)),
+            },
         })
     }
 }
@@ -343,13 +352,16 @@ impl PyScene {
     /// implicit form), rtol and atol (dopri5), project (implicit form), substeps and
     /// max_substeps, and stop_when (an expression of the particles' coordinates and
     /// velocities, t and params, e.g. "-bead.x": the run ends where it crosses zero upward,
-    /// located to 1e-10 of dt; default: the scene's `[run] stop_when`).
+    /// located to 1e-10 of dt; default: the scene's `[run] stop_when`), and event_samples
+    /// (times inside each step at which stop_when is also sampled, 0 to 1024; default: the
+    /// scene's `[run] event_samples`, else 4). A stop_when that is not a number (NaN) raises
+    /// `bead.RunError`.
     ///
     /// Raises ValueError for a bad argument, `bead.SetupError` when the simulation cannot
     /// start (e.g. rattle on the parametric form), and `bead.RunError` (`bead.DivergenceError`
     /// when the state blew up) when a step fails, with the run up to the last good state as
     /// `.run`. The GIL is released while the run steps.
-    #[pyo3(signature = (*, method = None, integrator = None, dt = None, duration = None, steps = None, every = None, stabilize = None, rtol = None, atol = None, project = false, substeps = None, max_substeps = None, stop_when = None))]
+    #[pyo3(signature = (*, method = None, integrator = None, dt = None, duration = None, steps = None, every = None, stabilize = None, rtol = None, atol = None, project = false, substeps = None, max_substeps = None, stop_when = None, event_samples = None))]
     #[allow(clippy::too_many_arguments)]
     fn run(
         &self,
@@ -367,6 +379,7 @@ impl PyScene {
         substeps: Option<i64>,
         max_substeps: Option<i64>,
         stop_when: Option<&str>,
+        event_samples: Option<i64>,
     ) -> PyResult<Py<PyAny>> {
         let asked = Asked {
             method,
@@ -381,6 +394,8 @@ impl PyScene {
             project,
             substeps,
             max_substeps,
+            event_samples,
+            ..Asked::default()
         };
         let request = asked.request()?;
         let plan = resolve(py, &self.inner, &request)?;
@@ -390,7 +405,7 @@ impl PyScene {
 
     /// A `bead.Simulation` to step by hand (`step()`, `advance_to(t)`), at the scene's
     /// initial state. The arguments are those of `run()` without the run's length.
-    #[pyo3(signature = (*, method = None, integrator = None, dt = None, stabilize = None, rtol = None, atol = None, project = false, substeps = None, max_substeps = None, stop_when = None))]
+    #[pyo3(signature = (*, method = None, integrator = None, dt = None, stabilize = None, rtol = None, atol = None, project = false, substeps = None, max_substeps = None, stop_when = None, event_samples = None))]
     #[allow(clippy::too_many_arguments)]
     fn simulation(
         &self,
@@ -405,6 +420,7 @@ impl PyScene {
         substeps: Option<i64>,
         max_substeps: Option<i64>,
         stop_when: Option<&str>,
+        event_samples: Option<i64>,
     ) -> PyResult<PySimulation> {
         let asked = Asked {
             method,
@@ -416,6 +432,7 @@ impl PyScene {
             project,
             substeps,
             max_substeps,
+            event_samples,
             ..Asked::default()
         };
         // Only the step matters here: the scene's run length is not used, and a request for
@@ -807,7 +824,7 @@ impl PySweepPlan {
     /// `zip=True` value i of each. The keyword arguments are those of `Scene.run` without
     /// `every` (each member records nothing but its figures).
     #[new]
-    #[pyo3(signature = (scene, names, values, zip = false, *, method = None, integrator = None, dt = None, duration = None, steps = None, stabilize = None, rtol = None, atol = None, project = false, substeps = None, max_substeps = None, stop_when = None))]
+    #[pyo3(signature = (scene, names, values, zip = false, *, method = None, integrator = None, dt = None, duration = None, steps = None, stabilize = None, rtol = None, atol = None, project = false, substeps = None, max_substeps = None, stop_when = None, event_samples = None))]
     #[allow(clippy::too_many_arguments)]
     fn new(
         py: Python<'_>,
@@ -827,6 +844,7 @@ impl PySweepPlan {
         substeps: Option<i64>,
         max_substeps: Option<i64>,
         stop_when: Option<&str>,
+        event_samples: Option<i64>,
     ) -> PyResult<PySweepPlan> {
         let scene = &scene.get().inner;
         if names.len() != values.len() {
@@ -859,6 +877,7 @@ impl PySweepPlan {
             project,
             substeps,
             max_substeps,
+            event_samples,
             ..Asked::default()
         };
         let request = asked.request()?;
