@@ -478,7 +478,8 @@ fn event_crossing_within_one_step_is_found_by_the_cli() {
 }
 
 /// A stop condition that becomes NaN ends the run with an error naming it, the time and
-/// the values it read, exit code 1, the summary of the run up to its last good state.
+/// the values it read, exit code 1, the summary of the run up to its last good state (whose
+/// text does not claim the condition simply never crossed).
 #[test]
 fn event_condition_nan_is_an_error_in_the_cli() {
     let dir = TempDir::new("nan-event");
@@ -493,6 +494,11 @@ fn event_condition_nan_is_an_error_in_the_cli() {
             "--summary",
             "s.json",
         ],
+    );
+    let text = common::stdout(&out);
+    assert!(
+        text.contains("stop_when    sqrt(bead.x): did not cross zero before the run failed"),
+        "{text}"
     );
     let error = fails(out, 1);
     assert!(
