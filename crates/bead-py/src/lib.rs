@@ -395,7 +395,6 @@ impl PyScene {
             substeps,
             max_substeps,
             event_samples,
-            ..Asked::default()
         };
         let request = asked.request()?;
         let plan = resolve(py, &self.inner, &request)?;

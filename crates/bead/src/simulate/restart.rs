@@ -91,7 +91,8 @@ pub(super) fn closest_on_constraints(
                 *s -= o;
             }
         }
-        if !(norm(&step) > 1e-13 * size) {
+        let length = norm(&step);
+        if length.is_nan() || length <= 1e-13 * size {
             break;
         }
         let mut a = 1.0;
