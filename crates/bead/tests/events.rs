@@ -801,3 +801,56 @@ fn a_crossing_before_a_nan_in_the_same_step_fires_first() {
     );
     assert_eq!(failure.stats.t_final, 0.0);
 }
+
+/// `[run] event_samples` reaches the plan (a request overrides it), and a bad count is
+/// refused where it is written; a request beyond the limit names the option.
+#[test]
+fn event_samples_come_from_the_scene_or_the_request_and_are_checked() {
+    use bead::plan::{Plan, PlanRequest};
+    let text = format!("{DROP}[run]\nevent_samples = 9\n");
+    let scene = Scene::parse(&text, "drop.toml", &[]).unwrap();
+    assert_eq!(scene.run.event_samples, Some(9));
+    let plan = Plan::resolve(&scene, &PlanRequest::default()).unwrap();
+    assert_eq!(plan.config(Method::Implicit).event_samples, 9);
+    let asked = PlanRequest {
+        event_samples: Some(0),
+        ..Default::default()
+    };
+    assert_eq!(
+        Plan::resolve(&scene, &asked)
+            .unwrap()
+            .config(Method::Implicit)
+            .event_samples,
+        0
+    );
+    let default = Plan::resolve(&drop_scene(), &PlanRequest::default()).unwrap();
+    assert_eq!(default.config(Method::Implicit).event_samples, 4);
+    let too_many = PlanRequest {
+        event_samples: Some(5000),
+        ..Default::default()
+    };
+    assert_eq!(
+        Plan::resolve(&scene, &too_many).unwrap_err().to_string(),
+        "event_samples=5000: must be at most 1024"
+    );
+    for (value, shown) in [("2000", "2000"), ("1.5", "1.5"), ("-1", "-1")] {
+        let text = format!("{DROP}[run]\nevent_samples = {value}\n");
+        let error = Scene::parse(&text, "drop.toml", &[]).unwrap_err().render();
+        assert!(
+            error.starts_with(&format!(
+                "drop.toml:19:17: run: `event_samples` must be a whole number from 0 to 1024, got {shown}"
+            )),
+            "{error}"
+        );
+    }
+    // The simulation refuses a count beyond the limit as well.
+    let config = SimulationConfig {
+        event_samples: 1025,
+        ..Default::default()
+    };
+    let error = Simulation::new(Arc::clone(&scene.system), config).unwrap_err();
+    assert_eq!(
+        error.to_string(),
+        "event_samples must be at most 1024, got 1025"
+    );
+}
