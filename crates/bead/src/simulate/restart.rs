@@ -17,6 +17,10 @@ use crate::model::{ParametricMap, System};
 
 /// Tangent steps at most (each one projection and one or two velocity projections).
 const MAX_TANGENT_STEPS: usize = 200;
+/// The iteration stops after [`SLOW_STEPS`] steps in a row that shrank the tangent residual
+/// by less than this factor.
+const SLOW_RATIO: f64 = 0.9;
+const SLOW_STEPS: usize = 10;
 
 /// The positions on C(y, 0) = 0 closest to `x` in the kinetic metric: the first-order
 /// conditions are C(y) = 0 and M (y - x) + J^T mu = 0, i.e. the tangent part of x - y
@@ -25,14 +29,18 @@ const MAX_TANGENT_STEPS: usize = 200;
 ///
 /// ```text
 /// y_0 = Proj(x),  s_k = P(y_k) (x - y_k),  P = I - W J^T (J W J^T)^-1 J,
-/// y_{k+1} = Proj(y_k + a s_k),  a = 1, halved while |x - y_{k+1}|_M > |x - y_k|_M,
+/// y_{k+1} = Proj(y_k + a s_k),  a halved while |x - y_{k+1}|_M > |x - y_k|_M,
 /// ```
 ///
-/// Proj the mass-weighted Gauss-Newton projection of the implicit form. The ratio of
-/// convergence is about kappa d (the curvature times the distance of the drop), so a drop
-/// near a centre of curvature converges slowly; it stops when |s_k|_M <= 1e-13 of the
-/// configuration's size |x|_M, when no halving decreases the distance, or after
-/// [`MAX_TANGENT_STEPS`] steps, always at a point on the constraints. P d is computed by the
+/// Proj the mass-weighted Gauss-Newton projection of the implicit form; a starts at twice
+/// the last accepted one, at most 1. The ratio of convergence is about kappa d (the
+/// curvature times the distance of the drop): a few steps for a drop near a curve, many for
+/// one near a centre of curvature or for a stiff mesh of rods. It stops when |s_k|_M <=
+/// 1e-13 of the configuration's size |x|_M, when no halving keeps the distance from
+/// growing, after [`SLOW_STEPS`] steps in a row that shrank |s| by less than
+/// [`SLOW_RATIO`] (the cloth of 2500 particles: 13 steps, 0.2 s, 0.16% closer than the
+/// projection of the drop), or after [`MAX_TANGENT_STEPS`]; always at a point on the
+/// constraints, the same for every form that asks. P d is computed by the
 /// velocity projection (d - W J^T (J W J^T)^-1 (J d + C_t)), less its value at d = 0 when
 /// the constraints move (C_t != 0).
 pub(super) fn closest_on_constraints(
@@ -75,6 +83,8 @@ pub(super) fn closest_on_constraints(
     let mut step = vec![0.0; n];
     let mut offset = vec![0.0; n];
     let mut trial = vec![0.0; n];
+    let mut a_last: f64 = 1.0;
+    let (mut slow, mut last_length) = (0, f64::INFINITY);
     for _ in 0..MAX_TANGENT_STEPS {
         for k in 0..n {
             step[k] = x[k] - y[k];
@@ -95,7 +105,19 @@ pub(super) fn closest_on_constraints(
         if length.is_nan() || length <= 1e-13 * size {
             break;
         }
-        let mut a = 1.0;
+        // A contraction slower than 0.9 a step (kappa d near 1: a drop near a centre of
+        // curvature, or a stiff mesh of rods such as the cloth) would not reach the
+        // tolerance within the steps allowed: stop at the point reached.
+        slow = if length > SLOW_RATIO * last_length {
+            slow + 1
+        } else {
+            0
+        };
+        if slow >= SLOW_STEPS {
+            break;
+        }
+        last_length = length;
+        let mut a: f64 = (2.0 * a_last).min(1.0);
         let mut moved = false;
         while a >= 1e-6 {
             for k in 0..n {
@@ -115,6 +137,7 @@ pub(super) fn closest_on_constraints(
                 if d <= best * (1.0 + 4.0 * f64::EPSILON) {
                     best = best.min(d);
                     y.copy_from_slice(&trial);
+                    a_last = a;
                     moved = true;
                     break;
                 }
