@@ -4,18 +4,24 @@
 //! `a.vy`, and with a single particle `x`, `vy`), the generalized coordinates of the
 //! parametric form (`theta` or `q.theta`, rates `qdot.theta`), the time `t`, the scene's
 //! parameters, `pi` and `e`. A simulation with an event ([`super::Simulation::set_stop_when`])
-//! evaluates g after every step and stops at the first time t* where g goes from g < 0 at
-//! the start of a step to g >= 0 at its end: an upward crossing. An expression already >= 0
-//! at the start does not fire there (there is no crossing); it fires once it has gone below
-//! zero and come back.
+//! evaluates g after every step at its end and at K evenly spaced times inside it
+//! ([`super::SimulationConfig::event_samples`], default 4), and stops at the first time t*
+//! where g goes from g < 0 to g >= 0 between two consecutive of these times: an upward
+//! crossing. An expression already >= 0 at the start does not fire there (there is no
+//! crossing); it fires once it has gone below zero and come back. A crossing and its return
+//! that both fall between two samples are missed; a g that is NaN is an error
+//! ([`super::RunError::EventNotANumber`]).
 //!
-//! t* is located to 1e-10 of the step dt: fixed-step integrators re-integrate the step from
-//! its saved start over a part of its length, so that every state tried is the integrator's
-//! own (with its substeps, retries and projection), and dopri5 evaluates its dense output,
-//! the continuous solution its error control is about. The root of g along that path is
-//! bracketed by the step and found by the Illinois variant of regula falsi, with a bisection
-//! whenever a secant point would not shrink the bracket by half in two iterations. The state
-//! the run ends at is the bracket's upper end, where g >= 0.
+//! Fixed-step integrators screen the samples on a cubic Hermite interpolant of the step
+//! ([`Watch::screen`]) and evaluate g on their own path only where it shows a crossing (or a
+//! NaN); dopri5 samples its dense output. t* is then located to 1e-10 of the step dt:
+//! fixed-step integrators re-integrate the step from its saved start over a part of its
+//! length, so that every state tried is the integrator's own (with its substeps, retries and
+//! projection), and dopri5 evaluates its dense output, the continuous solution its error
+//! control is about. The root of g along that path is bracketed by the two samples around it
+//! and found by the Illinois variant of regula falsi, with a bisection whenever a secant
+//! point would not shrink the bracket by half in two iterations. The state the run ends at is
+//! the bracket's upper end, where g >= 0.
 
 use crate::expr::{parse, Expr, ExprError, Resolved, Tape};
 use crate::formulation::Formulation;

@@ -10,7 +10,8 @@
 //! ([`Implicit::accelerate_evaluated`], [`Parametric::accelerate_evaluated`]). Either way every
 //! number is the one the member's own `Simulation` would compute, bit for bit. The monitors after each step are the
 //! simulation's, per lane: the energy and constraint-error maxima, the divergence test, the
-//! regularity monitor's first-order candidate tests and the stop condition's crossing.
+//! regularity monitor's first-order candidate tests and the stop condition's screen inside
+//! the step (the member's own watch, so that a look it asks for is taken alone).
 //!
 //! Whatever needs more than the plain step (a non-finite or diverged state, a candidate
 //! singular point that the simulation would search for, a failed factorization, the stop

@@ -457,7 +457,10 @@ impl Simulation {
     /// event's expression g crosses zero upward (g < 0 before, g >= 0 after), located to
     /// 1e-10 of dt (see [`Event`]), and [`Simulation::stopped_at_event`] says so. A g
     /// already >= 0 now does not fire until it has gone below zero and come back. The
-    /// simulation can go on after an event (the next crossing fires again).
+    /// simulation can go on after an event (the next crossing fires again). g is sampled
+    /// at the end of every step and at `config.event_samples` times inside it (see
+    /// [`Event`]); a g that is not a number makes the step fail with
+    /// [`RunError::EventNotANumber`], the simulation standing at the step's start.
     ///
     /// Fails when the event was parsed for another system, or reads generalized
     /// coordinates and the simulation runs the implicit form.
