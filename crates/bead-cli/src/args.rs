@@ -282,6 +282,13 @@ pub struct SimArgs {
     /// e.g. "5 - bead.y" [default: the scene's [run] stop_when, else none]
     #[arg(long, value_name = "EXPR", allow_hyphen_values = true)]
     pub stop_when: Option<String>,
+
+    /// Also sample the stop condition at K evenly spaced times inside each step (for dopri5:
+    /// at least every dt/(K+1) of its dense output), so that a crossing and its return within
+    /// one step are found when a sample falls between them; 0 compares step ends only, at
+    /// most 1024 [default: the scene's [run] event_samples, else 4]
+    #[arg(long, value_name = "K", value_parser = clap::value_parser!(u32).range(0..=bead::simulate::MAX_EVENT_SAMPLES as i64))]
+    pub event_samples: Option<u32>,
 }
 
 impl SimArgs {
@@ -302,6 +309,7 @@ impl SimArgs {
             substeps: 1,
             max_substeps: 64,
             stop_when: None,
+            event_samples: None,
         }
     }
 }

@@ -27,6 +27,7 @@ pub fn request(sim: &SimArgs, method: Option<Method>) -> PlanRequest {
         project: sim.project,
         substeps: Some(sim.substeps),
         max_substeps: Some(sim.max_substeps),
+        event_samples: sim.event_samples,
     }
 }
 

@@ -153,9 +153,12 @@ pub fn run_text(scene: &Scene, plan: &Plan, summary: &Summary) -> String {
     }
     row(&mut s, "t_final", format!("{} s", exact(summary.t_final)));
     if let Some(condition) = &summary.stop_when {
-        let outcome = match summary.stop_time {
-            Some(t) => format!("crossed zero at t = {} s; the run stopped there", exact(t)),
-            None => "did not cross zero".to_string(),
+        let outcome = match (summary.stop_time, &summary.error) {
+            (Some(t), _) => format!("crossed zero at t = {} s; the run stopped there", exact(t)),
+            (None, Some(_)) if !summary.completed => {
+                "did not cross zero before the run failed (below)".to_string()
+            }
+            (None, _) => "did not cross zero".to_string(),
         };
         row(&mut s, "stop_when", format!("{condition}: {outcome}"));
     }

@@ -732,3 +732,96 @@ fn sweep_rows_stream_in_member_order_with_bounded_memory() {
         .collect();
     assert_eq!(members, (0..60_000).collect::<Vec<_>>());
 }
+
+/// A shipped scene's path as text.
+fn shipped_text(name: &str) -> String {
+    shipped(name).to_str().unwrap().to_string()
+}
+
+/// The command of issue 15: sin(100 t) goes up, down and up again within the first step
+/// of 0.1; its first upward crossing, 2 pi / 100, is found (it reported 0.1257, where the
+/// step ends first showed g >= 0). `--event-samples 0` compares the step ends alone, and a
+/// bad count is a usage error; `[run] event_samples` is the scene's default.
+#[test]
+fn event_crossing_within_one_step_is_found_by_the_cli() {
+    let dir = TempDir::new("in-step");
+    let parabola = shipped_text("parabola.toml");
+    let run = |extra: &[&str]| {
+        let mut args = vec!["run", &parabola, "--stop-when", "sin(100*t)", "--dt", "0.1"];
+        args.extend_from_slice(extra);
+        args.push("--json");
+        json(&ok(bead(&dir.0, &args)))["stop_time"]
+            .as_f64()
+            .unwrap()
+    };
+    let t = run(&[]);
+    assert!((t - 0.02 * std::f64::consts::PI).abs() <= 1e-11, "{t}");
+    assert!(run(&["--event-samples", "0"]) > 0.1);
+    let error = fails(
+        bead(&dir.0, &["run", &parabola, "--event-samples", "5000"]),
+        2,
+    );
+    assert!(error.contains("--event-samples"), "{error}");
+    let text = std::fs::read_to_string(&parabola).unwrap();
+    let scene = dir.write(
+        "p.toml",
+        &text.replace("[run]\n", "[run]\nevent_samples = 0\n"),
+    );
+    let s = scene.to_str().unwrap();
+    let from_scene = |extra: &[&str]| {
+        let mut args = vec![
+            "run",
+            s,
+            "--stop-when",
+            "sin(100*t)",
+            "--dt",
+            "0.1",
+            "--json",
+        ];
+        args.extend_from_slice(extra);
+        json(&ok(bead(&dir.0, &args)))["stop_time"]
+            .as_f64()
+            .unwrap()
+    };
+    assert!(from_scene(&[]) > 0.1);
+    assert_eq!(from_scene(&["--event-samples", "4"]), t);
+}
+
+/// A stop condition that becomes NaN ends the run with an error naming it, the time and
+/// the values it read, exit code 1, the summary of the run up to its last good state (whose
+/// text does not claim the condition simply never crossed).
+#[test]
+fn event_condition_nan_is_an_error_in_the_cli() {
+    let dir = TempDir::new("nan-event");
+    let circle = shipped_text("circle.toml");
+    let out = bead(
+        &dir.0,
+        &[
+            "run",
+            &circle,
+            "--stop-when",
+            "sqrt(bead.x)",
+            "--summary",
+            "s.json",
+        ],
+    );
+    let text = common::stdout(&out);
+    assert!(
+        text.contains("stop_when    sqrt(bead.x): did not cross zero before the run failed"),
+        "{text}"
+    );
+    let error = fails(out, 1);
+    assert!(
+        error.contains("error: stop_when `sqrt(bead.x)` is not a number at t = 0.538"),
+        "{error}"
+    );
+    assert!(error.contains("(with bead.x = -"), "{error}");
+    let summary = json(&std::fs::read_to_string(dir.0.join("s.json")).unwrap());
+    assert_eq!(summary["completed"], false);
+    let t_final = summary["t_final"].as_f64().unwrap();
+    assert!(t_final > 0.5 && t_final < 0.5383, "{t_final}");
+    let x = summary["particles"]["bead"]["position"][0]
+        .as_f64()
+        .unwrap();
+    assert!(x > 0.0, "{summary}");
+}

@@ -202,6 +202,7 @@ struct Asked<'a, 'py> {
     project: bool,
     substeps: Option<&'a Bound<'py, PyAny>>,
     max_substeps: Option<&'a Bound<'py, PyAny>>,
+    event_samples: Option<&'a Bound<'py, PyAny>>,
 }
 
 impl Asked<'_, '_> {
@@ -234,6 +235,14 @@ impl Asked<'_, '_> {
             project: self.project,
             substeps: substeps("substeps", self.substeps)?,
             max_substeps: substeps("max_substeps", self.max_substeps)?,
+            event_samples: args::integer(
+                "event_samples",
+                self.event_samples,
+                0,
+                bead::simulate::MAX_EVENT_SAMPLES as u64,
+                "",
+            )?
+            .map(|k| k as u32),
         })
     }
 }
@@ -413,13 +422,16 @@ impl PyScene {
     /// implicit form), rtol and atol (dopri5), project (implicit form), substeps and
     /// max_substeps, and stop_when (an expression of the particles' coordinates and
     /// velocities, t and params, e.g. "-bead.x": the run ends where it crosses zero upward,
-    /// located to 1e-10 of dt; default: the scene's `[run] stop_when`).
+    /// located to 1e-10 of dt; default: the scene's `[run] stop_when`), and event_samples
+    /// (times inside each step at which stop_when is also sampled, 0 to 1024; default: the
+    /// scene's `[run] event_samples`, else 4). A stop_when that is not a number (NaN) raises
+    /// `bead.RunError`.
     ///
     /// Raises ValueError for a bad argument, `bead.SetupError` when the simulation cannot
     /// start (e.g. rattle on the parametric form), and `bead.RunError` (`bead.DivergenceError`
     /// when the state blew up) when a step fails, with the run up to the last good state as
     /// `.run`. The GIL is released while the run steps.
-    #[pyo3(signature = (*, method = None, integrator = None, dt = None, duration = None, steps = None, every = None, stabilize = None, rtol = None, atol = None, project = false, substeps = None, max_substeps = None, stop_when = None))]
+    #[pyo3(signature = (*, method = None, integrator = None, dt = None, duration = None, steps = None, every = None, stabilize = None, rtol = None, atol = None, project = false, substeps = None, max_substeps = None, stop_when = None, event_samples = None))]
     #[allow(clippy::too_many_arguments)]
     fn run(
         &self,
@@ -437,6 +449,7 @@ impl PyScene {
         substeps: Option<&Bound<'_, PyAny>>,
         max_substeps: Option<&Bound<'_, PyAny>>,
         stop_when: Option<&str>,
+        event_samples: Option<&Bound<'_, PyAny>>,
     ) -> PyResult<Py<PyAny>> {
         let asked = Asked {
             method,
@@ -451,6 +464,7 @@ impl PyScene {
             project,
             substeps,
             max_substeps,
+            event_samples,
         };
         let request = asked.request()?;
         let plan = resolve(py, &self.inner, &request)?;
@@ -460,7 +474,7 @@ impl PyScene {
 
     /// A `bead.Simulation` to step by hand (`step()`, `advance_to(t)`), at the scene's
     /// initial state. The arguments are those of `run()` without the run's length.
-    #[pyo3(signature = (*, method = None, integrator = None, dt = None, stabilize = None, rtol = None, atol = None, project = false, substeps = None, max_substeps = None, stop_when = None))]
+    #[pyo3(signature = (*, method = None, integrator = None, dt = None, stabilize = None, rtol = None, atol = None, project = false, substeps = None, max_substeps = None, stop_when = None, event_samples = None))]
     #[allow(clippy::too_many_arguments)]
     fn simulation(
         &self,
@@ -475,6 +489,7 @@ impl PyScene {
         substeps: Option<&Bound<'_, PyAny>>,
         max_substeps: Option<&Bound<'_, PyAny>>,
         stop_when: Option<&str>,
+        event_samples: Option<&Bound<'_, PyAny>>,
     ) -> PyResult<PySimulation> {
         let asked = Asked {
             method,
@@ -486,6 +501,7 @@ impl PyScene {
             project,
             substeps,
             max_substeps,
+            event_samples,
             ..Asked::default()
         };
         // Only the step matters here: the scene's run length is not used, and a request for
@@ -971,7 +987,7 @@ impl PySweepPlan {
     /// `zip=True` value i of each. The keyword arguments are those of `Scene.run` without
     /// `every` (each member records nothing but its figures).
     #[new]
-    #[pyo3(signature = (scene, names, values, zip = false, *, method = None, integrator = None, dt = None, duration = None, steps = None, stabilize = None, rtol = None, atol = None, project = false, substeps = None, max_substeps = None, stop_when = None))]
+    #[pyo3(signature = (scene, names, values, zip = false, *, method = None, integrator = None, dt = None, duration = None, steps = None, stabilize = None, rtol = None, atol = None, project = false, substeps = None, max_substeps = None, stop_when = None, event_samples = None))]
     #[allow(clippy::too_many_arguments)]
     fn new(
         py: Python<'_>,
@@ -991,6 +1007,7 @@ impl PySweepPlan {
         substeps: Option<&Bound<'_, PyAny>>,
         max_substeps: Option<&Bound<'_, PyAny>>,
         stop_when: Option<&str>,
+        event_samples: Option<&Bound<'_, PyAny>>,
     ) -> PyResult<PySweepPlan> {
         let scene = &scene.get().inner;
         if names.len() != values.len() {
@@ -1030,6 +1047,7 @@ impl PySweepPlan {
             project,
             substeps,
             max_substeps,
+            event_samples,
             ..Asked::default()
         };
         let request = asked.request()?;

@@ -172,8 +172,27 @@
         break;
       case "curve_error": onCurveError(msg); break;
       case "equations": onEquations(msg); break;
+      case "start_placed": onStartPlaced(msg); break;
       default: break;
     }
+  }
+
+  // A drop while paused starts every panel at the point of the curve closest to it: say how
+  // far that is on the screen of the panel dropped on, unless under half a pixel.
+  function onStartPlaced(msg) {
+    const p = state.panels.get(msg.panel);
+    let pixels = null;
+    if (p && state.scene) {
+      const T = transform(p);
+      const dx = T.px(msg.placed, 0) - T.px(msg.dropped, 0);
+      const dy = T.py(msg.placed, 0) - T.py(msg.dropped, 0);
+      const canvas = p.dom.canvas;
+      const ratio = canvas.width > 0 ? canvas.getBoundingClientRect().width / canvas.width : 1;
+      pixels = Math.hypot(dx, dy) * ratio;
+    }
+    if (pixels !== null ? pixels < 0.5 : !(msg.moved > 0)) return;
+    const where = pixels !== null ? `${Math.round(pixels)} px` : fmt(msg.moved);
+    showMessage(`moved the drop ${where} onto the curve (${fmt(msg.moved)} in the scene's units), to the closest point`);
   }
 
   function option(select, value, label, title) {

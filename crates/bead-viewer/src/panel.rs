@@ -317,6 +317,13 @@ impl Panel {
         self.steps_per_second
     }
 
+    /// The point of the constraints closest to positions `x`, where
+    /// [`Panel::restarted_at_rest`] puts the particles (see
+    /// [`Simulation::closest_start`]).
+    pub fn closest_start(&self, x: &[f64]) -> Result<Vec<f64>, String> {
+        self.simulation.closest_start(x).map_err(|e| e.to_string())
+    }
+
     /// This panel restarted at t = 0 at rest from positions `x` (see
     /// [`Simulation::restart_at_rest`]), as a new panel in epoch `epoch`; `self` is left as
     /// it was, so that a session can replace its panels only when all of them can start.

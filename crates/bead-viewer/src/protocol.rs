@@ -69,7 +69,9 @@
 //! limits it) and each panel's `distance` to the first panel at the same t (overlay mode);
 //! `add_panel`, `configure_panel` and `reset` restart every panel; new requests
 //! `set_param`, `set_start` and `equations`; the scene lists its `params`, panels say which
-//! settings apply to them (`applies`), and a new reply `equations`.
+//! settings apply to them (`applies`), and a new reply `equations`. Within version 5 (a
+//! page that does not know it ignores it), `set_start` also replies `start_placed`: where
+//! the drop was moved onto the curve.
 //!
 //! Version 4 adds to frames the path of the simulation's own steps
 //! ([`PanelFrame::path`]), moving curves at the frame's t ([`PanelFrame::curves`]) and the
@@ -183,9 +185,10 @@ pub enum ClientMessage {
     /// Set the start state (while paused): particle `particle` of panel `panel` moved to
     /// `target` (2 or 3 numbers; a missing z is the particle's), the others where they are in
     /// that panel, all at rest. Every panel restarts from it at t = 0 (implicit: projected
-    /// onto the constraints; parametric: the closest coordinates, see
-    /// `bead::simulate::Simulation::restart_at_rest`); if one cannot, nothing changes and the
-    /// reply is an error saying why.
+    /// onto the point of the constraints closest to the drop, the same for every panel, see
+    /// `bead::simulate::Simulation::restart_at_rest`); the reply is
+    /// [`ServerMessage::StartPlaced`] and the new [`ServerMessage::Panels`]. If a panel
+    /// cannot start, nothing changes and the reply is an error saying why.
     SetStart {
         panel: u32,
         particle: usize,
@@ -268,6 +271,18 @@ pub enum ServerMessage {
         request: Option<String>,
         #[serde(skip_serializing_if = "Option::is_none")]
         panel: Option<u32>,
+    },
+    /// A `set_start` was done: the particles start (every panel alike) at `placed`, the
+    /// point of the constraints closest to the drop (see
+    /// `bead::simulate::Simulation::closest_start`); particle `particle` was dropped at
+    /// `dropped` and moved by `moved` (scene units) onto the curve. Sent before the new
+    /// [`ServerMessage::Panels`]; the page says how far it moved the drop.
+    StartPlaced {
+        panel: u32,
+        particle: usize,
+        dropped: Vec<f64>,
+        placed: Vec<f64>,
+        moved: f64,
     },
     /// The equations panel `panel`'s formulation derived, as `bead check` prints them.
     Equations {

@@ -648,7 +648,8 @@ impl Session {
     }
 
     /// A new start state: particle `particle` of panel `panel` at `target`, the others where
-    /// that panel has them, at rest; every panel restarts from it, or none does.
+    /// that panel has them, at rest, moved onto the point of the constraints closest to that
+    /// ([`Panel::closest_start`]); every panel restarts from that point, or none does.
     fn set_start(
         &mut self,
         panel: u32,
@@ -683,10 +684,30 @@ impl Session {
             return Err((SessionError::Drag(DragError::TargetRange), Some(panel)));
         }
         x[particle * dim..(particle + 1) * dim].copy_from_slice(&target);
+        // The start, computed once and given to every panel: the point of the constraints
+        // closest to the drop (each form would find the same from the drop; handing them
+        // this point makes it so by construction).
+        let start = source.closest_start(&x).map_err(|message| {
+            (
+                SessionError::StartFailed {
+                    panel,
+                    method: source.method().name(),
+                    message,
+                },
+                Some(panel),
+            )
+        })?;
+        let placed = start[particle * dim..(particle + 1) * dim].to_vec();
+        let moved = placed
+            .iter()
+            .zip(&target)
+            .map(|(a, b)| (a - b) * (a - b))
+            .sum::<f64>()
+            .sqrt();
         let mut rebuilt = Vec::new();
         for (k, old) in self.panels.iter().enumerate() {
             let epoch = self.next_epoch + k as u64;
-            match old.restarted_at_rest(epoch, &x) {
+            match old.restarted_at_rest(epoch, &start) {
                 Ok(panel) => rebuilt.push(panel),
                 Err(message) => {
                     return Err((
@@ -703,7 +724,16 @@ impl Session {
         self.next_epoch += rebuilt.len() as u64;
         self.panels = rebuilt;
         self.restarted();
-        Ok(vec![self.panels_message()])
+        Ok(vec![
+            ServerMessage::StartPlaced {
+                panel,
+                particle,
+                dropped: target,
+                placed,
+                moved,
+            },
+            self.panels_message(),
+        ])
     }
 
     fn index(&self, panel: u32) -> Result<usize, Rejection> {

@@ -1687,6 +1687,40 @@ async fn teaching_checks(client: &Client, addr: SocketAddr) {
         assert!((x * x + 100.0 * y).abs() < 1e-6, "panel {panel}: {f}");
         assert!((x + 90.0).abs() < 1.0, "panel {panel}: {f}");
     }
+    // Far off the curve, at (-100, -200): both panels start at the closest point of the
+    // curve, (-136.6, -186.6) (issue 15: the two forms started on opposite sides of the
+    // bowl), and the page says how far it moved the drop.
+    let before = generation(client).await;
+    let f = frame(client, 1).await;
+    let (x, y) = (f["x"][0].as_f64().unwrap(), f["x"][1].as_f64().unwrap());
+    pointer(client, 1, "pointerdown", x, y).await;
+    pointer(client, 1, "pointermove", -95.0, -150.0).await;
+    pointer(client, 1, "pointermove", -100.0, -200.0).await;
+    pointer(client, 1, "pointerup", -100.0, -200.0).await;
+    wait_until(
+        client,
+        &all_after(before, "f.t === 0 && f.status === 'paused'"),
+        "the start at the closest point",
+    )
+    .await;
+    let mut starts = Vec::new();
+    for panel in [1, 2] {
+        let f = frame(client, panel).await;
+        let (x, y) = (f["x"][0].as_f64().unwrap(), f["x"][1].as_f64().unwrap());
+        assert!(
+            (x + 136.6).abs() < 0.1 && (y + 186.6).abs() < 0.1,
+            "panel {panel}: {f}"
+        );
+        starts.push((x, y));
+    }
+    assert!((starts[0].0 - starts[1].0).abs() < 1e-9, "{starts:?}");
+    wait_until(
+        client,
+        "(() => { const t = document.getElementById('messages').textContent;
+            return /moved the drop \\d+ px onto the curve/.test(t); })()",
+        "the message about the moved drop",
+    )
+    .await;
     // The equations on demand.
     js(client, "document.querySelector('.panel[data-panel=\"2\"] button.show-equations').click(); return null;").await;
     wait_until(

@@ -1115,3 +1115,64 @@ fn the_view_box_of_a_large_scene_is_bounded_work() {
         "{v:?}"
     );
 }
+
+/// A drop while paused, off the parabola x^2 + 100 y = 0 (issue 15's drop (-100, -200)):
+/// the session moves it once onto the point of the curve closest to it, (x*, -x*^2/100)
+/// with x* the root of x^3 - 15000 x + 500000 = 0 near -136.6 (by Newton here, apart from
+/// bead), says so (`start_placed`, the distance moved), and both panels start there, equal
+/// to 1e-9. The implicit panel used to start at (-135, -183), the parametric one at
+/// (100, -100) on the other side of the bowl.
+#[test]
+fn drag_start_puts_both_panels_at_the_closest_point_and_says_how_far_it_moved() {
+    let mut s = session();
+    run(&mut s, 0.5);
+    send(&mut s, r#"{"type":"pause"}"#);
+    let replies = send(
+        &mut s,
+        r#"{"type":"set_start","panel":1,"particle":0,"target":[-100,-200]}"#,
+    );
+    let mut x = -136.0f64;
+    for _ in 0..50 {
+        x -= (x * x * x - 15000.0 * x + 500000.0) / (3.0 * x * x - 15000.0);
+    }
+    let exact = [x, -x * x / 100.0];
+    let Some(ServerMessage::StartPlaced {
+        panel,
+        particle,
+        dropped,
+        placed,
+        moved,
+    }) = replies.first()
+    else {
+        panic!("{replies:?}");
+    };
+    assert_eq!((*panel, *particle), (1, 0));
+    assert_eq!(dropped, &[-100.0, -200.0]);
+    assert!(
+        (placed[0] - exact[0]).abs() < 1e-9 && (placed[1] - exact[1]).abs() < 1e-9,
+        "{placed:?} {exact:?}"
+    );
+    let distance = ((exact[0] + 100.0).powi(2) + (exact[1] + 200.0).powi(2)).sqrt();
+    assert!((moved - distance).abs() < 1e-9, "{moved} {distance}");
+    assert!(panels_of(&replies).is_some(), "{replies:?}");
+    let panels = frames(&s);
+    assert_eq!(panels.len(), 2);
+    for p in &panels {
+        assert_eq!(p.t, 0.0);
+        assert!(
+            (p.x[0] - exact[0]).abs() < 1e-9 && (p.x[1] - exact[1]).abs() < 1e-9,
+            "panel {}: {:?}",
+            p.id,
+            p.x
+        );
+    }
+    // A drop on the curve is not moved.
+    let replies = send(
+        &mut s,
+        r#"{"type":"set_start","panel":2,"particle":0,"target":[50,-25]}"#,
+    );
+    let Some(ServerMessage::StartPlaced { moved, .. }) = replies.first() else {
+        panic!("{replies:?}");
+    };
+    assert!(*moved < 1e-9, "{moved}");
+}

@@ -21,7 +21,10 @@ use crate::formulation::{Feedback, Method};
 use crate::integrate::{IntegratorKind, IntegratorSettings};
 use crate::readable;
 use crate::scene::Scene;
-use crate::simulate::{RunOptions, SimulationConfig, RELATIVE_CONSTRAINT_TOLERANCE};
+use crate::simulate::{
+    RunOptions, SimulationConfig, DEFAULT_EVENT_SAMPLES, MAX_EVENT_SAMPLES,
+    RELATIVE_CONSTRAINT_TOLERANCE,
+};
 
 /// Step size when neither the request nor the scene give one (s).
 pub const DEFAULT_DT: f64 = 1.0 / 60.0;
@@ -64,6 +67,10 @@ pub struct PlanRequest {
     /// Most substeps a retried step may take, >= 1; default [`DEFAULT_MAX_SUBSTEPS`], and
     /// never fewer than `substeps`.
     pub max_substeps: Option<u32>,
+    /// Interior times per step at which a stop condition is sampled, 0 to
+    /// [`crate::simulate::MAX_EVENT_SAMPLES`]; default: the scene's, else
+    /// [`crate::simulate::DEFAULT_EVENT_SAMPLES`].
+    pub event_samples: Option<u32>,
 }
 
 /// Why a request and a scene do not make a plan.
@@ -132,6 +139,8 @@ pub struct Plan {
     pub substeps: u32,
     /// The most substeps a retried step may take (at least `substeps`).
     pub max_substeps: u32,
+    /// Interior times per step at which a stop condition is sampled.
+    pub event_samples: u32,
 }
 
 impl Plan {
@@ -198,6 +207,10 @@ impl Plan {
                 .max_substeps
                 .unwrap_or(DEFAULT_MAX_SUBSTEPS)
                 .max(substeps),
+            event_samples: request
+                .event_samples
+                .or(run.event_samples)
+                .unwrap_or(DEFAULT_EVENT_SAMPLES),
         })
     }
 
@@ -232,6 +245,7 @@ impl Plan {
             substeps: self.substeps,
             max_substeps: self.max_substeps,
             track_work: None,
+            event_samples: self.event_samples,
         }
     }
 
@@ -362,6 +376,15 @@ fn check_request(request: &PlanRequest) -> Result<(), PlanError> {
     }
     if request.max_substeps == Some(0) {
         return Err(bad("max_substeps", "0".into(), "must be at least 1"));
+    }
+    if let Some(k) = request.event_samples {
+        if k > MAX_EVENT_SAMPLES {
+            return Err(PlanError::Request {
+                option: "event_samples",
+                value: k.to_string(),
+                problem: format!("must be at most {MAX_EVENT_SAMPLES}"),
+            });
+        }
     }
     if let Some(f) = request.stabilize {
         if !valid_feedback(f) {

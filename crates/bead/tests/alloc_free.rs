@@ -368,3 +368,55 @@ fn run_loop_with_projection_allocates_nothing_per_step() {
         }
     }
 }
+
+// Watching a stop condition adds nothing per step either: its screen inside every step (the
+// samples on the interpolant, dopri5's samples of its dense output) runs in buffers sized
+// when it is set, so a run with one that never fires makes as many allocator calls in 10
+// steps as in 10000.
+#[test]
+fn run_loop_with_a_stop_condition_allocates_nothing_per_step() {
+    let system = parabola();
+    for kind in IntegratorKind::ALL {
+        for method in [Method::Implicit, Method::Parametric] {
+            if method == Method::Parametric && kind.needs_constraints() {
+                continue;
+            }
+            let calls = |steps: u64| {
+                let formulation = formulate(system.clone(), method, Feedback::default()).unwrap();
+                let options = Options {
+                    integrator: kind,
+                    dt: 1.0 / 600.0,
+                    steps,
+                    every: 1,
+                    ..Default::default()
+                };
+                let mut simulation = common::simulation(formulation, &options);
+                let event = bead::simulate::Event::parse(&system, "-1e9 - bead.x").unwrap();
+                simulation.set_stop_when(Some(event)).unwrap();
+                let run = bead::simulate::RunOptions::steps(steps);
+                let (calls, result) =
+                    allocator_calls(|| bead::simulate::run(&mut simulation, run, &mut NullSink));
+                assert_eq!(result.unwrap().stop_time, None);
+                (calls, simulation.singular_point_searches())
+            };
+            let ((short, short_searches), (long, long_searches)) = (calls(10), calls(10_000));
+            let context = format!(
+                "{} {} with a stop condition: {short} allocator calls in 10 steps, {long} in \
+                 10000, with {short_searches} and {long_searches} searches for singular points",
+                method.name(),
+                kind.name()
+            );
+            // As in run_loop_allocation_count_does_not_depend_on_the_number_of_steps: only the
+            // singular-point monitor's searches, few and counted, may allocate.
+            if long_searches == short_searches {
+                assert_eq!(short, long, "{context}");
+            } else {
+                assert!(long_searches <= 10, "{context}");
+                assert!(
+                    long - short <= (long_searches - short_searches) as usize * CALLS_PER_SEARCH,
+                    "{context}"
+                );
+            }
+        }
+    }
+}

@@ -202,10 +202,11 @@ fn the_pendulum_reaches_the_bottom_at_a_quarter_period() {
             t - exact
         );
         // Located on the integrator's own path to 1e-10 of dt: g = -x at the final state
-        // is >= 0 and below |dg/dt| 1e-10 dt (|dx/dt| is the speed at the bottom, < 3).
+        // is >= 0 and below |dg/dt| 1e-10 dt (|dx/dt| is the speed at the bottom,
+        // sqrt(2 g L (1 - cos 60°)) = sqrt(9.81) < 3.2).
         let x = sim.positions()[0];
         assert!(
-            -x >= 0.0 && -x <= 3.0 * 1e-10 * dt + 1e-15,
+            -x >= 0.0 && -x <= 3.2 * 1e-10 * dt + 1e-15,
             "{label}: x = {x:e}"
         );
     }
@@ -230,9 +231,10 @@ fn substeps_and_the_projection_work_with_events() {
             "{}: {t} {exact}",
             integrator.name()
         );
+        // The speed at the bottom is sqrt(9.81) < 3.2 (see above), the bracket 1e-10 dt.
         let x = sim.positions()[0];
         assert!(
-            -x >= 0.0 && -x <= 3.0 * 1e-12,
+            -x >= 0.0 && -x <= 3.2 * 1e-12,
             "{}: {x:e}",
             integrator.name()
         );
@@ -470,4 +472,353 @@ fn velocities_time_and_plain_names() {
         let t = stats.stop_time.unwrap();
         assert!((t - exact).abs() < 1e-12, "{event}: {t}");
     }
+}
+
+/// Carlson's symmetric elliptic integral R_F(x, y, z), by duplication to |1 - x/mu| < 1e-4
+/// and the fifth-order series (truncation ~1e-24).
+fn carlson_rf(mut x: f64, mut y: f64, mut z: f64) -> f64 {
+    loop {
+        let mu = (x + y + z) / 3.0;
+        let (dx, dy, dz) = (1.0 - x / mu, 1.0 - y / mu, 1.0 - z / mu);
+        if dx.abs().max(dy.abs()).max(dz.abs()) < 1e-4 {
+            let e2 = dx * dy - dz * dz;
+            let e3 = dx * dy * dz;
+            return (1.0 - e2 / 10.0 + e3 / 14.0 + e2 * e2 / 24.0 - 3.0 * e2 * e3 / 44.0)
+                / mu.sqrt();
+        }
+        let l = (x * y).sqrt() + (y * z).sqrt() + (z * x).sqrt();
+        (x, y, z) = ((x + l) / 4.0, (y + l) / 4.0, (z + l) / 4.0);
+    }
+}
+
+/// The incomplete elliptic integral of the first kind F(phi, k).
+fn elliptic_f(phi: f64, k: f64) -> f64 {
+    let (s, c) = phi.sin_cos();
+    s * carlson_rf(c * c, 1.0 - k * k * s * s, 1.0)
+}
+
+/// The pendulum of scenes/circle.toml (L = 1, g = 9.81, released at rest at theta0 = 60°):
+/// the time of the first upward crossing of x = L sin(theta_c), theta_c < theta0, which
+/// happens as the bead comes back up to theta0 after a whole period T: T - t(theta_c), with
+/// t(theta) = sqrt(L/g) (K(k) - F(phi, k)) the time from the release down to theta, k =
+/// sin(theta0/2), sin(phi) = sin(theta/2)/k. The bead stays beyond x_c for 2 t(theta_c)
+/// around T.
+fn pendulum_return(theta_c: f64) -> (f64, f64) {
+    let theta0 = PI / 3.0;
+    let k = (theta0 / 2.0).sin();
+    let scale = (1.0f64 / 9.81).sqrt();
+    let big_k = elliptic_f(PI / 2.0, k);
+    let phi = ((theta_c / 2.0).sin() / k).asin();
+    let t_c = scale * (big_k - elliptic_f(phi, k));
+    (4.0 * scale * big_k - t_c, t_c)
+}
+
+fn with_samples(mut config: SimulationConfig, samples: u32) -> SimulationConfig {
+    config.event_samples = samples;
+    config
+}
+
+/// g = sin(100 t) starts at 0, goes up, down through zero at pi/100 and up again at
+/// 2 pi/100 = 0.0628: within the first step of 0.1. Its end samples alone compare g(0) = 0
+/// and g(0.1) < 0 and fire at the next step with g >= 0 at its end (0.1257); the samples
+/// inside the step find the first upward crossing, and it is located to 1e-10 dt, for every
+/// integrator and both forms (the expression reads t alone, so the path does not matter).
+/// Going on, every later upward crossing 2 pi k / 100 fires in turn, about 1.6 per step of
+/// 0.1, dopri5's long steps included (free fall is exact for it, so its steps grow to the
+/// end; its dense output is sampled at least every dt / 5 too).
+#[test]
+fn event_crossing_within_one_step_is_found() {
+    use IntegratorKind::*;
+    let scene = drop_scene();
+    let dt = 0.1;
+    let cases = [
+        (Method::Implicit, Euler),
+        (Method::Implicit, SymplecticEuler),
+        (Method::Implicit, Midpoint),
+        (Method::Implicit, Rk4),
+        (Method::Implicit, Verlet),
+        (Method::Implicit, Rattle),
+        (Method::Implicit, GaussLegendre),
+        (Method::Implicit, Dopri5),
+        (Method::Parametric, Rk4),
+        (Method::Parametric, GaussLegendre),
+        (Method::Parametric, Dopri5),
+    ];
+    for (method, integrator) in cases {
+        let label = format!("{} {}", method.name(), integrator.name());
+        let mut config = config(method, integrator, dt);
+        config.settings.rtol = 1e-6;
+        let mut sim = Simulation::new(Arc::clone(&scene.system), config).unwrap();
+        sim.set_stop_when(Some(Event::parse(&scene.system, "sin(100*t)").unwrap()))
+            .unwrap();
+        sim.set_stop_time(Some(1.0));
+        for k in 1..=15 {
+            sim.advance_to(1.0).unwrap();
+            let exact = 2.0 * PI * k as f64 / 100.0;
+            assert!(sim.stopped_at_event(), "{label}: crossing {k} not found");
+            assert!(
+                (sim.t() - exact).abs() <= 1e-10 * dt + 4.0 * f64::EPSILON,
+                "{label}: crossing {k} at {} instead of {exact}: {:e}",
+                sim.t(),
+                sim.t() - exact
+            );
+        }
+    }
+    // The command-line case of the issue: `bead run scenes/parabola.toml --stop-when
+    // "sin(100*t)" --dt 0.1` reported 0.1257.
+    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../../scenes/parabola.toml");
+    let parabola = Scene::load(std::path::Path::new(path), &[]).unwrap();
+    let (stats, _, _) = run_until(
+        &parabola,
+        "sin(100*t)",
+        SimulationConfig {
+            dt,
+            ..Default::default()
+        },
+        100,
+    );
+    let t = stats.stop_time.unwrap();
+    assert!((t - 0.02 * PI).abs() <= 1e-10 * dt, "{t}");
+    // Without interior samples only the step ends are compared: the crossing is missed.
+    let (stats, _, _) = run_until(
+        &parabola,
+        "sin(100*t)",
+        with_samples(
+            SimulationConfig {
+                dt,
+                ..Default::default()
+            },
+            0,
+        ),
+        100,
+    );
+    assert!(stats.stop_time.unwrap() > 0.1);
+}
+
+/// A physical double crossing: the pendulum comes back up to its release angle after a
+/// period T = 2.1529 s and stays beyond x_c = sin(theta_c), theta_c just below theta0, for
+/// 2 t_c around T (elliptic integrals, independent of bead). rk4 at dt = 0.02 with
+/// theta_c = theta0 - 1.5e-4 (a window of 0.012 s inside its step from 2.14 to 2.16; rk4
+/// loses about 40 h^4 rad of amplitude a period, 6e-6 here, which moves the return by
+/// 1e-4 s), gauss-legendre at dt = 0.1 with theta0 - 4e-3 (0.061 s inside the step from 2.1
+/// to 2.2): compared at the step ends alone (`event_samples` 0) the return is missed and
+/// the run goes on to its end; with the default samples it is found, to the integrator's
+/// own error, and located on its path to 1e-10 dt. dopri5 at dt = 0.1 with theta0 - 4e-5:
+/// a window of 0.006 s, narrower than the default spacing of dt / 5 = 0.02 s, falls between
+/// two samples of its dense output and is missed; 32 samples per dt (spacing 0.003 s) find
+/// it.
+#[test]
+fn event_double_crossing_of_a_pendulum_within_one_step_is_found() {
+    let scene = circle();
+    let theta0 = PI / 3.0;
+    let default = SimulationConfig::default().event_samples;
+    for (integrator, dt, drop, tolerance, missed, found) in [
+        (IntegratorKind::Rk4, 0.02, 1.5e-4, 3e-4, 0, default),
+        (IntegratorKind::GaussLegendre, 0.1, 4e-3, 1e-4, 0, default),
+        (IntegratorKind::Dopri5, 0.1, 4e-5, 2e-5, default, 32),
+    ] {
+        let label = integrator.name();
+        let theta_c = theta0 - drop;
+        let (exact, t_c) = pendulum_return(theta_c);
+        let event = format!("bead.x - {}", theta_c.sin());
+        let mut config = config(Method::Implicit, integrator, dt);
+        config.settings.rtol = 1e-7;
+        config.settings.atol = 1e-9;
+        let steps = (3.0 / dt) as u64;
+        let (stats, sim, _) = run_until(&scene, &event, with_samples(config, found), steps);
+        let t = stats
+            .stop_time
+            .unwrap_or_else(|| panic!("{label}: the return at {exact} was missed"));
+        assert!(
+            (t - exact).abs() <= tolerance,
+            "{label}: {t} vs {exact} (window {t_c}): {:e}",
+            t - exact
+        );
+        let g = sim.positions()[0] - theta_c.sin();
+        assert!(g >= 0.0 && g <= 1e-10 * dt, "{label}: g = {g:e}");
+        let (stats, _, _) = run_until(&scene, &event, with_samples(config, missed), steps);
+        assert_eq!(
+            stats.stop_time, None,
+            "{label}: found with {missed} samples"
+        );
+    }
+}
+
+/// A sample on the interpolant that the integrator's path does not confirm is no event, and
+/// the step stands as it was. Euler's first step from rest keeps y = 0 (y1 = y0 + h v0), and
+/// the path of a part of it too, while the cubic through the step's ends dips to
+/// -g h^2 s^2 (1 - s) < 0 inside it: `-1e-9 - bead.y` is negative on the path throughout (it
+/// never crosses) and positive on the interpolant. The run ends where the run without the
+/// event ends, bit for bit.
+#[test]
+fn a_sample_the_integrators_path_does_not_confirm_does_not_fire() {
+    let scene = drop_scene();
+    let config = config(Method::Implicit, IntegratorKind::Euler, 0.1);
+    let (stats, _, _) = run_until(&scene, "-1e-9 - bead.y", config, 20);
+    assert_eq!(stats.stop_time, None);
+    let mut plain = Simulation::new(Arc::clone(&scene.system), config).unwrap();
+    let want = run(&mut plain, RunOptions::steps(20), &mut NullSink).unwrap();
+    assert_eq!(stats.x, want.x);
+    assert_eq!(stats.xdot, want.xdot);
+    assert_eq!(stats.energy_rel_error_max, want.energy_rel_error_max);
+    assert_eq!(stats.constraint_error_max, want.constraint_error_max);
+    assert_eq!(stats.steps, want.steps);
+}
+
+/// A stop condition that becomes NaN is an error naming it, the time and the values it
+/// read, and the run stands at the start of the step, where it was a number; once NaN at
+/// the start, at t = 0. It used to never fire, silently.
+#[test]
+fn event_condition_nan_is_an_error() {
+    let scene = circle();
+    let quarter = quarter_period();
+    use IntegratorKind::*;
+    for (method, integrator, samples) in [
+        (Method::Implicit, Rk4, 4),
+        (Method::Implicit, Rk4, 0),
+        (Method::Implicit, Rattle, 4),
+        (Method::Implicit, Dopri5, 4),
+        (Method::Implicit, Dopri5, 0),
+        (Method::Parametric, GaussLegendre, 4),
+        (Method::Parametric, Rk4, 4),
+    ] {
+        let label = format!("{} {} {samples}", method.name(), integrator.name());
+        let dt = 0.01;
+        // x crosses zero downward at a quarter period: sqrt(x) is NaN from there.
+        let config = with_samples(config(method, integrator, dt), samples);
+        let mut sim = Simulation::new(Arc::clone(&scene.system), config).unwrap();
+        sim.set_stop_when(Some(Event::parse(&scene.system, "sqrt(bead.x)").unwrap()))
+            .unwrap();
+        let failure = run(&mut sim, RunOptions::steps(100), &mut NullSink).expect_err(&label);
+        let bead::simulate::RunError::EventNotANumber {
+            t, values, stopped, ..
+        } = &failure.error
+        else {
+            panic!("{label}: {}", failure.error);
+        };
+        let message = failure.error.to_string();
+        assert!(
+            message.starts_with(&format!(
+                "stop_when `sqrt(bead.x)` is not a number at t = {}",
+                bead::readable(*t)
+            )),
+            "{label}: {message}"
+        );
+        assert!(message.contains("(with bead.x = -"), "{label}: {message}");
+        assert_eq!(values.len(), 1);
+        assert!(values[0].1 < 0.0);
+        // At the first sample past the quarter period, or the first step end.
+        let spacing = if samples > 0 && integrator != Dopri5 {
+            dt / (samples + 1) as f64
+        } else {
+            dt
+        };
+        assert!(
+            *t > quarter && *t <= quarter + spacing + 1e-9,
+            "{label}: {t}"
+        );
+        // The run stands at the start of the step, a good state (x > 0), before t.
+        assert_eq!(failure.stats.t_final, *stopped, "{label}");
+        assert_eq!(sim.t(), *stopped, "{label}");
+        assert!(*stopped < quarter && *stopped < *t, "{label}: {stopped}");
+        assert!(sim.positions()[0] > 0.0, "{label}");
+        if integrator != Dopri5 {
+            assert!(quarter - stopped <= dt, "{label}: {stopped}");
+        }
+    }
+    // NaN from the start: the error is at t = 0, and the run does not move.
+    let mut sim = Simulation::new(
+        Arc::clone(&scene.system),
+        config(Method::Implicit, Rk4, 0.01),
+    )
+    .unwrap();
+    sim.set_stop_when(Some(Event::parse(&scene.system, "sqrt(-bead.x)").unwrap()))
+        .unwrap();
+    let failure = run(&mut sim, RunOptions::steps(10), &mut NullSink).unwrap_err();
+    assert!(
+        failure
+            .error
+            .to_string()
+            .starts_with("stop_when `sqrt(-bead.x)` is not a number at t = 0 (with bead.x = 0.866"),
+        "{}",
+        failure.error
+    );
+    assert_eq!(failure.stats.t_final, 0.0);
+    assert_eq!(failure.stats.steps, 0);
+}
+
+/// The first thing on the path decides: g = 0.2 - sqrt(0.07 - t) crosses zero upward at
+/// t = 0.03 and is NaN from 0.07, both inside the first step of 0.1. The samples find the
+/// crossing first, and the run stops there; compared at the step's ends alone, g is NaN at
+/// the end, an error at t = 0.1.
+#[test]
+fn a_crossing_before_a_nan_in_the_same_step_fires_first() {
+    let scene = drop_scene();
+    let source = "0.2 - sqrt(0.07 - t)";
+    let config = config(Method::Implicit, IntegratorKind::Rk4, 0.1);
+    let (stats, _, _) = run_until(&scene, source, config, 10);
+    let t = stats.stop_time.unwrap();
+    assert!((t - 0.03).abs() <= 1e-11, "{t}");
+    let mut sim = Simulation::new(Arc::clone(&scene.system), with_samples(config, 0)).unwrap();
+    sim.set_stop_when(Some(Event::parse(&scene.system, source).unwrap()))
+        .unwrap();
+    let failure = run(&mut sim, RunOptions::steps(10), &mut NullSink).unwrap_err();
+    assert_eq!(
+        failure.error.to_string(),
+        "stop_when `0.2 - sqrt(0.07 - t)` is not a number at t = 0.1; the run stopped at the last good state, t = 0"
+    );
+    assert_eq!(failure.stats.t_final, 0.0);
+}
+
+/// `[run] event_samples` reaches the plan (a request overrides it), and a bad count is
+/// refused where it is written; a request beyond the limit names the option.
+#[test]
+fn event_samples_come_from_the_scene_or_the_request_and_are_checked() {
+    use bead::plan::{Plan, PlanRequest};
+    let text = format!("{DROP}[run]\nevent_samples = 9\n");
+    let scene = Scene::parse(&text, "drop.toml", &[]).unwrap();
+    assert_eq!(scene.run.event_samples, Some(9));
+    let plan = Plan::resolve(&scene, &PlanRequest::default()).unwrap();
+    assert_eq!(plan.config(Method::Implicit).event_samples, 9);
+    let asked = PlanRequest {
+        event_samples: Some(0),
+        ..Default::default()
+    };
+    assert_eq!(
+        Plan::resolve(&scene, &asked)
+            .unwrap()
+            .config(Method::Implicit)
+            .event_samples,
+        0
+    );
+    let default = Plan::resolve(&drop_scene(), &PlanRequest::default()).unwrap();
+    assert_eq!(default.config(Method::Implicit).event_samples, 4);
+    let too_many = PlanRequest {
+        event_samples: Some(5000),
+        ..Default::default()
+    };
+    assert_eq!(
+        Plan::resolve(&scene, &too_many).unwrap_err().to_string(),
+        "event_samples=5000: must be at most 1024"
+    );
+    for (value, shown) in [("2000", "2000"), ("1.5", "1.5"), ("-1", "-1")] {
+        let text = format!("{DROP}[run]\nevent_samples = {value}\n");
+        let error = Scene::parse(&text, "drop.toml", &[]).unwrap_err().render();
+        assert!(
+            error.starts_with(&format!(
+                "drop.toml:19:17: run: `event_samples` must be a whole number from 0 to 1024, got {shown}"
+            )),
+            "{error}"
+        );
+    }
+    // The simulation refuses a count beyond the limit as well.
+    let config = SimulationConfig {
+        event_samples: 1025,
+        ..Default::default()
+    };
+    let error = Simulation::new(Arc::clone(&scene.system), config).unwrap_err();
+    assert_eq!(
+        error.to_string(),
+        "event_samples must be at most 1024, got 1025"
+    );
 }

@@ -216,3 +216,41 @@ fn a_duration_off_the_grid_ends_every_member_exactly_there() {
         }
     }
 }
+
+/// The lanes screen a stop condition inside every step as the member's own simulation does
+/// (the same samples on the same interpolant): a member whose condition comes back above
+/// zero between two step ends (the bead returning to 0.9999 x0 near its turning point, a
+/// window shorter than the step of 0.05 s for most members) or is NaN (the square root of
+/// a negative: members that swing beyond x = -50) leaves the lanes, and every member's
+/// figures are its run's alone, bit for bit, for every sample count.
+#[test]
+fn stop_conditions_sampled_inside_the_steps_leave_the_lanes_as_alone() {
+    let scene = Scene::parse(common::PARABOLA_SWEPT, "parabola.toml", &[]).unwrap();
+    for method in [Method::Implicit, Method::Parametric] {
+        let mut fired = Vec::new();
+        for samples in [0, 4, 16] {
+            let request = PlanRequest {
+                event_samples: Some(samples),
+                ..rk4(method, 0.05, 60)
+            };
+            let axes = || vec![Axis::linspace("x0", 10.0, 200.0, 20).unwrap()];
+            let members = check(&scene, axes(), request.clone(), Some("bead.x - 0.9999*x0"));
+            fired.push(members.iter().filter(|m| m.status() == "event").count());
+            let members = check(&scene, axes(), request, Some("sqrt(bead.x + 50)"));
+            let failed = members.iter().filter(|m| m.status() == "failed").count();
+            assert!(failed > 0 && failed < members.len(), "{failed} failed");
+            for m in members.iter().filter(|m| m.status() == "failed") {
+                let error = m.error.as_deref().unwrap();
+                assert!(
+                    error.starts_with("stop_when `sqrt(bead.x + 50)` is not a number at t = "),
+                    "{error}"
+                );
+            }
+        }
+        // The samples find returns that the step ends miss.
+        assert!(
+            fired[0] < fired[1] && fired[1] <= fired[2],
+            "{method:?}: {fired:?}"
+        );
+    }
+}

@@ -65,6 +65,7 @@ class Scene:
         substeps: Optional[int] = None,
         max_substeps: Optional[int] = None,
         stop_when: Optional[str] = None,
+        event_samples: Optional[int] = None,
     ) -> Run:
         """Run the scene; arguments override its [run] table. stop_when ends the run where
         the expression (e.g. "bead.y - 100") crosses zero upward (summary["stop_time"]).
@@ -82,6 +83,7 @@ class Scene:
         substeps: Optional[int] = None,
         max_substeps: Optional[int] = None,
         stop_when: Optional[str] = None,
+        event_samples: Optional[int] = None,
     ) -> Simulation:
         """A simulation to step by hand, at the scene's initial state."""
 
@@ -140,6 +142,7 @@ class SweepPlan:
         substeps: Optional[int] = None,
         max_substeps: Optional[int] = None,
         stop_when: Optional[str] = None,
+        event_samples: Optional[int] = None,
     ) -> None: ...
     def __len__(self) -> int: ...
     @property

@@ -32,6 +32,7 @@ _OPTIONS: Dict[str, Any] = {
     "substeps": None,
     "max_substeps": None,
     "stop_when": None,
+    "event_samples": None,
 }
 
 # The per-member arrays a result holds, with their trailing dimensions besides the grid's.
@@ -476,6 +477,7 @@ def sweep(
     substeps: Optional[int] = None,
     max_substeps: Optional[int] = None,
     stop_when: Optional[str] = None,
+    event_samples: Optional[int] = None,
 ) -> SweepResult:
     """Run `scene` once per combination of parameter values, on every core, and return a
     `bead.SweepResult` of numpy arrays shaped like the parameter grid.
@@ -486,7 +488,7 @@ def sweep(
     per position (all arrays of one length n; shape (n,)). Each member is exactly
     ``scene.with_params({...}).run(...)`` with the same options, bit for bit: method,
     integrator, dt, duration or steps, stabilize, rtol, atol, project, substeps,
-    max_substeps and stop_when are those of `Scene.run` (the scene's ``[run]`` table
+    max_substeps, stop_when and event_samples are those of `Scene.run` (the scene's ``[run]`` table
     supplies what is not given). A member that fails is reported (status "failed", its
     message in ``errors``), not raised; but when every member fails (the whole sweep, not a
     chunk given by ``members=``) `bead.RunError` is raised, with the first member's error as
@@ -517,6 +519,7 @@ def sweep(
         "substeps": substeps,
         "max_substeps": max_substeps,
         "stop_when": stop_when,
+        "event_samples": event_samples,
     }
     plan = Sweep(scene, params, zip=zip, **options)
     if members is None:

@@ -240,6 +240,9 @@ impl Formulation for Implicit {
     fn system(&self) -> &System {
         &self.system
     }
+    fn shared_system(&self) -> Arc<System> {
+        Arc::clone(&self.system)
+    }
     fn initial_state(&self) -> State {
         let (q, qdot) = self.system.initial_particle_state();
         State { t: 0.0, q, qdot }

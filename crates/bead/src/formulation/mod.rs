@@ -293,6 +293,8 @@ impl fmt::Display for Nonconservation {
 pub trait Formulation: SecondOrderSystem {
     fn method(&self) -> Method;
     fn system(&self) -> &System;
+    /// The system, shared: to build another formulation of it.
+    fn shared_system(&self) -> Arc<System>;
     /// The state at t = 0.
     fn initial_state(&self) -> State;
     /// Names of the generalized coordinates, for parametric forms; empty for implicit.

@@ -308,6 +308,9 @@ impl Formulation for Parametric {
     fn system(&self) -> &System {
         &self.system
     }
+    fn shared_system(&self) -> Arc<System> {
+        Arc::clone(&self.system)
+    }
     fn initial_state(&self) -> State {
         let map = self.parametric_map();
         State {

@@ -95,6 +95,7 @@ pub(super) struct RunDef {
     pub steps: Option<Spanned<Num>>,
     pub stabilize: Option<Spanned<Stabilize>>,
     pub stop_when: Option<Spanned<String>>,
+    pub event_samples: Option<Spanned<Num>>,
 }
 
 /// `stabilize = [ks, kd]` or `stabilize = { frequency = f, damping = zeta }`.

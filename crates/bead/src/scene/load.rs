@@ -640,6 +640,20 @@ impl Loader<'_> {
             }
             out.steps = Some(v as u64);
         }
+        if let Some(k) = &r.event_samples {
+            let v = self.number(k, ctx, "`event_samples`")?;
+            let max = crate::simulate::MAX_EVENT_SAMPLES;
+            if !(v >= 0.0 && v.fract() == 0.0 && v <= max as f64) {
+                return Err(self.src.error(
+                    k.span(),
+                    format!(
+                        "{ctx}: `event_samples` must be a whole number from 0 to {max}, got {}",
+                        crate::readable(v)
+                    ),
+                ));
+            }
+            out.event_samples = Some(v as u32);
+        }
         if let (Some(_), Some(s)) = (&r.duration, &r.steps) {
             return Err(self.src.error(
                 s.span(),

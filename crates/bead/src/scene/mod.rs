@@ -51,7 +51,8 @@
 //!   `stop_when = "EXPR"`: end the run where EXPR, an expression of the particles'
 //!   coordinates and velocities (`bead.y`, `bead.vx`), the generalized coordinates (`q` or
 //!   `q.q`, rates `qdot.q`), `t` and parameters, crosses zero upward
-//!   ([`crate::simulate::Event`]).
+//!   ([`crate::simulate::Event`]), and `event_samples = K`, the interior times per step at
+//!   which it is sampled.
 //! - `for = { i = "START..STOP", j = ... }` on a `[[particle]]`, `[[constraint]]` or
 //!   `[[force]]` table repeats it for i = START, ..., STOP - 1 (the first variable outermost,
 //!   as written; bounds are integer expressions of the parameters and the earlier loop
@@ -226,6 +227,10 @@ pub struct RunDefaults {
     /// `stop_when = "EXPR"`: stop the run where EXPR crosses zero upward (see
     /// [`crate::simulate::Event`]).
     pub stop_when: Option<Event>,
+    /// `event_samples = K`: interior times per step at which the stop condition is sampled
+    /// (see [`crate::simulate::SimulationConfig::event_samples`]), 0 to
+    /// [`crate::simulate::MAX_EVENT_SAMPLES`].
+    pub event_samples: Option<u32>,
 }
 
 /// A scene that cannot be loaded: what and where.

@@ -40,6 +40,11 @@ pub struct SimulationConfig {
     /// `None` (the default) tracks it when the formulation does not conserve T + V (drag,
     /// driven constraints, a moving map); external forces switch it on when they are added.
     pub track_work: Option<bool>,
+    /// Interior times per step at which a stop condition is sampled, besides the step's end
+    /// (see [`super::Event`]): a crossing and its return within one step are found when a
+    /// sample falls between them. 0 to [`super::MAX_EVENT_SAMPLES`]; default
+    /// [`super::DEFAULT_EVENT_SAMPLES`].
+    pub event_samples: u32,
 }
 
 impl Default for SimulationConfig {
@@ -56,6 +61,7 @@ impl Default for SimulationConfig {
             substeps: 1,
             max_substeps: 64,
             track_work: None,
+            event_samples: super::DEFAULT_EVENT_SAMPLES,
         }
     }
 }
@@ -102,6 +108,8 @@ pub enum ConfigError {
     SubstepsWithAdaptive(IntegratorKind),
     #[error("constraint feedback ks and kd must be finite and not negative, got ks = {}, kd = {}", crate::readable(*ks), crate::readable(*kd))]
     BadFeedback { ks: f64, kd: f64 },
+    #[error("event_samples must be at most {max}, got {0}", max = super::MAX_EVENT_SAMPLES)]
+    BadEventSamples(u32),
     #[error("{name} must be {requirement}, got {}", crate::readable(*value))]
     BadSetting {
         name: &'static str,
@@ -178,6 +186,9 @@ impl SimulationConfig {
         }
         if self.substeps > 1 && self.integrator.is_adaptive() {
             return Err(ConfigError::SubstepsWithAdaptive(self.integrator));
+        }
+        if self.event_samples > super::MAX_EVENT_SAMPLES {
+            return Err(ConfigError::BadEventSamples(self.event_samples));
         }
         let Feedback { ks, kd } = self.feedback;
         if !(ks.is_finite() && kd.is_finite() && ks >= 0.0 && kd >= 0.0) {

@@ -4,20 +4,27 @@
 //! `a.vy`, and with a single particle `x`, `vy`), the generalized coordinates of the
 //! parametric form (`theta` or `q.theta`, rates `qdot.theta`), the time `t`, the scene's
 //! parameters, `pi` and `e`. A simulation with an event ([`super::Simulation::set_stop_when`])
-//! evaluates g after every step and stops at the first time t* where g goes from g < 0 at
-//! the start of a step to g >= 0 at its end: an upward crossing. An expression already >= 0
-//! at the start does not fire there (there is no crossing); it fires once it has gone below
-//! zero and come back.
+//! evaluates g after every step at its end and at K evenly spaced times inside it
+//! ([`super::SimulationConfig::event_samples`], default 4), and stops at the first time t*
+//! where g goes from g < 0 to g >= 0 between two consecutive of these times: an upward
+//! crossing. An expression already >= 0 at the start does not fire there (there is no
+//! crossing); it fires once it has gone below zero and come back. A crossing and its return
+//! that both fall between two samples are missed; a g that is NaN is an error
+//! ([`super::RunError::EventNotANumber`]).
 //!
-//! t* is located to 1e-10 of the step dt: fixed-step integrators re-integrate the step from
-//! its saved start over a part of its length, so that every state tried is the integrator's
-//! own (with its substeps, retries and projection), and dopri5 evaluates its dense output,
-//! the continuous solution its error control is about. The root of g along that path is
-//! bracketed by the step and found by the Illinois variant of regula falsi, with a bisection
-//! whenever a secant point would not shrink the bracket by half in two iterations. The state
-//! the run ends at is the bracket's upper end, where g >= 0.
+//! Fixed-step integrators screen the samples on a cubic Hermite interpolant of the step
+//! ([`Watch::screen`]) and evaluate g on their own path only where it shows a crossing (or a
+//! NaN); dopri5 samples its dense output. t* is then located to 1e-10 of the step dt:
+//! fixed-step integrators re-integrate the step from its saved start over a part of its
+//! length, so that every state tried is the integrator's own (with its substeps, retries and
+//! projection), and dopri5 evaluates its dense output, the continuous solution its error
+//! control is about. The root of g along that path is bracketed by the two samples around it
+//! and found by the Illinois variant of regula falsi, with a bisection whenever a secant
+//! point would not shrink the bracket by half in two iterations. The state the run ends at is
+//! the bracket's upper end, where g >= 0.
 
 use crate::expr::{parse, Expr, ExprError, Resolved, Tape};
+use crate::formulation::Formulation;
 use crate::model::System;
 
 /// A stop condition: the expression g whose upward zero crossing ends a run (see the module
@@ -45,6 +52,11 @@ pub struct Event {
     n_q: usize,
     /// Whether it reads a generalized coordinate or rate (parametric form only).
     uses_coordinates: bool,
+    /// The (position slot, velocity slot) pairs of the coordinates it reads, through the
+    /// position, the velocity or both: what the in-step interpolant fills.
+    pairs: Vec<(usize, usize)>,
+    /// The slots it reads with their names (`bead.x`, `qdot.theta`), for messages.
+    names: Vec<(usize, String)>,
 }
 
 impl PartialEq for Event {
@@ -83,13 +95,46 @@ impl Event {
         let resolve = |name: &str| resolve(system, coordinates, name);
         let expr: Expr = parse(source, &resolve)?;
         let first_q = 2 * n_coords + 1;
-        let uses_coordinates = expr.vars().iter().any(|&k| k >= first_q);
+        let vars = expr.vars();
+        let uses_coordinates = vars.iter().any(|&k| k >= first_q);
+        // Slot k's coordinate pair and name.
+        let pair_of = |k: usize| -> Option<((usize, usize), String)> {
+            if k < n_coords {
+                Some(((k, n_coords + k), system.coordinate_name(k)))
+            } else if k < 2 * n_coords {
+                let j = k - n_coords;
+                Some(((j, k), system.velocity_name(j)))
+            } else if k == 2 * n_coords {
+                None
+            } else if k < first_q + n_q {
+                let j = k - first_q;
+                Some(((k, k + n_q), coordinates[j].clone()))
+            } else {
+                let j = k - first_q - n_q;
+                Some(((first_q + j, k), format!("qdot.{}", coordinates[j])))
+            }
+        };
+        let mut pairs = Vec::new();
+        let mut names = Vec::new();
+        for &k in &vars {
+            match pair_of(k) {
+                Some((pair, name)) => {
+                    if !pairs.contains(&pair) {
+                        pairs.push(pair);
+                    }
+                    names.push((k, name));
+                }
+                None => names.push((k, "t".to_string())),
+            }
+        }
         Ok(Event {
             source: source.to_string(),
             tape: Tape::compile(&[expr]),
             n_coords,
             n_q,
             uses_coordinates,
+            pairs,
+            names,
         })
     }
 
@@ -218,31 +263,92 @@ fn particle_list(system: &System) -> String {
 }
 
 /// An event being watched by a simulation: its buffers (sized once, so that stepping with an
-/// event allocates nothing) and g at the last step's end.
+/// event allocates nothing), g at the last accepted step's end, and the values there of the
+/// coordinates g reads, from which the next step's interpolant starts.
 #[derive(Debug)]
 pub(super) struct Watch {
     pub(super) event: Event,
     vars: Vec<f64>,
     scratch: Vec<f64>,
+    /// Interior points per step at which g is sampled (see [`Watch::screen`]).
+    pub(super) samples: u32,
     /// g at the end of the last accepted step (the start of the next one)
     pub(super) g_last: f64,
+    /// The time of that state, and (position, velocity) of each of the event's coordinate
+    /// pairs there
+    t_last: f64,
+    start: Vec<f64>,
+    end: Vec<f64>,
+    /// The interpolant's weights at each interior sample s = i / (samples + 1) (see
+    /// [`Watch::screen`]): h00, h10, h01, h11, 6 s (s - 1), 3s^2 - 4s + 1, 3s^2 - 2s.
+    weights: Vec<[f64; 7]>,
+    /// Particle positions and velocities of a state given in the formulation's coordinates
+    /// ([`Watch::eval_state`])
+    x: Vec<f64>,
+    xdot: Vec<f64>,
 }
 
 impl Watch {
-    pub(super) fn new(event: Event) -> Watch {
+    pub(super) fn new(event: Event, samples: u32) -> Watch {
         let tape_vars = event.tape.n_vars();
         let slots = 2 * event.n_coords + 1 + 2 * event.n_q;
+        let pairs = event.pairs.len();
+        let n_coords = event.n_coords;
         Watch {
             vars: vec![0.0; slots.max(tape_vars)],
             scratch: vec![0.0; event.tape.n_slots()],
             event,
+            samples,
             g_last: f64::NAN,
+            t_last: f64::NAN,
+            start: vec![0.0; 2 * pairs],
+            end: vec![0.0; 2 * pairs],
+            weights: (1..=samples)
+                .map(|i| {
+                    let s = i as f64 / (samples as f64 + 1.0);
+                    let (s2, s3) = (s * s, s * s * s);
+                    [
+                        2.0 * s3 - 3.0 * s2 + 1.0,
+                        s3 - 2.0 * s2 + s,
+                        3.0 * s2 - 2.0 * s3,
+                        s3 - s2,
+                        6.0 * (s2 - s),
+                        3.0 * s2 - 4.0 * s + 1.0,
+                        3.0 * s2 - 2.0 * s,
+                    ]
+                })
+                .collect(),
+            x: vec![0.0; n_coords],
+            xdot: vec![0.0; n_coords],
         }
     }
 
     /// g at time t, particle state (x, xdot), generalized state (q, qdot) (empty for the
     /// implicit form).
     pub(super) fn eval(&mut self, t: f64, x: &[f64], xdot: &[f64], q: &[f64], qdot: &[f64]) -> f64 {
+        self.load(t, x, xdot, q, qdot);
+        self.eval_loaded()
+    }
+
+    /// g at time t of the formulation's state (q, qdot) (for the parametric form, positions
+    /// and velocities from the map; for the implicit form they are q and qdot): dopri5's
+    /// samples of its dense output, without observing them.
+    pub(super) fn eval_state(
+        &mut self,
+        formulation: &mut dyn Formulation,
+        t: f64,
+        q: &[f64],
+        qdot: &[f64],
+    ) -> f64 {
+        let (mut x, mut xdot) = (std::mem::take(&mut self.x), std::mem::take(&mut self.xdot));
+        formulation.particle_state(t, q, qdot, &mut x, &mut xdot);
+        let g = self.eval(t, &x, &xdot, q, qdot);
+        (self.x, self.xdot) = (x, xdot);
+        g
+    }
+
+    /// Put a state into the tape's variables.
+    fn load(&mut self, t: f64, x: &[f64], xdot: &[f64], q: &[f64], qdot: &[f64]) {
         let n = self.event.n_coords;
         self.vars[..n].copy_from_slice(x);
         self.vars[n..2 * n].copy_from_slice(xdot);
@@ -252,11 +358,123 @@ impl Watch {
             self.vars[2 * n + 1..2 * n + 1 + k].copy_from_slice(q);
             self.vars[2 * n + 1 + k..2 * n + 1 + 2 * k].copy_from_slice(qdot);
         }
+    }
+
+    fn eval_loaded(&mut self) -> f64 {
         let mut out = [0.0];
         self.event
             .tape
             .eval(&self.vars, &mut self.scratch, &mut out);
         out[0]
+    }
+
+    /// Remember the state at time t, where g = `g`, as the start of the next step.
+    pub(super) fn remember(
+        &mut self,
+        t: f64,
+        x: &[f64],
+        xdot: &[f64],
+        q: &[f64],
+        qdot: &[f64],
+        g: f64,
+    ) {
+        self.load(t, x, xdot, q, qdot);
+        for (i, &(p, v)) in self.event.pairs.iter().enumerate() {
+            self.start[2 * i] = self.vars[p];
+            self.start[2 * i + 1] = self.vars[v];
+        }
+        self.t_last = t;
+        self.g_last = g;
+    }
+
+    /// Whether the step from the remembered state to this one (time t, g = `g_end`) needs a
+    /// closer look: g sampled at the step's end and at `samples` interior times
+    /// [`sample_time`] on the cubic Hermite interpolant of each coordinate it reads,
+    ///
+    /// ```text
+    /// y(s) = (2s^3 - 3s^2 + 1) y0 + (s^3 - 2s^2 + s) h v0 + (3s^2 - 2s^3) y1 + (s^3 - s^2) h v1,
+    /// v(s) = y'(s) / h = 6 s (s - 1) (y0 - y1) / h + (3s^2 - 4s + 1) v0 + (3s^2 - 2s) v1,
+    /// ```
+    ///
+    /// s = (t - t0) / h, (y, v) a position and its velocity (or q and qdot), exact at both
+    /// ends, O(h^4) between, from the step's end states alone (every integrator has them),
+    /// goes from g < 0 to g >= 0 between two consecutive times, or is not a number
+    /// somewhere (g at the start included). Those values only say where to look: the caller
+    /// evaluates g on the integrator's own path there. When nothing needs a look, this state
+    /// is remembered as the start of the next step.
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn screen(
+        &mut self,
+        t: f64,
+        x: &[f64],
+        xdot: &[f64],
+        q: &[f64],
+        qdot: &[f64],
+        g_end: f64,
+    ) -> bool {
+        let t0 = self.t_last;
+        let h = t - t0;
+        let mut before = self.g_last;
+        if before.is_nan() || g_end.is_nan() {
+            return true;
+        }
+        if self.samples > 0 && h > 0.0 {
+            self.load(t, x, xdot, q, qdot);
+            for (i, &(p, v)) in self.event.pairs.iter().enumerate() {
+                self.end[2 * i] = self.vars[p];
+                self.end[2 * i + 1] = self.vars[v];
+            }
+            let t_slot = 2 * self.event.n_coords;
+            for i in 1..=self.samples {
+                let [h00, h10, h01, h11, d00, d10, d11] = self.weights[i as usize - 1];
+                let (h10, h11, d00) = (h10 * h, h11 * h, d00 / h);
+                for (k, &(pos, vel)) in self.event.pairs.iter().enumerate() {
+                    let (y0, v0) = (self.start[2 * k], self.start[2 * k + 1]);
+                    let (y1, v1) = (self.end[2 * k], self.end[2 * k + 1]);
+                    self.vars[pos] = h00 * y0 + h10 * v0 + h01 * y1 + h11 * v1;
+                    self.vars[vel] = d00 * (y0 - y1) + d10 * v0 + d11 * v1;
+                }
+                let ti = sample_time(t0, t, i, self.samples);
+                self.vars[t_slot] = ti;
+                let g = self.eval_loaded();
+                if g.is_nan() || (before < 0.0 && g >= 0.0) {
+                    return true;
+                }
+                before = g;
+            }
+        }
+        if before < 0.0 && g_end >= 0.0 {
+            return true;
+        }
+        self.remember(t, x, xdot, q, qdot, g_end);
+        false
+    }
+
+    /// The error for g = NaN at time t, at the state last given to [`Watch::eval`]; the run
+    /// stands at `stopped`.
+    pub(super) fn not_a_number(&self, t: f64, stopped: f64) -> super::RunError {
+        super::RunError::EventNotANumber {
+            source_text: self.event.source.clone(),
+            t,
+            values: self
+                .event
+                .names
+                .iter()
+                .filter(|(_, name)| name != "t")
+                .map(|(k, name)| (name.clone(), self.vars[*k]))
+                .collect(),
+            stopped,
+        }
+    }
+}
+
+/// Interior sample i of `samples` (1 ..= samples; samples + 1 is the end) of the step from t0
+/// to t1: evenly spaced, t0 + (t1 - t0) i / (samples + 1), the end exactly t1.
+pub(super) fn sample_time(t0: f64, t1: f64, i: u32, samples: u32) -> f64 {
+    if i > samples {
+        t1
+    } else {
+        t0 + (t1 - t0) * (i as f64 / (samples as f64 + 1.0))
     }
 }
 

@@ -10,7 +10,8 @@
 //! ([`Implicit::accelerate_evaluated`], [`Parametric::accelerate_evaluated`]). Either way every
 //! number is the one the member's own `Simulation` would compute, bit for bit. The monitors after each step are the
 //! simulation's, per lane: the energy and constraint-error maxima, the divergence test, the
-//! regularity monitor's first-order candidate tests and the stop condition's crossing.
+//! regularity monitor's first-order candidate tests and the stop condition's screen inside
+//! the step (the member's own watch, so that a look it asks for is taken alone).
 //!
 //! Whatever needs more than the plain step (a non-finite or diverged state, a candidate
 //! singular point that the simulation would search for, a failed factorization, the stop
@@ -220,10 +221,6 @@ pub(crate) fn run_lanes(
         .iter()
         .map(|m| m.monitor.longest().to_vec())
         .collect();
-    let mut g_last: Vec<f64> = members
-        .iter()
-        .map(|m| m.watch.as_ref().map_or(f64::NAN, |w| w.g_last))
-        .collect();
     let mut maxima: Vec<[f64; 4]> = members
         .iter()
         .map(|m| {
@@ -269,7 +266,6 @@ pub(crate) fn run_lanes(
                     &before[l],
                     &longest[l],
                     maxima[l],
-                    g_last[l],
                 );
                 outcome[l] = LaneOutcome::Handover { intervals: k - 1 };
             }
@@ -291,7 +287,6 @@ pub(crate) fn run_lanes(
                     &before[l],
                     &longest[l],
                     maxima[l],
-                    g_last[l],
                 );
                 outcome[l] = LaneOutcome::Handover { intervals: k - 1 };
             }};
@@ -356,19 +351,16 @@ pub(crate) fn run_lanes(
                 hand_back!(member, l);
                 continue;
             }
+            // The stop condition's screen (`Watch::screen`, which remembers this step end
+            // when nothing needs a look); a look is the member's own to take.
             if let Some(watch) = member.watch.as_mut() {
-                let g_end = watch.eval(
-                    t,
-                    &observation.x,
-                    &observation.xdot,
-                    &lanes.q_one,
-                    &lanes.qdot_one,
-                );
-                if g_last[l] < 0.0 && g_end >= 0.0 {
+                let (x, xdot) = (&observation.x, &observation.xdot);
+                let (q, qdot) = (&lanes.q_one, &lanes.qdot_one);
+                let g_end = watch.eval(t, x, xdot, q, qdot);
+                if watch.screen(t, x, xdot, q, qdot, g_end) {
                     hand_back!(member, l);
                     continue;
                 }
-                g_last[l] = g_end;
             }
             // Accepted: the monitor's reference and maxima move on.
             std::mem::swap(&mut before[l], &mut last[l]);
@@ -420,9 +412,6 @@ pub(crate) fn run_lanes(
         member.monitor.balance_error_max = balance;
         member.monitor.constraint_error_max = constraint;
         member.monitor.constraint_distance_max = distance;
-        if let Some(watch) = member.watch.as_mut() {
-            watch.g_last = g_last[l];
-        }
     }
     outcome
 }
@@ -430,7 +419,8 @@ pub(crate) fn run_lanes(
 /// Hand lane l's member its state and monitor at the end of step k - 1 (time t), as its
 /// own `Simulation` would stand after taking steps 1 to k - 1: the state, the step count,
 /// the observation (taken again), the regularity monitor's last two step ends, the longest
-/// gradient lengths, the maxima and the stop condition's last value.
+/// gradient lengths and the maxima. The stop condition's watch is the member's own, which the
+/// lanes screened with, so it already remembers the end of step k - 1.
 #[allow(clippy::too_many_arguments)]
 fn handover(
     member: &mut Simulation,
@@ -442,7 +432,6 @@ fn handover(
     before: &[f64],
     longest: &[f64],
     maxima: [f64; 4],
-    g_last: f64,
 ) {
     let n = lanes.n;
     let done = k - 1;
@@ -464,9 +453,6 @@ fn handover(
     let before = (done > 0).then_some((q_before.as_slice(), before));
     let q = member.state.q[..n].to_vec();
     member.monitor.adopt(&q, last, before, longest, maxima);
-    if let Some(watch) = member.watch.as_mut() {
-        watch.g_last = g_last;
-    }
 }
 
 /// Whether the regularity monitor would raise a candidate for any gradient row (and so

@@ -59,6 +59,7 @@ mod event;
 pub(crate) mod lanes;
 mod ledger;
 mod monitor;
+mod restart;
 mod run;
 
 use std::sync::Arc;
@@ -79,7 +80,7 @@ use crate::formulation::{
 };
 use crate::integrate::{Dopri5, Integrator, IntegratorKind};
 use crate::model::{Force, ModelError, System};
-use event::{Bracket, Watch};
+use event::{sample_time, Bracket, Watch};
 use ledger::{LedgerScratch, WithWork};
 use monitor::{Monitor, Rejection};
 
@@ -162,6 +163,9 @@ pub struct Simulation {
     /// Adaptive integrators: the time of an event located in the last step, not yet reached
     /// by the output
     pending_event: Option<f64>,
+    /// Adaptive integrators: the event that fired inside the last step (its time and g
+    /// there), from which the rest of that step is still to be searched
+    resume_event: Option<(f64, f64)>,
     /// The time the stop condition last fired
     event_time: Option<f64>,
     /// Whether the last `step` or `advance_to` ended at an event
@@ -174,6 +178,14 @@ const CALM_STEPS: u32 = 16;
 
 /// An event's time is located to this fraction of dt (see [`Event`]).
 pub const EVENT_TOLERANCE: f64 = 1e-10;
+
+/// Interior times per step at which a stop condition is sampled by default
+/// ([`SimulationConfig::event_samples`]): spaced dt / 5, so a crossing and its return
+/// further apart than that are found within one step.
+pub const DEFAULT_EVENT_SAMPLES: u32 = 4;
+
+/// The most interior samples per step a stop condition may ask for.
+pub const MAX_EVENT_SAMPLES: u32 = 1024;
 
 impl Simulation {
     /// A simulation of `system` as `config` says, at the system's initial state. Fails when
@@ -250,6 +262,7 @@ impl Simulation {
                 qdot: Vec::new(),
             },
             pending_event: None,
+            resume_event: None,
             event_time: None,
             stopped_at_event: false,
             config,
@@ -450,19 +463,23 @@ impl Simulation {
     /// event's expression g crosses zero upward (g < 0 before, g >= 0 after), located to
     /// 1e-10 of dt (see [`Event`]), and [`Simulation::stopped_at_event`] says so. A g
     /// already >= 0 now does not fire until it has gone below zero and come back. The
-    /// simulation can go on after an event (the next crossing fires again).
+    /// simulation can go on after an event (the next crossing fires again). g is sampled
+    /// at the end of every step and at `config.event_samples` times inside it (see
+    /// [`Event`]); a g that is not a number makes the step fail with
+    /// [`RunError::EventNotANumber`], the simulation standing at the step's start.
     ///
     /// Fails when the event was parsed for another system, or reads generalized
     /// coordinates and the simulation runs the implicit form.
     pub fn set_stop_when(&mut self, event: Option<Event>) -> Result<(), EventError> {
         self.pending_event = None;
+        self.resume_event = None;
         self.stopped_at_event = false;
         let Some(event) = event else {
             self.watch = None;
             return Ok(());
         };
         event.check(self.system(), self.method() == Method::Parametric)?;
-        self.watch = Some(Box::new(Watch::new(event)));
+        self.watch = Some(Box::new(Watch::new(event, self.config.event_samples)));
         self.rearm_event();
         Ok(())
     }
@@ -494,7 +511,13 @@ impl Simulation {
         if let Some(watch) = &mut self.watch {
             let x = &self.monitor.observation.x;
             let xdot = &self.monitor.observation.xdot;
-            watch.g_last = watch.eval(observed.t, x, xdot, &observed.q[..n], &observed.qdot[..n]);
+            let (q, qdot) = (&observed.q[..n], &observed.qdot[..n]);
+            let g = watch.eval(observed.t, x, xdot, q, qdot);
+            watch.remember(observed.t, x, xdot, q, qdot, g);
+            if self.output_behind {
+                // The stop condition starts inside the last adaptive step: search its rest.
+                self.resume_event = Some((observed.t, g));
+            }
         }
     }
 
@@ -517,6 +540,7 @@ impl Simulation {
                     Some(stop) if stop > t => stop,
                     _ => t + dt,
                 };
+                self.resume_dense_scan()?;
                 if self.pending_event.is_none() {
                     self.adaptive_step(horizon)?;
                 }
@@ -591,6 +615,7 @@ impl Simulation {
                     Some(stop) if stop >= t => stop,
                     _ => t,
                 };
+                self.resume_dense_scan()?;
                 while self.state.t < t && self.pending_event.is_none() {
                     self.adaptive_step(horizon)?;
                     if self.state.t < t && self.pending_event.is_none() && interrupted() {
@@ -868,8 +893,8 @@ impl Simulation {
             .observe(&mut *self.formulation, t, q, qdot, work);
         match self.monitor.check_step(&*self.formulation, t, q) {
             Ok(()) => {
-                if let Some(g_end) = self.crossing() {
-                    return self.locate_event(g_end);
+                if self.watch.is_some() {
+                    return self.watch_step();
                 }
                 self.monitor.accumulate();
                 Ok(())
@@ -896,49 +921,124 @@ impl Simulation {
         }
     }
 
-    /// With a stop condition: g at the step's end (observed), when it crossed zero upward
-    /// during the step; otherwise None, and g becomes the start of the next test.
-    fn crossing(&mut self) -> Option<f64> {
+    /// With a stop condition, after a step was accepted (its end observed): look for the
+    /// first upward crossing of g inside it. Fixed-step integrators screen the step on an
+    /// interpolant ([`Watch::screen`]) and, when it asks, evaluate g on their own path at the
+    /// sample times ([`Simulation::scan_fixed`]); dopri5 samples its dense output, its own
+    /// path between steps ([`Simulation::scan_dense`]).
+    fn watch_step(&mut self) -> Result<(), RunError> {
         let n = self.n;
-        let watch = self.watch.as_mut()?;
-        let state = &self.state;
-        let observation = &self.monitor.observation;
-        let g_end = watch.eval(
-            state.t,
-            &observation.x,
-            &observation.xdot,
-            &state.q[..n],
-            &state.qdot[..n],
-        );
-        if watch.g_last < 0.0 && g_end >= 0.0 {
-            Some(g_end)
-        } else {
-            watch.g_last = g_end;
-            None
+        let g_end = self.event_value(false);
+        let watch = self.watch.as_mut().expect("an event is watched");
+        match self.stepper {
+            Stepper::Fixed(_) => {
+                let (state, observation) = (&self.state, &self.monitor.observation);
+                let look = watch.screen(
+                    state.t,
+                    &observation.x,
+                    &observation.xdot,
+                    &state.q[..n],
+                    &state.qdot[..n],
+                    g_end,
+                );
+                if look {
+                    return self.scan_fixed(g_end);
+                }
+                self.monitor.accumulate();
+                Ok(())
+            }
+            Stepper::Adaptive(_) => {
+                let g_start = watch.g_last;
+                watch.g_last = g_end;
+                let start = self.previous.t;
+                if let Err(e) = self.scan_dense(start, g_start, g_end, start) {
+                    self.steps -= 1;
+                    self.restore();
+                    self.rearm_event();
+                    return Err(e);
+                }
+                if self.pending_event.is_none() {
+                    self.monitor.accumulate();
+                }
+                Ok(())
+            }
         }
+    }
+
+    /// The error for a g that is not a number at time t (the watch holds the state it was
+    /// evaluated at): the step is undone, the run stands at its start.
+    fn event_not_a_number(&mut self, t: f64) -> RunError {
+        let watch = self.watch.as_ref().expect("an event is watched");
+        let error = watch.not_a_number(t, self.previous.t);
+        self.steps -= 1;
+        self.restore();
+        error
+    }
+
+    /// The screen flagged the step from `previous` to `state` (g = `g_end` there): evaluate
+    /// g on the integrator's own path (the step integrated again from its start, as when
+    /// locating) at the sample times in order, and locate the first upward crossing between
+    /// two of them ([`Simulation::locate_fixed`]); a g that is not a number there is an
+    /// error. When the path has no crossing at those times the step stands.
+    fn scan_fixed(&mut self, g_end: f64) -> Result<(), RunError> {
+        let n = self.n;
+        let samples = self.watch.as_ref().map_or(0, |w| w.samples);
+        let (t0, t1) = (self.previous.t, self.state.t);
+        let mut before = (t0, self.watch.as_ref().map_or(f64::NAN, |w| w.g_last));
+        if before.1.is_nan() {
+            self.restore();
+            self.event_value(false);
+            self.steps -= 1;
+            let watch = self.watch.as_ref().expect("an event is watched");
+            return Err(watch.not_a_number(t0, t0));
+        }
+        self.event_state.clone_from(&self.state);
+        for i in 1..=samples + 1 {
+            let ti = sample_time(t0, t1, i, samples);
+            if i <= samples {
+                self.restore_state_only();
+                if let Err(e) = self.partial_step(ti) {
+                    return Err(self.fail(e));
+                }
+            } else {
+                self.state.clone_from(&self.event_state);
+            }
+            let (q, qdot, work) = split(&self.state, n);
+            self.monitor
+                .observe(&mut *self.formulation, ti, q, qdot, work);
+            let g = if i <= samples {
+                self.event_value(false)
+            } else {
+                g_end
+            };
+            if g.is_nan() {
+                self.event_value(false);
+                return Err(self.event_not_a_number(ti));
+            }
+            if before.1 < 0.0 && g >= 0.0 {
+                return self.locate_fixed(Bracket::new(before.0, before.1, ti, g));
+            }
+            before = (ti, g);
+        }
+        // No crossing on the integrator's path: the step stands, observed at its end.
+        let (state, observation) = (&self.state, &self.monitor.observation);
+        if let Some(watch) = &mut self.watch {
+            watch.remember(
+                t1,
+                &observation.x,
+                &observation.xdot,
+                &state.q[..n],
+                &state.qdot[..n],
+                g_end,
+            );
+        }
+        self.monitor.accumulate();
+        Ok(())
     }
 
     /// The tolerance of an event's time: 1e-10 of dt, or a few ulps of t when that is less.
     fn event_tolerance(&self, t: f64) -> f64 {
         (EVENT_TOLERANCE * self.config.dt).max(4.0 * f64::EPSILON * t.abs())
-    }
-
-    /// The step from `previous` to `state` crossed the stop condition (g_end >= 0 at its
-    /// end): locate the crossing. Fixed-step integrators end the step there; adaptive ones
-    /// keep their state and leave the crossing pending for the output to reach.
-    fn locate_event(&mut self, g_end: f64) -> Result<(), RunError> {
-        let g_start = self.watch.as_ref().map_or(f64::NAN, |w| w.g_last);
-        let bracket = Bracket::new(self.previous.t, g_start, self.state.t, g_end);
-        match self.stepper {
-            Stepper::Fixed(_) => self.locate_fixed(bracket),
-            Stepper::Adaptive(_) => {
-                self.locate_adaptive(bracket);
-                if let Some(watch) = &mut self.watch {
-                    watch.g_last = g_end;
-                }
-                Ok(())
-            }
-        }
     }
 
     /// g at the state last observed by the monitor, at time t with the formulation's
@@ -959,7 +1059,8 @@ impl Simulation {
 
     /// Fixed-step integrators: re-integrate the step from its start over a part of its
     /// length until the crossing is bracketed to the tolerance, and end the step at the
-    /// bracket's upper end (g >= 0). The grid of steps restarts there.
+    /// bracket's upper end (g >= 0), whose state is `state` on entry. The grid of steps
+    /// restarts there.
     fn locate_fixed(&mut self, mut bracket: Bracket) -> Result<(), RunError> {
         self.event_state.clone_from(&self.state);
         let tolerance = self.event_tolerance(bracket.hi);
@@ -973,6 +1074,9 @@ impl Simulation {
             self.monitor
                 .observe(&mut *self.formulation, t, q, qdot, work);
             let g = self.event_value(false);
+            if g.is_nan() {
+                return Err(self.event_not_a_number(t));
+            }
             if g >= 0.0 {
                 self.event_state.clone_from(&self.state);
             }
@@ -985,8 +1089,17 @@ impl Simulation {
             .observe(&mut *self.formulation, t, q, qdot, work);
         self.monitor.accumulate();
         let g = self.event_value(false);
+        let n = self.n;
+        let (state, observation) = (&self.state, &self.monitor.observation);
         if let Some(watch) = &mut self.watch {
-            watch.g_last = g;
+            watch.remember(
+                t,
+                &observation.x,
+                &observation.xdot,
+                &state.q[..n],
+                &state.qdot[..n],
+                g,
+            );
         }
         self.grid_origin = t;
         self.grid_steps = 0;
@@ -1011,27 +1124,136 @@ impl Simulation {
         }
     }
 
+    /// Adaptive integrators: g on the last step's dense output from time `from` (where it is
+    /// `g_from`) to the step's end (`g_end`), at the step's sample times after `from`; the
+    /// first upward crossing between two of them is located on the dense output and left
+    /// pending for the output to reach ([`Simulation::fire_adaptive`]). A g that is not a
+    /// number is an error (the caller moves the run to `stopped`, its last good state).
+    fn scan_dense(
+        &mut self,
+        from: f64,
+        g_from: f64,
+        g_end: f64,
+        stopped: f64,
+    ) -> Result<(), RunError> {
+        let Stepper::Adaptive(dopri) = &self.stepper else {
+            unreachable!("scan_dense is called for adaptive integrators only");
+        };
+        let (t_old, t_new) = dopri.last_step();
+        let samples = dense_samples(
+            t_new - t_old,
+            self.config.dt,
+            self.watch.as_ref().map_or(0, |w| w.samples),
+        );
+        let not_a_number = |sim: &mut Simulation, t: f64| {
+            let watch = sim.watch.as_ref().expect("an event is watched");
+            watch.not_a_number(t, stopped)
+        };
+        if g_from.is_nan() {
+            self.dense_value(from);
+            return Err(not_a_number(self, from));
+        }
+        let mut before = (from, g_from);
+        for i in 1..=samples + 1 {
+            let ti = sample_time(t_old, t_new, i, samples);
+            if ti <= from {
+                continue;
+            }
+            let g = if i <= samples {
+                self.dense_value(ti)
+            } else {
+                g_end
+            };
+            if g.is_nan() {
+                self.dense_value(ti);
+                return Err(not_a_number(self, ti));
+            }
+            if before.1 < 0.0 && g >= 0.0 {
+                return self.locate_adaptive(Bracket::new(before.0, before.1, ti, g), stopped);
+            }
+            before = (ti, g);
+        }
+        Ok(())
+    }
+
+    /// Adaptive integrators: g at time t of the last step's dense output (put into
+    /// `output`, not observed: the watch maps it to particle space itself).
+    fn dense_value(&mut self, t: f64) -> f64 {
+        if let Stepper::Adaptive(dopri) = &self.stepper {
+            dopri.interpolate(t, &mut self.output.q, &mut self.output.qdot);
+        }
+        self.output.t = t;
+        let n = self.n;
+        let watch = self.watch.as_mut().expect("an event is watched");
+        watch.eval_state(
+            &mut *self.formulation,
+            t,
+            &self.output.q[..n],
+            &self.output.qdot[..n],
+        )
+    }
+
+    /// Adaptive integrators: the dense output at time t of the last step into `output`,
+    /// observed.
+    fn observe_state_at(&mut self, t: f64) {
+        if let Stepper::Adaptive(dopri) = &self.stepper {
+            dopri.interpolate(t, &mut self.output.q, &mut self.output.qdot);
+        }
+        self.output.t = t;
+        let (q, qdot, work) = split(&self.output, self.n);
+        self.monitor
+            .observe(&mut *self.formulation, t, q, qdot, work);
+    }
+
     /// Adaptive integrators: find the crossing on the last step's dense output; the output
     /// reaches it later ([`Simulation::fire_adaptive`]).
-    fn locate_adaptive(&mut self, mut bracket: Bracket) {
+    fn locate_adaptive(&mut self, mut bracket: Bracket, stopped: f64) -> Result<(), RunError> {
         let tolerance = self.event_tolerance(bracket.hi);
         while !bracket.done(tolerance) {
             let t = bracket.next();
-            if let Stepper::Adaptive(dopri) = &self.stepper {
-                dopri.interpolate(t, &mut self.output.q, &mut self.output.qdot);
+            let g = self.dense_value(t);
+            if g.is_nan() {
+                let watch = self.watch.as_ref().expect("an event is watched");
+                return Err(watch.not_a_number(t, stopped));
             }
-            self.output.t = t;
-            let (q, qdot, work) = split(&self.output, self.n);
-            self.monitor
-                .observe(&mut *self.formulation, t, q, qdot, work);
-            let g = self.event_value(true);
             bracket.update(t, g);
         }
         self.pending_event = Some(bracket.hi);
+        Ok(())
+    }
+
+    /// Adaptive integrators, after an event fired inside the last step (or the stop condition
+    /// was set with the output inside it): search the rest of that step before going on. On
+    /// error the run stands at the output's time, which becomes the integrator's state.
+    fn resume_dense_scan(&mut self) -> Result<(), RunError> {
+        let Some((from, g_from)) = self.resume_event.take() else {
+            return Ok(());
+        };
+        if self.watch.is_none() || self.pending_event.is_some() || from >= self.state.t {
+            return Ok(());
+        }
+        let n = self.n;
+        let Some(watch) = self.watch.as_mut() else {
+            return Ok(());
+        };
+        let (q, qdot) = (&self.state.q[..n], &self.state.qdot[..n]);
+        let g_end = watch.eval_state(&mut *self.formulation, self.state.t, q, qdot);
+        watch.g_last = g_end;
+        let result = self.scan_dense(from, g_from, g_end, from);
+        if result.is_err() {
+            // The last good state is the output at `from`: the integrator starts again there.
+            self.observe_state_at(from);
+            self.state.clone_from(&self.output);
+            self.previous.clone_from(&self.output);
+            self.output_behind = false;
+            self.rearm_event();
+        }
+        result
     }
 
     /// Adaptive integrators: the output reached the event located at `te`: it becomes the
-    /// observable state and the step or advance stops there.
+    /// observable state and the step or advance stops there; the rest of the step is searched
+    /// for the next crossing when the simulation goes on.
     fn fire_adaptive(&mut self, te: f64) {
         if te == self.state.t {
             self.output_behind = false;
@@ -1039,14 +1261,10 @@ impl Simulation {
             self.monitor
                 .observe(&mut *self.formulation, te, q, qdot, work);
         } else {
-            if let Stepper::Adaptive(dopri) = &self.stepper {
-                dopri.interpolate(te, &mut self.output.q, &mut self.output.qdot);
-            }
-            self.output.t = te;
+            self.observe_state_at(te);
             self.output_behind = true;
-            let (q, qdot, work) = split(&self.output, self.n);
-            self.monitor
-                .observe(&mut *self.formulation, te, q, qdot, work);
+            let g = self.dense_value(te);
+            self.resume_event = Some((te, g));
         }
         self.monitor.accumulate();
         self.event_time = Some(te);
@@ -1090,6 +1308,7 @@ impl Simulation {
         self.stepper = Stepper::new(&self.config, state.q.len());
         self.state = state;
         self.pending_event = None;
+        self.resume_event = None;
         self.event_time = None;
         self.stopped_at_event = false;
         self.rearm_event();
@@ -1122,22 +1341,14 @@ impl Simulation {
     }
 
     /// Restart at t = 0 at rest from the particle positions `x` (n_coords numbers), e.g. a
-    /// state a user dragged: implicit form, `x` moved onto C(x, 0) = 0 by the same
-    /// mass-weighted projection as [`Simulation::reset_onto_constraints`] (velocities zero,
-    /// then onto J qdot + C_t = 0); parametric form, the coordinates q whose x(q, 0) is
-    /// closest to `x` (Gauss-Newton from the current q, at most 50 iterations), qdot = 0.
-    /// The energy reference restarts there. On error nothing changes.
+    /// state a user dragged, moved onto the constraints at [`Simulation::closest_start`]:
+    /// the point of C(y, 0) = 0 closest to `x` in the kinetic metric, the same for both
+    /// forms. Implicit form: there, velocities zero (then onto J qdot + C_t = 0); parametric
+    /// form: the coordinates q whose x(q, 0) is closest to it (Gauss-Newton from the current
+    /// q and from the scene's initial q, the better fit), qdot = 0. The energy reference
+    /// restarts there. On error nothing changes.
     pub fn restart_at_rest(&mut self, x: &[f64]) -> Result<(), RestartError> {
-        let n_coords = self.system().n_coords();
-        if x.len() != n_coords {
-            return Err(RestartError::Length {
-                expected: n_coords,
-                got: x.len(),
-            });
-        }
-        if x.iter().any(|v| !v.is_finite()) {
-            return Err(RestartError::NotFinite);
-        }
+        let target = self.closest_start(x)?;
         let current_q = self.state.q[..self.n].to_vec();
         let mut state = self.formulation.initial_state();
         if self.ledger.is_some() {
@@ -1149,10 +1360,13 @@ impl Simulation {
         state.qdot[..n].iter_mut().for_each(|v| *v = 0.0);
         match (self.method(), self.system().parametric()) {
             (Method::Parametric, Some(map)) => {
-                state.q[..n].copy_from_slice(&closest_coordinates(map, &current_q, x)?);
+                let seeds = [current_q.as_slice(), map.initial()];
+                let masses = self.masses();
+                let q = restart::fit_coordinates(map, &seeds, &target, &masses)?;
+                state.q[..n].copy_from_slice(&q);
             }
             _ => {
-                state.q[..n].copy_from_slice(x);
+                state.q[..n].copy_from_slice(&target);
                 let config = self.config;
                 let Simulation {
                     formulation,
@@ -1169,6 +1383,55 @@ impl Simulation {
         self.refresh_nonconservation();
         self.start_from(state);
         Ok(())
+    }
+
+    /// Where [`Simulation::restart_at_rest`] puts the particles for positions `x`: the point
+    /// y of the system's constraints C(y, 0) = 0 closest to `x` in the kinetic metric
+    /// sum_k m_k (y_k - x_k)^2 (for one particle the Euclidean closest point; see
+    /// `restart.rs` for the iteration), whichever form this simulation runs, so that every
+    /// form restarts from the same place. Without constraint rows (a parametric form only):
+    /// x(q*, 0) for the best fit q* of the map. `x` itself on a system without either.
+    pub fn closest_start(&self, x: &[f64]) -> Result<Vec<f64>, RestartError> {
+        let n_coords = self.system().n_coords();
+        if x.len() != n_coords {
+            return Err(RestartError::Length {
+                expected: n_coords,
+                got: x.len(),
+            });
+        }
+        if x.iter().any(|v| !v.is_finite()) {
+            return Err(RestartError::NotFinite);
+        }
+        let system = self.system();
+        if system.constraints().n_rows() > 0 {
+            return restart::closest_on_constraints(
+                self.formulation.shared_system(),
+                x,
+                &self.config,
+            );
+        }
+        match system.parametric() {
+            Some(map) => {
+                let current = &self.state.q[..self.n];
+                let seeds: Vec<&[f64]> = if self.method() == Method::Parametric {
+                    vec![current, map.initial()]
+                } else {
+                    vec![map.initial()]
+                };
+                let q = restart::fit_coordinates(map, &seeds, x, &self.masses())?;
+                Ok(restart::map_positions(map, &q))
+            }
+            None => Ok(x.to_vec()),
+        }
+    }
+
+    /// The mass of each particle coordinate.
+    fn masses(&self) -> Vec<f64> {
+        self.system()
+            .inverse_mass()
+            .iter()
+            .map(|w| 1.0 / w)
+            .collect()
     }
 
     /// Apply `force` from outside the system from now on (e.g. a spring dragged with the
@@ -1295,6 +1558,17 @@ impl Simulation {
     }
 }
 
+/// The interior samples of an adaptive step of length `h` for `samples` per dt: spaced at
+/// most dt / (samples + 1), as a fixed step of dt is, however long the step.
+fn dense_samples(h: f64, dt: f64, samples: u32) -> u32 {
+    let intervals = (h / dt * (samples as f64 + 1.0)).ceil();
+    if intervals.is_nan() || intervals < 1.0 {
+        0
+    } else {
+        (intervals.min(u32::MAX as f64) as u32 - 1).min(u32::MAX - 1)
+    }
+}
+
 /// Whether a failed step may succeed on shorter substeps: an iteration that did not converge.
 fn retryable(error: &StepError) -> bool {
     matches!(
@@ -1341,108 +1615,6 @@ pub enum RestartError {
     /// The parametric form's least-squares fit failed.
     #[error("no coordinates of the parametric form put the particles near these positions: {0}")]
     NoCoordinates(&'static str),
-}
-
-/// The coordinates q whose x(q, 0) is closest to `x` (least squares), by Gauss-Newton from
-/// `q0`, with a little Levenberg damping so that a singular J^T J (a point where the map
-/// does not depend on q) does not stop it.
-fn closest_coordinates(
-    map: &crate::model::ParametricMap,
-    q0: &[f64],
-    x: &[f64],
-) -> Result<Vec<f64>, RestartError> {
-    let n_q = map.n_q();
-    if n_q > 256 {
-        return Err(RestartError::NoCoordinates("more than 256 coordinates"));
-    }
-    let mut q = q0.to_vec();
-    let zero = vec![0.0; n_q];
-    let mut ws = map.workspace();
-    let columns = map.jacobian_columns();
-    let residual = |ws: &crate::model::ParametricEval| -> f64 {
-        ws.position
-            .iter()
-            .zip(x)
-            .map(|(p, t)| (p - t) * (p - t))
-            .sum()
-    };
-    for _ in 0..50 {
-        map.observe(0.0, &q, &zero, &mut ws);
-        let r0 = residual(&ws);
-        // Normal equations J^T J dq = J^T (x - x(q)), dense (n_q is small).
-        let mut a = vec![0.0; n_q * n_q];
-        let mut b = vec![0.0; n_q];
-        for (k, (&xk, &pk)) in x.iter().zip(&ws.position).enumerate() {
-            let entries = map.row_entries(k);
-            for e in entries.clone() {
-                let (i, ji) = (columns[e], ws.jacobian[e]);
-                b[i] += ji * (xk - pk);
-                for f in entries.clone() {
-                    a[i * n_q + columns[f]] += ji * ws.jacobian[f];
-                }
-            }
-        }
-        let scale = (0..n_q).map(|i| a[i * n_q + i]).fold(0.0_f64, f64::max);
-        for i in 0..n_q {
-            a[i * n_q + i] += 1e-9 * scale.max(1e-300);
-        }
-        let Some(dq) = solve_dense(a, b, n_q) else {
-            return Err(RestartError::NoCoordinates("singular least-squares system"));
-        };
-        // Halve the step until the distance does not grow.
-        let mut step = 1.0;
-        let mut trial = q.clone();
-        loop {
-            for i in 0..n_q {
-                trial[i] = q[i] + step * dq[i];
-            }
-            map.observe(0.0, &trial, &zero, &mut ws);
-            if residual(&ws) <= r0 || step < 1e-6 {
-                break;
-            }
-            step *= 0.5;
-        }
-        let moved = dq.iter().map(|d| (step * d).abs()).fold(0.0, f64::max);
-        q.copy_from_slice(&trial);
-        if moved <= 1e-12 * (1.0 + q.iter().map(|v| v.abs()).fold(0.0, f64::max)) {
-            break;
-        }
-    }
-    if q.iter().any(|v| !v.is_finite()) {
-        return Err(RestartError::NoCoordinates("the fit diverged"));
-    }
-    Ok(q)
-}
-
-/// Solve the dense n x n system `a` y = `b` (row-major) by Gaussian elimination with partial
-/// pivoting; `None` when singular.
-fn solve_dense(mut a: Vec<f64>, mut b: Vec<f64>, n: usize) -> Option<Vec<f64>> {
-    for col in 0..n {
-        let pivot =
-            (col..n).max_by(|&i, &j| a[i * n + col].abs().total_cmp(&a[j * n + col].abs()))?;
-        if a[pivot * n + col].abs() < 1e-300 || !a[pivot * n + col].is_finite() {
-            return None;
-        }
-        if pivot != col {
-            for k in 0..n {
-                a.swap(pivot * n + k, col * n + k);
-            }
-            b.swap(pivot, col);
-        }
-        for row in col + 1..n {
-            let f = a[row * n + col] / a[col * n + col];
-            for k in col..n {
-                a[row * n + k] -= f * a[col * n + k];
-            }
-            b[row] -= f * b[col];
-        }
-    }
-    let mut y = vec![0.0; n];
-    for row in (0..n).rev() {
-        let s: f64 = (row + 1..n).map(|k| a[row * n + k] * y[k]).sum();
-        y[row] = (b[row] - s) / a[row * n + row];
-    }
-    Some(y)
 }
 
 /// Project `state` onto C = 0 and J qdot + C_t = 0; returns the position iterations.

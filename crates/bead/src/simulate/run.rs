@@ -199,6 +199,17 @@ pub enum RunError {
     },
     #[error("cannot advance to t = {} from t = {}: time only moves forward, to a finite time", crate::readable(*requested), crate::readable(*now))]
     TimeBehind { requested: f64, now: f64 },
+    /// The stop condition is not a number (NaN) at time `t` of the integrator's path (a step
+    /// end, a sample inside a step, or a time its crossing was looked for): it can neither
+    /// cross zero nor stay below it. `values` are the quantities it reads there; the run
+    /// stands at `stopped`, the start of that step, its last good state.
+    #[error("stop_when `{source_text}` is not a number at t = {}{}; the run stopped at the last good state, t = {}", crate::readable(*t), event_values(values), crate::readable(*stopped))]
+    EventNotANumber {
+        source_text: String,
+        t: f64,
+        values: Vec<(String, f64)>,
+        stopped: f64,
+    },
     /// The run's [`Progress::interrupted`] (or the callback of
     /// [`Simulation::advance_to_with`]) asked it to stop (e.g. Ctrl-C in Python); the state at
     /// `t` is good.
@@ -208,6 +219,18 @@ pub enum RunError {
     /// so that printing the chain shows it once.
     #[error("writing output failed: {0}")]
     Io(std::io::Error),
+}
+
+/// ` (with a.x = 1, a.vy = -2)`, or nothing for an expression of t alone.
+fn event_values(values: &[(String, f64)]) -> String {
+    if values.is_empty() {
+        return String::new();
+    }
+    let list: Vec<String> = values
+        .iter()
+        .map(|(name, value)| format!("{name} = {}", crate::readable(*value)))
+        .collect();
+    format!(" (with {})", list.join(", "))
 }
 
 impl From<std::io::Error> for RunError {
