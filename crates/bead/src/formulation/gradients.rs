@@ -94,6 +94,8 @@ pub struct SingularSearch {
     pub point: Vec<f64>,
     /// |g(point)| / |g(start)|: below 1e-6 or so when a point where g vanishes was found.
     pub reduction: f64,
+    /// |g(point)| itself.
+    pub residual: f64,
     /// The constraint's value C at the point (0 for a column of the parametric map, whose
     /// points all lie on the curve): a singular point of the curve has C = 0 there; a
     /// critical point of C off the curve (the centre of an ellipse) is harmless.

@@ -425,10 +425,11 @@ impl Formulation for Parametric {
     }
 
     fn locate_singular_point(&self, row: usize, t: f64, q: &[f64]) -> SingularSearch {
-        let (point, reduction) = self.parametric_map().locate_singular_point(row, t, q);
+        let (point, reduction, residual) = self.parametric_map().locate_singular_point(row, t, q);
         SingularSearch {
             point,
             reduction,
+            residual,
             value: 0.0,
         }
     }

@@ -178,7 +178,9 @@ pub fn solve_general(
 /// `y <- y - (D^T D + mu I)^-1 D^T g`, D = dg/dy (m x k, row-major), mu = 1e-12 trace(D^T D).
 /// `eval(y, g, d)` writes g(y) (m) and D(y). Stops after `max_iterations`, when |g| falls
 /// below `1e-12` of its start, or when an iteration no longer reduces it by a tenth.
-/// Returns |g(y_end)| / |g(y_start)| (0 when g(y_start) = 0; NaN when not finite). For a
+/// Returns |g(y_end)| / |g(y_start)| (0 when g(y_start) = 0; NaN when not finite) and
+/// |g(y_end)| itself (a reduction from a far start can end at a g that is small only
+/// against its start). For a
 /// regular zero the reduction is quadratic; for a double one (a cusp) it is a constant
 /// factor per iteration. Where g has no zero (the gradient of a parabola, whose component
 /// along the axis is constant) the reduction stalls above it.
@@ -190,7 +192,7 @@ pub fn gauss_newton_zero(
     m: usize,
     max_iterations: usize,
     mut eval: impl FnMut(&[f64], &mut [f64], &mut [f64]),
-) -> f64 {
+) -> (f64, f64) {
     let k = y.len();
     let mut g = vec![0.0; m];
     let mut d = vec![0.0; m * k];
@@ -200,10 +202,10 @@ pub fn gauss_newton_zero(
     eval(y, &mut g, &mut d);
     let start = norm(&g);
     if !start.is_finite() {
-        return f64::NAN;
+        return (f64::NAN, f64::NAN);
     }
     if start == 0.0 {
-        return 0.0;
+        return (0.0, 0.0);
     }
     let mut current = start;
     let mut trial = y.to_vec();
@@ -241,7 +243,7 @@ pub fn gauss_newton_zero(
             break;
         }
     }
-    current / start
+    (current / start, current)
 }
 
 #[cfg(test)]
@@ -260,7 +262,7 @@ mod tests {
             d.copy_from_slice(&[-6.0 * x - 2.0, 0.0, 0.0, 2.0]);
         };
         let mut y = [0.05, -0.04];
-        let reduction = gauss_newton_zero(&mut y, 2, 40, node);
+        let (reduction, _) = gauss_newton_zero(&mut y, 2, 40, node);
         assert!(reduction < 1e-10, "{reduction}");
         assert!(y[0].abs() < 1e-12 && y[1].abs() < 1e-12, "{y:?}");
 
@@ -270,7 +272,7 @@ mod tests {
             d.copy_from_slice(&[2.0, 0.0, 0.0, 0.0]);
         };
         let mut y = [300.0, -900.0];
-        let reduction = gauss_newton_zero(&mut y, 2, 40, parabola);
+        let (reduction, _) = gauss_newton_zero(&mut y, 2, 40, parabola);
         assert!(reduction > 0.1, "{reduction}");
 
         // The cusp y^2 - x^3: a double zero in x, found at a constant rate.
@@ -280,7 +282,7 @@ mod tests {
             d.copy_from_slice(&[-6.0 * y[0], 0.0, 0.0, 2.0]);
         };
         let mut y = [0.01, 0.001];
-        let reduction = gauss_newton_zero(&mut y, 2, 40, cusp);
+        let (reduction, _) = gauss_newton_zero(&mut y, 2, 40, cusp);
         assert!(reduction < 1e-8, "{reduction}");
     }
 

@@ -511,17 +511,18 @@ impl ConstraintSet {
                 let mut vars = vec![0.0; 2 * n + 1];
                 vars[..n].copy_from_slice(x);
                 vars[2 * n] = t;
-                let reduction = crate::linalg::gauss_newton_zero(&mut y, k, 40, |y, g, d| {
-                    for (&c, &value) in columns.iter().zip(y) {
-                        vars[c] = value;
-                    }
-                    for (slot, e) in g.iter_mut().zip(&gradient) {
-                        *slot = e.eval(&vars);
-                    }
-                    for (slot, e) in d.iter_mut().zip(&hessian) {
-                        *slot = e.eval(&vars);
-                    }
-                });
+                let (reduction, residual) =
+                    crate::linalg::gauss_newton_zero(&mut y, k, 40, |y, g, d| {
+                        for (&c, &value) in columns.iter().zip(y) {
+                            vars[c] = value;
+                        }
+                        for (slot, e) in g.iter_mut().zip(&gradient) {
+                            *slot = e.eval(&vars);
+                        }
+                        for (slot, e) in d.iter_mut().zip(&hessian) {
+                            *slot = e.eval(&vars);
+                        }
+                    });
                 for (&c, &value) in columns.iter().zip(&y) {
                     vars[c] = value;
                 }
@@ -529,18 +530,21 @@ impl ConstraintSet {
                 crate::formulation::SingularSearch {
                     point: y,
                     reduction,
+                    residual,
                     value,
                 }
             }
             None => {
                 let custom = &self.custom_rows[row - self.expr_rows.len()];
-                let reduction = crate::linalg::gauss_newton_zero(&mut y, k, 40, |y, g, d| {
-                    custom.constraint.gradient_hessian(y, t, g, d);
-                });
+                let (reduction, residual) =
+                    crate::linalg::gauss_newton_zero(&mut y, k, 40, |y, g, d| {
+                        custom.constraint.gradient_hessian(y, t, g, d);
+                    });
                 let value = custom.constraint.value(&y, t);
                 crate::formulation::SingularSearch {
                     point: y,
                     reduction,
+                    residual,
                     value,
                 }
             }

@@ -261,7 +261,7 @@ impl ParametricMap {
     /// parametrization): Gauss-Newton over q with the map's exact second derivatives. Returns
     /// q at the point found and |dx/dq_j(found)| / |dx/dq_j(q)| (see
     /// [`crate::linalg::gauss_newton_zero`]). Allocates: a diagnostic, not for the step loop.
-    pub fn locate_singular_point(&self, j: usize, t: f64, q: &[f64]) -> (Vec<f64>, f64) {
+    pub fn locate_singular_point(&self, j: usize, t: f64, q: &[f64]) -> (Vec<f64>, f64, f64) {
         let n_q = self.n_q();
         let column: Vec<Expr> = self
             .column_entries(j)
@@ -278,16 +278,17 @@ impl ParametricMap {
         let mut vars = vec![0.0; 2 * n_q + 1];
         vars[2 * n_q] = t;
         let mut y = q.to_vec();
-        let reduction = crate::linalg::gauss_newton_zero(&mut y, column.len(), 40, |y, g, d| {
-            vars[..n_q].copy_from_slice(y);
-            for (slot, e) in g.iter_mut().zip(&column) {
-                *slot = e.eval(&vars);
-            }
-            for (slot, e) in d.iter_mut().zip(&derivatives) {
-                *slot = e.eval(&vars);
-            }
-        });
-        (y, reduction)
+        let (reduction, residual) =
+            crate::linalg::gauss_newton_zero(&mut y, column.len(), 40, |y, g, d| {
+                vars[..n_q].copy_from_slice(y);
+                for (slot, e) in g.iter_mut().zip(&column) {
+                    *slot = e.eval(&vars);
+                }
+                for (slot, e) in d.iter_mut().zip(&derivatives) {
+                    *slot = e.eval(&vars);
+                }
+            });
+        (y, reduction, residual)
     }
 
     /// Size of the compiled code.

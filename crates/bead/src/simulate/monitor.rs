@@ -653,7 +653,12 @@ impl Monitor {
             .map(|(now, before)| now + probe * (now - before))
             .collect();
         let search = formulation.locate_singular_point(r, t, &start);
-        if search.reduction.is_nan() || search.reduction > 1e-6 {
+        // Reduced by 1e-6, and small against the row's own longest length (a search from a
+        // state far out, after a blow-up, reduces a gradient that has no zero by as much).
+        if search.reduction.is_nan()
+            || search.reduction > 1e-6
+            || !(search.residual <= 1e-6 * self.longest[r])
+        {
             return None;
         }
         // On the curve: C there vanishes against the row's own scale (see ON_CURVE).
