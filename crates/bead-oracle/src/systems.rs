@@ -9,6 +9,9 @@ use std::sync::OnceLock;
 use crate::elliptic;
 use crate::reference::Reference;
 
+/// (q, q') of the parametric form.
+pub type State = (Vec<f64>, Vec<f64>);
+
 /// One system with an answer bead did not compute.
 pub struct System {
     /// The reference's name (tests/oracle/references/NAME.*) and the listing's.
@@ -36,7 +39,7 @@ pub struct System {
     /// (|d|^2 - L^2) / (2 L)).
     pub constraints: fn(&[f64], f64) -> Vec<f64>,
     /// (q, q') at t in closed form, when there is one.
-    pub closed_form: Option<fn(f64) -> (Vec<f64>, Vec<f64>)>,
+    pub closed_form: Option<fn(f64) -> State>,
     /// Whether something does work on it (a driven constraint): its rows carry W.
     pub driven: bool,
     /// A parameter to sweep (`bead sweep --param NAME=A:B:3`), whose middle value B is the
@@ -44,7 +47,7 @@ pub struct System {
     /// `closed_form_with` gives their answer.
     pub sweep: (&'static str, f64, f64),
     /// (q, q') at t for another value of the swept parameter, when the closed form has it.
-    pub closed_form_with: Option<fn(f64, f64) -> (Vec<f64>, Vec<f64>)>,
+    pub closed_form_with: Option<fn(f64, f64) -> State>,
 }
 
 impl std::fmt::Debug for System {
@@ -124,8 +127,8 @@ impl System {
 
 fn pendulum_with(t: f64, theta0: f64) -> (Vec<f64>, Vec<f64>) {
     // sin(theta/2) = k sn(K - w t | k^2), theta' = -2 k w cn(K - w t | k^2).
-    let (l, g) = (1.0, 9.81);
-    let w = (g / l as f64).sqrt();
+    let (l, g): (f64, f64) = (1.0, 9.81);
+    let w: f64 = (g / l).sqrt();
     let k = (theta0 / 2.0).sin();
     let m = k * k;
     let kk = elliptic::complete_k(m);
