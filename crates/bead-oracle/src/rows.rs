@@ -202,3 +202,13 @@ pub fn check_consistent(system: &System, row: &Row, parametric: bool, what: &str
         );
     }
 }
+
+/// The spinning hoop's Jacobi integral E - w L_z of a row (conserved exactly: the hoop turns
+/// at a constant rate about z), or None for the other systems.
+pub fn jacobi(system: &System, row: &Row) -> Option<f64> {
+    (system.name == "spinning-hoop").then(|| {
+        let (x, v) = (&row.x, &row.v);
+        let lz = system.masses[0] * (x[0] * v[1] - x[1] * v[0]);
+        system.energy(x, v) - crate::systems::HOOP_W * lz
+    })
+}

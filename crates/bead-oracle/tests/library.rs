@@ -6,7 +6,7 @@ use bead::formulation::Method;
 use bead::integrate::IntegratorKind;
 use bead::sweep::{Axis, Combine, Sweep};
 use bead_oracle::harness::each;
-use bead_oracle::rows::{check_consistent, error};
+use bead_oracle::rows::{self, check_consistent, error};
 use bead_oracle::summary::check_summary;
 use bead_oracle::{checks, elliptic, listing, matrix, Row, Spec, System};
 
@@ -27,6 +27,32 @@ fn check_run(spec: &Spec) {
     let summary = serde_json::to_value(&outcome.summary).expect("the summary serializes");
     check_summary(spec, &summary, &outcome.rows, spec.system.particles, &what);
     checks::against_reference(spec, &outcome.rows, &what);
+    // The spinning hoop's Jacobi integral E - w L_z is conserved: every row's is its
+    // exact value within what the row's state error allows (|dJ| <= (|v| + g L / speed +
+    // w L) speed |e| m: 3.2 E_scale |e| here; 5 is the bound).
+    if let Some(j0) = rows::jacobi(spec.system, &outcome.rows[0]) {
+        let (x0, v0) = spec.system.exact_state(0.0);
+        let exact = Row {
+            x: x0,
+            v: v0,
+            ..outcome.rows[0].clone()
+        };
+        let j_exact = rows::jacobi(spec.system, &exact).unwrap();
+        assert!(
+            (j0 - j_exact).abs() < 1e-12,
+            "{what}: the start's Jacobi integral"
+        );
+        for row in &outcome.rows {
+            let j = rows::jacobi(spec.system, row).unwrap();
+            let bound = 5.0 * spec.system.energy_scale() * error(spec.system, row)
+                + 1e-12 * spec.system.energy_scale();
+            assert!(
+                (j - j_exact).abs() <= bound,
+                "{what}: at t = {} the Jacobi integral is {j}, exactly {j_exact}",
+                row.t
+            );
+        }
+    }
 }
 
 #[test]

@@ -214,3 +214,75 @@ fn frames_are_the_library_run_and_meet_the_oracle() {
         }
     });
 }
+
+#[test]
+fn decode_frame_reads_header_numbers_exactly() {
+    // A frame's header numbers (t, energies, errors) are written shortest round-trip and
+    // the reference decoder reads them back bit for bit, as the page's JSON.parse does.
+    // 2.3103527979628775e-9 and 0.1 + 0.2 are numbers serde_json's default parser reads
+    // one ulp off or exactly; the suite's own data met the first.
+    use bead_viewer::protocol::{encode_frame, PanelFrame};
+    let numbers = [
+        2.3103527979628775e-9,
+        0.1 + 0.2,
+        1.0 / 3.0,
+        5e-324,
+        1.7976931348623157e308,
+    ];
+    for (i, &v) in numbers.iter().enumerate() {
+        let frame = PanelFrame {
+            id: 1,
+            epoch: 1,
+            t: v,
+            steps: 1,
+            x: vec![v, -v],
+            energy: v,
+            kinetic: v,
+            potential: -v,
+            energy_initial: v,
+            energy_scale: v,
+            energy_error: v,
+            energy_conserved: true,
+            work: v,
+            not_conserved_by: Vec::new(),
+            constraint_error: v,
+            steps_per_second: v,
+            distance: Some(v),
+            status: "running".into(),
+            error: None,
+            behind: false,
+            drag: None,
+            path: vec![v, v, -v],
+            curves: None,
+        };
+        let decoded = decode_frame(&encode_frame(1.0, &[frame]).unwrap()).unwrap();
+        let panel = &decoded["panels"][0];
+        for key in [
+            "t",
+            "energy",
+            "kinetic",
+            "energy_initial",
+            "energy_scale",
+            "energy_error",
+            "work",
+            "constraint_error",
+            "distance",
+        ] {
+            let got = panel[key].as_f64().unwrap();
+            assert_eq!(
+                got.to_bits(),
+                v.to_bits(),
+                "number {i}: {key} {got:e}, sent {v:e}"
+            );
+        }
+        assert_eq!(
+            panel["potential"].as_f64().unwrap().to_bits(),
+            (-v).to_bits()
+        );
+        assert_eq!(numbers_of(&panel["x"]), vec![v, -v]);
+    }
+}
+
+fn numbers_of(v: &Value) -> Vec<f64> {
+    numbers(v)
+}
