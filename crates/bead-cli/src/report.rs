@@ -159,13 +159,14 @@ pub fn run_text(scene: &Scene, plan: &Plan, summary: &Summary) -> String {
         };
         row(&mut s, "stop_when", format!("{condition}: {outcome}"));
     }
-    if let (Some(duration), true) = (plan.duration, plan.overshoot) {
+    if let (Some(duration), Some(last)) = (plan.duration, plan.last_step()) {
         let _ = writeln!(
             s,
-            "  {:<12} duration {} s is not a whole number of steps of dt = {} s; the run goes on to t = {} s",
+            "  {:<12} duration {} s is not a whole number of steps of dt = {} s; the last step is {} s long and ends at t = {} s",
             "note",
             exact(duration),
             exact(plan.dt),
+            exact(last),
             exact(plan.t_end())
         );
     }
@@ -241,11 +242,12 @@ pub fn compare_text(scene: &Scene, plan: &Plan, summaries: &[Summary]) -> String
         },
         exact(plan.t_end())
     );
-    if let (Some(duration), true) = (plan.duration, plan.overshoot) {
+    if let (Some(duration), Some(last)) = (plan.duration, plan.last_step()) {
         let _ = writeln!(
             s,
-            "  note: duration {} s is not a whole number of steps; the runs go on to t = {} s",
+            "  note: duration {} s is not a whole number of steps; the last step is {} s long and ends at t = {} s",
             exact(duration),
+            exact(last),
             exact(plan.t_end())
         );
     }

@@ -226,7 +226,8 @@ fn summary_file_is_the_json_summary() {
 }
 
 #[test]
-fn duration_not_a_whole_number_of_steps_rounds_up_and_says_so() {
+fn duration_not_a_whole_number_of_steps_ends_exactly_there_and_says_so() {
+    // Regression (issue 15): the run went on to t = 1.2.
     let out = ok(bead(&[
         "run",
         p(&parabola()),
@@ -236,10 +237,35 @@ fn duration_not_a_whole_number_of_steps_rounds_up_and_says_so() {
         "1",
     ]));
     assert!(out.contains("steps        4\n"), "{out}");
+    assert!(out.contains("t_final      1 s\n"), "{out}");
     assert!(
-        out.contains("duration 1 s is not a whole number of steps"),
+        out.contains(
+            "duration 1 s is not a whole number of steps of dt = 0.3 s; the last step is 0.1"
+        ),
         "{out}"
     );
+    let dir = TempDir::new("duration");
+    let json = ok(bead(&[
+        "run",
+        p(&parabola()),
+        "--dt",
+        "0.3",
+        "--duration",
+        "1",
+        "--json",
+        "--trace",
+        dir.path("t.csv").to_str().unwrap(),
+    ]));
+    let value: serde_json::Value = serde_json::from_str(&json).unwrap();
+    assert_eq!(value["t_final"], 1.0);
+    let trace = std::fs::read_to_string(dir.path("t.csv")).unwrap();
+    let times: Vec<&str> = trace
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').next().unwrap())
+        .collect();
+    assert_eq!(times.last(), Some(&"1"), "{trace}");
+    assert_eq!(times.len(), 5, "{trace}");
 }
 
 #[test]
@@ -1349,7 +1375,11 @@ fn overflow_is_named_never_called_singular() {
     let dir = TempDir::new("overflow");
     let circle = "[[constraint]]\nexpr = \"bead.x^2 + bead.y^2 - 1\"\n";
     dir.write("circle.toml", &bead_scene(circle));
-    let out = bead_in(&dir.0, &["run", "circle.toml", "--dt", "1e300"]);
+    // One step of 1e300 s (a duration would end the run at its 10 s).
+    let out = bead_in(
+        &dir.0,
+        &["run", "circle.toml", "--dt", "1e300", "--steps", "1"],
+    );
     let text = stdout(&out);
     let err = fails(out, 1);
     assert_eq!(

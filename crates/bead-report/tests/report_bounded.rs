@@ -37,7 +37,7 @@ fn a_report_over_100_000_steps_keeps_at_most_the_bounded_points_per_series() {
         let mut simulation = Simulation::new(Arc::clone(&scene.system), config).unwrap();
         let mut recorder = Recorder::new(Arc::clone(&scene.system), DEFAULT_BUCKETS);
         let mut progress = Count(0, 0);
-        let options = RunOptions { steps, every: 1 };
+        let options = RunOptions::steps(steps);
         let stats = run_with_progress(&mut simulation, options, &mut recorder, &mut progress)
             .unwrap_or_else(|e| panic!("{e}"));
         assert!(progress.0 <= 101, "progress called {} times", progress.0);

@@ -32,12 +32,8 @@ fn parabola_report() -> Report {
             let mut simulation = Simulation::new(Arc::clone(&scene.system), config).unwrap();
             let mut recorder = Recorder::new(Arc::clone(&scene.system), DEFAULT_BUCKETS);
             let steps = (10.0 / dt).round() as u64;
-            let stats = run(
-                &mut simulation,
-                RunOptions { steps, every: 1 },
-                &mut recorder,
-            )
-            .unwrap_or_else(|e| panic!("{e}"));
+            let stats = run(&mut simulation, RunOptions::steps(steps), &mut recorder)
+                .unwrap_or_else(|e| panic!("{e}"));
             runs.push(ReportRun {
                 method,
                 projected: false,
@@ -250,15 +246,8 @@ fn a_motion_that_is_not_periodic_gets_no_period() {
     };
     let mut simulation = Simulation::new(Arc::clone(&scene.system), config).unwrap();
     let mut recorder = Recorder::new(Arc::clone(&scene.system), DEFAULT_BUCKETS);
-    run(
-        &mut simulation,
-        RunOptions {
-            steps: 20_000,
-            every: 1,
-        },
-        &mut recorder,
-    )
-    .unwrap_or_else(|e| panic!("{e}"));
+    run(&mut simulation, RunOptions::steps(20_000), &mut recorder)
+        .unwrap_or_else(|e| panic!("{e}"));
     assert_eq!(recorder.recording().period, None);
     let report = parabola_report();
     assert!(report.runs.iter().all(|r| r.recording.period.is_some()));

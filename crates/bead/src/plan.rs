@@ -115,8 +115,9 @@ pub struct Plan {
     pub steps: u64,
     /// The requested duration when `steps` was derived from one.
     pub duration: Option<f64>,
-    /// Whether duration/dt was not an integer, so that the run ends after the duration.
-    pub overshoot: bool,
+    /// Whether duration/dt was not an integer, so that the last step is shorter than dt and
+    /// the run ends exactly at the duration.
+    pub last_step_shortened: bool,
     /// Feedback for the implicit form.
     pub feedback: Feedback,
     /// Whether the feedback was requested (not just set by the scene).
@@ -136,7 +137,8 @@ pub struct Plan {
 impl Plan {
     /// Resolve `request` against `scene`'s `[run]` table and the defaults, checking every
     /// value. The number of steps is `steps` when given, else duration / dt when that is
-    /// within 1e-9 (relative) of an integer, else rounded up (see [`steps_for`]).
+    /// within 1e-9 (relative) of an integer, else rounded up with the last step shortened to
+    /// end at the duration (see [`steps_for`]).
     pub fn resolve(scene: &Scene, request: &PlanRequest) -> Result<Plan, PlanError> {
         check_request(request)?;
         let run = &scene.run;
@@ -148,7 +150,7 @@ impl Plan {
             Some(dt) => dt,
             None => scene_positive("dt", run.dt)?.unwrap_or(DEFAULT_DT),
         };
-        let (steps, duration, overshoot) = match (request.steps, request.duration) {
+        let (steps, duration, last_step_shortened) = match (request.steps, request.duration) {
             (Some(steps), _) => (steps, None, false),
             (None, Some(duration)) => steps_for(duration, dt)?,
             (None, None) => match (run.steps, scene_positive("duration", run.duration)?) {
@@ -185,7 +187,7 @@ impl Plan {
             dt,
             steps,
             duration,
-            overshoot,
+            last_step_shortened,
             feedback,
             feedback_requested,
             every: request.every.unwrap_or(1),
@@ -204,6 +206,7 @@ impl Plan {
         RunOptions {
             steps: self.steps,
             every: self.every,
+            duration: self.duration.filter(|_| self.last_step_shortened),
         }
     }
 
@@ -232,9 +235,16 @@ impl Plan {
         }
     }
 
-    /// Time at the end of a complete run (the run loop computes t = step * dt).
+    /// Time at the end of a complete run from t = 0: steps * dt (the run loop computes t =
+    /// step * dt), or the duration when the last step is shortened to end there.
     pub fn t_end(&self) -> f64 {
-        self.steps as f64 * self.dt
+        self.options().output_time(0.0, self.steps, self.dt)
+    }
+
+    /// The length of the last step when it is shortened to end at the duration.
+    pub fn last_step(&self) -> Option<f64> {
+        let duration = self.duration.filter(|_| self.last_step_shortened)?;
+        Some(duration - (self.steps - 1) as f64 * self.dt)
     }
 
     /// Whether the scene asks for feedback that a parametric run will not use (a front end
@@ -281,14 +291,15 @@ pub fn methods(scene: &Scene) -> Vec<Method> {
 }
 
 /// Steps covering `duration`: duration/dt when it is within 1e-9 (relative, for large counts)
-/// of an integer, else rounded up; at least one. Returns (steps, Some(duration), overshoot).
+/// of an integer, else rounded up, the last of them then shortened to end at the duration; at
+/// least one. Returns (steps, Some(duration), whether the last step is shortened).
 pub fn steps_for(duration: f64, dt: f64) -> Result<(u64, Option<f64>, bool), PlanError> {
     let ratio = duration / dt;
     if !ratio.is_finite() || ratio > MAX_STEPS {
         return Err(PlanError::TooManySteps { duration, dt });
     }
     let nearest = ratio.round();
-    let (steps, overshoot) = if (ratio - nearest).abs() <= 1e-9 * ratio.max(1.0) {
+    let (steps, shortened) = if (ratio - nearest).abs() <= 1e-9 * ratio.max(1.0) {
         (nearest, false)
     } else {
         (ratio.ceil(), true)
@@ -296,7 +307,7 @@ pub fn steps_for(duration: f64, dt: f64) -> Result<(u64, Option<f64>, bool), Pla
     if steps < 1.0 {
         return Ok((1, Some(duration), true));
     }
-    Ok((steps as u64, Some(duration), overshoot))
+    Ok((steps as u64, Some(duration), shortened))
 }
 
 /// Both gains finite and >= 0.
@@ -397,6 +408,30 @@ mod tests {
     fn steps_round_up_otherwise() {
         assert_eq!(steps_for(1.0, 0.3).unwrap(), (4, Some(1.0), true));
         assert_eq!(steps_for(1e-12, 0.01).unwrap(), (1, Some(1e-12), true));
+    }
+
+    #[test]
+    fn a_duration_off_the_grid_ends_exactly_there_with_a_shorter_last_step() {
+        let plan = Plan::resolve(
+            &scene("[run]\ndt = 0.3\nduration = 1.0\n"),
+            &Default::default(),
+        )
+        .unwrap();
+        assert_eq!((plan.steps, plan.t_end()), (4, 1.0));
+        assert!((plan.last_step().unwrap() - 0.1).abs() < 1e-15);
+        let options = plan.options();
+        assert_eq!(options.output_time(0.0, 3, 0.3), 3.0 * 0.3);
+        assert_eq!(options.output_time(0.0, 4, 0.3), 1.0);
+        let whole = Plan::resolve(
+            &scene("[run]\ndt = 0.25\nduration = 1.0\n"),
+            &Default::default(),
+        )
+        .unwrap();
+        assert_eq!(
+            (whole.steps, whole.t_end(), whole.last_step()),
+            (4, 1.0, None)
+        );
+        assert_eq!(whole.options().duration, None);
     }
 
     #[test]

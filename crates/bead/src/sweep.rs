@@ -392,12 +392,12 @@ impl Sweep {
         }
         if let Some(first) = together.first() {
             let system = Arc::clone(&first.system);
-            let steps = first.options.steps;
+            let options = first.options;
             let mut simulations: Vec<Simulation> =
                 together.iter_mut().map(|r| r.take_simulation()).collect();
             let start = Instant::now();
             let outcomes = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-                run_lanes(&system, &mut simulations, steps)
+                run_lanes(&system, &mut simulations, options)
             }));
             let wall = start.elapsed().as_secs_f64() / together.len() as f64;
             match outcomes {

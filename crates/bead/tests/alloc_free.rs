@@ -22,7 +22,7 @@ use std::sync::Arc;
 use bead::formulation::{formulate, Feedback, Formulation, Implicit, Method, Parametric};
 use bead::integrate::IntegratorKind;
 use bead::model::{Endpoint, Force, Holonomic, ParticleId, System, SystemBuilder};
-use bead::simulate::NullSink;
+use bead::simulate::{NullSink, RunOptions};
 use bead::Scalar;
 use common::{run, Options};
 
@@ -266,9 +266,15 @@ fn every_integrator_steps_the_parametric_form_without_allocating() {
     }
 }
 
+/// Allocator calls a search for a singular point may make (a diagnostic, raised by the
+/// monitor's first-order tests a few times per run at most: see `monitor.rs`).
+const CALLS_PER_SEARCH: usize = 500;
+
 // run() allocates its buffers once (integrator, monitor, state copies, the final statistics);
 // the loop itself must add nothing, so a 10-step and a 10000-step run make the same number of
-// allocator calls.
+// allocator calls, except for the singular-point monitor's searches: a drifting integrator
+// (euler) may raise a few, each allocating; they are counted and bounded, far below one call
+// per step.
 #[test]
 fn run_loop_allocation_count_does_not_depend_on_the_number_of_steps() {
     for (name, system, dt) in [
@@ -291,20 +297,38 @@ fn run_loop_allocation_count_does_not_depend_on_the_number_of_steps() {
                         every: 1,
                         ..Default::default()
                     };
-                    let (calls, result) =
-                        allocator_calls(|| run(formulation, &options, &mut NullSink));
+                    let mut searches = 0;
+                    let (calls, result) = allocator_calls(|| {
+                        let mut simulation = common::simulation(formulation, &options);
+                        let result = bead::simulate::run(
+                            &mut simulation,
+                            RunOptions::steps(steps),
+                            &mut NullSink,
+                        );
+                        searches = simulation.singular_point_searches();
+                        result
+                    });
                     // Adaptive runs count their own steps; every run reaches the end.
                     assert_eq!(result.unwrap().t_final, steps as f64 * dt);
-                    calls
+                    (calls, searches)
                 };
-                let (short, long) = (calls(10), calls(10_000));
-                assert_eq!(
-                    short,
-                    long,
-                    "{name} {} {}: {short} allocator calls in 10 steps, {long} in 10000",
+                let ((short, short_searches), (long, long_searches)) = (calls(10), calls(10_000));
+                let context = format!(
+                    "{name} {} {}: {short} allocator calls in 10 steps, {long} in 10000, \
+                     with {short_searches} and {long_searches} searches for singular points",
                     method.name(),
                     kind.name()
                 );
+                if long_searches == short_searches {
+                    assert_eq!(short, long, "{context}");
+                } else {
+                    assert!(long_searches <= 10, "{context}");
+                    assert!(
+                        long - short
+                            <= (long_searches - short_searches) as usize * CALLS_PER_SEARCH,
+                        "{context}"
+                    );
+                }
             }
         }
     }

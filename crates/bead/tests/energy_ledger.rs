@@ -131,7 +131,7 @@ fn run_to(
     sink: &mut dyn Sink,
 ) -> RunStats {
     let mut sim = simulation(system, method, integrator, t_end / steps as f64);
-    run(&mut sim, RunOptions { steps, every: 1 }, sink).unwrap_or_else(|e| panic!("{e}"))
+    run(&mut sim, RunOptions::steps(steps), sink).unwrap_or_else(|e| panic!("{e}"))
 }
 
 /// Law: on the rotating rod r = R0 cosh(w t) and the rod does the work
@@ -307,15 +307,7 @@ fn a_conservative_system_tracks_no_work() {
     let system = Arc::new(b.build().unwrap());
     let mut sim = simulation(&system, Method::Implicit, IntegratorKind::Rk4, 1e-3);
     assert!(!sim.tracks_work() && sim.energy_conserved());
-    let stats = run(
-        &mut sim,
-        RunOptions {
-            steps: 100,
-            every: 1,
-        },
-        &mut NullSink,
-    )
-    .unwrap();
+    let stats = run(&mut sim, RunOptions::steps(100), &mut NullSink).unwrap();
     assert!(stats.energy_conserved && stats.nonconservation.is_empty());
     assert_eq!(
         (stats.work_final, stats.energy_balance_error_max),
@@ -341,15 +333,7 @@ fn relative_energy_error_is_small_when_a_scene_starts_at_the_potential_zero() {
             "{}",
             sim.energy_scale()
         );
-        let stats = run(
-            &mut sim,
-            RunOptions {
-                steps: 5000,
-                every: 1,
-            },
-            &mut NullSink,
-        )
-        .unwrap();
+        let stats = run(&mut sim, RunOptions::steps(5000), &mut NullSink).unwrap();
         assert!(
             stats.energy_rel_error_max < 1e-8,
             "{method:?}: {}",

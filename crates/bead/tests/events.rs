@@ -79,7 +79,7 @@ fn run_until(
     sim.set_stop_when(Some(Event::parse(&scene.system, event).unwrap()))
         .unwrap();
     let mut times = Times::default();
-    let stats = run(&mut sim, RunOptions { steps, every: 1 }, &mut times).unwrap();
+    let stats = run(&mut sim, RunOptions::steps(steps), &mut times).unwrap();
     (stats, sim, times.0)
 }
 
@@ -364,7 +364,7 @@ fn a_scene_stop_when_reaches_the_summary() {
         config(Method::Implicit, IntegratorKind::Rk4, 0.01),
     )
     .unwrap();
-    let result = run(&mut sim, RunOptions { steps: 3, every: 1 }, &mut NullSink);
+    let result = run(&mut sim, RunOptions::steps(3), &mut NullSink);
     let summary = Summary::from_result("drop.toml", &scene.system, &[], &result);
     let json: serde_json::Value = serde_json::from_str(&summary.to_json_pretty().unwrap()).unwrap();
     assert!(json["stop_time"].is_null());

@@ -459,3 +459,91 @@ fn acceptance_dopri5_reference() {
     }
     println!("wall time {:.2} s", start.elapsed().as_secs_f64());
 }
+
+/// Every sample of a run as one row: t, x, xdot, q, qdot, energy.
+#[derive(Default)]
+struct Rows(Vec<(f64, Vec<f64>, Vec<f64>, Vec<f64>, Vec<f64>, f64)>);
+
+impl Sink for Rows {
+    fn record(&mut self, s: &Sample) -> std::io::Result<()> {
+        self.0.push((
+            s.t,
+            s.x.to_vec(),
+            s.xdot.to_vec(),
+            s.q.to_vec(),
+            s.qdot.to_vec(),
+            s.energy,
+        ));
+        Ok(())
+    }
+}
+
+/// Regression (issue 15): when dopri5's last step covered both T - dt and T, the run ended
+/// with the particle state of T - dt labelled T (the observation of the dense output at the
+/// previous request was kept), in the summary, the trace's last row and every front end.
+/// Every row must be one state: x = q for the implicit form, x = L (sin q, cos q) for the
+/// parametric one, T + V from the row's own x and xdot; and the final x must be the exact
+/// pendulum's at T (hand-written RK4 reference), for steps shorter and longer than the
+/// output interval.
+#[test]
+fn dopri5_final_state_is_the_state_at_the_end_not_one_output_interval_before() {
+    let system = pendulum();
+    for method in [Method::Implicit, Method::Parametric] {
+        // (output interval, steps, rtol): many small intervals per step, one interval per
+        // several steps, and an end that is not a whole number of steps.
+        for (dt, steps, rtol) in [(1e-3, 3000, 1e-10), (0.25, 12, 1e-10), (0.01, 333, 1e-8)] {
+            let formulation = formulate(system.clone(), method, Feedback::default()).unwrap();
+            let mut rows = Rows::default();
+            let stats = run(
+                formulation,
+                &dopri5(dt, steps, rtol, rtol * 1e-2),
+                &mut rows,
+            )
+            .unwrap();
+            let t_end = steps as f64 * dt;
+            assert_eq!(stats.t_final, t_end);
+            for (t, x, xdot, q, qdot, energy) in &rows.0 {
+                let (expected_x, expected_v) = match method {
+                    Method::Implicit => (q.clone(), qdot.clone()),
+                    Method::Parametric => {
+                        let (s, c) = q[0].sin_cos();
+                        (vec![L * s, L * c], vec![L * c * qdot[0], -L * s * qdot[0]])
+                    }
+                };
+                let context = format!("{method:?} dt {dt} at t = {t}");
+                assert!(
+                    distance(x, &expected_x) <= 1e-14,
+                    "{context}: x {x:?} is not x(q) {expected_x:?}"
+                );
+                assert!(
+                    distance(xdot, &expected_v) <= 1e-13,
+                    "{context}: xdot {xdot:?} is not xdot(q, qdot) {expected_v:?}"
+                );
+                let recomputed = system.energy(x, xdot);
+                assert!(
+                    (energy - recomputed).abs() <= 1e-12,
+                    "{context}: energy {energy} is not T + V of the row's state {recomputed}"
+                );
+            }
+            let last = rows.0.last().unwrap();
+            assert_eq!(last.0, t_end);
+            assert_eq!(last.1, stats.x, "the summary's x is the last row's");
+            assert_eq!(last.3, stats.q, "the summary's q is the last row's");
+            let reference_steps = ((t_end / 1e-5) as u64).max(1);
+            let reference = reference_positions(
+                t_end / reference_steps as f64,
+                reference_steps,
+                reference_steps,
+            );
+            let exact = reference.last().unwrap();
+            let error = distance(&stats.x, exact);
+            // rtol 1e-10 (1e-8) holds the pendulum to ~1e-8 (1e-6) over a few seconds; the
+            // stale state was |v| dt away: 1e-3 to 1 here.
+            assert!(
+                error <= 1e3 * rtol,
+                "{method:?} dt {dt}: final x {:?} is {error:e} from the exact {exact:?}",
+                stats.x
+            );
+        }
+    }
+}

@@ -109,7 +109,7 @@ fn run_scene_with(
     let mut sim = Simulation::new(Arc::clone(&scene.system), config).unwrap();
     let mut positions = Positions::default();
     let steps = (duration / dt).round() as u64;
-    let result = run(&mut sim, RunOptions { steps, every: 1 }, &mut positions);
+    let result = run(&mut sim, RunOptions::steps(steps), &mut positions);
     (result, positions)
 }
 
@@ -326,7 +326,10 @@ fn the_tips_of_a_thin_ellipse_are_not_singular() {
         let steps = (10.0 / dt) as u64;
         let stats = run(
             &mut sim,
-            RunOptions { steps, every: 100 },
+            RunOptions {
+                every: 100,
+                ..RunOptions::steps(steps)
+            },
             &mut bead::simulate::NullSink,
         )
         .unwrap_or_else(|e| panic!("{integrator:?}: {e}"));

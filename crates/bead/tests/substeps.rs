@@ -62,15 +62,8 @@ fn a_whipping_chain_runs_at_dt_1_60_with_automatic_substeps() {
     let system = chain(30);
     let mut sim = Simulation::new(Arc::clone(&system), config(1.0 / 60.0, 1, 64)).unwrap();
     let e0 = sim.energy();
-    let stats = run(
-        &mut sim,
-        RunOptions {
-            steps: 600,
-            every: 1,
-        },
-        &mut NullSink,
-    )
-    .unwrap_or_else(|e| panic!("{e}"));
+    let stats =
+        run(&mut sim, RunOptions::steps(600), &mut NullSink).unwrap_or_else(|e| panic!("{e}"));
     assert_eq!(stats.t_final, 10.0);
     assert!(
         stats.retried_steps > 0,
@@ -97,15 +90,8 @@ fn a_whipping_chain_runs_at_dt_1_60_with_automatic_substeps() {
 
     // Without retries the same run stops at a whip with the non-convergence.
     let mut strict = Simulation::new(system, config(1.0 / 60.0, 1, 1)).unwrap();
-    let failure = run(
-        &mut strict,
-        RunOptions {
-            steps: 600,
-            every: 1,
-        },
-        &mut NullSink,
-    )
-    .expect_err("a whip stops a run without retries");
+    let failure = run(&mut strict, RunOptions::steps(600), &mut NullSink)
+        .expect_err("a whip stops a run without retries");
     assert!(
         matches!(
             failure.error,
@@ -121,15 +107,8 @@ fn a_whipping_chain_runs_at_dt_1_60_with_automatic_substeps() {
 #[test]
 fn a_100_link_chain_runs_at_dt_1_60_with_automatic_substeps() {
     let mut sim = Simulation::new(chain(100), config(1.0 / 60.0, 1, 64)).unwrap();
-    let stats = run(
-        &mut sim,
-        RunOptions {
-            steps: 600,
-            every: 1,
-        },
-        &mut NullSink,
-    )
-    .unwrap_or_else(|e| panic!("{e}"));
+    let stats =
+        run(&mut sim, RunOptions::steps(600), &mut NullSink).unwrap_or_else(|e| panic!("{e}"));
     assert_eq!(stats.t_final, 10.0);
     assert!(stats.retried_steps > 0);
     // The tolerance is 1e-12 of the scene's scale (100 lengths): 1e-10 per rod.

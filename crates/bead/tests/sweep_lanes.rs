@@ -192,3 +192,27 @@ fn the_helix_in_three_dimensions() {
         );
     }
 }
+
+#[test]
+fn a_duration_off_the_grid_ends_every_member_exactly_there() {
+    // Regression (issue 15): duration 1 at dt 0.3 ran to 1.2. The lanes take the shortened
+    // last step as the members alone do, bit for bit.
+    let scene = Scene::parse(common::PARABOLA_SWEPT, "parabola.toml", &[]).unwrap();
+    for method in [Method::Implicit, Method::Parametric] {
+        let request = PlanRequest {
+            steps: None,
+            duration: Some(1.0),
+            ..rk4(method, 0.3, 0)
+        };
+        let members = check(
+            &scene,
+            vec![Axis::linspace("x0", 10.0, 200.0, 18).unwrap()],
+            request,
+            None,
+        );
+        for member in &members {
+            assert_eq!(member.stats.as_ref().unwrap().t_final, 1.0);
+            assert_eq!(member.stats.as_ref().unwrap().steps, 4);
+        }
+    }
+}

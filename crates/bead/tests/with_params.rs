@@ -19,14 +19,7 @@ fn run_of(scene: &Scene, method: Method) -> Option<RunStats> {
         ..Default::default()
     };
     let mut simulation = Simulation::new(Arc::clone(&scene.system), config).ok()?;
-    let stats = match run(
-        &mut simulation,
-        RunOptions {
-            steps: 20,
-            every: 1,
-        },
-        &mut NullSink,
-    ) {
+    let stats = match run(&mut simulation, RunOptions::steps(20), &mut NullSink) {
         Ok(stats) => stats,
         Err(failure) => *failure.stats,
     };

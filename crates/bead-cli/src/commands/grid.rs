@@ -145,10 +145,10 @@ pub fn compare_grid(args: &CompareArgs) -> Result<()> {
         for (dt_label, dt, rtol) in runs_of(integrator, &dts, &rtols, plan.settings.rtol) {
             let mut planned = combination.clone();
             if args.grid.dts.is_some() {
-                let (steps, _, overshoot) = steps_for(duration, dt)?;
+                let (steps, _, shortened) = steps_for(duration, dt)?;
                 planned.dt = dt;
                 planned.steps = steps;
-                planned.overshoot = overshoot;
+                planned.last_step_shortened = shortened;
             }
             let trace = trace_of(
                 method,

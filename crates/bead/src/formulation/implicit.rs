@@ -358,6 +358,19 @@ impl Formulation for Implicit {
     fn locate_singular_point(&self, row: usize, t: f64, q: &[f64]) -> SingularSearch {
         self.system.constraints().locate_singular_point(row, t, q)
     }
+
+    fn row_step_length(&self, row: usize, q: &[f64], before: &[f64]) -> f64 {
+        let columns = self.system.constraints().row_columns(row);
+        columns
+            .iter()
+            .map(|&k| (q[k] - before[k]) * (q[k] - before[k]))
+            .sum::<f64>()
+            .sqrt()
+    }
+
+    fn row_never_singular(&self, row: usize) -> bool {
+        self.system.constraints().is_native_row(row)
+    }
 }
 
 /// F = every force on the particles: the system's own (gravity included) and the external

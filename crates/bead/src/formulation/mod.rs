@@ -105,6 +105,38 @@ pub enum StepError {
         /// failure (e.g. an implicit stage iteration that did not converge next to it).
         cause: Option<String>,
     },
+    /// A constraint's gradient (or a column dx/dq) reversed direction within one step where
+    /// the curve is regular: the step is too long for the curve's turn.
+    #[error("{}", describe_step_too_long(*t, subject, position))]
+    StepTooLong {
+        t: f64,
+        subject: Subject,
+        /// The coordinates the row reads, by name, at the end of the rejected step.
+        position: Vec<(String, f64)>,
+    },
+}
+
+fn describe_step_too_long(t: f64, subject: &Subject, position: &[(String, f64)]) -> String {
+    let what = match subject {
+        Subject::Constraint { .. } => "its gradient",
+        Subject::Coordinate { .. } => "dx/dq along it",
+    };
+    format!(
+        "at t = {}: the step is too long for {subject}: {what} turned by more than 90 degrees within the step that ended at {}, with no point nearby where it vanishes (the curve is regular there, but the step jumped across a turn it cannot follow); reduce dt",
+        crate::readable(t),
+        describe_position(position)
+    )
+}
+
+/// `name = value`, or `(names) = (values)` for several coordinates.
+fn describe_position(position: &[(String, f64)]) -> String {
+    let names: Vec<&str> = position.iter().map(|(n, _)| n.as_str()).collect();
+    let values: Vec<String> = position.iter().map(|(_, v)| crate::readable(*v)).collect();
+    if position.len() == 1 {
+        format!("{} = {}", names[0], values[0])
+    } else {
+        format!("({}) = ({})", names.join(", "), values.join(", "))
+    }
 }
 
 /// What becomes singular: a constraint row of the implicit form or a generalized coordinate of
@@ -151,13 +183,7 @@ fn describe_singular_point(
     kind: SingularKind,
     cause: Option<&str>,
 ) -> String {
-    let names: Vec<&str> = position.iter().map(|(n, _)| n.as_str()).collect();
-    let values: Vec<String> = position.iter().map(|(_, v)| crate::readable(*v)).collect();
-    let at = if position.len() == 1 {
-        format!("{} = {}", names[0], values[0])
-    } else {
-        format!("({}) = ({})", names.join(", "), values.join(", "))
-    };
+    let at = describe_position(position);
     let (what, how) = match subject {
         Subject::Constraint { .. } => ("its gradient", "a cusp or a crossing of the curve; the motion cannot be continued on this curve by the implicit form"),
         Subject::Coordinate { .. } => ("dx/dq along it", "a cusp of the parametrization, where the map stops depending on this coordinate; the motion cannot be continued through it"),
@@ -317,6 +343,16 @@ pub trait Formulation: SecondOrderSystem {
     /// second derivatives over [`Formulation::row_variables`]). A diagnostic, used before a
     /// run is stopped for a singular point; it allocates.
     fn locate_singular_point(&self, row: usize, t: f64, q: &[f64]) -> SingularSearch;
+    /// The distance from `before` to `q` in row `row`'s variables ([`Formulation::row_variables`]),
+    /// without allocating: how far a step moved what the row reads.
+    fn row_step_length(&self, row: usize, q: &[f64], before: &[f64]) -> f64;
+    /// Whether gradient row `row` can vanish nowhere on its constraint, so that it has no
+    /// singular point to watch for: a rod of length L > 0 (|grad C| = sqrt(2) on C = 0; it
+    /// vanishes only where the rod's ends meet, a distance L off the constraint) or a pin.
+    fn row_never_singular(&self, row: usize) -> bool {
+        let _ = row;
+        false
+    }
 }
 
 /// Build the formulation `method` of `system`.

@@ -429,6 +429,14 @@ impl Formulation for Parametric {
             value: 0.0,
         }
     }
+
+    fn row_step_length(&self, _row: usize, q: &[f64], before: &[f64]) -> f64 {
+        q.iter()
+            .zip(before)
+            .map(|(a, b)| (a - b) * (a - b))
+            .sum::<f64>()
+            .sqrt()
+    }
 }
 
 /// The nonzeros of each row of J grouped into runs of consecutive columns: row k owns

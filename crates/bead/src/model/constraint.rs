@@ -247,6 +247,14 @@ impl ConstraintSet {
         self.time_dependent[row]
     }
     /// Coordinates of the nonzero entries of J in `row`.
+    /// Whether `row` is a built-in distance (length > 0) or pin row, evaluated natively:
+    /// rows whose gradient vanishes nowhere on their constraint.
+    pub fn is_native_row(&self, row: usize) -> bool {
+        // In row order (built by one pass over the rows).
+        self.native_rows
+            .binary_search_by_key(&row, |(r, _)| *r)
+            .is_ok()
+    }
     pub fn row_columns(&self, row: usize) -> &[usize] {
         &self.columns[self.row_start[row]..self.row_start[row + 1]]
     }

@@ -26,8 +26,10 @@
 
 use std::sync::Arc;
 
-use super::monitor::{lookahead, norm, AHEAD_FRACTION, AHEAD_STEPS, OFF_BRANCH_FRACTION, VANISHED};
-use super::{Simulation, Stepper};
+use super::monitor::{
+    lookahead, norm, off_branch_candidate, AHEAD_FRACTION, AHEAD_STEPS, VANISHED,
+};
+use super::{RunOptions, Simulation, Stepper};
 use crate::expr::Tape;
 use crate::formulation::{Implicit, LaneScratch, Method, Observation, Parametric};
 use crate::integrate::IntegratorKind;
@@ -99,8 +101,9 @@ struct Lanes {
     lambda: Vec<f64>,
     /// The parametric form across lanes (see [`Parametric::accelerate_across_lanes`])
     parametric: LaneScratch,
-    /// One lane's q, qdot, acceleration and tape outputs
+    /// One lane's q, qdot, acceleration and tape outputs, and q at the step's start
     q_one: Vec<f64>,
+    q_back_one: Vec<f64>,
     qdot_one: Vec<f64>,
     a_one: Vec<f64>,
     out_one: Vec<f64>,
@@ -129,6 +132,7 @@ impl Lanes {
             lambda: Vec::new(),
             parametric: LaneScratch::default(),
             q_one: vec![0.0; n],
+            q_back_one: vec![0.0; n],
             qdot_one: vec![0.0; n],
             a_one: vec![0.0; n],
             out_one: vec![0.0; outputs],
@@ -152,14 +156,16 @@ impl Lanes {
 }
 
 /// Advance `members` (at most [`LANES`], all at t = 0 before their first step, each set up
-/// for a system with `system`'s dynamics and its own initial state) over `steps` output
-/// intervals of dt, as [`super::run`] would with a null sink. Returns each member's outcome; a `Done` member's
+/// for a system with `system`'s dynamics and its own initial state) over the output intervals
+/// of `options` (their ends [`RunOptions::output_time`]), as [`super::run`] would with a null
+/// sink. Returns each member's outcome; a `Done` member's
 /// simulation then holds the end state and its [`Simulation::stats`] are the run's.
 pub(crate) fn run_lanes(
     system: &Arc<System>,
     members: &mut [Simulation],
-    steps: u64,
+    options: RunOptions,
 ) -> Vec<LaneOutcome> {
+    let steps = options.steps;
     assert!(!members.is_empty() && members.len() <= LANES);
     let count = members.len();
     let system: Arc<System> = Arc::clone(system);
@@ -233,8 +239,9 @@ pub(crate) fn run_lanes(
     let dt = config.dt;
     let mut t = t0;
     for k in 1..=steps {
-        // As `run` asks and `advance_to` steps: to t0 + k dt, one step of (t_end - t) / 1.
-        let t_end = t0 + k as f64 * dt;
+        // As `run` asks and `advance_to` steps: to t0 + k dt (the last to t0 + duration when
+        // set), one step of (t_end - t) / 1.
+        let t_end = options.output_time(t0, k, dt);
         let h = (t_end - t) / 1.0;
         std::mem::swap(&mut lanes.q_back2, &mut lanes.q_back);
         lanes.q_back.copy_from_slice(&lanes.q);
@@ -330,8 +337,20 @@ pub(crate) fn run_lanes(
                     .xdot
                     .iter()
                     .any(|c| c.is_nan() || c.abs() > speed_limit);
+            Lanes::gather(&lanes.q_back, l, &mut lanes.q_back_one);
+            let step_length = |r: usize| {
+                member
+                    .formulation
+                    .row_step_length(r, &lanes.q_one, &lanes.q_back_one)
+            };
             if diverged
-                || regularity_candidate(&observation, &last[l], &longest[l], n_gradient_rows)
+                || regularity_candidate(
+                    &observation,
+                    &last[l],
+                    &longest[l],
+                    n_gradient_rows,
+                    step_length,
+                )
             {
                 hand_back!(member, l);
                 continue;
@@ -380,7 +399,13 @@ pub(crate) fn run_lanes(
         }
         member.state.t = t;
         member.steps = steps;
-        member.grid_steps = steps;
+        // As `advance_to` leaves it: a last step shortened to the duration restarts the grid.
+        if (t0 + steps as f64 * dt - t).abs() <= 1e-9 * dt {
+            member.grid_steps = steps;
+        } else {
+            member.grid_origin = t;
+            member.grid_steps = 0;
+        }
         if steps > 0 {
             member.substeps_max = member.substeps_max.max(1);
         }
@@ -442,13 +467,16 @@ fn handover(
 }
 
 /// Whether the regularity monitor would raise a candidate for any gradient row (and so
-/// might search for a singular point): the tests of `Monitor::regularity`, without the
-/// memory of earlier fruitless searches (so this errs towards leaving the lanes).
+/// might search for a singular point, or call the step too long): the tests of
+/// `Monitor::regularity`, without the memory of earlier fruitless searches (so this errs
+/// towards leaving the lanes). `step_length(r)` is the step's length in row r's variables.
+/// The lanes take no rods or pins, so every row is watched.
 fn regularity_candidate(
     observation: &Observation,
     last: &[f64],
     longest: &[f64],
     rows: usize,
+    step_length: impl Fn(usize) -> f64,
 ) -> bool {
     let g = &observation.gradients;
     (0..rows).any(|r| {
@@ -462,9 +490,14 @@ fn regularity_candidate(
         }
         let length: f64 = gg.sqrt();
         let (s, shortest) = lookahead(gg, gp, pp);
-        let ahead = s > 0.0 && shortest < AHEAD_FRACTION * AHEAD_FRACTION * gg && s <= AHEAD_STEPS;
-        let far_ahead = s > 0.0 && shortest < OFF_BRANCH_FRACTION * OFF_BRANCH_FRACTION * gg;
-        gp < 0.0 || ahead || length < VANISHED * longest[r] || far_ahead || length.is_nan()
+        let shrinking = s > 0.0 && shortest < AHEAD_FRACTION * AHEAD_FRACTION * gg;
+        let ahead = shrinking && s <= AHEAD_STEPS;
+        let offset = g.offset(r);
+        let drifted = shrinking && offset > 0.0 && {
+            let change = (gg - 2.0 * gp + pp).max(0.0).sqrt();
+            off_branch_candidate(offset, length, change, step_length(r))
+        };
+        gp < 0.0 || ahead || length < VANISHED * longest[r] || drifted || length.is_nan()
     })
 }
 
@@ -795,22 +828,14 @@ mod tests {
         for method in [Method::Implicit, Method::Parametric] {
             let (system, mut together) = members(method, &x0);
             assert!(together.iter().all(lanes_can_run));
-            let outcomes = run_lanes(&system, &mut together, 240);
+            let outcomes = run_lanes(&system, &mut together, RunOptions::steps(240));
             assert!(
                 outcomes.iter().all(|&o| o == LaneOutcome::Done),
                 "{outcomes:?}"
             );
             let (_, mut alone) = members(method, &x0);
             for (a, b) in together.iter().zip(&mut alone) {
-                let want = run(
-                    b,
-                    RunOptions {
-                        steps: 240,
-                        every: 1,
-                    },
-                    &mut NullSink,
-                )
-                .unwrap();
+                let want = run(b, RunOptions::steps(240), &mut NullSink).unwrap();
                 let got = a.stats(want.wall_seconds);
                 assert_eq!(format!("{got:?}"), format!("{want:?}"));
             }
@@ -823,7 +848,7 @@ mod tests {
     fn a_member_that_diverges_leaves_and_the_others_go_on() {
         let (system, mut together) = members(Method::Parametric, &[20.0, 40.0, 60.0]);
         together[1].state.qdot[0] = f64::INFINITY;
-        let outcomes = run_lanes(&system, &mut together, 10);
+        let outcomes = run_lanes(&system, &mut together, RunOptions::steps(10));
         assert_eq!(
             outcomes,
             [

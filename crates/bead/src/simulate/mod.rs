@@ -74,8 +74,8 @@ pub use run::{
 };
 
 use crate::formulation::{
-    formulate, ConstraintScales, Formulation, Method, Nonconservation, SecondOrderSystem, State,
-    StepError,
+    formulate, ConstraintScales, Formulation, Method, Nonconservation, SecondOrderSystem,
+    SingularKind, State, StepError,
 };
 use crate::integrate::{Dopri5, Integrator, IntegratorKind};
 use crate::model::{Force, ModelError, System};
@@ -431,6 +431,12 @@ impl Simulation {
     pub fn steps(&self) -> u64 {
         self.steps
     }
+    /// How many times the singular-point monitor searched for a point where a gradient
+    /// vanishes after a step (a candidate raised by its first-order tests; see the module
+    /// doc). Each search allocates; the step loop allocates nothing else.
+    pub fn singular_point_searches(&self) -> u64 {
+        self.monitor.searches
+    }
 
     /// Adaptive integrators never step past `t` (the end of a run), so that the last step
     /// lands on it; output before it comes from the dense output. `None`: every
@@ -590,8 +596,14 @@ impl Simulation {
                     self.monitor
                         .observe(&mut *self.formulation, t, q, qdot, work);
                     self.monitor.accumulate();
-                } else {
+                } else if self.output_behind {
+                    // The last step already reached t (it landed on the stop time): the
+                    // observation still describes the dense output of an earlier request
+                    // and must describe the state at t again.
                     self.output_behind = false;
+                    let (q, qdot, work) = split(&self.state, self.n);
+                    self.monitor
+                        .observe(&mut *self.formulation, self.state.t, q, qdot, work);
                 }
                 Ok(())
             }
@@ -756,6 +768,57 @@ impl Simulation {
         RunError::Step(error)
     }
 
+    /// A divergence from the last good state (restored): when that state is next to a
+    /// singular point (see [`Simulation::fail`]), the singular point with the divergence as
+    /// its cause, so that the message says both; otherwise the divergence.
+    fn explain_divergence(&mut self, divergence: RunError) -> RunError {
+        let (q, _, _) = split(&self.state, self.n);
+        let mut near = self
+            .monitor
+            .near_singular(&*self.formulation, self.state.t, q);
+        if near.is_none() {
+            // What one step moves from here: dt qdot + dt^2 a / 2.
+            let n = self.n;
+            let dt = self.config.dt;
+            let mut a = vec![0.0; self.state.q.len()];
+            let Simulation {
+                formulation,
+                ledger,
+                state,
+                ..
+            } = self;
+            let accelerated = with_system(formulation, ledger, |system| {
+                system.acceleration(state.t, &state.q, &state.qdot, &mut a)
+            });
+            let displacement: Vec<f64> = (0..n)
+                .map(|k| {
+                    let a = if accelerated.is_ok() && a[k].is_finite() {
+                        a[k]
+                    } else {
+                        0.0
+                    };
+                    dt * self.state.qdot[k] + 0.5 * dt * dt * a
+                })
+                .collect();
+            let q = &self.state.q[..n];
+            near = self
+                .monitor
+                .singular_within_reach(&*self.formulation, self.state.t, q, &displacement)
+                .map(|row| (row, SingularKind::Ahead));
+        }
+        let q = &self.state.q[..self.n];
+        match near {
+            Some((row, kind)) => RunError::Step(StepError::SingularPoint {
+                t: self.state.t,
+                subject: self.formulation.gradient_subject(row),
+                position: self.formulation.gradient_position(row, q),
+                kind,
+                cause: Some(divergence.to_string()),
+            }),
+            None => divergence,
+        }
+    }
+
     /// Observe the state a step produced and accept it, or restore the previous one and say
     /// why not.
     fn accept(&mut self) -> Result<(), RunError> {
@@ -765,13 +828,13 @@ impl Simulation {
             let step = self.steps;
             self.steps -= 1;
             self.restore();
-            return Err(RunError::Diverged {
+            return Err(self.explain_divergence(RunError::Diverged {
                 t,
                 step,
                 quantity,
                 value,
                 limit: None,
-            });
+            }));
         }
         let (q, qdot, work) = split(&self.state, n);
         self.monitor
@@ -793,14 +856,14 @@ impl Simulation {
                         quantity,
                         value,
                         limit,
-                    } => RunError::Diverged {
+                    } => self.explain_divergence(RunError::Diverged {
                         t,
                         step,
                         quantity,
                         value,
                         limit,
-                    },
-                    Rejection::Singular(e) => RunError::Step(e),
+                    }),
+                    Rejection::Singular(e) | Rejection::TooLong(e) => RunError::Step(e),
                 })
             }
         }

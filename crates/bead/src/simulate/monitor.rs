@@ -17,14 +17,17 @@ pub(super) const VANISHED: f64 = 1e-2;
 /// The lookahead: extrapolated along the motion, a gradient row that shrinks below this
 /// fraction of its length ...
 pub(super) const AHEAD_FRACTION: f64 = 0.5;
-/// ... or, for a singular point further ahead that a drifted state may already be on the
-/// wrong side of, below this fraction (nearly to zero, as at a crossing).
-pub(super) const OFF_BRANCH_FRACTION: f64 = 0.1;
 /// ... within this many steps, meets a singular point.
 pub(super) const AHEAD_STEPS: f64 = 2.0;
 /// A state off its constraint by more than this fraction of the distance to a singular point
 /// ahead may follow another branch of the curve.
-const OFF_BRANCH: f64 = 0.01;
+pub(super) const OFF_BRANCH: f64 = 0.01;
+/// A point where a gradient row vanishes is on the curve when |C| there is below this
+/// fraction of the row's scale (its longest gradient length times the scene's length): C
+/// vanishes quadratically at a singular point of the curve (C = 0 there exactly), while a
+/// critical point off the curve (a circle's centre, a rod's ends meeting) has |C| of the
+/// order of the scale.
+const ON_CURVE: f64 = 1e-6;
 
 /// A quantity that diverged.
 #[derive(Clone, Debug, PartialEq)]
@@ -67,6 +70,9 @@ pub(super) enum Rejection {
         limit: Option<f64>,
     },
     Singular(StepError),
+    /// A gradient row reversed direction within the step (turned by more than 90 degrees)
+    /// with no singular point of the curve on the step: the step is too long for the curve.
+    TooLong(StepError),
 }
 
 /// The length and speed a run can legitimately reach by time t: the reach of the initial state,
@@ -122,8 +128,13 @@ pub(super) struct Monitor {
     /// shrunk by half since, so that a curve with a sharp but regular turn (the tip of a thin
     /// ellipse) costs a few searches, not one per step.
     searched: Vec<f64>,
-    /// Per row, its length at the state last checked (rows)
-    lengths: Vec<f64>,
+    /// Per row, whether it can have no singular point on its constraint (rods and pins):
+    /// those rows are not watched
+    never_singular: Vec<bool>,
+    /// The scene's length scale: the largest initial coordinate magnitude (1 when all are 0)
+    length_scale: f64,
+    /// Searches for a singular point made after a step (each allocates)
+    pub(super) searches: u64,
     pub(super) energy_initial: f64,
     /// E_scale: the denominator of relative energy errors
     pub(super) energy_scale: f64,
@@ -200,14 +211,23 @@ impl Monitor {
             .map(|r| norm(observation.gradients.row(r)))
             .collect();
         let searched = vec![f64::INFINITY; longest.len()];
-        let lengths = longest.clone();
+        let never_singular = (0..longest.len())
+            .map(|r| formulation.row_never_singular(r))
+            .collect();
+        let length_scale = if length > 0.0 && length.is_finite() {
+            length
+        } else {
+            1.0
+        };
         Monitor {
             observation,
             last,
             before,
             longest,
             searched,
-            lengths,
+            never_singular,
+            length_scale,
+            searches: 0,
             energy_initial: energy,
             energy_scale,
             energy,
@@ -295,14 +315,24 @@ impl Monitor {
         q: &[f64],
     ) -> Result<(), Rejection> {
         self.check_divergence(formulation.system(), t)?;
-        if let Some((row, kind)) = self.regularity(formulation, t, q) {
-            return Err(Rejection::Singular(StepError::SingularPoint {
-                t,
-                subject: formulation.gradient_subject(row),
-                position: formulation.gradient_position(row, q),
-                kind,
-                cause: None,
-            }));
+        match self.regularity(formulation, t, q) {
+            Some(Finding::Singular(row, kind)) => {
+                return Err(Rejection::Singular(StepError::SingularPoint {
+                    t,
+                    subject: formulation.gradient_subject(row),
+                    position: formulation.gradient_position(row, q),
+                    kind,
+                    cause: None,
+                }))
+            }
+            Some(Finding::TooLong(row)) => {
+                return Err(Rejection::TooLong(StepError::StepTooLong {
+                    t,
+                    subject: formulation.gradient_subject(row),
+                    position: formulation.gradient_position(row, q),
+                }))
+            }
+            None => {}
         }
         // Shift: the last step end becomes the one before, the new state the last.
         std::mem::swap(&mut self.last, &mut self.before);
@@ -333,6 +363,9 @@ impl Monitor {
     ) -> Option<(usize, SingularKind)> {
         let g = &self.observation.gradients;
         for r in 0..g.n_rows() {
+            if self.never_singular[r] {
+                continue;
+            }
             let row = g.row(r);
             let length = norm(row);
             let ahead = if self.before.valid {
@@ -352,6 +385,33 @@ impl Monitor {
             }
         }
         None
+    }
+
+    /// Whether a point where a watched gradient row vanishes lies on the curve within ten
+    /// times what one step moves the row's variables from the last observed state q: the
+    /// last step's length, or `displacement` (dt qdot + dt^2 a / 2 at q, for a failure at
+    /// the first step or from rest). Explains a divergence that [`Monitor::near_singular`]
+    /// saw no candidate for (a start next to a cusp blows up within a step or two). Searches
+    /// every watched row, so it is for failures only.
+    pub(super) fn singular_within_reach(
+        &self,
+        formulation: &dyn Formulation,
+        t: f64,
+        q: &[f64],
+        displacement: &[f64],
+    ) -> Option<usize> {
+        let ahead: Vec<f64> = q.iter().zip(displacement).map(|(a, b)| a + b).collect();
+        (0..self.observation.gradients.n_rows()).find(|&r| {
+            if self.never_singular[r] {
+                return false;
+            }
+            let mut step = formulation.row_step_length(r, &ahead, q);
+            if self.before.valid {
+                step = step.max(formulation.row_step_length(r, q, &self.before.q));
+            }
+            self.search(formulation, &self.last, r, t, q, 0.0)
+                .is_some_and(|(found, now, _)| distance(&found, &now) <= 10.0 * step)
+        })
     }
 
     /// A row whose gradient is zero or not finite at the initial state.
@@ -398,44 +458,44 @@ impl Monitor {
     }
 
     /// The regularity monitor: the first gradient row that vanished, reversed, or is seen to
-    /// vanish ahead, at a point of the curve. Per row r, with g its gradient now, p at the
-    /// previous step's end and G its longest length in the run, a cheap first-order test
-    /// raises a candidate:
+    /// vanish ahead, at a point of the curve. Rows that cannot vanish on their constraint
+    /// (rods, pins: [`Formulation::row_never_singular`]) are not watched. Per row r, with g
+    /// its gradient now, p at the previous step's end, d = g - p, G its longest length in the
+    /// run and l the step's length in the row's variables, a cheap first-order test raises a
+    /// candidate:
     ///
     /// - g . p < 0: the gradient reversed within the step (on a smooth curve it turns by far
     ///   less than 90 degrees per step), so the step may have crossed a point where it
     ///   vanishes;
     /// - |g| < 1e-2 G: it has all but vanished;
-    /// - extrapolated linearly along the motion, g + s (g - p) shrinks below 0.5 |g| within
+    /// - extrapolated linearly along the motion, g + s d shrinks below 0.5 |g| within
     ///   s <= 2 steps: a singular point may be about to be reached;
-    /// - the same extrapolation nears zero (below 0.1 |g|) at any distance while the state is
-    ///   off the constraint: near a crossing, the level set through a drifted state may belong
-    ///   to another branch.
+    /// - the same extrapolation shrinks below 0.5 |g| at any distance while the state is off
+    ///   the constraint by more than 1/100 of |g| l / |d|, the distance to where the gradient
+    ///   would vanish at the rate it changed over the step: near a crossing, the level set
+    ///   through a drifted state may belong to another branch (a pair of hyperbolas near a
+    ///   node, which never comes near the node itself).
     ///
     /// A candidate stops the run only when a search with exact second derivatives
     /// ([`Formulation::locate_singular_point`]) confirms a point x* where the gradient
-    /// vanishes, on the curve (|C(x*)| small against |g| times the distance), and within
-    /// reach: on the step's chord (reversal), within three steps (ahead), anywhere (a gradient
-    /// that has collapsed is close to its zero in its own scale, whatever the step), or
-    /// closer than 100 times the state's distance off the constraint (another branch). So a
-    /// wildly unstable integration on a regular curve (Euler at a huge step on a parabola,
-    /// whose gradient also reverses) is left to the divergence test, and the centre of an
-    /// ellipse (a critical point of C off the curve) stops nothing.
-    fn regularity(
-        &mut self,
-        formulation: &dyn Formulation,
-        t: f64,
-        q: &[f64],
-    ) -> Option<(usize, SingularKind)> {
+    /// vanishes, on the curve (|C(x*)| below 1e-6 of the row's scale G times the scene's
+    /// length), and within reach: on the step's chord (reversal), within three steps
+    /// (ahead), anywhere (a gradient that has collapsed is close to its zero in its own
+    /// scale, whatever the step), or closer than 100 times the state's distance off the
+    /// constraint (another branch). A reversal that no singular point explains is a step too
+    /// long for the curve ([`Finding::TooLong`]), never "a cusp or a crossing"; a wildly
+    /// unstable integration on a regular curve is otherwise left to the divergence test, and
+    /// the centre of an ellipse (a critical point of C off the curve) stops nothing.
+    fn regularity(&mut self, formulation: &dyn Formulation, t: f64, q: &[f64]) -> Option<Finding> {
         let g = &self.observation.gradients;
         if !self.last.valid {
-            for (r, length) in self.lengths.iter_mut().enumerate() {
-                *length = norm(g.row(r));
-            }
             return None;
         }
         let reference = &self.last;
         for r in 0..g.n_rows() {
+            if self.never_singular[r] {
+                continue;
+            }
             let row = g.row(r);
             let previous = reference.gradients.row(r);
             // One pass: |g|^2, g . p, |p|^2 give the length, the reversal and the lookahead.
@@ -446,13 +506,17 @@ impl Monitor {
                 pp += p * p;
             }
             let length = gg.sqrt();
-            self.lengths[r] = length;
             let reversed = gp < 0.0;
             let (s, shortest) = lookahead(gg, gp, pp);
-            let ahead = (s > 0.0 && shortest < AHEAD_FRACTION * AHEAD_FRACTION * gg).then_some(s);
-            let far_ahead =
-                (s > 0.0 && shortest < OFF_BRANCH_FRACTION * OFF_BRANCH_FRACTION * gg).then_some(s);
+            let shrinking = s > 0.0 && shortest < AHEAD_FRACTION * AHEAD_FRACTION * gg;
+            let ahead = shrinking.then_some(s);
             let vanished = length < VANISHED * self.longest[r];
+            let offset = g.offset(r);
+            let drifted = shrinking && offset > 0.0 && {
+                let change = (gg - 2.0 * gp + pp).max(0.0).sqrt();
+                let step = formulation.row_step_length(r, q, &reference.q);
+                off_branch_candidate(offset, length, change, step)
+            };
             let candidate = if reversed {
                 // The chord's point where the interpolated gradient is shortest, as a step
                 // fraction s in [-1, 0] from the current state.
@@ -468,8 +532,9 @@ impl Monitor {
                 // own scale whatever the step (an adaptive integrator approaching it shrinks
                 // its steps without end), so any confirmed point of the curve counts.
                 Some((SingularKind::Vanishes, 0.0, f64::INFINITY))
-            } else if let (Some(steps), true) = (far_ahead, g.offset(r) > 0.0) {
-                Some((SingularKind::OffBranch, steps, f64::INFINITY))
+            } else if drifted {
+                let probe = if s > 0.0 { s } else { 0.0 };
+                Some((SingularKind::OffBranch, probe, f64::INFINITY))
             } else {
                 None
             };
@@ -481,13 +546,17 @@ impl Monitor {
             if kind != SingularKind::Reverses && length > 0.5 * self.searched[r] {
                 continue;
             }
+            self.searches += 1;
             let confirmed = if kind == SingularKind::OffBranch {
                 self.off_branch(formulation, reference, r, t, q, probe)
             } else {
                 self.confirm(formulation, reference, r, t, q, probe, reach)
             };
             if confirmed {
-                return Some((r, kind));
+                return Some(Finding::Singular(r, kind));
+            }
+            if kind == SingularKind::Reverses {
+                return Some(Finding::TooLong(r));
             }
             self.searched[r] = length;
         }
@@ -559,17 +628,32 @@ impl Monitor {
         if search.reduction.is_nan() || search.reduction > 1e-6 {
             return None;
         }
+        // On the curve: C there vanishes against the row's own scale (see ON_CURVE).
+        let scale = self.longest[r] * self.length_scale;
+        if search.value.is_nan() || search.value.abs() > ON_CURVE * scale {
+            return None;
+        }
         let now = formulation.row_variables(r, q);
         let before = formulation.row_variables(r, &reference.q);
         let step = distance(&now, &before);
-        let apart = distance(&search.point, &now).max(step);
-        let length = norm(self.observation.gradients.row(r));
-        // On the curve: C there is small against what the gradient makes of the distance.
-        if search.value.is_nan() || search.value.abs() > 0.1 * length * apart {
-            return None;
-        }
         Some((search.point, now, step))
     }
+}
+
+/// What the regularity monitor found at a step's end.
+enum Finding {
+    /// Row r is singular there (a confirmed point of the curve where it vanishes).
+    Singular(usize, SingularKind),
+    /// Row r reversed direction within the step with no singular point to explain it.
+    TooLong(usize),
+}
+
+/// Whether a state `offset` off a row's constraint may follow another branch near a point
+/// where the gradient vanishes: offset > 1/100 of |g| l / |d|, the distance over which the
+/// gradient (length |g|, changed by |d| over a step of length l) would vanish. Shared with
+/// the ensemble lanes, which hand a member over on the same test.
+pub(super) fn off_branch_candidate(offset: f64, length: f64, change: f64, step: f64) -> bool {
+    offset * change > OFF_BRANCH * length * step
 }
 
 /// What the regularity monitor keeps of an accepted step's end.

@@ -8,21 +8,43 @@ use crate::formulation::{Method, Nonconservation, StepError};
 use crate::integrate::IntegratorKind;
 
 /// How long to run and how often to record.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct RunOptions {
     /// Output intervals of dt to run: steps for fixed-step integrators.
     pub steps: u64,
     /// Record every K-th interval (the first and the last state are always recorded).
     pub every: u64,
+    /// When set, the run ends at exactly t0 + duration: the last output interval ends there
+    /// instead of at t0 + steps dt, and is shorter than dt when the duration is not a whole
+    /// number of dt (the fixed-step integrators take one shorter step, as
+    /// [`Simulation::advance_to`] does). It should lie in ((steps - 1) dt, steps dt].
+    pub duration: Option<f64>,
+}
+
+impl RunOptions {
+    /// `steps` output intervals of dt, every one recorded, ending at t0 + steps dt.
+    pub fn steps(steps: u64) -> RunOptions {
+        RunOptions {
+            steps,
+            every: 1,
+            duration: None,
+        }
+    }
+
+    /// The end of output interval k of a run from t0: t0 + k dt, computed from k so that it
+    /// does not accumulate rounding; the last one t0 + duration when a duration is set.
+    pub fn output_time(&self, t0: f64, k: u64, dt: f64) -> f64 {
+        match self.duration {
+            Some(duration) if k >= self.steps => t0 + duration,
+            _ => t0 + k as f64 * dt,
+        }
+    }
 }
 
 impl Default for RunOptions {
     /// 600 intervals (10 s at dt = 1/60), every one recorded.
     fn default() -> Self {
-        RunOptions {
-            steps: 600,
-            every: 1,
-        }
+        RunOptions::steps(600)
     }
 }
 
@@ -237,12 +259,12 @@ pub(crate) fn run_rest(
 ) -> Result<RunStats, RunFailure> {
     let start = Instant::now();
     let dt = simulation.config().dt;
-    simulation.set_stop_time(Some(t0 + options.steps as f64 * dt));
+    simulation.set_stop_time(Some(options.output_time(t0, options.steps, dt)));
     let mut failure = None;
     let mut interval = from;
     while interval < options.steps {
         let next = interval + 1;
-        if let Err(e) = simulation.advance_to(t0 + next as f64 * dt) {
+        if let Err(e) = simulation.advance_to(options.output_time(t0, next, dt)) {
             failure = Some(e);
             break;
         }
@@ -264,9 +286,10 @@ pub(crate) fn run_rest(
 
 /// [`run`], telling `progress` how far it has got (see [`Progress`]).
 ///
-/// Output time k is t0 + k dt, computed from k so that it does not accumulate rounding; a
-/// fixed-step integrator takes one step per interval, an adaptive one its own steps with the
-/// samples from its dense output, the last step landing on the end. On failure the
+/// Output time k is t0 + k dt, computed from k so that it does not accumulate rounding (the
+/// last one t0 + duration when [`RunOptions::duration`] is set); a fixed-step integrator
+/// takes one step per interval, an adaptive one its own steps with the samples from its dense
+/// output, the last step landing on the end. On failure the
 /// simulation holds the last good state, which the sink has received as well.
 pub fn run_with_progress(
     simulation: &mut Simulation,
@@ -279,7 +302,7 @@ pub fn run_with_progress(
     let dt = simulation.config().dt;
     let every = options.every.max(1);
     let progress_every = (options.steps / 100).max(1);
-    simulation.set_stop_time(Some(t0 + options.steps as f64 * dt));
+    simulation.set_stop_time(Some(options.output_time(t0, options.steps, dt)));
     let mut failure = None;
     let mut recorded_t = t0;
     if let Err(e) = sink.record(&simulation.sample(0)) {
@@ -288,7 +311,7 @@ pub fn run_with_progress(
     let mut interval = 0;
     while failure.is_none() && interval < options.steps {
         let next = interval + 1;
-        if let Err(e) = simulation.advance_to(t0 + next as f64 * dt) {
+        if let Err(e) = simulation.advance_to(options.output_time(t0, next, dt)) {
             failure = Some(e);
             break;
         }

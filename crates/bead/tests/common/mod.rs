@@ -138,6 +138,7 @@ pub fn run_with_progress(
     let run = bead::simulate::RunOptions {
         steps: options.steps,
         every: options.every,
+        duration: None,
     };
     bead::simulate::run_with_progress(&mut simulation, run, sink, progress)
 }
