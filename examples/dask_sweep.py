@@ -38,8 +38,8 @@ def identical(a, b) -> bool:
     return a.shape == b.shape and a.dtype == b.dtype and a.tobytes() == b.tobytes()
 
 
-FIELDS = ("t_final", "stop_time", "steps", "energy_error_max", "constraint_error_max",
-          "positions", "velocities", "q", "qdot", "status", "errors")
+FIELDS = ("t_final", "stop_time", "steps", "energy_rel_error_max", "energy_balance_error_max",
+          "constraint_error_max", "positions", "velocities", "q", "qdot", "status", "errors")
 
 
 def main(argv=None) -> int:
@@ -107,7 +107,7 @@ def main(argv=None) -> int:
     same = {field: identical(getattr(remote, field), getattr(local, field)) for field in FIELDS}
     same["params"] = all(identical(remote.params[n], local.params[n]) for n in sweep.names)
     for field, equal in same.items():
-        print(f"  {field:22s} {'identical' if equal else 'DIFFERENT'}")
+        print(f"  {field:24s} {'identical' if equal else 'DIFFERENT'}")
     verdict = all(same.values())
     print("dask result equals the local sweep bit for bit:", "yes" if verdict else "NO")
     return 0 if verdict else 1

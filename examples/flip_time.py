@@ -2,8 +2,9 @@
 theta2) in [-pi, pi]^2, released from rest, the time until either arm flips over, drawn as
 an image.
 
-    python examples/flip_time.py                 # 400 x 400, docs/flip_time.png
+    python examples/flip_time.py                 # 400 x 400, flip_time.png here
     python examples/flip_time.py --n 100 --out /tmp/flip.png
+    python examples/flip_time.py --out docs/flip_time.png   # the README's picture
 
 Each pixel is one member of a `bead.sweep` of scenes/double-pendulum.toml over its
 parameters th1 and th2 (the initial angles from the downward vertical, both arms measured
@@ -110,7 +111,8 @@ def main(argv=None) -> int:
     parser.add_argument("--duration", type=float, default=10.0, help="run length (s)")
     parser.add_argument("--dt", type=float, default=0.01, help="rk4 step (s)")
     parser.add_argument("--threads", type=int, default=0, help="threads (0: one per core)")
-    parser.add_argument("--out", type=Path, default=ROOT / "docs" / "flip_time.png")
+    parser.add_argument("--out", type=Path, default=Path("flip_time.png"),
+                        help="the picture (PNG); default flip_time.png in the current directory")
     args = parser.parse_args(argv)
 
     start = time.perf_counter()

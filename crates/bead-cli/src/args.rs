@@ -33,7 +33,7 @@ pub enum Command {
     #[command(after_long_help = AFTER_RUN)]
     Compare(CompareArgs),
     /// Run a scene many times over a grid of parameter values, in parallel; one CSV row per
-    /// member.
+    /// member (or per member and coordinate), written as members finish.
     #[command(after_long_help = AFTER_SWEEP)]
     Sweep(SweepArgs),
     /// Validate a scene and describe it, with the derivatives the engine will use.
@@ -130,21 +130,34 @@ full grid of their combinations, the first outermost (member index = row-major o
 overridden, run exactly as `bead run --set NAME=VALUE ...` runs it (same method, integrator, dt,
 duration and stop condition), without a trace.
 
-CSV columns, one row per member in index order:
-  member                   the member's index
-  NAME...                  its parameter values, one column per --param
-  status                   ok (ran to the end), event (stopped at --stop-when) or failed
-  t_final                  time of the last good state
-  stop_time                the stop condition's crossing time (empty when it did not fire)
-  steps                    integrator steps taken
-  energy_error_max         max relative error of the conserved energy (T + V, or E - W)
-  constraint_error_max     max over the run of max_i |C_i|
-  P.x P.y [P.z] P.vx ...   every particle's final position and velocity
-  q.NAME qdot.NAME         final generalized coordinates (parametric runs)
-  error                    why the member failed (empty otherwise)
+CSV columns (--format wide, the default), one row per member in index order:
+  member                     the member's index
+  NAME...                    its parameter values, one column per --param
+  status                     ok (ran to the end), event (stopped at --stop-when) or failed
+  t_final                    time of the last good state
+  stop_time                  the stop condition's crossing time (empty when it did not fire)
+  steps                      integrator steps taken
+  energy_rel_error_max       max over the run of |E - E0| / E_scale (as `bead run --json`)
+  energy_balance_error_max   max of |E - W - E0| / E_scale when something does work on the
+                             system (the error of the conserved E - W); empty otherwise
+  constraint_error_max       max over the run of max_i |C_i|
+  P.x P.y [P.z] P.vx ...     every particle's final position and velocity
+  q.NAME qdot.NAME           final generalized coordinates (parametric runs)
+  error                      why the member failed (empty otherwise)
+The wide columns are the scene's: a member whose particles or generalized coordinates differ
+(a swept N that sets their number) is refused with an error naming it; the rows before it stay
+written. --format long writes one row per member and coordinate instead, with the columns
+member, NAME..., status ... constraint_error_max as above, then
+  coordinate                 P.x, P.y, ... (the member's own particles), then q.NAME
+  position, velocity         its final value and rate (q and qdot for q.NAME)
+  error
+(a member that could not start is one row with empty coordinate, position and velocity).
+Rows are written as members finish, in index order, with memory bounded whatever the count.
 Numbers are written exactly (shortest round-trip); a member that could not start has empty
-result columns. Exit status: 0 when the sweep ran, even if members failed (their rows say why);
-1 when the scene is invalid; 2 on a usage error.";
+result columns. A sweep has at most 4294967296 (2^32) members.
+Exit status: 0 when the sweep ran, even if some members failed (their rows say why); 1 when
+every member failed (the error names the first), when a member does not fit the wide format,
+or when the scene is invalid; 2 on a usage error (a COUNT or grid beyond the limit included).";
 
 /// `bead sweep`.
 #[derive(Debug, Args)]
@@ -166,9 +179,22 @@ pub struct SweepArgs {
     /// Write the CSV here instead of stdout
     #[arg(long, value_name = "FILE.csv")]
     pub out: Option<PathBuf>,
+    /// wide: one row per member, a column per coordinate of the scene; long: one row per
+    /// member and coordinate (members may differ in particles)
+    #[arg(long, value_name = "FORMAT", value_enum, default_value_t = SweepFormat::Wide)]
+    pub format: SweepFormat,
     /// Threads to run members on [default: 0, one per core]
     #[arg(long, value_name = "N", default_value_t = 0)]
     pub threads: usize,
+}
+
+/// `bead sweep --format`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum SweepFormat {
+    /// One row per member
+    Wide,
+    /// One row per member and coordinate
+    Long,
 }
 
 /// `--param NAME=START:STOP:COUNT` as written.
@@ -432,13 +458,31 @@ fn parse_param(s: &str) -> Result<ParamRange, String> {
     let last = number(parts[1], "STOP")?;
     let (a, b) = parts[2];
     let text = s[a..b].trim();
-    let count: usize = match text.parse() {
+    let too_many = || {
+        NumberError::new(
+            format!(
+                "COUNT must be at most {} (2^32, the most members a sweep may have), got `{text}`",
+                bead::sweep::MAX_MEMBERS
+            ),
+            a,
+            b,
+        )
+        .render(s)
+    };
+    let count: usize = match text.parse::<u128>() {
         Ok(0) => {
             return Err(
                 NumberError::new("COUNT must be at least 1, got 0".to_string(), a, b).render(s),
             )
         }
-        Ok(n) => n,
+        Ok(n) if n > u128::from(bead::sweep::MAX_MEMBERS) => return Err(too_many()),
+        Ok(n) => match usize::try_from(n) {
+            Ok(n) => n,
+            Err(_) => return Err(too_many()),
+        },
+        Err(_) if !text.is_empty() && text.bytes().all(|c| c.is_ascii_digit()) => {
+            return Err(too_many())
+        }
         Err(_) => {
             return Err(NumberError::new(
                 format!("COUNT must be a whole number >= 1, got `{text}`"),

@@ -202,15 +202,36 @@ pub fn run_text(scene: &Scene, plan: &Plan, summary: &Summary) -> String {
             ),
         );
     }
+    let distance = match (
+        summary.constraint_distance_max,
+        summary.constraint_distance_final,
+    ) {
+        (Some(max), Some(last)) => format!(
+            "; distance off them |C|/|grad C| up to {} ({} of the scene's size {}), {} at the end",
+            g(max, 4),
+            percent(max / summary.length_scale),
+            g(summary.length_scale, 4),
+            g(last, 4)
+        ),
+        _ => String::new(),
+    };
     row(
         &mut s,
         "constraint",
         format!(
-            "max error {}, final error {}",
+            "max error {}, final error {}{distance}",
             g(summary.constraint_error_max, 4),
             g(summary.constraint_error_final, 4)
         ),
     );
+    if summary.energy_hides_constraint_error() {
+        let _ = writeln!(
+            s,
+            "  {:<12} the energy error is small, but the state went off the constraints by {} of the scene's size: the energy is that of a state off the curve; neither figure alone measures accuracy",
+            "note",
+            percent(summary.constraint_distance_max.unwrap_or(f64::NAN) / summary.length_scale)
+        );
+    }
     row(
         &mut s,
         "speed",
@@ -222,6 +243,11 @@ pub fn run_text(scene: &Scene, plan: &Plan, summary: &Summary) -> String {
         ),
     );
     s
+}
+
+/// A fraction as a percentage with 4 significant digits (`1.2%`, `3e-06%`).
+fn percent(fraction: f64) -> String {
+    format!("{}%", g(100.0 * fraction, 4))
 }
 
 /// The header line and aligned table of `bead compare`.
@@ -273,6 +299,7 @@ pub fn compare_text(scene: &Scene, plan: &Plan, summaries: &[Summary]) -> String
         "method",
         "final constraint error",
         "max constraint error",
+        "max |C|/|grad C|",
         "max rel energy error",
         "final energy",
         "steps/s",
@@ -291,6 +318,9 @@ pub fn compare_text(scene: &Scene, plan: &Plan, summaries: &[Summary]) -> String
             r.method.name().to_string(),
             g(r.constraint_error_final, 4),
             g(r.constraint_error_max, 4),
+            r.constraint_distance_max
+                .map(|d| g(d, 4))
+                .unwrap_or_else(|| "-".into()),
             energy_cell(r),
             g(r.energy_final, 10),
             g(r.steps_per_second, 4),
@@ -332,7 +362,8 @@ pub fn energy_cell(summary: &Summary) -> String {
     }
 }
 
-/// The note under a table with runs whose energy is not conserved (empty otherwise).
+/// The notes under a comparison table: runs whose energy is not conserved, and runs whose
+/// small energy error hides a departure from the constraints (empty when neither).
 pub fn energy_note(summaries: &[Summary]) -> String {
     let mut reasons: Vec<String> = Vec::new();
     for summary in summaries.iter().filter(|s| !s.energy_conserved) {
@@ -343,13 +374,25 @@ pub fn energy_note(summaries: &[Summary]) -> String {
             }
         }
     }
-    if reasons.is_empty() {
-        return String::new();
+    let mut note = String::new();
+    if !reasons.is_empty() {
+        note = format!(
+            "energy not conserved ({}): rows marked (E-W) give the error of E - W, the energy minus the work done on the system, which is conserved\n",
+            reasons.join("; ")
+        );
     }
-    format!(
-        "energy not conserved ({}): rows marked (E-W) give the error of E - W, the energy minus the work done on the system, which is conserved\n",
-        reasons.join("; ")
-    )
+    let hiding: Vec<String> = summaries
+        .iter()
+        .filter(|s| s.energy_hides_constraint_error())
+        .map(|s| format!("{} {}", s.method.name(), s.integrator.name()))
+        .collect();
+    if !hiding.is_empty() {
+        note.push_str(&format!(
+            "{}: the energy error is small but the state left the constraints (max |C|/|grad C| against the scene's size): the energy is that of a state off the curve; neither figure alone measures accuracy\n",
+            hiding.join(", ")
+        ));
+    }
+    note
 }
 
 /// Rows of cells as an aligned table: the first column left-aligned, numbers right-aligned,

@@ -4,10 +4,11 @@
 
 mod common;
 
-use std::path::Path;
-use std::process::Output;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output, Stdio};
+use std::time::{Duration, Instant};
 
-use common::{bead_in, fails, ok, TempDir};
+use common::{bead_in, fails, ok, stdout, TempDir};
 
 fn bead(dir: &Path, args: &[&str]) -> Output {
     bead_in(dir, args)
@@ -251,7 +252,10 @@ fn a_sweep_member_equals_bead_run_set_bit_for_bit() {
                 "constraint_error_max",
                 &raw(&run, "constraint_error_max")[0],
             );
-            same("energy_error_max", &raw(&run, "energy_rel_error_max")[0]);
+            same(
+                "energy_rel_error_max",
+                &raw(&run, "energy_rel_error_max")[0],
+            );
             assert_eq!(row[col("steps")], raw(&run, "steps")[0]);
             if method == "parametric" {
                 same("q.q", &raw(&run, "q")[0]);
@@ -417,4 +421,314 @@ fn a_failed_member_is_a_row_not_the_end_of_the_sweep() {
     assert!(rows[1].contains("mass"), "{}", rows[1]);
     assert!(rows[2].starts_with("1,0,failed,"), "{}", rows[2]);
     assert!(rows[3].starts_with("2,1,ok,"), "{}", rows[3]);
+}
+
+/// A chain of N links hanging from the origin (two by default).
+const CHAIN: &str = r#"title = "chain"
+[params]
+N = 2
+[world]
+gravity = [0.0, 9.81]
+[[particle]]
+for = { i = "0..N" }
+name = "p{i}"
+mass = 1.0
+position = ["i+1", 0.0]
+[[constraint]]
+name = "pivot"
+kind = "distance"
+particle = "p0"
+anchor = [0.0, 0.0]
+length = 1.0
+[[constraint]]
+for = { i = "1..N" }
+name = "rod {i}"
+kind = "distance"
+between = ["p{i-1}", "p{i}"]
+length = 1.0
+[run]
+integrator = "rattle"
+dt = 0.01
+"#;
+
+fn shipped(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../scenes")
+        .join(name)
+}
+
+/// Every line of `csv` has as many fields as its header.
+fn aligned(csv: &str) -> usize {
+    let width = csv.lines().next().unwrap().split(',').count();
+    for line in csv.lines() {
+        assert_eq!(line.split(',').count(), width, "{line}");
+    }
+    width
+}
+
+#[test]
+fn sweep_csv_refuses_members_with_another_particle_count() {
+    let dir = TempDir::new("sweep-layout");
+    let scene = dir.write("chain.toml", CHAIN);
+    let s = scene.to_str().unwrap();
+    // Member 0 (N = 2) is the scene's; member 1 (N = 3) is refused, after member 0's row.
+    let out = bead(&dir.0, &["sweep", s, "--param", "N=2:4:3", "--steps", "5"]);
+    let csv = stdout(&out);
+    let error = fails(out, 1);
+    assert!(
+        error.contains(
+            "error: member 1 (N = 3) has 3 particles (p0, p1, p2), where the scene swept has 2 (p0, p1): the wide CSV has a column per coordinate of the scene swept"
+        ),
+        "{error}"
+    );
+    assert!(error.contains("--format long"), "{error}");
+    assert_eq!(csv.lines().count(), 2, "{csv}");
+    assert_eq!(aligned(&csv), 1 + 1 + 7 + 8 + 1);
+    assert!(csv.lines().nth(1).unwrap().starts_with("0,2,ok,"), "{csv}");
+    // The issue's case: the shipped chain (N = 1000) swept over N = 2, 3, 4 refuses member 0
+    // and writes its 4009-column header alone.
+    let chain = shipped("chain.toml");
+    let out = bead(
+        &dir.0,
+        &[
+            "sweep",
+            chain.to_str().unwrap(),
+            "--param",
+            "N=2:4:3",
+            "--steps",
+            "5",
+        ],
+    );
+    let csv = stdout(&out);
+    let error = fails(out, 1);
+    assert!(
+        error.contains("member 0 (N = 2) has 2 particles (p0, p1), where the scene swept has 1000"),
+        "{error}"
+    );
+    assert_eq!(csv.lines().count(), 1);
+    assert_eq!(aligned(&csv), 4010);
+    // --format long: every member, one row per coordinate, named after its own particles.
+    let csv = ok(bead(
+        &dir.0,
+        &[
+            "sweep", s, "--param", "N=2:4:3", "--steps", "5", "--format", "long",
+        ],
+    ));
+    assert_eq!(aligned(&csv), 13);
+    let rows = csv_rows(&csv);
+    assert_eq!(rows.len(), 1 + 2 * (2 + 3 + 4));
+    let coordinates: Vec<(String, String)> = rows[1..]
+        .iter()
+        .map(|r| (r[0].clone(), r[9].clone()))
+        .collect();
+    assert_eq!(coordinates[4], ("1".to_string(), "p0.x".to_string()));
+    assert_eq!(coordinates[17], ("2".to_string(), "p3.y".to_string()));
+    assert!(rows[1..].iter().all(|r| r[2] == "ok" && r[5] == "5"));
+}
+
+#[test]
+fn sweep_count_beyond_limit_is_an_error_not_an_abort() {
+    let dir = TempDir::new("sweep-count");
+    let scene = dir.write("parabola.toml", PARABOLA);
+    let s = scene.to_str().unwrap();
+    let sweep = |params: &[&str]| {
+        let mut args = vec!["sweep", s, "--steps", "1"];
+        for p in params {
+            args.extend(["--param", p]);
+        }
+        bead(&dir.0, &args)
+    };
+    for count in [
+        "18446744073709551615",
+        "4294967297",
+        "99999999999999999999999999999999999999999",
+    ] {
+        let error = fails(sweep(&[&format!("x0=1:2:{count}")]), 2);
+        assert!(
+            error.contains(&format!(
+                "COUNT must be at most 4294967296 (2^32, the most members a sweep may have), got `{count}`"
+            )),
+            "{error}"
+        );
+    }
+    let error = fails(sweep(&["x0=1:2:4294967296", "g=1:2:4294967296"]), 2);
+    assert!(
+        error.contains(
+            "error: --param: the sweep would have 18446744073709551616 members (4294967296 x 4294967296), more than the 4294967296 (2^32) a sweep may have"
+        ),
+        "{error}"
+    );
+    let error = fails(sweep(&["x0=1:2:65536", "g=1:2:65537"]), 2);
+    assert!(
+        error.contains("4295032832 members (65536 x 65537)"),
+        "{error}"
+    );
+}
+
+#[test]
+fn sweep_where_every_member_fails_exits_nonzero() {
+    let dir = TempDir::new("sweep-all-failed");
+    let scene = dir.write(
+        "mass.toml",
+        &PARABOLA
+            .replace("x0 = 150.0\n", "x0 = 150.0\nm = 1.0\n")
+            .replace("mass = 1.0", "mass = \"m\""),
+    );
+    let s = scene.to_str().unwrap();
+    let out = bead(
+        &dir.0,
+        &["sweep", s, "--param", "m=-2:-1:2", "--steps", "5"],
+    );
+    let csv = stdout(&out);
+    let error = fails(out, 1);
+    assert!(
+        error.contains(
+            "error: every member of the sweep failed (2 of 2); the first, member 0 (m = -2): "
+        ),
+        "{error}"
+    );
+    assert!(error.contains("mass"), "{error}");
+    // The rows say why, as when some members fail.
+    let rows = csv_rows(&csv);
+    assert_eq!(rows.len(), 3);
+    assert!(rows[1..].iter().all(|r| r[2] == "failed"));
+    // Some members failing is still a sweep that ran: exit 0 (a_failed_member_is_a_row...).
+    ok(bead(
+        &dir.0,
+        &["sweep", s, "--param", "m=-1:1:3", "--steps", "5"],
+    ));
+}
+
+/// Every column of the sweep named like a key of `bead run --json` holds that key's number,
+/// here on a pendulum with drag (energy not conserved: the energy balance is reported).
+#[test]
+fn sweep_columns_named_like_the_run_summary_hold_its_numbers() {
+    let dir = TempDir::new("sweep-names");
+    let scene = dir.write(
+        "drag.toml",
+        &format!("{PARABOLA}[[force]]\nkind = \"drag\"\nparticle = \"bead\"\ncoefficient = 0.5\n"),
+    );
+    let s = scene.to_str().unwrap();
+    let csv = ok(bead(
+        &dir.0,
+        &["sweep", s, "--param", "x0=50:150:2", "--steps", "100"],
+    ));
+    let rows = csv_rows(&csv);
+    let header = &rows[0];
+    for row in &rows[1..] {
+        let x0 = &row[1];
+        let run = ok(bead(
+            &dir.0,
+            &[
+                "run",
+                s,
+                "--set",
+                &format!("x0={x0}"),
+                "--steps",
+                "100",
+                "--json",
+            ],
+        ));
+        let summary = json(&run);
+        let mut shared = Vec::new();
+        for (column, value) in header.iter().zip(row) {
+            if summary.get(column).is_none() {
+                continue;
+            }
+            shared.push(column.as_str());
+            let written = raw(&run, column)[0].clone();
+            if written == "null" {
+                assert_eq!(value, "", "{column}");
+            } else {
+                assert_eq!(
+                    value.parse::<f64>().unwrap().to_bits(),
+                    written.parse::<f64>().unwrap().to_bits(),
+                    "{column} of x0 = {x0}"
+                );
+            }
+        }
+        assert_eq!(
+            shared,
+            [
+                "t_final",
+                "stop_time",
+                "steps",
+                "energy_rel_error_max",
+                "energy_balance_error_max",
+                "constraint_error_max"
+            ]
+        );
+        assert_eq!(summary["energy_conserved"], false);
+    }
+}
+
+/// Peak resident memory (VmHWM, kB) of a running process, polled until it exits, with the
+/// time the output file first held a member's row; Linux only.
+#[cfg(target_os = "linux")]
+fn watch(mut child: std::process::Child, out: &Path) -> (u64, Option<f64>, f64) {
+    let start = Instant::now();
+    let status = format!("/proc/{}/status", child.id());
+    let (mut peak, mut first_row) = (0, None);
+    loop {
+        if let Ok(text) = std::fs::read_to_string(&status) {
+            if let Some(line) = text.lines().find(|l| l.starts_with("VmHWM:")) {
+                let kb = line
+                    .split_whitespace()
+                    .nth(1)
+                    .unwrap()
+                    .parse::<u64>()
+                    .unwrap();
+                peak = peak.max(kb);
+            }
+        }
+        if first_row.is_none() && std::fs::read_to_string(out).is_ok_and(|t| t.lines().count() > 1)
+        {
+            first_row = Some(start.elapsed().as_secs_f64());
+        }
+        if let Some(exit) = child.try_wait().unwrap() {
+            assert!(exit.success(), "{exit:?}");
+            return (peak, first_row, start.elapsed().as_secs_f64());
+        }
+        std::thread::sleep(Duration::from_millis(5));
+    }
+}
+
+/// Rows reach the file while the sweep runs, in member order, and its peak memory does not
+/// grow with the number of members (it held every member until the end: 82 MB at 10^5
+/// members of one step).
+#[cfg(target_os = "linux")]
+#[test]
+fn sweep_rows_stream_in_member_order_with_bounded_memory() {
+    let dir = TempDir::new("sweep-stream");
+    let scene = dir.write("parabola.toml", PARABOLA);
+    let s = scene.to_str().unwrap();
+    let run = |count: usize, out: &str| {
+        let child = Command::new(env!("CARGO_BIN_EXE_bead"))
+            .args(["sweep", s, "--steps", "1", "--threads", "2", "--out", out])
+            .args(["--param", &format!("x0=10:200:{count}")])
+            .current_dir(&dir.0)
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap();
+        watch(child, &dir.path(out))
+    };
+    let (small, _, _) = run(1000, "small.csv");
+    let (large, first_row, seconds) = run(60_000, "large.csv");
+    assert!(
+        large < small + 12_000,
+        "peak {large} kB for 60000 members, {small} kB for 1000"
+    );
+    let first_row = first_row.expect("rows were written before the end");
+    assert!(
+        first_row < 0.5 * seconds,
+        "first row after {first_row} s of {seconds} s"
+    );
+    let csv = std::fs::read_to_string(dir.path("large.csv")).unwrap();
+    let members: Vec<usize> = csv
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').next().unwrap().parse().unwrap())
+        .collect();
+    assert_eq!(members, (0..60_000).collect::<Vec<_>>());
 }

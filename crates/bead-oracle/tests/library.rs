@@ -227,7 +227,7 @@ fn sweep_members_are_their_runs_and_meet_the_reference() {
             None,
         )
         .unwrap_or_else(|e| panic!("{what}: {e}"));
-        let members = sweep.run(2);
+        let members = sweep.run(2).expect("the sweep runs");
         for (i, member) in members.iter().enumerate() {
             let value = sweep.params_of(i)[0];
             let mut alone = spec.clone();
@@ -317,7 +317,7 @@ fn sweep_lanes_meet_the_closed_form() {
             None,
         )
         .unwrap();
-        for (i, member) in sweep.run(2).iter().enumerate() {
+        for (i, member) in sweep.run(2).expect("the sweep runs").iter().enumerate() {
             let theta0 = sweep.params_of(i)[0];
             assert!(member.error.is_none(), "{:?}", member.error);
             let stats = member.stats.as_ref().unwrap();

@@ -19,19 +19,22 @@ use bead::simulate::{
 };
 use bead::sweep::{Axis, Combine, Member, Sweep, SweepError};
 use numpy::ndarray::{Array2, Array3};
-use numpy::{IntoPyArray, PyArray1, PyReadonlyArray1};
-use pyo3::exceptions::{PyIndexError, PyTypeError, PyValueError};
+use numpy::{IntoPyArray, PyArray1, PyArrayMethods, PyReadonlyArray1};
+use pyo3::exceptions::{PyIndexError, PyTypeError, PyUserWarning, PyValueError};
 use pyo3::prelude::*;
-use pyo3::types::PyDict;
+use pyo3::types::{PyDict, PyString};
 
-/// Most values a run may record (8 bytes each) before it is refused: 2^30 values are 8 GiB.
-const MAX_RECORDED_VALUES: f64 = 1_073_741_824.0;
+mod args;
+
+/// Most bytes of arrays a run may record before it is refused: 8 GiB.
+const MAX_RECORDED_BYTES: u64 = 8 << 30;
 
 /// The native module `bead._bead`; the package `bead` re-exports what users need.
 #[pymodule]
 fn _bead(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(load, m)?)?;
     m.add_function(wrap_pyfunction!(loads, m)?)?;
+    m.add_function(wrap_pyfunction!(_unpickle, m)?)?;
     m.add_class::<PyScene>()?;
     m.add_class::<PySimulation>()?;
     m.add_class::<PySweepPlan>()?;
@@ -64,6 +67,7 @@ fn load(py: Python<'_>, path: PathBuf, params: Option<&Bound<'_, PyAny>>) -> PyR
     let scene = py
         .detach(|| Scene::load(&path, &overrides))
         .map_err(|e| scene_error(py, &e))?;
+    warn_scene(py, &scene)?;
     Ok(PyScene::new(scene))
 }
 
@@ -81,7 +85,60 @@ fn loads(
 ) -> PyResult<PyScene> {
     let overrides = overrides(params)?;
     let scene = Scene::parse(text, name, &overrides).map_err(|e| scene_error(py, &e))?;
+    warn_scene(py, &scene)?;
     Ok(PyScene::new(scene))
+}
+
+/// A pickled `Scene` loaded again (`Scene.__reduce__`): as `loads`, without raising the
+/// scene's warnings again, which were raised where it was first loaded.
+#[pyfunction]
+fn _unpickle(
+    py: Python<'_>,
+    text: &str,
+    params: &Bound<'_, PyAny>,
+    name: &str,
+) -> PyResult<PyScene> {
+    let overrides = overrides(Some(params))?;
+    let scene = Scene::parse(text, name, &overrides).map_err(|e| scene_error(py, &e))?;
+    Ok(PyScene::new(scene))
+}
+
+/// Raise each of the scene's warnings (a start off a constraint, a parametric form that
+/// starts elsewhere) as a `UserWarning` located at the scene file and line it is about, as
+/// Python shows a warning of its own code. The warnings registry is the calling module's,
+/// as for `warnings.warn`: under the default filter a warning is shown once per caller.
+fn warn_scene(py: Python<'_>, scene: &Scene) -> PyResult<()> {
+    let warnings = scene.located_warnings();
+    if warnings.is_empty() {
+        return Ok(());
+    }
+    let module = py.import("warnings")?;
+    let category = py.get_type::<PyUserWarning>();
+    // The frame that called this native function (a native call adds no frame); none when
+    // called from outside any Python code.
+    let registry = py
+        .import("sys")?
+        .call_method1("_getframe", (0,))
+        .and_then(|frame| frame.getattr("f_globals"))
+        .and_then(|globals| {
+            globals.call_method1("setdefault", ("__warningregistry__", PyDict::new(py)))
+        })
+        .ok();
+    for warning in warnings {
+        let kwargs = PyDict::new(py);
+        kwargs.set_item("registry", &registry)?;
+        module.call_method(
+            "warn_explicit",
+            (
+                warning.message,
+                &category,
+                &scene.file,
+                warning.line.unwrap_or(1),
+            ),
+            Some(&kwargs),
+        )?;
+    }
+    Ok(())
 }
 
 /// `params` as (name, value) pairs: any mapping of names to real numbers.
@@ -98,9 +155,7 @@ fn overrides(params: Option<&Bound<'_, PyAny>>) -> PyResult<Vec<(String, f64)>> 
         let name: String = name.extract().map_err(|_| {
             PyTypeError::new_err(format!("params: the name {name} is not a string"))
         })?;
-        let number: f64 = value.extract().map_err(|_| {
-            PyTypeError::new_err(format!("params[{name:?}]: {value} is not a number"))
-        })?;
+        let number = args::real_value(&format!("params[{name:?}]"), &value, "a finite number")?;
         if !number.is_finite() {
             return Err(PyValueError::new_err(format!(
                 "params[{name:?}]: {} is not a finite number",
@@ -134,24 +189,25 @@ impl PyScene {
 /// The run options of `Scene.run`, `Scene.simulation` (without the run's length) and
 /// `bead.sweep` (without `every`), as Python passed them: one conversion for all three.
 #[derive(Default)]
-struct Asked<'a> {
+struct Asked<'a, 'py> {
     method: Option<&'a str>,
     integrator: Option<&'a str>,
-    dt: Option<f64>,
-    duration: Option<f64>,
-    steps: Option<i64>,
-    every: Option<i64>,
-    stabilize: Option<(f64, f64)>,
-    rtol: Option<f64>,
-    atol: Option<f64>,
+    dt: Option<&'a Bound<'py, PyAny>>,
+    duration: Option<&'a Bound<'py, PyAny>>,
+    steps: Option<&'a Bound<'py, PyAny>>,
+    every: Option<&'a Bound<'py, PyAny>>,
+    stabilize: Option<&'a Bound<'py, PyAny>>,
+    rtol: Option<&'a Bound<'py, PyAny>>,
+    atol: Option<&'a Bound<'py, PyAny>>,
     project: bool,
-    substeps: Option<i64>,
-    max_substeps: Option<i64>,
+    substeps: Option<&'a Bound<'py, PyAny>>,
+    max_substeps: Option<&'a Bound<'py, PyAny>>,
 }
 
-impl Asked<'_> {
-    /// The plan request, with names and counts checked (the values are checked by
-    /// [`Plan::resolve`]).
+impl Asked<'_, '_> {
+    /// The plan request, every value converted with errors that name the argument and its
+    /// range ([`args`]); the plan checks the ranges of the real numbers ([`Plan::resolve`]),
+    /// in the same words.
     fn request(&self) -> PyResult<PlanRequest> {
         let method = self
             .method
@@ -161,36 +217,48 @@ impl Asked<'_> {
             .integrator
             .map(|i| i.parse::<IntegratorKind>().map_err(PyValueError::new_err))
             .transpose()?;
+        let positive = "a finite number > 0";
+        let substeps = |name, value| {
+            args::integer(name, value, 1, u32::MAX.into(), "").map(|n| n.map(|n| n as u32))
+        };
         Ok(PlanRequest {
             method,
             integrator,
-            dt: self.dt,
-            duration: self.duration,
-            steps: count("steps", self.steps)?,
-            every: count("every", self.every)?,
-            stabilize: self.stabilize.map(|(ks, kd)| Feedback { ks, kd }),
-            rtol: self.rtol,
-            atol: self.atol,
+            dt: args::real("dt", self.dt, positive)?,
+            duration: args::real("duration", self.duration, positive)?,
+            steps: args::integer("steps", self.steps, 1, args::MAX_STEPS, "")?,
+            every: args::integer("every", self.every, 1, args::MAX_STEPS, "")?,
+            stabilize: stabilize(self.stabilize)?,
+            rtol: args::real("rtol", self.rtol, positive)?,
+            atol: args::real("atol", self.atol, "a finite number >= 0")?,
             project: self.project,
-            substeps: count("substeps", self.substeps)?.map(saturate_u32),
-            max_substeps: count("max_substeps", self.max_substeps)?.map(saturate_u32),
+            substeps: substeps("substeps", self.substeps)?,
+            max_substeps: substeps("max_substeps", self.max_substeps)?,
         })
     }
 }
 
-/// A count from Python: None, or an integer the plan checks (a negative one is refused here,
-/// since the plan's counts are unsigned).
-fn count(name: &str, value: Option<i64>) -> PyResult<Option<u64>> {
-    match value {
-        Some(v) if v < 0 => Err(PyValueError::new_err(format!(
-            "{name}={v}: must be at least 1"
-        ))),
-        other => Ok(other.map(|v| v as u64)),
-    }
-}
-
-fn saturate_u32(v: u64) -> u32 {
-    u32::try_from(v).unwrap_or(u32::MAX)
+/// `stabilize=(ks, kd)`: two real numbers (their range is checked by the plan).
+fn stabilize(value: Option<&Bound<'_, PyAny>>) -> PyResult<Option<Feedback>> {
+    let Some(value) = value.filter(|v| !v.is_none()) else {
+        return Ok(None);
+    };
+    let accepts = "two finite numbers >= 0, (ks, kd)";
+    let pair: Option<(Bound<'_, PyAny>, Bound<'_, PyAny>)> = if value.is_instance_of::<PyString>() {
+        None
+    } else {
+        value.extract().ok()
+    };
+    let Some((ks, kd)) = pair else {
+        return Err(PyTypeError::new_err(format!(
+            "stabilize={}: must be {accepts}",
+            args::shown(value)
+        )));
+    };
+    Ok(Some(Feedback {
+        ks: args::real_value("stabilize[0] (ks)", &ks, "a finite number >= 0")?,
+        kd: args::real_value("stabilize[1] (kd)", &kd, "a finite number >= 0")?,
+    }))
 }
 
 /// The plan for `request`, warning when the scene's feedback is dropped for a parametric run
@@ -309,7 +377,8 @@ impl PyScene {
     }
 
     /// Warnings about the scene (e.g. a parametric form that does not start where the
-    /// particles do), as `bead check` prints them.
+    /// particles do), as `bead check` prints them. Loading the scene raised each as a
+    /// `UserWarning` at the scene file and line it is about; `repr(scene)` shows them.
     #[getter]
     fn warnings(&self) -> Vec<String> {
         self.inner.warnings()
@@ -331,6 +400,7 @@ impl PyScene {
         }
         let scene = Scene::parse(self.inner.text(), &self.inner.file, &all)
             .map_err(|e| scene_error(py, &e))?;
+        warn_scene(py, &scene)?;
         Ok(PyScene::new(scene))
     }
 
@@ -356,16 +426,16 @@ impl PyScene {
         py: Python<'_>,
         method: Option<&str>,
         integrator: Option<&str>,
-        dt: Option<f64>,
-        duration: Option<f64>,
-        steps: Option<i64>,
-        every: Option<i64>,
-        stabilize: Option<(f64, f64)>,
-        rtol: Option<f64>,
-        atol: Option<f64>,
+        dt: Option<&Bound<'_, PyAny>>,
+        duration: Option<&Bound<'_, PyAny>>,
+        steps: Option<&Bound<'_, PyAny>>,
+        every: Option<&Bound<'_, PyAny>>,
+        stabilize: Option<&Bound<'_, PyAny>>,
+        rtol: Option<&Bound<'_, PyAny>>,
+        atol: Option<&Bound<'_, PyAny>>,
         project: bool,
-        substeps: Option<i64>,
-        max_substeps: Option<i64>,
+        substeps: Option<&Bound<'_, PyAny>>,
+        max_substeps: Option<&Bound<'_, PyAny>>,
         stop_when: Option<&str>,
     ) -> PyResult<Py<PyAny>> {
         let asked = Asked {
@@ -397,13 +467,13 @@ impl PyScene {
         py: Python<'_>,
         method: Option<&str>,
         integrator: Option<&str>,
-        dt: Option<f64>,
-        stabilize: Option<(f64, f64)>,
-        rtol: Option<f64>,
-        atol: Option<f64>,
+        dt: Option<&Bound<'_, PyAny>>,
+        stabilize: Option<&Bound<'_, PyAny>>,
+        rtol: Option<&Bound<'_, PyAny>>,
+        atol: Option<&Bound<'_, PyAny>>,
         project: bool,
-        substeps: Option<i64>,
-        max_substeps: Option<i64>,
+        substeps: Option<&Bound<'_, PyAny>>,
+        max_substeps: Option<&Bound<'_, PyAny>>,
         stop_when: Option<&str>,
     ) -> PyResult<PySimulation> {
         let asked = Asked {
@@ -435,10 +505,11 @@ impl PyScene {
         })
     }
 
-    /// Pickled as its text, file name and parameter overrides (loaded again with
-    /// `bead.loads`), so that a scene can be sent to another process or machine.
+    /// Pickled as its text, file name and parameter overrides (loaded again as
+    /// `bead.loads` does, without raising its warnings again), so that a scene can be sent to
+    /// another process or machine.
     fn __reduce__<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
-        let loads = py.import("bead._bead")?.getattr("loads")?;
+        let loads = py.import("bead._bead")?.getattr("_unpickle")?;
         let params = PyDict::new(py);
         for (name, value) in self.inner.overrides() {
             params.set_item(name, value)?;
@@ -448,10 +519,33 @@ impl PyScene {
             .map(|t| t.into_any())
     }
 
+    /// The title, the file, the counts, the methods and the warnings (the first three, with
+    /// their lines).
     fn __repr__(&self) -> String {
         let scene = &self.inner;
+        let warnings = scene.located_warnings();
+        let mut shown: Vec<String> = warnings
+            .iter()
+            .take(3)
+            .map(|w| match w.line {
+                Some(line) => format!("line {line}: {}", w.message),
+                None => w.message.clone(),
+            })
+            .collect();
+        if warnings.len() > 3 {
+            shown.push(format!("{} more in .warnings", warnings.len() - 3));
+        }
+        let warned = if warnings.is_empty() {
+            String::new()
+        } else {
+            format!(
+                "; {}: {}",
+                counted(warnings.len(), "warning"),
+                shown.join("; ")
+            )
+        };
         format!(
-            "<bead.Scene {:?} from {:?}: {} in {}D, {}, methods {}>",
+            "<bead.Scene {:?} from {:?}: {} in {}D, {}, methods {}{warned}>",
             scene.title,
             scene.file,
             counted(scene.system.particles().len(), "particle"),
@@ -485,6 +579,75 @@ struct Recorder {
     q: Vec<f64>,
     qdot: Vec<f64>,
     work: Vec<f64>,
+}
+
+/// The numbers in one recorded row: t, energy, constraint_error and work, the particles'
+/// positions and velocities (`coordinates` each), q and qdot (`k` each).
+#[derive(Clone, Copy)]
+struct RowWidth {
+    coordinates: usize,
+    k: usize,
+}
+
+impl RowWidth {
+    fn values(self) -> u64 {
+        4 + 2 * self.coordinates as u64 + 2 * self.k as u64
+    }
+}
+
+/// The most rows `plan` can record: the first state, every `every`-th, the last (or the
+/// last good one); refused with what it would take and how to take less when their arrays
+/// would pass [`MAX_RECORDED_BYTES`]. The arrays are the whole of the memory a run's
+/// recording takes at its peak: the recorder's vectors become the numpy arrays without a
+/// copy ([`build_run`]).
+fn record_guard(plan: &Plan, width: RowWidth) -> PyResult<u64> {
+    let rows = plan.steps / plan.every + 2;
+    let per_row = width.values();
+    let bytes = (rows as f64) * (per_row as f64) * 8.0;
+    if bytes <= MAX_RECORDED_BYTES as f64 {
+        return Ok(rows);
+    }
+    // The smallest every=K whose rows fit, when one does: steps / K + 2 rows fit when
+    // steps / K <= n, i.e. K > steps / (n + 1).
+    let fitting_rows = MAX_RECORDED_BYTES / 8 / per_row;
+    let every = match fitting_rows.checked_sub(2) {
+        None => String::new(),
+        Some(n) => format!(" (every={} or more fits)", plan.steps / (n + 1) + 1),
+    };
+    Err(PyValueError::new_err(format!(
+        "this run would record {rows} states of {per_row} numbers, {} bytes ({} GB) of arrays, \
+         more than the {MAX_RECORDED_BYTES} bytes (8 GiB) a run may record; record every K-th \
+         state with every=K{every}, or run a shorter duration (fewer steps)",
+        bead::readable(bytes),
+        bead::significant(bytes * 1e-9, 3)
+    )))
+}
+
+impl Recorder {
+    /// A recorder with room for `rows` rows reserved up front, so that no vector is moved
+    /// while it grows: the peak is then the arrays themselves. When the system will not
+    /// reserve that much at once (a run may stop long before its end), they grow as needed.
+    fn with_room(rows: u64, width: RowWidth, work: bool) -> Recorder {
+        let rows = usize::try_from(rows).unwrap_or(usize::MAX);
+        let room = |per_row: usize| {
+            let mut v = Vec::new();
+            let wanted = rows.saturating_mul(per_row);
+            if v.try_reserve_exact(wanted).is_err() {
+                v.reserve(wanted.min(1 << 16));
+            }
+            v
+        };
+        Recorder {
+            t: room(1),
+            x: room(width.coordinates),
+            xdot: room(width.coordinates),
+            energy: room(1),
+            constraint_error: room(1),
+            q: room(width.k),
+            qdot: room(width.k),
+            work: if work { room(1) } else { Vec::new() },
+        }
+    }
 }
 
 impl Sink for Recorder {
@@ -616,21 +779,13 @@ fn run_plan(
     event: Option<Event>,
 ) -> PyResult<Py<PyAny>> {
     let system = &scene.system;
-    let rows = (plan.steps / plan.every) as f64 + 2.0;
-    let per_row = (2 * system.n_coords() + 3) as f64
-        + 2.0
-            * system
-                .parametric()
-                .map_or(0, |m| m.n_q())
-                .max(system.n_coords()) as f64;
-    if rows * per_row > MAX_RECORDED_VALUES {
-        return Err(PyValueError::new_err(format!(
-            "this run would record {} states of {} values ({} GB); record fewer with every=K",
-            bead::readable(rows),
-            per_row,
-            bead::significant(rows * per_row * 8e-9, 3)
-        )));
-    }
+    let coordinates = system.n_coords();
+    let k = match plan.method {
+        Method::Parametric => system.parametric().map_or(0, |m| m.n_q()),
+        Method::Implicit => coordinates,
+    };
+    let width = RowWidth { coordinates, k };
+    let rows = record_guard(plan, width)?;
     let config = plan.config(plan.method);
     let options = plan.options();
     let shared = Arc::clone(scene);
@@ -641,9 +796,7 @@ fn run_plan(
         simulation.set_stop_when(event).map_err(StartError::Event)?;
         let coordinates = simulation.formulation().coordinate_names().to_vec();
         let tracks_work = simulation.tracks_work();
-        let mut recorder = Recorder::default();
-        let rows = (rows as usize).min(1 << 16);
-        recorder.t.reserve(rows);
+        let mut recorder = Recorder::with_room(rows, width, tracks_work);
         let result =
             simulate::run_with_progress(&mut simulation, options, &mut recorder, &mut watch);
         if let Some(interrupt) = watch.error {
@@ -671,18 +824,19 @@ fn run_plan(
         coordinates,
         tracks_work,
     } = finished;
-    let run = build_run(py, scene, &recorder, &summary, &coordinates, tracks_work)?;
+    let run = build_run(py, scene, recorder, &summary, &coordinates, tracks_work)?;
     match result {
         Ok(_) => Ok(run),
         Err(failure) => Err(run_error(py, &failure.error, Some(run))),
     }
 }
 
-/// The Python `bead.Run` holding the recorded rows as numpy arrays.
+/// The Python `bead.Run` holding the recorded rows as numpy arrays, each made from the
+/// recorder's vector without a copy (numpy's array owns the Rust buffer).
 fn build_run(
     py: Python<'_>,
     scene: &Scene,
-    recorder: &Recorder,
+    recorder: Recorder,
     summary: &Summary,
     coordinates: &[String],
     tracks_work: bool,
@@ -692,40 +846,36 @@ fn build_run(
     let rows = recorder.t.len();
     let k = recorder.q.len().checked_div(rows).unwrap_or(0);
     let shape_error = |e: numpy::ndarray::ShapeError| PyValueError::new_err(e.to_string());
+    let Recorder {
+        t,
+        x,
+        xdot,
+        energy,
+        constraint_error,
+        q,
+        qdot,
+        work,
+    } = recorder;
+    // A run that stopped early leaves room it did not use: give it back (in place for the
+    // large buffers, which the allocator maps on their own) before numpy owns them.
+    let exact = |mut v: Vec<f64>| {
+        v.shrink_to_fit();
+        v
+    };
+    let has_work = tracks_work && work.len() == rows;
     let kwargs = PyDict::new(py);
-    kwargs.set_item("t", PyArray1::from_slice(py, &recorder.t))?;
-    kwargs.set_item(
-        "positions",
-        Array3::from_shape_vec((rows, p, d), recorder.x.clone())
-            .map_err(shape_error)?
-            .into_pyarray(py),
-    )?;
-    kwargs.set_item(
-        "velocities",
-        Array3::from_shape_vec((rows, p, d), recorder.xdot.clone())
-            .map_err(shape_error)?
-            .into_pyarray(py),
-    )?;
-    kwargs.set_item("energy", PyArray1::from_slice(py, &recorder.energy))?;
-    kwargs.set_item(
-        "constraint_error",
-        PyArray1::from_slice(py, &recorder.constraint_error),
-    )?;
-    kwargs.set_item(
-        "q",
-        Array2::from_shape_vec((rows, k), recorder.q.clone())
-            .map_err(shape_error)?
-            .into_pyarray(py),
-    )?;
-    kwargs.set_item(
-        "qdot",
-        Array2::from_shape_vec((rows, k), recorder.qdot.clone())
-            .map_err(shape_error)?
-            .into_pyarray(py),
-    )?;
-    let work = (tracks_work && recorder.work.len() == rows)
-        .then(|| PyArray1::from_slice(py, &recorder.work));
-    kwargs.set_item("work", work)?;
+    kwargs.set_item("t", exact(t).into_pyarray(py))?;
+    for (key, values) in [("positions", x), ("velocities", xdot)] {
+        let array = Array3::from_shape_vec((rows, p, d), exact(values)).map_err(shape_error)?;
+        kwargs.set_item(key, array.into_pyarray(py))?;
+    }
+    kwargs.set_item("energy", exact(energy).into_pyarray(py))?;
+    kwargs.set_item("constraint_error", exact(constraint_error).into_pyarray(py))?;
+    for (key, values) in [("q", q), ("qdot", qdot)] {
+        let array = Array2::from_shape_vec((rows, k), exact(values)).map_err(shape_error)?;
+        kwargs.set_item(key, array.into_pyarray(py))?;
+    }
+    kwargs.set_item("work", has_work.then(|| exact(work).into_pyarray(py)))?;
     let json = summary
         .to_json_pretty()
         .map_err(|e| PyValueError::new_err(e.to_string()))?;
@@ -733,14 +883,7 @@ fn build_run(
     kwargs.set_item("summary", summary_dict)?;
     kwargs.set_item("particles", particle_names(scene))?;
     kwargs.set_item("coordinates", coordinates.to_vec())?;
-    kwargs.set_item(
-        "columns",
-        trace_header(
-            system,
-            coordinates,
-            tracks_work && recorder.work.len() == rows,
-        ),
-    )?;
+    kwargs.set_item("columns", trace_header(system, coordinates, has_work))?;
     let run_class = py.import("bead._run")?.getattr("Run")?;
     Ok(run_class.call((), Some(&kwargs))?.unbind())
 }
@@ -787,9 +930,30 @@ fn sweep_error(e: SweepError) -> PyErr {
         }
         SweepError::ZipLengths { .. } => PyValueError::new_err(format!("zip=True: {e}")),
         SweepError::OutOfRange { .. } => PyIndexError::new_err(e.to_string()),
+        SweepError::OtherLayout { ref expected, .. } => PyValueError::new_err(format!(
+            "{e}: a sweep's arrays have the scene's particles and coordinates (positions shaped \
+             grid + (P, D) with P = {}, D = {}; q grid + ({},)); sweep each particle count \
+             on its own, or write one row per member and coordinate with `bead sweep \
+             --format long`",
+            expected.particles.len(),
+            expected.dim,
+            expected.coordinates.len()
+        )),
         SweepError::Plan(e) => plan_error(e),
         other => PyValueError::new_err(other.to_string()),
     }
+}
+
+/// `threads=`: 0 or None (one per core) to [`args::MAX_THREADS`].
+fn threads_arg(threads: Option<&Bound<'_, PyAny>>) -> PyResult<usize> {
+    let n = args::integer(
+        "threads",
+        threads,
+        0,
+        args::MAX_THREADS,
+        " (0: one per core)",
+    )?;
+    Ok(n.unwrap_or(0) as usize)
 }
 
 /// Threads to use: `threads`, or one per core for 0.
@@ -817,15 +981,15 @@ impl PySweepPlan {
         zip: bool,
         method: Option<&str>,
         integrator: Option<&str>,
-        dt: Option<f64>,
-        duration: Option<f64>,
-        steps: Option<i64>,
-        stabilize: Option<(f64, f64)>,
-        rtol: Option<f64>,
-        atol: Option<f64>,
+        dt: Option<&Bound<'_, PyAny>>,
+        duration: Option<&Bound<'_, PyAny>>,
+        steps: Option<&Bound<'_, PyAny>>,
+        stabilize: Option<&Bound<'_, PyAny>>,
+        rtol: Option<&Bound<'_, PyAny>>,
+        atol: Option<&Bound<'_, PyAny>>,
         project: bool,
-        substeps: Option<i64>,
-        max_substeps: Option<i64>,
+        substeps: Option<&Bound<'_, PyAny>>,
+        max_substeps: Option<&Bound<'_, PyAny>>,
         stop_when: Option<&str>,
     ) -> PyResult<PySweepPlan> {
         let scene = &scene.get().inner;
@@ -838,6 +1002,13 @@ impl PySweepPlan {
         }
         let mut axes = Vec::with_capacity(names.len());
         for (name, values) in names.into_iter().zip(values) {
+            // Read in place, which needs aligned data (bead.Sweep passes aligned copies).
+            if !(values.data() as usize).is_multiple_of(std::mem::align_of::<f64>()) {
+                return Err(PyValueError::new_err(format!(
+                    "params[{name:?}]: the values must be an aligned float64 array \
+                     (numpy.require(values, numpy.float64, ['C', 'A']))"
+                )));
+            }
             let values = values.as_array().to_vec();
             if let Some(bad) = values.iter().find(|v| !v.is_finite()) {
                 return Err(PyValueError::new_err(format!(
@@ -845,7 +1016,7 @@ impl PySweepPlan {
                     bead::readable(*bad)
                 )));
             }
-            axes.push(Axis { name, values });
+            axes.push(Axis::new(&name, values));
         }
         let asked = Asked {
             method,
@@ -935,26 +1106,52 @@ impl PySweepPlan {
 
     /// Run members `start` to `stop` (exclusive) on `threads` threads (0: one per core) with
     /// the GIL released, and return their figures as a dict of flat arrays (one row per
-    /// member, in index order). Raises KeyboardInterrupt on Ctrl-C, between two segments of
-    /// members (each about a quarter of a second of work).
-    #[pyo3(signature = (start, stop, threads = 0))]
+    /// member, in index order), streamed into the arrays as members finish. Refuses (before
+    /// running) a range whose arrays would pass [`MAX_SWEEP_BYTES`], and (as it arrives) a
+    /// member whose particles or coordinates are not the scene's. Raises KeyboardInterrupt
+    /// on Ctrl-C, between two segments of members (each about a quarter of a second of work).
+    #[pyo3(signature = (start, stop, threads = None), text_signature = "($self, start, stop, threads=0)")]
     fn run_range<'py>(
         &self,
         py: Python<'py>,
-        start: usize,
-        stop: usize,
-        threads: usize,
+        start: &Bound<'py, PyAny>,
+        stop: &Bound<'py, PyAny>,
+        threads: Option<&Bound<'py, PyAny>>,
     ) -> PyResult<Bound<'py, PyDict>> {
-        if start > stop || stop > self.inner.len() {
+        let sweep = &*self.inner;
+        let len = sweep.len() as u64;
+        let start = args::integer_value("start", start, 0, len, "")? as usize;
+        let stop = args::integer_value("stop", stop, 0, len, "")? as usize;
+        let threads = threads_arg(threads)?;
+        if start > stop || stop > sweep.len() {
             return Err(sweep_error(SweepError::OutOfRange {
                 start,
                 end: stop,
-                len: self.inner.len(),
+                len: sweep.len(),
             }));
         }
-        let threads = thread_count(threads).min((stop - start).max(1));
+        let count = stop - start;
+        let per_member = Columns::bytes_per_member(sweep);
+        let bytes = (count as u64).saturating_mul(per_member);
+        if bytes > MAX_SWEEP_BYTES {
+            let layout = sweep.layout();
+            return Err(PyValueError::new_err(format!(
+                "{count} members need about {} for their result arrays ({per_member} bytes each: \
+                 {} parameter(s), {} particle(s) in {}D, {} generalized coordinate(s)), more than \
+                 the 8 GiB a sweep returns at once; run it in chunks that fit and keep what you \
+                 need of each: sweep = bead.Sweep(scene, params, ...), then \
+                 sweep.run_range(start, stop) for each (start, stop) in sweep.chunks({})",
+                bead::byte_size(bytes),
+                sweep.axes().len(),
+                layout.particles.len(),
+                layout.dim,
+                layout.coordinates.len(),
+                bytes.div_ceil(MAX_SWEEP_BYTES / 2).max(2)
+            )));
+        }
+        let threads = thread_count(threads).min(count.max(1));
         let clock = Instant::now();
-        let mut members: Vec<Member> = Vec::with_capacity(stop - start);
+        let mut columns = Columns::new(sweep, count);
         // Segments grow while they take under a quarter of a second and shrink past one, so
         // that Ctrl-C is noticed quickly while threads seldom wait for each other at the end
         // of a segment. A member's numbers depend on its index alone, so segments change none.
@@ -963,10 +1160,11 @@ impl PySweepPlan {
         while next < stop {
             let end = (next + size).min(stop);
             let segment = Instant::now();
-            let sweep = &self.inner;
-            let done =
-                detached(py, move || sweep.run_range(next..end, threads))?.map_err(sweep_error)?;
-            members.extend(done);
+            let columns = &mut columns;
+            detached(py, move || {
+                sweep.run_each(next..end, threads, |member| columns.push(sweep, member))
+            })?
+            .map_err(sweep_error)?;
             py.check_signals()?;
             let seconds = segment.elapsed().as_secs_f64();
             if seconds < 0.25 {
@@ -976,7 +1174,7 @@ impl PySweepPlan {
             }
             next = end;
         }
-        members_dict(py, &self.inner, self.method, &members, threads, clock)
+        columns.into_dict(py, threads, clock)
     }
 
     fn __repr__(&self) -> String {
@@ -990,95 +1188,173 @@ impl PySweepPlan {
     }
 }
 
-/// The figures of `members` as flat arrays (NaN and 0 where a member has none).
-fn members_dict<'py>(
-    py: Python<'py>,
-    sweep: &Sweep,
-    method: Method,
-    members: &[Member],
-    threads: usize,
-    clock: Instant,
-) -> PyResult<Bound<'py, PyDict>> {
-    let system = &sweep.scene().system;
-    let (n, k, nc) = (members.len(), sweep.axes().len(), system.n_coords());
-    let (p, d) = (system.particles().len(), system.dim());
-    let nq = match (method, system.parametric()) {
-        (Method::Parametric, Some(map)) => map.coordinates().len(),
-        _ => 0,
-    };
-    let mut params = Vec::with_capacity(n * k);
-    let mut status = Vec::with_capacity(n);
-    let mut errors = Vec::with_capacity(n);
-    let (mut t_final, mut stop_time, mut energy, mut constraint) = (
-        Vec::with_capacity(n),
-        Vec::with_capacity(n),
-        Vec::with_capacity(n),
-        Vec::with_capacity(n),
-    );
-    let mut steps: Vec<i64> = Vec::with_capacity(n);
-    let (mut x, mut xdot) = (Vec::with_capacity(n * nc), Vec::with_capacity(n * nc));
-    let (mut q, mut qdot) = (Vec::with_capacity(n * nq), Vec::with_capacity(n * nq));
-    for member in members {
-        params.extend_from_slice(&member.params);
-        status.push(member.status());
-        errors.push(member.error.clone());
+/// The most bytes a sweep's result may take in Python (8 GiB; see
+/// [`Columns::bytes_per_member`]): above, `run_range` refuses and suggests chunks.
+const MAX_SWEEP_BYTES: u64 = 8 << 30;
+
+/// A sweep's figures as flat columns, one row per member (NaN and 0 where a member has none),
+/// filled as members arrive and moved into numpy arrays without a copy.
+struct Columns {
+    /// Parameters swept.
+    k: usize,
+    /// Particle coordinates and generalized coordinates of the scene swept.
+    n_coords: usize,
+    n_q: usize,
+    particles: usize,
+    dim: usize,
+    params: Vec<f64>,
+    /// 0 ok, 1 event, 2 failed (Python turns them into strings).
+    status: Vec<u8>,
+    errors: Vec<Option<String>>,
+    t_final: Vec<f64>,
+    stop_time: Vec<f64>,
+    energy_rel: Vec<f64>,
+    energy_balance: Vec<f64>,
+    constraint: Vec<f64>,
+    steps: Vec<i64>,
+    x: Vec<f64>,
+    xdot: Vec<f64>,
+    q: Vec<f64>,
+    qdot: Vec<f64>,
+}
+
+impl Columns {
+    /// Bytes one member takes at the peak of a sweep in Python: 8 per float64 (the K
+    /// parameters, t_final, stop_time, steps, the three error maxima, 2 x P x D of
+    /// positions and velocities, 2 x Q of q and qdot), its status (1 byte here, 24 as
+    /// numpy's `<U6`) and its error slot (24 here while it is converted, 8 in the list, 8 in
+    /// the object array). An error message itself is not counted.
+    fn bytes_per_member(sweep: &Sweep) -> u64 {
+        let layout = sweep.layout();
+        let floats = sweep.axes().len() + 7 + 2 * (layout.n_coords() + layout.coordinates.len());
+        8 * floats as u64 + 1 + 24 + 24 + 8 + 8
+    }
+
+    /// Empty columns for `count` members of `sweep`, reserved in full.
+    fn new(sweep: &Sweep, count: usize) -> Columns {
+        let layout = sweep.layout();
+        let (k, nc, nq) = (
+            sweep.axes().len(),
+            layout.n_coords(),
+            layout.coordinates.len(),
+        );
+        let floats = || Vec::with_capacity(count);
+        Columns {
+            k,
+            n_coords: nc,
+            n_q: nq,
+            particles: layout.particles.len(),
+            dim: layout.dim,
+            params: Vec::with_capacity(count * k),
+            status: Vec::with_capacity(count),
+            errors: Vec::with_capacity(count),
+            t_final: floats(),
+            stop_time: floats(),
+            energy_rel: floats(),
+            energy_balance: floats(),
+            constraint: floats(),
+            steps: Vec::with_capacity(count),
+            x: Vec::with_capacity(count * nc),
+            xdot: Vec::with_capacity(count * nc),
+            q: Vec::with_capacity(count * nq),
+            qdot: Vec::with_capacity(count * nq),
+        }
+    }
+
+    /// Append `member`'s row; a member whose particles or coordinates are not the scene's
+    /// does not fit the arrays (grid + (P, D)) and is refused.
+    fn push(&mut self, sweep: &Sweep, member: Member) -> Result<(), SweepError> {
+        sweep.check_layout(&member)?;
+        let (nc, nq) = (self.n_coords, self.n_q);
+        self.params.extend_from_slice(&member.params);
+        self.status.push(match member.status() {
+            "ok" => 0,
+            "event" => 1,
+            _ => 2,
+        });
         match &member.stats {
             Some(stats) => {
-                t_final.push(stats.t_final);
-                stop_time.push(stats.stop_time.unwrap_or(f64::NAN));
-                energy.push(stats.conserved_energy_error_max());
-                constraint.push(stats.constraint_error_max);
-                steps.push(i64::try_from(stats.steps).unwrap_or(i64::MAX));
-                x.extend_from_slice(&stats.x);
-                xdot.extend_from_slice(&stats.xdot);
+                self.t_final.push(stats.t_final);
+                self.stop_time.push(stats.stop_time.unwrap_or(f64::NAN));
+                self.energy_rel.push(stats.energy_rel_error_max);
+                self.energy_balance
+                    .push(stats.energy_balance_error_max.unwrap_or(f64::NAN));
+                self.constraint.push(stats.constraint_error_max);
+                self.steps
+                    .push(i64::try_from(stats.steps).unwrap_or(i64::MAX));
+                self.x.extend_from_slice(&stats.x);
+                self.xdot.extend_from_slice(&stats.xdot);
                 if nq > 0 {
-                    q.extend_from_slice(&stats.q);
-                    qdot.extend_from_slice(&stats.qdot);
+                    self.q.extend_from_slice(&stats.q);
+                    self.qdot.extend_from_slice(&stats.qdot);
                 }
             }
             None => {
-                for column in [&mut t_final, &mut stop_time, &mut energy, &mut constraint] {
+                for column in [
+                    &mut self.t_final,
+                    &mut self.stop_time,
+                    &mut self.energy_rel,
+                    &mut self.energy_balance,
+                    &mut self.constraint,
+                ] {
                     column.push(f64::NAN);
                 }
-                steps.push(0);
-                x.resize(x.len() + nc, f64::NAN);
-                xdot.resize(xdot.len() + nc, f64::NAN);
-                q.resize(q.len() + nq, f64::NAN);
-                qdot.resize(qdot.len() + nq, f64::NAN);
+                self.steps.push(0);
+                self.x.resize(self.x.len() + nc, f64::NAN);
+                self.xdot.resize(self.xdot.len() + nc, f64::NAN);
+                self.q.resize(self.q.len() + nq, f64::NAN);
+                self.qdot.resize(self.qdot.len() + nq, f64::NAN);
             }
         }
+        self.errors.push(member.error);
+        Ok(())
     }
-    let shape_error = |e: numpy::ndarray::ShapeError| PyValueError::new_err(e.to_string());
-    let dict = PyDict::new(py);
-    dict.set_item(
-        "params",
-        Array2::from_shape_vec((n, k), params)
-            .map_err(shape_error)?
-            .into_pyarray(py),
-    )?;
-    dict.set_item("status", status)?;
-    dict.set_item("errors", errors)?;
-    dict.set_item("t_final", t_final.into_pyarray(py))?;
-    dict.set_item("stop_time", stop_time.into_pyarray(py))?;
-    dict.set_item("steps", steps.into_pyarray(py))?;
-    dict.set_item("energy_error_max", energy.into_pyarray(py))?;
-    dict.set_item("constraint_error_max", constraint.into_pyarray(py))?;
-    for (key, values) in [("positions", x), ("velocities", xdot)] {
-        let array = Array3::from_shape_vec((n, p, d), values).map_err(shape_error)?;
-        dict.set_item(key, array.into_pyarray(py))?;
-    }
-    if nq > 0 {
-        for (key, values) in [("q", q), ("qdot", qdot)] {
-            let array = Array2::from_shape_vec((n, nq), values).map_err(shape_error)?;
+
+    /// The columns as a dict of numpy arrays (`status` as codes 0 ok, 1 event, 2 failed).
+    fn into_dict<'py>(
+        self,
+        py: Python<'py>,
+        threads: usize,
+        clock: Instant,
+    ) -> PyResult<Bound<'py, PyDict>> {
+        let n = self.status.len();
+        let (k, p, d, nq) = (self.k, self.particles, self.dim, self.n_q);
+        let shape_error = |e: numpy::ndarray::ShapeError| PyValueError::new_err(e.to_string());
+        let dict = PyDict::new(py);
+        dict.set_item(
+            "params",
+            Array2::from_shape_vec((n, k), self.params)
+                .map_err(shape_error)?
+                .into_pyarray(py),
+        )?;
+        dict.set_item("status", self.status.into_pyarray(py))?;
+        dict.set_item("errors", self.errors)?;
+        dict.set_item("t_final", self.t_final.into_pyarray(py))?;
+        dict.set_item("stop_time", self.stop_time.into_pyarray(py))?;
+        dict.set_item("steps", self.steps.into_pyarray(py))?;
+        dict.set_item("energy_rel_error_max", self.energy_rel.into_pyarray(py))?;
+        dict.set_item(
+            "energy_balance_error_max",
+            self.energy_balance.into_pyarray(py),
+        )?;
+        dict.set_item("constraint_error_max", self.constraint.into_pyarray(py))?;
+        for (key, values) in [("positions", self.x), ("velocities", self.xdot)] {
+            let array = Array3::from_shape_vec((n, p, d), values).map_err(shape_error)?;
             dict.set_item(key, array.into_pyarray(py))?;
         }
-    } else {
-        dict.set_item("q", py.None())?;
-        dict.set_item("qdot", py.None())?;
+        if nq > 0 {
+            for (key, values) in [("q", self.q), ("qdot", self.qdot)] {
+                let array = Array2::from_shape_vec((n, nq), values).map_err(shape_error)?;
+                dict.set_item(key, array.into_pyarray(py))?;
+            }
+        } else {
+            dict.set_item("q", py.None())?;
+            dict.set_item("qdot", py.None())?;
+        }
+        dict.set_item("threads", threads)?;
+        dict.set_item("wall_seconds", clock.elapsed().as_secs_f64())?;
+        Ok(dict)
     }
-    dict.set_item("threads", threads)?;
-    dict.set_item("wall_seconds", clock.elapsed().as_secs_f64())?;
-    Ok(dict)
 }
 
 // ---------------------------------------------------------------------------------------
@@ -1139,13 +1415,9 @@ impl PySimulation {
 impl PySimulation {
     /// Take `count` steps (default 1): dt each for fixed-step integrators, one accepted step
     /// of its own size each for dopri5. Raises `bead.RunError` when a step fails.
-    #[pyo3(signature = (count = 1))]
-    fn step(&self, py: Python<'_>, count: i64) -> PyResult<()> {
-        if count < 0 {
-            return Err(PyValueError::new_err(format!(
-                "step(count={count}): count must be >= 0"
-            )));
-        }
+    #[pyo3(signature = (count = None), text_signature = "($self, count=1)")]
+    fn step(&self, py: Python<'_>, count: Option<&Bound<'_, PyAny>>) -> PyResult<()> {
+        let count = args::integer("count", count, 0, u64::MAX, "")?.unwrap_or(1);
         // Ctrl-C stops a long call between two steps, at a good state.
         let mut watch = Interrupt::new(py)?;
         let checking = &mut watch;
@@ -1162,9 +1434,23 @@ impl PySimulation {
     }
 
     /// Advance to exactly time `t` (not before the current time): steps of dt and, when `t`
-    /// is not on the grid of steps, one shorter step to land on it.
-    fn advance_to(&self, py: Python<'_>, t: f64) -> PyResult<()> {
-        self.advance(py, |simulation| simulation.advance_to(t))
+    /// is not on the grid of steps, one shorter step to land on it. Ctrl-C stops it within a
+    /// fraction of a second at the end of a step (KeyboardInterrupt); the simulation holds
+    /// that state and can go on.
+    fn advance_to(&self, py: Python<'_>, t: &Bound<'_, PyAny>) -> PyResult<()> {
+        let t = args::real_value("t", t, "a finite time (s) >= the current time")?;
+        let mut watch = Interrupt::new(py)?;
+        let checking = &mut watch;
+        let stepped = self.advance(py, move |simulation| {
+            match simulation.advance_to_with(t, &mut || checking.check()) {
+                Err(RunError::Interrupted { .. }) => Ok(()),
+                other => other,
+            }
+        });
+        match watch.error {
+            Some(interrupt) => Err(interrupt),
+            None => stepped,
+        }
     }
 
     /// Back to the scene's initial state.

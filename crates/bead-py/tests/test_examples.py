@@ -77,6 +77,19 @@ def test_flip_time_draws_the_picture(flip, tmp_path, capsys):
     assert "16 x 16 members" in printed and "wall time" in printed
 
 
+def test_flip_time_writes_to_the_current_directory_by_default(flip, tmp_path, monkeypatch):
+    """Without --out the picture goes to ./flip_time.png, never over docs/flip_time.png (the
+    README's picture, which the default overwrote)."""
+    pytest.importorskip("matplotlib", reason="the picture needs matplotlib (pip install matplotlib)")
+    module, _, _ = flip
+    docs = ROOT / "docs" / "flip_time.png"
+    before = docs.read_bytes() if docs.exists() else None
+    monkeypatch.chdir(tmp_path)
+    assert module.main(["--n", "4", "--duration", "0.5"]) == 0
+    assert (tmp_path / "flip_time.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert (docs.read_bytes() if docs.exists() else None) == before
+
+
 def test_dask_sweep_equals_the_local_sweep():
     pytest.importorskip("distributed", reason="dask[distributed] is not installed "
                         "(scripts/test installs it: pip install 'dask[distributed]')")

@@ -33,11 +33,25 @@ try:
     if kind == "run":
         # hours: records only the first and last states
         scene.run(method="parametric", steps=10**9, every=10**9)
+    elif kind == "run-dopri5":
+        # one output interval of 10^9 s: every step is inside it
+        scene.run(method="parametric", integrator="dopri5", dt=1e9, steps=1)
     elif kind == "step":
         scene.simulation(method="parametric").step(10**9)
+    elif kind.startswith("advance_to"):
+        sim = scene.simulation(method="parametric", integrator=kind.split("-")[1])
+        sim.advance_to(1e9)
     else:
         bead.sweep(scene, {"th1": np.linspace(0.0, 1.0, 10**5)}, steps=10**5)
 except KeyboardInterrupt:
+    if kind.startswith("advance_to"):
+        # Stopped at a good state, from which the simulation goes on.
+        t = sim.t
+        assert 0 < t < 1e9, t
+        assert np.isfinite(sim.positions).all() and np.isfinite(sim.energy), sim
+        sim.advance_to(t + 0.5)
+        assert sim.t == t + 0.5, (sim.t, t)
+        assert np.isfinite(sim.positions).all() and np.isfinite(sim.energy), sim
     print("interrupted", flush=True)
     sys.exit(3)
 print("finished", flush=True)
@@ -50,9 +64,33 @@ def cpu_seconds(pid):
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
-@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs Linux /proc")
+needs_proc = pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs Linux /proc")
+
+
+@needs_proc
 @pytest.mark.parametrize("kind", ["run", "step", "sweep"])
 def test_ctrl_c_interrupts_promptly(kind):
+    interrupt_child(kind)
+
+
+@needs_proc
+@pytest.mark.parametrize("integrator", ["rk4", "dopri5"])
+def test_advance_to_stops_on_ctrl_c(integrator):
+    """advance_to(t) far ahead stops at a good state on Ctrl-C, and the simulation goes on
+    from there (it ignored the signal and ran to t)."""
+    interrupt_child(f"advance_to-{integrator}")
+
+
+@needs_proc
+def test_dopri5_run_with_one_output_interval_stops_on_ctrl_c():
+    """A run's Ctrl-C check inside an output interval: dopri5 takes all its steps inside the
+    one interval of this run (the check came only after each interval)."""
+    interrupt_child("run-dopri5")
+
+
+def interrupt_child(kind):
+    """Start CHILD doing `kind`, wait until it is busy inside the call, send SIGINT, and
+    require that it caught KeyboardInterrupt (and passed its own checks) within 5 s."""
     child = subprocess.Popen([sys.executable, "-c", CHILD, kind,
                               scene_path("double-pendulum.toml")],
                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)

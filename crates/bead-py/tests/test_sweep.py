@@ -13,8 +13,8 @@ from test_simulation import _progress_while
 
 PENDULUM = scene_path("double-pendulum.toml")
 FLIP = "(abs(theta1) + abs(theta2) + abs(abs(theta1) - abs(theta2)))/2 - pi"
-FIELDS = ("t_final", "stop_time", "steps", "energy_error_max", "constraint_error_max",
-          "positions", "velocities", "q", "qdot")
+FIELDS = ("t_final", "stop_time", "steps", "energy_rel_error_max", "energy_balance_error_max",
+          "constraint_error_max", "positions", "velocities", "q", "qdot")
 
 
 def same_bits(a, b):
@@ -40,7 +40,8 @@ def test_grid_shapes_and_dtypes():
     P, D, K = 2, 2, 2
     assert r.positions.shape == (3, 4, P, D) and r.velocities.shape == (3, 4, P, D)
     assert r.q.shape == (3, 4, K) and r.qdot.shape == (3, 4, K)
-    for field in ("t_final", "stop_time", "energy_error_max", "constraint_error_max"):
+    for field in ("t_final", "stop_time", "energy_rel_error_max", "energy_balance_error_max",
+                  "constraint_error_max"):
         assert getattr(r, field).shape == (3, 4) and getattr(r, field).dtype == np.float64
     assert r.steps.dtype == np.int64 and (r.steps == 20).all()
     assert r.status.dtype.kind == "U" and (r.status == "ok").all()
@@ -83,7 +84,9 @@ def test_a_member_is_the_single_run_bit_for_bit(method, integrator):
             stop = s.get("stop_time")
             assert (np.isnan(r.stop_time[i, j]) and stop is None) or r.stop_time[i, j] == stop
             assert r.status[i, j] == ("event" if stop is not None else "ok")
-            assert r.energy_error_max[i, j] == s["energy_rel_error_max"]
+            assert r.energy_rel_error_max[i, j] == s["energy_rel_error_max"]
+            assert np.isnan(r.energy_balance_error_max[i, j])
+            assert "energy_balance_error_max" not in s
             assert r.constraint_error_max[i, j] == s["constraint_error_max"]
             assert same_bits(r.positions[i, j], run.positions[-1])
             assert same_bits(r.velocities[i, j], run.velocities[-1])
@@ -209,3 +212,111 @@ def test_help_says_what_sweep_does():
     assert "once per combination of parameter values" in text and "stop_when" in text
     assert "bit for bit" in bead.Sweep.__doc__
     assert "``positions``, ``velocities`` ``shape + (P, D)``" in bead.SweepResult.__doc__
+
+
+CHAIN = """title = "chain"
+[params]
+N = 2
+[world]
+gravity = [0.0, 9.81]
+[[particle]]
+for = { i = "0..N" }
+name = "p{i}"
+mass = 1.0
+position = ["i+1", 0.0]
+[[constraint]]
+name = "pivot"
+kind = "distance"
+particle = "p0"
+anchor = [0.0, 0.0]
+length = 1.0
+[[constraint]]
+for = { i = "1..N" }
+name = "rod {i}"
+kind = "distance"
+between = ["p{i-1}", "p{i}"]
+length = 1.0
+[run]
+integrator = "rattle"
+dt = 0.01
+"""
+
+
+def test_sweep_refuses_members_with_another_particle_count():
+    """The arrays are shaped grid + (P, D) with the scene's P: a member with another number of
+    particles is a ValueError naming it, never arrays of mixed members."""
+    scene = bead.loads(CHAIN, name="chain.toml")
+    with pytest.raises(ValueError) as caught:
+        bead.sweep(scene, {"N": [2, 3, 4]}, steps=5)
+    text = str(caught.value)
+    assert text.startswith("member 1 (N = 3) has 3 particles (p0, p1, p2), where the scene "
+                           "swept has 2 (p0, p1): a sweep's arrays have the scene's particles"), text
+    assert "P = 2" in text and "--format long" in text
+    # Members of the scene's count are fine, whatever the values.
+    r = bead.sweep(scene, {"N": [2, 2.0]}, steps=5)
+    assert r.positions.shape == (2, 2, 2)
+
+
+def test_sweep_count_beyond_limit_is_an_error_not_an_abort():
+    """10^8 members killed the interpreter (an allocation abort); past the memory limit of
+    the result, or 2^32 members, a sweep is a ValueError that says what to do."""
+    scene = bead.load(PENDULUM)
+    grid = {"th1": np.linspace(1, 2, 10**4), "th2": np.linspace(1, 2, 10**4)}
+    with pytest.raises(ValueError) as caught:
+        bead.sweep(scene, grid, steps=1)
+    text = str(caught.value)
+    assert text.startswith("100000000 members need about 20.1 GB for their result arrays "
+                           "(201 bytes each: 2 parameter(s), 2 particle(s) in 2D, 0 generalized "
+                           "coordinate(s)), more than the 8 GiB a sweep returns at once"), text
+    assert "sweep.run_range(start, stop)" in text and "sweep.chunks(" in text
+    # A chunk that fits runs.
+    plan = bead.Sweep(scene, grid, steps=1)
+    assert len(plan) == 10**8 and len(plan.run_range(10**8 - 3, 10**8)) == 3
+    with pytest.raises(ValueError, match="more than the 4294967296 \\(2\\^32\\) a sweep may have"):
+        bead.Sweep(scene, {"th1": np.linspace(1, 2, 2**17), "th2": np.linspace(1, 2, 2**16)})
+    with pytest.raises(ValueError, match="start=-1"):
+        plan.run_range(-1, 3)
+    with pytest.raises(IndexError, match="start <= stop"):
+        plan.run_range(5, 3)
+    with pytest.raises(ValueError, match="threads=-1"):
+        plan.run_range(0, 3, threads=-1)
+
+
+def test_sweep_where_every_member_fails_raises_run_error():
+    scene = bead.load(PENDULUM)
+    with pytest.raises(bead.RunError) as caught:
+        bead.sweep(scene, {"m1": [-1.0, -2.0]}, steps=10)
+    error = caught.value
+    assert str(error).startswith("every member of the sweep failed (2 of 2); the first, "
+                                 "member 0 (m1 = -1.0): "), str(error)
+    assert "mass" in str(error)
+    assert error.result.counts() == {"ok": 0, "event": 0, "failed": 2}
+    # A chunk is returned (a chunk of failures may be part of a sweep that ran); the whole,
+    # assembled, raises.
+    plan = bead.Sweep(scene, {"m1": [-1.0, -2.0]}, steps=10)
+    parts = [plan.run_range(0, 1), plan.run_range(1, 2)]
+    assert parts[0].status.tolist() == ["failed"]
+    with pytest.raises(bead.RunError, match="every member of the sweep failed"):
+        plan.assemble(parts)
+    assert bead.sweep(scene, {"m1": [-1.0, -2.0]}, steps=10, members=range(0, 2)).counts()[
+        "failed"] == 2
+
+
+def test_sweep_and_run_name_the_energy_errors_alike():
+    """energy_rel_error_max is the run summary's |E - E0| / E_scale in every front end, and
+    energy_balance_error_max its |E - W - E0| / E_scale where something does work."""
+    with open(scene_path("double-pendulum.toml")) as f:
+        text = f.read()
+    scene = bead.loads(text + '\n[[force]]\nkind = "drag"\ncoefficient = 0.3\n',
+                       name="drag.toml")
+    r = bead.sweep(scene, {"th1": [0.5, 1.0]}, method="parametric", dt=0.01, steps=50)
+    assert not hasattr(r, "energy_error_max")
+    for i, th1 in enumerate([0.5, 1.0]):
+        s = scene.with_params({"th1": th1}).run(method="parametric", dt=0.01, steps=50).summary
+        assert r.energy_rel_error_max[i] == s["energy_rel_error_max"]
+        assert r.energy_balance_error_max[i] == s["energy_balance_error_max"]
+        assert r.constraint_error_max[i] == s["constraint_error_max"]
+    frame = r.table()
+    assert frame["energy_balance_error_max"].tolist() == r.energy_balance_error_max.tolist()
+    assert r.columns[5:9] == ["steps", "energy_rel_error_max", "energy_balance_error_max",
+                              "constraint_error_max"]

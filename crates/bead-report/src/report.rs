@@ -397,7 +397,9 @@ impl Report {
     }
 
     /// The comparison table: a header row, then one row per run. Columns: method,
-    /// integrator, dt, final and max constraint error, max relative energy error, period
+    /// integrator, dt, final and max constraint error, the largest distance off the
+    /// constraints |C|/|grad C| (implicit form; `-` for the parametric form, which cannot
+    /// leave its curve), max relative energy error, period
     /// (`-` when the motion is not periodic or shows fewer than two crossings), steps/s, and
     /// when any run is adaptive its accepted/rejected steps, when any failed its status.
     pub fn rows(&self) -> Vec<Vec<String>> {
@@ -409,6 +411,7 @@ impl Report {
             "dt",
             "final constraint error",
             "max constraint error",
+            "max |C|/|grad C|",
             "max rel energy error",
             "period (s)",
             "steps/s",
@@ -431,6 +434,9 @@ impl Report {
                 run.dt_text(),
                 sig(s.constraint_error_final, TABLE_DIGITS),
                 sig(s.constraint_error_max, TABLE_DIGITS),
+                s.constraint_distance_max
+                    .map(|d| sig(d, TABLE_DIGITS))
+                    .unwrap_or_else(|| "-".into()),
                 if s.energy_conserved {
                     sig(s.energy_rel_error_max, TABLE_DIGITS)
                 } else {

@@ -305,6 +305,31 @@ fn scene_errors_are_located() {
         .any(|m| matches!(m, ServerMessage::Scene(info) if info.name == "mine.toml")));
 }
 
+/// A 60 kB scene whose name template repeats `{i}` 20,000 times cost the viewer 2 GB per
+/// `load_scene` at N = 4000: the loader refuses it before expanding it (the library's
+/// limit on generated text), and the session replies with the located error.
+#[test]
+fn generated_text_beyond_the_limit_is_refused_before_it_is_made() {
+    let mut s = session();
+    let text = format!(
+        "[params]\nN = 4000\n[world]\ngravity = [0.0, 1.0]\n[[particle]]\nfor = {{ i = \"0..N\" }}\nname = \"p{}\"\nmass = 1.0\nposition = [\"i\", 0.0]\n",
+        "{i}".repeat(20_000)
+    );
+    let message = serde_json::json!({"type": "load_scene", "toml": text, "file_name": "big.toml"});
+    let start = std::time::Instant::now();
+    let replies = send(&mut s, &message.to_string());
+    assert!(start.elapsed().as_secs_f64() < 1.0, "{:?}", start.elapsed());
+    let ServerMessage::SceneError { message, line, .. } = &replies[0] else {
+        panic!("{replies:?}");
+    };
+    assert!(
+        message.starts_with("big.toml:6:7: particle 1: `for` would expand the table's 60 kB of strings 4000 times, to about 240 MB of text; a scene's generated tables may expand to at most 16 MiB"),
+        "{message}"
+    );
+    assert_eq!(*line, 6);
+    assert_eq!(s.panel_count(), 2);
+}
+
 #[test]
 fn curve_edit_errors_point_into_the_expression_and_leave_panels_alone() {
     let mut s = session();

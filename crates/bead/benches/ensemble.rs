@@ -73,10 +73,7 @@ fn through_bead(method: Method, x0: &[f64], threads: usize, alone: bool) -> (f64
     let scene = Scene::parse(SCENE, "parabola-x0.toml", &[]).expect("the scene loads");
     let sweep = Sweep::new(
         &scene,
-        vec![Axis {
-            name: "x0".into(),
-            values: x0.to_vec(),
-        }],
+        vec![Axis::new("x0", x0.to_vec())],
         Combine::Zip,
         PlanRequest {
             method: Some(method),
@@ -114,7 +111,7 @@ fn through_bead(method: Method, x0: &[f64], threads: usize, alone: bool) -> (f64
         members.sort_by_key(|m| m.index);
         members
     } else {
-        sweep.run(threads)
+        sweep.run(threads).expect("the members fit in memory")
     };
     (start.elapsed().as_secs_f64(), members)
 }

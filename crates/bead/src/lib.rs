@@ -73,6 +73,30 @@ pub fn significant(x: f64, digits: usize) -> String {
     }
 }
 
+/// A size in bytes for a message, in decimal units with 3 significant digits.
+///
+/// ```
+/// assert_eq!(bead::byte_size(950), "950 bytes");
+/// assert_eq!(bead::byte_size(12_900_000_000), "12.9 GB");
+/// assert_eq!(bead::byte_size(u64::MAX), "18.4 EB");
+/// ```
+pub fn byte_size(bytes: u64) -> String {
+    const UNITS: [&str; 6] = ["kB", "MB", "GB", "TB", "PB", "EB"];
+    if bytes < 1000 {
+        return format!("{bytes} bytes");
+    }
+    let mut value = bytes as f64;
+    let mut unit = "bytes";
+    for u in UNITS {
+        if value < 999.5 {
+            break;
+        }
+        value /= 1000.0;
+        unit = u;
+    }
+    format!("{} {unit}", significant(value, 3))
+}
+
 /// Names joined by `, ` for a message, at most [`LISTED_NAMES`] of them: a longer list shows
 /// its first names, `...`, its last name and how many there are, so that an error in a scene
 /// of 10^4 particles stays one readable line.

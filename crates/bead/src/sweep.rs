@@ -24,7 +24,7 @@
 //!     PlanRequest { dt: Some(0.01), steps: Some(200), ..Default::default() },
 //!     Some("ball.y - h".to_string()),
 //! )?;
-//! let results = sweep.run(2);
+//! let results = sweep.run(2)?;
 //! // Falling from rest at g = 10: y = h at t = sqrt(h / 5).
 //! for (member, h) in results.iter().zip([1.0f64, 2.0, 3.0, 4.0]) {
 //!     let t = member.stats.as_ref().unwrap().stop_time.unwrap();
@@ -33,9 +33,11 @@
 //! # Ok::<(), Box<dyn std::error::Error>>(())
 //! ```
 
+use std::collections::BTreeMap;
+use std::io;
 use std::ops::Range;
 use std::sync::atomic::{AtomicUsize, Ordering};
-use std::sync::Arc;
+use std::sync::{mpsc, Arc, Condvar, Mutex, PoisonError};
 use std::time::Instant;
 
 use crate::formulation::Method;
@@ -47,19 +49,39 @@ use crate::simulate::{
     run, run_rest, Event, NullSink, RunFailure, RunOptions, RunStats, Simulation,
 };
 
+/// The most members a sweep may have: 2^32. Members stream ([`Sweep::run_each`]), so memory
+/// does not limit the count; a larger grid is far more work than any sweep this library runs
+/// (2^32 members of 0.1 ms are five days on one core) and is almost always a typo.
+pub const MAX_MEMBERS: u64 = 1 << 32;
+
 /// One swept parameter and its values.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Axis {
     /// A parameter of the scene (`[params]`).
     pub name: String,
-    /// Its values, in order.
-    pub values: Vec<f64>,
+    values: Values,
+}
+
+/// An axis's values: listed, or computed on demand (so that a long linspace costs nothing).
+#[derive(Clone, Debug, PartialEq)]
+enum Values {
+    List(Vec<f64>),
+    Linspace { start: f64, stop: f64, count: usize },
 }
 
 impl Axis {
+    /// An axis taking `values`, in order.
+    pub fn new(name: &str, values: Vec<f64>) -> Axis {
+        Axis {
+            name: name.to_string(),
+            values: Values::List(values),
+        }
+    }
+
     /// `count` values from `start` to `stop`, both included, evenly spaced, as numpy's
     /// `linspace(start, stop, count)` computes them: value i = start + i (stop - start) /
-    /// (count - 1), the last exactly `stop` (one value: `start`).
+    /// (count - 1), the last exactly `stop` (one value: `start`). Computed when asked for, so
+    /// any count costs no memory.
     pub fn linspace(name: &str, start: f64, stop: f64, count: usize) -> Result<Axis, SweepError> {
         if count == 0 {
             return Err(SweepError::NoValues {
@@ -71,18 +93,47 @@ impl Axis {
                 name: name.to_string(),
             });
         }
-        let values = if count == 1 {
-            vec![start]
-        } else {
-            let step = (stop - start) / (count - 1) as f64;
-            let mut values: Vec<f64> = (0..count).map(|i| i as f64 * step + start).collect();
-            values[count - 1] = stop;
-            values
-        };
         Ok(Axis {
             name: name.to_string(),
-            values,
+            values: Values::Linspace { start, stop, count },
         })
+    }
+
+    /// The number of values.
+    pub fn len(&self) -> usize {
+        match &self.values {
+            Values::List(values) => values.len(),
+            Values::Linspace { count, .. } => *count,
+        }
+    }
+
+    /// Whether it has no values.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// Value `i` (`i < len()`).
+    pub fn value(&self, i: usize) -> f64 {
+        match self.values {
+            Values::List(ref values) => values[i],
+            Values::Linspace { start, stop, count } => {
+                if i + 1 == count {
+                    // One value is `start`; the last of several is exactly `stop`.
+                    if count == 1 {
+                        start
+                    } else {
+                        stop
+                    }
+                } else {
+                    i as f64 * ((stop - start) / (count - 1) as f64) + start
+                }
+            }
+        }
+    }
+
+    /// The values, in order.
+    pub fn values(&self) -> impl ExactSizeIterator<Item = f64> + '_ {
+        (0..self.len()).map(|i| self.value(i))
     }
 }
 
@@ -97,7 +148,7 @@ pub enum Combine {
     Zip,
 }
 
-/// A sweep that cannot be set up.
+/// A sweep that cannot be set up or run as asked.
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
 pub enum SweepError {
     #[error("a sweep needs at least one parameter to vary")]
@@ -112,13 +163,28 @@ pub enum SweepError {
     UnknownParam { name: String, known: Vec<String> },
     #[error("zipped parameters must have the same number of values: {}", .lengths.iter().map(|(n, l)| format!("`{n}` has {l}")).collect::<Vec<_>>().join(", "))]
     ZipLengths { lengths: Vec<(String, usize)> },
-    #[error("the grid has more members than this machine can count ({})", .shape.iter().map(|n| n.to_string()).collect::<Vec<_>>().join(" x "))]
+    /// More members than [`MAX_MEMBERS`].
+    #[error("{}", too_large(.shape))]
     TooLarge { shape: Vec<usize> },
     #[error("members {start}..{end} are not in the sweep of {len} members")]
     OutOfRange {
         start: usize,
         end: usize,
         len: usize,
+    },
+    /// [`Sweep::run_range`] cannot hold the results of that many members.
+    #[error("cannot hold the results of {members} members in memory (about {}); run them in smaller ranges, or stream them with `Sweep::run_each`", crate::byte_size(*.bytes))]
+    TooManyToHold { members: usize, bytes: u64 },
+    /// A member whose particles or coordinates are not the scene's, where the output has the
+    /// scene's columns (see [`Layout`]).
+    #[error("{member} {}", .found.difference(.expected))]
+    OtherLayout {
+        /// Its index.
+        index: usize,
+        /// `member 3 (N = 5)`.
+        member: String,
+        found: Box<Layout>,
+        expected: Box<Layout>,
     },
     #[error(transparent)]
     Plan(#[from] PlanError),
@@ -132,6 +198,124 @@ fn known_params(known: &[String]) -> String {
     }
 }
 
+/// The message of [`SweepError::TooLarge`].
+fn too_large(shape: &[usize]) -> String {
+    let count = shape
+        .iter()
+        .try_fold(1u128, |acc, &n| acc.checked_mul(n as u128))
+        .map_or_else(|| "more than 2^128".to_string(), |n| n.to_string());
+    let grid = if shape.len() > 1 {
+        let factors: Vec<String> = shape.iter().map(|n| n.to_string()).collect();
+        format!(" ({})", factors.join(" x "))
+    } else {
+        String::new()
+    };
+    format!(
+        "the sweep would have {count} members{grid}, more than the {MAX_MEMBERS} (2^32) a sweep \
+         may have; sweep fewer values, or cut the values into several sweeps"
+    )
+}
+
+/// The names of a member's state: its particles, their dimension, and the generalized
+/// coordinates of a parametric run (empty for the implicit form). A sweep's wide output (the
+/// CSV's columns, Python's arrays) follows its scene's layout; a parameter that changes the
+/// particles (a chain's `N`) gives members another one.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Layout {
+    /// The particles' names, in order.
+    pub particles: Vec<String>,
+    /// 2 or 3.
+    pub dim: usize,
+    /// The generalized coordinates of a parametric run, in order.
+    pub coordinates: Vec<String>,
+}
+
+impl Layout {
+    /// The layout of `system` run by `method`.
+    pub fn of(system: &System, method: Method) -> Layout {
+        Layout {
+            particles: system.particles().iter().map(|p| p.name.clone()).collect(),
+            dim: system.dim(),
+            coordinates: Self::generalized(system, method).to_vec(),
+        }
+    }
+
+    fn generalized(system: &System, method: Method) -> &[String] {
+        match (method, system.parametric()) {
+            (Method::Parametric, Some(map)) => map.coordinates(),
+            _ => &[],
+        }
+    }
+
+    /// Whether `system` run by `method` has this layout (compared without allocating).
+    pub fn matches(&self, system: &System, method: Method) -> bool {
+        system.dim() == self.dim
+            && system.particles().len() == self.particles.len()
+            && system
+                .particles()
+                .iter()
+                .zip(&self.particles)
+                .all(|(p, name)| p.name == *name)
+            && Self::generalized(system, method) == self.coordinates.as_slice()
+    }
+
+    /// Particle coordinates: particles x dim.
+    pub fn n_coords(&self) -> usize {
+        self.particles.len() * self.dim
+    }
+
+    /// The name of particle coordinate k, e.g. `bead.y` (as [`System::coordinate_name`]).
+    pub fn coordinate_name(&self, k: usize) -> String {
+        const AXES: [&str; 3] = ["x", "y", "z"];
+        format!("{}.{}", self.particles[k / self.dim], AXES[k % self.dim])
+    }
+
+    /// How `self` (a member's) differs from `expected` (the scene's), for a message.
+    fn difference(&self, expected: &Layout) -> String {
+        let count = |n: usize, what: &str| format!("{n} {what}{}", if n == 1 { "" } else { "s" });
+        let list = |names: &[String]| crate::name_list(names);
+        if self.particles.len() != expected.particles.len() {
+            return format!(
+                "has {} ({}), where the scene swept has {} ({})",
+                count(self.particles.len(), "particle"),
+                list(&self.particles),
+                expected.particles.len(),
+                list(&expected.particles)
+            );
+        }
+        if self.dim != expected.dim {
+            return format!(
+                "is in {}D, where the scene swept is in {}D",
+                self.dim, expected.dim
+            );
+        }
+        if let Some(k) =
+            (0..self.particles.len()).find(|&k| self.particles[k] != expected.particles[k])
+        {
+            return format!(
+                "names particle {} `{}`, where the scene swept names it `{}`",
+                k + 1,
+                self.particles[k],
+                expected.particles[k]
+            );
+        }
+        if self.coordinates.len() != expected.coordinates.len() {
+            return format!(
+                "has {} ({}), where the scene swept has {} ({})",
+                count(self.coordinates.len(), "generalized coordinate"),
+                list(&self.coordinates),
+                expected.coordinates.len(),
+                list(&expected.coordinates)
+            );
+        }
+        format!(
+            "names its generalized coordinates {}, where the scene swept names them {}",
+            list(&self.coordinates),
+            list(&expected.coordinates)
+        )
+    }
+}
+
 /// What one member did.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Member {
@@ -140,15 +324,18 @@ pub struct Member {
     /// Its parameter values, in the order of the axes.
     pub params: Vec<f64>,
     /// The figures of its run, complete or up to where it stopped: final state (`x`, `xdot`,
-    /// and `q`, `qdot` for the parametric form), `energy_rel_error_max` and
-    /// [`RunStats::conserved_energy_error_max`], `constraint_error_max`, `stop_time`,
-    /// `steps`. `None` when the member could not start (its scene or initial state is
-    /// invalid). `wall_seconds` is the only figure that differs between two runs.
+    /// and `q`, `qdot` for the parametric form), `energy_rel_error_max`,
+    /// `energy_balance_error_max`, `constraint_error_max`, `stop_time`, `steps`. `None` when
+    /// the member could not start (its scene or initial state is invalid). `wall_seconds` is
+    /// the only figure that differs between two runs.
     pub stats: Option<RunStats>,
     /// Why it failed, when it did, on one line: the scene with its values cannot be loaded
     /// (`file:line:column: message`), the simulation cannot start, or the run stopped early
     /// (then `stats` holds the figures up to the last good state).
     pub error: Option<String>,
+    /// Its particles and coordinates when they are not the scene's (a parameter changed
+    /// them); `None` when they are, or when its scene could not be loaded.
+    pub layout: Option<Arc<Layout>>,
 }
 
 impl Member {
@@ -162,6 +349,28 @@ impl Member {
     }
 }
 
+/// The layout of the CSV of a sweep.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum CsvFormat {
+    /// One row per member, one column per coordinate of the scene swept
+    /// ([`Sweep::csv_header`]): every member must have the scene's [`Layout`].
+    #[default]
+    Wide,
+    /// One row per member and coordinate ([`Sweep::long_csv_header`]): members may differ in
+    /// particles and coordinates.
+    Long,
+}
+
+/// Why a sweep's CSV could not be written.
+#[derive(Debug, thiserror::Error)]
+pub enum CsvError {
+    /// A member that does not fit the format ([`SweepError::OtherLayout`]).
+    #[error(transparent)]
+    Member(#[from] SweepError),
+    #[error(transparent)]
+    Io(#[from] io::Error),
+}
+
 /// A scene, the axes it is swept over, and how each member runs.
 #[derive(Clone, Debug)]
 pub struct Sweep {
@@ -171,6 +380,8 @@ pub struct Sweep {
     request: PlanRequest,
     /// The formulation of the base scene's plan (the CSV's columns follow it)
     method: Method,
+    /// The base scene's particles and coordinates (the wide CSV's columns)
+    layout: Layout,
     stop_when: Option<String>,
     /// Members per axis (grid) or the common length (zip, one entry)
     shape: Vec<usize>,
@@ -182,7 +393,8 @@ impl Sweep {
     /// run as `request` asks over its own scene's `[run]` table (recording nothing), until
     /// the end or until `stop_when` ([`Event`]; `None`: the scene's `[run] stop_when`, if
     /// any) fires. Checks the axes (at least one, each a parameter of the scene, once, with
-    /// values; zipped axes of one length) and the request against the scene itself.
+    /// values; zipped axes of one length; at most [`MAX_MEMBERS`] members) and the request
+    /// against the scene itself.
     pub fn new(
         scene: &Scene,
         axes: Vec<Axis>,
@@ -206,22 +418,19 @@ impl Sweep {
                     name: axis.name.clone(),
                 });
             }
-            if axis.values.is_empty() {
+            if axis.is_empty() {
                 return Err(SweepError::NoValues {
                     name: axis.name.clone(),
                 });
             }
         }
         let shape: Vec<usize> = match combine {
-            Combine::Grid => axes.iter().map(|a| a.values.len()).collect(),
+            Combine::Grid => axes.iter().map(Axis::len).collect(),
             Combine::Zip => {
-                let n = axes[0].values.len();
-                if axes.iter().any(|a| a.values.len() != n) {
+                let n = axes[0].len();
+                if axes.iter().any(|a| a.len() != n) {
                     return Err(SweepError::ZipLengths {
-                        lengths: axes
-                            .iter()
-                            .map(|a| (a.name.clone(), a.values.len()))
-                            .collect(),
+                        lengths: axes.iter().map(|a| (a.name.clone(), a.len())).collect(),
                     });
                 }
                 vec![n]
@@ -229,7 +438,9 @@ impl Sweep {
         };
         let len = shape
             .iter()
-            .try_fold(1usize, |acc, &n| acc.checked_mul(n))
+            .try_fold(1u64, |acc, &n| acc.checked_mul(n as u64))
+            .filter(|&n| n <= MAX_MEMBERS)
+            .and_then(|n| usize::try_from(n).ok())
             .ok_or_else(|| SweepError::TooLarge {
                 shape: shape.clone(),
             })?;
@@ -239,6 +450,7 @@ impl Sweep {
             combine,
             request,
             method,
+            layout: Layout::of(&scene.system, method),
             stop_when,
             shape,
             len,
@@ -270,20 +482,56 @@ impl Sweep {
         &self.scene
     }
 
+    /// The formulation of the scene's plan, which the columns follow.
+    pub fn method(&self) -> Method {
+        self.method
+    }
+
+    /// The scene's particles and coordinates: the wide CSV's columns and a member's
+    /// [`Member::layout`] when it is `None`.
+    pub fn layout(&self) -> &Layout {
+        &self.layout
+    }
+
     /// Member `index`'s parameter values, in the order of the axes.
     pub fn params_of(&self, index: usize) -> Vec<f64> {
         match self.combine {
-            Combine::Zip => self.axes.iter().map(|a| a.values[index]).collect(),
+            Combine::Zip => self.axes.iter().map(|a| a.value(index)).collect(),
             Combine::Grid => {
                 let mut rest = index;
                 let mut values = vec![0.0; self.axes.len()];
                 for (k, axis) in self.axes.iter().enumerate().rev() {
-                    let n = axis.values.len();
-                    values[k] = axis.values[rest % n];
+                    let n = axis.len();
+                    values[k] = axis.value(rest % n);
                     rest /= n;
                 }
                 values
             }
+        }
+    }
+
+    /// `member 3 (N = 5, L = 1)`: a member and its values, for messages.
+    pub fn describe_member(&self, member: &Member) -> String {
+        let values: Vec<String> = self
+            .axes
+            .iter()
+            .zip(&member.params)
+            .map(|(a, v)| format!("{} = {v}", a.name))
+            .collect();
+        format!("member {} ({})", member.index, values.join(", "))
+    }
+
+    /// [`SweepError::OtherLayout`] when `member`'s particles or coordinates are not the
+    /// scene's, so that it does not fit the scene's columns.
+    pub fn check_layout(&self, member: &Member) -> Result<(), SweepError> {
+        match &member.layout {
+            None => Ok(()),
+            Some(found) => Err(SweepError::OtherLayout {
+                index: member.index,
+                member: self.describe_member(member),
+                found: Box::new(Layout::clone(found)),
+                expected: Box::new(self.layout.clone()),
+            }),
         }
     }
 
@@ -294,7 +542,7 @@ impl Sweep {
     }
 
     /// Member `index` failed with a panic inside the library (a bug), with its message.
-    fn panicked(&self, index: usize, panic: Box<dyn std::any::Any + Send>) -> Member {
+    fn panicked(&self, index: usize, panic: &(dyn std::any::Any + Send)) -> Member {
         let message = panic
             .downcast_ref::<&str>()
             .map(|s| s.to_string())
@@ -305,6 +553,7 @@ impl Sweep {
             params: self.params_of(index),
             stats: None,
             error: Some(format!("internal error (a bug in bead): {message}")),
+            layout: None,
         }
     }
 
@@ -319,12 +568,13 @@ impl Sweep {
     /// stop condition), or its result when it cannot start.
     fn prepare(&self, index: usize) -> Prepared {
         let params = self.params_of(index);
-        let fail = |error: String| {
+        let fail = |error: String, layout: Option<Arc<Layout>>| {
             Prepared::Finished(Box::new(Member {
                 index,
                 params: params.clone(),
                 stats: None,
                 error: Some(error),
+                layout,
             }))
         };
         let overrides: Vec<(String, f64)> = self
@@ -336,26 +586,31 @@ impl Sweep {
         let scene = match self.scene.with_params(&overrides) {
             Ok(scene) => scene,
             // `file:line:column: message`, without the snippet under it: one line per member.
-            Err(e) => return fail(e.to_string().lines().next().unwrap_or_default().to_string()),
+            Err(e) => {
+                let line = e.to_string().lines().next().unwrap_or_default().to_string();
+                return fail(line, None);
+            }
         };
         let plan = match Plan::resolve(&scene, &self.request) {
             Ok(plan) => plan,
-            Err(e) => return fail(e.to_string()),
+            Err(e) => return fail(e.to_string(), None),
         };
+        let layout = (!self.layout.matches(&scene.system, self.method))
+            .then(|| Arc::new(Layout::of(&scene.system, self.method)));
         let config = plan.config(plan.method);
         let mut simulation = match Simulation::new(Arc::clone(&scene.system), config) {
             Ok(simulation) => simulation,
-            Err(e) => return fail(e.to_string()),
+            Err(e) => return fail(e.to_string(), layout),
         };
         let event = match &self.stop_when {
             Some(source) => match Event::parse(&scene.system, source) {
                 Ok(event) => Some(event),
-                Err(e) => return fail(format!("the stop condition `{source}`: {e}")),
+                Err(e) => return fail(format!("the stop condition `{source}`: {e}"), layout),
             },
             None => scene.run.stop_when.clone(),
         };
         if let Err(e) = simulation.set_stop_when(event) {
-            return fail(e.to_string());
+            return fail(e.to_string(), layout);
         }
         Prepared::Ready(Box::new(Ready {
             index,
@@ -363,6 +618,7 @@ impl Sweep {
             system: Arc::clone(&scene.system),
             simulation: Some(simulation),
             options: plan.options(),
+            layout,
         }))
     }
 
@@ -411,6 +667,7 @@ impl Sweep {
                                 params: ready.params,
                                 stats: Some(simulation.stats(wall)),
                                 error: None,
+                                layout: ready.layout,
                             },
                             LaneOutcome::Handover { intervals } => {
                                 let index = ready.index;
@@ -431,26 +688,148 @@ impl Sweep {
         done
     }
 
+    /// [`Self::run_block`], whose every member is reported failed should the block itself
+    /// panic (a bug outside any member): a thread of [`Self::run_each`] never unwinds.
+    fn run_block_guarded(&self, range: Range<usize>) -> Vec<Member> {
+        std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+            self.run_block(range.clone())
+        }))
+        .unwrap_or_else(|panic| range.map(|i| self.panicked(i, &*panic)).collect())
+    }
+
     /// `f`'s member, or member `index` failed with the message of a panic inside it.
     fn guarded(&self, index: usize, f: impl FnOnce() -> Member) -> Member {
         std::panic::catch_unwind(std::panic::AssertUnwindSafe(f))
-            .unwrap_or_else(|panic| self.panicked(index, panic))
+            .unwrap_or_else(|panic| self.panicked(index, &*panic))
     }
 
-    /// Every member, on `threads` threads (0: one per core).
-    pub fn run(&self, threads: usize) -> Vec<Member> {
+    /// Every member, on `threads` threads (0: one per core), held in memory: see
+    /// [`Self::run_each`] to stream them.
+    pub fn run(&self, threads: usize) -> Result<Vec<Member>, SweepError> {
         self.run_range(0..self.len, threads)
-            .expect("the whole sweep is in range")
     }
 
     /// Members `range` (a chunk of the sweep, to split it across processes or machines), on
-    /// `threads` threads (0: one per core), in index order. A member's result depends on its
-    /// index alone: chunks and thread counts do not change a number.
+    /// `threads` threads (0: one per core), in index order, held in memory
+    /// ([`SweepError::TooManyToHold`] when the allocation fails). A member's result depends
+    /// on its index alone: chunks and thread counts do not change a number.
     pub fn run_range(
         &self,
         range: Range<usize>,
         threads: usize,
     ) -> Result<Vec<Member>, SweepError> {
+        self.check_range(&range)?;
+        let mut members: Vec<Member> = Vec::new();
+        members
+            .try_reserve_exact(range.len())
+            .map_err(|_| SweepError::TooManyToHold {
+                members: range.len(),
+                bytes: (range.len() as u64).saturating_mul(self.member_bytes() as u64),
+            })?;
+        self.run_each(range, threads, |member| {
+            members.push(member);
+            Ok::<(), SweepError>(())
+        })?;
+        Ok(members)
+    }
+
+    /// Run members `range` on `threads` threads (0: one per core) and hand each to `each` on
+    /// the calling thread, in index order, as soon as it and every member before it are done.
+    /// Memory is bounded whatever the count: threads take blocks of [`LANES`] members from a
+    /// shared counter, but none starts a block more than a window of a few blocks per thread
+    /// (fewer for large systems: about 16 MiB of results) ahead of the next member to hand
+    /// over. When `each` returns an error, no further member starts and that error is
+    /// returned once the running ones end. A member's result depends on its index alone:
+    /// the thread count changes no number, only the order in which members finish.
+    pub fn run_each<E: From<SweepError>>(
+        &self,
+        range: Range<usize>,
+        threads: usize,
+        mut each: impl FnMut(Member) -> Result<(), E>,
+    ) -> Result<(), E> {
+        self.check_range(&range)?;
+        let threads = match threads {
+            0 => std::thread::available_parallelism().map_or(1, |n| n.get()),
+            n => n,
+        }
+        .min(range.len().div_ceil(LANES).max(1));
+        let end = range.end;
+        let block = |start: usize| start..(start + LANES).min(end);
+        if threads <= 1 {
+            for start in range.step_by(LANES) {
+                for member in self.run_block_guarded(block(start)) {
+                    each(member)?;
+                }
+            }
+            return Ok(());
+        }
+        // Blocks a thread may run ahead of the next member to hand over: 2 to 32 per thread,
+        // as many as fit in 16 MiB of results.
+        let per_block = LANES * self.member_bytes();
+        let ahead = ((16usize << 20) / per_block).clamp(2, 32);
+        let window = threads * ahead * LANES;
+        let next = AtomicUsize::new(range.start);
+        // The first member not yet handed over, and whether to stop.
+        let handed = Mutex::new((range.start, false));
+        let moved = Condvar::new();
+        let lock = || handed.lock().unwrap_or_else(PoisonError::into_inner);
+        let (sender, blocks) = mpsc::channel::<(usize, Vec<Member>)>();
+        std::thread::scope(|scope| {
+            for _ in 0..threads {
+                let sender = sender.clone();
+                let (next, moved, lock) = (&next, &moved, &lock);
+                scope.spawn(move || loop {
+                    let start = next.fetch_add(LANES, Ordering::Relaxed);
+                    if start >= end {
+                        break;
+                    }
+                    {
+                        let mut state = lock();
+                        // The block the consumer waits for is always inside the window, so
+                        // some thread can always go on.
+                        while !state.1 && start >= state.0 + window {
+                            state = moved.wait(state).unwrap_or_else(PoisonError::into_inner);
+                        }
+                        if state.1 {
+                            break;
+                        }
+                    }
+                    if sender
+                        .send((start, self.run_block_guarded(block(start))))
+                        .is_err()
+                    {
+                        break;
+                    }
+                });
+            }
+            drop(sender);
+            let mut pending: BTreeMap<usize, Vec<Member>> = BTreeMap::new();
+            let mut at = range.start;
+            let mut outcome = Ok(());
+            'blocks: for (start, members) in blocks.iter() {
+                pending.insert(start, members);
+                while let Some(members) = pending.remove(&at) {
+                    at = (at + LANES).min(end);
+                    for member in members {
+                        if let Err(e) = each(member) {
+                            outcome = Err(e);
+                            break 'blocks;
+                        }
+                    }
+                    lock().0 = at;
+                    moved.notify_all();
+                }
+            }
+            // Stop the threads (after an error; at the end they have stopped already).
+            lock().1 = true;
+            moved.notify_all();
+            drop(blocks);
+            outcome
+        })
+    }
+
+    /// [`SweepError::OutOfRange`] unless `range` is a range of members.
+    fn check_range(&self, range: &Range<usize>) -> Result<(), SweepError> {
         if range.start > range.end || range.end > self.len {
             return Err(SweepError::OutOfRange {
                 start: range.start,
@@ -458,45 +837,13 @@ impl Sweep {
                 len: self.len,
             });
         }
-        let count = range.len();
-        let threads = match threads {
-            0 => std::thread::available_parallelism().map_or(1, |n| n.get()),
-            n => n,
-        }
-        .min(count.div_ceil(LANES).max(1));
-        let block = |start: usize| start..(start + LANES).min(range.end);
-        if threads <= 1 {
-            return Ok((range.start..range.end)
-                .step_by(LANES)
-                .flat_map(|start| self.run_block(block(start)))
-                .collect());
-        }
-        // Each thread takes the next block of members from a shared counter (members differ
-        // in cost: an event or a failure ends one early), and keeps its results; they are put
-        // in order at the end.
-        let next = AtomicUsize::new(range.start);
-        let mut members: Vec<Member> = std::thread::scope(|scope| {
-            let workers: Vec<_> = (0..threads)
-                .map(|_| {
-                    scope.spawn(|| {
-                        let mut done = Vec::new();
-                        loop {
-                            let i = next.fetch_add(LANES, Ordering::Relaxed);
-                            if i >= range.end {
-                                break done;
-                            }
-                            done.extend(self.run_block(block(i)));
-                        }
-                    })
-                })
-                .collect();
-            workers
-                .into_iter()
-                .flat_map(|w| w.join().expect("members catch their panics"))
-                .collect()
-        });
-        members.sort_by_key(|m| m.index);
-        Ok(members)
+        Ok(())
+    }
+
+    /// About how much memory one member's result takes (its struct, values and state).
+    fn member_bytes(&self) -> usize {
+        let state = 2 * self.layout.n_coords() + 2 * self.layout.coordinates.len();
+        std::mem::size_of::<Member>() + 8 * (self.axes.len() + 2 * state) + 256
     }
 }
 
@@ -514,6 +861,7 @@ struct Ready {
     system: Arc<System>,
     simulation: Option<Simulation>,
     options: RunOptions,
+    layout: Option<Arc<Layout>>,
 }
 
 impl Ready {
@@ -542,61 +890,74 @@ impl Ready {
 
     /// Its member, from the result of its run.
     fn finish(self, result: Result<RunStats, RunFailure>) -> Member {
-        match result {
-            Ok(stats) => Member {
-                index: self.index,
-                params: self.params,
-                stats: Some(stats),
-                error: None,
-            },
-            Err(failure) => Member {
-                index: self.index,
-                params: self.params,
-                stats: Some(*failure.stats),
-                error: Some(failure.error.to_string()),
-            },
+        let (stats, error) = match result {
+            Ok(stats) => (stats, None),
+            Err(failure) => (*failure.stats, Some(failure.error.to_string())),
+        };
+        Member {
+            index: self.index,
+            params: self.params,
+            stats: Some(stats),
+            error,
+            layout: self.layout,
         }
     }
 }
 
+/// The columns every row of both CSV formats starts with, after `member` and the parameters.
+const FIGURES: [&str; 7] = [
+    "status",
+    "t_final",
+    "stop_time",
+    "steps",
+    "energy_rel_error_max",
+    "energy_balance_error_max",
+    "constraint_error_max",
+];
+
 impl Sweep {
-    /// The CSV header: `member`, the parameters, `status,t_final,stop_time,steps,
-    /// energy_error_max,constraint_error_max`, every particle's final position and velocity
-    /// (`P.x`, ..., `P.vx`, ...), the final generalized coordinates and rates of a parametric
-    /// run (`q.NAME`, `qdot.NAME`), then `error`.
+    /// The wide CSV's header ([`CsvFormat::Wide`]): `member`, the parameters,
+    /// `status,t_final,stop_time,steps,energy_rel_error_max,energy_balance_error_max,
+    /// constraint_error_max` (the keys of `bead run --json`), every particle's final
+    /// position and velocity (`P.x`, ..., `P.vx`, ...), the final generalized coordinates
+    /// and rates of a parametric run (`q.NAME`, `qdot.NAME`), then `error`.
     pub fn csv_header(&self) -> String {
         let system = &self.scene.system;
-        let mut columns: Vec<String> = vec!["member".into()];
-        columns.extend(self.axes.iter().map(|a| a.name.clone()));
-        for c in [
-            "status",
-            "t_final",
-            "stop_time",
-            "steps",
-            "energy_error_max",
-            "constraint_error_max",
-        ] {
-            columns.push(c.into());
-        }
+        let mut columns = self.leading_columns();
         columns.extend((0..system.n_coords()).map(|k| system.coordinate_name(k)));
         columns.extend((0..system.n_coords()).map(|k| system.velocity_name(k)));
-        if self.method == Method::Parametric {
-            if let Some(map) = system.parametric() {
-                columns.extend(map.coordinates().iter().map(|c| format!("q.{c}")));
-                columns.extend(map.coordinates().iter().map(|c| format!("qdot.{c}")));
-            }
-        }
+        columns.extend(self.layout.coordinates.iter().map(|c| format!("q.{c}")));
+        columns.extend(self.layout.coordinates.iter().map(|c| format!("qdot.{c}")));
         columns.push("error".into());
-        columns
-            .iter()
-            .map(|c| csv_field(c))
-            .collect::<Vec<_>>()
-            .join(",")
+        join_fields(&columns)
     }
 
-    /// One CSV row of `member` (see [`Sweep::csv_header`]): numbers exact (shortest
-    /// round-trip), empty where the member has no value.
-    pub fn csv_row(&self, member: &Member) -> String {
+    /// The long CSV's header ([`CsvFormat::Long`]): the wide one's columns up to
+    /// `constraint_error_max`, then `coordinate,position,velocity,error`.
+    pub fn long_csv_header(&self) -> String {
+        let mut columns = self.leading_columns();
+        columns.extend(["coordinate", "position", "velocity", "error"].map(String::from));
+        join_fields(&columns)
+    }
+
+    /// The header of `format`.
+    pub fn header(&self, format: CsvFormat) -> String {
+        match format {
+            CsvFormat::Wide => self.csv_header(),
+            CsvFormat::Long => self.long_csv_header(),
+        }
+    }
+
+    /// `member`, the parameters and [`FIGURES`].
+    fn leading_columns(&self) -> Vec<String> {
+        let mut columns: Vec<String> = vec!["member".into()];
+        columns.extend(self.axes.iter().map(|a| a.name.clone()));
+        columns.extend(FIGURES.map(String::from));
+        columns
+    }
+
+    /// `member`'s values of the leading columns, each preceded by a comma but the first.
+    fn leading_fields(&self, member: &Member) -> String {
         use std::fmt::Write;
         let mut row = String::new();
         let _ = write!(row, "{}", member.index);
@@ -604,27 +965,34 @@ impl Sweep {
             let _ = write!(row, ",{value}");
         }
         let _ = write!(row, ",{}", member.status());
-        let system = &self.scene.system;
-        let n_q = match (self.method, system.parametric()) {
-            (Method::Parametric, Some(map)) => map.coordinates().len(),
-            _ => 0,
-        };
         match &member.stats {
             Some(stats) => {
-                let _ = write!(row, ",{}", stats.t_final);
-                match stats.stop_time {
-                    Some(t) => {
-                        let _ = write!(row, ",{t}");
-                    }
-                    None => row.push(','),
+                let _ = write!(row, ",{},", stats.t_final);
+                if let Some(t) = stats.stop_time {
+                    let _ = write!(row, "{t}");
                 }
-                let _ = write!(
-                    row,
-                    ",{},{},{}",
-                    stats.steps,
-                    stats.conserved_energy_error_max(),
-                    stats.constraint_error_max
-                );
+                let _ = write!(row, ",{},{},", stats.steps, stats.energy_rel_error_max);
+                if let Some(balance) = stats.energy_balance_error_max {
+                    let _ = write!(row, "{balance}");
+                }
+                let _ = write!(row, ",{}", stats.constraint_error_max);
+            }
+            None => row.push_str(&",".repeat(FIGURES.len() - 1)),
+        }
+        row
+    }
+
+    /// One wide CSV row of `member` (see [`Sweep::csv_header`]), without a line break:
+    /// numbers exact (shortest round-trip), empty where the member has no value. A member
+    /// whose particles or coordinates are not the scene's does not fit the columns:
+    /// [`SweepError::OtherLayout`].
+    pub fn csv_row(&self, member: &Member) -> Result<String, SweepError> {
+        use std::fmt::Write;
+        self.check_layout(member)?;
+        let mut row = self.leading_fields(member);
+        let n_q = self.layout.coordinates.len();
+        match &member.stats {
+            Some(stats) => {
                 for value in stats.x.iter().chain(&stats.xdot) {
                     let _ = write!(row, ",{value}");
                 }
@@ -634,30 +1002,79 @@ impl Sweep {
                     }
                 }
             }
-            None => {
-                let empty = 5 + 2 * system.n_coords() + 2 * n_q;
-                row.push_str(&",".repeat(empty));
-            }
+            None => row.push_str(&",".repeat(2 * self.layout.n_coords() + 2 * n_q)),
         }
         row.push(',');
         if let Some(error) = &member.error {
             row.push_str(&csv_field(error));
         }
-        row
+        Ok(row)
     }
 
-    /// The header and one row per member, each line ending in a newline.
+    /// The long CSV rows of `member` (see [`Sweep::long_csv_header`]), each ending in a line
+    /// break: one per particle coordinate (`P.x`, its final position and velocity), then
+    /// one per generalized coordinate of a parametric run (`q.NAME`, q and qdot), named
+    /// after the member's own particles; a member without a state (it could not start) is
+    /// one row with empty coordinate, position and velocity.
+    pub fn long_csv_rows(&self, member: &Member) -> String {
+        use std::fmt::Write;
+        let leading = self.leading_fields(member);
+        let error = member.error.as_deref().map(csv_field).unwrap_or_default();
+        let layout = member.layout.as_deref().unwrap_or(&self.layout);
+        let mut rows = String::new();
+        let Some(stats) = &member.stats else {
+            let _ = writeln!(rows, "{leading},,,,{error}");
+            return rows;
+        };
+        for (k, (x, v)) in stats.x.iter().zip(&stats.xdot).enumerate() {
+            let name = csv_field(&layout.coordinate_name(k));
+            let _ = writeln!(rows, "{leading},{name},{x},{v},{error}");
+        }
+        if !layout.coordinates.is_empty() {
+            for (name, (q, v)) in layout
+                .coordinates
+                .iter()
+                .zip(stats.q.iter().zip(&stats.qdot))
+            {
+                let name = csv_field(&format!("q.{name}"));
+                let _ = writeln!(rows, "{leading},{name},{q},{v},{error}");
+            }
+        }
+        rows
+    }
+
+    /// The rows of `member` in `format`, each ending in a line break.
+    pub fn rows(&self, format: CsvFormat, member: &Member) -> Result<String, SweepError> {
+        match format {
+            CsvFormat::Wide => self.csv_row(member).map(|row| row + "\n"),
+            CsvFormat::Long => Ok(self.long_csv_rows(member)),
+        }
+    }
+
+    /// The header and the rows of `members` in `format`, each line ending in a line break.
+    /// A member that does not fit the wide format stops the writing there, with the rows
+    /// before it written.
     pub fn write_csv(
         &self,
+        format: CsvFormat,
         members: &[Member],
-        out: &mut dyn std::io::Write,
-    ) -> std::io::Result<()> {
-        writeln!(out, "{}", self.csv_header())?;
+        out: &mut dyn io::Write,
+    ) -> Result<(), CsvError> {
+        writeln!(out, "{}", self.header(format))?;
         for member in members {
-            writeln!(out, "{}", self.csv_row(member))?;
+            out.write_all(self.rows(format, member)?.as_bytes())?;
         }
         Ok(())
     }
+}
+
+/// Fields joined into a CSV line, each quoted where needed.
+fn join_fields(fields: &[String]) -> String {
+    fields
+        .iter()
+        .map(|c| csv_field(c))
+        .collect::<Vec<_>>()
+        .join(",")
 }
 
 /// A CSV field, quoted (with quotes doubled) when it holds a comma, a quote or a line break.

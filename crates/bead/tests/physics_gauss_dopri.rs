@@ -460,9 +460,12 @@ fn acceptance_dopri5_reference() {
     println!("wall time {:.2} s", start.elapsed().as_secs_f64());
 }
 
-/// Every sample of a run as one row: t, x, xdot, q, qdot, energy.
+/// One sample: t, x, xdot, q, qdot, energy.
+type Row = (f64, Vec<f64>, Vec<f64>, Vec<f64>, Vec<f64>, f64);
+
+/// Every sample of a run.
 #[derive(Default)]
-struct Rows(Vec<(f64, Vec<f64>, Vec<f64>, Vec<f64>, Vec<f64>, f64)>);
+struct Rows(Vec<Row>);
 
 impl Sink for Rows {
     fn record(&mut self, s: &Sample) -> std::io::Result<()> {

@@ -3,6 +3,7 @@
 //! members that do not stop the others.
 
 use std::sync::Arc;
+use std::time::Instant;
 
 mod common;
 
@@ -11,7 +12,7 @@ use bead::integrate::IntegratorKind;
 use bead::plan::{Plan, PlanRequest};
 use bead::scene::Scene;
 use bead::simulate::{run, Event, NullSink, RunStats, Simulation};
-use bead::sweep::{Axis, Combine, Member, Sweep, SweepError};
+use bead::sweep::{Axis, Combine, CsvFormat, Member, Sweep, SweepError};
 
 fn scene() -> Scene {
     Scene::parse(common::PARABOLA_SWEPT, "parabola.toml", &[]).unwrap()
@@ -42,6 +43,7 @@ fn same(a: &[Member], b: &[Member]) {
         assert_eq!(a.index, b.index);
         assert_eq!(a.params, b.params);
         assert_eq!(a.error, b.error);
+        assert_eq!(a.layout, b.layout);
         assert_eq!(a.stats.as_ref().map(figures), b.stats.as_ref().map(figures));
     }
 }
@@ -52,10 +54,7 @@ fn grid_members_are_in_row_major_order_first_axis_outermost() {
         &scene(),
         vec![
             Axis::linspace("x0", 10.0, 30.0, 3).unwrap(),
-            Axis {
-                name: "g".into(),
-                values: vec![100.0, 200.0],
-            },
+            Axis::new("g", vec![100.0, 200.0]),
         ],
         Combine::Grid,
         request(Method::Implicit, 120),
@@ -75,7 +74,7 @@ fn grid_members_are_in_row_major_order_first_axis_outermost() {
     for (i, values) in expected.iter().enumerate() {
         assert_eq!(sweep.params_of(i), values.to_vec());
     }
-    let members = sweep.run(2);
+    let members = sweep.run(2).unwrap();
     for (i, m) in members.iter().enumerate() {
         assert_eq!(m.index, i);
         assert_eq!(m.params, expected[i].to_vec());
@@ -101,7 +100,7 @@ fn zipped_members_take_the_values_side_by_side() {
     )
     .unwrap();
     assert_eq!(sweep.shape(), &[4]);
-    let members = sweep.run(1);
+    let members = sweep.run(1).unwrap();
     let params: Vec<Vec<f64>> = members.iter().map(|m| m.params.clone()).collect();
     assert_eq!(
         params,
@@ -143,8 +142,14 @@ fn linspace_is_numpys() {
             }
         })
         .collect();
-    assert_eq!(axis.values, expected);
-    assert_eq!(Axis::linspace("a", 3.0, 9.0, 1).unwrap().values, vec![3.0]);
+    assert_eq!(axis.values().collect::<Vec<_>>(), expected);
+    assert_eq!(
+        Axis::linspace("a", 3.0, 9.0, 1)
+            .unwrap()
+            .values()
+            .collect::<Vec<_>>(),
+        vec![3.0]
+    );
     assert_eq!(
         Axis::linspace("a", 3.0, 9.0, 0).unwrap_err(),
         SweepError::NoValues { name: "a".into() }
@@ -166,7 +171,7 @@ fn a_member_equals_a_run_of_the_scene_loaded_with_its_values() {
             Some(stop_when.into()),
         )
         .unwrap();
-        let members = sweep.run(2);
+        let members = sweep.run(2).unwrap();
         for member in &members {
             let alone = Scene::parse(
                 common::PARABOLA_SWEPT,
@@ -203,8 +208,8 @@ fn results_do_not_depend_on_threads_or_chunks() {
         Some("bead.y + x0^2/200".into()),
     )
     .unwrap();
-    let one = sweep.run(1);
-    let two = sweep.run(2);
+    let one = sweep.run(1).unwrap();
+    let two = sweep.run(2).unwrap();
     same(&one, &two);
     let mut chunked = Vec::new();
     let mut start = 0;
@@ -220,7 +225,7 @@ fn results_do_not_depend_on_threads_or_chunks() {
     }
     let csv = |members: &[Member]| {
         let mut out = Vec::new();
-        sweep.write_csv(members, &mut out).unwrap();
+        sweep.write_csv(CsvFormat::Wide, members, &mut out).unwrap();
         String::from_utf8(out).unwrap()
     };
     assert_eq!(csv(&one), csv(&chunked));
@@ -234,16 +239,13 @@ fn results_do_not_depend_on_threads_or_chunks() {
 fn a_failed_member_does_not_stop_the_sweep() {
     let sweep = Sweep::new(
         &scene(),
-        vec![Axis {
-            name: "mass".into(),
-            values: vec![1.0, -1.0, 2.0],
-        }],
+        vec![Axis::new("mass", vec![1.0, -1.0, 2.0])],
         Combine::Grid,
         request(Method::Implicit, 120),
         None,
     )
     .unwrap();
-    let members = sweep.run(2);
+    let members = sweep.run(2).unwrap();
     assert_eq!(members[0].status(), "ok");
     assert_eq!(members[1].status(), "failed");
     assert!(members[1].stats.is_none());
@@ -251,7 +253,7 @@ fn a_failed_member_does_not_stop_the_sweep() {
     assert!(error.contains("mass"), "{error}");
     assert_eq!(members[2].status(), "ok");
     // Its CSV row has the values and the error, and empty figures.
-    let row = sweep.csv_row(&members[1]);
+    let row = sweep.csv_row(&members[1]).unwrap();
     let columns = sweep.csv_header().split(',').count();
     assert!(row.starts_with("1,-1,failed,,,"), "{row}");
     assert!(row.len() > columns);
@@ -296,12 +298,12 @@ fn csv_has_a_column_per_parameter_state_and_coordinate() {
     .unwrap();
     assert_eq!(
         sweep.csv_header(),
-        "member,x0,status,t_final,stop_time,steps,energy_error_max,constraint_error_max,bead.x,bead.y,bead.vx,bead.vy,q.q,qdot.q,error"
+        "member,x0,status,t_final,stop_time,steps,energy_rel_error_max,energy_balance_error_max,constraint_error_max,bead.x,bead.y,bead.vx,bead.vy,q.q,qdot.q,error"
     );
-    let members = sweep.run(1);
-    let row = sweep.csv_row(&members[1]);
+    let members = sweep.run(1).unwrap();
+    let row = sweep.csv_row(&members[1]).unwrap();
     let fields: Vec<&str> = row.split(',').collect();
-    assert_eq!(fields.len(), 15);
+    assert_eq!(fields.len(), 16);
     let stats = members[1].stats.as_ref().unwrap();
     assert_eq!(fields[0], "1");
     assert_eq!(fields[1].parse::<f64>().unwrap(), 20.0);
@@ -309,9 +311,19 @@ fn csv_has_a_column_per_parameter_state_and_coordinate() {
     assert_eq!(fields[3].parse::<f64>().unwrap(), stats.t_final);
     assert_eq!(fields[4], "");
     assert_eq!(fields[5].parse::<u64>().unwrap(), 120);
-    assert_eq!(fields[8].parse::<f64>().unwrap(), stats.x[0]);
-    assert_eq!(fields[13].parse::<f64>().unwrap(), stats.qdot[0]);
-    assert_eq!(fields[14], "");
+    assert_eq!(
+        fields[6].parse::<f64>().unwrap(),
+        stats.energy_rel_error_max
+    );
+    // Nothing does work on the bead: no energy balance.
+    assert_eq!(fields[7], "");
+    assert_eq!(
+        fields[8].parse::<f64>().unwrap(),
+        stats.constraint_error_max
+    );
+    assert_eq!(fields[9].parse::<f64>().unwrap(), stats.x[0]);
+    assert_eq!(fields[14].parse::<f64>().unwrap(), stats.qdot[0]);
+    assert_eq!(fields[15], "");
 }
 
 /// Without a stop condition of its own, a sweep uses each member's `[run] stop_when`, and
@@ -325,16 +337,13 @@ fn the_scenes_run_table_follows_each_member() {
     let scene = Scene::parse(&text, "parabola.toml", &[]).unwrap();
     let sweep = Sweep::new(
         &scene,
-        vec![Axis {
-            name: "x0".into(),
-            values: vec![3.0, 150.0],
-        }],
+        vec![Axis::new("x0", vec![3.0, 150.0])],
         Combine::Grid,
         PlanRequest::default(),
         None,
     )
     .unwrap();
-    let members = sweep.run(2);
+    let members = sweep.run(2).unwrap();
     // x0 = 3: 3 steps of 1/60 s, too short to descend to half the height.
     let short = members[0].stats.as_ref().unwrap();
     assert_eq!((short.steps, short.stop_time), (3, None));
@@ -347,4 +356,260 @@ fn the_scenes_run_table_follows_each_member() {
         "{}",
         long.x[0]
     );
+}
+
+/// A chain of N links hanging from the origin (rods of length 1, rattle's scene).
+const CHAIN: &str = r#"title = "chain"
+[params]
+N = 3
+g = 9.81
+[world]
+gravity = [0.0, "g"]
+[[particle]]
+for = { i = "0..N" }
+name = "p{i}"
+mass = 1.0
+position = ["i+1", 0.0]
+[[constraint]]
+name = "pivot"
+kind = "distance"
+particle = "p0"
+anchor = [0.0, 0.0]
+length = 1.0
+[[constraint]]
+for = { i = "1..N" }
+name = "rod {i}"
+kind = "distance"
+between = ["p{i-1}", "p{i}"]
+length = 1.0
+[run]
+integrator = "rattle"
+dt = 0.01
+"#;
+
+/// A sweep over the number of links refuses, in the wide CSV, the first member whose
+/// particles are not the scene's, with the rows before it written; the long CSV has every
+/// member's own coordinates, each row as long as the header.
+#[test]
+fn sweep_csv_refuses_members_with_another_particle_count() {
+    let scene = Scene::parse(CHAIN, "chain.toml", &[]).unwrap();
+    let sweep = Sweep::new(
+        &scene,
+        vec![Axis::new("N", vec![3.0, 2.0, 4.0])],
+        Combine::Grid,
+        PlanRequest {
+            steps: Some(5),
+            ..Default::default()
+        },
+        None,
+    )
+    .unwrap();
+    let members = sweep.run(2).unwrap();
+    assert!(members.iter().all(|m| m.status() == "ok"), "{members:?}");
+    assert_eq!(members[0].layout, None);
+    let other = members[1].layout.as_deref().unwrap();
+    assert_eq!(other.particles, ["p0", "p1"]);
+    assert_eq!(members[2].layout.as_ref().unwrap().particles.len(), 4);
+    let refused = sweep.csv_row(&members[1]).unwrap_err();
+    assert!(matches!(refused, SweepError::OtherLayout { index: 1, .. }));
+    assert_eq!(
+        refused.to_string(),
+        "member 1 (N = 2) has 2 particles (p0, p1), where the scene swept has 3 (p0, p1, p2)"
+    );
+    // write_csv stops at that member: the header and member 0's row, each of the header's width.
+    let mut out = Vec::new();
+    let error = sweep
+        .write_csv(CsvFormat::Wide, &members, &mut out)
+        .unwrap_err();
+    assert!(matches!(
+        error,
+        bead::sweep::CsvError::Member(SweepError::OtherLayout { index: 1, .. })
+    ));
+    let text = String::from_utf8(out).unwrap();
+    let lines: Vec<&str> = text.lines().collect();
+    assert_eq!(lines.len(), 2);
+    let width = lines[0].split(',').count();
+    assert_eq!(width, 1 + 1 + 7 + 4 * 3 + 1);
+    assert_eq!(lines[1].split(',').count(), width);
+    // Long: one row per member and coordinate, named after the member's own particles.
+    let mut out = Vec::new();
+    sweep
+        .write_csv(CsvFormat::Long, &members, &mut out)
+        .unwrap();
+    let text = String::from_utf8(out).unwrap();
+    let lines: Vec<&str> = text.lines().collect();
+    assert_eq!(
+        lines[0],
+        "member,N,status,t_final,stop_time,steps,energy_rel_error_max,energy_balance_error_max,constraint_error_max,coordinate,position,velocity,error"
+    );
+    assert_eq!(lines.len(), 1 + 2 * (3 + 2 + 4));
+    for line in &lines[1..] {
+        assert_eq!(line.split(',').count(), 13, "{line}");
+    }
+    let rows_of = |index: usize| -> Vec<Vec<&str>> {
+        lines[1..]
+            .iter()
+            .map(|l| l.split(',').collect::<Vec<_>>())
+            .filter(|f| f[0] == index.to_string())
+            .collect()
+    };
+    for (index, n) in [(0, 3), (1, 2), (2, 4)] {
+        let rows = rows_of(index);
+        let stats = members[index].stats.as_ref().unwrap();
+        assert_eq!(rows.len(), 2 * n);
+        for (k, row) in rows.iter().enumerate() {
+            let axis = ["x", "y"][k % 2];
+            assert_eq!(row[9], format!("p{}.{axis}", k / 2));
+            assert_eq!(
+                row[10].parse::<f64>().unwrap().to_bits(),
+                stats.x[k].to_bits()
+            );
+            assert_eq!(
+                row[11].parse::<f64>().unwrap().to_bits(),
+                stats.xdot[k].to_bits()
+            );
+            assert_eq!(row[5], "5");
+        }
+    }
+}
+
+/// A parametric member with other generalized coordinates does not fit either; a member
+/// that could not start is one long row with empty coordinate columns.
+#[test]
+fn long_csv_rows_of_parametric_and_failed_members() {
+    let sweep = Sweep::new(
+        &scene(),
+        vec![Axis::new("mass", vec![1.0, -1.0])],
+        Combine::Grid,
+        request(Method::Parametric, 3),
+        None,
+    )
+    .unwrap();
+    let members = sweep.run(1).unwrap();
+    let rows = sweep.long_csv_rows(&members[0]);
+    let names: Vec<&str> = rows.lines().map(|l| l.split(',').nth(9).unwrap()).collect();
+    assert_eq!(names, ["bead.x", "bead.y", "q.q"]);
+    let stats = members[0].stats.as_ref().unwrap();
+    let q_row: Vec<&str> = rows.lines().nth(2).unwrap().split(',').collect();
+    assert_eq!(q_row[10].parse::<f64>().unwrap(), stats.q[0]);
+    assert_eq!(q_row[11].parse::<f64>().unwrap(), stats.qdot[0]);
+    let failed = sweep.long_csv_rows(&members[1]);
+    assert_eq!(failed.lines().count(), 1);
+    assert!(failed.starts_with("1,-1,failed,,,,,,,,,,"), "{failed}");
+    assert!(failed.contains("mass"), "{failed}");
+}
+
+/// Counts past [`MAX_MEMBERS`] (one axis, a grid whose product passes it or overflows u64)
+/// are an error at once, and a linspace of any count costs no memory.
+#[test]
+fn sweep_count_beyond_limit_is_an_error_not_an_abort() {
+    use bead::sweep::MAX_MEMBERS;
+    let make = |axes: Vec<Axis>, combine: Combine| {
+        Sweep::new(&scene(), axes, combine, request(Method::Implicit, 1), None)
+    };
+    let huge = Axis::linspace("x0", 1.0, 2.0, usize::MAX).unwrap();
+    assert_eq!(huge.len(), usize::MAX);
+    assert_eq!(huge.value(usize::MAX - 1), 2.0);
+    assert_eq!(
+        make(vec![huge.clone()], Combine::Grid).unwrap_err().to_string(),
+        format!(
+            "the sweep would have {} members, more than the 4294967296 (2^32) a sweep may have; sweep fewer values, or cut the values into several sweeps",
+            usize::MAX
+        )
+    );
+    let half = Axis::linspace("g", 1.0, 2.0, 1 << 32).unwrap();
+    let two = Axis::linspace("x0", 1.0, 2.0, 2).unwrap();
+    assert!(matches!(
+        make(vec![two.clone(), half.clone()], Combine::Grid),
+        Err(SweepError::TooLarge { .. })
+    ));
+    // A product that overflows u64 is counted exactly in the message.
+    let error = make(
+        vec![
+            half.clone(),
+            Axis::linspace("x0", 1.0, 2.0, 1 << 32).unwrap(),
+        ],
+        Combine::Grid,
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(
+        error.starts_with(
+            "the sweep would have 18446744073709551616 members (4294967296 x 4294967296)"
+        ),
+        "{error}"
+    );
+    let error = make(
+        vec![
+            huge.clone(),
+            Axis::linspace("mass", 1.0, 2.0, usize::MAX).unwrap(),
+        ],
+        Combine::Zip,
+    )
+    .unwrap_err();
+    assert!(matches!(error, SweepError::TooLarge { .. }), "{error}");
+    // 2^32 members exactly is a sweep; its members are numbered lazily.
+    let limit = make(vec![half], Combine::Grid).unwrap();
+    assert_eq!(limit.len() as u64, MAX_MEMBERS);
+    assert_eq!(limit.params_of(limit.len() - 1), vec![2.0]);
+}
+
+/// Members stream: `run_each` hands them over in index order on the calling thread while
+/// the others still run (the first long before the last), with the numbers of a one-thread
+/// run bit for bit; an error from the consumer stops the sweep at once. (The CLI's
+/// `sweep_rows_stream_in_member_order_with_bounded_memory` measures the memory.)
+#[test]
+fn sweep_members_stream_in_order_and_stop_when_asked() {
+    let sweep = Sweep::new(
+        &scene(),
+        vec![Axis::linspace("x0", 10.0, 200.0, 4000).unwrap()],
+        Combine::Grid,
+        request(Method::Implicit, 60),
+        None,
+    )
+    .unwrap();
+    let one = sweep.run(1).unwrap();
+    let start = Instant::now();
+    let mut streamed = Vec::new();
+    let mut arrivals = Vec::new();
+    sweep
+        .run_each(0..sweep.len(), 2, |member| {
+            arrivals.push(start.elapsed().as_secs_f64());
+            streamed.push(member);
+            Ok::<(), SweepError>(())
+        })
+        .unwrap();
+    same(&one, &streamed);
+    let (first, last) = (arrivals[0], arrivals[arrivals.len() - 1]);
+    assert!(
+        first < 0.25 * last,
+        "first member after {first} s, last after {last} s"
+    );
+    // A consumer that stops: nothing after its error is handed over, and the sweep ends
+    // without running the rest (a fraction of the time of the whole).
+    let start = Instant::now();
+    let mut seen = 0;
+    let stopped = sweep.run_each(0..sweep.len(), 2, |member| {
+        seen += 1;
+        if member.index == 40 {
+            return Err(SweepError::NoAxes);
+        }
+        Ok(())
+    });
+    assert_eq!(stopped, Err(SweepError::NoAxes));
+    assert_eq!(seen, 41);
+    assert!(start.elapsed().as_secs_f64() < 0.5 * last);
+    // A chunk streams the same members.
+    let mut chunk = Vec::new();
+    sweep
+        .run_each(1000..1100, 2, |m| {
+            chunk.push(m);
+            Ok::<(), SweepError>(())
+        })
+        .unwrap();
+    same(&one[1000..1100], &chunk);
+    assert!(matches!(
+        sweep.run_each(5..4001, 2, |_| Ok::<(), SweepError>(())),
+        Err(SweepError::OutOfRange { .. })
+    ));
 }

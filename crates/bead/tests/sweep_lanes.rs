@@ -73,7 +73,7 @@ fn check(
         stop_when.map(str::to_string),
     )
     .unwrap();
-    let members = sweep.run(2);
+    let members = sweep.run(2).unwrap();
     assert_eq!(members.len(), sweep.len());
     for (i, member) in members.iter().enumerate() {
         let (stats, error) = alone(scene, &sweep, &request, stop_when, i);

@@ -1,15 +1,16 @@
 //! `bead sweep`: a scene run over a grid of parameter values by the library's
-//! [`bead::sweep::Sweep`], on every core, one CSV row per member.
+//! [`bead::sweep::Sweep`], on every core, its CSV rows written as members finish
+//! ([`Sweep::run_each`]: in member order, memory bounded whatever the count).
 
 use std::fs::File;
 use std::io::{self, BufWriter, Write};
 use std::time::Instant;
 
-use anyhow::{Context, Result};
-use bead::sweep::{Axis, Combine, Sweep};
+use anyhow::{anyhow, Context, Result};
+use bead::sweep::{Axis, Combine, CsvFormat, Member, Sweep, SweepError};
 
 use super::{load_scene, stop_when, warn, Usage};
-use crate::args::SweepArgs;
+use crate::args::{SweepArgs, SweepFormat};
 use crate::outputs::Files;
 use crate::plan;
 
@@ -62,20 +63,103 @@ pub fn sweep(args: &SweepArgs) -> Result<()> {
         0 => std::thread::available_parallelism().map_or(1, |n| n.get()),
         n => n,
     };
+    let format = match args.format {
+        SweepFormat::Wide => CsvFormat::Wide,
+        SweepFormat::Long => CsvFormat::Long,
+    };
     let start = Instant::now();
-    let members = sweep.run(threads);
+    writeln!(out, "{}", sweep.header(format))?;
+    let mut tally = Tally::default();
+    let mut flushed_at = Instant::now();
+    let written = sweep.run_each(0..sweep.len(), threads, |member| -> Result<(), Stop> {
+        let rows = sweep.rows(format, &member).map_err(Stop::Member)?;
+        out.write_all(rows.as_bytes()).map_err(Stop::Io)?;
+        // Rows reach the file (or a pipe) at least every second, not only when the buffer
+        // fills, so that a long sweep can be watched.
+        if flushed_at.elapsed().as_secs_f64() >= 1.0 {
+            out.flush().map_err(Stop::Io)?;
+            flushed_at = Instant::now();
+        }
+        tally.add(member);
+        Ok(())
+    });
+    // The rows written so far stay valid whatever stopped the sweep.
+    let flushed = out.flush();
     let seconds = start.elapsed().as_secs_f64();
-    sweep.write_csv(&members, &mut out)?;
-    out.flush()?;
-    let failed = members.iter().filter(|m| m.status() == "failed").count();
-    let events = members.iter().filter(|m| m.status() == "event").count();
+    match written {
+        Ok(()) => flushed?,
+        Err(Stop::Io(e)) => return Err(e.into()),
+        Err(Stop::Member(e @ SweepError::OtherLayout { .. })) => {
+            flushed?;
+            let written = match tally.members {
+                0 => "so it holds the header alone".to_string(),
+                n => format!("so it ends before this member, after the rows of the {n} before it"),
+            };
+            return Err(anyhow!(
+                "{e}: the wide CSV has a column per coordinate of the scene swept, {written}; \
+                 --format long writes one row per member and coordinate, for members that differ \
+                 in particles"
+            ));
+        }
+        Err(Stop::Member(e)) => return Err(e.into()),
+    }
     let _ = writeln!(
         io::stderr(),
-        "sweep: {} members ({} stopped at the event, {failed} failed) in {} s on {threads} thread(s): {} members/s",
-        members.len(),
-        events,
+        "sweep: {} members ({} stopped at the event, {} failed) in {} s on {threads} thread(s): {} members/s",
+        tally.members,
+        tally.events,
+        tally.failed,
         bead::significant(seconds, 4),
-        bead::significant(members.len() as f64 / seconds.max(1e-12), 4)
+        bead::significant(tally.members as f64 / seconds.max(1e-12), 4)
     );
+    if let Some(first) = tally
+        .first_failure
+        .filter(|_| tally.failed == tally.members)
+    {
+        return Err(anyhow!(
+            "every member of the sweep failed ({} of {}); the first, {}: {}",
+            tally.failed,
+            tally.members,
+            sweep.describe_member(&first),
+            first.error.as_deref().unwrap_or("it could not start")
+        ));
+    }
     Ok(())
+}
+
+/// What stopped the writing of the rows.
+enum Stop {
+    Member(SweepError),
+    Io(io::Error),
+}
+
+impl From<SweepError> for Stop {
+    fn from(e: SweepError) -> Stop {
+        Stop::Member(e)
+    }
+}
+
+/// Members written so far, by status, with the first that failed.
+#[derive(Default)]
+struct Tally {
+    members: usize,
+    events: usize,
+    failed: usize,
+    first_failure: Option<Member>,
+}
+
+impl Tally {
+    fn add(&mut self, member: Member) {
+        self.members += 1;
+        match member.status() {
+            "event" => self.events += 1,
+            "failed" => {
+                self.failed += 1;
+                if self.first_failure.is_none() {
+                    self.first_failure = Some(member);
+                }
+            }
+            _ => {}
+        }
+    }
 }

@@ -9,11 +9,14 @@ swept and the run options).
 from __future__ import annotations
 
 import csv
+import json
+import operator
 from typing import Any, Dict, Iterable, List, Mapping, Optional, Sequence, Tuple, Union
 
 import numpy as np
 
 from . import _bead
+from ._errors import RunError
 
 # The run options of `Scene.run` that a sweep takes (all but `every`), with their defaults.
 _OPTIONS: Dict[str, Any] = {
@@ -36,13 +39,43 @@ _FIELDS = (
     "t_final",
     "stop_time",
     "steps",
-    "energy_error_max",
+    "energy_rel_error_max",
+    "energy_balance_error_max",
     "constraint_error_max",
     "positions",
     "velocities",
     "q",
     "qdot",
 )
+
+
+# A member's status by the code the native side gives it.
+_STATUS = np.array(["ok", "event", "failed"], dtype="<U6")
+
+# The columns of `bead sweep`'s CSV before the final state: member, the parameters, then these.
+_FIGURES = ("status", "t_final", "stop_time", "steps", "energy_rel_error_max",
+            "energy_balance_error_max", "constraint_error_max")
+
+
+def _quoted(name: str) -> str:
+    """`name` in double quotes, as the native side's messages write it: params["g"]."""
+    return json.dumps(name, ensure_ascii=False)
+
+
+def _integer(name: str, value: Any, low: int) -> int:
+    """`value` as an int >= `low` (any integer type, not a bool or a float), or an error
+    naming `name` and the range."""
+    if isinstance(value, bool):
+        raise TypeError(f"{name}={value!r}: must be an integer >= {low}, not a bool")
+    try:
+        n = operator.index(value)
+    except TypeError:
+        raise TypeError(
+            f"{name}={value!r}: must be an integer >= {low}, not a {type(value).__name__}"
+        ) from None
+    if n < low:
+        raise ValueError(f"{name}={n}: must be an integer >= {low}")
+    return n
 
 
 def _axes(params: Mapping[str, Any]) -> Tuple[List[str], List[np.ndarray]]:
@@ -55,11 +88,16 @@ def _axes(params: Mapping[str, Any]) -> Tuple[List[str], List[np.ndarray]]:
             raise TypeError(f"params: the name {name!r} is not a string")
         try:
             array = np.asarray(value, dtype=np.float64)
+        except OverflowError:
+            raise ValueError(
+                f"params[{_quoted(name)}]: a value is beyond the range of a float (about 1.8e308); "
+                "the values must be finite numbers"
+            ) from None
         except (TypeError, ValueError) as e:
-            raise TypeError(f"params[{name!r}]: not an array of numbers ({e})") from None
+            raise TypeError(f"params[{_quoted(name)}]: not an array of numbers ({e})") from None
         if array.ndim > 1:
             raise ValueError(
-                f"params[{name!r}]: a 1-D array of values is needed, got shape {array.shape} "
+                f"params[{_quoted(name)}]: a 1-D array of values is needed, got shape {array.shape} "
                 "(several parameters make the grid themselves: give each its own values)"
             )
         names.append(name)
@@ -78,15 +116,18 @@ class SweepResult:
     - ``status`` ``shape`` (str): "ok" (ran to the end), "event" (stopped at its stop_when),
       "failed" (``errors`` says why)
     - ``t_final``, ``stop_time`` (NaN where the event did not fire), ``steps`` (int64),
-      ``energy_error_max`` (the largest relative error of the conserved energy),
-      ``constraint_error_max``: ``shape``
+      ``energy_rel_error_max`` (max of |E - E0| / E_scale, as ``run.summary``),
+      ``energy_balance_error_max`` (max of |E - W - E0| / E_scale where something does
+      work on the system, else NaN), ``constraint_error_max``: ``shape``
     - ``positions``, ``velocities`` ``shape + (P, D)``: the final state
     - ``q``, ``qdot`` ``shape + (K,)`` for the parametric form, else None
     - ``errors`` ``shape`` (object): each member's error message, or None
 
     A member that failed keeps the figures up to its last good state; one that could not
     start has NaN (and 0 steps). ``to_pandas()`` gives one row per member with the columns of
-    ``bead sweep``'s CSV.
+    ``bead sweep``'s CSV. Every member has the scene's particles and coordinates: a sweep
+    whose parameter changes them (a chain's ``N``) raises ValueError naming the first member
+    that differs.
     """
 
     names: List[str]
@@ -98,7 +139,8 @@ class SweepResult:
     t_final: np.ndarray
     stop_time: np.ndarray
     steps: np.ndarray
-    energy_error_max: np.ndarray
+    energy_rel_error_max: np.ndarray
+    energy_balance_error_max: np.ndarray
     constraint_error_max: np.ndarray
     positions: np.ndarray
     velocities: np.ndarray
@@ -144,7 +186,7 @@ class SweepResult:
         self.params = {
             name: flat["params"][:, i].reshape(self.shape) for i, name in enumerate(self.names)
         }
-        self.status = np.asarray(flat["status"], dtype="<U6").reshape(self.shape)
+        self.status = _STATUS[flat["status"]].reshape(self.shape)
         errors = np.empty(len(flat["errors"]), dtype=object)
         errors[:] = flat["errors"]
         self.errors = errors.reshape(self.shape)
@@ -175,14 +217,14 @@ class SweepResult:
         data: Dict[str, np.ndarray] = {"member": np.arange(self.members.start, self.members.stop)}
         for i, name in enumerate(self.names):
             data[name] = flat["params"][:, i]
-        data["status"] = np.asarray(flat["status"], dtype="<U6")
-        for key in ("t_final", "stop_time", "steps", "energy_error_max", "constraint_error_max"):
+        data["status"] = _STATUS[flat["status"]]
+        for key in _FIGURES[1:]:
             data[key] = flat[key]
         parts = [flat["positions"].reshape(n, -1), flat["velocities"].reshape(n, -1)]
         if flat["q"] is not None:
             parts += [flat["q"], flat["qdot"]]
         state = np.hstack(parts) if parts else np.empty((n, 0))
-        first = 2 + len(self.names) + 5
+        first = 1 + len(self.names) + len(_FIGURES)
         for j, column in enumerate(self.columns[first:-1]):
             data[column] = state[:, j]
         errors = np.empty(n, dtype=object)
@@ -192,9 +234,10 @@ class SweepResult:
 
     def to_pandas(self) -> Any:
         """One row per member, with the columns of ``bead sweep``'s CSV: member, the swept
-        parameters, status, t_final, stop_time, steps, energy_error_max,
-        constraint_error_max, each particle's final position and velocity (P.x, P.vx, ...),
-        q.NAME and qdot.NAME for the parametric form, error. Needs pandas."""
+        parameters, status, t_final, stop_time, steps, energy_rel_error_max,
+        energy_balance_error_max, constraint_error_max, each particle's final position and
+        velocity (P.x, P.vx, ...), q.NAME and qdot.NAME for the parametric form, error. Needs
+        pandas."""
         try:
             import pandas
         except ImportError as e:
@@ -262,7 +305,10 @@ class Sweep:
         self._plan = self._make_plan()
 
     def _make_plan(self) -> _bead.SweepPlan:
-        return _bead.SweepPlan(self._scene, self._names, self._values, self._zip, **self._options)
+        # The native side reads the values in place: C-contiguous and aligned (an array from
+        # a buffer, or unpickled by Dask from a frame, may be neither).
+        values = [np.require(v, np.float64, ["C", "A"]) for v in self._values]
+        return _bead.SweepPlan(self._scene, self._names, values, self._zip, **self._options)
 
     def __getstate__(self) -> Dict[str, Any]:
         state = dict(self.__dict__)
@@ -313,8 +359,7 @@ class Sweep:
 
     def chunks(self, count: int) -> List[Tuple[int, int]]:
         """`count` ranges (start, stop) of about equal size covering the members in order."""
-        if count < 1:
-            raise ValueError(f"chunks(count={count}): count must be >= 1")
+        count = _integer("count", count, 1)
         n = len(self)
         count = min(count, n)
         bounds = [n * i // count for i in range(count + 1)]
@@ -339,20 +384,30 @@ class Sweep:
     def run_range(self, start: int, stop: int, threads: int = 0) -> SweepResult:
         """Run members `start` .. `stop` - 1 on `threads` threads (0: one per core) with the
         GIL released; a result of shape (stop - start,), to `assemble` with the others.
-        Ctrl-C raises KeyboardInterrupt within about a second."""
-        flat = self._plan.run_range(int(start), int(stop), int(threads))
-        return self._result(flat, range(int(start), int(stop)), (int(stop) - int(start),))
+        Members that all fail are returned, not raised (a chunk is judged when assembled).
+        Ctrl-C raises KeyboardInterrupt within about a second.
+
+        Raises ValueError for a range that is not inside ``0 .. len(self)`` (the message
+        names the argument), when the result would take more than 8 GiB (the message says
+        how much; run smaller chunks) or when a member's particles are not the scene's (see
+        `SweepResult`)."""
+        flat = self._plan.run_range(start, stop, threads)
+        # The native side accepted them as integers in range.
+        start, stop = operator.index(start), operator.index(stop)
+        return self._result(flat, range(start, stop), (stop - start,))
 
     def run(self, threads: int = 0) -> SweepResult:
         """Run every member on `threads` threads (0: one per core); arrays shaped like the
-        grid."""
-        flat = self._plan.run_range(0, len(self), int(threads))
-        return self._result(flat, range(len(self)), self.shape)
+        grid. Raises `bead.RunError` when every member failed (its ``result`` holds the
+        `SweepResult`, its message the first member's error)."""
+        flat = self._plan.run_range(0, len(self), threads)
+        return _unless_all_failed(self._result(flat, range(len(self)), self.shape))
 
     def assemble(self, chunks: Iterable[SweepResult]) -> SweepResult:
         """The whole sweep's result from chunks (`run_range` results, in any order) that
         cover every member once; arrays shaped like the grid. ``wall_seconds`` is the sum of
-        the chunks' and ``threads`` the most any chunk used."""
+        the chunks' and ``threads`` the most any chunk used. Raises `bead.RunError`, as
+        `run` does, when every member failed."""
         parts = sorted(chunks, key=lambda c: c.members.start)
         at = 0
         for part in parts:
@@ -369,14 +424,13 @@ class Sweep:
             raise ValueError(f"assemble: the chunks end at member {at} of {len(self)}")
         flats = [p._flat for p in parts]
         flat: Dict[str, Any] = {}
-        for key in ("params",) + _FIELDS:
+        for key in ("params", "status") + _FIELDS:
             arrays = [f[key] for f in flats]
             flat[key] = None if arrays[0] is None else np.concatenate(arrays)
-        flat["status"] = [s for f in flats for s in f["status"]]
         flat["errors"] = [e for f in flats for e in f["errors"]]
         flat["threads"] = max(int(f["threads"]) for f in flats)
         flat["wall_seconds"] = sum(float(f["wall_seconds"]) for f in flats)
-        return self._result(flat, range(len(self)), self.shape)
+        return _unless_all_failed(self._result(flat, range(len(self)), self.shape))
 
     def __repr__(self) -> str:
         joined = " zip " if self._zip else " x "
@@ -386,6 +440,21 @@ class Sweep:
             f"<bead.Sweep {self._scene.title!r}: {grid} = {len(self)} members, "
             f"{self.method}{', ' + options if options else ''}>"
         )
+
+
+def _unless_all_failed(result: SweepResult) -> SweepResult:
+    """`result`, or `bead.RunError` (with ``result`` attached) when every member failed."""
+    failed = result.status == "failed"
+    if len(result) == 0 or not failed.all():
+        return result
+    first = int(np.flatnonzero(failed.ravel())[0])
+    values = ", ".join(f"{n} = {float(result.params[n].ravel()[first])!r}" for n in result.names)
+    message = result.errors.ravel()[first] or "it could not start"
+    error = RunError(
+        f"every member of the sweep failed ({len(result)} of {len(result)}); the first, "
+        f"member {result.members.start + first} ({values}): {message}")
+    error.result = result  # type: ignore[attr-defined]
+    raise error
 
 
 def sweep(
@@ -419,16 +488,21 @@ def sweep(
     integrator, dt, duration or steps, stabilize, rtol, atol, project, substeps,
     max_substeps and stop_when are those of `Scene.run` (the scene's ``[run]`` table
     supplies what is not given). A member that fails is reported (status "failed", its
-    message in ``errors``), not raised.
+    message in ``errors``), not raised; but when every member fails (the whole sweep, not a
+    chunk given by ``members=``) `bead.RunError` is raised, with the first member's error as
+    its message and the `SweepResult` as its ``result``.
 
-    The members run on ``threads`` threads (0: one per core) with the GIL released; the
-    numbers do not depend on the thread count. Ctrl-C raises KeyboardInterrupt within about
-    a second. ``members=range(a, b)`` runs only those members (row-major numbering over the
+    The members run on ``threads`` threads (0: one per core; at most 1024) with the GIL
+    released; the numbers do not depend on the thread count. Ctrl-C raises KeyboardInterrupt
+    within about a second. ``members=range(a, b)`` runs only those members (row-major numbering over the
     grid) and returns a result of shape (b - a,): see `bead.Sweep` to cut a sweep into
     chunks for other processes or machines and join them.
 
-    Raises ValueError for an unknown parameter name, values that are not finite, or a bad
-    option.
+    Raises ValueError for an unknown parameter name, values that are not finite, a bad
+    option, more than 2^32 members, a result that would take more than 8 GiB (the message
+    says how much; run it in chunks with `bead.Sweep.run_range`), or a member whose particles
+    are not the scene's (a swept ``N`` that sets their number: the arrays are shaped grid +
+    (P, D) with the scene's P; the message names the member).
     """
     options = {
         "method": method,
@@ -447,7 +521,16 @@ def sweep(
     plan = Sweep(scene, params, zip=zip, **options)
     if members is None:
         return plan.run(threads)
-    picked = members if isinstance(members, range) else range(*members)
-    if picked.step != 1:
-        raise ValueError("members: a range of consecutive members (step 1) is needed")
+    try:
+        picked = members if isinstance(members, range) else range(*members)
+    except TypeError:
+        raise TypeError(
+            f"members={members!r}: must be a range of member indices (or (start, stop))"
+        ) from None
+    n = len(plan)
+    if picked.step != 1 or not 0 <= picked.start <= picked.stop <= n:
+        raise ValueError(
+            f"members={members!r}: must be a range of consecutive members (step 1) within "
+            f"range(0, {n})"
+        )
     return plan.run_range(picked.start, picked.stop, threads)

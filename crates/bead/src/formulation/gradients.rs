@@ -79,6 +79,12 @@ impl Observation {
     pub fn constraint_error(&self) -> f64 {
         crate::linalg::max_abs(&self.constraints)
     }
+    /// max_i |C_i| / |grad C_i|: how far the state is off the constraints to first order, in
+    /// length units whatever C's units (0 for the parametric form, which cannot leave its
+    /// curve); NaN if any is NaN.
+    pub fn constraint_distance(&self) -> f64 {
+        crate::linalg::max_abs(&self.gradients.offset)
+    }
 }
 
 /// The result of a search for a singular point ([`super::Formulation::locate_singular_point`]).

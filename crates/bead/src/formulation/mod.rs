@@ -107,24 +107,32 @@ pub enum StepError {
     },
     /// A constraint's gradient (or a column dx/dq) reversed direction within one step where
     /// the curve is regular: the step is too long for the curve's turn.
-    #[error("{}", describe_step_too_long(*t, subject, position))]
+    #[error("{}", describe_step_too_long(*t, subject, position, *offset))]
     StepTooLong {
         t: f64,
         subject: Subject,
         /// The coordinates the row reads, by name, at the end of the rejected step.
         position: Vec<(String, f64)>,
+        /// How far that state is off the constraint, |C| / |grad C|.
+        offset: f64,
     },
 }
 
-fn describe_step_too_long(t: f64, subject: &Subject, position: &[(String, f64)]) -> String {
+fn describe_step_too_long(
+    t: f64,
+    subject: &Subject,
+    position: &[(String, f64)],
+    offset: f64,
+) -> String {
     let what = match subject {
         Subject::Constraint { .. } => "its gradient",
         Subject::Coordinate { .. } => "dx/dq along it",
     };
     format!(
-        "at t = {}: the step is too long for {subject}: {what} turned by more than 90 degrees within the step that ended at {}, with no point nearby where it vanishes (the curve is regular there, but the step jumped across a turn it cannot follow); reduce dt",
+        "at t = {}: the step is too long for {subject}: {what} turned by more than 90 degrees within the step that ended at {}, {} off the constraint, with no point nearby where it vanishes (the curve is regular there; the step jumped across a turn it did not follow); reduce dt",
         crate::readable(t),
-        describe_position(position)
+        describe_position(position),
+        crate::readable(offset)
     )
 }
 

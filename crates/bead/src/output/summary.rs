@@ -30,6 +30,8 @@ use crate::simulate::{RunFailure, RunStats};
 /// | `work_final` | when the energy ledger ran: the work W done on T + V by the end |
 /// | `energy_balance_error_max` | when the ledger ran: max of \|E - W - E0\| / `energy_scale`, the error of the conserved quantity |
 /// | `constraint_error_max`, `constraint_error_final` | max_i \|C_i\| over the run and at the end |
+/// | `constraint_distance_max`, `constraint_distance_final` | implicit form only: max_i \|C_i\| / \|grad C_i\| over the run and at the end, how far the state is off the constraints in length units |
+/// | `length_scale` | the scene's length scale (the largest initial coordinate magnitude), to read the distance against |
 /// | `projected` | only when `--project` was on: `true` |
 /// | `newton_iterations_max` | rattle or `--project` only: most Newton iterations of any step |
 /// | `substeps` | only when more than 1: substeps per step of dt asked for (`--substeps`) |
@@ -109,6 +111,21 @@ pub struct Summary {
     #[serde(serialize_with = "number")]
     /// max_i |C_i| at the end.
     pub constraint_error_final: f64,
+    /// The implicit form: max_i |C_i| / |grad C_i| over the run (a distance).
+    #[serde(
+        skip_serializing_if = "Option::is_none",
+        serialize_with = "optional_number"
+    )]
+    pub constraint_distance_max: Option<f64>,
+    /// The implicit form: max_i |C_i| / |grad C_i| at the end.
+    #[serde(
+        skip_serializing_if = "Option::is_none",
+        serialize_with = "optional_number"
+    )]
+    pub constraint_distance_final: Option<f64>,
+    /// The scene's length scale (see [`RunStats::length_scale`]).
+    #[serde(serialize_with = "number")]
+    pub length_scale: f64,
     /// Whether positions and velocities were projected onto the constraints after every step
     /// (written only when true).
     #[serde(skip_serializing_if = "std::ops::Not::not")]
@@ -217,6 +234,9 @@ impl Summary {
             energy_balance_error_max: stats.energy_balance_error_max,
             constraint_error_max: stats.constraint_error_max,
             constraint_error_final: stats.constraint_error_final,
+            constraint_distance_max: stats.constraint_distance_max,
+            constraint_distance_final: stats.constraint_distance_final,
+            length_scale: stats.length_scale,
             projected: stats.projected,
             newton_iterations_max: stats.newton_iterations_max,
             substeps: stats.substeps,
@@ -257,6 +277,19 @@ impl Summary {
             (false, Some(balance)) => balance,
             _ => self.energy_rel_error_max,
         }
+    }
+
+    /// Whether the energy figure understates the run's error: the state went off the
+    /// constraints by more than 1e-6 of the scene's size and by more than ten times the
+    /// conserved energy's relative error. The energy is then that of a state off the curve,
+    /// and a small energy error says nothing about accuracy (implicit verlet on the spinning
+    /// hoop conserves E - W to 3e-6 while the bead leaves the hoop by 0.2 of its radius).
+    pub fn energy_hides_constraint_error(&self) -> bool {
+        let Some(distance) = self.constraint_distance_max else {
+            return false;
+        };
+        let relative = distance / self.length_scale;
+        relative > 1e-6 && relative > 10.0 * self.conserved_energy_error_max()
     }
 
     /// What does work on the system, for text: `driven constraint: plane depends on t, drag on
@@ -347,7 +380,8 @@ mod tests {
     use crate::model::SystemBuilder;
     use crate::simulate::RunError;
 
-    const KEYS: [&str; 18] = [
+    /// The keys of an implicit run (a parametric one has no `constraint_distance_*`).
+    const KEYS: [&str; 21] = [
         "scene",
         "method",
         "integrator",
@@ -363,6 +397,9 @@ mod tests {
         "energy_conserved",
         "constraint_error_max",
         "constraint_error_final",
+        "constraint_distance_max",
+        "constraint_distance_final",
+        "length_scale",
         "stop_when",
         "stop_time",
         "particles",
@@ -393,6 +430,9 @@ mod tests {
             energy_balance_error_max: None,
             constraint_error_max: 1e-3,
             constraint_error_final: 1e-4,
+            constraint_distance_max: (method == Method::Implicit).then_some(2e-3),
+            constraint_distance_final: (method == Method::Implicit).then_some(2e-4),
+            length_scale: 2.0,
             x: vec![1.0, 2.0, 3.0, 4.0],
             xdot: vec![5.0, 6.0, 7.0, 8.0],
             q: vec![0.25, 0.75],
@@ -521,7 +561,11 @@ mod tests {
         let json = Summary::new("s.toml", &system(), &names, &stats(Method::Parametric))
             .to_json_pretty()
             .unwrap();
-        let mut expected: Vec<String> = KEYS.iter().map(|k| k.to_string()).collect();
+        let mut expected: Vec<String> = KEYS
+            .iter()
+            .filter(|k| !k.starts_with("constraint_distance"))
+            .map(|k| k.to_string())
+            .collect();
         expected.push("coordinates".into());
         expected.push("completed".into());
         assert_eq!(keys(&json), expected);

@@ -144,6 +144,79 @@ impl<T> Default for Tables<T> {
 #[derive(Debug)]
 pub(super) struct Entries<V>(pub Vec<(Spanned<String>, Spanned<V>)>);
 
+/// The bytes of text a table's strings hold as written (names, references, expressions;
+/// not its `for` ranges): what the loader expands and reads once per repetition.
+pub(super) trait StringBytes {
+    fn string_bytes(&self) -> usize;
+}
+
+impl StringBytes for String {
+    fn string_bytes(&self) -> usize {
+        self.len()
+    }
+}
+
+impl StringBytes for Num {
+    fn string_bytes(&self) -> usize {
+        match self {
+            Num::Value(_) => 0,
+            Num::Expr(text) => text.len(),
+        }
+    }
+}
+
+impl StringBytes for NumVec {
+    fn string_bytes(&self) -> usize {
+        self.0.iter().map(|n| n.get_ref().string_bytes()).sum()
+    }
+}
+
+impl StringBytes for Names {
+    fn string_bytes(&self) -> usize {
+        self.0.iter().map(|n| n.get_ref().len()).sum()
+    }
+}
+
+impl<T: StringBytes> StringBytes for Option<Spanned<T>> {
+    fn string_bytes(&self) -> usize {
+        self.as_ref().map_or(0, |v| v.get_ref().string_bytes())
+    }
+}
+
+impl StringBytes for ParticleDef {
+    fn string_bytes(&self) -> usize {
+        self.name.string_bytes()
+            + self.mass.string_bytes()
+            + self.position.string_bytes()
+            + self.velocity.string_bytes()
+    }
+}
+
+impl StringBytes for ForceDef {
+    fn string_bytes(&self) -> usize {
+        self.kind.string_bytes()
+            + self.particle.string_bytes()
+            + self.between.string_bytes()
+            + self.anchor.string_bytes()
+            + self.vector.string_bytes()
+            + self.stiffness.string_bytes()
+            + self.rest_length.string_bytes()
+            + self.coefficient.string_bytes()
+    }
+}
+
+impl StringBytes for ConstraintDef {
+    fn string_bytes(&self) -> usize {
+        self.kind.string_bytes()
+            + self.name.string_bytes()
+            + self.expr.string_bytes()
+            + self.particle.string_bytes()
+            + self.between.string_bytes()
+            + self.anchor.string_bytes()
+            + self.length.string_bytes()
+    }
+}
+
 /// The span of an optional spanned value.
 pub(super) fn span_of<T>(value: &Option<Spanned<T>>) -> Option<Range<usize>> {
     value.as_ref().map(|v| v.span())

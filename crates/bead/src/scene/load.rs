@@ -1,6 +1,7 @@
 //! From the deserialized file to a [`Scene`]: evaluate numbers, check everything, feed the
 //! [`SystemBuilder`], and turn every failure into a located [`SceneError`].
 
+use std::cell::Cell;
 use std::collections::HashMap;
 use std::ops::Range;
 use std::sync::Arc;
@@ -9,12 +10,13 @@ use toml::Spanned;
 
 use super::file::{
     span_of, ConstraintDef, Entries, ForceDef, Names, Num, NumVec, ParametricDef, ParticleDef,
-    RangeText, RunDef, SceneFile, Stabilize,
+    RangeText, RunDef, SceneFile, Stabilize, StringBytes,
 };
 use super::location::Source;
 use super::template::{self, Expanded, Scope, StringError};
 use super::{
-    Generated, RunDefaults, Scene, SceneError, TableKind, MAX_LOOP_VARIABLES, MAX_REPETITIONS,
+    Generated, Lines, RunDefaults, Scene, SceneError, TableKind, MAX_EXPANDED_BYTES,
+    MAX_LOOP_VARIABLES, MAX_REPETITIONS,
 };
 use crate::expr::{parse, Expr, ExprError, Func, Resolved};
 use crate::formulation::{Feedback, Method};
@@ -39,12 +41,25 @@ pub(super) fn load(
     overrides: &[(String, f64)],
     previous: Option<&crate::model::System>,
 ) -> Result<Scene> {
+    load_limited(text, file, overrides, previous, MAX_EXPANDED_BYTES)
+}
+
+/// [`load`] with `limit` bytes of generated text instead of [`MAX_EXPANDED_BYTES`].
+fn load_limited(
+    text: &str,
+    file: &str,
+    overrides: &[(String, f64)],
+    previous: Option<&crate::model::System>,
+    limit: usize,
+) -> Result<Scene> {
     let src = Source { text, file };
     let doc: SceneFile = toml::from_str(text).map_err(|e| src.toml_error(&e))?;
     let mut loader = Loader {
         src,
         params: Vec::new(),
         scope: None,
+        expanded: Cell::new(0),
+        limit,
     };
 
     let params = loader.params(doc.params.as_ref(), overrides)?;
@@ -100,6 +115,7 @@ pub(super) fn load(
         generated: Vec::new(),
         forces: 0,
         repeated: 0,
+        lines: Lines::default(),
     };
 
     // [[particle]]
@@ -174,6 +190,7 @@ pub(super) fn load(
         text: Arc::from(text),
         overrides: overrides.to_vec(),
         edits: Vec::new(),
+        lines: l.lines,
     })
 }
 
@@ -184,6 +201,10 @@ struct Loader<'a> {
     /// While a `[[particle]]`, `[[constraint]]` or `[[force]]` table is read: its loop
     /// variables (empty without `for`), and `{...}` in its strings is expanded. None elsewhere.
     scope: Option<Scope>,
+    /// Bytes of text the strings of tables with `for` have expanded to so far, and the most
+    /// they may ([`MAX_EXPANDED_BYTES`]).
+    expanded: Cell<usize>,
+    limit: usize,
 }
 
 impl Loader<'_> {
@@ -316,11 +337,15 @@ impl Loader<'_> {
     /// `source`, the string at `span`, with its `{...}` replaced when a
     /// `[[particle]]`, `[[constraint]]` or `[[force]]` table is being read; as it is elsewhere.
     fn expand<'s>(&self, span: Range<usize>, source: &'s str, ctx: &str) -> Result<Expanded<'s>> {
-        if self.scope.is_none() {
+        let Some(scope) = &self.scope else {
             return Ok(Expanded::verbatim(source));
+        };
+        let expanded = template::expand(source, &|inner| self.evaluate(inner, &[]))
+            .map_err(|e| self.string_error(span, source, ctx, e))?;
+        if !scope.vars.is_empty() {
+            self.expanded.set(self.expanded.get() + expanded.text.len());
         }
-        template::expand(source, &|inner| self.evaluate(inner, &[]))
-            .map_err(|e| self.string_error(span, source, ctx, e))
+        Ok(expanded)
     }
 
     /// An error in the string `source` written at `span`, located inside it.
@@ -707,6 +732,27 @@ impl Walk<'_> {
     }
 }
 
+/// The limit on generated text, and what the tables before used of it, for a message.
+fn expansion_limit(limit: usize, before: usize) -> String {
+    let limit = if limit == MAX_EXPANDED_BYTES {
+        format!(
+            "{} MiB ({MAX_EXPANDED_BYTES} bytes)",
+            MAX_EXPANDED_BYTES >> 20
+        )
+    } else {
+        format!("{limit} bytes")
+    };
+    let limit = format!("a scene's generated tables may expand to at most {limit} of text in all");
+    if before == 0 {
+        limit
+    } else {
+        format!(
+            "{limit}, and the tables before it expanded to {}",
+            crate::byte_size(before as u64)
+        )
+    }
+}
+
 /// The value of an expression without variables.
 fn constant_value(expr: &Expr) -> f64 {
     match expr.as_constant() {
@@ -754,6 +800,8 @@ struct Builder<'a> {
     forces: usize,
     /// Repetitions made so far by the tables with `for` (at most [`MAX_REPETITIONS`]).
     repeated: usize,
+    /// Where each particle and constraint is given, for the scene's warnings.
+    lines: Lines,
 }
 
 impl Builder<'_> {
@@ -763,7 +811,7 @@ impl Builder<'_> {
 
     /// Read table `i` of `kind` with `read`: once, or, with `for`, once per repetition with
     /// its loop variables in scope.
-    fn repeat<T>(
+    fn repeat<T: StringBytes>(
         &mut self,
         kind: TableKind,
         i: usize,
@@ -778,17 +826,52 @@ impl Builder<'_> {
             return Ok(());
         };
         let b = &self.b;
+        let table_name = format!("{} {}", kind.name(), i + 1);
         let scopes = self.loader.repetitions(
             repeat,
-            &format!("{} {}", kind.name(), i + 1),
+            &table_name,
             MAX_REPETITIONS - self.repeated,
             &|name| b.particle_id(name).is_ok(),
         )?;
         self.repeated += scopes.len();
+        // The text this table will expand to, refused before any of it is made: its strings
+        // as written, once per repetition.
+        let before = self.loader.expanded.get();
+        let written = table.get_ref().string_bytes();
+        let estimate = written.saturating_mul(scopes.len());
+        let limit = self.loader.limit;
+        if before.saturating_add(estimate) > limit {
+            return Err(self.src().error(
+                repeat.span(),
+                format!(
+                    "{table_name}: `for` would expand the table's {} of strings {} times, to \
+                     about {} of text; {}",
+                    crate::byte_size(written as u64),
+                    scopes.len(),
+                    crate::byte_size(estimate as u64),
+                    expansion_limit(limit, before)
+                ),
+            ));
+        }
         let first = self.made(kind);
-        for scope in scopes {
+        let count = scopes.len();
+        for (k, scope) in scopes.into_iter().enumerate() {
+            let vars = scope.describe();
             self.loader.scope = Some(scope);
             read(self, i, table)?;
+            // `{...}` can make a string longer than written: checked as it grows.
+            if self.loader.expanded.get() > limit {
+                return Err(self.src().error(
+                    repeat.span(),
+                    format!(
+                        "{table_name}: `for` has expanded the table's strings to {} of text by \
+                         its repetition {} of {count} ({vars}); {}",
+                        crate::byte_size((self.loader.expanded.get() - before) as u64),
+                        k + 1,
+                        expansion_limit(limit, before)
+                    ),
+                ));
+            }
         }
         self.loader.scope = None;
         let ranges = repeat
@@ -936,6 +1019,14 @@ impl Builder<'_> {
             .map_err(|e| l.model(name_def.span(), &ctx, e))?;
         self.particles.push((name, position));
         self.particle_origins.push(ctx);
+        let line = |span: Range<usize>| self.loader.src.line_of(span.start);
+        let position_line = line(position_def.span());
+        let velocity_line = def
+            .velocity
+            .as_ref()
+            .map_or(position_line, |v| line(v.span()));
+        self.lines.position.push(position_line);
+        self.lines.velocity.push(velocity_line);
         Ok(())
     }
 
@@ -1101,6 +1192,10 @@ impl Builder<'_> {
     fn constraint(&mut self, i: usize, c: &Spanned<ConstraintDef>) -> Result<()> {
         let ctx = self.ctx(TableKind::Constraint, i);
         let d = c.get_ref();
+        let at = d.expr.as_ref().map_or(c.span(), |e| e.span());
+        self.lines
+            .constraint
+            .push(self.loader.src.line_of(at.start));
         let l = &self.loader;
         let name = match &d.name {
             Some(n) => {
@@ -1385,5 +1480,58 @@ impl Builder<'_> {
             ));
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `{...}` that expand to more than they are written pass the estimate (written bytes x
+    /// repetitions) and are refused as they grow, at the repetition that passes the limit.
+    #[test]
+    fn expansions_that_grow_past_the_limit_are_refused_as_they_grow() {
+        let scene = |count: usize| {
+            format!(
+                "[params]\nB = 1e15\n[world]\ngravity = [0.0, 1.0]\n[[particle]]\nfor = {{ i = \"0..{count}\" }}\nname = \"p{{i}}_{}\"\nmass = 1.0\nposition = [\"i\", 0.0]\n",
+                "{B}".repeat(10)
+            )
+        };
+        // Written: 36 bytes a repetition; expanded: 163 to 167 (B has 16 digits).
+        let limit = 100 * 36;
+        assert!(load_limited(&scene(20), "s.toml", &[], None, limit).is_ok());
+        let error = load_limited(&scene(50), "s.toml", &[], None, limit)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            error.starts_with(
+                "s.toml:6:7: particle 1: `for` has expanded the table's strings to 3.62 kB of text by its repetition 22 of 50 (i = 21); a scene's generated tables may expand to at most 3600 bytes of text in all\n"
+            ),
+            "{error}"
+        );
+        // The tables before count: a second table that would pass what the first left.
+        let two = format!(
+            "{}[[particle]]\nfor = {{ j = \"0..10\" }}\nname = \"q{{j}}\"\nmass = 1.0\nposition = [\"j\", 1.0]\n",
+            scene(20)
+        );
+        let error = load_limited(&two, "s.toml", &[], None, 3300)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            error.starts_with(
+                "s.toml:11:7: particle 2: `for` would expand the table's 5 bytes of strings 10 times, to about 50 bytes of text; a scene's generated tables may expand to at most 3300 bytes of text in all, and the tables before it expanded to 3.29 kB\n"
+            ),
+            "{error}"
+        );
+        // Written bytes times repetitions past the limit: refused before any is read.
+        let error = load_limited(&scene(101), "s.toml", &[], None, limit)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            error.starts_with(
+                "s.toml:6:7: particle 1: `for` would expand the table's 36 bytes of strings 101 times, to about 3.64 kB of text; a scene's generated tables may expand"
+            ),
+            "{error}"
+        );
     }
 }

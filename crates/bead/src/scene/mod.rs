@@ -59,7 +59,8 @@
 //!   `{EXPR}` in its strings (names, particle references, `expr`) is replaced by EXPR's value,
 //!   a whole number >= 0: `name = "p{i}"`, `between = ["p{i-1}", "p{i}"]`. `{...}` works in
 //!   tables without `for` too, with the parameters. The `for` keys of a scene make at most
-//!   [`MAX_REPETITIONS`] repetitions in all; one `for` has at most [`MAX_LOOP_VARIABLES`]. Expansion is the loader's (`template.rs`), before
+//!   [`MAX_REPETITIONS`] repetitions in all, and expand to at most [`MAX_EXPANDED_BYTES`] of
+//!   text; one `for` has at most [`MAX_LOOP_VARIABLES`]. Expansion is the loader's (`template.rs`), before
 //!   the [`crate::model::SystemBuilder`]: the system has one particle or constraint per
 //!   repetition and no loops; [`Scene::generated`] tells which table made what.
 //! - Unknown keys, wrong types, missing keys, non-finite numbers (`nan`, `inf`) and values out of
@@ -107,6 +108,31 @@ pub struct Scene {
     overrides: Vec<(String, f64)>,
     /// Constraint expressions replaced since (declared index, new expression), in order.
     edits: Vec<(usize, String)>,
+    /// Where in the text each particle and constraint is given, for [`Scene::located_warnings`].
+    lines: Lines,
+}
+
+/// The lines of the scene text that [`Scene::located_warnings`] points at (1-based).
+#[derive(Clone, Debug, Default)]
+struct Lines {
+    /// Per particle, the line of its `position`.
+    position: Vec<usize>,
+    /// Per particle, the line of its `velocity` (of its `position` when it has none).
+    velocity: Vec<usize>,
+    /// Per declared constraint, the line of its `expr` (of its table's header for the other
+    /// kinds).
+    constraint: Vec<usize>,
+}
+
+/// A warning about a scene that does not stop a run (see [`Scene::warnings`]), with the line
+/// of the scene text it is about.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SceneWarning {
+    /// 1-based line of the key concerned (a particle's `position` or `velocity`, a
+    /// constraint's `expr`), when known.
+    pub line: Option<usize>,
+    /// What is wrong, as [`Scene::warnings`] says it.
+    pub message: String,
 }
 
 /// The most repetitions the `for` keys of one scene may make in all (particles, constraints
@@ -115,6 +141,17 @@ pub struct Scene {
 /// at once instead of minutes of loading and gigabytes of memory (a chain of 10^5 links takes
 /// about 10 s and 1 GB to load).
 pub const MAX_REPETITIONS: usize = 100_000;
+
+/// The most text the generated tables of a scene may expand to, in bytes (16 MiB): the
+/// strings of a table with `for` (names, references, expressions), summed over its
+/// repetitions and over the tables. A table is refused before it is read when its strings as
+/// written times its repetitions would pass the limit (with the tables before it), and while
+/// it is read when its `{...}` expansions do. A scene holds its names and expressions several
+/// times over, about 7 bytes per byte expanded: a scene at the limit loads in 0.3 s and
+/// 115 MB (measured), where a 60 kB template repeated 4000 times took 79 s and 1.9 GB. The
+/// shipped chain at its largest (N = 5 x 10^4, as many repetitions as a scene may make)
+/// expands to 2.1 MB.
+pub const MAX_EXPANDED_BYTES: usize = 16 << 20;
 
 /// The most loop variables one `for` may have: a grid takes two or three, and the loader
 /// nests one level per variable.
@@ -357,6 +394,20 @@ impl Scene {
     /// distances) signed with 6 significant digits ([`crate::significant`]), as `bead check`
     /// prints them.
     pub fn warnings(&self) -> Vec<String> {
+        self.located_warnings()
+            .into_iter()
+            .map(|w| w.message)
+            .collect()
+    }
+
+    /// [`Scene::warnings`], each with the line of the scene text it is about: a particle's
+    /// `position` (its `velocity` for a velocity), a constraint's `expr`.
+    pub fn located_warnings(&self) -> Vec<SceneWarning> {
+        let lines = &self.lines;
+        let at = |lines: &[usize], i: usize, message: String| SceneWarning {
+            line: lines.get(i).copied(),
+            message,
+        };
         let system = &self.system;
         let dim = system.dim();
         let (x0, v0) = system.initial_particle_state();
@@ -370,13 +421,14 @@ impl Scene {
             let speed_scale = length_scale.max(max_abs(&v0)).max(max_abs(&ws.velocity));
             for (p, particle) in system.particles().iter().enumerate() {
                 let range = p * dim..(p + 1) * dim;
-                for (what, given, computed, key, scale) in [
+                for (what, given, computed, key, scale, line) in [
                     (
                         "position",
                         &x0[range.clone()],
                         &ws.position[range.clone()],
                         "x(q0)",
                         length_scale,
+                        &lines.position,
                     ),
                     (
                         "velocity",
@@ -384,14 +436,15 @@ impl Scene {
                         &ws.velocity[range.clone()],
                         "xdot(q0, qdot0)",
                         speed_scale,
+                        &lines.velocity,
                     ),
                 ] {
                     let name = &particle.name;
                     if computed.iter().any(|c| !c.is_finite()) {
-                        warnings.push(format!(
+                        warnings.push(at(line, p, format!(
                             "particle `{name}`: the parametric form's initial {what} {key} = {} is not finite",
                             fmt_vec(computed)
-                        ));
+                        )));
                         continue;
                     }
                     let difference = distance(given, computed);
@@ -401,11 +454,11 @@ impl Scene {
                         } else {
                             "by more than the largest representable number".to_string()
                         };
-                        warnings.push(format!(
+                        warnings.push(at(line, p, format!(
                             "particle `{name}`: the parametric form's initial {what} {key} = {} differs from the scene's {what} {} {by}",
                             fmt_vec(computed),
                             fmt_vec(given),
-                        ));
+                        )));
                     }
                 }
             }
@@ -416,7 +469,8 @@ impl Scene {
             let mut ws = constraints.workspace();
             constraints.evaluate(0.0, &x0, &v0, &mut ws);
             let speed_scale = length_scale.max(max_abs(&v0));
-            for info in constraints.infos() {
+            for (i, info) in constraints.infos().iter().enumerate() {
+                let warn = |message| at(&lines.constraint, i, message);
                 let rows = info.rows.clone();
                 let name = format!("{} (`{}`)", info.name, info.description);
                 // The row with the largest |value| (and |rate|), with its sign.
@@ -431,10 +485,10 @@ impl Scene {
                 };
                 let (c, cdot) = (worst(&ws.value), worst(&ws.velocity));
                 if !c.is_finite() {
-                    warnings.push(format!(
+                    warnings.push(warn(format!(
                         "{name}: its value at the initial positions is not finite ({})",
                         crate::readable(c)
-                    ));
+                    )));
                     continue;
                 }
                 let (mut off, mut drift) = (0.0_f64, 0.0_f64);
@@ -451,29 +505,29 @@ impl Scene {
                     drift = crate::linalg::max_nan(drift, ws.velocity[row].abs() / norm);
                 }
                 if !gradient_finite {
-                    warnings.push(format!(
+                    warnings.push(warn(format!(
                         "{name}: its gradient at the initial positions is not finite"
-                    ));
+                    )));
                 } else if exceeds(off, WARN_TOLERANCE * length_scale) {
                     let how_far = if off.is_finite() {
                         format!("about {} off the constraint", crate::significant(off, 6))
                     } else {
                         "its gradient is too small there to tell how far".to_string()
                     };
-                    warnings.push(format!(
+                    warnings.push(warn(format!(
                         "{name}: the initial positions violate it: C = {} ({how_far})",
                         crate::significant(c, 6)
-                    ));
+                    )));
                 } else if !cdot.is_finite() {
-                    warnings.push(format!(
+                    warnings.push(warn(format!(
                         "{name}: its rate Cdot at the initial state is not finite ({})",
                         crate::readable(cdot)
-                    ));
+                    )));
                 } else if exceeds(drift, WARN_TOLERANCE * speed_scale) {
-                    warnings.push(format!(
+                    warnings.push(warn(format!(
                         "{name}: the initial velocities are not tangent to it: Cdot = {}",
                         crate::significant(cdot, 6)
-                    ));
+                    )));
                 }
             }
         }

@@ -224,13 +224,14 @@ pub(crate) fn run_lanes(
         .iter()
         .map(|m| m.watch.as_ref().map_or(f64::NAN, |w| w.g_last))
         .collect();
-    let mut maxima: Vec<[f64; 3]> = members
+    let mut maxima: Vec<[f64; 4]> = members
         .iter()
         .map(|m| {
             [
                 m.monitor.energy_rel_error_max,
                 m.monitor.balance_error_max,
                 m.monitor.constraint_error_max,
+                m.monitor.constraint_distance_max,
             ]
         })
         .collect();
@@ -382,6 +383,7 @@ pub(crate) fn run_lanes(
             m[0] = max_nan(m[0], error);
             m[1] = max_nan(m[1], balance);
             m[2] = max_nan(m[2], constraint_error);
+            m[3] = max_nan(m[3], observation.constraint_distance());
         }
         if !active[..count].iter().any(|&a| a) {
             break;
@@ -413,10 +415,11 @@ pub(crate) fn run_lanes(
         member
             .monitor
             .observe(&mut *member.formulation, t, q, qdot, work);
-        let [energy, balance, constraint] = maxima[l];
+        let [energy, balance, constraint, distance] = maxima[l];
         member.monitor.energy_rel_error_max = energy;
         member.monitor.balance_error_max = balance;
         member.monitor.constraint_error_max = constraint;
+        member.monitor.constraint_distance_max = distance;
         if let Some(watch) = member.watch.as_mut() {
             watch.g_last = g_last[l];
         }
@@ -438,7 +441,7 @@ fn handover(
     last: &[f64],
     before: &[f64],
     longest: &[f64],
-    maxima: [f64; 3],
+    maxima: [f64; 4],
     g_last: f64,
 ) {
     let n = lanes.n;

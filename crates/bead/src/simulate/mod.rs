@@ -536,6 +536,18 @@ impl Simulation {
     /// the stop time, or `t` when none is set) and, when the last one passed `t`, the state
     /// is the dense output at `t`.
     pub fn advance_to(&mut self, t: f64) -> Result<(), RunError> {
+        self.advance_to_with(t, &mut || false)
+    }
+
+    /// [`Simulation::advance_to`], asking `interrupted` after every step short of `t`: when it
+    /// returns true the simulation stops at that step's end, a good state from which it can go
+    /// on, with [`RunError::Interrupted`] (what a front end does on Ctrl-C). Called after every
+    /// step, so it should look at a clock or a flag only every so many calls.
+    pub fn advance_to_with(
+        &mut self,
+        t: f64,
+        interrupted: &mut dyn FnMut() -> bool,
+    ) -> Result<(), RunError> {
         let now = self.t();
         if !t.is_finite() || t < now {
             return Err(RunError::TimeBehind { requested: t, now });
@@ -560,6 +572,9 @@ impl Simulation {
                     if on_target {
                         return Ok(());
                     }
+                    if interrupted() {
+                        return Err(self.interrupted_error());
+                    }
                 }
                 if self.state.t < t {
                     self.fixed_step(t)?;
@@ -578,6 +593,10 @@ impl Simulation {
                 };
                 while self.state.t < t && self.pending_event.is_none() {
                     self.adaptive_step(horizon)?;
+                    if self.state.t < t && self.pending_event.is_none() && interrupted() {
+                        self.output_behind = false;
+                        return Err(self.interrupted_error());
+                    }
                 }
                 if let Some(te) = self.pending_event {
                     if te <= t {
@@ -607,6 +626,14 @@ impl Simulation {
                 }
                 Ok(())
             }
+        }
+    }
+
+    /// [`RunError::Interrupted`] at the current state.
+    fn interrupted_error(&self) -> RunError {
+        RunError::Interrupted {
+            t: self.state.t,
+            step: self.steps,
         }
     }
 
@@ -1228,6 +1255,11 @@ impl Simulation {
             energy_balance_error_max: self.tracks_work().then_some(m.balance_error_max),
             constraint_error_max: m.constraint_error_max,
             constraint_error_final: m.constraint_error,
+            constraint_distance_max: (self.method() == Method::Implicit)
+                .then_some(m.constraint_distance_max),
+            constraint_distance_final: (self.method() == Method::Implicit)
+                .then_some(m.constraint_distance),
+            length_scale: m.length_scale(),
             x: m.observation.x.clone(),
             xdot: m.observation.xdot.clone(),
             q: observed.q[..self.n].to_vec(),

@@ -22,6 +22,9 @@ pub(super) const AHEAD_STEPS: f64 = 2.0;
 /// A state off its constraint by more than this fraction of the distance to a singular point
 /// ahead may follow another branch of the curve.
 pub(super) const OFF_BRANCH: f64 = 0.01;
+/// A step whose gradient reversed with no singular point near is too long for the curve when
+/// it also left the curve by more than this fraction of its own length.
+const TOO_LONG_OFFSET: f64 = 0.1;
 /// A point where a gradient row vanishes is on the curve when |C| there is below this
 /// fraction of the row's scale (its longest gradient length times the scene's length): C
 /// vanishes quadratically at a singular point of the curve (C = 0 there exactly), while a
@@ -144,6 +147,9 @@ pub(super) struct Monitor {
     pub(super) balance_error_max: f64,
     pub(super) constraint_error: f64,
     pub(super) constraint_error_max: f64,
+    /// max_i |C_i| / |grad C_i| now and over the run (see [`Observation::constraint_distance`])
+    pub(super) constraint_distance: f64,
+    pub(super) constraint_distance_max: f64,
     reach: Reach,
 }
 
@@ -198,6 +204,7 @@ impl Monitor {
             energy_speed: (2.0 * energy_scale / lightest).sqrt(),
         };
         let constraint_error = observation.constraint_error();
+        let constraint_distance = observation.constraint_distance();
         let last = StepEnd {
             gradients: observation.gradients.clone(),
             q: q.to_vec(),
@@ -236,6 +243,8 @@ impl Monitor {
             balance_error_max: 0.0,
             constraint_error,
             constraint_error_max: constraint_error,
+            constraint_distance,
+            constraint_distance_max: constraint_distance,
             reach,
         }
     }
@@ -254,6 +263,7 @@ impl Monitor {
         self.energy = system.energy(&self.observation.x, &self.observation.xdot);
         self.work = work;
         self.constraint_error = self.observation.constraint_error();
+        self.constraint_distance = self.observation.constraint_distance();
     }
 
     /// The monitor as it stands after a run accepted step ends up to one at state `last_q`
@@ -267,7 +277,7 @@ impl Monitor {
         last_gradients: &[f64],
         before: Option<(&[f64], &[f64])>,
         longest: &[f64],
-        maxima: [f64; 3],
+        maxima: [f64; 4],
     ) {
         self.last.q.copy_from_slice(last_q);
         self.last.gradients.values.copy_from_slice(last_gradients);
@@ -282,6 +292,7 @@ impl Monitor {
             self.energy_rel_error_max,
             self.balance_error_max,
             self.constraint_error_max,
+            self.constraint_distance_max,
         ] = maxima;
     }
 
@@ -302,6 +313,12 @@ impl Monitor {
         self.energy_rel_error_max = max_nan(self.energy_rel_error_max, error);
         self.balance_error_max = max_nan(self.balance_error_max, balance);
         self.constraint_error_max = max_nan(self.constraint_error_max, self.constraint_error);
+        self.constraint_distance_max =
+            max_nan(self.constraint_distance_max, self.constraint_distance);
+    }
+    /// The scene's length scale (the largest initial coordinate magnitude, 1 when all are 0).
+    pub(super) fn length_scale(&self) -> f64 {
+        self.length_scale
     }
 
     /// Whether the state last observed at the end of a step (at time t) can be accepted: finite,
@@ -325,11 +342,12 @@ impl Monitor {
                     cause: None,
                 }))
             }
-            Some(Finding::TooLong(row)) => {
+            Some(Finding::TooLong(row, offset)) => {
                 return Err(Rejection::TooLong(StepError::StepTooLong {
                     t,
                     subject: formulation.gradient_subject(row),
                     position: formulation.gradient_position(row, q),
+                    offset,
                 }))
             }
             None => {}
@@ -482,10 +500,12 @@ impl Monitor {
     /// length), and within reach: on the step's chord (reversal), within three steps
     /// (ahead), anywhere (a gradient that has collapsed is close to its zero in its own
     /// scale, whatever the step), or closer than 100 times the state's distance off the
-    /// constraint (another branch). A reversal that no singular point explains is a step too
-    /// long for the curve ([`Finding::TooLong`]), never "a cusp or a crossing"; a wildly
-    /// unstable integration on a regular curve is otherwise left to the divergence test, and
-    /// the centre of an ellipse (a critical point of C off the curve) stops nothing.
+    /// constraint (another branch). A reversal that no singular point explains is a coarse
+    /// step across a bend of a regular curve, accepted, unless the step also left the curve
+    /// by more than a tenth of its length: then it is a step too long for the curve
+    /// ([`Finding::TooLong`]), never "a cusp or a crossing". A wildly unstable integration
+    /// on a regular curve is otherwise left to the divergence test, and the centre of an
+    /// ellipse (a critical point of C off the curve) stops nothing.
     fn regularity(&mut self, formulation: &dyn Formulation, t: f64, q: &[f64]) -> Option<Finding> {
         let g = &self.observation.gradients;
         if !self.last.valid {
@@ -556,7 +576,15 @@ impl Monitor {
                 return Some(Finding::Singular(r, kind));
             }
             if kind == SingularKind::Reverses {
-                return Some(Finding::TooLong(r));
+                // No singular point explains the turn: a coarse step across a bend of a
+                // regular curve (legitimate, if inaccurate), unless the step also left the
+                // curve by more than a tenth of its own length: then it did not follow the
+                // curve at all.
+                let step = formulation.row_step_length(r, q, &reference.q);
+                if offset > TOO_LONG_OFFSET * step {
+                    return Some(Finding::TooLong(r, offset));
+                }
+                continue;
             }
             self.searched[r] = length;
         }
@@ -644,8 +672,9 @@ impl Monitor {
 enum Finding {
     /// Row r is singular there (a confirmed point of the curve where it vanishes).
     Singular(usize, SingularKind),
-    /// Row r reversed direction within the step with no singular point to explain it.
-    TooLong(usize),
+    /// Row r reversed direction within the step with no singular point to explain it, and
+    /// the step ended this far off its constraint.
+    TooLong(usize, f64),
 }
 
 /// Whether a state `offset` off a row's constraint may follow another branch near a point

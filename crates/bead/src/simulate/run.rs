@@ -129,6 +129,14 @@ pub struct RunStats {
     pub energy_balance_error_max: Option<f64>,
     pub constraint_error_max: f64,
     pub constraint_error_final: f64,
+    /// The implicit form: max over the run and at the end of max_i |C_i| / |grad C_i|, how
+    /// far the state is off the constraints in length units (what |C| alone cannot say when
+    /// C is not a distance). `None` for the parametric form, which cannot leave its curve.
+    pub constraint_distance_max: Option<f64>,
+    pub constraint_distance_final: Option<f64>,
+    /// The scene's length scale: the largest initial coordinate magnitude (1 when all are
+    /// 0), to read the distance against.
+    pub length_scale: f64,
     /// Final particle positions and velocities (n_coords each).
     pub x: Vec<f64>,
     pub xdot: Vec<f64>,
@@ -191,8 +199,9 @@ pub enum RunError {
     },
     #[error("cannot advance to t = {} from t = {}: time only moves forward, to a finite time", crate::readable(*requested), crate::readable(*now))]
     TimeBehind { requested: f64, now: f64 },
-    /// The run's [`Progress::interrupted`] asked it to stop (e.g. Ctrl-C in Python); the
-    /// state at `t` is good.
+    /// The run's [`Progress::interrupted`] (or the callback of
+    /// [`Simulation::advance_to_with`]) asked it to stop (e.g. Ctrl-C in Python); the state at
+    /// `t` is good.
     #[error("interrupted at t = {} (step {step})", crate::readable(*t))]
     Interrupted { t: f64, step: u64 },
     /// The message includes the I/O error; it is not also the [`std::error::Error::source`],
@@ -222,9 +231,11 @@ pub trait Progress {
     /// `step` of `total` output intervals done.
     fn advance(&mut self, step: u64, total: u64);
 
-    /// Asked after every output interval: `true` ends the run there, at a good state, with
-    /// [`RunError::Interrupted`] (what a front end does on Ctrl-C). It is called often, so
-    /// an implementation should look at a clock or a flag only every so many calls.
+    /// Asked after every output interval, and after every integrator step inside one (an
+    /// adaptive integrator's output interval may take many): `true` ends the run there, at a
+    /// good state, with [`RunError::Interrupted`] (what a front end does on Ctrl-C). It is
+    /// called often, so an implementation should look at a clock or a flag only every so many
+    /// calls.
     fn interrupted(&mut self) -> bool {
         false
     }
@@ -311,7 +322,8 @@ pub fn run_with_progress(
     let mut interval = 0;
     while failure.is_none() && interval < options.steps {
         let next = interval + 1;
-        if let Err(e) = simulation.advance_to(options.output_time(t0, next, dt)) {
+        let target = options.output_time(t0, next, dt);
+        if let Err(e) = simulation.advance_to_with(target, &mut || progress.interrupted()) {
             failure = Some(e);
             break;
         }

@@ -1,0 +1,220 @@
+//! What the README and the summaries claim, computed again (issue 15): the article's
+//! comparison table exactly as the README prints it, the distance the implicit rk4 bead ends
+//! off the wire (the true distance to the parabola, found here by Newton's method on the
+//! closest-point equation, not by bead), and the summary's note that an energy error alone
+//! does not measure accuracy.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+
+use common::{bead_in, ok};
+
+fn root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
+}
+
+fn bead(args: &[&str]) -> String {
+    ok(bead_in(&root(), args))
+}
+
+fn readme() -> String {
+    std::fs::read_to_string(root().join("README.md")).unwrap()
+}
+
+/// Every `bead compare` example in the README (`$ bead compare ...` or `$ cargo run
+/// --release -- compare ...`, continued over `\` lines): its arguments after `bead`, and
+/// the lines printed under it in the same block.
+fn readme_compare_examples() -> Vec<(Vec<String>, Vec<String>)> {
+    let text = readme();
+    let mut examples = Vec::new();
+    let mut rest = text.as_str();
+    while let Some(start) = rest.find("\n$ ") {
+        let block = &rest[start + 1..];
+        let end = block.find("```").unwrap_or(block.len());
+        let mut lines = block[..end].lines();
+        let mut command = String::new();
+        for line in lines.by_ref() {
+            let line = line.trim_start_matches("$ ").trim();
+            match line.strip_suffix('\\') {
+                Some(part) => command.push_str(part),
+                None => {
+                    command.push_str(line);
+                    break;
+                }
+            }
+        }
+        let words: Vec<&str> = command.split_whitespace().collect();
+        let args = match words.as_slice() {
+            ["bead", "compare", ..] => Some(words[1..].to_vec()),
+            ["cargo", "run", "--release", "--", "compare", ..] => Some(words[4..].to_vec()),
+            _ => None,
+        };
+        if let Some(args) = args {
+            examples.push((
+                args.iter().map(|a| a.to_string()).collect(),
+                lines.map(String::from).collect(),
+            ));
+        }
+        rest = &block[end..];
+    }
+    examples
+}
+
+/// Table rows by their first three cells (method, integrator, dt), the other cells kept.
+fn rows(lines: &[String]) -> Vec<(String, Vec<String>)> {
+    lines
+        .iter()
+        .filter(|l| l.starts_with("implicit") || l.starts_with("parametric"))
+        .map(|l| {
+            let cells: Vec<String> = l.split_whitespace().map(String::from).collect();
+            (cells[..3].join(" "), cells[3..].to_vec())
+        })
+        .collect()
+}
+
+#[test]
+fn the_readmes_comparison_tables_are_what_bead_compare_prints() {
+    let examples = readme_compare_examples();
+    assert!(examples.len() >= 3, "{} examples", examples.len());
+    for (args, printed) in examples {
+        // The same runs without writing the README's report directory.
+        let mut run: Vec<&str> = Vec::new();
+        let mut skip = false;
+        for arg in &args {
+            if std::mem::take(&mut skip) {
+                continue;
+            }
+            if arg == "--report" {
+                skip = true;
+                continue;
+            }
+            run.push(arg);
+        }
+        let out = bead(&run);
+        let got: Vec<String> = out.lines().map(String::from).collect();
+        let header = |lines: &[String]| lines.iter().find(|l| l.starts_with("method")).cloned();
+        assert_eq!(header(&printed), header(&got), "{args:?}: {out}");
+        let (want, got) = (rows(&printed), rows(&got));
+        assert_eq!(want.len(), got.len(), "{args:?}: {out}");
+        for ((label, want), (got_label, got)) in want.iter().zip(&got) {
+            assert_eq!(label, got_label, "{args:?}");
+            // Every figure but the last column (steps/s, a wall-clock speed) as printed.
+            let n = want.len() - 1;
+            assert_eq!(
+                want[..n],
+                got[..n],
+                "{args:?} {label}: README {want:?}, bead {got:?}"
+            );
+        }
+    }
+}
+
+/// The closest point of the parabola y = -x^2/100 (the article's wire, x^2 + 100 y = 0) to
+/// (px, py): u minimizing (u - px)^2 + (-u^2/100 - py)^2, by a scan over u in [-400, 400]
+/// at 0.1 for the global minimum, then Newton's method on the derivative from there;
+/// returns the distance.
+fn distance_to_parabola(px: f64, py: f64) -> f64 {
+    let d = |u: f64| ((u - px).powi(2) + (-u * u / 100.0 - py).powi(2)).sqrt();
+    let f = |u: f64| (u - px) + (-u * u / 100.0 - py) * (-u / 50.0);
+    let df = |u: f64| 1.0 + (u / 50.0).powi(2) + (-u * u / 100.0 - py) * (-1.0 / 50.0);
+    let mut u = (-4000..=4000)
+        .map(|k| k as f64 * 0.1)
+        .min_by(|a, b| d(*a).total_cmp(&d(*b)))
+        .unwrap();
+    let scanned = d(u);
+    for _ in 0..50 {
+        u -= f(u) / df(u);
+    }
+    assert!(
+        d(u) <= scanned && f(u).abs() < 1e-9,
+        "Newton left the minimum"
+    );
+    d(u)
+}
+
+#[test]
+fn the_readmes_distance_off_the_wire_is_the_implicit_rk4_runs() {
+    let json = bead(&[
+        "run",
+        "scenes/parabola.toml",
+        "--integrator",
+        "rk4",
+        "--dt",
+        "1/60",
+        "--duration",
+        "600",
+        "--json",
+    ]);
+    let summary: serde_json::Value = serde_json::from_str(&json).unwrap();
+    let position = &summary["particles"]["bead"]["position"];
+    let (x, y) = (position[0].as_f64().unwrap(), position[1].as_f64().unwrap());
+    let distance = distance_to_parabola(x, y);
+    // "the bead ends N px off the wire": N rounded as the README gives it.
+    let text = readme();
+    let claim = text
+        .split("the bead ends ")
+        .nth(1)
+        .and_then(|rest| rest.split(" px off the wire").next())
+        .expect("README: \"the bead ends N px off the wire\"");
+    let claimed: f64 = claim.trim_start_matches('~').parse().unwrap();
+    assert!(
+        (claimed - distance).abs() <= 0.5,
+        "README says {claim} px, the run ends {distance} px off the wire"
+    );
+    // The summary's first-order distance |C| / |grad C| at the end, computed here.
+    let c = x * x + 100.0 * y;
+    let first_order = c.abs() / (4.0 * x * x + 1e4).sqrt();
+    let reported = summary["constraint_distance_final"].as_f64().unwrap();
+    assert!(
+        (reported - first_order).abs() <= 1e-9 * first_order,
+        "{reported} vs {first_order}"
+    );
+}
+
+#[test]
+fn a_small_energy_error_beside_a_large_constraint_error_is_flagged() {
+    // Implicit verlet on the spinning hoop: E - W conserved to ~1e-5 while the bead leaves
+    // the hoop by half its radius. The summary says so; rk4 at the same step stays on it.
+    let args = |integrator: &'static str| {
+        [
+            "run",
+            "scenes/spinning-hoop.toml",
+            "--method",
+            "implicit",
+            "--integrator",
+            integrator,
+            "--duration",
+            "100",
+        ]
+    };
+    let verlet = bead(&args("verlet"));
+    assert!(
+        verlet.contains("neither figure alone measures accuracy"),
+        "{verlet}"
+    );
+    let rk4 = bead(&args("rk4"));
+    assert!(!rk4.contains("neither figure"), "{rk4}");
+    // The distance in the JSON is the larger of the two rows' |C| / |grad C| at the final
+    // position: the sphere x^2 + y^2 + z^2 - R^2 and the plane -x sin(wt) + y cos(wt).
+    let mut json_args = args("verlet").to_vec();
+    json_args.push("--json");
+    let summary: serde_json::Value = serde_json::from_str(&bead(&json_args)).unwrap();
+    let p: Vec<f64> = summary["particles"]["bead"]["position"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_f64().unwrap())
+        .collect();
+    let (r, w, t) = (0.8_f64, 5.0_f64, summary["t_final"].as_f64().unwrap());
+    let sphere = p.iter().map(|c| c * c).sum::<f64>() - r * r;
+    let sphere_distance = sphere.abs() / (2.0 * p.iter().map(|c| c * c).sum::<f64>().sqrt());
+    let plane_distance = (-p[0] * (w * t).sin() + p[1] * (w * t).cos()).abs();
+    let expected = sphere_distance.max(plane_distance);
+    let reported = summary["constraint_distance_final"].as_f64().unwrap();
+    assert!(
+        (reported - expected).abs() <= 1e-9 * expected,
+        "{reported} vs {expected}"
+    );
+    assert!(reported > 0.1 * r, "{reported}");
+}
