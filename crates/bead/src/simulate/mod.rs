@@ -857,6 +857,17 @@ impl Simulation {
                 .monitor
                 .singular_within_reach(&*self.formulation, self.state.t, q, &displacement)
                 .map(|row| (row, SingularKind::Ahead));
+            if near.is_none() && self.steps <= 10 {
+                // A start next to a singular point blows up within a few steps, and the
+                // states it accepted on the way are already far out: look from the start,
+                // as far as the run went.
+                let start = &self.monitor.initial_q;
+                let moved: Vec<f64> = q.iter().zip(start).map(|(a, b)| a - b).collect();
+                near = self
+                    .monitor
+                    .singular_within_reach(&*self.formulation, self.state.t, start, &moved)
+                    .map(|row| (row, SingularKind::Ahead));
+            }
         }
         let q = &self.state.q[..self.n];
         match near {

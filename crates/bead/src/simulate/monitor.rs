@@ -26,7 +26,8 @@ pub(super) const OFF_BRANCH: f64 = 0.01;
 /// it also left the curve by more than this fraction of its own length.
 const TOO_LONG_OFFSET: f64 = 0.1;
 /// A point where a gradient row vanishes is on the curve when |C| there is below this
-/// fraction of the row's scale (its longest gradient length times the scene's length): C
+/// fraction of the row's scale (its gradient's length at the start times the scene's
+/// length): C
 /// vanishes quadratically at a singular point of the curve (C = 0 there exactly), while a
 /// critical point off the curve (a circle's centre, a rod's ends meeting) has |C| of the
 /// order of the scale.
@@ -126,6 +127,12 @@ pub(super) struct Monitor {
     before: StepEnd,
     /// The longest each gradient row has been in this run (rows)
     longest: Vec<f64>,
+    /// Each gradient row's length at the start (rows): its scale, which a blow-up cannot
+    /// inflate as it inflates `longest`
+    initial: Vec<f64>,
+    /// The formulation's q at the start (a divergence within the first steps is explained
+    /// from there, before the blow-up)
+    pub(super) initial_q: Vec<f64>,
     /// Per row, the gradient's length when a search for a singular point last found none
     /// (infinite when none failed): the search is repeated only once the gradient has
     /// shrunk by half since, so that a curve with a sharp but regular turn (the tip of a thin
@@ -218,6 +225,7 @@ impl Monitor {
             .map(|r| norm(observation.gradients.row(r)))
             .collect();
         let searched = vec![f64::INFINITY; longest.len()];
+        let initial = longest.clone();
         let never_singular = (0..longest.len())
             .map(|r| formulation.row_never_singular(r))
             .collect();
@@ -231,6 +239,8 @@ impl Monitor {
             last,
             before,
             longest,
+            initial,
+            initial_q: q.to_vec(),
             searched,
             never_singular,
             length_scale,
@@ -496,8 +506,8 @@ impl Monitor {
     ///
     /// A candidate stops the run only when a search with exact second derivatives
     /// ([`Formulation::locate_singular_point`]) confirms a point x* where the gradient
-    /// vanishes, on the curve (|C(x*)| below 1e-6 of the row's scale G times the scene's
-    /// length), and within reach: on the step's chord (reversal), within three steps
+    /// vanishes (reduced by 1e-6 to below 1e-6 of its length at the start, G0, or by 1e-10),
+    /// on the curve (|C(x*)| below 1e-6 of G0 times the scene's length), and within reach: on the step's chord (reversal), within three steps
     /// (ahead), anywhere (a gradient that has collapsed is close to its zero in its own
     /// scale, whatever the step), or closer than 100 times the state's distance off the
     /// constraint (another branch). A reversal that no singular point explains is a coarse
@@ -653,16 +663,19 @@ impl Monitor {
             .map(|(now, before)| now + probe * (now - before))
             .collect();
         let search = formulation.locate_singular_point(r, t, &start);
-        // Reduced by 1e-6, and small against the row's own longest length (a search from a
-        // state far out, after a blow-up, reduces a gradient that has no zero by as much).
-        if search.reduction.is_nan()
-            || search.reduction > 1e-6
-            || !(search.residual <= 1e-6 * self.longest[r])
-        {
+        // Reduced by 1e-6, and either small against the row's own scale or reduced by far
+        // more: a search from a state far out, after a blow-up, reduces a gradient that has
+        // no zero by 1e-6 too, down to the gradient's nonzero minimum, where it stalls; at a
+        // zero it goes on (quadratically, or by a constant factor at a cusp) to 1e-12 of its
+        // start, even when the scene starts so close to a cusp that its own scale is tiny.
+        let row_scale = self.row_scale(r);
+        let vanishes = search.reduction <= 1e-6
+            && (search.residual <= 1e-6 * row_scale || search.reduction <= 1e-10);
+        if !vanishes {
             return None;
         }
         // On the curve: C there vanishes against the row's own scale (see ON_CURVE).
-        let scale = self.longest[r] * self.length_scale;
+        let scale = row_scale * self.length_scale;
         if search.value.is_nan() || search.value.abs() > ON_CURVE * scale {
             return None;
         }
@@ -688,6 +701,18 @@ enum Finding {
 /// the ensemble lanes, which hand a member over on the same test.
 pub(super) fn off_branch_candidate(offset: f64, length: f64, change: f64, step: f64) -> bool {
     offset * change > OFF_BRANCH * length * step
+}
+
+impl Monitor {
+    /// Row r's gradient length scale: its length at the start, or its longest in the run
+    /// when it started at zero (a run that starts at a singular point is refused anyway).
+    fn row_scale(&self, r: usize) -> f64 {
+        if self.initial[r] > 0.0 {
+            self.initial[r]
+        } else {
+            self.longest[r]
+        }
+    }
 }
 
 /// What the regularity monitor keeps of an accepted step's end.
