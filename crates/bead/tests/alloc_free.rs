@@ -270,6 +270,24 @@ fn every_integrator_steps_the_parametric_form_without_allocating() {
 /// monitor's first-order tests a few times per run at most: see `monitor.rs`).
 const CALLS_PER_SEARCH: usize = 500;
 
+/// (allocator calls, singular-point searches) of a 10-step and a 10000-step run: the same
+/// calls, except that the singular-point monitor's searches, few (at most 10) and counted,
+/// may allocate, far below one call per step.
+fn assert_no_allocation_per_step(short: (usize, u64), long: (usize, u64), context: &str) {
+    let ((short, short_searches), (long, long_searches)) = (short, long);
+    let context = format!(
+        "{context}: {short} allocator calls in 10 steps, {long} in 10000, with \
+         {short_searches} and {long_searches} searches for singular points"
+    );
+    if long_searches == short_searches {
+        assert_eq!(short, long, "{context}");
+    } else {
+        assert!(long_searches <= 10, "{context}");
+        let allowed = (long_searches - short_searches) as usize * CALLS_PER_SEARCH;
+        assert!(long - short <= allowed, "{context}");
+    }
+}
+
 // run() allocates its buffers once (integrator, monitor, state copies, the final statistics);
 // the loop itself must add nothing, so a 10-step and a 10000-step run make the same number of
 // allocator calls, except for the singular-point monitor's searches: a drifting integrator
@@ -312,23 +330,8 @@ fn run_loop_allocation_count_does_not_depend_on_the_number_of_steps() {
                     assert_eq!(result.unwrap().t_final, steps as f64 * dt);
                     (calls, searches)
                 };
-                let ((short, short_searches), (long, long_searches)) = (calls(10), calls(10_000));
-                let context = format!(
-                    "{name} {} {}: {short} allocator calls in 10 steps, {long} in 10000, \
-                     with {short_searches} and {long_searches} searches for singular points",
-                    method.name(),
-                    kind.name()
-                );
-                if long_searches == short_searches {
-                    assert_eq!(short, long, "{context}");
-                } else {
-                    assert!(long_searches <= 10, "{context}");
-                    assert!(
-                        long - short
-                            <= (long_searches - short_searches) as usize * CALLS_PER_SEARCH,
-                        "{context}"
-                    );
-                }
+                let context = format!("{name} {} {}", method.name(), kind.name());
+                assert_no_allocation_per_step(calls(10), calls(10_000), &context);
             }
         }
     }
@@ -399,24 +402,8 @@ fn run_loop_with_a_stop_condition_allocates_nothing_per_step() {
                 assert_eq!(result.unwrap().stop_time, None);
                 (calls, simulation.singular_point_searches())
             };
-            let ((short, short_searches), (long, long_searches)) = (calls(10), calls(10_000));
-            let context = format!(
-                "{} {} with a stop condition: {short} allocator calls in 10 steps, {long} in \
-                 10000, with {short_searches} and {long_searches} searches for singular points",
-                method.name(),
-                kind.name()
-            );
-            // As in run_loop_allocation_count_does_not_depend_on_the_number_of_steps: only the
-            // singular-point monitor's searches, few and counted, may allocate.
-            if long_searches == short_searches {
-                assert_eq!(short, long, "{context}");
-            } else {
-                assert!(long_searches <= 10, "{context}");
-                assert!(
-                    long - short <= (long_searches - short_searches) as usize * CALLS_PER_SEARCH,
-                    "{context}"
-                );
-            }
+            let context = format!("{} {} with a stop condition", method.name(), kind.name());
+            assert_no_allocation_per_step(calls(10), calls(10_000), &context);
         }
     }
 }

@@ -312,17 +312,7 @@ impl Simulation {
                 cause: None,
             }));
         }
-        let mut a = vec![0.0; self.state.q.len()];
-        let Simulation {
-            formulation,
-            ledger,
-            state,
-            ..
-        } = self;
-        with_system(formulation, ledger, |system| {
-            system.acceleration(state.t, &state.q, &state.qdot, &mut a)
-        })
-        .map_err(initial)?;
+        let a = self.current_acceleration().map_err(initial)?;
         if let Some(k) = a.iter().position(|c| !c.is_finite()) {
             let names = self.formulation.coordinate_names();
             let quantity = if k >= self.n {
@@ -820,6 +810,22 @@ impl Simulation {
         RunError::Step(error)
     }
 
+    /// The acceleration at the integrator's state (work coordinate included when the ledger
+    /// runs). Allocates: for setup and failures only.
+    fn current_acceleration(&mut self) -> Result<Vec<f64>, StepError> {
+        let mut a = vec![0.0; self.state.q.len()];
+        let Simulation {
+            formulation,
+            ledger,
+            state,
+            ..
+        } = self;
+        with_system(formulation, ledger, |system| {
+            system.acceleration(state.t, &state.q, &state.qdot, &mut a)
+        })?;
+        Ok(a)
+    }
+
     /// A divergence from the last good state (restored): when that state is next to a
     /// singular point (see [`Simulation::fail`]), the singular point with the divergence as
     /// its cause, so that the message says both; otherwise the divergence.
@@ -832,23 +838,10 @@ impl Simulation {
             // What one step moves from here: dt qdot + dt^2 a / 2.
             let n = self.n;
             let dt = self.config.dt;
-            let mut a = vec![0.0; self.state.q.len()];
-            let Simulation {
-                formulation,
-                ledger,
-                state,
-                ..
-            } = self;
-            let accelerated = with_system(formulation, ledger, |system| {
-                system.acceleration(state.t, &state.q, &state.qdot, &mut a)
-            });
+            let a = self.current_acceleration().unwrap_or_default();
             let displacement: Vec<f64> = (0..n)
                 .map(|k| {
-                    let a = if accelerated.is_ok() && a[k].is_finite() {
-                        a[k]
-                    } else {
-                        0.0
-                    };
+                    let a = a.get(k).copied().filter(|a| a.is_finite()).unwrap_or(0.0);
                     dt * self.state.qdot[k] + 0.5 * dt * dt * a
                 })
                 .collect();
