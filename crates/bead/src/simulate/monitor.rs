@@ -27,10 +27,9 @@ pub(super) const OFF_BRANCH: f64 = 0.01;
 const TOO_LONG_OFFSET: f64 = 0.1;
 /// A point where a gradient row vanishes is on the curve when |C| there is below this
 /// fraction of the row's scale (its gradient's length at the start times the scene's
-/// length): C
-/// vanishes quadratically at a singular point of the curve (C = 0 there exactly), while a
-/// critical point off the curve (a circle's centre, a rod's ends meeting) has |C| of the
-/// order of the scale.
+/// length): C vanishes quadratically at a singular point of the curve (C = 0 there exactly),
+/// while a critical point off the curve (a circle's centre, a rod's ends meeting) has |C| of
+/// the order of the scale.
 const ON_CURVE: f64 = 1e-6;
 
 /// A quantity that diverged.
@@ -326,6 +325,7 @@ impl Monitor {
         self.constraint_distance_max =
             max_nan(self.constraint_distance_max, self.constraint_distance);
     }
+
     /// The scene's length scale (the largest initial coordinate magnitude, 1 when all are 0).
     pub(super) fn length_scale(&self) -> f64 {
         self.length_scale
@@ -507,10 +507,10 @@ impl Monitor {
     /// A candidate stops the run only when a search with exact second derivatives
     /// ([`Formulation::locate_singular_point`]) confirms a point x* where the gradient
     /// vanishes (reduced by 1e-6 to below 1e-6 of its length at the start, G0, or by 1e-10),
-    /// on the curve (|C(x*)| below 1e-6 of G0 times the scene's length), and within reach: on the step's chord (reversal), within three steps
-    /// (ahead), anywhere (a gradient that has collapsed is close to its zero in its own
-    /// scale, whatever the step), or closer than 100 times the state's distance off the
-    /// constraint (another branch). A reversal that no singular point explains is a coarse
+    /// on the curve (|C(x*)| below 1e-6 of G0 times the scene's length), and within reach:
+    /// on the step's chord (reversal), within three steps (ahead), anywhere (a gradient that
+    /// has collapsed is close to its zero in its own scale, whatever the step), or closer
+    /// than 100 times the state's distance off the constraint (another branch). A reversal that no singular point explains is a coarse
     /// step across a bend of a regular curve, accepted, unless the step also left the curve
     /// by more than a tenth of its length: then it is a step too long for the curve
     /// ([`Finding::TooLong`]), never "a cusp or a crossing". A wildly unstable integration
