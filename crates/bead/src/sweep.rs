@@ -735,7 +735,7 @@ impl Sweep {
 
     /// Run members `range` on `threads` threads (0: one per core) and hand each to `each` on
     /// the calling thread, in index order, as soon as it and every member before it are done.
-    /// Memory is bounded whatever the count: threads take blocks of [`LANES`] members from a
+    /// Memory is bounded whatever the count: threads take blocks of 16 members (`LANES`) from a
     /// shared counter, but none starts a block more than a window of a few blocks per thread
     /// (fewer for large systems: about 16 MiB of results) ahead of the next member to hand
     /// over. When `each` returns an error, no further member starts and that error is
