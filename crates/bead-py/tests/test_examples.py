@@ -99,3 +99,21 @@ def test_dask_sweep_equals_the_local_sweep():
     assert done.returncode == 0, done.stdout + done.stderr
     assert "dask result equals the local sweep bit for bit: yes" in done.stdout
     assert "a LocalCluster of 2 worker processes" in done.stdout
+
+
+def test_numpy_ensemble_measures_the_same_work_as_bead_sweep():
+    """examples/numpy_ensemble.py times bead.sweep beside a hand-written numpy RK4 of the same
+    equations; both must end every member at the same place (the script checks that before
+    it reports), else the comparison measures different work."""
+    module = example("numpy_ensemble")
+    x0 = module.release_points(64)
+    for method, by_hand in [("implicit", module.numpy_implicit),
+                            ("parametric", module.numpy_parametric)]:
+        bx, by = module.through_bead(x0, 120, method, threads=1)
+        nx, ny = by_hand(x0, 120)
+        assert np.abs(bx - nx).max() <= 1e-9 * 200 and np.abs(by - ny).max() <= 1e-9 * 200
+        # Not the same numbers by accident: the members moved.
+        assert np.abs(bx - x0).max() > 100.0
+    rows = module.compare(members=64, steps=50, threads=1, rounds=1)
+    assert [r[0] for r in rows] == ["implicit", "parametric"]
+    assert all(r[1] > 0 and r[2] > 0 and r[3] > 0 for r in rows)
