@@ -315,7 +315,34 @@ fn print_ratios(quick: bool) {
     );
 }
 
+/// `BEAD_STEP_ONLY=VARIANT BEAD_STEP_COUNT=N`: N steps of one variant and nothing else, for
+/// instruction counts (`scripts/step-instructions` runs it under callgrind at two N and
+/// divides the difference: instructions per step, free of setup and of the machine's load).
+fn only(variant: &str, count: u64) {
+    let mut v = Variants::new();
+    let mut step: Box<dyn FnMut() -> f64> = match variant {
+        "implicit_toml" => Box::new(|| v.implicit_toml.step()),
+        "implicit_holonomic" => Box::new(|| v.implicit_holonomic.step()),
+        "parametric_toml" => Box::new(|| v.parametric_toml.step()),
+        "implicit_hand" => {
+            Box::new(|| hand_implicit_rk4(black_box(IMPLICIT_START), black_box(DT))[0])
+        }
+        "parametric_hand" => {
+            Box::new(|| hand_parametric_rk4(black_box(PARAMETRIC_START), black_box(DT))[0])
+        }
+        other => panic!("BEAD_STEP_ONLY={other}: not a variant"),
+    };
+    for _ in 0..count {
+        black_box(step());
+    }
+}
+
 fn main() {
+    if let Ok(variant) = std::env::var("BEAD_STEP_ONLY") {
+        let count = std::env::var("BEAD_STEP_COUNT").map_or(1000, |c| c.parse().unwrap());
+        only(&variant, count);
+        return;
+    }
     // `cargo bench` passes --bench; without it (cargo test --benches) criterion runs each
     // benchmark once as a smoke test, and so does the ratio table.
     let benchmarking = std::env::args().any(|a| a == "--bench");

@@ -41,6 +41,7 @@ pub use ast::{Expr, Func};
 pub(crate) use diff::gradients;
 pub use parse::{is_identifier, name_spans, parse, ExprError, Resolved, Span, MAX_DEPTH};
 pub use tape::Tape;
+pub(crate) use tape::{Sym, TapeBuilder};
 
 #[cfg(test)]
 pub(crate) mod testutil;

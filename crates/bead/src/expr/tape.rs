@@ -359,7 +359,14 @@ impl Tape {
             vals.push(v);
         }
         let mut out: Vec<u32> = t.roots.iter().map(|&r| b.slot(vals[r as usize])).collect();
-        let code = fuse(b.code, &mut out);
+        Tape::assemble(b.code, &mut out)
+    }
+
+    /// The tape of `code` (SSA, hash-consed) with `outputs`: single-use products fused into
+    /// their additions, then checked and sized.
+    fn assemble(code: Vec<Instr>, outputs: &mut [u32]) -> Tape {
+        let code = fuse(code, outputs);
+        let out = outputs.to_vec();
         assert!(u32::try_from(code.len()).is_ok(), "tape too long");
         let n_vars = code
             .iter()
@@ -466,6 +473,133 @@ impl Tape {
 
 /// Run `code` over L lanes: slot i of lane l is `s[i * L + l]`. One function for the scalar
 /// evaluation (L = 1) and the lanes, so that both round alike.
+/// A value while a tape is built by [`TapeBuilder`]: a constant (folded at build time) or a
+/// scratch slot.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Sym(Val);
+
+impl std::fmt::Debug for Val {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Val::Const(c) => write!(f, "{c}"),
+            Val::Slot(s) => write!(f, "%{s}"),
+        }
+    }
+}
+
+/// Builds a tape from elementary operations, for code beyond expressions (the fused
+/// accelerations of [`crate::formulation`]): each method emits exactly the IEEE operation it
+/// names, in the order called, so the tape computes the same bits as the same sequence of
+/// `f64` operations in Rust. Constants are folded only where the fold is exact (both operands
+/// constant: the build does the operation the run would do); common subexpressions are
+/// shared (an identical operation on identical operands gives identical bits).
+pub(crate) struct TapeBuilder {
+    b: Builder,
+}
+
+impl TapeBuilder {
+    pub(crate) fn new() -> Self {
+        TapeBuilder {
+            b: Builder {
+                code: Vec::new(),
+                memo: FastMap::default(),
+            },
+        }
+    }
+
+    /// Variable slot `k` of the tape's input.
+    pub(crate) fn var(&mut self, k: usize) -> Sym {
+        let k = u32::try_from(k).expect("variable slot too large for a tape");
+        Sym(self.b.emit(Instr::Var(k)))
+    }
+
+    /// A constant.
+    pub(crate) fn constant(&self, c: f64) -> Sym {
+        Sym(Val::Const(c))
+    }
+
+    /// `tape`'s code, reading the same variable slots, appended: its outputs in order.
+    pub(crate) fn append(&mut self, tape: &Tape) -> Vec<Sym> {
+        let mut slots: Vec<u32> = Vec::with_capacity(tape.code.len());
+        for &ins in &tape.code {
+            let mut ins = ins;
+            for s in ins.operands_mut().into_iter().flatten() {
+                *s = slots[*s as usize];
+            }
+            match self.b.emit(ins) {
+                Val::Slot(s) => slots.push(s),
+                Val::Const(_) => unreachable!("emit returns a slot"),
+            }
+        }
+        tape.outputs
+            .iter()
+            .map(|&o| Sym(Val::Slot(slots[o as usize])))
+            .collect()
+    }
+
+    /// `a + b`
+    pub(crate) fn add(&mut self, a: Sym, b: Sym) -> Sym {
+        use Val::{Const as C, Slot as S};
+        Sym(match (a.0, b.0) {
+            (C(x), C(y)) => C(x + y),
+            (C(c), S(s)) | (S(s), C(c)) => self.b.emit(Instr::AddC(s, c)),
+            (S(x), S(y)) => self.b.emit(Instr::Add(x.min(y), x.max(y))),
+        })
+    }
+    /// `a - b`
+    pub(crate) fn sub(&mut self, a: Sym, b: Sym) -> Sym {
+        use Val::{Const as C, Slot as S};
+        Sym(match (a.0, b.0) {
+            (C(x), C(y)) => C(x - y),
+            (C(c), S(s)) => self.b.emit(Instr::CSub(s, c)),
+            // x - c == x + (-c) exactly.
+            (S(s), C(c)) => self.b.emit(Instr::AddC(s, -c)),
+            (S(x), S(y)) => self.b.emit(Instr::Sub(x, y)),
+        })
+    }
+    /// `a * b`
+    pub(crate) fn mul(&mut self, a: Sym, b: Sym) -> Sym {
+        use Val::{Const as C, Slot as S};
+        Sym(match (a.0, b.0) {
+            (C(x), C(y)) => C(x * y),
+            (C(c), S(s)) | (S(s), C(c)) => self.b.emit(Instr::MulC(s, c)),
+            (S(x), S(y)) if x == y => self.b.emit(Instr::Square(x)),
+            (S(x), S(y)) => self.b.emit(Instr::Mul(x.min(y), x.max(y))),
+        })
+    }
+    /// `a / b`
+    pub(crate) fn div(&mut self, a: Sym, b: Sym) -> Sym {
+        use Val::{Const as C, Slot as S};
+        Sym(match (a.0, b.0) {
+            (C(x), C(y)) => C(x / y),
+            (C(c), S(s)) => self.b.emit(Instr::CDiv(s, c)),
+            (S(s), C(c)) => self.b.emit(Instr::DivC(s, c)),
+            (S(x), S(y)) => self.b.emit(Instr::Div(x, y)),
+        })
+    }
+    /// `-a`
+    pub(crate) fn neg(&mut self, a: Sym) -> Sym {
+        Sym(match a.0 {
+            Val::Const(c) => Val::Const(-c),
+            Val::Slot(s) => self.b.emit(Instr::Neg(s)),
+        })
+    }
+    /// `a.sqrt()`
+    pub(crate) fn sqrt(&mut self, a: Sym) -> Sym {
+        match a.0 {
+            Val::Const(c) => Sym(Val::Const(c.sqrt())),
+            Val::Slot(_) => Sym(self.b.unary(Func::Sqrt, a.0)),
+        }
+    }
+
+    /// The tape computing `outputs`, its variables the slots read by [`Self::var`] and the
+    /// appended tapes.
+    pub(crate) fn finish(mut self, outputs: &[Sym]) -> Tape {
+        let mut out: Vec<u32> = outputs.iter().map(|o| self.b.slot(o.0)).collect();
+        Tape::assemble(self.b.code, &mut out)
+    }
+}
+
 #[inline(always)]
 fn run_lanes<const L: usize>(code: &[Instr], vars: &[f64], s: &mut [f64]) {
     for (i, &ins) in code.iter().enumerate() {

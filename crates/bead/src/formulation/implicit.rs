@@ -17,6 +17,7 @@
 
 use std::sync::Arc;
 
+use super::fused::{FusedImplicit, ImplicitBuffers};
 use super::{
     Formulation, Gradients, Method, Nonconservation, Observation, SecondOrderSystem,
     SingularSearch, State, StepError, Subject,
@@ -50,12 +51,12 @@ pub struct Implicit {
     /// Which factorization solves J W J^T
     pub(crate) solver: LinearSolver,
     /// F (n)
-    force: Vec<f64>,
-    constraints: ConstraintEval,
+    pub(super) force: Vec<f64>,
+    pub(super) constraints: ConstraintEval,
     /// J W J^T and its factorization (shared by the acceleration and the projections)
     pub(crate) matrix: ConstraintMatrix,
     /// rhs, then lambda (m)
-    lambda: Vec<f64>,
+    pub(super) lambda: Vec<f64>,
     /// Scratch space of the [`super::ConstrainedSystem`] methods (projections).
     pub(crate) projection: super::constrained::ProjectionWorkspace,
     /// Forces applied from outside the system (see [`Formulation::external_forces_mut`]).
@@ -63,6 +64,8 @@ pub struct Implicit {
     /// Per-row tolerance scales (see [`Formulation::set_constraint_scales`]); `None`:
     /// tolerances are absolute.
     pub(crate) scales: Option<super::ConstraintScales>,
+    /// The whole acceleration in one tape, for small systems (see [`super::fused`]).
+    pub(super) fused: Option<FusedImplicit>,
 }
 
 impl Implicit {
@@ -77,12 +80,15 @@ impl Implicit {
     pub fn with_solver(system: Arc<System>, feedback: Feedback, solver: LinearSolver) -> Self {
         let n = system.n_coords();
         let m = system.constraints().n_rows();
+        let matrix = ConstraintMatrix::new(system.constraints().structure(), solver);
+        let fused = FusedImplicit::build(&system, &matrix, feedback.ks, feedback.kd);
         Implicit {
+            fused,
             feedback,
             solver,
             force: vec![0.0; n],
             constraints: system.constraints().workspace(),
-            matrix: ConstraintMatrix::new(system.constraints().structure(), solver),
+            matrix,
             lambda: vec![0.0; m],
             projection: super::constrained::ProjectionWorkspace::new(&system),
             external: Vec::new(),
@@ -212,6 +218,17 @@ impl SecondOrderSystem for Implicit {
         v: &[f64],
         a: &mut [f64],
     ) -> Result<(), StepError> {
+        if let Some(fused) = &mut self.fused {
+            accumulate_all_forces(&self.system, &self.external, x, v, &mut self.force);
+            let buffers = ImplicitBuffers {
+                constraints: &mut self.constraints,
+                lambda: &mut self.lambda,
+                force: &mut self.force,
+            };
+            if fused.accelerate(t, x, v, a, buffers) {
+                return Ok(());
+            }
+        }
         let set = self.system.constraints();
         if set.n_rows() > 0 {
             set.evaluate(t, x, v, &mut self.constraints);

@@ -10,6 +10,7 @@
 //! run loop needs: the initial state and the map back to particles).
 
 mod constrained;
+mod fused;
 mod gradients;
 mod implicit;
 mod parametric;

@@ -19,6 +19,7 @@
 
 use std::sync::Arc;
 
+use super::fused::{FusedParametric, ParametricBuffers};
 use super::implicit::{accumulate_all_forces, external_power};
 use super::{
     Formulation, FormulationError, Gradients, Method, Nonconservation, Observation,
@@ -30,7 +31,7 @@ use crate::model::{ConstraintEval, Force, ParametricEval, ParametricMap, System}
 /// Buffers of [`Parametric::accelerate_across_lanes`], sized on first use.
 #[derive(Debug, Default)]
 pub(crate) struct LaneScratch {
-    force: Vec<f64>,
+    pub(super) force: Vec<f64>,
     matrix: Vec<f64>,
     dense: Vec<f64>,
 }
@@ -40,9 +41,9 @@ pub struct Parametric {
     pub(crate) system: Arc<System>,
     /// Dense Cholesky of M (n_q x n_q)
     solver: DenseCholesky,
-    map: ParametricEval,
+    pub(super) map: ParametricEval,
     /// F (n_coords)
-    force: Vec<f64>,
+    pub(super) force: Vec<f64>,
     /// The mass of each particle coordinate (n_coords), so the hot loops multiply
     coordinate_mass: Vec<f64>,
     /// The nonzeros of J as runs of consecutive columns, for the assembly of M
@@ -58,6 +59,9 @@ pub struct Parametric {
     constraints: ConstraintEval,
     /// Whether qddot depends on qdot, decided once from the model (see `velocity_dependent`).
     velocity_dependent: bool,
+    /// The whole acceleration in one tape, for small maps under constant forces (see
+    /// [`super::fused`]); used while no external force is applied.
+    pub(super) fused: Option<FusedParametric>,
 }
 
 impl Parametric {
@@ -73,16 +77,29 @@ impl Parametric {
         // superset of the true one, so this errs on the safe side.
         let velocity_dependent =
             system.has_velocity_dependent_forces() || map.bias_depends_on_rates();
+        let solver = DenseCholesky::new(&SymmetricPattern::dense(n_q));
+        let coordinate_mass: Vec<f64> = system
+            .particles()
+            .iter()
+            .flat_map(|p| std::iter::repeat_n(p.mass, system.dim()))
+            .collect();
+        // The applied forces, constant where the fused path applies (x, v are not read).
+        let mut force = vec![0.0; system.n_coords()];
+        let zeros = vec![0.0; system.n_coords()];
+        accumulate_all_forces(&system, &[], &zeros, &zeros, &mut force);
+        let fused = FusedParametric::build(
+            &system,
+            &force,
+            &coordinate_mass,
+            solver.relative_pivot_tolerance,
+        );
         Ok(Parametric {
+            fused,
             velocity_dependent,
-            solver: DenseCholesky::new(&SymmetricPattern::dense(n_q)),
+            solver,
             map: map.workspace(),
             force: vec![0.0; system.n_coords()],
-            coordinate_mass: system
-                .particles()
-                .iter()
-                .flat_map(|p| std::iter::repeat_n(p.mass, system.dim()))
-                .collect(),
+            coordinate_mass,
             runs: Runs::new(map),
             matrix: vec![0.0; n_q * (n_q + 1) / 2],
             rhs: vec![0.0; n_q],
@@ -149,6 +166,19 @@ impl SecondOrderSystem for Parametric {
             .system
             .parametric()
             .expect("checked in Parametric::new");
+        if let Some(fused) = self.fused.as_mut().filter(|_| self.external.is_empty()) {
+            let ws = &mut self.map;
+            let buffers = ParametricBuffers {
+                position: &mut ws.position,
+                velocity: &mut ws.velocity,
+                bias: &mut ws.bias,
+                jacobian: &mut ws.jacobian,
+                force: &mut self.force,
+            };
+            if fused.accelerate(t, q, qdot, qddot, buffers) {
+                return Ok(());
+            }
+        }
         map.evaluate(t, q, qdot, &mut self.map);
         self.accelerate_evaluated(t, q, qdot, qddot)
     }

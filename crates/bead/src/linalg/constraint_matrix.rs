@@ -300,6 +300,17 @@ impl ConstraintMatrix {
         }
     }
 
+    /// The products J_i(a) w_k J_j(b) summed into slot `s` of A, as (a, b, k), in the order
+    /// [`Self::assemble`] sums them.
+    pub(crate) fn slot_products(
+        &self,
+        s: usize,
+    ) -> impl Iterator<Item = (usize, usize, usize)> + '_ {
+        self.terms[self.term_start[s]..self.term_start[s + 1]]
+            .iter()
+            .map(|t| (t.a as usize, t.b as usize, t.k as usize))
+    }
+
     /// Factor the last assembled A (see [`SymmetricSolver::factor`]).
     pub fn factor(&mut self) -> Result<(), Singular> {
         self.solver.factor(&self.values)

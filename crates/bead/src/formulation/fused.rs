@@ -1,0 +1,690 @@
+//! Fused accelerations for small systems: the whole acceleration of a step in one tape.
+//!
+//! For a system with a few constraint rows (implicit form) or generalized coordinates
+//! (parametric form), the general path evaluates the constraint or map tape, then assembles
+//! and factors a small matrix through the sparse-capable [`crate::linalg`] machinery: loops
+//! over patterns and product lists, dynamic dispatch to the solver, copies between buffers.
+//! Here the same arithmetic is written once, at load time, into one straight-line
+//! [`Tape`] (so one evaluation, interpreted or compiled to machine code, does it all):
+//!
+//! ```text
+//! implicit:   C, Cdot, bias, J (the constraint tape); A = J W J^T;
+//!             A lambda = -bias - J W F - ks C - kd Cdot (dense Cholesky); a = W (F + J^T lambda)
+//! parametric: x, xdot, h, J (the map's tape); M = sum_k m_k J_k^T J_k;
+//!             M qddot = sum_k J_k^T (F_k - m_k h_k) (dense Cholesky)
+//! ```
+//!
+//! Every operation is the one the general path does, in its order (the same sums from the
+//! same first term, the zeros outside the pattern multiplied as there, the Cholesky's square
+//! roots), so a fused acceleration equals the general one **bit for bit**; tests compare them
+//! on every shipped scene. The Cholesky's pivots come out with the accelerations: when one
+//! fails the relative pivot test, the caller runs the general path, which reports the
+//! singular matrix (or the non-finite input) exactly as before.
+use crate::expr::{Sym, Tape, TapeBuilder};
+use crate::linalg::SymmetricPattern;
+use crate::model::{ConstraintEval, Force, System};
+
+/// The most rows (implicit) or generalized coordinates (parametric) fused: the Cholesky's
+/// code grows as m^3 / 6 and the general path's overhead stops dominating.
+pub(crate) const FUSE_MAX_ROWS: usize = 8;
+
+/// Outputs of the dense Cholesky in a tape: the factor's pivots before their square roots
+/// and the diagonals they are tested against.
+struct Pivots {
+    diagonal: Vec<Sym>,
+    pivot: Vec<Sym>,
+}
+
+/// `terms` summed as `Iterator::sum` does: from -0.0, so the sum of no terms is -0.0 and
+/// otherwise starts exactly at the first term (-0.0 + x == x for every x).
+fn sum(b: &mut TapeBuilder, terms: impl IntoIterator<Item = Sym>) -> Sym {
+    let mut total: Option<Sym> = None;
+    for t in terms {
+        total = Some(match total {
+            None => t,
+            Some(s) => b.add(s, t),
+        });
+    }
+    total.unwrap_or_else(|| b.constant(-0.0))
+}
+
+/// [`crate::linalg::cholesky_in_place`] on the dense m x m lower triangle `a` (row-major),
+/// then [`crate::linalg::cholesky_substitute`] of `rhs`, as tape operations in the same
+/// order. Returns the pivots for the caller's test.
+fn cholesky_solve(b: &mut TapeBuilder, m: usize, a: &mut [Sym], rhs: &mut [Sym]) -> Pivots {
+    let at = |r: usize, c: usize| r * m + c;
+    let mut pivots = Pivots {
+        diagonal: Vec::with_capacity(m),
+        pivot: Vec::with_capacity(m),
+    };
+    for j in 0..m {
+        for i in 0..j {
+            let mut s = a[at(j, i)];
+            for k in 0..i {
+                let p = b.mul(a[at(j, k)], a[at(i, k)]);
+                s = b.sub(s, p);
+            }
+            a[at(j, i)] = b.div(s, a[at(i, i)]);
+        }
+        let diagonal = a[at(j, j)];
+        let squares: Vec<Sym> = (0..j).map(|k| b.mul(a[at(j, k)], a[at(j, k)])).collect();
+        let squares = sum(b, squares);
+        let pivot = b.sub(diagonal, squares);
+        pivots.diagonal.push(diagonal);
+        pivots.pivot.push(pivot);
+        a[at(j, j)] = b.sqrt(pivot);
+    }
+    for i in 0..m {
+        let mut s = rhs[i];
+        for k in 0..i {
+            let p = b.mul(a[at(i, k)], rhs[k]);
+            s = b.sub(s, p);
+        }
+        rhs[i] = b.div(s, a[at(i, i)]);
+    }
+    for i in (0..m).rev() {
+        let mut s = rhs[i];
+        for k in i + 1..m {
+            let p = b.mul(a[at(k, i)], rhs[k]);
+            s = b.sub(s, p);
+        }
+        rhs[i] = b.div(s, a[at(i, i)]);
+    }
+    pivots
+}
+
+/// The dense lower triangle (row-major m x m, zero elsewhere) of a matrix whose pattern
+/// `pattern` holds `values` by slot, as [`crate::linalg::DenseCholesky`] scatters it.
+fn scatter(b: &TapeBuilder, pattern: &SymmetricPattern, values: &[Sym]) -> Vec<Sym> {
+    let m = pattern.dim();
+    let mut dense = vec![b.constant(0.0); m * m];
+    for j in 0..m {
+        for (slot, &i) in pattern.column(j) {
+            dense[j * m + i] = values[slot];
+        }
+    }
+    dense
+}
+
+/// Whether the Cholesky's pivots pass the relative test of
+/// [`crate::linalg::cholesky_in_place`] (else the matrix counts as singular).
+fn pivots_pass(diagonal: &[f64], pivot: &[f64], tolerance: f64) -> bool {
+    diagonal
+        .iter()
+        .zip(pivot)
+        .all(|(&d, &p)| d > 0.0 && p > tolerance * d)
+}
+
+/// The implicit form's fused acceleration. Variables: x (n), v (n), t, F (n), the applied
+/// forces computed before (so that every force, the viewer's drag included, enters).
+/// Outputs: C, Cdot, bias (m each), J (nnz), lambda (m), F + J^T lambda (n), a (n), then the
+/// Cholesky's diagonals and pivots (m each).
+#[derive(Clone, Debug)]
+pub(crate) struct FusedImplicit {
+    tape: Tape,
+    n: usize,
+    m: usize,
+    nnz: usize,
+    tolerance: f64,
+    vars: Vec<f64>,
+    scratch: Vec<f64>,
+    out: Vec<f64>,
+}
+
+/// Where a fused implicit acceleration leaves what the general path leaves.
+pub(crate) struct ImplicitBuffers<'a> {
+    pub(crate) constraints: &'a mut ConstraintEval,
+    pub(crate) lambda: &'a mut [f64],
+    pub(crate) force: &'a mut [f64],
+}
+
+impl FusedImplicit {
+    /// The fused acceleration of `system`'s implicit form, when it applies: 1 to
+    /// [`FUSE_MAX_ROWS`] rows, all evaluated by the constraint tape, J W J^T factored by the
+    /// dense Cholesky with `tolerance`.
+    pub(crate) fn build(
+        system: &System,
+        matrix: &crate::linalg::ConstraintMatrix,
+        ks: f64,
+        kd: f64,
+    ) -> Option<FusedImplicit> {
+        let set = system.constraints();
+        let (n, m) = (system.n_coords(), set.n_rows());
+        let tolerance = matrix.dense_pivot_tolerance()?;
+        if m == 0 || m > FUSE_MAX_ROWS || !set.only_taped() {
+            return None;
+        }
+        let nnz = set.n_nonzeros();
+        let mut b = TapeBuilder::new();
+        let full = b.append(set.full_tape());
+        let (value, rest) = full.split_at(m);
+        let (velocity, rest) = rest.split_at(m);
+        let (bias, jacobian) = rest.split_at(m);
+        let w = &system.inverse_mass;
+        let mut force: Vec<Sym> = (0..n).map(|k| b.var(2 * n + 1 + k)).collect();
+        // A = J W J^T by slot: sum over the products J_i(a) w_k J_j(b).
+        let values: Vec<Sym> = (0..matrix.pattern().nnz())
+            .map(|s| {
+                let terms: Vec<Sym> = matrix
+                    .slot_products(s)
+                    .map(|(a, bb, k)| {
+                        let jw = b.mul(jacobian[a], b.constant(w[k]));
+                        b.mul(jw, jacobian[bb])
+                    })
+                    .collect();
+                sum(&mut b, terms)
+            })
+            .collect();
+        // lambda = -bias - J W F - ks C - kd Cdot
+        let mut lambda: Vec<Sym> = (0..m)
+            .map(|i| {
+                let terms: Vec<Sym> = set
+                    .row_columns(i)
+                    .iter()
+                    .zip(set.row_entries(i))
+                    .map(|(&k, e)| {
+                        let jw = b.mul(jacobian[e], b.constant(w[k]));
+                        b.mul(jw, force[k])
+                    })
+                    .collect();
+                let jwf = sum(&mut b, terms);
+                let nb = b.neg(bias[i]);
+                let r = b.sub(nb, jwf);
+                let sc = b.mul(b.constant(ks), value[i]);
+                let r = b.sub(r, sc);
+                let dc = b.mul(b.constant(kd), velocity[i]);
+                b.sub(r, dc)
+            })
+            .collect();
+        let mut dense = scatter(&b, matrix.pattern(), &values);
+        let pivots = cholesky_solve(&mut b, m, &mut dense, &mut lambda);
+        // F + J^T lambda, row by row, then a = W F.
+        for i in 0..m {
+            for (&k, e) in set.row_columns(i).iter().zip(set.row_entries(i)) {
+                let p = b.mul(jacobian[e], lambda[i]);
+                force[k] = b.add(force[k], p);
+            }
+        }
+        let acceleration: Vec<Sym> = (0..n).map(|k| b.mul(b.constant(w[k]), force[k])).collect();
+        let mut outputs = full.clone();
+        outputs.extend(&lambda);
+        outputs.extend(&force);
+        outputs.extend(&acceleration);
+        outputs.extend(&pivots.diagonal);
+        outputs.extend(&pivots.pivot);
+        let tape = b.finish(&outputs);
+        debug_assert_eq!(full.len(), 3 * m + nnz);
+        Some(FusedImplicit {
+            vars: vec![0.0; 3 * n + 1],
+            scratch: vec![0.0; tape.n_slots()],
+            out: vec![0.0; tape.n_outputs()],
+            tape,
+            n,
+            m,
+            nnz,
+            tolerance,
+        })
+    }
+
+    /// The fused tape (for tests and the ensemble).
+    #[cfg_attr(not(test), allow(dead_code))]
+    pub(crate) fn tape(&self) -> &Tape {
+        &self.tape
+    }
+
+    /// a at (t, x, v) under the applied forces `force` into `a`, and what the general path
+    /// leaves (C, Cdot, bias, J, lambda, F + J^T lambda) into `buffers`; false when J W J^T
+    /// fails the pivot test (nothing usable written: run the general path).
+    pub(crate) fn accelerate(
+        &mut self,
+        t: f64,
+        x: &[f64],
+        v: &[f64],
+        a: &mut [f64],
+        buffers: ImplicitBuffers<'_>,
+    ) -> bool {
+        let (n, m, nnz) = (self.n, self.m, self.nnz);
+        self.vars[..n].copy_from_slice(x);
+        self.vars[n..2 * n].copy_from_slice(v);
+        self.vars[2 * n] = t;
+        self.vars[2 * n + 1..].copy_from_slice(buffers.force);
+        self.tape.eval(&self.vars, &mut self.scratch, &mut self.out);
+        let out = &self.out;
+        let pivots = 3 * m + nnz + m + 2 * n;
+        if !pivots_pass(
+            &out[pivots..pivots + m],
+            &out[pivots + m..pivots + 2 * m],
+            self.tolerance,
+        ) {
+            return false;
+        }
+        let ce = buffers.constraints;
+        ce.value.copy_from_slice(&out[..m]);
+        ce.velocity.copy_from_slice(&out[m..2 * m]);
+        ce.bias.copy_from_slice(&out[2 * m..3 * m]);
+        ce.jacobian.copy_from_slice(&out[3 * m..3 * m + nnz]);
+        let rest = &out[3 * m + nnz..];
+        buffers.lambda.copy_from_slice(&rest[..m]);
+        buffers.force.copy_from_slice(&rest[m..m + n]);
+        a.copy_from_slice(&rest[m + n..m + 2 * n]);
+        true
+    }
+}
+
+/// The parametric form's fused acceleration, for maps whose applied forces are constant
+/// (gravity and constant forces: F is folded in). Variables: q, qdot (n_q each), t.
+/// Outputs: x, xdot, h (n each), J (nnz), qddot (n_q), the Cholesky's diagonals and pivots.
+#[derive(Clone, Debug)]
+pub(crate) struct FusedParametric {
+    tape: Tape,
+    n: usize,
+    n_q: usize,
+    nnz: usize,
+    tolerance: f64,
+    /// F (constant)
+    force: Vec<f64>,
+    vars: Vec<f64>,
+    scratch: Vec<f64>,
+    out: Vec<f64>,
+}
+
+/// Where a fused parametric acceleration leaves the map's evaluation.
+pub(crate) struct ParametricBuffers<'a> {
+    pub(crate) position: &'a mut [f64],
+    pub(crate) velocity: &'a mut [f64],
+    pub(crate) bias: &'a mut [f64],
+    pub(crate) jacobian: &'a mut [f64],
+    /// F, which the general path computes each time
+    pub(crate) force: &'a mut [f64],
+}
+
+impl FusedParametric {
+    /// The fused acceleration of `system`'s parametric form when it applies: 1 to
+    /// [`FUSE_MAX_ROWS`] coordinates, every applied force constant. `force` is F (any x, v:
+    /// it does not depend on them), `mass` each coordinate's mass, `tolerance` the dense
+    /// Cholesky's relative pivot tolerance.
+    pub(crate) fn build(
+        system: &System,
+        force: &[f64],
+        mass: &[f64],
+        tolerance: f64,
+    ) -> Option<FusedParametric> {
+        let map = system.parametric()?;
+        let n_q = map.n_q();
+        let constant = |f: &Force| matches!(f, Force::Constant { .. });
+        if n_q == 0 || n_q > FUSE_MAX_ROWS || !system.forces().iter().all(constant) {
+            return None;
+        }
+        let n = map.positions.len();
+        let mut b = TapeBuilder::new();
+        let evaluation = b.append(map.evaluation_tape());
+        let nnz = evaluation.len() - 3 * n;
+        let (bias, jacobian) = (&evaluation[2 * n..3 * n], &evaluation[3 * n..]);
+        let columns = map.jacobian_columns();
+        let zero = b.constant(0.0);
+        // M's lower triangle packed by rows, rhs; both from +0.0, as the general assembly.
+        let mut matrix = vec![zero; n_q * (n_q + 1) / 2];
+        let mut rhs = vec![zero; n_q];
+        for (k, &m) in mass.iter().enumerate() {
+            let entries = map.row_entries(k);
+            let values = &jacobian[entries.clone()];
+            let cols = &columns[entries];
+            let mh = b.mul(b.constant(m), bias[k]);
+            let reduced = b.sub(b.constant(force[k]), mh);
+            for (e, (&j, &value)) in cols.iter().zip(values).enumerate() {
+                let p = b.mul(value, reduced);
+                rhs[j] = b.add(rhs[j], p);
+                let weighted = b.mul(b.constant(m), value);
+                // Columns ascend within a row: entries up to this one are the lower triangle.
+                for (&l, &other) in cols[..=e].iter().zip(values) {
+                    let p = b.mul(weighted, other);
+                    let slot = j * (j + 1) / 2 + l;
+                    matrix[slot] = b.add(matrix[slot], p);
+                }
+            }
+        }
+        let pattern = SymmetricPattern::dense(n_q);
+        let mut dense = scatter(&b, &pattern, &matrix);
+        let pivots = cholesky_solve(&mut b, n_q, &mut dense, &mut rhs);
+        let mut outputs = evaluation;
+        outputs.extend(&rhs);
+        outputs.extend(&pivots.diagonal);
+        outputs.extend(&pivots.pivot);
+        let tape = b.finish(&outputs);
+        Some(FusedParametric {
+            vars: vec![0.0; 2 * n_q + 1],
+            scratch: vec![0.0; tape.n_slots()],
+            out: vec![0.0; tape.n_outputs()],
+            tape,
+            n,
+            n_q,
+            nnz,
+            tolerance,
+            force: force.to_vec(),
+        })
+    }
+
+    /// The fused tape (for tests and the ensemble).
+    #[cfg_attr(not(test), allow(dead_code))]
+    pub(crate) fn tape(&self) -> &Tape {
+        &self.tape
+    }
+
+    /// qddot at (t, q, qdot) into `qddot` and the map's evaluation into `buffers`; false when
+    /// M fails the pivot test (run the general path).
+    pub(crate) fn accelerate(
+        &mut self,
+        t: f64,
+        q: &[f64],
+        qdot: &[f64],
+        qddot: &mut [f64],
+        buffers: ParametricBuffers<'_>,
+    ) -> bool {
+        let (n, n_q, nnz) = (self.n, self.n_q, self.nnz);
+        self.vars[..n_q].copy_from_slice(q);
+        self.vars[n_q..2 * n_q].copy_from_slice(qdot);
+        self.vars[2 * n_q] = t;
+        self.tape.eval(&self.vars, &mut self.scratch, &mut self.out);
+        let out = &self.out;
+        let pivots = 3 * n + nnz + n_q;
+        if !pivots_pass(
+            &out[pivots..pivots + n_q],
+            &out[pivots + n_q..pivots + 2 * n_q],
+            self.tolerance,
+        ) {
+            return false;
+        }
+        buffers.position.copy_from_slice(&out[..n]);
+        buffers.velocity.copy_from_slice(&out[n..2 * n]);
+        buffers.bias.copy_from_slice(&out[2 * n..3 * n]);
+        buffers.jacobian.copy_from_slice(&out[3 * n..3 * n + nnz]);
+        qddot.copy_from_slice(&out[3 * n + nnz..3 * n + nnz + n_q]);
+        buffers.force.copy_from_slice(&self.force);
+        true
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::path::{Path, PathBuf};
+    use std::sync::Arc;
+
+    use crate::expr::testutil::Rng;
+    use crate::formulation::{Feedback, Implicit, Parametric, SecondOrderSystem, StepError};
+    use crate::model::System;
+    use crate::scene::Scene;
+
+    /// Two particles of unlike masses in 3D under gravity and a constant force, held by
+    /// three expression rows (one moving), with a two-coordinate map: products by the
+    /// inverse masses, off-diagonal Cholesky entries and every buffer are exercised.
+    const MIXED: &str = r#"
+[world]
+gravity = [0.3, 9.81, -1.7]
+[[particle]]
+name = "a"
+mass = 0.37
+position = [1.0, 0.0, 0.0]
+[[particle]]
+name = "b"
+mass = 2.9
+position = [1.0, 0.0, 0.5]
+velocity = [0.0, 0.0, -0.2]
+[[force]]
+kind = "constant"
+particle = "b"
+vector = [0.7, -0.3, 1.1]
+[[constraint]]
+expr = "a.x^2 + a.y^2 + a.z^2 - 1"
+[[constraint]]
+expr = "a.x*b.y - a.y*b.x + 0.3*b.z - 0.15"
+[[constraint]]
+expr = "b.z + 0.2*sin(t) - 0.5"
+[parametric]
+coordinates = ["th", "ph"]
+initial = [0.4, 1.3]
+rates = [0.7, -0.2]
+[parametric.positions]
+a = ["sin(th)*cos(ph)", "sin(th)*sin(ph)", "cos(th)"]
+b = ["sin(th) + 0.3*ph", "cos(ph)*th", "0.5 + 0.1*sin(th*ph)"]
+"#;
+
+    /// Every shipped scene and every oracle scene, loaded, with [`MIXED`].
+    fn scenes() -> Vec<(String, Scene)> {
+        let mut scenes: Vec<(String, Scene)> = scene_files()
+            .into_iter()
+            .map(|file| {
+                let scene = Scene::load(&file, &[]).unwrap_or_else(|e| panic!("{e}"));
+                (
+                    file.file_name().unwrap().to_string_lossy().to_string(),
+                    scene,
+                )
+            })
+            .collect();
+        let mixed = Scene::parse(MIXED, "mixed.toml", &[]).unwrap_or_else(|e| panic!("{e}"));
+        scenes.push(("mixed.toml".to_string(), mixed));
+        scenes
+    }
+
+    /// Every shipped scene and every oracle scene.
+    fn scene_files() -> Vec<PathBuf> {
+        let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
+        let mut files = Vec::new();
+        for dir in ["scenes", "tests/oracle/scenes"] {
+            for entry in std::fs::read_dir(root.join(dir)).unwrap() {
+                let path = entry.unwrap().path();
+                if path.extension().is_some_and(|e| e == "toml") {
+                    files.push(path);
+                }
+            }
+        }
+        files.sort();
+        assert!(files.len() >= 12, "{files:?}");
+        files
+    }
+
+    fn bits(v: &[f64]) -> Vec<u64> {
+        v.iter().map(|x| x.to_bits()).collect()
+    }
+
+    /// A state near `base`: each value moved by up to `spread` of its size (and off the
+    /// constraints, which the acceleration must not care about), at a random time.
+    fn perturbed(rng: &mut Rng, base: &[f64], spread: f64) -> Vec<f64> {
+        base.iter()
+            .map(|&x| x + spread * (rng.uniform(0.0, 1.0) - 0.5) * (x.abs() + 1.0))
+            .collect()
+    }
+
+    /// The general path's result at (t, x, v) and what it leaves behind.
+    fn general_implicit(
+        f: &mut Implicit,
+        t: f64,
+        x: &[f64],
+        v: &[f64],
+    ) -> (Result<Vec<f64>, StepError>, Vec<Vec<u64>>) {
+        let fused = f.fused.take();
+        let mut a = vec![0.0; x.len()];
+        let result = f.acceleration(t, x, v, &mut a).map(|()| a);
+        f.fused = fused;
+        let ce = &f.constraints;
+        let left = vec![
+            bits(&ce.value),
+            bits(&ce.velocity),
+            bits(&ce.bias),
+            bits(&ce.jacobian),
+            bits(&f.lambda),
+            bits(&f.force),
+        ];
+        (result, left)
+    }
+
+    fn fused_implicit(
+        f: &mut Implicit,
+        t: f64,
+        x: &[f64],
+        v: &[f64],
+    ) -> (Result<Vec<f64>, StepError>, Vec<Vec<u64>>) {
+        let mut a = vec![0.0; x.len()];
+        let result = f.acceleration(t, x, v, &mut a).map(|()| a);
+        let ce = &f.constraints;
+        let left = vec![
+            bits(&ce.value),
+            bits(&ce.velocity),
+            bits(&ce.bias),
+            bits(&ce.jacobian),
+            bits(&f.lambda),
+            bits(&f.force),
+        ];
+        (result, left)
+    }
+
+    fn same(a: &Result<Vec<f64>, StepError>, b: &Result<Vec<f64>, StepError>) -> bool {
+        match (a, b) {
+            (Ok(a), Ok(b)) => bits(a) == bits(b),
+            (Err(a), Err(b)) => a.to_string() == b.to_string(),
+            _ => false,
+        }
+    }
+
+    fn check_implicit(system: Arc<System>, feedback: Feedback, name: &str, rng: &mut Rng) -> bool {
+        let mut f = Implicit::new(system, feedback);
+        if f.fused.is_none() {
+            return false;
+        }
+        let (x0, v0) = f.system.initial_particle_state();
+        for case in 0..300 {
+            let spread = [0.0, 1e-6, 0.1, 2.0][case % 4];
+            let (x, v) = (perturbed(rng, &x0, spread), perturbed(rng, &v0, spread));
+            let t = 10.0 * rng.uniform(0.0, 1.0);
+            let want = general_implicit(&mut f, t, &x, &v);
+            let got = fused_implicit(&mut f, t, &x, &v);
+            assert!(
+                same(&want.0, &got.0),
+                "{name} at t {t}, x {x:?}, v {v:?}: {:?} vs {:?}",
+                want.0,
+                got.0
+            );
+            if want.0.is_ok() {
+                assert_eq!(
+                    want.1, got.1,
+                    "{name}: buffers differ at t {t}, x {x:?}, v {v:?}"
+                );
+            }
+        }
+        true
+    }
+
+    #[test]
+    fn fused_implicit_acceleration_equals_the_general_path_bit_for_bit() {
+        let mut rng = Rng::new(16);
+        let mut fused = Vec::new();
+        for (name, scene) in scenes() {
+            for feedback in [Feedback::default(), Feedback { ks: 25.0, kd: 10.0 }] {
+                if check_implicit(Arc::clone(&scene.system), feedback, &name, &mut rng) {
+                    fused.push(name.clone());
+                }
+            }
+        }
+        // The article's scenes are among those fused.
+        for must in [
+            "parabola.toml",
+            "circle.toml",
+            "helix.toml",
+            "cusp.toml",
+            "mixed.toml",
+        ] {
+            assert!(
+                fused.iter().any(|f| f == must),
+                "{must} not fused: {fused:?}"
+            );
+        }
+    }
+
+    #[test]
+    fn fused_parametric_acceleration_equals_the_general_path_bit_for_bit() {
+        let mut rng = Rng::new(61);
+        let mut fused = Vec::new();
+        for (file, scene) in scenes() {
+            let Ok(mut f) = Parametric::new(Arc::clone(&scene.system)) else {
+                continue;
+            };
+            if f.fused.is_none() {
+                continue;
+            }
+            fused.push(file.clone());
+            let start = crate::formulation::Formulation::initial_state(&f);
+            for case in 0..300 {
+                let spread = [0.0, 1e-6, 0.1, 2.0][case % 4];
+                let (q, qdot) = (
+                    perturbed(&mut rng, &start.q, spread),
+                    perturbed(&mut rng, &start.qdot, spread),
+                );
+                let t = 10.0 * rng.uniform(0.0, 1.0);
+                let saved = f.fused.take();
+                let mut want = vec![0.0; q.len()];
+                let want_result = f
+                    .acceleration(t, &q, &qdot, &mut want)
+                    .map(|()| bits(&want));
+                let ws = &f.map;
+                let want_left = vec![
+                    bits(&ws.position),
+                    bits(&ws.velocity),
+                    bits(&ws.bias),
+                    bits(&ws.jacobian),
+                    bits(&f.force),
+                ];
+                f.fused = saved;
+                let mut got = vec![0.0; q.len()];
+                let got_result = f.acceleration(t, &q, &qdot, &mut got).map(|()| bits(&got));
+                let ws = &f.map;
+                let got_left = vec![
+                    bits(&ws.position),
+                    bits(&ws.velocity),
+                    bits(&ws.bias),
+                    bits(&ws.jacobian),
+                    bits(&f.force),
+                ];
+                match (&want_result, &got_result) {
+                    (Ok(a), Ok(b)) => {
+                        assert_eq!(a, b, "{} at t {t}, q {q:?}, qdot {qdot:?}", file);
+                        assert_eq!(want_left, got_left, "{}: buffers", file);
+                    }
+                    (Err(a), Err(b)) => assert_eq!(a.to_string(), b.to_string()),
+                    _ => panic!("{}: {want_result:?} vs {got_result:?}", file),
+                }
+            }
+        }
+        for must in [
+            "parabola.toml",
+            "circle.toml",
+            "double-pendulum.toml",
+            "cycloid.toml",
+        ] {
+            assert!(
+                fused.iter().any(|f| f == must),
+                "{must} not fused: {fused:?}"
+            );
+        }
+    }
+
+    /// Where J W J^T is singular (the circle's centre: grad C = 0) the fused path hands over
+    /// to the general one, which reports it as before.
+    #[test]
+    fn a_singular_matrix_is_reported_by_the_general_path() {
+        let scene = Scene::parse(
+            "[world]\ngravity = [0.0, 9.81]\n[[particle]]\nname = \"b\"\nmass = 1.0\nposition = [1.0, 0.0]\n[[constraint]]\nexpr = \"b.x^2 + b.y^2 - 1\"\n",
+            "circle.toml",
+            &[],
+        )
+        .unwrap();
+        let mut f = Implicit::new(Arc::clone(&scene.system), Feedback::default());
+        assert!(f.fused.is_some());
+        let (x, v) = ([0.0, 0.0], [0.0, 0.0]);
+        let got = fused_implicit(&mut f, 0.0, &x, &v).0;
+        let want = general_implicit(&mut f, 0.0, &x, &v).0;
+        assert!(got.is_err(), "{got:?}");
+        assert!(same(&want, &got), "{want:?} vs {got:?}");
+        let nan = fused_implicit(&mut f, 0.0, &[f64::NAN, 0.0], &v).0;
+        let want = general_implicit(&mut f, 0.0, &[f64::NAN, 0.0], &v).0;
+        assert!(nan.is_err() && same(&want, &nan), "{want:?} vs {nan:?}");
+    }
+}
