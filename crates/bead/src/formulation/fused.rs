@@ -199,9 +199,9 @@ impl FusedImplicit {
         let mut dense = scatter(&b, matrix.pattern(), &values);
         let pivots = cholesky_solve(&mut b, m, &mut dense, &mut lambda);
         // F + J^T lambda, row by row, then a = W F.
-        for i in 0..m {
+        for (i, &li) in lambda.iter().enumerate() {
             for (&k, e) in set.row_columns(i).iter().zip(set.row_entries(i)) {
-                let p = b.mul(jacobian[e], lambda[i]);
+                let p = b.mul(jacobian[e], li);
                 force[k] = b.add(force[k], p);
             }
         }
@@ -224,12 +224,6 @@ impl FusedImplicit {
             nnz,
             tolerance,
         })
-    }
-
-    /// The fused tape (for tests and the ensemble).
-    #[cfg_attr(not(test), allow(dead_code))]
-    pub(crate) fn tape(&self) -> &Tape {
-        &self.tape
     }
 
     /// a at (t, x, v) under the applied forces `force` into `a`, and what the general path
@@ -362,12 +356,6 @@ impl FusedParametric {
             tolerance,
             force: force.to_vec(),
         })
-    }
-
-    /// The fused tape (for tests and the ensemble).
-    #[cfg_attr(not(test), allow(dead_code))]
-    pub(crate) fn tape(&self) -> &Tape {
-        &self.tape
     }
 
     /// qddot at (t, q, qdot) into `qddot` and the map's evaluation into `buffers`; false when
