@@ -265,6 +265,75 @@ impl FusedImplicit {
     }
 }
 
+/// Buffers of a fused acceleration across L lanes (structure of arrays: value k of lane l at
+/// `k * L + l`), sized on first use.
+#[derive(Debug, Default)]
+pub(crate) struct FusedLanes {
+    /// The tape's variables
+    pub(crate) vars: Vec<f64>,
+    scratch: Vec<f64>,
+    out: Vec<f64>,
+}
+
+/// The tape across `L` lanes from `lanes.vars`, then each lane's accelerations (outputs
+/// `acceleration..acceleration + n`) into `a` (n x L) and, where its pivots fail the test,
+/// `failed[l] = true` (its accelerations are then garbage).
+#[allow(clippy::too_many_arguments)]
+fn accelerate_lanes<const L: usize>(
+    tape: &Tape,
+    lanes: &mut FusedLanes,
+    n: usize,
+    acceleration: usize,
+    pivots: usize,
+    rows: usize,
+    tolerance: f64,
+    a: &mut [f64],
+    failed: &mut [bool; L],
+) {
+    lanes.scratch.resize(tape.n_slots() * L, 0.0);
+    lanes.out.resize(tape.n_outputs() * L, 0.0);
+    tape.eval_lanes::<L>(&lanes.vars, &mut lanes.scratch, &mut lanes.out);
+    let out = &lanes.out;
+    a[..n * L].copy_from_slice(&out[acceleration * L..(acceleration + n) * L]);
+    for (l, failed) in failed.iter_mut().enumerate() {
+        let diagonal = (0..rows).map(|j| out[(pivots + j) * L + l]);
+        let pivot = (0..rows).map(|j| out[(pivots + rows + j) * L + l]);
+        *failed = !diagonal
+            .zip(pivot)
+            .all(|(d, p)| d > 0.0 && p > tolerance * d);
+    }
+}
+
+impl FusedImplicit {
+    /// [`Self::accelerate`] for L lanes at once: `lanes.vars` must hold x, v (n x L each),
+    /// t (L) and F (n x L) (see [`Self::lane_vars`]); the accelerations go to `a` (n x L).
+    pub(crate) fn accelerate_lanes<const L: usize>(
+        &self,
+        lanes: &mut FusedLanes,
+        a: &mut [f64],
+        failed: &mut [bool; L],
+    ) {
+        let (n, m) = (self.n, self.m);
+        let acceleration = 3 * m + self.nnz + m + n;
+        accelerate_lanes::<L>(
+            &self.tape,
+            lanes,
+            n,
+            acceleration,
+            acceleration + n,
+            m,
+            self.tolerance,
+            a,
+            failed,
+        );
+    }
+
+    /// The number of variables per lane: x, v, t, F.
+    pub(crate) fn lane_vars(&self) -> usize {
+        3 * self.n + 1
+    }
+}
+
 /// The parametric form's fused acceleration, for maps whose applied forces are constant
 /// (gravity and constant forces: F is folded in). Variables: q, qdot (n_q each), t.
 /// Outputs: x, xdot, h (n each), J (nnz), qddot (n_q), the Cholesky's diagonals and pivots.
@@ -356,6 +425,29 @@ impl FusedParametric {
             tolerance,
             force: force.to_vec(),
         })
+    }
+
+    /// [`Self::accelerate`] for L lanes at once: `lanes.vars` must hold q, qdot (n_q x L
+    /// each) and t (L); qddot goes to `qddot` (n_q x L).
+    pub(crate) fn accelerate_lanes<const L: usize>(
+        &self,
+        lanes: &mut FusedLanes,
+        qddot: &mut [f64],
+        failed: &mut [bool; L],
+    ) {
+        let (n, n_q) = (self.n, self.n_q);
+        let acceleration = 3 * n + self.nnz;
+        accelerate_lanes::<L>(
+            &self.tape,
+            lanes,
+            n_q,
+            acceleration,
+            acceleration + n_q,
+            n_q,
+            self.tolerance,
+            qddot,
+            failed,
+        );
     }
 
     /// qddot at (t, q, qdot) into `qddot` and the map's evaluation into `buffers`; false when

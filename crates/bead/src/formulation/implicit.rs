@@ -65,7 +65,7 @@ pub struct Implicit {
     /// tolerances are absolute.
     pub(crate) scales: Option<super::ConstraintScales>,
     /// The whole acceleration in one tape, for small systems (see [`super::fused`]).
-    pub(super) fused: Option<FusedImplicit>,
+    pub(crate) fused: Option<FusedImplicit>,
 }
 
 impl Implicit {

@@ -61,7 +61,7 @@ pub struct Parametric {
     velocity_dependent: bool,
     /// The whole acceleration in one tape, for small maps under constant forces (see
     /// [`super::fused`]); used while no external force is applied.
-    pub(super) fused: Option<FusedParametric>,
+    pub(crate) fused: Option<FusedParametric>,
 }
 
 impl Parametric {

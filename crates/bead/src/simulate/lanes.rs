@@ -32,7 +32,7 @@ use super::monitor::{
 };
 use super::{RunOptions, Simulation, Stepper};
 use crate::expr::Tape;
-use crate::formulation::{Implicit, LaneScratch, Method, Observation, Parametric};
+use crate::formulation::{FusedLanes, Implicit, LaneScratch, Method, Observation, Parametric};
 use crate::integrate::IntegratorKind;
 use crate::linalg::max_nan;
 use crate::model::System;
@@ -102,6 +102,8 @@ struct Lanes {
     lambda: Vec<f64>,
     /// The parametric form across lanes (see [`Parametric::accelerate_across_lanes`])
     parametric: LaneScratch,
+    /// The fused accelerations across lanes
+    fused: FusedLanes,
     /// One lane's q, qdot, acceleration and tape outputs, and q at the step's start
     q_one: Vec<f64>,
     q_back_one: Vec<f64>,
@@ -132,6 +134,7 @@ impl Lanes {
             dense: Vec::new(),
             lambda: Vec::new(),
             parametric: LaneScratch::default(),
+            fused: FusedLanes::default(),
             q_one: vec![0.0; n],
             q_back_one: vec![0.0; n],
             qdot_one: vec![0.0; n],
@@ -564,6 +567,9 @@ fn accelerate(
     active: &mut [bool; LANES],
     outcome: &mut [LaneOutcome],
 ) {
+    if fused_across_lanes(kernel, lanes, t, q, qdot, stage, active, outcome) {
+        return;
+    }
     lanes.load_vars(t, q, qdot);
     let width = tape.n_outputs();
     tape.eval_lanes::<LANES>(
@@ -649,6 +655,78 @@ fn accelerate(
         }
     }
     lanes.acceleration[stage] = acceleration;
+}
+
+/// The whole acceleration of every lane by the formulation's fused tape (see
+/// [`crate::formulation`]'s fused accelerations), when it has one and gravity is the only
+/// force: false (nothing done) otherwise. A lane whose matrix fails the pivot test leaves.
+#[allow(clippy::too_many_arguments)]
+fn fused_across_lanes(
+    kernel: &mut Kernel,
+    lanes: &mut Lanes,
+    t: f64,
+    q: &[f64],
+    qdot: &[f64],
+    stage: usize,
+    active: &mut [bool; LANES],
+    outcome: &mut [LaneOutcome],
+) -> bool {
+    let n = lanes.n;
+    let mut failed = [false; LANES];
+    let mut acceleration = std::mem::take(&mut lanes.acceleration[stage]);
+    let vars = &mut lanes.fused.vars;
+    match kernel {
+        Kernel::Implicit(implicit) => {
+            let system = Arc::clone(&implicit.system);
+            let Some(fused) = implicit
+                .fused
+                .as_ref()
+                .filter(|_| across_lanes(implicit).is_some())
+            else {
+                lanes.acceleration[stage] = acceleration;
+                return false;
+            };
+            vars.resize(fused.lane_vars() * LANES, 0.0);
+            vars[..n * LANES].copy_from_slice(q);
+            vars[n * LANES..2 * n * LANES].copy_from_slice(qdot);
+            vars[2 * n * LANES..(2 * n + 1) * LANES].fill(t);
+            // F = m g, gravity the only force (as `System::accumulate_forces`).
+            let forces = &mut vars[(2 * n + 1) * LANES..];
+            let dim = system.dim();
+            for (p, particle) in system.particles().iter().enumerate() {
+                for (a, g) in system.gravity().iter().enumerate() {
+                    forces[(p * dim + a) * LANES..(p * dim + a + 1) * LANES]
+                        .fill(particle.mass * g);
+                }
+            }
+            fused.accelerate_lanes::<LANES>(&mut lanes.fused, &mut acceleration, &mut failed);
+        }
+        Kernel::Parametric(parametric) => {
+            let Some(fused) = parametric
+                .fused
+                .as_ref()
+                .filter(|_| parametric.across_lanes())
+            else {
+                lanes.acceleration[stage] = acceleration;
+                return false;
+            };
+            vars.resize((2 * n + 1) * LANES, 0.0);
+            vars[..n * LANES].copy_from_slice(q);
+            vars[n * LANES..2 * n * LANES].copy_from_slice(qdot);
+            vars[2 * n * LANES..].fill(t);
+            fused.accelerate_lanes::<LANES>(&mut lanes.fused, &mut acceleration, &mut failed);
+        }
+    }
+    for l in 0..LANES {
+        if active[l] && failed[l] {
+            active[l] = false;
+            if l < outcome.len() {
+                outcome[l] = LaneOutcome::Leave;
+            }
+        }
+    }
+    lanes.acceleration[stage] = acceleration;
+    true
 }
 
 /// The dense pivot tolerance when the implicit form's finish can run across lanes: gravity
