@@ -21,6 +21,9 @@
 //! with the floor's lead; the target is >= 1e8 particle-steps/s on 2 cores (within 4x of the
 //! floor). All three run in the same process, so that the ratios hold on a loaded machine.
 //!
+//! Then the same ensemble through the Python package's `bead.sweep` beside a vectorized
+//! numpy RK4 of the same equations, by CPU time (see [`beside_numpy`]).
+//!
 //! `cargo bench -p bead --bench ensemble` (`-- --members N` for another ensemble size).
 
 use std::hint::black_box;
@@ -258,4 +261,38 @@ fn main() {
         );
     }
     println!("target: >= 1e8 particle-steps/s on 2 cores (within 4x of the floor)");
+    beside_numpy(members);
+}
+
+/// The same ensemble through the Python package's `bead.sweep` beside a vectorized numpy RK4
+/// of the same equations, by CPU time, in a Python process started from here
+/// (`examples/numpy_ensemble.py`, which checks first that both end every member at the same
+/// place). The interpreter is `$BEAD_PYTHON`, else the repository's `.venv` (made by
+/// `scripts/test`, with the package as last built there); without one that imports bead
+/// and numpy, says how to get it.
+fn beside_numpy(members: usize) {
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
+    let python = std::env::var_os("BEAD_PYTHON")
+        .map(std::path::PathBuf::from)
+        .unwrap_or_else(|| root.join(".venv/bin/python"));
+    let usable = std::process::Command::new(&python)
+        .args(["-c", "import bead, numpy"])
+        .output()
+        .is_ok_and(|o| o.status.success());
+    println!();
+    if !usable {
+        println!(
+            "beside numpy: skipped ({} cannot import bead and numpy; run scripts/test once, \
+             or set BEAD_PYTHON to a Python with both)",
+            python.display()
+        );
+        return;
+    }
+    let status = std::process::Command::new(&python)
+        .arg(root.join("examples/numpy_ensemble.py"))
+        .args(["--members", &members.to_string(), "--rounds", "1"])
+        .status();
+    if !status.is_ok_and(|s| s.success()) {
+        println!("beside numpy: examples/numpy_ensemble.py failed");
+    }
 }
