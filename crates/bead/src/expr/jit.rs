@@ -65,6 +65,90 @@ pub enum NativeStatus {
     Fallback(String),
 }
 
+/// How a set of tapes (a [`crate::model::System`]'s) is evaluated, for `bead check`:
+/// see [`crate::model::System::machine_code`].
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct NativeSummary {
+    /// Tapes with machine code.
+    pub compiled: usize,
+    /// Of those, how many reused the code of an identically shaped tape.
+    pub shared: usize,
+    /// Instructions of the tapes with machine code.
+    pub instructions: usize,
+    /// Total compile time of those tapes.
+    pub compile_time: Duration,
+    /// Tapes interpreted because machine code is switched off.
+    pub disabled: usize,
+    /// Tapes interpreted because they could not be compiled, with why.
+    pub fallbacks: Vec<String>,
+}
+
+impl NativeSummary {
+    /// Count one tape (tapes without outputs count nowhere).
+    pub fn add(&mut self, tape: &super::Tape) {
+        match tape.native_status() {
+            NativeStatus::Compiled { time, shared } => {
+                self.compiled += 1;
+                self.shared += usize::from(*shared);
+                self.instructions += tape.n_instructions();
+                self.compile_time += *time;
+            }
+            NativeStatus::Empty => {}
+            NativeStatus::Disabled => self.disabled += 1,
+            NativeStatus::Fallback(why) => self.fallbacks.push(why.clone()),
+        }
+    }
+}
+
+/// One line, e.g. `6 tapes, 41 instructions, compiled in 1.8 ms`, or `off (6 tapes
+/// interpreted)`, with the fallbacks' notes.
+impl std::fmt::Display for NativeSummary {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let tapes = |n: usize| if n == 1 { "tape" } else { "tapes" };
+        if self.compiled > 0 {
+            write!(
+                f,
+                "{} {}, {} instructions, compiled in {:.1} ms",
+                self.compiled,
+                tapes(self.compiled),
+                self.instructions,
+                self.compile_time.as_secs_f64() * 1e3
+            )?;
+            if self.shared > 0 {
+                write!(f, " ({} shared with identical tapes)", self.shared)?;
+            }
+        } else if self.disabled > 0 {
+            write!(
+                f,
+                "off ({} {} interpreted)",
+                self.disabled,
+                tapes(self.disabled)
+            )?;
+        } else if self.fallbacks.is_empty() {
+            write!(f, "none needed")?;
+        }
+        if self.compiled > 0 && self.disabled > 0 {
+            write!(
+                f,
+                "; {} {} interpreted (switched off)",
+                self.disabled,
+                tapes(self.disabled)
+            )?;
+        }
+        if !self.fallbacks.is_empty() {
+            if self.compiled > 0 || self.disabled > 0 {
+                write!(f, "; ")?;
+            }
+            let n = self.fallbacks.len();
+            write!(f, "{n} {} interpreted: ", tapes(n))?;
+            let mut notes = self.fallbacks.clone();
+            notes.dedup();
+            write!(f, "{}", notes.join("; "))?;
+        }
+        Ok(())
+    }
+}
+
 // ---------------------------------------------------------------------------------------------
 // The switch
 
@@ -665,11 +749,7 @@ mod tests {
             expressions += outs.len();
             round += 1;
             let t = with_jit(true, || Tape::compile(&outs));
-            assert!(
-                t.is_native(),
-                "round {round}: {:?}",
-                t.native_status()
-            );
+            assert!(t.is_native(), "round {round}: {:?}", t.native_status());
             let n = t.n_outputs();
             let mut scratch = vec![0.0; t.n_slots() * L];
             for _ in 0..4 {
@@ -693,10 +773,7 @@ mod tests {
         let on = with_jit(true, || Tape::compile(&e));
         let off = with_jit(false, || Tape::compile(&e));
         assert!(on.is_native());
-        assert!(matches!(
-            on.native_status(),
-            NativeStatus::Compiled { .. }
-        ));
+        assert!(matches!(on.native_status(), NativeStatus::Compiled { .. }));
         assert!(!off.is_native());
         assert_eq!(off.native_status(), &NativeStatus::Disabled);
         // The override ends with the closure.

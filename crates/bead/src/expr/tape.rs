@@ -124,7 +124,12 @@ impl Instr {
     pub(super) fn constant(self) -> Option<f64> {
         use Instr::*;
         match self {
-            Const(c) | AddC(_, c) | CSub(_, c) | MulC(_, c) | DivC(_, c) | CDiv(_, c)
+            Const(c)
+            | AddC(_, c)
+            | CSub(_, c)
+            | MulC(_, c)
+            | DivC(_, c)
+            | CDiv(_, c)
             | Powf(_, c) => Some(c),
             _ => None,
         }
