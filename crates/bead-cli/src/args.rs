@@ -18,6 +18,11 @@ use crate::numbers::{self, Bound, Context, NumberError};
 pub struct Cli {
     #[command(subcommand)]
     pub command: Command,
+
+    /// Evaluate the equations with the interpreter instead of machine code (same numbers, bit
+    /// for bit; slower). The environment variable BEAD_JIT=0 does the same.
+    #[arg(long, global = true)]
+    pub no_jit: bool,
 }
 
 /// The subcommands.

@@ -17,6 +17,9 @@ use clap::Parser;
 fn main() -> ExitCode {
     // Usage errors exit with code 2 here, with clap's message.
     let cli = args::Cli::parse();
+    if cli.no_jit {
+        bead::expr::set_jit_enabled(false);
+    }
     match commands::dispatch(cli.command) {
         Ok(()) => ExitCode::SUCCESS,
         Err(error) => {

@@ -181,6 +181,39 @@ fn every_10_records_11_rows_of_100_steps() {
 }
 
 #[test]
+fn no_jit_gives_byte_identical_traces_and_check_says_which() {
+    let dir = TempDir::new("no-jit");
+    for (name, extra) in [("jit.csv", None), ("interp.csv", Some("--no-jit"))] {
+        for method in ["implicit", "parametric"] {
+            let trace = format!("{method}.{name}");
+            let mut args = vec![
+                "run",
+                p(&parabola()),
+                "--method",
+                method,
+                "--steps",
+                "300",
+                "--trace",
+                &trace,
+            ];
+            args.extend(extra);
+            ok(bead_in(&dir.0, &args));
+        }
+    }
+    for method in ["implicit", "parametric"] {
+        let a = std::fs::read(dir.path(&format!("{method}.jit.csv"))).expect("a");
+        let b = std::fs::read(dir.path(&format!("{method}.interp.csv"))).expect("b");
+        assert!(!a.is_empty());
+        assert!(a == b, "{method}: --no-jit changed the trace");
+    }
+    let on = stdout(&ok(bead(&["check", p(&parabola())])));
+    assert!(on.contains("\nmachine code: "), "{on}");
+    assert!(on.contains(" instructions, compiled in "), "{on}");
+    let off = stdout(&ok(bead(&["check", p(&parabola()), "--no-jit"])));
+    assert!(off.contains("\nmachine code: off ("), "{off}");
+}
+
+#[test]
 fn two_runs_give_byte_identical_traces() {
     let dir = TempDir::new("determinism");
     for name in ["a.csv", "b.csv"] {

@@ -32,6 +32,7 @@
 mod ast;
 mod diff;
 mod display;
+mod jit;
 mod parse;
 mod tape;
 
@@ -39,6 +40,10 @@ pub(crate) use ast::same_structure;
 pub(crate) use ast::{reads_any, share};
 pub use ast::{Expr, Func};
 pub(crate) use diff::gradients;
+pub use jit::{
+    jit_enabled, set_jit_enabled, with_forced_jit_failure, with_jit, NativeStatus, NativeSummary,
+    MAX_NATIVE_INSTRUCTIONS,
+};
 pub use parse::{is_identifier, name_spans, parse, ExprError, Resolved, Span, MAX_DEPTH};
 pub use tape::Tape;
 pub(crate) use tape::{Sym, TapeBuilder};

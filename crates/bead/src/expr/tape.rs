@@ -12,12 +12,14 @@
 //! and a product used only by one addition or subtraction is fused into it (`a*b + c`,
 //! `a*b - c`, `c - a*b`, rounded twice exactly like the separate operations).
 use super::ast::{int_exponent, sign_f64, topo, FastMap, Node};
+use super::jit::{self, Native, NativeStatus};
 use super::{Expr, Func};
+use std::sync::Arc;
 
 /// One instruction. Operands are scratch slots (`u32`); the result goes to the slot whose
 /// index is the instruction's position. 16 bytes, `Copy`.
 #[derive(Clone, Copy, Debug, PartialEq)]
-enum Instr {
+pub(super) enum Instr {
     Var(u32),
     Const(f64),
     Neg(u32),
@@ -115,6 +117,30 @@ impl Instr {
             MulSub(a, b, c) => (33, a, b, u64::from(c)),
             SubMul(a, b, c) => (34, a, b, u64::from(c)),
         }
+    }
+
+    /// The constant this instruction carries, if any (what the machine code reads from the
+    /// tape's constants, in instruction order: see `jit`).
+    pub(super) fn constant(self) -> Option<f64> {
+        use Instr::*;
+        match self {
+            Const(c)
+            | AddC(_, c)
+            | CSub(_, c)
+            | MulC(_, c)
+            | DivC(_, c)
+            | CDiv(_, c)
+            | Powf(_, c) => Some(c),
+            _ => None,
+        }
+    }
+
+    /// Everything but the carried constant: two tapes with equal shapes run the same machine
+    /// code on their own constants.
+    pub(super) fn shape(self) -> [u32; 4] {
+        let (op, a, b, c) = self.key();
+        let c = if self.constant().is_some() { 0 } else { c };
+        [u32::from(op), a, b, c as u32]
     }
 
     /// The operand slots this instruction reads, mutably (for renumbering).
@@ -325,12 +351,20 @@ impl Builder {
 }
 
 /// Straight-line code for several outputs with common subexpressions shared.
+///
+/// Where the host allows, the tape also carries machine code for the same instructions (see
+/// [`Tape::native_status`] and the `jit` module), shared by its clones and freed with the last
+/// of them; the evaluations run it, with the same bits as the interpreter.
 #[derive(Clone, Debug)]
 pub struct Tape {
     code: Vec<Instr>,
     outputs: Vec<u32>,
     /// One more than the largest variable slot read (0 if none).
     n_vars: usize,
+    /// The machine code, if compiled, and the constants it reads (instruction order).
+    native: Option<Arc<Native>>,
+    consts: Vec<f64>,
+    status: NativeStatus,
 }
 
 impl Tape {
@@ -381,11 +415,53 @@ impl Tape {
             .into_iter()
             .flatten()
             .all(|s| (s as usize) < i)));
+        let (native, status) = jit::compile(&code, &out);
+        let consts = if native.is_some() {
+            jit::constants(&code)
+        } else {
+            Vec::new()
+        };
         Tape {
             code,
             outputs: out,
             n_vars,
+            native,
+            consts,
+            status,
         }
+    }
+
+    /// How this tape is evaluated: machine code (with its compile time) or the interpreter
+    /// (switched off, nothing to compile, or why compiling failed).
+    pub fn native_status(&self) -> &NativeStatus {
+        &self.status
+    }
+
+    /// Whether the evaluations run machine code.
+    pub fn is_native(&self) -> bool {
+        self.native.is_some()
+    }
+
+    /// [`Tape::eval`] by the interpreter, whether or not the tape has machine code: the
+    /// reference the machine code is tested against.
+    ///
+    /// # Panics
+    /// As [`Tape::eval`].
+    pub fn eval_interpreted(&self, vars: &[f64], scratch: &mut [f64], out: &mut [f64]) {
+        self.eval_lanes_with::<1>(vars, scratch, out, false);
+    }
+
+    /// [`Tape::eval_lanes`] by the interpreter, whether or not the tape has machine code.
+    ///
+    /// # Panics
+    /// As [`Tape::eval_lanes`].
+    pub fn eval_lanes_interpreted<const L: usize>(
+        &self,
+        vars: &[f64],
+        scratch: &mut [f64],
+        out: &mut [f64],
+    ) {
+        self.eval_lanes_with::<L>(vars, scratch, out, false);
     }
 
     /// Length of the scratch buffer [`Tape::eval`] needs.
@@ -417,17 +493,7 @@ impl Tape {
     /// # Panics
     /// If one of the length requirements above is violated.
     pub fn eval(&self, vars: &[f64], scratch: &mut [f64], out: &mut [f64]) {
-        assert!(
-            vars.len() >= self.n_vars,
-            "tape reads {} variable slots, got {}",
-            self.n_vars,
-            vars.len()
-        );
-        assert_eq!(out.len(), self.outputs.len(), "wrong number of outputs");
-        run_lanes::<1>(&self.code, vars, &mut scratch[..self.code.len()]);
-        for (o, &slot) in out.iter_mut().zip(&self.outputs) {
-            *o = scratch[slot as usize];
-        }
+        self.eval_lanes_with::<1>(vars, scratch, out, true);
     }
 
     /// Evaluate all outputs for `L` independent sets of variables at once (an ensemble's
@@ -457,14 +523,42 @@ impl Tape {
     /// # Panics
     /// If a length requirement is violated.
     pub fn eval_lanes<const L: usize>(&self, vars: &[f64], scratch: &mut [f64], out: &mut [f64]) {
-        assert!(
-            vars.len() >= self.n_vars * L,
-            "tape reads {} variable slots of {L} lanes, got {} values",
-            self.n_vars,
-            vars.len()
-        );
+        self.eval_lanes_with::<L>(vars, scratch, out, true);
+    }
+
+    #[inline]
+    fn eval_lanes_with<const L: usize>(
+        &self,
+        vars: &[f64],
+        scratch: &mut [f64],
+        out: &mut [f64],
+        native: bool,
+    ) {
+        if L == 1 {
+            assert!(
+                vars.len() >= self.n_vars,
+                "tape reads {} variable slots, got {}",
+                self.n_vars,
+                vars.len()
+            );
+        } else {
+            assert!(
+                vars.len() >= self.n_vars * L,
+                "tape reads {} variable slots of {L} lanes, got {} values",
+                self.n_vars,
+                vars.len()
+            );
+        }
         assert_eq!(out.len(), self.outputs.len() * L, "wrong number of outputs");
-        run_lanes::<L>(&self.code, vars, &mut scratch[..self.code.len() * L]);
+        let scratch = &mut scratch[..self.code.len() * L];
+        if L == 0 {
+            return;
+        }
+        if let (true, Some(code)) = (native, &self.native) {
+            code.run(vars, &self.consts, out, L);
+            return;
+        }
+        run_lanes::<L>(&self.code, vars, scratch);
         for (o, &slot) in out.chunks_exact_mut(L).zip(&self.outputs) {
             o.copy_from_slice(&scratch[slot as usize * L..][..L]);
         }

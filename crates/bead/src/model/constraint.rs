@@ -324,6 +324,11 @@ impl ConstraintSet {
         self.native_rows.is_empty() && self.custom_rows.is_empty()
     }
 
+    /// Every tape of the set (for the machine code summary).
+    pub(crate) fn tapes(&self) -> [&Tape; 3] {
+        [&self.value_tape, &self.full_tape, &self.gradient_tape]
+    }
+
     /// The tape of C, Cdot, bias and J (outputs in that order), variables x, v, t.
     pub(crate) fn full_tape(&self) -> &Tape {
         &self.full_tape

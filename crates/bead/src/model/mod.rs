@@ -127,6 +127,18 @@ impl System {
             .collect();
         (x, v)
     }
+    /// How the system's tapes (constraint values and derivatives, the parametric map) are
+    /// evaluated: how many have machine code, their instructions and compile time, and the
+    /// tapes left to the interpreter with why (`bead check` prints it).
+    pub fn machine_code(&self) -> crate::expr::NativeSummary {
+        let mut summary = crate::expr::NativeSummary::default();
+        let parametric = self.parametric.iter().flat_map(|p| p.tapes());
+        for tape in self.constraints.tapes().into_iter().chain(parametric) {
+            summary.add(tape);
+        }
+        summary
+    }
+
     /// Degrees of freedom: n_coords minus the number of independent constraint rows (assumed
     /// independent; a dependent set is reported as singular when the system is solved).
     pub fn degrees_of_freedom(&self) -> isize {

@@ -327,6 +327,11 @@ impl ParametricMap {
     }
 
     /// The tape of x, xdot, h and J (outputs in that order), variables q, qdot, t.
+    /// Every tape of the map (for the machine code summary).
+    pub(crate) fn tapes(&self) -> [&Tape; 3] {
+        [&self.tape, &self.state_tape, &self.observe_tape]
+    }
+
     pub(crate) fn evaluation_tape(&self) -> &Tape {
         &self.tape
     }
