@@ -21,8 +21,8 @@
 //! fails the relative pivot test, the caller runs the general path, which reports the
 //! singular matrix (or the non-finite input) exactly as before.
 use crate::expr::{Sym, Tape, TapeBuilder};
-use crate::linalg::SymmetricPattern;
-use crate::model::{ConstraintEval, Force, System};
+use crate::linalg::{ConstraintMatrix, LinearSolver, SymmetricPattern};
+use crate::model::{ConstraintEval, ConstraintSet, Force, ParametricMap, System};
 
 /// The most rows (implicit) or generalized coordinates (parametric) fused: the Cholesky's
 /// code grows as m^3 / 6 and the general path's overhead stops dominating.
@@ -138,91 +138,109 @@ pub(crate) struct ImplicitBuffers<'a> {
     pub(crate) force: &'a mut [f64],
 }
 
+/// The implicit form's fused tape for `set` (n coordinates), when it applies: 1 to
+/// [`FUSE_MAX_ROWS`] rows, all evaluated by the constraint tape. Variables: x, v (n each), t,
+/// F (n), w (n, the inverse masses), ks, kd; outputs as [`FusedImplicit`] reads them. Masses,
+/// forces and feedback are variables so that one tape serves every system and run that
+/// shares the set (a sweep's members).
+fn implicit_tape(set: &ConstraintSet, n: usize) -> Option<Tape> {
+    let m = set.n_rows();
+    if m == 0 || m > FUSE_MAX_ROWS || !set.only_taped() {
+        return None;
+    }
+    // The pattern and product lists of J W J^T (the solver kind does not change them).
+    let matrix = ConstraintMatrix::new(set.structure(), LinearSolver::Dense);
+    let mut b = TapeBuilder::new();
+    let full = b.append(set.full_tape());
+    let (value, rest) = full.split_at(m);
+    let (velocity, rest) = rest.split_at(m);
+    let (bias, jacobian) = rest.split_at(m);
+    let mut force: Vec<Sym> = (0..n).map(|k| b.var(2 * n + 1 + k)).collect();
+    let w: Vec<Sym> = (0..n).map(|k| b.var(3 * n + 1 + k)).collect();
+    let (ks, kd) = (b.var(4 * n + 1), b.var(4 * n + 2));
+    // A = J W J^T by slot: sum over the products J_i(a) w_k J_j(b).
+    let values: Vec<Sym> = (0..matrix.pattern().nnz())
+        .map(|s| {
+            let terms: Vec<Sym> = matrix
+                .slot_products(s)
+                .map(|(a, bb, k)| {
+                    let jw = b.mul(jacobian[a], w[k]);
+                    b.mul(jw, jacobian[bb])
+                })
+                .collect();
+            sum(&mut b, terms)
+        })
+        .collect();
+    // lambda = -bias - J W F - ks C - kd Cdot
+    let mut lambda: Vec<Sym> = (0..m)
+        .map(|i| {
+            let terms: Vec<Sym> = set
+                .row_columns(i)
+                .iter()
+                .zip(set.row_entries(i))
+                .map(|(&k, e)| {
+                    let jw = b.mul(jacobian[e], w[k]);
+                    b.mul(jw, force[k])
+                })
+                .collect();
+            let jwf = sum(&mut b, terms);
+            let nb = b.neg(bias[i]);
+            let r = b.sub(nb, jwf);
+            let sc = b.mul(ks, value[i]);
+            let r = b.sub(r, sc);
+            let dc = b.mul(kd, velocity[i]);
+            b.sub(r, dc)
+        })
+        .collect();
+    let mut dense = scatter(&b, matrix.pattern(), &values);
+    let pivots = cholesky_solve(&mut b, m, &mut dense, &mut lambda);
+    // F + J^T lambda, row by row, then a = W F.
+    for (i, &li) in lambda.iter().enumerate() {
+        for (&k, e) in set.row_columns(i).iter().zip(set.row_entries(i)) {
+            let p = b.mul(jacobian[e], li);
+            force[k] = b.add(force[k], p);
+        }
+    }
+    let acceleration: Vec<Sym> = (0..n).map(|k| b.mul(w[k], force[k])).collect();
+    let mut outputs = full.clone();
+    outputs.extend(&lambda);
+    outputs.extend(&force);
+    outputs.extend(&acceleration);
+    outputs.extend(&pivots.diagonal);
+    outputs.extend(&pivots.pivot);
+    Some(b.finish(&outputs))
+}
+
 impl FusedImplicit {
-    /// The fused acceleration of `system`'s implicit form, when it applies: 1 to
-    /// [`FUSE_MAX_ROWS`] rows, all evaluated by the constraint tape, J W J^T factored by the
-    /// dense Cholesky with `tolerance`.
-    pub(crate) fn build(
+    /// The fused acceleration of `system`'s implicit form with `feedback`, when it applies
+    /// (see [`implicit_tape`]) and J W J^T is factored by the dense Cholesky, whose relative
+    /// pivot tolerance `tolerance` is. The tape is built once per constraint set.
+    pub(crate) fn new(
         system: &System,
-        matrix: &crate::linalg::ConstraintMatrix,
+        tolerance: Option<f64>,
         ks: f64,
         kd: f64,
     ) -> Option<FusedImplicit> {
+        let tolerance = tolerance?;
         let set = system.constraints();
-        let (n, m) = (system.n_coords(), set.n_rows());
-        let tolerance = matrix.dense_pivot_tolerance()?;
-        if m == 0 || m > FUSE_MAX_ROWS || !set.only_taped() {
-            return None;
-        }
-        let nnz = set.n_nonzeros();
-        let mut b = TapeBuilder::new();
-        let full = b.append(set.full_tape());
-        let (value, rest) = full.split_at(m);
-        let (velocity, rest) = rest.split_at(m);
-        let (bias, jacobian) = rest.split_at(m);
-        let w = &system.inverse_mass;
-        let mut force: Vec<Sym> = (0..n).map(|k| b.var(2 * n + 1 + k)).collect();
-        // A = J W J^T by slot: sum over the products J_i(a) w_k J_j(b).
-        let values: Vec<Sym> = (0..matrix.pattern().nnz())
-            .map(|s| {
-                let terms: Vec<Sym> = matrix
-                    .slot_products(s)
-                    .map(|(a, bb, k)| {
-                        let jw = b.mul(jacobian[a], b.constant(w[k]));
-                        b.mul(jw, jacobian[bb])
-                    })
-                    .collect();
-                sum(&mut b, terms)
-            })
-            .collect();
-        // lambda = -bias - J W F - ks C - kd Cdot
-        let mut lambda: Vec<Sym> = (0..m)
-            .map(|i| {
-                let terms: Vec<Sym> = set
-                    .row_columns(i)
-                    .iter()
-                    .zip(set.row_entries(i))
-                    .map(|(&k, e)| {
-                        let jw = b.mul(jacobian[e], b.constant(w[k]));
-                        b.mul(jw, force[k])
-                    })
-                    .collect();
-                let jwf = sum(&mut b, terms);
-                let nb = b.neg(bias[i]);
-                let r = b.sub(nb, jwf);
-                let sc = b.mul(b.constant(ks), value[i]);
-                let r = b.sub(r, sc);
-                let dc = b.mul(b.constant(kd), velocity[i]);
-                b.sub(r, dc)
-            })
-            .collect();
-        let mut dense = scatter(&b, matrix.pattern(), &values);
-        let pivots = cholesky_solve(&mut b, m, &mut dense, &mut lambda);
-        // F + J^T lambda, row by row, then a = W F.
-        for (i, &li) in lambda.iter().enumerate() {
-            for (&k, e) in set.row_columns(i).iter().zip(set.row_entries(i)) {
-                let p = b.mul(jacobian[e], li);
-                force[k] = b.add(force[k], p);
-            }
-        }
-        let acceleration: Vec<Sym> = (0..n).map(|k| b.mul(b.constant(w[k]), force[k])).collect();
-        let mut outputs = full.clone();
-        outputs.extend(&lambda);
-        outputs.extend(&force);
-        outputs.extend(&acceleration);
-        outputs.extend(&pivots.diagonal);
-        outputs.extend(&pivots.pivot);
-        let tape = b.finish(&outputs);
-        debug_assert_eq!(full.len(), 3 * m + nnz);
+        let n = system.n_coords();
+        let tape = set
+            .fused_cache()
+            .get_or_init(|| implicit_tape(set, n))
+            .clone()?;
+        let mut vars = vec![0.0; 4 * n + 3];
+        vars[3 * n + 1..4 * n + 1].copy_from_slice(&system.inverse_mass);
+        vars[4 * n + 1] = ks;
+        vars[4 * n + 2] = kd;
         Some(FusedImplicit {
-            vars: vec![0.0; 3 * n + 1],
             scratch: vec![0.0; tape.n_slots()],
             out: vec![0.0; tape.n_outputs()],
             tape,
             n,
-            m,
-            nnz,
+            m: set.n_rows(),
+            nnz: set.n_nonzeros(),
             tolerance,
+            vars,
         })
     }
 
@@ -241,7 +259,7 @@ impl FusedImplicit {
         self.vars[..n].copy_from_slice(x);
         self.vars[n..2 * n].copy_from_slice(v);
         self.vars[2 * n] = t;
-        self.vars[2 * n + 1..].copy_from_slice(buffers.force);
+        self.vars[2 * n + 1..3 * n + 1].copy_from_slice(buffers.force);
         self.tape.eval(&self.vars, &mut self.scratch, &mut self.out);
         let out = &self.out;
         let pivots = 3 * m + nnz + m + 2 * n;
@@ -306,7 +324,8 @@ fn accelerate_lanes<const L: usize>(
 
 impl FusedImplicit {
     /// [`Self::accelerate`] for L lanes at once: `lanes.vars` must hold x, v (n x L each),
-    /// t (L) and F (n x L) (see [`Self::lane_vars`]); the accelerations go to `a` (n x L).
+    /// t (L) and F (n x L) (the rest is filled here; see [`Self::lane_vars`]); the
+    /// accelerations go to `a` (n x L).
     pub(crate) fn accelerate_lanes<const L: usize>(
         &self,
         lanes: &mut FusedLanes,
@@ -314,6 +333,9 @@ impl FusedImplicit {
         failed: &mut [bool; L],
     ) {
         let (n, m) = (self.n, self.m);
+        for (k, &value) in self.vars.iter().enumerate().skip(3 * n + 1) {
+            lanes.vars[k * L..(k + 1) * L].fill(value);
+        }
         let acceleration = 3 * m + self.nnz + m + n;
         accelerate_lanes::<L>(
             &self.tape,
@@ -328,9 +350,9 @@ impl FusedImplicit {
         );
     }
 
-    /// The number of variables per lane: x, v, t, F.
+    /// The number of variables per lane: x, v, t, F, w, ks, kd.
     pub(crate) fn lane_vars(&self) -> usize {
-        3 * self.n + 1
+        self.vars.len()
     }
 }
 
@@ -361,74 +383,93 @@ pub(crate) struct ParametricBuffers<'a> {
     pub(crate) force: &'a mut [f64],
 }
 
+/// The parametric form's fused tape for `map`, when it applies: 1 to [`FUSE_MAX_ROWS`]
+/// coordinates. Variables: q, qdot (n_q each), t, F and the coordinates' masses (n each);
+/// outputs as [`FusedParametric`] reads them.
+fn parametric_tape(map: &ParametricMap) -> Option<Tape> {
+    let n_q = map.n_q();
+    if n_q == 0 || n_q > FUSE_MAX_ROWS {
+        return None;
+    }
+    let n = map.positions.len();
+    let mut b = TapeBuilder::new();
+    let evaluation = b.append(map.evaluation_tape());
+    let (bias, jacobian) = (&evaluation[2 * n..3 * n], &evaluation[3 * n..]);
+    let force: Vec<Sym> = (0..n).map(|k| b.var(2 * n_q + 1 + k)).collect();
+    let mass: Vec<Sym> = (0..n).map(|k| b.var(2 * n_q + 1 + n + k)).collect();
+    let columns = map.jacobian_columns();
+    let zero = b.constant(0.0);
+    // M's lower triangle packed by rows, rhs; both from +0.0, as the general assembly.
+    let mut matrix = vec![zero; n_q * (n_q + 1) / 2];
+    let mut rhs = vec![zero; n_q];
+    for k in 0..n {
+        let entries = map.row_entries(k);
+        let values = &jacobian[entries.clone()];
+        let cols = &columns[entries];
+        let mh = b.mul(mass[k], bias[k]);
+        let reduced = b.sub(force[k], mh);
+        for (e, (&j, &value)) in cols.iter().zip(values).enumerate() {
+            let p = b.mul(value, reduced);
+            rhs[j] = b.add(rhs[j], p);
+            let weighted = b.mul(mass[k], value);
+            // Columns ascend within a row: entries up to this one are the lower triangle.
+            for (&l, &other) in cols[..=e].iter().zip(values) {
+                let p = b.mul(weighted, other);
+                let slot = j * (j + 1) / 2 + l;
+                matrix[slot] = b.add(matrix[slot], p);
+            }
+        }
+    }
+    let pattern = SymmetricPattern::dense(n_q);
+    let mut dense = scatter(&b, &pattern, &matrix);
+    let pivots = cholesky_solve(&mut b, n_q, &mut dense, &mut rhs);
+    let mut outputs = evaluation;
+    outputs.extend(&rhs);
+    outputs.extend(&pivots.diagonal);
+    outputs.extend(&pivots.pivot);
+    Some(b.finish(&outputs))
+}
+
 impl FusedParametric {
-    /// The fused acceleration of `system`'s parametric form when it applies: 1 to
-    /// [`FUSE_MAX_ROWS`] coordinates, every applied force constant. `force` is F (any x, v:
-    /// it does not depend on them), `mass` each coordinate's mass, `tolerance` the dense
-    /// Cholesky's relative pivot tolerance.
-    pub(crate) fn build(
+    /// The fused acceleration of `system`'s parametric form when it applies (see
+    /// [`parametric_tape`]) and every applied force is constant. `force` is F (any x, v: it
+    /// does not depend on them), `mass` each coordinate's mass, `tolerance` the dense
+    /// Cholesky's relative pivot tolerance. The tape is built once per map.
+    pub(crate) fn new(
         system: &System,
         force: &[f64],
         mass: &[f64],
         tolerance: f64,
     ) -> Option<FusedParametric> {
         let map = system.parametric()?;
-        let n_q = map.n_q();
         let constant = |f: &Force| matches!(f, Force::Constant { .. });
-        if n_q == 0 || n_q > FUSE_MAX_ROWS || !system.forces().iter().all(constant) {
+        if !system.forces().iter().all(constant) {
             return None;
         }
-        let n = map.positions.len();
-        let mut b = TapeBuilder::new();
-        let evaluation = b.append(map.evaluation_tape());
-        let nnz = evaluation.len() - 3 * n;
-        let (bias, jacobian) = (&evaluation[2 * n..3 * n], &evaluation[3 * n..]);
-        let columns = map.jacobian_columns();
-        let zero = b.constant(0.0);
-        // M's lower triangle packed by rows, rhs; both from +0.0, as the general assembly.
-        let mut matrix = vec![zero; n_q * (n_q + 1) / 2];
-        let mut rhs = vec![zero; n_q];
-        for (k, &m) in mass.iter().enumerate() {
-            let entries = map.row_entries(k);
-            let values = &jacobian[entries.clone()];
-            let cols = &columns[entries];
-            let mh = b.mul(b.constant(m), bias[k]);
-            let reduced = b.sub(b.constant(force[k]), mh);
-            for (e, (&j, &value)) in cols.iter().zip(values).enumerate() {
-                let p = b.mul(value, reduced);
-                rhs[j] = b.add(rhs[j], p);
-                let weighted = b.mul(b.constant(m), value);
-                // Columns ascend within a row: entries up to this one are the lower triangle.
-                for (&l, &other) in cols[..=e].iter().zip(values) {
-                    let p = b.mul(weighted, other);
-                    let slot = j * (j + 1) / 2 + l;
-                    matrix[slot] = b.add(matrix[slot], p);
-                }
-            }
-        }
-        let pattern = SymmetricPattern::dense(n_q);
-        let mut dense = scatter(&b, &pattern, &matrix);
-        let pivots = cholesky_solve(&mut b, n_q, &mut dense, &mut rhs);
-        let mut outputs = evaluation;
-        outputs.extend(&rhs);
-        outputs.extend(&pivots.diagonal);
-        outputs.extend(&pivots.pivot);
-        let tape = b.finish(&outputs);
+        let tape = map
+            .fused_cache()
+            .get_or_init(|| parametric_tape(map))
+            .clone()?;
+        let (n, n_q) = (map.positions.len(), map.n_q());
+        let mut vars = vec![0.0; 2 * n_q + 1 + 2 * n];
+        vars[2 * n_q + 1..2 * n_q + 1 + n].copy_from_slice(force);
+        vars[2 * n_q + 1 + n..].copy_from_slice(mass);
         Some(FusedParametric {
-            vars: vec![0.0; 2 * n_q + 1],
             scratch: vec![0.0; tape.n_slots()],
             out: vec![0.0; tape.n_outputs()],
+            nnz: tape.n_outputs() - 3 * n - 3 * n_q,
             tape,
             n,
             n_q,
-            nnz,
             tolerance,
             force: force.to_vec(),
+            vars,
         })
     }
 
     /// [`Self::accelerate`] for L lanes at once: `lanes.vars` must hold q, qdot (n_q x L
-    /// each) and t (L); qddot goes to `qddot` (n_q x L).
+    /// each) and t (L) (the rest is filled here; see [`Self::lane_vars`]); qddot goes to
+    /// `qddot` (n_q x L).
     pub(crate) fn accelerate_lanes<const L: usize>(
         &self,
         lanes: &mut FusedLanes,
@@ -436,6 +477,9 @@ impl FusedParametric {
         failed: &mut [bool; L],
     ) {
         let (n, n_q) = (self.n, self.n_q);
+        for (k, &value) in self.vars.iter().enumerate().skip(2 * n_q + 1) {
+            lanes.vars[k * L..(k + 1) * L].fill(value);
+        }
         let acceleration = 3 * n + self.nnz;
         accelerate_lanes::<L>(
             &self.tape,
@@ -448,6 +492,11 @@ impl FusedParametric {
             qddot,
             failed,
         );
+    }
+
+    /// The number of variables per lane: q, qdot, t, F, masses.
+    pub(crate) fn lane_vars(&self) -> usize {
+        self.vars.len()
     }
 
     /// qddot at (t, q, qdot) into `qddot` and the map's evaluation into `buffers`; false when

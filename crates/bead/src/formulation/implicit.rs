@@ -81,7 +81,12 @@ impl Implicit {
         let n = system.n_coords();
         let m = system.constraints().n_rows();
         let matrix = ConstraintMatrix::new(system.constraints().structure(), solver);
-        let fused = FusedImplicit::build(&system, &matrix, feedback.ks, feedback.kd);
+        let fused = FusedImplicit::new(
+            &system,
+            matrix.dense_pivot_tolerance(),
+            feedback.ks,
+            feedback.kd,
+        );
         Implicit {
             fused,
             feedback,

@@ -87,7 +87,7 @@ impl Parametric {
         let mut force = vec![0.0; system.n_coords()];
         let zeros = vec![0.0; system.n_coords()];
         accumulate_all_forces(&system, &[], &zeros, &zeros, &mut force);
-        let fused = FusedParametric::build(
+        let fused = FusedParametric::new(
             &system,
             &force,
             &coordinate_mass,

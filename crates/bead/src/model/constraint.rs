@@ -114,6 +114,9 @@ pub struct ConstraintSet {
     full_tape: Tape,
     /// Outputs: C (tape rows) | gradient entries in row order.
     gradient_tape: Tape,
+    /// The fused acceleration's tape, built on first use by the formulation (see
+    /// `formulation::fused`) and shared by every clone of the set.
+    fused: std::sync::OnceLock<Option<Tape>>,
     /// Sparse row structure of J: row i owns entries row_start[i]..row_start[i+1] of `columns`.
     row_start: Vec<usize>,
     columns: Vec<usize>,
@@ -201,6 +204,7 @@ impl ConstraintSet {
             .chain(custom_rows.iter().map(|r| r.constraint.time_dependent()))
             .collect();
         ConstraintSet {
+            fused: std::sync::OnceLock::new(),
             time_dependent,
             n_coords,
             infos,
@@ -324,9 +328,19 @@ impl ConstraintSet {
         self.native_rows.is_empty() && self.custom_rows.is_empty()
     }
 
-    /// Every tape of the set (for the machine code summary).
-    pub(crate) fn tapes(&self) -> [&Tape; 3] {
+    /// Every tape of the set (for the machine code summary), the fused acceleration's once
+    /// built.
+    pub(crate) fn tapes(&self) -> Vec<&Tape> {
+        let fused = self.fused.get().and_then(Option::as_ref);
         [&self.value_tape, &self.full_tape, &self.gradient_tape]
+            .into_iter()
+            .chain(fused)
+            .collect()
+    }
+
+    /// Where the formulation keeps the fused acceleration's tape (`None`: the set has none).
+    pub(crate) fn fused_cache(&self) -> &std::sync::OnceLock<Option<Tape>> {
+        &self.fused
     }
 
     /// The tape of C, Cdot, bias and J (outputs in that order), variables x, v, t.

@@ -44,6 +44,9 @@ pub struct ParametricMap {
     bias_reads_rates: bool,
     /// Outputs: x (n) | xdot (n) | h (n) | J (nnz).
     tape: Tape,
+    /// The fused acceleration's tape, built on first use by the formulation (see
+    /// `formulation::fused`) and shared by every clone of the map.
+    fused: std::sync::OnceLock<Option<Tape>>,
     /// Outputs: x (n) | xdot (n), for mapping states back to particles.
     state_tape: Tape,
     /// Outputs: x (n) | xdot (n) | J (nnz), for the monitors (no h).
@@ -177,6 +180,7 @@ impl ParametricMap {
         outputs.extend(accelerations.iter().cloned());
         outputs.extend(jacobian.iter().cloned());
         ParametricMap {
+            fused: std::sync::OnceLock::new(),
             tape: Tape::compile(&outputs),
             state_tape: Tape::compile(&[positions.as_slice(), velocities.as_slice()].concat()),
             observe_tape: Tape::compile(
@@ -327,9 +331,19 @@ impl ParametricMap {
     }
 
     /// The tape of x, xdot, h and J (outputs in that order), variables q, qdot, t.
-    /// Every tape of the map (for the machine code summary).
-    pub(crate) fn tapes(&self) -> [&Tape; 3] {
+    /// Every tape of the map (for the machine code summary), the fused acceleration's once
+    /// built.
+    pub(crate) fn tapes(&self) -> Vec<&Tape> {
+        let fused = self.fused.get().and_then(Option::as_ref);
         [&self.tape, &self.state_tape, &self.observe_tape]
+            .into_iter()
+            .chain(fused)
+            .collect()
+    }
+
+    /// Where the formulation keeps the fused acceleration's tape (`None`: the map has none).
+    pub(crate) fn fused_cache(&self) -> &std::sync::OnceLock<Option<Tape>> {
+        &self.fused
     }
 
     pub(crate) fn evaluation_tape(&self) -> &Tape {

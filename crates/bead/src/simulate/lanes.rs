@@ -691,7 +691,7 @@ fn fused_across_lanes(
             vars[n * LANES..2 * n * LANES].copy_from_slice(qdot);
             vars[2 * n * LANES..(2 * n + 1) * LANES].fill(t);
             // F = m g, gravity the only force (as `System::accumulate_forces`).
-            let forces = &mut vars[(2 * n + 1) * LANES..];
+            let forces = &mut vars[(2 * n + 1) * LANES..(3 * n + 1) * LANES];
             let dim = system.dim();
             for (p, particle) in system.particles().iter().enumerate() {
                 for (a, g) in system.gravity().iter().enumerate() {
@@ -710,10 +710,10 @@ fn fused_across_lanes(
                 lanes.acceleration[stage] = acceleration;
                 return false;
             };
-            vars.resize((2 * n + 1) * LANES, 0.0);
+            vars.resize(fused.lane_vars() * LANES, 0.0);
             vars[..n * LANES].copy_from_slice(q);
             vars[n * LANES..2 * n * LANES].copy_from_slice(qdot);
-            vars[2 * n * LANES..].fill(t);
+            vars[2 * n * LANES..(2 * n + 1) * LANES].fill(t);
             fused.accelerate_lanes::<LANES>(&mut lanes.fused, &mut acceleration, &mut failed);
         }
     }
