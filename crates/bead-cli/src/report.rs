@@ -864,6 +864,7 @@ pub fn check_text(scene: &Scene, start: &StartCheck) -> String {
             defaults.join(", ")
         }
     );
+    bead::formulation::prepare_fused_accelerations(system);
     let _ = writeln!(s, "\nmachine code: {}", system.machine_code());
     start_text(&mut s, start);
     s

@@ -565,8 +565,6 @@ impl Tape {
     }
 }
 
-/// Run `code` over L lanes: slot i of lane l is `s[i * L + l]`. One function for the scalar
-/// evaluation (L = 1) and the lanes, so that both round alike.
 /// A value while a tape is built by [`TapeBuilder`]: a constant (folded at build time) or a
 /// scratch slot.
 #[derive(Clone, Copy, Debug)]
@@ -694,6 +692,8 @@ impl TapeBuilder {
     }
 }
 
+/// Run `code` over L lanes: slot i of lane l is `s[i * L + l]`. One function for the scalar
+/// evaluation (L = 1) and the lanes, so that both round alike.
 #[inline(always)]
 fn run_lanes<const L: usize>(code: &[Instr], vars: &[f64], s: &mut [f64]) {
     for (i, &ins) in code.iter().enumerate() {

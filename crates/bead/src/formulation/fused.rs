@@ -138,6 +138,17 @@ pub(crate) struct ImplicitBuffers<'a> {
     pub(crate) force: &'a mut [f64],
 }
 
+/// Build, once, the fused tapes of `system`'s forms where they apply (each form builds its
+/// own on first use; this lets [`System::machine_code`] count both before any run).
+pub fn prepare(system: &System) {
+    let set = system.constraints();
+    set.fused_cache()
+        .get_or_init(|| implicit_tape(set, system.n_coords()));
+    if let Some(map) = system.parametric() {
+        map.fused_cache().get_or_init(|| parametric_tape(map));
+    }
+}
+
 /// The implicit form's fused tape for `set` (n coordinates), when it applies: 1 to
 /// [`FUSE_MAX_ROWS`] rows, all evaluated by the constraint tape. Variables: x, v (n each), t,
 /// F (n), w (n, the inverse masses), ks, kd; outputs as [`FusedImplicit`] reads them. Masses,
