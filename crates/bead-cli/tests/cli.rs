@@ -183,12 +183,13 @@ fn every_10_records_11_rows_of_100_steps() {
 #[test]
 fn no_jit_gives_byte_identical_traces_and_check_says_which() {
     let dir = TempDir::new("no-jit");
+    let scene = parabola();
     for (name, extra) in [("jit.csv", None), ("interp.csv", Some("--no-jit"))] {
         for method in ["implicit", "parametric"] {
             let trace = format!("{method}.{name}");
             let mut args = vec![
                 "run",
-                p(&parabola()),
+                p(&scene),
                 "--method",
                 method,
                 "--steps",
@@ -206,10 +207,10 @@ fn no_jit_gives_byte_identical_traces_and_check_says_which() {
         assert!(!a.is_empty());
         assert!(a == b, "{method}: --no-jit changed the trace");
     }
-    let on = stdout(&ok(bead(&["check", p(&parabola())])));
+    let on = ok(bead(&["check", p(&parabola())]));
     assert!(on.contains("\nmachine code: "), "{on}");
     assert!(on.contains(" instructions, compiled in "), "{on}");
-    let off = stdout(&ok(bead(&["check", p(&parabola()), "--no-jit"])));
+    let off = ok(bead(&["check", p(&parabola()), "--no-jit"]));
     assert!(off.contains("\nmachine code: off ("), "{off}");
 }
 

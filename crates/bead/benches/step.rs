@@ -313,6 +313,37 @@ fn print_ratios(quick: bool) {
         "  parametric TOML / hand-written    = {:.1}x",
         parametric_toml / hand_parametric
     );
+    println!(
+        "  machine code: {}",
+        if bead::expr::jit_enabled() {
+            "on"
+        } else {
+            "off (BEAD_JIT=0)"
+        }
+    );
+    print_compile_times();
+}
+
+/// The machine code of every shipped scene as `bead check` reports it: tapes, instructions
+/// and compile time (the first load of each scene in this process; a scene whose tapes have
+/// the shape of an earlier one's reuses their code and says so).
+fn print_compile_times() {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes");
+    let mut files: Vec<_> = std::fs::read_dir(&dir)
+        .expect("scenes/")
+        .map(|e| e.expect("entry").path())
+        .filter(|p| p.extension().is_some_and(|e| e == "toml"))
+        .collect();
+    files.sort();
+    println!();
+    println!("Machine code per shipped scene (as `bead check` prints it):");
+    for path in files {
+        let name = path.file_name().and_then(|n| n.to_str()).unwrap_or("?");
+        match Scene::load(&path, &[]) {
+            Ok(scene) => println!("  {name:<24} {}", scene.system.machine_code()),
+            Err(e) => println!("  {name:<24} does not load: {e}"),
+        }
+    }
 }
 
 /// `BEAD_STEP_ONLY=VARIANT BEAD_STEP_COUNT=N`: N steps of one variant and nothing else, for
