@@ -555,6 +555,13 @@ impl Sweep {
         self.restarted.load(Ordering::Relaxed)
     }
 
+    /// Set member `index` up to run, without running it: whether it could start. What a
+    /// member's setup costs, for the benches.
+    #[doc(hidden)]
+    pub fn set_up_member(&self, index: usize) -> bool {
+        matches!(self.prepare(index), Prepared::Ready(_))
+    }
+
     /// This sweep with every member's scene loaded again from its text, as when the
     /// parameters swept change the equations: the reference the restarted members are
     /// compared with (tests, benches).

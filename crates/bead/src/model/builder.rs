@@ -862,7 +862,7 @@ pub(super) fn compile(declared: Arc<SystemBuilder>) -> Result<System, ModelError
         particles: b.particles.clone(),
         gravity: b.gravity.clone(),
         forces: b.forces.clone(),
-        constraints,
+        constraints: Arc::new(constraints),
         parametric,
         inverse_mass,
         declared,
