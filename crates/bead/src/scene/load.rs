@@ -86,7 +86,7 @@ fn load_limited(
             "world: missing `gravity` (its length, 2 or 3, sets the dimension)",
         )
     })?;
-    let gravity = loader.vector(gravity_def, "world", "`gravity`")?;
+    let gravity = loader.vector(gravity_def, "world", &"`gravity`")?;
     if !(2..=3).contains(&gravity.len()) {
         return Err(src.error(
             gravity_def.span(),
@@ -249,7 +249,7 @@ pub(super) fn initial_values(
             let ctx = "parametric";
             let n_q = d.coordinates.as_ref().map_or(0, |c| c.get_ref().0.len());
             let counted = |what: &str, v: &Spanned<NumVec>| -> Result<Vec<f64>> {
-                let values = loader.vector(v, ctx, &format!("`{what}`"))?;
+                let values = loader.vector(v, ctx, &format_args!("`{what}`"))?;
                 if values.len() != n_q {
                     return Err(src.error(
                         v.span(),
@@ -351,7 +351,7 @@ impl Loader<'_> {
             let later: Vec<&str> = known[i + 1..].to_vec();
             let v = match overridden {
                 Some(v) => v,
-                None => self.number_with(value, &ctx, "the value", &later)?,
+                None => self.number_with(value, &ctx, &"the value", &later)?,
             };
             self.params.push((name.clone(), v));
         }
@@ -360,14 +360,14 @@ impl Loader<'_> {
 
     /// A number: a TOML number, or an expression of parameters, pi and e. Must be finite.
     fn number(&self, value: &Spanned<Num>, ctx: &str, what: &str) -> Result<f64> {
-        self.number_with(value, ctx, what, &[])
+        self.number_with(value, ctx, &what, &[])
     }
 
     fn number_with(
         &self,
         value: &Spanned<Num>,
         ctx: &str,
-        what: &str,
+        what: &dyn std::fmt::Display,
         later: &[&str],
     ) -> Result<f64> {
         let v = match value.get_ref() {
@@ -652,13 +652,22 @@ impl Loader<'_> {
     }
 
     /// An array of numbers, any length.
-    fn vector(&self, value: &Spanned<NumVec>, ctx: &str, what: &str) -> Result<Vec<f64>> {
+    /// (`what` is formatted only for an error: members of a sweep read vectors by the
+    /// thousand.)
+    fn vector(
+        &self,
+        value: &Spanned<NumVec>,
+        ctx: &str,
+        what: &dyn std::fmt::Display,
+    ) -> Result<Vec<f64>> {
         value
             .get_ref()
             .0
             .iter()
             .enumerate()
-            .map(|(i, c)| self.number(c, ctx, &format!("component {} of {what}", i + 1)))
+            .map(|(i, c)| {
+                self.number_with(c, ctx, &format_args!("component {} of {what}", i + 1), &[])
+            })
             .collect()
     }
 
@@ -670,7 +679,7 @@ impl Loader<'_> {
         key: &str,
         dim: usize,
     ) -> Result<Vec<f64>> {
-        let v = self.vector(value, ctx, &format!("`{key}`"))?;
+        let v = self.vector(value, ctx, &format_args!("`{key}`"))?;
         if v.len() != dim {
             return Err(self.src.error(
                 value.span(),
