@@ -24,7 +24,12 @@
 //! Then the same ensemble through the Python package's `bead.sweep` beside a vectorized
 //! numpy RK4 of the same equations, by CPU time (see [`beside_numpy`]).
 //!
-//! `cargo bench -p bead --bench ensemble` (`-- --members N` for another ensemble size).
+//! Then the cost of setting a member up, restarted from the scene's compiled equations (the
+//! sweep's path for a release point) and loaded again from the scene's text.
+//!
+//! `cargo bench -p bead --bench ensemble` (`-- --members N` for another ensemble size,
+//! `-- --setup-only` for the setup alone, `-- --restarted-only` for the restarted setup alone:
+//! what to profile).
 
 use std::hint::black_box;
 use std::time::Instant;
@@ -119,6 +124,41 @@ fn through_bead(method: Method, x0: &[f64], threads: usize, alone: bool) -> (f64
     (start.elapsed().as_secs_f64(), members)
 }
 
+/// Microseconds per member to set up (scene, plan, simulation, stop condition; nothing run),
+/// on one thread, best of 5 rounds over every member: restarted from the scene's compiled
+/// equations (the sweep's own path here) and, with `reload`, loading each member's scene
+/// again (the path of parameters that change the equations).
+fn setup_micros(method: Method, x0: &[f64], reload: bool) -> f64 {
+    let scene = Scene::parse(SCENE, "parabola-x0.toml", &[]).expect("the scene loads");
+    let mut sweep = Sweep::new(
+        &scene,
+        vec![Axis::new("x0", x0.to_vec())],
+        Combine::Zip,
+        PlanRequest {
+            method: Some(method),
+            integrator: Some(IntegratorKind::Rk4),
+            dt: Some(DT),
+            steps: Some(STEPS),
+            ..Default::default()
+        },
+        None,
+    )
+    .expect("the sweep is valid");
+    if reload {
+        sweep = sweep.reloading_every_member();
+    }
+    assert_eq!(sweep.reload_reasons().is_empty(), !reload);
+    (0..5)
+        .map(|_| {
+            let start = Instant::now();
+            for i in 0..sweep.len() {
+                assert!(black_box(sweep.set_up_member(i)));
+            }
+            start.elapsed().as_secs_f64() * 1e6 / sweep.len() as f64
+        })
+        .fold(f64::INFINITY, f64::min)
+}
+
 /// One block of the hand-written implicit form: state (x, y, vx, vy) per member.
 fn implicit_block(x: &mut [f64], y: &mut [f64], vx: &mut [f64], vy: &mut [f64]) {
     let accel = |x: f64, vx: f64| {
@@ -202,9 +242,14 @@ fn by_hand(method: Method, x0: &[f64], threads: usize) -> (f64, Vec<[f64; 2]>) {
 
 fn main() {
     let mut members = 10_000;
+    let (mut setup_only, mut restarted_only) = (false, false);
     let mut args = std::env::args().skip(1);
     while let Some(arg) = args.next() {
-        if arg == "--members" {
+        if arg == "--setup-only" {
+            setup_only = true;
+        } else if arg == "--restarted-only" {
+            (setup_only, restarted_only) = (true, true);
+        } else if arg == "--members" {
             members = args
                 .next()
                 .and_then(|n| n.parse().ok())
@@ -222,6 +267,9 @@ fn main() {
         "form", "bead (lanes)", "bead (alone)", "floor", "floor/bead", "lanes gain"
     );
     for method in [Method::Implicit, Method::Parametric] {
+        if setup_only {
+            break;
+        }
         let (alone_seconds, alone) = through_bead(method, &x0, threads, true);
         let (bead_seconds, results) = through_bead(method, &x0, threads, false);
         let (floor_seconds, finals) = by_hand(method, &x0, threads);
@@ -261,6 +309,22 @@ fn main() {
         );
     }
     println!("target: >= 1e8 particle-steps/s on 2 cores (within 4x of the floor)");
+    println!("member setup, us per member (1 thread, best of 5 rounds of {members}):");
+    println!("{:<11} {:>16} {:>16}", "form", "restarted", "reloaded");
+    for method in [Method::Implicit, Method::Parametric] {
+        let restarted = setup_micros(method, &x0, false);
+        let reloaded = if restarted_only {
+            f64::NAN
+        } else {
+            setup_micros(method, &x0, true)
+        };
+        println!(
+            "{:<11} {:>16.2} {:>16.2}",
+            method.name(),
+            restarted,
+            reloaded
+        );
+    }
     beside_numpy(members);
 }
 

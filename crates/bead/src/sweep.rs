@@ -8,6 +8,13 @@
 //! bit for bit. Its stop condition (the sweep's, else the scene's `[run] stop_when`) is
 //! parsed against the member's own system: the parameters in it take the member's values.
 //!
+//! When the parameters swept reach only where the scene starts (positions, velocities, the
+//! parametric form's initial values and rates, the stop condition), the scene is not loaded
+//! again: a member is the scene's compiled equations, shared, with those values evaluated
+//! again by the loader's own code, the run planned once and the stop condition parsed once
+//! unless it names a parameter swept: the same member, bit for bit, in microseconds
+//! ([`Sweep::reload_reasons`] says why a sweep cannot, [`Sweep::restarted_members`] counts).
+//!
 //! ```
 //! use bead::plan::PlanRequest;
 //! use bead::scene::Scene;
@@ -43,7 +50,7 @@ use std::time::Instant;
 use crate::formulation::Method;
 use crate::model::System;
 use crate::plan::{Plan, PlanError, PlanRequest};
-use crate::scene::Scene;
+use crate::scene::{Rebinder, Scene};
 use crate::simulate::lanes::{lanes_can_run, run_lanes, LaneOutcome, LANES};
 use crate::simulate::{
     run, run_rest, Event, NullSink, RunFailure, RunOptions, RunStats, Simulation,
@@ -386,6 +393,38 @@ pub struct Sweep {
     /// Members per axis (grid) or the common length (zip, one entry)
     shape: Vec<usize>,
     len: usize,
+    /// How members are set up
+    setup: Arc<MemberSetup>,
+    /// Members set up from the scene's compiled equations so far
+    restarted: Arc<AtomicUsize>,
+}
+
+/// How a sweep sets its members up.
+#[derive(Debug)]
+enum MemberSetup {
+    /// The parameters swept reach only where the scene starts: a member is the scene's
+    /// compiled equations with its initial values evaluated again ([`Rebinder`]), the
+    /// scene's plan, and the stop condition parsed once when it names no parameter swept.
+    Restart(Box<Restart>),
+    /// Each member's scene is loaded again ([`Scene::with_params`]), for these reasons.
+    Reload(Vec<String>),
+}
+
+#[derive(Debug)]
+struct Restart {
+    rebinder: Rebinder,
+    plan: Plan,
+    stop: Stop,
+}
+
+/// A restarted member's stop condition.
+#[derive(Debug)]
+enum Stop {
+    None,
+    /// Parsed once (it names no parameter swept), or the error it gave.
+    Once(Result<Event, ()>),
+    /// Parsed for each member, against its system.
+    Each(String),
 }
 
 impl Sweep {
@@ -444,6 +483,7 @@ impl Sweep {
             .ok_or_else(|| SweepError::TooLarge {
                 shape: shape.clone(),
             })?;
+        let setup = Self::member_setup(scene, &axes, &request, stop_when.as_deref());
         Ok(Sweep {
             scene: scene.clone(),
             axes,
@@ -454,7 +494,82 @@ impl Sweep {
             stop_when,
             shape,
             len,
+            setup: Arc::new(setup),
+            restarted: Arc::new(AtomicUsize::new(0)),
         })
+    }
+
+    /// How the members of a sweep of `scene` over `axes` are set up: restarted from the
+    /// scene's compiled equations when the parameters swept reach only its initial values,
+    /// else loaded again.
+    fn member_setup(
+        scene: &Scene,
+        axes: &[Axis],
+        request: &PlanRequest,
+        stop_when: Option<&str>,
+    ) -> MemberSetup {
+        let names: Vec<String> = axes.iter().map(|a| a.name.clone()).collect();
+        let rebinder = match scene.rebinder(&names) {
+            Ok(rebinder) => rebinder,
+            Err(why) => return MemberSetup::Reload(why),
+        };
+        let Ok(plan) = Plan::resolve(scene, request) else {
+            return MemberSetup::Reload(vec!["the run cannot be planned".into()]);
+        };
+        let stop = match (stop_when, &scene.run.stop_when) {
+            (Some(source), _) if rebinder.reaches(source) => Stop::Each(source.to_string()),
+            (Some(source), _) => Stop::Once(Event::parse(&scene.system, source).map_err(|_| ())),
+            (None, Some(event)) if rebinder.reaches(event.source()) => {
+                Stop::Each(event.source().to_string())
+            }
+            (None, Some(event)) => Stop::Once(Ok(event.clone())),
+            (None, None) => Stop::None,
+        };
+        MemberSetup::Restart(Box::new(Restart {
+            rebinder,
+            plan,
+            stop,
+        }))
+    }
+
+    /// Why each member's scene is loaded again from its text, one reason per entry
+    /// (`` `g` reaches world `gravity` ``: the parameters swept, or one defined from them,
+    /// change the equations of motion, the run or the scene's structure); empty when the
+    /// parameters swept reach only where the scene starts (particles' positions and
+    /// velocities, the parametric form's initial values and rates, the stop condition), so
+    /// that a member is set up from the scene's compiled equations with only those values
+    /// evaluated again (a few microseconds instead of a load). Either way a member's numbers
+    /// are those of [`Scene::with_params`], bit for bit.
+    pub fn reload_reasons(&self) -> &[String] {
+        match &*self.setup {
+            MemberSetup::Restart(_) => &[],
+            MemberSetup::Reload(why) => why,
+        }
+    }
+
+    /// How many members were set up from the scene's compiled equations so far (see
+    /// [`Sweep::reload_reasons`]); the others were loaded again, as every member is when the
+    /// parameters swept change the equations, and a member whose values make the scene
+    /// invalid is (its error is the load's).
+    pub fn restarted_members(&self) -> usize {
+        self.restarted.load(Ordering::Relaxed)
+    }
+
+    /// Set member `index` up to run, without running it: whether it could start. What a
+    /// member's setup costs, for the benches.
+    #[doc(hidden)]
+    pub fn set_up_member(&self, index: usize) -> bool {
+        matches!(self.prepare(index), Prepared::Ready(_))
+    }
+
+    /// This sweep with every member's scene loaded again from its text, as when the
+    /// parameters swept change the equations: the reference the restarted members are
+    /// compared with (tests, benches).
+    #[doc(hidden)]
+    pub fn reloading_every_member(mut self) -> Sweep {
+        self.setup = Arc::new(MemberSetup::Reload(vec!["asked for".into()]));
+        self.restarted = Arc::new(AtomicUsize::new(0));
+        self
     }
 
     /// The number of members.
@@ -568,6 +683,12 @@ impl Sweep {
     /// stop condition), or its result when it cannot start.
     fn prepare(&self, index: usize) -> Prepared {
         let params = self.params_of(index);
+        if let MemberSetup::Restart(restart) = &*self.setup {
+            if let Some(ready) = self.restart(restart, index, &params) {
+                self.restarted.fetch_add(1, Ordering::Relaxed);
+                return Prepared::Ready(Box::new(ready));
+            }
+        }
         let fail = |error: String, layout: Option<Arc<Layout>>| {
             Prepared::Finished(Box::new(Member {
                 index,
@@ -619,7 +740,38 @@ impl Sweep {
             simulation: Some(simulation),
             options: plan.options(),
             layout,
+            restarted: false,
         }))
+    }
+
+    /// Member `index` with values `params` set up from the scene's compiled equations
+    /// ([`MemberSetup::Restart`]); `None` when anything fails, so that the member is loaded
+    /// again and fails with the load's own words.
+    fn restart(&self, restart: &Restart, index: usize, params: &[f64]) -> Option<Ready> {
+        let values: Vec<(String, f64)> = self
+            .axes
+            .iter()
+            .zip(params)
+            .map(|(a, &v)| (a.name.clone(), v))
+            .collect();
+        let system = Arc::new(restart.rebinder.system(&values)?);
+        let plan = &restart.plan;
+        let mut simulation = Simulation::new(Arc::clone(&system), plan.config(plan.method)).ok()?;
+        let event = match &restart.stop {
+            Stop::None => None,
+            Stop::Once(event) => Some(event.as_ref().ok()?.clone()),
+            Stop::Each(source) => Some(Event::parse(&system, source).ok()?),
+        };
+        simulation.set_stop_when(event).ok()?;
+        Some(Ready {
+            index,
+            params: params.to_vec(),
+            system,
+            simulation: Some(simulation),
+            options: plan.options(),
+            layout: None,
+            restarted: true,
+        })
     }
 
     /// Members `range` (at most [`LANES`]): those whose runs the lanes can take and that share
@@ -862,6 +1014,8 @@ struct Ready {
     simulation: Option<Simulation>,
     options: RunOptions,
     layout: Option<Arc<Layout>>,
+    /// Set up from the scene's compiled equations: its dynamics are the scene's.
+    restarted: bool,
 }
 
 impl Ready {
@@ -874,7 +1028,7 @@ impl Ready {
         let (a, b) = (self.sim(), other.sim());
         self.options == other.options
             && a.config() == b.config()
-            && self.system.same_dynamics_as(&other.system)
+            && ((self.restarted && other.restarted) || self.system.same_dynamics_as(&other.system))
     }
 
     fn sim(&self) -> &Simulation {
@@ -1083,5 +1237,161 @@ fn csv_field(text: &str) -> String {
         format!("\"{}\"", text.replace('"', "\"\""))
     } else {
         text.to_string()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::formulation::Method;
+
+    fn shipped_scenes() -> Vec<(String, Scene)> {
+        let dir = concat!(env!("CARGO_MANIFEST_DIR"), "/../../scenes");
+        let mut paths: Vec<_> = std::fs::read_dir(dir)
+            .unwrap()
+            .map(|e| e.unwrap().path())
+            .filter(|p| p.extension().is_some_and(|e| e == "toml"))
+            .collect();
+        paths.sort();
+        paths
+            .into_iter()
+            .map(|p| {
+                let name = p.file_name().unwrap().to_string_lossy().into_owned();
+                (name, Scene::load(&p, &[]).unwrap())
+            })
+            .collect()
+    }
+
+    /// Two values near `v` that keep a count a count.
+    fn near(v: f64) -> Vec<f64> {
+        if v.fract() == 0.0 && v.abs() >= 2.0 {
+            vec![v - 1.0, v + 1.0]
+        } else {
+            vec![v * 1.0625 + 0.03125, v * 0.875 - 0.0625]
+        }
+    }
+
+    fn bits(v: &[f64]) -> Vec<u64> {
+        v.iter().map(|x| x.to_bits()).collect()
+    }
+
+    /// A member's figures, exactly (every float as its shortest round trip, which tells
+    /// every bit but a NaN's payload), without its wall time.
+    fn figures(member: &Member) -> String {
+        let stats = member.stats.clone().map(|mut s| {
+            s.wall_seconds = 0.0;
+            s
+        });
+        format!("{stats:?} {:?} {:?}", member.error, member.layout)
+    }
+
+    /// The parameters whose sweeps are expected to restart members: those that reach only
+    /// initial values in the shipped scenes.
+    const RESTARTED: [(&str, &str); 10] = [
+        ("circle.toml", "theta0"),
+        ("cusp.toml", "s0"),
+        ("cycloid.toml", "phi0"),
+        ("double-pendulum.toml", "th1"),
+        ("double-pendulum.toml", "th2"),
+        ("helix.toml", "w0"),
+        ("lemniscate.toml", "v0"),
+        ("node.toml", "s0"),
+        ("parabola-x0.toml", "x0"),
+        ("spinning-hoop.toml", "th0"),
+    ];
+
+    /// Every parameter of every shipped scene, swept to two values: a restarted member is
+    /// the member of `Scene::with_params` exactly (initial state, parameters, dynamics,
+    /// plan, stop condition), and runs to the same figures bit for bit, in both forms; the
+    /// parameters that reach only initial values restart every member.
+    #[test]
+    fn restarted_members_equal_the_members_loaded_again() {
+        let mut restarted = Vec::new();
+        for (file, scene) in shipped_scenes() {
+            for (name, value) in scene.params.clone() {
+                let methods: &[Method] = if scene.system.parametric().is_some() {
+                    &[Method::Implicit, Method::Parametric]
+                } else {
+                    &[Method::Implicit]
+                };
+                for &method in methods {
+                    let request = PlanRequest {
+                        method: Some(method),
+                        steps: Some(3),
+                        ..Default::default()
+                    };
+                    let axis = Axis::new(&name, near(value));
+                    let stop = Some("t - 0.02".to_string());
+                    let sweep =
+                        Sweep::new(&scene, vec![axis], Combine::Grid, request, stop).unwrap();
+                    let reloaded = sweep.clone().reloading_every_member();
+                    let mut ready = 0;
+                    for index in 0..sweep.len() {
+                        let values = vec![(name.clone(), sweep.params_of(index)[0])];
+                        let (fast, slow) = (sweep.prepare(index), reloaded.prepare(index));
+                        match (&fast, &slow) {
+                            (Prepared::Ready(a), Prepared::Ready(b)) => {
+                                ready += 1;
+                                let (x, y) = (&a.system, &b.system);
+                                let label = format!("{file} {values:?} {method:?}");
+                                assert_eq!(x.particles.len(), y.particles.len(), "{label}");
+                                for (p, q) in x.particles.iter().zip(&y.particles) {
+                                    assert_eq!(bits(&p.position), bits(&q.position), "{label}");
+                                    assert_eq!(bits(&p.velocity), bits(&q.velocity), "{label}");
+                                    assert_eq!(p.mass.to_bits(), q.mass.to_bits(), "{label}");
+                                }
+                                let params = |s: &System| -> Vec<(String, u64)> {
+                                    s.params
+                                        .iter()
+                                        .map(|(n, v)| (n.clone(), v.to_bits()))
+                                        .collect()
+                                };
+                                assert_eq!(params(x), params(y), "{label}");
+                                for (n, v) in &y.params {
+                                    let declared = x.declared.param_value(n).map(f64::to_bits);
+                                    assert_eq!(declared, Some(v.to_bits()), "{label}");
+                                }
+                                if let (Some(m), Some(n)) = (x.parametric(), y.parametric()) {
+                                    assert_eq!(bits(&m.initial), bits(&n.initial), "{label}");
+                                    assert_eq!(bits(&m.rates), bits(&n.rates), "{label}");
+                                }
+                                assert!(x.same_dynamics_as(y), "{label}");
+                                assert_eq!(a.options, b.options, "{label}");
+                                assert_eq!(a.sim().config(), b.sim().config(), "{label}");
+                                assert_eq!(a.layout, b.layout, "{label}");
+                            }
+                            (Prepared::Finished(a), Prepared::Finished(b)) => {
+                                assert_eq!(figures(a), figures(b));
+                            }
+                            _ => panic!("{file} {values:?}: one method failed, the other did not"),
+                        }
+                        let (a, b) = (sweep.run_member(index), reloaded.run_member(index));
+                        assert_eq!(figures(&a), figures(&b), "{file} {values:?} {method:?}");
+                    }
+                    // The whole sweep, its members stepped together in lanes.
+                    let (a, b) = (sweep.run(1).unwrap(), reloaded.run(1).unwrap());
+                    for (a, b) in a.iter().zip(&b) {
+                        assert_eq!(figures(a), figures(b), "{file} {name} {method:?}");
+                    }
+                    assert_eq!(reloaded.restarted_members(), 0);
+                    if sweep.reload_reasons().is_empty() {
+                        // prepare, run_member and run: every member that can start is
+                        // restarted each time.
+                        assert_eq!(sweep.restarted_members(), 3 * ready, "{file} {name}");
+                        if ready > 0 {
+                            restarted.push((file.clone(), name.clone()));
+                        }
+                    } else {
+                        assert_eq!(sweep.restarted_members(), 0, "{file} {name}");
+                    }
+                }
+            }
+        }
+        restarted.dedup();
+        let expected: Vec<(String, String)> = RESTARTED
+            .iter()
+            .map(|(f, n)| (f.to_string(), n.to_string()))
+            .collect();
+        assert_eq!(restarted, expected, "{restarted:?}");
     }
 }

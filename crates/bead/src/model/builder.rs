@@ -671,18 +671,52 @@ pub(crate) fn compile_reusing(
     if !declared.same_dynamics(&previous.declared) {
         return compile(declared);
     }
-    let b = &*declared;
-    let parametric = match (&previous.parametric, &b.parametric) {
-        (Some(map), Some(spec)) => Some(map.with_initial(&spec.initial, &spec.rates)),
-        _ => None,
-    };
-    Ok(System {
-        params: b.params.clone(),
-        particles: b.particles.clone(),
-        parametric,
-        declared,
-        ..previous.clone()
-    })
+    Ok(previous.restarted(declared))
+}
+
+impl System {
+    /// This system's compiled equations with `declared`'s initial state (particles,
+    /// parametric initial values) and parameters: what [`compile_reusing`] makes when
+    /// `declared` has the same dynamics as `self` (the caller knows it does).
+    pub(crate) fn restarted(&self, declared: Arc<SystemBuilder>) -> System {
+        let b = &*declared;
+        let parametric = match (&self.parametric, &b.parametric) {
+            (Some(map), Some(spec)) => Some(map.with_initial(&spec.initial, &spec.rates)),
+            _ => None,
+        };
+        System {
+            params: b.params.clone(),
+            particles: b.particles.clone(),
+            parametric,
+            declared,
+            ..self.clone()
+        }
+    }
+}
+
+impl SystemBuilder {
+    /// This declaration with parameters `params` (every one, in order), the initial position
+    /// and velocity of the particles `particles` (index, position, velocity) and, when given,
+    /// the parametric form's initial values and rates replaced: the same dynamics, started
+    /// elsewhere. The values are taken as they are (the scene loader checked them).
+    pub(crate) fn restarted(
+        &self,
+        params: Vec<(String, f64)>,
+        particles: Vec<(usize, Vec<f64>, Vec<f64>)>,
+        parametric: Option<(Vec<f64>, Vec<f64>)>,
+    ) -> SystemBuilder {
+        let mut b = self.clone();
+        b.params = params;
+        for (p, position, velocity) in particles {
+            b.particles[p].position = position;
+            b.particles[p].velocity = velocity;
+        }
+        if let (Some(spec), Some((initial, rates))) = (b.parametric.as_mut(), parametric) {
+            spec.initial = initial;
+            spec.rates = rates;
+        }
+        b
+    }
 }
 
 pub(super) fn compile(declared: Arc<SystemBuilder>) -> Result<System, ModelError> {
@@ -828,7 +862,7 @@ pub(super) fn compile(declared: Arc<SystemBuilder>) -> Result<System, ModelError
         particles: b.particles.clone(),
         gravity: b.gravity.clone(),
         forces: b.forces.clone(),
-        constraints,
+        constraints: Arc::new(constraints),
         parametric,
         inverse_mass,
         declared,

@@ -53,7 +53,7 @@ pub struct System {
     /// Gravitational acceleration (dim).
     pub(crate) gravity: Vec<f64>,
     pub(crate) forces: Vec<Force>,
-    pub(crate) constraints: ConstraintSet,
+    pub(crate) constraints: std::sync::Arc<ConstraintSet>,
     pub(crate) parametric: Option<ParametricMap>,
     /// Inverse masses per coordinate (n_coords): W = M^-1 as a diagonal.
     pub(crate) inverse_mass: Vec<f64>,

@@ -9,6 +9,8 @@
 //! h is built as the total time derivative of the xdot expression with qddot left out. J is
 //! kept sparse: only the entries that are not the constant 0 are compiled.
 
+use std::sync::Arc;
+
 use crate::expr::{gradients, reads_any, share, Expr, Tape};
 
 /// Generalized coordinates and the compiled map x(q, t). Expression slots: q = 0..n_q,
@@ -22,9 +24,24 @@ use crate::expr::{gradients, reads_any, share, Expr, Tape};
 /// with q_j), see [`ParametricMap::row_entries`] and [`ParametricMap::column_entries`].
 #[derive(Clone, Debug)]
 pub struct ParametricMap {
-    pub(crate) coordinates: Vec<String>,
     pub(crate) initial: Vec<f64>,
     pub(crate) rates: Vec<f64>,
+    /// The map itself, shared by the maps that differ only in where they start (the members
+    /// of a sweep over initial values).
+    code: Arc<MapCode>,
+}
+
+impl std::ops::Deref for ParametricMap {
+    type Target = MapCode;
+    fn deref(&self) -> &MapCode {
+        &self.code
+    }
+}
+
+/// The compiled part of a [`ParametricMap`]: its coordinates, expressions and tapes.
+#[derive(Debug)]
+pub struct MapCode {
+    pub(crate) coordinates: Vec<String>,
     /// x_k(q, t) for every particle coordinate k (n_coords).
     pub(crate) positions: Vec<Expr>,
     pub(crate) velocities: Vec<Expr>,
@@ -179,7 +196,7 @@ impl ParametricMap {
         outputs.extend(velocities.iter().cloned());
         outputs.extend(accelerations.iter().cloned());
         outputs.extend(jacobian.iter().cloned());
-        ParametricMap {
+        let code = MapCode {
             fused: std::sync::OnceLock::new(),
             tape: Tape::compile(&outputs),
             state_tape: Tape::compile(&[positions.as_slice(), velocities.as_slice()].concat()),
@@ -192,8 +209,6 @@ impl ParametricMap {
                 .concat(),
             ),
             coordinates,
-            initial,
-            rates,
             positions,
             velocities,
             accelerations,
@@ -203,6 +218,11 @@ impl ParametricMap {
             column_start,
             column_entry,
             bias_reads_rates,
+        };
+        ParametricMap {
+            initial,
+            rates,
+            code: Arc::new(code),
         }
     }
 

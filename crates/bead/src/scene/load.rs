@@ -86,7 +86,7 @@ fn load_limited(
             "world: missing `gravity` (its length, 2 or 3, sets the dimension)",
         )
     })?;
-    let gravity = loader.vector(gravity_def, "world", "`gravity`")?;
+    let gravity = loader.vector(gravity_def, "world", &"`gravity`")?;
     if !(2..=3).contains(&gravity.len()) {
         return Err(src.error(
             gravity_def.span(),
@@ -194,6 +194,92 @@ fn load_limited(
     })
 }
 
+/// A scene's initial values at other parameter values, read from its file as [`load`] reads
+/// them, without the rest of the scene (see `rebind.rs`).
+pub(super) struct InitialValues {
+    /// Every parameter, in file order.
+    pub params: Vec<(String, f64)>,
+    /// Position and velocity of each particle table asked for.
+    pub particles: Vec<(Vec<f64>, Vec<f64>)>,
+    /// The parametric form's initial values and rates, when asked for.
+    pub parametric: Option<(Vec<f64>, Vec<f64>)>,
+}
+
+/// The parameters of `doc` (the scene file `src`, deserialized once) with `overrides`, the
+/// position and velocity of the `[[particle]]` tables `particles` (0-based, tables without
+/// `for`) and, with `parametric`, the `[parametric]` initial values and rates, each evaluated
+/// by the code [`load`] evaluates it with, so that every number has the same bits. Fails
+/// where `load` would fail reading these values (e.g. a position that is not finite).
+pub(super) fn initial_values(
+    doc: &SceneFile,
+    src: Source<'_>,
+    overrides: &[(String, f64)],
+    particles: &[usize],
+    parametric: bool,
+    dim: usize,
+) -> Result<InitialValues> {
+    let mut loader = Loader {
+        src,
+        params: Vec::new(),
+        scope: None,
+        expanded: Cell::new(0),
+        limit: MAX_EXPANDED_BYTES,
+    };
+    let params = loader.params(doc.params.as_ref(), overrides)?;
+    // Particle tables are read with an empty scope (their `{...}` expanded), as
+    // `Builder::repeat` reads a table without `for`.
+    loader.scope = Some(Scope::default());
+    let mut values = Vec::with_capacity(particles.len());
+    for &i in particles {
+        let table = &doc.particle.0[i];
+        let def = table.get_ref();
+        let ctx = format!("particle {}", i + 1);
+        let position = loader.required(&def.position, table.span(), &ctx, "position")?;
+        let position = loader.dim_vector(position, &ctx, "position", dim)?;
+        let velocity = match &def.velocity {
+            Some(v) => loader.dim_vector(v, &ctx, "velocity", dim)?,
+            None => vec![0.0; dim],
+        };
+        values.push((position, velocity));
+    }
+    loader.scope = None;
+    let parametric = match (parametric, &doc.parametric) {
+        (true, Some(p)) => {
+            let d = p.get_ref();
+            let ctx = "parametric";
+            let n_q = d.coordinates.as_ref().map_or(0, |c| c.get_ref().0.len());
+            let counted = |what: &str, v: &Spanned<NumVec>| -> Result<Vec<f64>> {
+                let values = loader.vector(v, ctx, &format_args!("`{what}`"))?;
+                if values.len() != n_q {
+                    return Err(src.error(
+                        v.span(),
+                        format!(
+                            "{ctx}: `{what}` has {} values for {n_q} coordinates",
+                            values.len()
+                        ),
+                    ));
+                }
+                Ok(values)
+            };
+            let initial = counted(
+                "initial",
+                loader.required(&d.initial, p.span(), ctx, "initial")?,
+            )?;
+            let rates = match &d.rates {
+                Some(r) => counted("rates", r)?,
+                None => vec![0.0; n_q],
+            };
+            Some((initial, rates))
+        }
+        _ => None,
+    };
+    Ok(InitialValues {
+        params,
+        particles: values,
+        parametric,
+    })
+}
+
 struct Loader<'a> {
     src: Source<'a>,
     /// Parameters evaluated so far, in file order.
@@ -265,7 +351,7 @@ impl Loader<'_> {
             let later: Vec<&str> = known[i + 1..].to_vec();
             let v = match overridden {
                 Some(v) => v,
-                None => self.number_with(value, &ctx, "the value", &later)?,
+                None => self.number_with(value, &ctx, &"the value", &later)?,
             };
             self.params.push((name.clone(), v));
         }
@@ -274,14 +360,14 @@ impl Loader<'_> {
 
     /// A number: a TOML number, or an expression of parameters, pi and e. Must be finite.
     fn number(&self, value: &Spanned<Num>, ctx: &str, what: &str) -> Result<f64> {
-        self.number_with(value, ctx, what, &[])
+        self.number_with(value, ctx, &what, &[])
     }
 
     fn number_with(
         &self,
         value: &Spanned<Num>,
         ctx: &str,
-        what: &str,
+        what: &dyn std::fmt::Display,
         later: &[&str],
     ) -> Result<f64> {
         let v = match value.get_ref() {
@@ -566,14 +652,44 @@ impl Loader<'_> {
     }
 
     /// An array of numbers, any length.
-    fn vector(&self, value: &Spanned<NumVec>, ctx: &str, what: &str) -> Result<Vec<f64>> {
+    /// (`what` is formatted only for an error: members of a sweep read vectors by the
+    /// thousand.)
+    fn vector(
+        &self,
+        value: &Spanned<NumVec>,
+        ctx: &str,
+        what: &dyn std::fmt::Display,
+    ) -> Result<Vec<f64>> {
         value
             .get_ref()
             .0
             .iter()
             .enumerate()
-            .map(|(i, c)| self.number(c, ctx, &format!("component {} of {what}", i + 1)))
+            .map(|(i, c)| {
+                self.number_with(c, ctx, &format_args!("component {} of {what}", i + 1), &[])
+            })
             .collect()
+    }
+
+    /// A vector of `dim` components.
+    fn dim_vector(
+        &self,
+        value: &Spanned<NumVec>,
+        ctx: &str,
+        key: &str,
+        dim: usize,
+    ) -> Result<Vec<f64>> {
+        let v = self.vector(value, ctx, &format_args!("`{key}`"))?;
+        if v.len() != dim {
+            return Err(self.src.error(
+                value.span(),
+                format!(
+                    "{ctx}: `{key}` has {} components but the scene is {dim}D (set by the length of `gravity`)",
+                    v.len(),
+                ),
+            ));
+        }
+        Ok(v)
     }
 
     /// A located model error.
@@ -939,18 +1055,7 @@ impl Builder<'_> {
 
     /// A vector of this scene's dimension.
     fn vector(&self, value: &Spanned<NumVec>, ctx: &str, key: &str) -> Result<Vec<f64>> {
-        let v = self.loader.vector(value, ctx, &format!("`{key}`"))?;
-        if v.len() != self.dim {
-            return Err(self.src().error(
-                value.span(),
-                format!(
-                    "{ctx}: `{key}` has {} components but the scene is {}D (set by the length of `gravity`)",
-                    v.len(),
-                    self.dim
-                ),
-            ));
-        }
-        Ok(v)
+        self.loader.dim_vector(value, ctx, key, self.dim)
     }
 
     fn particle_list(&self) -> String {

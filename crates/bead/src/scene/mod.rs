@@ -72,7 +72,10 @@
 mod file;
 mod load;
 mod location;
+mod rebind;
 mod template;
+
+pub(crate) use rebind::Rebinder;
 
 pub use crate::model::EditError;
 
