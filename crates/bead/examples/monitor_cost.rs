@@ -41,7 +41,10 @@ struct Args {
 
 fn args() -> Args {
     let mut args = Args {
-        scene: PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../../scenes/parabola.toml")),
+        scene: PathBuf::from(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../../scenes/parabola.toml"
+        )),
         steps: 100_000,
         method: None,
         mode: None,
@@ -89,7 +92,9 @@ impl Case {
         let mut formulation = formulate(system, self.method, config.feedback).expect("formulate");
         formulation.set_constraint_scales(Some(ConstraintScales::of(formulation.system())));
         let mut state = formulation.initial_state();
-        let mut integrator = config.integrator.build_with(state.q.len(), &config.settings);
+        let mut integrator = config
+            .integrator
+            .build_with(state.q.len(), &config.settings);
         let dt = black_box(config.dt);
         let t0 = state.t;
         for k in 1..=steps {
@@ -153,7 +158,10 @@ fn main() {
         plan.integrator.name(),
         plan.dt
     );
-    println!("{:<12}{:>12}{:>12}{:>10}", "method", "bare ns", "run ns", "overhead");
+    println!(
+        "{:<12}{:>12}{:>12}{:>10}",
+        "method", "bare ns", "run ns", "overhead"
+    );
     for method in [Method::Implicit, Method::Parametric] {
         let case = Case {
             plan: plan.clone(),
@@ -162,7 +170,11 @@ fn main() {
         };
         // Same final state both ways: the monitors change nothing.
         let (bare, run) = (case.bare(1000), case.run(1000));
-        assert_eq!((bare.q, bare.qdot), (run.q, run.qdot), "bare and run differ");
+        assert_eq!(
+            (bare.q, bare.qdot),
+            (run.q, run.qdot),
+            "bare and run differ"
+        );
         let time = |mode: Mode| {
             // Batches of 10^4 steps until the time is used; the best batch counts.
             let batch = 10_000;
