@@ -52,12 +52,6 @@ impl Gradients {
     pub fn offset(&self, r: usize) -> f64 {
         self.offset[r]
     }
-
-    /// Copy the values of `other` (same structure) into `self`, without allocating.
-    pub(crate) fn copy_from(&mut self, other: &Gradients) {
-        self.values.copy_from_slice(&other.values);
-        self.offset.copy_from_slice(&other.offset);
-    }
 }
 
 /// Everything the run's monitors read about one state, filled by one evaluation

@@ -116,25 +116,13 @@ impl Implicit {
     /// [`Implicit::observation_evaluation_mut`]: what [`Formulation::observe`] does after
     /// evaluating them (see [`Implicit::accelerate_evaluated`]).
     pub(crate) fn observe_evaluated(&mut self, q: &[f64], qdot: &[f64], out: &mut Observation) {
-        out.x.copy_from_slice(q);
-        out.xdot.copy_from_slice(qdot);
-        let set = self.system.constraints();
-        if set.n_rows() == 0 {
-            return;
-        }
-        let ws = &mut self.projection.eval;
-        out.constraints.copy_from_slice(&ws.value);
-        let g = &mut out.gradients;
-        g.values.copy_from_slice(&ws.jacobian);
-        for i in 0..set.n_rows() {
-            let entries = set.row_entries(i);
-            let norm = ws.jacobian[entries]
-                .iter()
-                .map(|g| g * g)
-                .sum::<f64>()
-                .sqrt();
-            g.offset[i] = ws.value[i].abs() / norm;
-        }
+        observe_from(
+            self.system.constraints(),
+            &self.projection.eval,
+            q,
+            qdot,
+            out,
+        );
     }
 
     /// The evaluation of C and J that [`Implicit::observe_evaluated`] reads.
@@ -358,6 +346,19 @@ impl Formulation for Implicit {
         self.observe_evaluated(q, qdot, out);
     }
 
+    /// C and J from the full evaluation of the last acceleration (the same tape outputs as
+    /// the gradient tape's, checked in debug builds by the monitor).
+    fn observe_accelerated(
+        &mut self,
+        _t: f64,
+        q: &[f64],
+        qdot: &[f64],
+        out: &mut Observation,
+    ) -> bool {
+        observe_from(self.system.constraints(), &self.constraints, q, qdot, out);
+        true
+    }
+
     fn gradient_subject(&self, row: usize) -> Subject {
         let info = self.system.constraints().info_of_row(row);
         Subject::Constraint {
@@ -467,4 +468,31 @@ fn non_finite_input(
         }
     }
     None
+}
+
+/// The observation of (q, qdot) from C and J at (t, q) in `ws`.
+fn observe_from(
+    set: &crate::model::ConstraintSet,
+    ws: &ConstraintEval,
+    q: &[f64],
+    qdot: &[f64],
+    out: &mut Observation,
+) {
+    out.x.copy_from_slice(q);
+    out.xdot.copy_from_slice(qdot);
+    if set.n_rows() == 0 {
+        return;
+    }
+    out.constraints.copy_from_slice(&ws.value);
+    let g = &mut out.gradients;
+    g.values.copy_from_slice(&ws.jacobian);
+    for i in 0..set.n_rows() {
+        let entries = set.row_entries(i);
+        let norm = ws.jacobian[entries]
+            .iter()
+            .map(|g| g * g)
+            .sum::<f64>()
+            .sqrt();
+        g.offset[i] = ws.value[i].abs() / norm;
+    }
 }

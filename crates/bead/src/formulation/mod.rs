@@ -344,6 +344,22 @@ pub trait Formulation: SecondOrderSystem {
     /// formulation singular (the gradient rows J_i of the implicit constraints with how far
     /// the state is off each, or the columns dx/dq_j of the parametric map). Allocation-free.
     fn observe(&mut self, t: f64, q: &[f64], qdot: &[f64], out: &mut Observation);
+
+    /// [`Formulation::observe`] from the evaluation the last
+    /// [`SecondOrderSystem::acceleration`] made, which the caller guarantees was at (t, q,
+    /// qdot) (a simulation primes its integrator's first stage at a step's end, see
+    /// [`crate::integrate::Integrator::prime`]): the same numbers, bit for bit, without a
+    /// second evaluation. False when the formulation cannot (`out` untouched): call
+    /// [`Formulation::observe`].
+    fn observe_accelerated(
+        &mut self,
+        _t: f64,
+        _q: &[f64],
+        _qdot: &[f64],
+        _out: &mut Observation,
+    ) -> bool {
+        false
+    }
     /// What row `row` of [`Observation::gradients`] belongs to.
     fn gradient_subject(&self, row: usize) -> Subject;
     /// The coordinates row `row` reads, by name, with their values at q: the particle

@@ -440,6 +440,19 @@ impl Formulation for Parametric {
         self.observe_evaluated(t, out);
     }
 
+    /// x, xdot and J from the evaluation tape's outputs of the last acceleration (the same
+    /// as the observation tape's, checked in debug builds by the monitor).
+    fn observe_accelerated(
+        &mut self,
+        t: f64,
+        _q: &[f64],
+        _qdot: &[f64],
+        out: &mut Observation,
+    ) -> bool {
+        self.observe_evaluated(t, out);
+        true
+    }
+
     fn gradient_subject(&self, row: usize) -> Subject {
         Subject::Coordinate {
             name: self.parametric_map().coordinates()[row].clone(),

@@ -63,6 +63,24 @@ pub trait Integrator: Send {
     fn constraint_work(&self) -> f64 {
         0.0
     }
+
+    /// For methods whose first stage is the acceleration at the step's start (rk4): evaluate
+    /// it now at `state`, so that the next [`Integrator::step`] from bitwise the same state
+    /// uses it instead of evaluating it again. A simulation primes the integrator at every
+    /// accepted step's end, where its monitors read the same evaluation
+    /// ([`crate::formulation::Formulation::observe_accelerated`]); a step from any other
+    /// state evaluates as usual. `None`: this method does not take it (nothing evaluated).
+    /// The system must not change before that step (else [`Integrator::unprime`]).
+    fn prime(
+        &mut self,
+        _system: &mut dyn SecondOrderSystem,
+        _state: &State,
+    ) -> Option<Result<(), StepError>> {
+        None
+    }
+
+    /// Forget a primed first stage (the system changed, e.g. its external forces).
+    fn unprime(&mut self) {}
 }
 
 /// Settings of the iterative integrators and of the constraint projection, with defaults.

@@ -120,12 +120,16 @@ impl Reach {
 pub(super) struct Monitor {
     /// The last observed state (particle state, constraint values, gradient rows).
     pub(super) observation: Observation,
-    /// The last accepted step's end (regularity: what a new state is compared with)
-    last: StepEnd,
-    /// The step end before it (to explain a failure at the last accepted state)
-    before: StepEnd,
+    /// The last accepted step's end (regularity: what a new state is compared with), at
+    /// `ends[newest]`, and the step end before it (to explain a failure at the last accepted
+    /// state) at `ends[1 - newest]`: a step's shift flips the index instead of moving them
+    ends: [StepEnd; 2],
+    newest: usize,
     /// The longest each gradient row has been in this run (rows)
     longest: Vec<f64>,
+    /// Each gradient row's length at the last observed step end, as the regularity monitor
+    /// computed it (rows; scratch, so that the step's shift does not take the norms again)
+    lengths: Vec<f64>,
     /// Each gradient row's length at the start (rows): its scale, which a blow-up cannot
     /// inflate as it inflates `longest`
     initial: Vec<f64>,
@@ -157,6 +161,15 @@ pub(super) struct Monitor {
     pub(super) constraint_distance: f64,
     pub(super) constraint_distance_max: f64,
     reach: Reach,
+    /// T + V as the system computes it, with its terms gathered once
+    energy_terms: EnergyTerms,
+    /// Debug builds: the observation made apart, to check [`Monitor::observe_accelerated`]
+    #[cfg(debug_assertions)]
+    check: Observation,
+    /// The divergence limits at t = 0, [`Reach::at`]'s least over every t: a state within
+    /// them is within the limits at any time, so that the limits of its own time need not be
+    /// computed (see [`Monitor::check_divergence`]).
+    floor: (f64, f64),
 }
 
 impl Monitor {
@@ -235,8 +248,9 @@ impl Monitor {
         };
         Monitor {
             observation,
-            last,
-            before,
+            ends: [last, before],
+            newest: 0,
+            lengths: vec![0.0; longest.len()],
             longest,
             initial,
             initial_q: q.to_vec(),
@@ -254,6 +268,10 @@ impl Monitor {
             constraint_error_max: constraint_error,
             constraint_distance,
             constraint_distance_max: constraint_distance,
+            floor: reach.at(0.0),
+            energy_terms: EnergyTerms::of(system),
+            #[cfg(debug_assertions)]
+            check: formulation.new_observation(),
             reach,
         }
     }
@@ -268,11 +286,60 @@ impl Monitor {
         work: f64,
     ) {
         formulation.observe(t, q, qdot, &mut self.observation);
-        let system = formulation.system();
-        self.energy = system.energy(&self.observation.x, &self.observation.xdot);
+        self.measure(formulation.system(), work);
+    }
+
+    /// Energy, work and constraint error of the observation.
+    fn measure(&mut self, system: &System, work: f64) {
+        self.energy = self
+            .energy_terms
+            .energy(system, &self.observation.x, &self.observation.xdot);
         self.work = work;
         self.constraint_error = self.observation.constraint_error();
         self.constraint_distance = self.observation.constraint_distance();
+    }
+
+    /// [`Monitor::observe`] from the evaluation of the formulation's last acceleration, which
+    /// was at (t, q, qdot) (see [`Formulation::observe_accelerated`]); false when the
+    /// formulation cannot (nothing observed). Debug builds check it against
+    /// [`Monitor::observe`], bit for bit.
+    pub(super) fn observe_accelerated(
+        &mut self,
+        formulation: &mut (dyn Formulation + Send),
+        t: f64,
+        q: &[f64],
+        qdot: &[f64],
+        work: f64,
+    ) -> bool {
+        if !formulation.observe_accelerated(t, q, qdot, &mut self.observation) {
+            return false;
+        }
+        #[cfg(debug_assertions)]
+        {
+            // Without allocating (the step loop allocates nothing, tests/alloc_free.rs).
+            let check = &mut self.check;
+            formulation.observe(t, q, qdot, check);
+            let o = &self.observation;
+            for (got, want) in [
+                (&o.x, &check.x),
+                (&o.xdot, &check.xdot),
+                (&o.constraints, &check.constraints),
+                (&o.gradients.values, &check.gradients.values),
+                (&o.gradients.offset, &check.gradients.offset),
+            ] {
+                let same = got.len() == want.len()
+                    && got
+                        .iter()
+                        .zip(want.iter())
+                        .all(|(a, b)| a.to_bits() == b.to_bits());
+                assert!(
+                    same,
+                    "observation from the acceleration differs: {got:?} {want:?}"
+                );
+            }
+        }
+        self.measure(formulation.system(), work);
+        true
     }
 
     /// The monitor as it stands after a run accepted step ends up to one at state `last_q`
@@ -288,13 +355,16 @@ impl Monitor {
         longest: &[f64],
         maxima: [f64; 4],
     ) {
-        self.last.q.copy_from_slice(last_q);
-        self.last.gradients.values.copy_from_slice(last_gradients);
-        self.last.valid = true;
+        let newest = self.newest;
+        let last = &mut self.ends[newest];
+        last.q.copy_from_slice(last_q);
+        last.gradients.values.copy_from_slice(last_gradients);
+        last.valid = true;
         if let Some((q, gradients)) = before {
-            self.before.q.copy_from_slice(q);
-            self.before.gradients.values.copy_from_slice(gradients);
-            self.before.valid = true;
+            let before = &mut self.ends[1 - newest];
+            before.q.copy_from_slice(q);
+            before.gradients.values.copy_from_slice(gradients);
+            before.valid = true;
         }
         self.longest.copy_from_slice(longest);
         [
@@ -342,6 +412,7 @@ impl Monitor {
         q: &[f64],
     ) -> Result<(), Rejection> {
         self.check_divergence(formulation.system(), t)?;
+        let measured = self.ends[self.newest].valid;
         match self.regularity(formulation, t, q) {
             Some(Finding::Singular(row, kind)) => {
                 return Err(Rejection::Singular(StepError::SingularPoint {
@@ -362,14 +433,24 @@ impl Monitor {
             }
             None => {}
         }
-        // Shift: the last step end becomes the one before, the new state the last.
-        std::mem::swap(&mut self.last, &mut self.before);
-        self.last.gradients.copy_from(&self.observation.gradients);
-        self.last.q.copy_from_slice(q);
-        self.last.valid = true;
+        // Shift: the last step end becomes the one before, the new state the last (its
+        // gradient values and q: a step end's offsets are never read).
+        self.newest = 1 - self.newest;
+        let last = &mut self.ends[self.newest];
+        last.gradients
+            .values
+            .copy_from_slice(&self.observation.gradients.values);
+        last.q.copy_from_slice(q);
+        last.valid = true;
         for (r, (longest, searched)) in self.longest.iter_mut().zip(&mut self.searched).enumerate()
         {
-            let length = norm(self.observation.gradients.row(r));
+            // The regularity monitor took the watched rows' lengths already (the same sum in
+            // the same order, so the same bits as `norm`).
+            let length = if measured && !self.never_singular[r] {
+                self.lengths[r]
+            } else {
+                norm(self.observation.gradients.row(r))
+            };
             *longest = longest.max(length);
             if length > 2.0 * *searched {
                 // Away from where the last search found nothing: search again next time.
@@ -396,8 +477,9 @@ impl Monitor {
             }
             let row = g.row(r);
             let length = norm(row);
-            let ahead = if self.before.valid {
-                steps_to_vanish(row, self.before.gradients.row(r), AHEAD_FRACTION)
+            let before = &self.ends[1 - self.newest];
+            let ahead = if before.valid {
+                steps_to_vanish(row, before.gradients.row(r), AHEAD_FRACTION)
             } else {
                 None
             };
@@ -408,7 +490,7 @@ impl Monitor {
                 }
                 _ => continue,
             };
-            if self.confirm(formulation, &self.before, r, t, q, probe, reach) {
+            if self.confirm(formulation, before, r, t, q, probe, reach) {
                 return Some((r, kind));
             }
         }
@@ -434,10 +516,11 @@ impl Monitor {
                 return false;
             }
             let mut step = formulation.row_step_length(r, &ahead, q);
-            if self.before.valid {
-                step = step.max(formulation.row_step_length(r, q, &self.before.q));
+            let before = &self.ends[1 - self.newest];
+            if before.valid {
+                step = step.max(formulation.row_step_length(r, q, &before.q));
             }
-            self.search(formulation, &self.last, r, t, q, 0.0)
+            self.search(formulation, &self.ends[self.newest], r, t, q, 0.0)
                 .is_some_and(|(found, now, _)| distance(&found, &now) <= 10.0 * step)
         })
     }
@@ -468,8 +551,15 @@ impl Monitor {
         if !self.work.is_finite() {
             return diverged(Quantity::Work, self.work, None);
         }
-        let (position_limit, speed_limit) = self.reach.at(t);
         let x = &self.observation.x;
+        let v = &self.observation.xdot;
+        // Within the limits at t = 0, the least at any time: nothing diverged, whatever t (a
+        // NaN fails the comparison and takes the full test).
+        let (position_floor, speed_floor) = self.floor;
+        if x.iter().all(|c| c.abs() <= position_floor) && v.iter().all(|c| c.abs() <= speed_floor) {
+            return Ok(());
+        }
+        let (position_limit, speed_limit) = self.reach.at(t);
         if let Some(k) = x
             .iter()
             .position(|c| c.is_nan() || c.abs() > position_limit)
@@ -477,7 +567,6 @@ impl Monitor {
             let limit = x[k].is_finite().then_some(position_limit);
             return diverged(Quantity::Position(system.coordinate_name(k)), x[k], limit);
         }
-        let v = &self.observation.xdot;
         if let Some(k) = v.iter().position(|c| c.is_nan() || c.abs() > speed_limit) {
             let limit = v[k].is_finite().then_some(speed_limit);
             return diverged(Quantity::Velocity(system.velocity_name(k)), v[k], limit);
@@ -518,10 +607,10 @@ impl Monitor {
     /// ellipse (a critical point of C off the curve) stops nothing.
     fn regularity(&mut self, formulation: &dyn Formulation, t: f64, q: &[f64]) -> Option<Finding> {
         let g = &self.observation.gradients;
-        if !self.last.valid {
+        let reference = &self.ends[self.newest];
+        if !reference.valid {
             return None;
         }
-        let reference = &self.last;
         for r in 0..g.n_rows() {
             if self.never_singular[r] {
                 continue;
@@ -536,6 +625,7 @@ impl Monitor {
                 pp += p * p;
             }
             let length = gg.sqrt();
+            self.lengths[r] = length;
             let reversed = gp < 0.0;
             let (s, shortest) = lookahead(gg, gp, pp);
             let shrinking = s > 0.0 && shortest < AHEAD_FRACTION * AHEAD_FRACTION * gg;
@@ -683,6 +773,62 @@ impl Monitor {
         let before = formulation.row_variables(r, &reference.q);
         let step = distance(&now, &before);
         Some((search.point, now, step))
+    }
+}
+
+/// [`System::energy`] bit for bit, without its iterator chains: the particle masses gathered
+/// once, the same products and sums in the same order, each sum from the value `Sum` starts
+/// from. A system with applied forces (their potentials) takes the system's own path.
+struct EnergyTerms {
+    /// 0.5 m and -m per particle
+    half_mass: Vec<f64>,
+    negative_mass: Vec<f64>,
+    gravity: Vec<f64>,
+    dim: usize,
+    /// What an empty `Sum` of f64 is (-0.0 in current Rust)
+    zero: f64,
+    /// Whether the system has applied forces
+    general: bool,
+}
+
+impl EnergyTerms {
+    fn of(system: &System) -> Self {
+        let masses = system.particles().iter().map(|p| p.mass);
+        EnergyTerms {
+            half_mass: masses.clone().map(|m| 0.5 * m).collect(),
+            negative_mass: masses.map(|m| -m).collect(),
+            gravity: system.gravity().to_vec(),
+            dim: system.dim(),
+            zero: std::iter::empty::<f64>().sum(),
+            general: !system.forces().is_empty(),
+        }
+    }
+
+    fn energy(&self, system: &System, x: &[f64], v: &[f64]) -> f64 {
+        if self.general {
+            return system.energy(x, v);
+        }
+        let dim = self.dim;
+        let mut kinetic = self.zero;
+        for (p, &half_mass) in self.half_mass.iter().enumerate() {
+            let mut s = self.zero;
+            for c in &v[p * dim..p * dim + dim] {
+                s += c * c;
+            }
+            kinetic += half_mass * s;
+        }
+        let mut gravity = self.zero;
+        for (p, &negative_mass) in self.negative_mass.iter().enumerate() {
+            let mut gx = self.zero;
+            for (g, c) in self.gravity.iter().zip(&x[p * dim..p * dim + dim]) {
+                gx += g * c;
+            }
+            gravity += negative_mass * gx;
+        }
+        // The applied forces' potentials: an empty sum.
+        let energy = kinetic + (gravity + self.zero);
+        debug_assert_eq!(energy.to_bits(), system.energy(x, v).to_bits());
+        energy
     }
 }
 
