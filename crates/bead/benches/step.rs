@@ -321,12 +321,12 @@ fn print_ratios(quick: bool) {
             "off (BEAD_JIT=0)"
         }
     );
-    print_compile_times();
 }
 
-/// The machine code of every shipped scene as `bead check` reports it: tapes, instructions
-/// and compile time (the first load of each scene in this process; a scene whose tapes have
-/// the shape of an earlier one's reuses their code and says so).
+/// The machine code of every shipped scene as `bead check` reports it: tapes (the fused
+/// accelerations' included), instructions and compile time, and the whole load's time, first
+/// thing in the process (a scene whose tapes have the shape of an earlier one's reuses their
+/// code and says so).
 fn print_compile_times() {
     let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes");
     let mut files: Vec<_> = std::fs::read_dir(&dir)
@@ -339,8 +339,17 @@ fn print_compile_times() {
     println!("Machine code per shipped scene (as `bead check` prints it):");
     for path in files {
         let name = path.file_name().and_then(|n| n.to_str()).unwrap_or("?");
+        let start = Instant::now();
         match Scene::load(&path, &[]) {
-            Ok(scene) => println!("  {name:<24} {}", scene.system.machine_code()),
+            Ok(scene) => {
+                // The fused accelerations' tapes too (built on first use by a run).
+                bead::formulation::prepare_fused_accelerations(&scene.system);
+                let load = start.elapsed().as_secs_f64() * 1e3;
+                println!(
+                    "  {name:<24} {} (load in all {load:.1} ms)",
+                    scene.system.machine_code()
+                )
+            }
             Err(e) => println!("  {name:<24} does not load: {e}"),
         }
     }
@@ -374,6 +383,7 @@ fn main() {
         only(&variant, count);
         return;
     }
+    print_compile_times();
     // `cargo bench` passes --bench; without it (cargo test --benches) criterion runs each
     // benchmark once as a smoke test, and so does the ratio table.
     let benchmarking = std::env::args().any(|a| a == "--bench");
