@@ -129,6 +129,10 @@ pub(crate) struct FusedImplicit {
     vars: Vec<f64>,
     scratch: Vec<f64>,
     out: Vec<f64>,
+    /// The system's own F when its forces are constant (gravity, constant forces): then in
+    /// `vars` too, unless `vars_force_given` (a given F overwrote it).
+    constant_force: Option<Vec<f64>>,
+    vars_force_given: bool,
 }
 
 /// Where a fused implicit acceleration leaves what the general path leaves.
@@ -240,6 +244,14 @@ impl FusedImplicit {
             .get_or_init(|| implicit_tape(set, n))
             .clone()?;
         let mut vars = vec![0.0; 4 * n + 3];
+        let constant = |f: &Force| matches!(f, Force::Constant { .. });
+        let constant_force = system.forces().iter().all(constant).then(|| {
+            // F does not depend on x, v: computed once (the same operations as every time).
+            let (zeros, mut force) = (vec![0.0; n], vec![0.0; n]);
+            system.accumulate_forces(&zeros, &zeros, &mut force);
+            vars[2 * n + 1..3 * n + 1].copy_from_slice(&force);
+            force
+        });
         vars[3 * n + 1..4 * n + 1].copy_from_slice(&system.inverse_mass);
         vars[4 * n + 1] = ks;
         vars[4 * n + 2] = kd;
@@ -252,12 +264,21 @@ impl FusedImplicit {
             nnz: set.n_nonzeros(),
             tolerance,
             vars,
+            constant_force,
+            vars_force_given: false,
         })
     }
 
-    /// a at (t, x, v) under the applied forces `force` into `a`, and what the general path
-    /// leaves (C, Cdot, bias, J, lambda, F + J^T lambda) into `buffers`; false when J W J^T
-    /// fails the pivot test (nothing usable written: run the general path).
+    /// Whether F is constant (and kept by the fused acceleration) while no external force is
+    /// applied: the caller then need not compute it.
+    pub(crate) fn has_constant_force(&self) -> bool {
+        self.constant_force.is_some()
+    }
+
+    /// a at (t, x, v) into `a`, and what the general path leaves (C, Cdot, bias, J, lambda,
+    /// F + J^T lambda) into `buffers`, under the applied forces in `buffers.force` when
+    /// `force_given`, else the constant F kept (see [`Self::has_constant_force`]); false when
+    /// J W J^T fails the pivot test (nothing usable written: run the general path).
     pub(crate) fn accelerate(
         &mut self,
         t: f64,
@@ -265,12 +286,21 @@ impl FusedImplicit {
         v: &[f64],
         a: &mut [f64],
         buffers: ImplicitBuffers<'_>,
+        force_given: bool,
     ) -> bool {
         let (n, m, nnz) = (self.n, self.m, self.nnz);
         self.vars[..n].copy_from_slice(x);
         self.vars[n..2 * n].copy_from_slice(v);
         self.vars[2 * n] = t;
-        self.vars[2 * n + 1..3 * n + 1].copy_from_slice(buffers.force);
+        if force_given {
+            self.vars[2 * n + 1..3 * n + 1].copy_from_slice(buffers.force);
+            self.vars_force_given = true;
+        } else if self.vars_force_given {
+            if let Some(force) = &self.constant_force {
+                self.vars[2 * n + 1..3 * n + 1].copy_from_slice(force);
+                self.vars_force_given = false;
+            }
+        }
         self.tape.eval(&self.vars, &mut self.scratch, &mut self.out);
         let out = &self.out;
         let pivots = 3 * m + nnz + m + 2 * n;
@@ -803,6 +833,40 @@ b = ["sin(th) + 0.3*ph", "cos(ph)*th", "0.5 + 0.1*sin(th*ph)"]
                 fused.iter().any(|f| f == must),
                 "{must} not fused: {fused:?}"
             );
+        }
+    }
+
+    /// An external force (the viewer's drag) enters the fused acceleration while applied,
+    /// and leaves it when removed: the same bits as the general path before, during, after.
+    #[test]
+    fn external_forces_come_and_go_as_in_the_general_path() {
+        use crate::formulation::Formulation;
+        use crate::model::{Force, ParticleId};
+        let scene = Scene::parse(MIXED, "mixed.toml", &[]).unwrap();
+        let mut f = Implicit::new(Arc::clone(&scene.system), Feedback::default());
+        assert!(f.fused.as_ref().is_some_and(|f| f.has_constant_force()));
+        let mut rng = Rng::new(7);
+        let (x0, v0) = f.system.initial_particle_state();
+        for phase in 0..3 {
+            f.external_forces_mut().clear();
+            if phase == 1 {
+                f.external_forces_mut().push(Force::Constant {
+                    particle: ParticleId(0),
+                    vector: vec![3.0, -1.5, 0.25],
+                });
+            }
+            for _ in 0..20 {
+                let (x, v) = (perturbed(&mut rng, &x0, 0.1), perturbed(&mut rng, &v0, 0.1));
+                let want = general_implicit(&mut f, 0.5, &x, &v);
+                let got = fused_implicit(&mut f, 0.5, &x, &v);
+                assert!(
+                    same(&want.0, &got.0),
+                    "phase {phase}: {:?} vs {:?}",
+                    want.0,
+                    got.0
+                );
+                assert_eq!(want.1, got.1, "phase {phase}");
+            }
         }
     }
 

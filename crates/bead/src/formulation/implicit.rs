@@ -212,13 +212,16 @@ impl SecondOrderSystem for Implicit {
         a: &mut [f64],
     ) -> Result<(), StepError> {
         if let Some(fused) = &mut self.fused {
-            accumulate_all_forces(&self.system, &self.external, x, v, &mut self.force);
+            let force_given = !(fused.has_constant_force() && self.external.is_empty());
+            if force_given {
+                accumulate_all_forces(&self.system, &self.external, x, v, &mut self.force);
+            }
             let buffers = ImplicitBuffers {
                 constraints: &mut self.constraints,
                 lambda: &mut self.lambda,
                 force: &mut self.force,
             };
-            if fused.accelerate(t, x, v, a, buffers) {
+            if fused.accelerate(t, x, v, a, buffers, force_given) {
                 return Ok(());
             }
         }

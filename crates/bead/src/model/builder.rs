@@ -856,7 +856,14 @@ pub(super) fn compile(declared: Arc<SystemBuilder>) -> Result<System, ModelError
         .iter()
         .flat_map(|p| std::iter::repeat_n(1.0 / p.mass, dim))
         .collect();
+    // m g per coordinate, the products `System::accumulate_forces` starts from.
+    let weight = b
+        .particles
+        .iter()
+        .flat_map(|p| b.gravity.iter().map(move |g| p.mass * g))
+        .collect();
     Ok(System {
+        weight,
         params: b.params.clone(),
         dim,
         particles: b.particles.clone(),

@@ -57,6 +57,8 @@ pub struct System {
     pub(crate) parametric: Option<ParametricMap>,
     /// Inverse masses per coordinate (n_coords): W = M^-1 as a diagonal.
     pub(crate) inverse_mass: Vec<f64>,
+    /// Gravity's force per coordinate, m_p g_a (n_coords).
+    pub(crate) weight: Vec<f64>,
     /// The parameters the expressions were parsed with, in declaration order.
     pub(crate) params: Vec<(String, f64)>,
     /// What the system was declared from: edits change it and compile again.
@@ -149,11 +151,7 @@ impl System {
     /// overwritten: F = sum over forces at positions x and velocities v.
     pub fn accumulate_forces(&self, x: &[f64], v: &[f64], force: &mut [f64]) {
         let dim = self.dim;
-        for (p, particle) in self.particles.iter().enumerate() {
-            for a in 0..dim {
-                force[p * dim + a] = particle.mass * self.gravity[a];
-            }
-        }
+        force.copy_from_slice(&self.weight);
         for f in &self.forces {
             f.accumulate(dim, x, v, force);
         }
