@@ -665,14 +665,7 @@ mod codegen {
         // one on every host Cranelift supports.
         #[allow(unsafe_code)]
         let func = unsafe { std::mem::transmute::<*const u8, TapeFn>(ptr) };
-        let n_vars = code
-            .iter()
-            .filter_map(|i| match *i {
-                Instr::Var(k) => Some(k as usize + 1),
-                _ => None,
-            })
-            .max()
-            .unwrap_or(0);
+        let n_vars = crate::expr::tape::n_vars(code);
         Ok(Native {
             func,
             n_vars,

@@ -402,14 +402,7 @@ impl Tape {
         let code = fuse(code, outputs);
         let out = outputs.to_vec();
         assert!(u32::try_from(code.len()).is_ok(), "tape too long");
-        let n_vars = code
-            .iter()
-            .filter_map(|i| match *i {
-                Instr::Var(k) => Some(k as usize + 1),
-                _ => None,
-            })
-            .max()
-            .unwrap_or(0);
+        let n_vars = n_vars(&code);
         debug_assert!(code.iter().enumerate().all(|(i, ins)| ins
             .operands()
             .into_iter()
@@ -563,6 +556,17 @@ impl Tape {
             o.copy_from_slice(&scratch[slot as usize * L..][..L]);
         }
     }
+}
+
+/// One more than the largest variable slot `code` reads (0 if none).
+pub(super) fn n_vars(code: &[Instr]) -> usize {
+    code.iter()
+        .filter_map(|i| match *i {
+            Instr::Var(k) => Some(k as usize + 1),
+            _ => None,
+        })
+        .max()
+        .unwrap_or(0)
 }
 
 /// A value while a tape is built by [`TapeBuilder`]: a constant (folded at build time) or a
