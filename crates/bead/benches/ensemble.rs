@@ -28,8 +28,8 @@
 //! sweep's path for a release point) and loaded again from the scene's text.
 //!
 //! `cargo bench -p bead --bench ensemble` (`-- --members N` for another ensemble size,
-//! `-- --setup-only` for the setup alone, `-- --restarted-only` for the restarted setup alone:
-//! what to profile).
+//! `-- --setup-only` for the setup alone, `-- --restarted-only` for the restarted setup alone,
+//! `-- --lanes-only` for the sweep through the lanes alone: what to profile).
 
 use std::hint::black_box;
 use std::time::Instant;
@@ -242,13 +242,15 @@ fn by_hand(method: Method, x0: &[f64], threads: usize) -> (f64, Vec<[f64; 2]>) {
 
 fn main() {
     let mut members = 10_000;
-    let (mut setup_only, mut restarted_only) = (false, false);
+    let (mut setup_only, mut restarted_only, mut lanes_only) = (false, false, false);
     let mut args = std::env::args().skip(1);
     while let Some(arg) = args.next() {
         if arg == "--setup-only" {
             setup_only = true;
         } else if arg == "--restarted-only" {
             (setup_only, restarted_only) = (true, true);
+        } else if arg == "--lanes-only" {
+            lanes_only = true;
         } else if arg == "--members" {
             members = args
                 .next()
@@ -269,6 +271,11 @@ fn main() {
     for method in [Method::Implicit, Method::Parametric] {
         if setup_only {
             break;
+        }
+        if lanes_only {
+            let (seconds, _) = through_bead(method, &x0, threads, false);
+            println!("{:<11} {:>16.3e}", method.name(), work / seconds);
+            continue;
         }
         let (alone_seconds, alone) = through_bead(method, &x0, threads, true);
         let (bead_seconds, results) = through_bead(method, &x0, threads, false);
@@ -307,6 +314,9 @@ fn main() {
             floor_rate / bead_rate,
             bead_rate / alone_rate
         );
+    }
+    if lanes_only {
+        return;
     }
     println!("target: >= 1e8 particle-steps/s on 2 cores (within 4x of the floor)");
     println!("member setup, us per member (1 thread, best of 5 rounds of {members}):");

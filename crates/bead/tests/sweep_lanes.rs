@@ -254,3 +254,27 @@ fn stop_conditions_sampled_inside_the_steps_leave_the_lanes_as_alone() {
         );
     }
 }
+
+/// Forces besides gravity (a spring to an anchor and a constant push, both with a potential):
+/// the lanes finish each member's acceleration and energy by its own code, and every figure
+/// is still the member's alone, bit for bit, in both forms.
+#[test]
+fn members_with_springs_and_constant_forces_are_their_runs_alone() {
+    let text = format!(
+        "{}\n[[force]]\nkind = \"spring\"\nparticle = \"bead\"\nanchor = [0.0, -300.0]\nstiffness = \"k\"\nrest_length = 50.0\n\n[[force]]\nkind = \"constant\"\nparticle = \"bead\"\nvector = [40.0, 0.0]\n",
+        common::PARABOLA_SWEPT.replace("mass = 1.0\n", "mass = 1.0\nk = 2.0\n")
+    );
+    let scene = Scene::parse(&text, "parabola-spring.toml", &[]).unwrap();
+    for method in [Method::Implicit, Method::Parametric] {
+        let members = check(
+            &scene,
+            vec![
+                Axis::linspace("x0", 10.0, 200.0, 9).unwrap(),
+                Axis::linspace("k", 0.5, 8.0, 3).unwrap(),
+            ],
+            rk4(method, 1.0 / 240.0, 900),
+            None,
+        );
+        assert!(members.iter().all(|m| m.error.is_none()));
+    }
+}

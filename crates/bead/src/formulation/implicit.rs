@@ -112,9 +112,8 @@ impl Implicit {
         self.solver
     }
 
-    /// The observation of (q, qdot) from C and J at (t, q) already in
-    /// [`Implicit::observation_evaluation_mut`]: what [`Formulation::observe`] does after
-    /// evaluating them (see [`Implicit::accelerate_evaluated`]).
+    /// The observation of (q, qdot) from C and J at (t, q) already in the projection's
+    /// evaluation: what [`Formulation::observe`] does after evaluating them.
     pub(crate) fn observe_evaluated(&mut self, q: &[f64], qdot: &[f64], out: &mut Observation) {
         observe_from(
             self.system.constraints(),
@@ -123,11 +122,6 @@ impl Implicit {
             qdot,
             out,
         );
-    }
-
-    /// The evaluation of C and J that [`Implicit::observe_evaluated`] reads.
-    pub(crate) fn observation_evaluation_mut(&mut self) -> &mut ConstraintEval {
-        &mut self.projection.eval
     }
 
     /// The constraint stabilization it applies.

@@ -343,6 +343,12 @@ impl ConstraintSet {
         &self.fused
     }
 
+    /// The tape of the expression rows' values C (outputs in row order), variables x, t (the
+    /// slots of x, v, t).
+    pub(crate) fn value_tape(&self) -> &Tape {
+        &self.value_tape
+    }
+
     /// The tape of C, Cdot, bias and J (outputs in that order), variables x, v, t.
     pub(crate) fn full_tape(&self) -> &Tape {
         &self.full_tape

@@ -8,10 +8,12 @@
 //! ([`implicit_across_lanes`], [`Parametric::accelerate_across_lanes`]: the same operations in
 //! the same order per member); otherwise each lane is finished by the formulation's own code
 //! ([`Implicit::accelerate_evaluated`], [`Parametric::accelerate_evaluated`]). Either way every
-//! number is the one the member's own `Simulation` would compute, bit for bit. The monitors after each step are the
-//! simulation's, per lane: the energy and constraint-error maxima, the divergence test, the
-//! regularity monitor's first-order candidate tests and the stop condition's screen inside
-//! the step (the member's own watch, so that a look it asks for is taken alone).
+//! number is the one the member's own `Simulation` would compute, bit for bit. The monitors
+//! after each step run across the lanes too ([`super::lane_monitor`]): the energy and
+//! constraint-error maxima, the divergence test and the regularity monitor's first-order
+//! candidate tests, with the same operations in the same order per member; the stop
+//! condition's screen inside the step stays per lane (the member's own watch, so that a look
+//! it asks for is taken alone).
 //!
 //! Whatever needs more than the plain step (a non-finite or diverged state, a candidate
 //! singular point that the simulation would search for, a failed factorization, the stop
@@ -27,14 +29,11 @@
 
 use std::sync::Arc;
 
-use super::monitor::{
-    lookahead, norm, off_branch_candidate, AHEAD_FRACTION, AHEAD_STEPS, VANISHED,
-};
+use super::lane_monitor::{gather, LaneMonitor};
 use super::{RunOptions, Simulation, Stepper};
 use crate::expr::Tape;
-use crate::formulation::{FusedLanes, Implicit, LaneScratch, Method, Observation, Parametric};
+use crate::formulation::{FusedLanes, Implicit, LaneScratch, Method, Parametric};
 use crate::integrate::IntegratorKind;
-use crate::linalg::max_nan;
 use crate::model::System;
 
 /// Members stepped together: the tapes' instructions are interpreted once per this many
@@ -104,12 +103,10 @@ struct Lanes {
     parametric: LaneScratch,
     /// The fused accelerations across lanes
     fused: FusedLanes,
-    /// One lane's q, qdot, acceleration and tape outputs, and q at the step's start
+    /// One lane's q, qdot and acceleration
     q_one: Vec<f64>,
-    q_back_one: Vec<f64>,
     qdot_one: Vec<f64>,
     a_one: Vec<f64>,
-    out_one: Vec<f64>,
 }
 
 impl Lanes {
@@ -136,17 +133,8 @@ impl Lanes {
             parametric: LaneScratch::default(),
             fused: FusedLanes::default(),
             q_one: vec![0.0; n],
-            q_back_one: vec![0.0; n],
             qdot_one: vec![0.0; n],
             a_one: vec![0.0; n],
-            out_one: vec![0.0; outputs],
-        }
-    }
-
-    /// Lane l's part of a structure-of-arrays buffer into `one`.
-    fn gather(soa: &[f64], l: usize, one: &mut [f64]) {
-        for (k, value) in one.iter_mut().enumerate() {
-            *value = soa[k * LANES + l];
         }
     }
 
@@ -211,31 +199,7 @@ pub(crate) fn run_lanes(
     let mut outcome = vec![LaneOutcome::Done; count];
     let mut active = [false; LANES];
     active[..count].fill(true);
-    // The monitor's reference per lane: the last accepted step's gradient rows and the
-    // longest each row has been.
-    let mut observation = members[0].monitor.observation.clone();
-    let mut last: Vec<Vec<f64>> = members
-        .iter()
-        .map(|m| m.monitor.observation.gradients.values.clone())
-        .collect();
-    // The step end before `last` (none before the first step).
-    let mut before: Vec<Vec<f64>> = last.clone();
-    let mut longest: Vec<Vec<f64>> = members
-        .iter()
-        .map(|m| m.monitor.longest().to_vec())
-        .collect();
-    let mut maxima: Vec<[f64; 4]> = members
-        .iter()
-        .map(|m| {
-            [
-                m.monitor.energy_rel_error_max,
-                m.monitor.balance_error_max,
-                m.monitor.constraint_error_max,
-                m.monitor.constraint_distance_max,
-            ]
-        })
-        .collect();
-    let n_gradient_rows = observation.gradients.n_rows();
+    let mut monitor = LaneMonitor::new(&system, method, members);
     let t0 = members[0].state.t;
     let dt = config.dt;
     let mut t = t0;
@@ -259,127 +223,50 @@ pub(crate) fn run_lanes(
         );
         for l in 0..count {
             if failed_before[l] && !active[l] {
-                handover(
-                    &mut members[l],
-                    &lanes,
-                    l,
-                    k,
-                    t,
-                    &last[l],
-                    &before[l],
-                    &longest[l],
-                    maxima[l],
-                );
+                handover(&mut members[l], &lanes, &monitor, l, k, t);
                 outcome[l] = LaneOutcome::Handover { intervals: k - 1 };
             }
         }
         let t_previous = t;
         t = t_end;
-        // Lane l leaves the lanes: its member is handed the state of the step before.
-        macro_rules! hand_back {
-            ($member:expr, $l:expr) => {{
-                let l = $l;
-                active[l] = false;
-                handover(
-                    $member,
-                    &lanes,
-                    l,
-                    k,
-                    t_previous,
-                    &last[l],
-                    &before[l],
-                    &longest[l],
-                    maxima[l],
-                );
-                outcome[l] = LaneOutcome::Handover { intervals: k - 1 };
-            }};
-        }
-        // The checks of `Simulation::accept`, per lane.
+        // The checks of `Simulation::accept`, every lane at once; a lane that fails one, or
+        // whose stop condition asks for a look, leaves: its member is handed the state of
+        // the step before.
         observe_lanes(&mut lanes, &observe_tape, t);
+        let out = &lanes.out[..observe_tape.n_outputs() * LANES];
+        let failed = monitor.check(
+            &system,
+            &members[..count],
+            t,
+            out,
+            &lanes.q,
+            &lanes.qdot,
+            &lanes.q_back,
+        );
         for l in 0..count {
             if !active[l] {
                 continue;
             }
             let member = &mut members[l];
-            Lanes::gather(&lanes.q, l, &mut lanes.q_one);
-            Lanes::gather(&lanes.qdot, l, &mut lanes.qdot_one);
-            let finite = lanes
-                .q_one
-                .iter()
-                .chain(&lanes.qdot_one)
-                .all(|c| c.is_finite());
-            if !finite {
-                hand_back!(member, l);
-                continue;
-            }
-            let width = observe_tape.n_outputs();
-            Lanes::gather(&lanes.out[..width * LANES], l, &mut lanes.out_one[..width]);
-            finish_observation(
-                &mut kernel,
-                &system,
-                t,
-                &lanes.out_one[..width],
-                &lanes.q_one,
-                &lanes.qdot_one,
-                &mut observation,
-            );
-            let energy = system.energy(&observation.x, &observation.xdot);
-            let constraint_error = observation.constraint_error();
-            let (position_limit, speed_limit) = member.monitor.limits(t);
-            let diverged = !energy.is_finite()
-                || !constraint_error.is_finite()
-                || observation
-                    .x
-                    .iter()
-                    .any(|c| c.is_nan() || c.abs() > position_limit)
-                || observation
-                    .xdot
-                    .iter()
-                    .any(|c| c.is_nan() || c.abs() > speed_limit);
-            Lanes::gather(&lanes.q_back, l, &mut lanes.q_back_one);
-            let step_length = |r: usize| {
-                member
-                    .formulation
-                    .row_step_length(r, &lanes.q_one, &lanes.q_back_one)
-            };
-            if diverged
-                || regularity_candidate(
-                    &observation,
-                    &last[l],
-                    &longest[l],
-                    n_gradient_rows,
-                    step_length,
-                )
-            {
-                hand_back!(member, l);
-                continue;
-            }
             // The stop condition's screen (`Watch::screen`, which remembers this step end
             // when nothing needs a look); a look is the member's own to take.
-            if let Some(watch) = member.watch.as_mut() {
-                let (x, xdot) = (&observation.x, &observation.xdot);
-                let (q, qdot) = (&lanes.q_one, &lanes.qdot_one);
-                let g_end = watch.eval(t, x, xdot, q, qdot);
-                if watch.screen(t, x, xdot, q, qdot, g_end) {
-                    hand_back!(member, l);
-                    continue;
-                }
+            let leaves = failed[l]
+                || member.watch.as_mut().is_some_and(|watch| {
+                    gather(&lanes.q, l, &mut lanes.q_one);
+                    gather(&lanes.qdot, l, &mut lanes.qdot_one);
+                    let (q, qdot) = (&lanes.q_one, &lanes.qdot_one);
+                    let (x, xdot) = monitor.lane_state(out, &lanes.q, &lanes.qdot, l);
+                    let g_end = watch.eval(t, x, xdot, q, qdot);
+                    watch.screen(t, x, xdot, q, qdot, g_end)
+                });
+            if leaves {
+                active[l] = false;
+                handover(member, &lanes, &monitor, l, k, t_previous);
+                outcome[l] = LaneOutcome::Handover { intervals: k - 1 };
             }
-            // Accepted: the monitor's reference and maxima move on.
-            std::mem::swap(&mut before[l], &mut last[l]);
-            last[l].copy_from_slice(&observation.gradients.values);
-            for (r, longest) in longest[l].iter_mut().enumerate() {
-                *longest = longest.max(norm(observation.gradients.row(r)));
-            }
-            let monitor = &member.monitor;
-            let error = (energy - monitor.energy_initial).abs() / monitor.energy_scale;
-            let balance = (energy - 0.0 - monitor.energy_initial).abs() / monitor.energy_scale;
-            let m = &mut maxima[l];
-            m[0] = max_nan(m[0], error);
-            m[1] = max_nan(m[1], balance);
-            m[2] = max_nan(m[2], constraint_error);
-            m[3] = max_nan(m[3], observation.constraint_distance());
         }
+        // The others' step ends are accepted: the monitor's reference and maxima move on.
+        monitor.accept();
         if !active[..count].iter().any(|&a| a) {
             break;
         }
@@ -410,7 +297,7 @@ pub(crate) fn run_lanes(
         member
             .monitor
             .observe(&mut *member.formulation, t, q, qdot, work);
-        let [energy, balance, constraint, distance] = maxima[l];
+        let [energy, balance, constraint, distance] = monitor.maxima.map(|m| m[l]);
         member.monitor.energy_rel_error_max = energy;
         member.monitor.balance_error_max = balance;
         member.monitor.constraint_error_max = constraint;
@@ -424,24 +311,20 @@ pub(crate) fn run_lanes(
 /// the observation (taken again), the regularity monitor's last two step ends, the longest
 /// gradient lengths and the maxima. The stop condition's watch is the member's own, which the
 /// lanes screened with, so it already remembers the end of step k - 1.
-#[allow(clippy::too_many_arguments)]
 fn handover(
     member: &mut Simulation,
     lanes: &Lanes,
+    monitor: &LaneMonitor,
     l: usize,
     k: u64,
     t: f64,
-    last: &[f64],
-    before: &[f64],
-    longest: &[f64],
-    maxima: [f64; 4],
 ) {
     let n = lanes.n;
     let done = k - 1;
     let mut q_before = vec![0.0; n];
-    Lanes::gather(&lanes.q_back, l, &mut member.state.q[..n]);
-    Lanes::gather(&lanes.qdot_back, l, &mut member.state.qdot[..n]);
-    Lanes::gather(&lanes.q_back2, l, &mut q_before);
+    gather(&lanes.q_back, l, &mut member.state.q[..n]);
+    gather(&lanes.qdot_back, l, &mut member.state.qdot[..n]);
+    gather(&lanes.q_back2, l, &mut q_before);
     member.state.t = t;
     member.previous.clone_from(&member.state);
     member.steps = done;
@@ -453,44 +336,10 @@ fn handover(
     member
         .monitor
         .observe(&mut *member.formulation, t, q, qdot, work);
-    let before = (done > 0).then_some((q_before.as_slice(), before));
+    let (last, before, longest, maxima) = monitor.lane(l);
+    let before = (done > 0).then_some((q_before.as_slice(), before.as_slice()));
     let q = member.state.q[..n].to_vec();
-    member.monitor.adopt(&q, last, before, longest, maxima);
-}
-
-/// Whether the regularity monitor would raise a candidate for any gradient row (and so
-/// might search for a singular point, or call the step too long): the tests of
-/// `Monitor::regularity`, without the memory of earlier fruitless searches (so this errs
-/// towards leaving the lanes). `step_length(r)` is the step's length in row r's variables.
-/// The lanes take no rods or pins, so every row is watched.
-fn regularity_candidate(
-    observation: &Observation,
-    last: &[f64],
-    longest: &[f64],
-    rows: usize,
-    step_length: impl Fn(usize) -> f64,
-) -> bool {
-    let g = &observation.gradients;
-    (0..rows).any(|r| {
-        let row = g.row(r);
-        let previous = &last[g.start[r]..g.start[r + 1]];
-        let (mut gg, mut gp, mut pp) = (0.0, 0.0, 0.0);
-        for (g, p) in row.iter().zip(previous) {
-            gg += g * g;
-            gp += g * p;
-            pp += p * p;
-        }
-        let length: f64 = gg.sqrt();
-        let (s, shortest) = lookahead(gg, gp, pp);
-        let shrinking = s > 0.0 && shortest < AHEAD_FRACTION * AHEAD_FRACTION * gg;
-        let ahead = shrinking && s <= AHEAD_STEPS;
-        let offset = g.offset(r);
-        let drifted = shrinking && offset > 0.0 && {
-            let change = (gg - 2.0 * gp + pp).max(0.0).sqrt();
-            off_branch_candidate(offset, length, change, step_length(r))
-        };
-        gp < 0.0 || ahead || length < VANISHED * longest[r] || drifted || length.is_nan()
-    })
+    member.monitor.adopt(&q, &last, before, &longest, maxima);
 }
 
 /// One RK4 step of every lane from time t by h: `integrate::rk4`'s arithmetic, lane by lane:
@@ -623,19 +472,19 @@ fn accelerate(
         if !active[l] {
             continue;
         }
-        Lanes::gather(q, l, &mut lanes.q_one);
-        Lanes::gather(qdot, l, &mut lanes.qdot_one);
+        gather(q, l, &mut lanes.q_one);
+        gather(qdot, l, &mut lanes.qdot_one);
         let outputs = &lanes.out[..width * LANES];
         let result = match kernel {
             Kernel::Implicit(implicit) => {
                 let ws = implicit.evaluation_mut();
-                Lanes::gather(outputs, l, &mut ws.tape_out_mut()[..width]);
+                gather(outputs, l, &mut ws.tape_out_mut()[..width]);
                 system.constraints().unpack_full(ws);
                 implicit.accelerate_evaluated(t, &lanes.q_one, &lanes.qdot_one, &mut lanes.a_one)
             }
             Kernel::Parametric(parametric) => {
                 let ws = parametric.evaluation_mut();
-                Lanes::gather(outputs, l, &mut ws.out_mut()[..width]);
+                gather(outputs, l, &mut ws.out_mut()[..width]);
                 system
                     .parametric()
                     .expect("checked by lanes_can_run")
@@ -829,37 +678,6 @@ fn observe_lanes(lanes: &mut Lanes, tape: &Tape, t: f64) {
     );
     lanes.q = q;
     lanes.qdot = qdot;
-}
-
-/// One lane's observation from its observation-tape outputs, by the formulation's own code.
-fn finish_observation(
-    kernel: &mut Kernel,
-    system: &System,
-    t: f64,
-    out: &[f64],
-    q: &[f64],
-    qdot: &[f64],
-    observation: &mut Observation,
-) {
-    match kernel {
-        Kernel::Implicit(implicit) => {
-            if system.constraints().n_rows() > 0 {
-                let ws = implicit.observation_evaluation_mut();
-                ws.tape_out_mut()[..out.len()].copy_from_slice(out);
-                system.constraints().unpack_gradient(ws);
-            }
-            implicit.observe_evaluated(q, qdot, observation);
-        }
-        Kernel::Parametric(parametric) => {
-            let ws = parametric.evaluation_mut();
-            ws.out_mut()[..out.len()].copy_from_slice(out);
-            system
-                .parametric()
-                .expect("checked by lanes_can_run")
-                .unpack_observation(parametric.evaluation_mut());
-            parametric.observe_evaluated(t, observation);
-        }
-    }
 }
 
 #[cfg(test)]

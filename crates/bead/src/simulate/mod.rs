@@ -56,6 +56,7 @@
 
 mod config;
 mod event;
+mod lane_monitor;
 pub(crate) mod lanes;
 mod ledger;
 mod monitor;

@@ -1,0 +1,434 @@
+//! The run's monitors for every lane at once (structure of arrays, lanes innermost): the
+//! checks of `Simulation::accept` after each step, with the same operations in the same order
+//! per lane as [`super::monitor::Monitor`] and the formulations' `observe`, so that every
+//! figure is the member's own, bit for bit.
+//!
+//! Per step end, from the observation tape's outputs for all lanes:
+//!
+//! ```text
+//! observation   x, xdot; C (m rows); gradient rows g_r; offset_r = |C_r| / |g_r| (implicit)
+//! energy        E = sum_p m_p |v_p|^2 / 2 - sum_p m_p g . x_p (+ the forces' potentials)
+//! divergence    E, max |C| finite; |x_k| <= position limit(t); |xdot_k| <= speed limit(t)
+//! regularity    a first-order candidate of `Monitor::regularity` for any row (see
+//!               [`super::lanes`]): g.p < 0, the shortest |g| ahead within 2 steps, |g| below
+//!               1e-2 of its longest, an off-branch drift, or |g| NaN
+//! maxima        |E - E0| / E_scale, max |C|, max offset
+//! ```
+//!
+//! A lane that fails a check is handed back to its own `Simulation` (see [`super::lanes`]).
+//! What has no form across lanes is done per lane by the same code as alone: the energy of
+//! forces other than gravity, the constraint values of native or Rust rows seen by the
+//! parametric form, and the stop condition's screen.
+
+// Loops run over the lanes innermost and index several arrays by lane.
+#![allow(clippy::needless_range_loop)]
+
+use super::lanes::LANES;
+use super::monitor::Monitor;
+use super::monitor::{lookahead, off_branch_candidate, AHEAD_FRACTION, AHEAD_STEPS, VANISHED};
+use super::Simulation;
+use crate::expr::Tape;
+use crate::formulation::Method;
+use crate::linalg::max_nan;
+use crate::model::{ConstraintEval, System};
+
+/// One value per lane.
+pub(super) type PerLane = [f64; LANES];
+
+/// Where a form's observation comes from in the observation tape's outputs.
+enum Source {
+    /// x = q, xdot = qdot; outputs C (m rows), then J's entries in gradient-row order.
+    Implicit {
+        /// Row r's coordinates (for the step's length in them)
+        row_columns: Vec<Vec<usize>>,
+    },
+    /// Outputs x (n), xdot (n), then the map's Jacobian entries; gradient value i is entry
+    /// `gather[i]` (column by column). C comes from the constraint value tape at x.
+    Parametric {
+        gather: Vec<usize>,
+        /// The value tape when every constraint row is on it (else each lane's residuals)
+        values: Option<Tape>,
+    },
+}
+
+/// The monitors' state and scratch for [`LANES`] members (value k of lane l at
+/// `k * LANES + l`).
+pub(super) struct LaneMonitor {
+    source: Source,
+    n: usize,
+    m: usize,
+    /// Gradient row r owns values start[r]..start[r + 1]
+    start: Vec<usize>,
+    /// The last accepted step end's gradient values, the one before, and the longest each
+    /// row has been
+    pub(super) last: Vec<f64>,
+    pub(super) before: Vec<f64>,
+    pub(super) longest: Vec<f64>,
+    /// max |E - E0| / E_scale, max |E - W - E0| / E_scale, max |C|, max offset
+    pub(super) maxima: [PerLane; 4],
+    energy_initial: PerLane,
+    energy_scale: PerLane,
+    /// This step end's gradient values, offsets, constraint values and energies
+    values: Vec<f64>,
+    offset: Vec<f64>,
+    constraints: Vec<f64>,
+    energy: PerLane,
+    constraint_error: PerLane,
+    /// The value tape's variables (x, 0, t) and scratch (parametric form)
+    vars: Vec<f64>,
+    scratch: Vec<f64>,
+    /// One lane's x and xdot, and a workspace for its constraint values
+    x_one: Vec<f64>,
+    xdot_one: Vec<f64>,
+    residuals: ConstraintEval,
+}
+
+/// Lane l's part of a structure-of-arrays buffer into `one`.
+pub(super) fn gather(soa: &[f64], l: usize, one: &mut [f64]) {
+    for (k, value) in one.iter_mut().enumerate() {
+        *value = soa[k * LANES + l];
+    }
+}
+
+impl LaneMonitor {
+    /// The monitors of `members` (at most [`LANES`]; lanes beyond them repeat the first), as
+    /// each member's own monitor stands before its first step.
+    pub(super) fn new(system: &System, method: Method, members: &[Simulation]) -> LaneMonitor {
+        let template = &members[0].monitor.observation;
+        let start = template.gradients.start.clone();
+        let n_values = template.gradients.values.len();
+        let rows = start.len() - 1;
+        let set = system.constraints();
+        let source = match method {
+            Method::Implicit => Source::Implicit {
+                row_columns: (0..rows).map(|r| set.row_columns(r).to_vec()).collect(),
+            },
+            Method::Parametric => {
+                let map = system.parametric().expect("checked by lanes_can_run");
+                Source::Parametric {
+                    gather: (0..map.n_q())
+                        .flat_map(|j| map.column_entries(j).iter().copied())
+                        .collect(),
+                    values: set.only_taped().then(|| set.value_tape().clone()),
+                }
+            }
+        };
+        let monitor = |l: usize| &members[l.min(members.len() - 1)].monitor;
+        let soa = |width: usize, of: &dyn Fn(&Monitor) -> &[f64]| {
+            let mut buffer = vec![0.0; width * LANES];
+            for l in 0..LANES {
+                for (k, v) in of(monitor(l)).iter().enumerate() {
+                    buffer[k * LANES + l] = *v;
+                }
+            }
+            buffer
+        };
+        let per_lane = |of: &dyn Fn(&Monitor) -> f64| std::array::from_fn(|l| of(monitor(l)));
+        let last = soa(n_values, &|m| &m.observation.gradients.values);
+        let n = system.n_coords();
+        let m = set.n_rows();
+        LaneMonitor {
+            source,
+            n,
+            m,
+            start,
+            before: last.clone(),
+            last,
+            longest: soa(rows, &|m| m.longest()),
+            maxima: [
+                per_lane(&|m| m.energy_rel_error_max),
+                per_lane(&|m| m.balance_error_max),
+                per_lane(&|m| m.constraint_error_max),
+                per_lane(&|m| m.constraint_distance_max),
+            ],
+            energy_initial: per_lane(&|m| m.energy_initial),
+            energy_scale: per_lane(&|m| m.energy_scale),
+            values: vec![0.0; n_values * LANES],
+            offset: vec![0.0; rows * LANES],
+            constraints: vec![0.0; m * LANES],
+            energy: [0.0; LANES],
+            constraint_error: [0.0; LANES],
+            vars: vec![0.0; (2 * n + 1) * LANES],
+            scratch: Vec::new(),
+            x_one: vec![0.0; n],
+            xdot_one: vec![0.0; n],
+            residuals: set.workspace(),
+        }
+    }
+
+    /// Lane l's last and before gradient values, longest lengths and maxima (for a handover).
+    pub(super) fn lane(&self, l: usize) -> (Vec<f64>, Vec<f64>, Vec<f64>, [f64; 4]) {
+        let one = |soa: &[f64]| {
+            let mut v = vec![0.0; soa.len() / LANES];
+            gather(soa, l, &mut v);
+            v
+        };
+        (
+            one(&self.last),
+            one(&self.before),
+            one(&self.longest),
+            self.maxima.map(|m| m[l]),
+        )
+    }
+
+    /// The particle positions and velocities of the observation tape's outputs `out` (the
+    /// parametric form) or the state (q, qdot) (the implicit form), all lanes.
+    fn particle_state<'a>(
+        &self,
+        out: &'a [f64],
+        q: &'a [f64],
+        qdot: &'a [f64],
+    ) -> (&'a [f64], &'a [f64]) {
+        let n = self.n;
+        match self.source {
+            Source::Implicit { .. } => (q, qdot),
+            Source::Parametric { .. } => (&out[..n * LANES], &out[n * LANES..2 * n * LANES]),
+        }
+    }
+
+    /// Lane l's particle positions and velocities (see [`LaneMonitor::check`]'s arguments).
+    pub(super) fn lane_state(
+        &mut self,
+        out: &[f64],
+        q: &[f64],
+        qdot: &[f64],
+        l: usize,
+    ) -> (&[f64], &[f64]) {
+        let (x, xdot) = self.particle_state(out, q, qdot);
+        gather(x, l, &mut self.x_one);
+        gather(xdot, l, &mut self.xdot_one);
+        (&self.x_one, &self.xdot_one)
+    }
+
+    /// The checks at the end of a step to time t, for every lane: `out` is the observation
+    /// tape's outputs, (q, qdot) the state and `q_back` the step's start; `members` are the
+    /// lanes' simulations (for their reach). Returns which lanes fail one and must leave;
+    /// the others' observation stays for [`LaneMonitor::accept`].
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn check(
+        &mut self,
+        system: &System,
+        members: &[Simulation],
+        t: f64,
+        out: &[f64],
+        q: &[f64],
+        qdot: &[f64],
+        q_back: &[f64],
+    ) -> [bool; LANES] {
+        let n = self.n;
+        let mut failed = [false; LANES];
+        // The state is finite.
+        for (q, qdot) in q.chunks_exact(LANES).zip(qdot.chunks_exact(LANES)) {
+            for l in 0..LANES {
+                failed[l] |= !q[l].is_finite() || !qdot[l].is_finite();
+            }
+        }
+        self.observe(system, members.len(), t, out);
+        let (x, xdot) = self.particle_state(out, q, qdot);
+        // E = T + V, as `System::energy`.
+        if system.forces().is_empty() {
+            energy_across_lanes(system, x, xdot, &mut self.energy);
+        } else {
+            for l in 0..members.len() {
+                gather(x, l, &mut self.x_one);
+                gather(xdot, l, &mut self.xdot_one);
+                self.energy[l] = system.energy(&self.x_one, &self.xdot_one);
+            }
+        }
+        // Divergence: E and max |C| finite, every coordinate within the member's reach.
+        let mut constraint_error = [0.0; LANES];
+        for c in self.constraints.chunks_exact(LANES) {
+            for l in 0..LANES {
+                constraint_error[l] = max_nan(constraint_error[l], c[l].abs());
+            }
+        }
+        for (l, member) in members.iter().enumerate() {
+            let (position_limit, speed_limit) = member.monitor.limits(t);
+            let outside = |soa: &[f64], limit: f64| {
+                soa.chunks_exact(LANES)
+                    .any(|c| c[l].is_nan() || c[l].abs() > limit)
+            };
+            failed[l] |= !self.energy[l].is_finite()
+                || !constraint_error[l].is_finite()
+                || outside(x, position_limit)
+                || outside(xdot, speed_limit);
+        }
+        self.constraint_error = constraint_error;
+        // Regularity candidates, row by row: the first-order tests of `Monitor::regularity`,
+        // without its memory of earlier fruitless searches (so erring towards leaving).
+        for r in 0..self.start.len() - 1 {
+            let entries = self.start[r]..self.start[r + 1];
+            for l in 0..LANES {
+                let (mut gg, mut gp, mut pp) = (0.0, 0.0, 0.0);
+                for e in entries.clone() {
+                    let (g, p) = (self.values[e * LANES + l], self.last[e * LANES + l]);
+                    gg += g * g;
+                    gp += g * p;
+                    pp += p * p;
+                }
+                let length: f64 = gg.sqrt();
+                let (s, shortest) = lookahead(gg, gp, pp);
+                let shrinking = s > 0.0 && shortest < AHEAD_FRACTION * AHEAD_FRACTION * gg;
+                let ahead = shrinking && s <= AHEAD_STEPS;
+                let offset = self.offset[r * LANES + l];
+                let drifted = shrinking && offset > 0.0 && {
+                    let change = (gg - 2.0 * gp + pp).max(0.0).sqrt();
+                    let step = match &self.source {
+                        Source::Implicit { row_columns } => {
+                            step_length(row_columns[r].iter().copied(), q, q_back, l)
+                        }
+                        Source::Parametric { .. } => step_length(0..n, q, q_back, l),
+                    };
+                    off_branch_candidate(offset, length, change, step)
+                };
+                failed[l] |= gp < 0.0
+                    || ahead
+                    || length < VANISHED * self.longest[r * LANES + l]
+                    || drifted
+                    || length.is_nan();
+            }
+        }
+        failed
+    }
+
+    /// C, the gradient values and the offsets |C_r| / |g_r| (0 for the parametric form) of
+    /// every lane from the observation tape's outputs, as the formulations' `observe`.
+    fn observe(&mut self, system: &System, count: usize, t: f64, out: &[f64]) {
+        let (n, m) = (self.n, self.m);
+        match &self.source {
+            Source::Implicit { .. } => {
+                if m == 0 {
+                    return;
+                }
+                self.constraints.copy_from_slice(&out[..m * LANES]);
+                let nnz = self.values.len();
+                self.values
+                    .copy_from_slice(&out[m * LANES..m * LANES + nnz]);
+                // sum() of f64 starts from -0.0 (as `observe_from`).
+                for r in 0..m {
+                    for l in 0..LANES {
+                        let mut gg = -0.0;
+                        for e in self.start[r]..self.start[r + 1] {
+                            let g = self.values[e * LANES + l];
+                            gg += g * g;
+                        }
+                        self.offset[r * LANES + l] =
+                            self.constraints[r * LANES + l].abs() / gg.sqrt();
+                    }
+                }
+            }
+            Source::Parametric {
+                gather: entries,
+                values,
+            } => {
+                let jacobian = &out[2 * n * LANES..];
+                for (i, &e) in entries.iter().enumerate() {
+                    self.values[i * LANES..(i + 1) * LANES]
+                        .copy_from_slice(&jacobian[e * LANES..(e + 1) * LANES]);
+                }
+                if m == 0 {
+                    return;
+                }
+                let x = &out[..n * LANES];
+                match values {
+                    Some(tape) => {
+                        self.vars[..n * LANES].copy_from_slice(x);
+                        self.vars[2 * n * LANES..].fill(t);
+                        self.scratch.resize(tape.n_slots() * LANES, 0.0);
+                        tape.eval_lanes::<LANES>(
+                            &self.vars,
+                            &mut self.scratch,
+                            &mut self.constraints,
+                        );
+                    }
+                    None => {
+                        let set = system.constraints();
+                        for l in 0..count {
+                            gather(x, l, &mut self.x_one);
+                            let c = set.residuals(t, &self.x_one, &mut self.residuals);
+                            for (r, v) in c.iter().enumerate() {
+                                self.constraints[r * LANES + l] = *v;
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    /// Every lane's step end accepted (lanes that left no longer matter): the regularity
+    /// monitor's reference and the maxima move on, as `Monitor::remember` and
+    /// `Monitor::accumulate` do.
+    pub(super) fn accept(&mut self) {
+        std::mem::swap(&mut self.before, &mut self.last);
+        self.last.copy_from_slice(&self.values);
+        let mut distance = [0.0; LANES];
+        for r in 0..self.start.len() - 1 {
+            for l in 0..LANES {
+                // norm(): sum() from -0.0, then the root.
+                let mut gg = -0.0;
+                for e in self.start[r]..self.start[r + 1] {
+                    let g = self.values[e * LANES + l];
+                    gg += g * g;
+                }
+                let longest = &mut self.longest[r * LANES + l];
+                *longest = longest.max(gg.sqrt());
+                distance[l] = max_nan(distance[l], self.offset[r * LANES + l].abs());
+            }
+        }
+        let [energy_max, balance_max, constraint_max, distance_max] = &mut self.maxima;
+        for l in 0..LANES {
+            let energy = self.energy[l];
+            let error = (energy - self.energy_initial[l]).abs() / self.energy_scale[l];
+            let balance = (energy - 0.0 - self.energy_initial[l]).abs() / self.energy_scale[l];
+            energy_max[l] = max_nan(energy_max[l], error);
+            balance_max[l] = max_nan(balance_max[l], balance);
+            constraint_max[l] = max_nan(constraint_max[l], self.constraint_error[l]);
+            distance_max[l] = max_nan(distance_max[l], distance[l]);
+        }
+    }
+}
+
+/// sqrt(sum_k (q_k - before_k)^2) over `columns` of lane l (as the formulations'
+/// `row_step_length`, sum() from -0.0).
+fn step_length(columns: impl Iterator<Item = usize>, q: &[f64], before: &[f64], l: usize) -> f64 {
+    let mut sum = -0.0;
+    for k in columns {
+        let d = q[k * LANES + l] - before[k * LANES + l];
+        sum += d * d;
+    }
+    sum.sqrt()
+}
+
+/// E = T + V of every lane with gravity the only force, as `System::energy`: the same sums
+/// in the same order (sum() from -0.0), lanes innermost.
+///
+/// ```text
+/// T = sum_p m_p/2 sum_a v_pa^2,   V = sum_p -m_p sum_a g_a x_pa
+/// ```
+fn energy_across_lanes(system: &System, x: &[f64], xdot: &[f64], energy: &mut PerLane) {
+    let dim = system.dim();
+    let gravity = system.gravity();
+    let mut kinetic = [-0.0; LANES];
+    let mut potential = [-0.0; LANES];
+    for (p, particle) in system.particles().iter().enumerate() {
+        let mut s = [-0.0; LANES];
+        let mut gx = [-0.0; LANES];
+        for a in 0..dim {
+            let k = p * dim + a;
+            for l in 0..LANES {
+                let v = xdot[k * LANES + l];
+                s[l] += v * v;
+                gx[l] += gravity[a] * x[k * LANES + l];
+            }
+        }
+        for l in 0..LANES {
+            kinetic[l] += 0.5 * particle.mass * s[l];
+            potential[l] += -particle.mass * gx[l];
+        }
+    }
+    for l in 0..LANES {
+        // The forces' potentials: an empty sum, -0.0.
+        energy[l] = kinetic[l] + (potential[l] + -0.0);
+    }
+}
