@@ -330,6 +330,9 @@ impl FusedImplicit {
 pub(crate) struct FusedLanes {
     /// The tape's variables
     pub(crate) vars: Vec<f64>,
+    /// Whether `vars` holds the constant variables (F, w, ks, kd; F, masses): every call
+    /// after the first leaves them as they are
+    pub(crate) constants_loaded: bool,
     scratch: Vec<f64>,
     out: Vec<f64>,
 }
@@ -354,12 +357,17 @@ fn accelerate_lanes<const L: usize>(
     tape.eval_lanes::<L>(&lanes.vars, &mut lanes.scratch, &mut lanes.out);
     let out = &lanes.out;
     a[..n * L].copy_from_slice(&out[acceleration * L..(acceleration + n) * L]);
-    for (l, failed) in failed.iter_mut().enumerate() {
-        let diagonal = (0..rows).map(|j| out[(pivots + j) * L + l]);
-        let pivot = (0..rows).map(|j| out[(pivots + rows + j) * L + l]);
-        *failed = !diagonal
-            .zip(pivot)
-            .all(|(d, p)| d > 0.0 && p > tolerance * d);
+    // `pivots_pass` per lane: every diagonal d > 0 and pivot p > tolerance d.
+    let mut pass = [true; L];
+    for j in 0..rows {
+        let diagonal = &out[(pivots + j) * L..(pivots + j + 1) * L];
+        let pivot = &out[(pivots + rows + j) * L..(pivots + rows + j + 1) * L];
+        for l in 0..L {
+            pass[l] &= (diagonal[l] > 0.0) & (pivot[l] > tolerance * diagonal[l]);
+        }
+    }
+    for l in 0..L {
+        failed[l] = !pass[l];
     }
 }
 
@@ -374,8 +382,11 @@ impl FusedImplicit {
         failed: &mut [bool; L],
     ) {
         let (n, m) = (self.n, self.m);
-        for (k, &value) in self.vars.iter().enumerate().skip(3 * n + 1) {
-            lanes.vars[k * L..(k + 1) * L].fill(value);
+        if !lanes.constants_loaded {
+            for (k, &value) in self.vars.iter().enumerate().skip(3 * n + 1) {
+                lanes.vars[k * L..(k + 1) * L].fill(value);
+            }
+            lanes.constants_loaded = true;
         }
         let acceleration = 3 * m + self.nnz + m + n;
         accelerate_lanes::<L>(
@@ -518,8 +529,11 @@ impl FusedParametric {
         failed: &mut [bool; L],
     ) {
         let (n, n_q) = (self.n, self.n_q);
-        for (k, &value) in self.vars.iter().enumerate().skip(2 * n_q + 1) {
-            lanes.vars[k * L..(k + 1) * L].fill(value);
+        if !lanes.constants_loaded {
+            for (k, &value) in self.vars.iter().enumerate().skip(2 * n_q + 1) {
+                lanes.vars[k * L..(k + 1) * L].fill(value);
+            }
+            lanes.constants_loaded = true;
         }
         let acceleration = 3 * n + self.nnz;
         accelerate_lanes::<L>(

@@ -71,6 +71,8 @@ pub(super) struct LaneMonitor {
     /// This step end's gradient values, offsets, constraint values and energies
     values: Vec<f64>,
     offset: Vec<f64>,
+    /// |g_r|^2 per row (summed from -0.0, as `sum()`)
+    squared: Vec<f64>,
     constraints: Vec<f64>,
     energy: PerLane,
     constraint_error: PerLane,
@@ -145,6 +147,7 @@ impl LaneMonitor {
             energy_scale: per_lane(&|m| m.energy_scale),
             values: vec![0.0; n_values * LANES],
             offset: vec![0.0; rows * LANES],
+            squared: vec![0.0; rows * LANES],
             constraints: vec![0.0; m * LANES],
             energy: [0.0; LANES],
             constraint_error: [0.0; LANES],
@@ -215,7 +218,6 @@ impl LaneMonitor {
         qdot: &[f64],
         q_back: &[f64],
     ) -> [bool; LANES] {
-        let n = self.n;
         let mut failed = [false; LANES];
         // The state is finite.
         for (q, qdot) in q.chunks_exact(LANES).zip(qdot.chunks_exact(LANES)) {
@@ -242,50 +244,72 @@ impl LaneMonitor {
                 constraint_error[l] = max_nan(constraint_error[l], c[l].abs());
             }
         }
+        let mut position_limit = [f64::INFINITY; LANES];
+        let mut speed_limit = [f64::INFINITY; LANES];
         for (l, member) in members.iter().enumerate() {
-            let (position_limit, speed_limit) = member.monitor.limits(t);
-            let outside = |soa: &[f64], limit: f64| {
-                soa.chunks_exact(LANES)
-                    .any(|c| c[l].is_nan() || c[l].abs() > limit)
-            };
-            failed[l] |= !self.energy[l].is_finite()
-                || !constraint_error[l].is_finite()
-                || outside(x, position_limit)
-                || outside(xdot, speed_limit);
+            (position_limit[l], speed_limit[l]) = member.monitor.limits(t);
+        }
+        for (x, xdot) in x.chunks_exact(LANES).zip(xdot.chunks_exact(LANES)) {
+            for l in 0..LANES {
+                failed[l] |= x[l].is_nan()
+                    | (x[l].abs() > position_limit[l])
+                    | xdot[l].is_nan()
+                    | (xdot[l].abs() > speed_limit[l]);
+            }
+        }
+        for l in 0..LANES {
+            failed[l] |= !self.energy[l].is_finite() | !constraint_error[l].is_finite();
         }
         self.constraint_error = constraint_error;
         // Regularity candidates, row by row: the first-order tests of `Monitor::regularity`,
-        // without its memory of earlier fruitless searches (so erring towards leaving).
+        // without its memory of earlier fruitless searches (so erring towards leaving). They
+        // only compare, so |g|^2 summed from -0.0 serves for `sum` from 0.0.
+        let n_q = q.len() / LANES;
         for r in 0..self.start.len() - 1 {
-            let entries = self.start[r]..self.start[r + 1];
-            for l in 0..LANES {
-                let (mut gg, mut gp, mut pp) = (0.0, 0.0, 0.0);
-                for e in entries.clone() {
-                    let (g, p) = (self.values[e * LANES + l], self.last[e * LANES + l]);
-                    gg += g * g;
-                    gp += g * p;
-                    pp += p * p;
+            // g . p and |p|^2 against the last step end's row p.
+            let (mut gp, mut pp) = ([0.0; LANES], [0.0; LANES]);
+            for e in self.start[r]..self.start[r + 1] {
+                let g = &self.values[e * LANES..(e + 1) * LANES];
+                let p = &self.last[e * LANES..(e + 1) * LANES];
+                for l in 0..LANES {
+                    gp[l] += g[l] * p[l];
+                    pp[l] += p[l] * p[l];
                 }
+            }
+            // The step's length in the row's variables (`row_step_length`; for a drift).
+            let mut step = [-0.0; LANES];
+            let mut add_step = |k: usize| {
+                let q = &q[k * LANES..(k + 1) * LANES];
+                let before = &q_back[k * LANES..(k + 1) * LANES];
+                for l in 0..LANES {
+                    let d = q[l] - before[l];
+                    step[l] += d * d;
+                }
+            };
+            match &self.source {
+                Source::Implicit { row_columns } => {
+                    row_columns[r].iter().for_each(|&k| add_step(k))
+                }
+                Source::Parametric { .. } => (0..n_q).for_each(add_step),
+            }
+            let gg = &self.squared[r * LANES..(r + 1) * LANES];
+            let offset = &self.offset[r * LANES..(r + 1) * LANES];
+            let longest = &self.longest[r * LANES..(r + 1) * LANES];
+            for l in 0..LANES {
+                let (gg, gp, pp) = (gg[l], gp[l], pp[l]);
                 let length: f64 = gg.sqrt();
                 let (s, shortest) = lookahead(gg, gp, pp);
-                let shrinking = s > 0.0 && shortest < AHEAD_FRACTION * AHEAD_FRACTION * gg;
-                let ahead = shrinking && s <= AHEAD_STEPS;
-                let offset = self.offset[r * LANES + l];
-                let drifted = shrinking && offset > 0.0 && {
-                    let change = (gg - 2.0 * gp + pp).max(0.0).sqrt();
-                    let step = match &self.source {
-                        Source::Implicit { row_columns } => {
-                            step_length(row_columns[r].iter().copied(), q, q_back, l)
-                        }
-                        Source::Parametric { .. } => step_length(0..n, q, q_back, l),
-                    };
-                    off_branch_candidate(offset, length, change, step)
-                };
-                failed[l] |= gp < 0.0
-                    || ahead
-                    || length < VANISHED * self.longest[r * LANES + l]
-                    || drifted
-                    || length.is_nan();
+                let shrinking = (s > 0.0) & (shortest < AHEAD_FRACTION * AHEAD_FRACTION * gg);
+                let ahead = shrinking & (s <= AHEAD_STEPS);
+                let change = (gg - 2.0 * gp + pp).max(0.0).sqrt();
+                let drifted = shrinking
+                    & (offset[l] > 0.0)
+                    & off_branch_candidate(offset[l], length, change, step[l].sqrt());
+                failed[l] |= (gp < 0.0)
+                    | ahead
+                    | (length < VANISHED * longest[l])
+                    | drifted
+                    | length.is_nan();
             }
         }
         failed
@@ -304,17 +328,15 @@ impl LaneMonitor {
                 let nnz = self.values.len();
                 self.values
                     .copy_from_slice(&out[m * LANES..m * LANES + nnz]);
-                // sum() of f64 starts from -0.0 (as `observe_from`).
-                for r in 0..m {
-                    for l in 0..LANES {
-                        let mut gg = -0.0;
-                        for e in self.start[r]..self.start[r + 1] {
-                            let g = self.values[e * LANES + l];
-                            gg += g * g;
-                        }
-                        self.offset[r * LANES + l] =
-                            self.constraints[r * LANES + l].abs() / gg.sqrt();
-                    }
+                // |C_r| / |g_r| (as `observe_from`).
+                squared_lengths(&self.start, &self.values, &mut self.squared);
+                for ((offset, c), gg) in self
+                    .offset
+                    .iter_mut()
+                    .zip(&self.constraints)
+                    .zip(&self.squared)
+                {
+                    *offset = c.abs() / gg.sqrt();
                 }
             }
             Source::Parametric {
@@ -326,6 +348,7 @@ impl LaneMonitor {
                     self.values[i * LANES..(i + 1) * LANES]
                         .copy_from_slice(&jacobian[e * LANES..(e + 1) * LANES]);
                 }
+                squared_lengths(&self.start, &self.values, &mut self.squared);
                 if m == 0 {
                     return;
                 }
@@ -363,17 +386,16 @@ impl LaneMonitor {
         std::mem::swap(&mut self.before, &mut self.last);
         self.last.copy_from_slice(&self.values);
         let mut distance = [0.0; LANES];
-        for r in 0..self.start.len() - 1 {
+        for ((longest, gg), offset) in self
+            .longest
+            .chunks_exact_mut(LANES)
+            .zip(self.squared.chunks_exact(LANES))
+            .zip(self.offset.chunks_exact(LANES))
+        {
             for l in 0..LANES {
                 // norm(): sum() from -0.0, then the root.
-                let mut gg = -0.0;
-                for e in self.start[r]..self.start[r + 1] {
-                    let g = self.values[e * LANES + l];
-                    gg += g * g;
-                }
-                let longest = &mut self.longest[r * LANES + l];
-                *longest = longest.max(gg.sqrt());
-                distance[l] = max_nan(distance[l], self.offset[r * LANES + l].abs());
+                longest[l] = longest[l].max(gg[l].sqrt());
+                distance[l] = max_nan(distance[l], offset[l].abs());
             }
         }
         let [energy_max, balance_max, constraint_max, distance_max] = &mut self.maxima;
@@ -389,15 +411,18 @@ impl LaneMonitor {
     }
 }
 
-/// sqrt(sum_k (q_k - before_k)^2) over `columns` of lane l (as the formulations'
-/// `row_step_length`, sum() from -0.0).
-fn step_length(columns: impl Iterator<Item = usize>, q: &[f64], before: &[f64], l: usize) -> f64 {
-    let mut sum = -0.0;
-    for k in columns {
-        let d = q[k * LANES + l] - before[k * LANES + l];
-        sum += d * d;
+/// |g_r|^2 of every row r (entries start[r]..start[r + 1] of `values`) and lane, summed
+/// from -0.0 as `sum()`.
+fn squared_lengths(start: &[usize], values: &[f64], squared: &mut [f64]) {
+    for (r, gg) in squared.chunks_exact_mut(LANES).enumerate() {
+        gg.fill(-0.0);
+        for e in start[r]..start[r + 1] {
+            let g = &values[e * LANES..(e + 1) * LANES];
+            for l in 0..LANES {
+                gg[l] += g[l] * g[l];
+            }
+        }
     }
-    sum.sqrt()
 }
 
 /// E = T + V of every lane with gravity the only force, as `System::energy`: the same sums

@@ -539,13 +539,16 @@ fn fused_across_lanes(
             vars[..n * LANES].copy_from_slice(q);
             vars[n * LANES..2 * n * LANES].copy_from_slice(qdot);
             vars[2 * n * LANES..(2 * n + 1) * LANES].fill(t);
-            // F = m g, gravity the only force (as `System::accumulate_forces`).
-            let forces = &mut vars[(2 * n + 1) * LANES..(3 * n + 1) * LANES];
-            let dim = system.dim();
-            for (p, particle) in system.particles().iter().enumerate() {
-                for (a, g) in system.gravity().iter().enumerate() {
-                    forces[(p * dim + a) * LANES..(p * dim + a + 1) * LANES]
-                        .fill(particle.mass * g);
+            // F = m g, gravity the only force (as `System::accumulate_forces`): constant, so
+            // loaded once with the tape's other constants.
+            if !lanes.fused.constants_loaded {
+                let forces = &mut vars[(2 * n + 1) * LANES..(3 * n + 1) * LANES];
+                let dim = system.dim();
+                for (p, particle) in system.particles().iter().enumerate() {
+                    for (a, g) in system.gravity().iter().enumerate() {
+                        forces[(p * dim + a) * LANES..(p * dim + a + 1) * LANES]
+                            .fill(particle.mass * g);
+                    }
                 }
             }
             fused.accelerate_lanes::<LANES>(&mut lanes.fused, &mut acceleration, &mut failed);
