@@ -275,25 +275,25 @@ impl FusedImplicit {
         self.constant_force.is_some()
     }
 
-    /// a at (t, x, v) into `a`, and what the general path leaves (C, Cdot, bias, J, lambda,
-    /// F + J^T lambda) into `buffers`, under the applied forces in `buffers.force` when
-    /// `force_given`, else the constant F kept (see [`Self::has_constant_force`]); false when
-    /// J W J^T fails the pivot test (nothing usable written: run the general path).
+    /// a at (t, x, v) into `a`, under the applied forces `force` when given, else the
+    /// constant F kept (see [`Self::has_constant_force`]); false when J W J^T fails the pivot
+    /// test (run the general path). What the general path also leaves (C, Cdot, bias, J,
+    /// lambda, F + J^T lambda) stays in the tape's outputs until [`Self::unpack`] or
+    /// [`Self::multipliers`] reads it: most evaluations are never asked for it.
     pub(crate) fn accelerate(
         &mut self,
         t: f64,
         x: &[f64],
         v: &[f64],
         a: &mut [f64],
-        buffers: ImplicitBuffers<'_>,
-        force_given: bool,
+        force: Option<&[f64]>,
     ) -> bool {
         let (n, m, nnz) = (self.n, self.m, self.nnz);
         self.vars[..n].copy_from_slice(x);
         self.vars[n..2 * n].copy_from_slice(v);
         self.vars[2 * n] = t;
-        if force_given {
-            self.vars[2 * n + 1..3 * n + 1].copy_from_slice(buffers.force);
+        if let Some(force) = force {
+            self.vars[2 * n + 1..3 * n + 1].copy_from_slice(force);
             self.vars_force_given = true;
         } else if self.vars_force_given {
             if let Some(force) = &self.constant_force {
@@ -311,6 +311,27 @@ impl FusedImplicit {
         ) {
             return false;
         }
+        let acceleration = 3 * m + nnz + m + n;
+        a.copy_from_slice(&out[acceleration..acceleration + n]);
+        true
+    }
+
+    /// lambda (m) of the last [`Self::accelerate`] that returned true.
+    pub(crate) fn multipliers(&self) -> &[f64] {
+        let start = 3 * self.m + self.nnz;
+        &self.out[start..start + self.m]
+    }
+
+    /// J's entries (nnz) of the last [`Self::accelerate`] that returned true.
+    pub(crate) fn jacobian(&self) -> &[f64] {
+        &self.out[3 * self.m..3 * self.m + self.nnz]
+    }
+
+    /// What the general path leaves, from the last [`Self::accelerate`] that returned true,
+    /// into `buffers`.
+    pub(crate) fn unpack(&self, buffers: ImplicitBuffers<'_>) {
+        let (n, m, nnz) = (self.n, self.m, self.nnz);
+        let out = &self.out;
         let ce = buffers.constraints;
         ce.value.copy_from_slice(&out[..m]);
         ce.velocity.copy_from_slice(&out[m..2 * m]);
@@ -319,8 +340,6 @@ impl FusedImplicit {
         let rest = &out[3 * m + nnz..];
         buffers.lambda.copy_from_slice(&rest[..m]);
         buffers.force.copy_from_slice(&rest[m..m + n]);
-        a.copy_from_slice(&rest[m + n..m + 2 * n]);
-        true
     }
 }
 
@@ -554,15 +573,15 @@ impl FusedParametric {
         self.vars.len()
     }
 
-    /// qddot at (t, q, qdot) into `qddot` and the map's evaluation into `buffers`; false when
-    /// M fails the pivot test (run the general path).
+    /// qddot at (t, q, qdot) into `qddot`; false when M fails the pivot test (run the
+    /// general path). The map's evaluation (x, xdot, h, J) stays in the tape's outputs until
+    /// [`Self::unpack`] or [`Self::evaluation`] reads it.
     pub(crate) fn accelerate(
         &mut self,
         t: f64,
         q: &[f64],
         qdot: &[f64],
         qddot: &mut [f64],
-        buffers: ParametricBuffers<'_>,
     ) -> bool {
         let (n, n_q, nnz) = (self.n, self.n_q, self.nnz);
         self.vars[..n_q].copy_from_slice(q);
@@ -578,13 +597,32 @@ impl FusedParametric {
         ) {
             return false;
         }
-        buffers.position.copy_from_slice(&out[..n]);
-        buffers.velocity.copy_from_slice(&out[n..2 * n]);
-        buffers.bias.copy_from_slice(&out[2 * n..3 * n]);
-        buffers.jacobian.copy_from_slice(&out[3 * n..3 * n + nnz]);
         qddot.copy_from_slice(&out[3 * n + nnz..3 * n + nnz + n_q]);
-        buffers.force.copy_from_slice(&self.force);
         true
+    }
+
+    /// The map's evaluation of the last [`Self::accelerate`] that returned true: x, xdot,
+    /// h (n each), J (nnz) and the constant F (n).
+    pub(crate) fn evaluation(&self) -> [&[f64]; 5] {
+        let (n, nnz) = (self.n, self.nnz);
+        let out = &self.out;
+        [
+            &out[..n],
+            &out[n..2 * n],
+            &out[2 * n..3 * n],
+            &out[3 * n..3 * n + nnz],
+            &self.force,
+        ]
+    }
+
+    /// [`Self::evaluation`] into `buffers`.
+    pub(crate) fn unpack(&self, buffers: ParametricBuffers<'_>) {
+        let [position, velocity, bias, jacobian, force] = self.evaluation();
+        buffers.position.copy_from_slice(position);
+        buffers.velocity.copy_from_slice(velocity);
+        buffers.bias.copy_from_slice(bias);
+        buffers.jacobian.copy_from_slice(jacobian);
+        buffers.force.copy_from_slice(force);
     }
 }
 
@@ -709,6 +747,11 @@ b = ["sin(th) + 0.3*ph", "cos(ph)*th", "0.5 + 0.1*sin(th*ph)"]
     ) -> (Result<Vec<f64>, StepError>, Vec<Vec<u64>>) {
         let mut a = vec![0.0; x.len()];
         let result = f.acceleration(t, x, v, &mut a).map(|()| a);
+        // Read lazily (lambda straight from the tape's outputs), then unpacked.
+        let (lambda, jacobian) = (bits(f.multipliers()), bits(f.jacobian()));
+        f.unpack();
+        assert_eq!(lambda, bits(&f.lambda));
+        assert_eq!(jacobian, bits(&f.constraints.jacobian));
         let ce = &f.constraints;
         let left = vec![
             bits(&ce.value),
@@ -819,6 +862,9 @@ b = ["sin(th) + 0.3*ph", "cos(ph)*th", "0.5 + 0.1*sin(th*ph)"]
                 f.fused = saved;
                 let mut got = vec![0.0; q.len()];
                 let got_result = f.acceleration(t, &q, &qdot, &mut got).map(|()| bits(&got));
+                // Read lazily (straight from the tape's outputs), then unpacked.
+                let lazy: Vec<Vec<u64>> = f.evaluated().iter().map(|v| bits(v)).collect();
+                f.unpack();
                 let ws = &f.map;
                 let got_left = vec![
                     bits(&ws.position),
@@ -827,6 +873,7 @@ b = ["sin(th) + 0.3*ph", "cos(ph)*th", "0.5 + 0.1*sin(th*ph)"]
                     bits(&ws.jacobian),
                     bits(&f.force),
                 ];
+                assert_eq!(lazy, got_left, "{file}: read lazily");
                 match (&want_result, &got_result) {
                     (Ok(a), Ok(b)) => {
                         assert_eq!(a, b, "{} at t {t}, q {q:?}, qdot {qdot:?}", file);

@@ -66,6 +66,10 @@ pub struct Implicit {
     pub(crate) scales: Option<super::ConstraintScales>,
     /// The whole acceleration in one tape, for small systems (see [`super::fused`]).
     pub(crate) fused: Option<FusedImplicit>,
+    /// Whether the last evaluation was the fused tape's, whose C, J, lambda and F are still
+    /// in its outputs (see [`Implicit::unpack`]) rather than in `constraints`, `lambda` and
+    /// `force`
+    fused_pending: bool,
 }
 
 impl Implicit {
@@ -89,6 +93,7 @@ impl Implicit {
         );
         Implicit {
             fused,
+            fused_pending: false,
             feedback,
             solver,
             force: vec![0.0; n],
@@ -104,7 +109,31 @@ impl Implicit {
 
     /// The multipliers lambda (m) of the last evaluation; the constraint force is J^T lambda.
     pub fn multipliers(&self) -> &[f64] {
-        &self.lambda
+        match &self.fused {
+            Some(fused) if self.fused_pending => fused.multipliers(),
+            _ => &self.lambda,
+        }
+    }
+
+    /// J's entries of the last evaluation.
+    pub(super) fn jacobian(&self) -> &[f64] {
+        match &self.fused {
+            Some(fused) if self.fused_pending => fused.jacobian(),
+            _ => &self.constraints.jacobian,
+        }
+    }
+
+    /// The last evaluation's C, Cdot, bias, J, lambda and F + J^T lambda into `constraints`,
+    /// `lambda` and `force`, where the fused tape left them in its outputs.
+    pub(super) fn unpack(&mut self) {
+        if let Some(fused) = self.fused.as_ref().filter(|_| self.fused_pending) {
+            fused.unpack(ImplicitBuffers {
+                constraints: &mut self.constraints,
+                lambda: &mut self.lambda,
+                force: &mut self.force,
+            });
+            self.fused_pending = false;
+        }
     }
 
     /// The factorization of J W J^T asked for (see [`Implicit::with_solver`]).
@@ -131,6 +160,7 @@ impl Implicit {
 
     /// The constraint evaluation [`Implicit::accelerate_evaluated`] reads.
     pub(crate) fn evaluation_mut(&mut self) -> &mut ConstraintEval {
+        self.unpack();
         &mut self.constraints
     }
 
@@ -146,6 +176,7 @@ impl Implicit {
         v: &[f64],
         a: &mut [f64],
     ) -> Result<(), StepError> {
+        self.fused_pending = false;
         let system = &*self.system;
         let set = system.constraints();
         let w = &system.inverse_mass;
@@ -210,12 +241,9 @@ impl SecondOrderSystem for Implicit {
             if force_given {
                 accumulate_all_forces(&self.system, &self.external, x, v, &mut self.force);
             }
-            let buffers = ImplicitBuffers {
-                constraints: &mut self.constraints,
-                lambda: &mut self.lambda,
-                force: &mut self.force,
-            };
-            if fused.accelerate(t, x, v, a, buffers, force_given) {
+            let force = force_given.then_some(self.force.as_slice());
+            if fused.accelerate(t, x, v, a, force) {
+                self.fused_pending = true;
                 return Ok(());
             }
         }
@@ -285,16 +313,16 @@ impl Formulation for Implicit {
     /// the forces without a potential, at the last evaluation.
     fn power(&self, x: &[f64], v: &[f64], _a: &[f64]) -> f64 {
         let set = self.system.constraints();
-        let ce = &self.constraints;
+        let (jacobian, lambda) = (self.jacobian(), self.multipliers());
         let constraint: f64 = (0..set.n_rows())
             .map(|i| {
                 let jv: f64 = set
                     .row_columns(i)
                     .iter()
-                    .zip(&ce.jacobian[set.row_entries(i)])
+                    .zip(&jacobian[set.row_entries(i)])
                     .map(|(&k, &jik)| jik * v[k])
                     .sum();
-                self.lambda[i] * jv
+                lambda[i] * jv
             })
             .sum();
         constraint + self.applied_power(x, v)
@@ -352,6 +380,7 @@ impl Formulation for Implicit {
         qdot: &[f64],
         out: &mut Observation,
     ) -> bool {
+        self.unpack();
         observe_from(self.system.constraints(), &self.constraints, q, qdot, out);
         true
     }

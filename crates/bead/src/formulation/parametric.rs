@@ -62,6 +62,9 @@ pub struct Parametric {
     /// The whole acceleration in one tape, for small maps under constant forces (see
     /// [`super::fused`]); used while no external force is applied.
     pub(crate) fused: Option<FusedParametric>,
+    /// Whether the last evaluation was the fused tape's, whose x, xdot, h, J and F are still
+    /// in its outputs (see [`Parametric::unpack`]) rather than in `map` and `force`
+    fused_pending: bool,
 }
 
 impl Parametric {
@@ -95,6 +98,7 @@ impl Parametric {
         );
         Ok(Parametric {
             fused,
+            fused_pending: false,
             velocity_dependent,
             solver,
             map: map.workspace(),
@@ -167,15 +171,8 @@ impl SecondOrderSystem for Parametric {
             .parametric()
             .expect("checked in Parametric::new");
         if let Some(fused) = self.fused.as_mut().filter(|_| self.external.is_empty()) {
-            let ws = &mut self.map;
-            let buffers = ParametricBuffers {
-                position: &mut ws.position,
-                velocity: &mut ws.velocity,
-                bias: &mut ws.bias,
-                jacobian: &mut ws.jacobian,
-                force: &mut self.force,
-            };
-            if fused.accelerate(t, q, qdot, qddot, buffers) {
+            if fused.accelerate(t, q, qdot, qddot) {
+                self.fused_pending = true;
                 return Ok(());
             }
         }
@@ -191,6 +188,39 @@ impl SecondOrderSystem for Parametric {
 }
 
 impl Parametric {
+    /// The last evaluation's x, xdot, h, J and F into `map` and `force`, where the fused tape
+    /// left them in its outputs.
+    pub(super) fn unpack(&mut self) {
+        if let Some(fused) = self.fused.as_ref().filter(|_| self.fused_pending) {
+            let ws = &mut self.map;
+            fused.unpack(ParametricBuffers {
+                position: &mut ws.position,
+                velocity: &mut ws.velocity,
+                bias: &mut ws.bias,
+                jacobian: &mut ws.jacobian,
+                force: &mut self.force,
+            });
+            self.fused_pending = false;
+        }
+    }
+
+    /// The last evaluation's x, xdot, h, J and F, wherever they are.
+    pub(super) fn evaluated(&self) -> [&[f64]; 5] {
+        match &self.fused {
+            Some(fused) if self.fused_pending => fused.evaluation(),
+            _ => {
+                let ws = &self.map;
+                [
+                    &ws.position,
+                    &ws.velocity,
+                    &ws.bias,
+                    &ws.jacobian,
+                    &self.force,
+                ]
+            }
+        }
+    }
+
     /// The observation at time t from the map's x, xdot and J already in
     /// [`Parametric::evaluation_mut`] (by [`ParametricMap::observe`]): what
     /// [`Formulation::observe`] does after evaluating the map.
@@ -294,6 +324,7 @@ impl Parametric {
     /// The map's evaluation (x, xdot, h, J at (t, q, qdot)) that
     /// [`Parametric::accelerate_evaluated`] reads.
     pub(crate) fn evaluation_mut(&mut self) -> &mut ParametricEval {
+        self.unpack();
         &mut self.map
     }
 
@@ -308,6 +339,7 @@ impl Parametric {
         qdot: &[f64],
         qddot: &mut [f64],
     ) -> Result<(), StepError> {
+        self.fused_pending = false;
         self.assemble_evaluated();
         let system = &*self.system;
         let map = system.parametric().expect("checked in Parametric::new");
@@ -353,6 +385,8 @@ impl Formulation for Parametric {
         self.parametric_map().coordinates()
     }
     fn particle_state(&mut self, t: f64, q: &[f64], qdot: &[f64], x: &mut [f64], xdot: &mut [f64]) {
+        // What the map's evaluation holds besides x and xdot stays the last acceleration's.
+        self.unpack();
         let map = self
             .system
             .parametric()
@@ -374,22 +408,22 @@ impl Formulation for Parametric {
     /// m a - F (which works only when the map moves, since J^T (m a - F) = 0) plus the forces
     /// without a potential, at the last evaluation.
     fn power(&self, _q: &[f64], _qdot: &[f64], qddot: &[f64]) -> f64 {
-        let ws = &self.map;
+        let [position, velocity, bias, jacobian, force] = self.evaluated();
         let map = self.parametric_map();
         let columns = map.jacobian_columns();
-        let reaction: f64 = (0..ws.position.len())
+        let reaction: f64 = (0..position.len())
             .map(|k| {
                 let entries = map.row_entries(k);
-                let jq: f64 = ws.jacobian[entries.clone()]
+                let jq: f64 = jacobian[entries.clone()]
                     .iter()
                     .zip(&columns[entries])
                     .map(|(v, &j)| v * qddot[j])
                     .sum();
-                let a = jq + ws.bias[k];
-                ws.velocity[k] * (self.coordinate_mass[k] * a - self.force[k])
+                let a = jq + bias[k];
+                velocity[k] * (self.coordinate_mass[k] * a - force[k])
             })
             .sum();
-        reaction + self.applied_power(&ws.position, &ws.velocity)
+        reaction + self.applied_power(position, velocity)
     }
 
     /// Here `x`, `v` are particle positions and velocities (the map's, from the last
@@ -432,6 +466,7 @@ impl Formulation for Parametric {
     /// Gradient row j: the column dx/dq_j of the map, over the particle coordinates that
     /// depend on q_j (its structural nonzeros; the others are 0 at every state).
     fn observe(&mut self, t: f64, q: &[f64], qdot: &[f64], out: &mut Observation) {
+        self.unpack();
         let map = self
             .system
             .parametric()
@@ -449,6 +484,7 @@ impl Formulation for Parametric {
         _qdot: &[f64],
         out: &mut Observation,
     ) -> bool {
+        self.unpack();
         self.observe_evaluated(t, out);
         true
     }
