@@ -1,20 +1,22 @@
 //! Machine code for tapes, with Cranelift.
 //!
-//! [`super::Tape::compile`] hands its instructions to [`compile`], which emits one native
-//! function per tape:
+//! [`super::Tape::compile`] hands its instructions to [`compile`], which emits two native
+//! functions per tape, of one signature:
 //!
 //! ```text
 //! extern "C" fn(vars: *const f64, consts: *const f64, out: *mut f64, lanes: usize)
 //! ```
 //!
-//! The function loops over `lanes` members laid out as [`super::Tape::eval_lanes`] lays them
-//! out (slot k of lane l at `k * lanes + l`); the scalar evaluation is the one-lane call. Each
-//! SSA instruction becomes one Cranelift value (kept in registers, spilled by the register
-//! allocator when needed): no scratch array. The constants are not baked into the code but read
-//! from `consts` (the tape's constants in instruction order, exact bits), so that tapes that
-//! differ only by their constants — a sweep's members, whose parameters are constants of the
-//! expressions — share one compiled function (a process-wide cache of weak references keyed by
-//! the tape's shape).
+//! The first loops over `lanes` members laid out as [`super::Tape::eval_lanes`] lays them out
+//! (slot k of lane l at `k * lanes + l`); the scalar evaluation is the one-lane call. The
+//! second takes two lanes per iteration in `f64x2` vectors (for an even lane count: an
+//! ensemble's 16 lanes), each packed IEEE operation rounding each lane as the scalar one does,
+//! function calls made lane by lane. Each SSA instruction becomes one Cranelift value (kept in
+//! registers, spilled by the register allocator when needed): no scratch array. The constants
+//! are not baked into the code but read from `consts` (the tape's constants in instruction
+//! order, exact bits), so that tapes that differ only by their constants — a sweep's members,
+//! whose parameters are constants of the expressions — share their compiled functions (a
+//! process-wide cache of weak references keyed by the tape's shape).
 //!
 //! **Same bits as the interpreter**: every IEEE basic operation is one Cranelift instruction
 //! (`fadd`, `fsub`, `fmul`, `fdiv`, `fneg`, `fabs`, `sqrt`) with the interpreter's operand
@@ -228,7 +230,9 @@ type TapeFn = unsafe extern "C" fn(*const f64, *const f64, *mut f64, usize);
 
 /// One tape's machine code, freed when the last tape holding it is dropped.
 pub(super) struct Native {
+    /// The lane loop one lane at a time, and two at a time (`f64x2`; for an even count)
     func: TapeFn,
+    func_x2: TapeFn,
     /// What the code reads and writes: one more than the largest variable slot, the number
     /// of constants and outputs.
     n_vars: usize,
@@ -264,12 +268,19 @@ impl Native {
         if lanes == 0 {
             return;
         }
+        // Two lanes per iteration when they pair up.
+        let func = if lanes.is_multiple_of(2) {
+            self.func_x2
+        } else {
+            self.func
+        };
         // SAFETY: the code reads variable slots `< n_vars` of `lanes` lanes, constants
         // `< n_consts`, and writes `n_outputs` outputs of `lanes` lanes (all checked above),
-        // and runs its lane loop at least once, which `lanes >= 1` makes right.
+        // and runs its lane loop at least once, which `lanes >= 1` makes right (`func_x2`
+        // steps by two lanes and is called for an even count only).
         #[allow(unsafe_code)]
         unsafe {
-            (self.func)(vars.as_ptr(), consts.as_ptr(), out.as_mut_ptr(), lanes)
+            func(vars.as_ptr(), consts.as_ptr(), out.as_mut_ptr(), lanes)
         }
     }
 }
@@ -481,7 +492,6 @@ mod codegen {
 
     pub(super) fn build(code: &[Instr], outputs: &[u32]) -> Result<Native, String> {
         let isa = host_isa()?;
-        let call_conv = isa.default_call_conv();
         let mut module = JITModule::new(JITBuilder::with_isa(
             isa,
             cranelift_module::default_libcall_names(),
@@ -491,188 +501,255 @@ mod codegen {
         for _ in 0..4 {
             sig.params.push(AbiParam::new(ptr));
         }
-        let id = module
-            .declare_function("tape", Linkage::Local, &sig)
-            .map_err(|e| format!("Cranelift: {e}"))?;
-        let mut ctx = module.make_context();
-        ctx.func.signature = sig;
-        ctx.func.name = UserFuncName::user(0, id.as_u32());
-        let mut fctx = FunctionBuilderContext::new();
-        let mut n_const: i64 = 0;
-        {
-            let mut b = FunctionBuilder::new(&mut ctx.func, &mut fctx);
-            let signature = |params: &[types::Type]| {
-                let mut s = Signature::new(call_conv);
-                s.params.extend(params.iter().map(|&t| AbiParam::new(t)));
-                s.returns.push(AbiParam::new(types::F64));
-                s
-            };
-            let sig1 = b.import_signature(signature(&[types::F64]));
-            let sig2 = b.import_signature(signature(&[types::F64, types::F64]));
-            let sigi = b.import_signature(signature(&[types::F64, types::I32]));
-
-            let entry = b.create_block();
-            b.append_block_params_for_function_params(entry);
-            let body = b.create_block();
-            let lane = b.append_block_param(body, ptr);
-            let exit = b.create_block();
-
-            b.switch_to_block(entry);
-            let &[vars, consts, out, lanes] = b.block_params(entry) else {
-                return Err("Cranelift: unexpected parameters".into());
-            };
-            // Bytes between consecutive slots of one lane.
-            let stride = b.ins().ishl_imm_u(lanes, 3);
-            let zero = b.ins().iconst(ptr, 0);
-            b.ins().jump(body, &[zero.into()]);
-
-            b.switch_to_block(body);
-            let vars_l = b.ins().iadd(vars, lane);
-            let out_l = b.ins().iadd(out, lane);
-            let flags = MemFlagsData::trusted();
-            let mut v: Vec<Value> = Vec::with_capacity(code.len());
-            let call = |b: &mut FunctionBuilder, sig: SigRef, f: usize, args: &[Value]| {
-                let addr = b.ins().iconst(ptr, f as i64);
-                let inst = b.ins().call_indirect(sig, addr, args);
-                b.inst_results(inst)[0]
-            };
-            for &ins in code {
-                let get = |s: u32| v[s as usize];
-                let mut konst = |b: &mut FunctionBuilder| -> Result<Value, String> {
-                    let offset = i32::try_from(n_const * 8)
-                        .map_err(|_| "too many constants for one function".to_string())?;
-                    n_const += 1;
-                    Ok(b.ins().load(types::F64, flags, consts, offset))
-                };
-                let unary = |b: &mut FunctionBuilder, f: extern "C" fn(f64) -> f64, a: u32| {
-                    call(b, sig1, f as usize, &[get(a)])
-                };
-                let val = match ins {
-                    Instr::Var(k) => {
-                        let addr = if k == 0 {
-                            vars_l
-                        } else {
-                            let off = b.ins().imul_imm_u(stride, i64::from(k));
-                            b.ins().iadd(vars_l, off)
-                        };
-                        b.ins().load(types::F64, flags, addr, 0)
-                    }
-                    Instr::Const(_) => konst(&mut b)?,
-                    Instr::Neg(a) => b.ins().fneg(get(a)),
-                    Instr::Add(x, y) => b.ins().fadd(get(x), get(y)),
-                    Instr::Sub(x, y) => b.ins().fsub(get(x), get(y)),
-                    Instr::Mul(x, y) => b.ins().fmul(get(x), get(y)),
-                    Instr::Div(x, y) => b.ins().fdiv(get(x), get(y)),
-                    Instr::AddC(a, _) => {
-                        let c = konst(&mut b)?;
-                        b.ins().fadd(c, get(a))
-                    }
-                    Instr::CSub(a, _) => {
-                        let c = konst(&mut b)?;
-                        b.ins().fsub(c, get(a))
-                    }
-                    Instr::MulC(a, _) => {
-                        let c = konst(&mut b)?;
-                        b.ins().fmul(c, get(a))
-                    }
-                    Instr::DivC(a, _) => {
-                        let c = konst(&mut b)?;
-                        b.ins().fdiv(get(a), c)
-                    }
-                    Instr::CDiv(a, _) => {
-                        let c = konst(&mut b)?;
-                        b.ins().fdiv(c, get(a))
-                    }
-                    Instr::Square(a) => b.ins().fmul(get(a), get(a)),
-                    Instr::Powi(a, n) => {
-                        // The immediate of an i32 constant is its bits, zero-extended.
-                        let n = b.ins().iconst(types::I32, i64::from(n as u32));
-                        call(&mut b, sigi, bead_powi as *const () as usize, &[get(a), n])
-                    }
-                    Instr::Powf(a, _) => {
-                        let c = konst(&mut b)?;
-                        call(&mut b, sig2, bead_powf as *const () as usize, &[get(a), c])
-                    }
-                    Instr::Pow(x, y) => call(
-                        &mut b,
-                        sig2,
-                        bead_powf as *const () as usize,
-                        &[get(x), get(y)],
-                    ),
-                    Instr::Sin(a) => unary(&mut b, bead_sin, a),
-                    Instr::Cos(a) => unary(&mut b, bead_cos, a),
-                    Instr::Tan(a) => unary(&mut b, bead_tan, a),
-                    Instr::Asin(a) => unary(&mut b, bead_asin, a),
-                    Instr::Acos(a) => unary(&mut b, bead_acos, a),
-                    Instr::Atan(a) => unary(&mut b, bead_atan, a),
-                    Instr::Sinh(a) => unary(&mut b, bead_sinh, a),
-                    Instr::Cosh(a) => unary(&mut b, bead_cosh, a),
-                    Instr::Tanh(a) => unary(&mut b, bead_tanh, a),
-                    Instr::Exp(a) => unary(&mut b, bead_exp, a),
-                    Instr::Ln(a) => unary(&mut b, bead_ln, a),
-                    Instr::Log10(a) => unary(&mut b, bead_log10, a),
-                    Instr::Sqrt(a) => b.ins().sqrt(get(a)),
-                    Instr::Abs(a) => b.ins().fabs(get(a)),
-                    Instr::Sign(a) => unary(&mut b, bead_sign, a),
-                    Instr::Atan2(y, x) => call(
-                        &mut b,
-                        sig2,
-                        bead_atan2 as *const () as usize,
-                        &[get(y), get(x)],
-                    ),
-                    Instr::MulAdd(x, y, z) => {
-                        let p = b.ins().fmul(get(x), get(y));
-                        b.ins().fadd(p, get(z))
-                    }
-                    Instr::MulSub(x, y, z) => {
-                        let p = b.ins().fmul(get(x), get(y));
-                        b.ins().fsub(p, get(z))
-                    }
-                    Instr::SubMul(x, y, z) => {
-                        let p = b.ins().fmul(get(x), get(y));
-                        b.ins().fsub(get(z), p)
-                    }
-                };
-                v.push(val);
-            }
-            for (j, &s) in outputs.iter().enumerate() {
-                let addr = if j == 0 {
-                    out_l
-                } else {
-                    let off = b.ins().imul_imm_u(stride, j as i64);
-                    b.ins().iadd(out_l, off)
-                };
-                b.ins().store(flags, v[s as usize], addr, 0);
-            }
-            let next = b.ins().iadd_imm_u(lane, 8);
-            let more = b.ins().icmp(IntCC::UnsignedLessThan, next, stride);
-            b.ins().brif(more, body, &[next.into()], exit, &[]);
-            b.switch_to_block(exit);
-            b.ins().return_(&[]);
-            b.seal_all_blocks();
-            b.finalize(module.target_config());
+        let mut ids = Vec::new();
+        let mut n_consts = 0;
+        for (width, name) in [(1, "tape"), (2, "tape_x2")] {
+            let id = module
+                .declare_function(name, Linkage::Local, &sig)
+                .map_err(|e| format!("Cranelift: {e}"))?;
+            let mut ctx = module.make_context();
+            ctx.func.signature = sig.clone();
+            ctx.func.name = UserFuncName::user(0, id.as_u32());
+            let mut fctx = FunctionBuilderContext::new();
+            n_consts = body(
+                FunctionBuilder::new(&mut ctx.func, &mut fctx),
+                code,
+                outputs,
+                width,
+                ptr,
+                module.target_config(),
+            )?;
+            module
+                .define_function(id, &mut ctx)
+                .map_err(|e| format!("Cranelift: {e:?}"))?;
+            module.clear_context(&mut ctx);
+            ids.push(id);
         }
-        module
-            .define_function(id, &mut ctx)
-            .map_err(|e| format!("Cranelift: {e:?}"))?;
-        module.clear_context(&mut ctx);
         module
             .finalize_definitions()
             .map_err(|e| format!("Cranelift: {e}"))?;
-        let ptr = module.get_finalized_function(id);
-        // SAFETY: the function was declared with this signature (four pointer-sized integer
-        // parameters, no result) in the host's default calling convention, which is the C
-        // one on every host Cranelift supports.
+        // SAFETY: both functions were declared with this signature (four pointer-sized
+        // integer parameters, no result) in the host's default calling convention, which is
+        // the C one on every host Cranelift supports.
         #[allow(unsafe_code)]
-        let func = unsafe { std::mem::transmute::<*const u8, TapeFn>(ptr) };
+        let function = |id| unsafe {
+            std::mem::transmute::<*const u8, TapeFn>(module.get_finalized_function(id))
+        };
+        let (func, func_x2) = (function(ids[0]), function(ids[1]));
         let n_vars = crate::expr::tape::n_vars(code);
         Ok(Native {
             func,
+            func_x2,
             n_vars,
-            n_consts: n_const as usize,
+            n_consts,
             n_outputs: outputs.len(),
             module: Mutex::new(Some(module)),
         })
+    }
+
+    /// The function's body: a loop over the lanes, `width` lanes per iteration (1: scalar
+    /// `f64`; 2: `f64x2`, each IEEE operation on both lanes at once, which rounds each lane as
+    /// the scalar operation does; calls are made lane by lane). Returns the number of
+    /// constants read.
+    fn body(
+        mut b: FunctionBuilder,
+        code: &[Instr],
+        outputs: &[u32],
+        width: i64,
+        ptr: types::Type,
+        config: cranelift_codegen::isa::TargetFrontendConfig,
+    ) -> Result<usize, String> {
+        let call_conv = config.default_call_conv;
+        let ty = if width == 1 { types::F64 } else { types::F64X2 };
+        let signature = |params: &[types::Type]| {
+            let mut s = Signature::new(call_conv);
+            s.params.extend(params.iter().map(|&t| AbiParam::new(t)));
+            s.returns.push(AbiParam::new(types::F64));
+            s
+        };
+        let sig1 = b.import_signature(signature(&[types::F64]));
+        let sig2 = b.import_signature(signature(&[types::F64, types::F64]));
+        let sigi = b.import_signature(signature(&[types::F64, types::I32]));
+
+        let entry = b.create_block();
+        b.append_block_params_for_function_params(entry);
+        let body = b.create_block();
+        let lane = b.append_block_param(body, ptr);
+        let exit = b.create_block();
+
+        b.switch_to_block(entry);
+        let &[vars, consts, out, lanes] = b.block_params(entry) else {
+            return Err("Cranelift: unexpected parameters".into());
+        };
+        // Bytes between consecutive slots of one lane.
+        let stride = b.ins().ishl_imm_u(lanes, 3);
+        let zero = b.ins().iconst(ptr, 0);
+        b.ins().jump(body, &[zero.into()]);
+
+        b.switch_to_block(body);
+        let vars_l = b.ins().iadd(vars, lane);
+        let out_l = b.ins().iadd(out, lane);
+        // Lanes are 8-byte aligned only: no alignment promised for f64x2.
+        let flags = if width == 1 {
+            MemFlagsData::trusted()
+        } else {
+            MemFlagsData::new().with_notrap()
+        };
+        let mut n_const: i64 = 0;
+        let mut v: Vec<Value> = Vec::with_capacity(code.len());
+        // f(args) of every lane: one call per lane, the results put back together.
+        let call = |b: &mut FunctionBuilder, sig: SigRef, f: usize, args: &[Value]| {
+            let addr = b.ins().iconst(ptr, f as i64);
+            if width == 1 {
+                let inst = b.ins().call_indirect(sig, addr, args);
+                return b.inst_results(inst)[0];
+            }
+            let mut result: Option<Value> = None;
+            for l in 0..2u8 {
+                let lane_args: Vec<Value> = args
+                    .iter()
+                    .map(|&a| {
+                        if b.func.dfg.value_type(a) == types::F64X2 {
+                            b.ins().extractlane(a, l)
+                        } else {
+                            a
+                        }
+                    })
+                    .collect();
+                let inst = b.ins().call_indirect(sig, addr, &lane_args);
+                let r = b.inst_results(inst)[0];
+                result = Some(match result {
+                    None => b.ins().scalar_to_vector(types::F64X2, r),
+                    Some(vector) => b.ins().insertlane(vector, r, l),
+                });
+            }
+            result.expect("two lanes")
+        };
+        for &ins in code {
+            let get = |s: u32| v[s as usize];
+            let mut konst = |b: &mut FunctionBuilder| -> Result<Value, String> {
+                let offset = i32::try_from(n_const * 8)
+                    .map_err(|_| "too many constants for one function".to_string())?;
+                n_const += 1;
+                let c = b
+                    .ins()
+                    .load(types::F64, MemFlagsData::trusted(), consts, offset);
+                Ok(if width == 1 { c } else { b.ins().splat(ty, c) })
+            };
+            let unary = |b: &mut FunctionBuilder, f: extern "C" fn(f64) -> f64, a: u32| {
+                call(b, sig1, f as usize, &[get(a)])
+            };
+            let val = match ins {
+                Instr::Var(k) => {
+                    let addr = if k == 0 {
+                        vars_l
+                    } else {
+                        let off = b.ins().imul_imm_u(stride, i64::from(k));
+                        b.ins().iadd(vars_l, off)
+                    };
+                    b.ins().load(ty, flags, addr, 0)
+                }
+                Instr::Const(_) => konst(&mut b)?,
+                Instr::Neg(a) => b.ins().fneg(get(a)),
+                Instr::Add(x, y) => b.ins().fadd(get(x), get(y)),
+                Instr::Sub(x, y) => b.ins().fsub(get(x), get(y)),
+                Instr::Mul(x, y) => b.ins().fmul(get(x), get(y)),
+                Instr::Div(x, y) => b.ins().fdiv(get(x), get(y)),
+                Instr::AddC(a, _) => {
+                    let c = konst(&mut b)?;
+                    b.ins().fadd(c, get(a))
+                }
+                Instr::CSub(a, _) => {
+                    let c = konst(&mut b)?;
+                    b.ins().fsub(c, get(a))
+                }
+                Instr::MulC(a, _) => {
+                    let c = konst(&mut b)?;
+                    b.ins().fmul(c, get(a))
+                }
+                Instr::DivC(a, _) => {
+                    let c = konst(&mut b)?;
+                    b.ins().fdiv(get(a), c)
+                }
+                Instr::CDiv(a, _) => {
+                    let c = konst(&mut b)?;
+                    b.ins().fdiv(c, get(a))
+                }
+                Instr::Square(a) => b.ins().fmul(get(a), get(a)),
+                Instr::Powi(a, n) => {
+                    // The immediate of an i32 constant is its bits, zero-extended.
+                    let n = b.ins().iconst(types::I32, i64::from(n as u32));
+                    call(&mut b, sigi, bead_powi as *const () as usize, &[get(a), n])
+                }
+                Instr::Powf(a, _) => {
+                    // The exponent is the same in every lane: read it once, as a scalar.
+                    let offset = i32::try_from(n_const * 8)
+                        .map_err(|_| "too many constants for one function".to_string())?;
+                    n_const += 1;
+                    let c = b
+                        .ins()
+                        .load(types::F64, MemFlagsData::trusted(), consts, offset);
+                    call(&mut b, sig2, bead_powf as *const () as usize, &[get(a), c])
+                }
+                Instr::Pow(x, y) => call(
+                    &mut b,
+                    sig2,
+                    bead_powf as *const () as usize,
+                    &[get(x), get(y)],
+                ),
+                Instr::Sin(a) => unary(&mut b, bead_sin, a),
+                Instr::Cos(a) => unary(&mut b, bead_cos, a),
+                Instr::Tan(a) => unary(&mut b, bead_tan, a),
+                Instr::Asin(a) => unary(&mut b, bead_asin, a),
+                Instr::Acos(a) => unary(&mut b, bead_acos, a),
+                Instr::Atan(a) => unary(&mut b, bead_atan, a),
+                Instr::Sinh(a) => unary(&mut b, bead_sinh, a),
+                Instr::Cosh(a) => unary(&mut b, bead_cosh, a),
+                Instr::Tanh(a) => unary(&mut b, bead_tanh, a),
+                Instr::Exp(a) => unary(&mut b, bead_exp, a),
+                Instr::Ln(a) => unary(&mut b, bead_ln, a),
+                Instr::Log10(a) => unary(&mut b, bead_log10, a),
+                Instr::Sqrt(a) => b.ins().sqrt(get(a)),
+                Instr::Abs(a) => b.ins().fabs(get(a)),
+                Instr::Sign(a) => unary(&mut b, bead_sign, a),
+                Instr::Atan2(y, x) => call(
+                    &mut b,
+                    sig2,
+                    bead_atan2 as *const () as usize,
+                    &[get(y), get(x)],
+                ),
+                Instr::MulAdd(x, y, z) => {
+                    let p = b.ins().fmul(get(x), get(y));
+                    b.ins().fadd(p, get(z))
+                }
+                Instr::MulSub(x, y, z) => {
+                    let p = b.ins().fmul(get(x), get(y));
+                    b.ins().fsub(p, get(z))
+                }
+                Instr::SubMul(x, y, z) => {
+                    let p = b.ins().fmul(get(x), get(y));
+                    b.ins().fsub(get(z), p)
+                }
+            };
+            v.push(val);
+        }
+        for (j, &s) in outputs.iter().enumerate() {
+            let addr = if j == 0 {
+                out_l
+            } else {
+                let off = b.ins().imul_imm_u(stride, j as i64);
+                b.ins().iadd(out_l, off)
+            };
+            b.ins().store(flags, v[s as usize], addr, 0);
+        }
+        let next = b.ins().iadd_imm_u(lane, 8 * width);
+        let more = b.ins().icmp(IntCC::UnsignedLessThan, next, stride);
+        b.ins().brif(more, body, &[next.into()], exit, &[]);
+        b.switch_to_block(exit);
+        b.ins().return_(&[]);
+        b.seal_all_blocks();
+        b.finalize(config);
+        usize::try_from(n_const).map_err(|e| e.to_string())
     }
 }
 
