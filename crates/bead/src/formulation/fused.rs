@@ -322,6 +322,11 @@ impl FusedImplicit {
         &self.out[start..start + self.m]
     }
 
+    /// C (m) of the last [`Self::accelerate`] that returned true.
+    pub(crate) fn values(&self) -> &[f64] {
+        &self.out[..self.m]
+    }
+
     /// J's entries (nnz) of the last [`Self::accelerate`] that returned true.
     pub(crate) fn jacobian(&self) -> &[f64] {
         &self.out[3 * self.m..3 * self.m + self.nnz]

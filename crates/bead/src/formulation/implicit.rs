@@ -380,8 +380,14 @@ impl Formulation for Implicit {
         qdot: &[f64],
         out: &mut Observation,
     ) -> bool {
-        self.unpack();
-        observe_from(self.system.constraints(), &self.constraints, q, qdot, out);
+        let set = self.system.constraints();
+        match &self.fused {
+            // Read in place: the other outputs stay where they are.
+            Some(fused) if self.fused_pending => {
+                observe_from_parts(set, fused.values(), fused.jacobian(), q, qdot, out)
+            }
+            _ => observe_from(set, &self.constraints, q, qdot, out),
+        }
         true
     }
 
@@ -504,21 +510,33 @@ fn observe_from(
     qdot: &[f64],
     out: &mut Observation,
 ) {
+    observe_from_parts(set, &ws.value, &ws.jacobian, q, qdot, out);
+}
+
+/// The observation of (q, qdot) from C (`value`) and J's entries (`jacobian`) at (t, q):
+/// offset_i = |C_i| / |J_i|.
+fn observe_from_parts(
+    set: &crate::model::ConstraintSet,
+    value: &[f64],
+    jacobian: &[f64],
+    q: &[f64],
+    qdot: &[f64],
+    out: &mut Observation,
+) {
     out.x.copy_from_slice(q);
     out.xdot.copy_from_slice(qdot);
     if set.n_rows() == 0 {
         return;
     }
-    out.constraints.copy_from_slice(&ws.value);
+    out.constraints.copy_from_slice(value);
     let g = &mut out.gradients;
-    g.values.copy_from_slice(&ws.jacobian);
-    for i in 0..set.n_rows() {
-        let entries = set.row_entries(i);
-        let norm = ws.jacobian[entries]
+    g.values.copy_from_slice(jacobian);
+    for (i, (offset, c)) in g.offset.iter_mut().zip(value).enumerate() {
+        let norm = jacobian[set.row_entries(i)]
             .iter()
             .map(|g| g * g)
             .sum::<f64>()
             .sqrt();
-        g.offset[i] = ws.value[i].abs() / norm;
+        *offset = c.abs() / norm;
     }
 }

@@ -227,13 +227,14 @@ impl Parametric {
     pub(crate) fn observe_evaluated(&mut self, t: f64, out: &mut Observation) {
         let system = &*self.system;
         let map = system.parametric().expect("checked in Parametric::new");
-        let ws = &self.map;
-        out.x.copy_from_slice(&ws.position);
-        out.xdot.copy_from_slice(&ws.velocity);
+        // The fused tape's outputs in place, or the map's evaluation.
+        let [position, velocity, _, jacobian, _] = self.evaluated();
+        out.x.copy_from_slice(position);
+        out.xdot.copy_from_slice(velocity);
         let mut values = out.gradients.values.iter_mut();
         for j in 0..map.n_q() {
             for (&entry, value) in map.column_entries(j).iter().zip(&mut values) {
-                *value = ws.jacobian[entry];
+                *value = jacobian[entry];
             }
         }
         let set = system.constraints();
@@ -484,7 +485,6 @@ impl Formulation for Parametric {
         _qdot: &[f64],
         out: &mut Observation,
     ) -> bool {
-        self.unpack();
         self.observe_evaluated(t, out);
         true
     }
