@@ -277,7 +277,7 @@ impl LaneMonitor {
                 }
             }
             // The step's length in the row's variables (`row_step_length`; for a drift).
-            let mut step = [-0.0; LANES];
+            let mut step = [empty_sum(); LANES];
             let mut add_step = |k: usize| {
                 let q = &q[k * LANES..(k + 1) * LANES];
                 let before = &q_back[k * LANES..(k + 1) * LANES];
@@ -411,11 +411,17 @@ impl LaneMonitor {
     }
 }
 
+/// What `Iterator::sum` of no f64 is (-0.0 in current Rust): every sum here starts from it,
+/// as the scalar code's `sum()` does.
+fn empty_sum() -> f64 {
+    std::iter::empty::<f64>().sum()
+}
+
 /// |g_r|^2 of every row r (entries start[r]..start[r + 1] of `values`) and lane, summed
-/// from -0.0 as `sum()`.
+/// from [`empty_sum`] as `sum()`.
 fn squared_lengths(start: &[usize], values: &[f64], squared: &mut [f64]) {
     for (r, gg) in squared.chunks_exact_mut(LANES).enumerate() {
-        gg.fill(-0.0);
+        gg.fill(empty_sum());
         for e in start[r]..start[r + 1] {
             let g = &values[e * LANES..(e + 1) * LANES];
             for l in 0..LANES {
@@ -434,11 +440,12 @@ fn squared_lengths(start: &[usize], values: &[f64], squared: &mut [f64]) {
 fn energy_across_lanes(system: &System, x: &[f64], xdot: &[f64], energy: &mut PerLane) {
     let dim = system.dim();
     let gravity = system.gravity();
-    let mut kinetic = [-0.0; LANES];
-    let mut potential = [-0.0; LANES];
+    let zero = empty_sum();
+    let mut kinetic = [zero; LANES];
+    let mut potential = [zero; LANES];
     for (p, particle) in system.particles().iter().enumerate() {
-        let mut s = [-0.0; LANES];
-        let mut gx = [-0.0; LANES];
+        let mut s = [zero; LANES];
+        let mut gx = [zero; LANES];
         for a in 0..dim {
             let k = p * dim + a;
             for l in 0..LANES {
@@ -453,7 +460,7 @@ fn energy_across_lanes(system: &System, x: &[f64], xdot: &[f64], energy: &mut Pe
         }
     }
     for l in 0..LANES {
-        // The forces' potentials: an empty sum, -0.0.
-        energy[l] = kinetic[l] + (potential[l] + -0.0);
+        // The forces' potentials: an empty sum.
+        energy[l] = kinetic[l] + (potential[l] + zero);
     }
 }
