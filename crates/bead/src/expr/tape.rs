@@ -633,6 +633,30 @@ impl TapeBuilder {
             .collect()
     }
 
+    /// `tape`'s code appended with its variable k read from `vars[k]` (another evaluation of
+    /// it inside this tape): its outputs in order.
+    pub(crate) fn append_with(&mut self, tape: &Tape, vars: &[Sym]) -> Vec<Sym> {
+        let mut slots: Vec<u32> = Vec::with_capacity(tape.code.len());
+        for &ins in &tape.code {
+            if let Instr::Var(k) = ins {
+                slots.push(self.b.slot(vars[k as usize].0));
+                continue;
+            }
+            let mut ins = ins;
+            for s in ins.operands_mut().into_iter().flatten() {
+                *s = slots[*s as usize];
+            }
+            match self.b.emit(ins) {
+                Val::Slot(s) => slots.push(s),
+                Val::Const(_) => unreachable!("emit returns a slot"),
+            }
+        }
+        tape.outputs
+            .iter()
+            .map(|&o| Sym(Val::Slot(slots[o as usize])))
+            .collect()
+    }
+
     /// `a + b`
     pub(crate) fn add(&mut self, a: Sym, b: Sym) -> Sym {
         use Val::{Const as C, Slot as S};

@@ -348,87 +348,199 @@ impl FusedImplicit {
     }
 }
 
-/// Buffers of a fused acceleration across L lanes (structure of arrays: value k of lane l at
-/// `k * L + l`), sized on first use.
-#[derive(Debug, Default)]
-pub(crate) struct FusedLanes {
-    /// The tape's variables
-    pub(crate) vars: Vec<f64>,
-    /// Whether `vars` holds the constant variables (F, w, ks, kd; F, masses): every call
-    /// after the first leaves them as they are
-    pub(crate) constants_loaded: bool,
-    scratch: Vec<f64>,
-    out: Vec<f64>,
-}
-
-/// The tape across `L` lanes from `lanes.vars`, then each lane's accelerations (outputs
-/// `acceleration..acceleration + n`) into `a` (n x L) and, where its pivots fail the test,
-/// `failed[l] = true` (its accelerations are then garbage).
-#[allow(clippy::too_many_arguments)]
-fn accelerate_lanes<const L: usize>(
-    tape: &Tape,
-    lanes: &mut FusedLanes,
+/// One RK4 step as one tape, from an acceleration tape `accel` whose variables are x, v (n
+/// each), t and `rest` more (the same in every stage) and whose outputs hold a (n) at
+/// `acceleration` and the Cholesky's diagonals then pivots (`rows` each) at `pivots`:
+/// `integrate::rk4`'s arithmetic in its order,
+///
+/// ```text
+/// v1 = qdot              a1 = f(t, q, v1)
+/// v2 = qdot + h/2 a1     a2 = f(t + h/2, q + h/2 v1, v2)
+/// v3 = qdot + h/2 a2     a3 = f(t + h/2, q + h/2 v2, v3)
+/// v4 = qdot + h a3       a4 = f(t + h, q + h v3, v4)
+/// q' = q + h/6 (v1 + 2 v2 + 2 v3 + v4),  qdot' = qdot + h/6 (a1 + 2 a2 + 2 a3 + a4)
+/// ```
+///
+/// Variables: q, qdot (n each), t, the `rest`, then t + h/2, t + h, h/2, h, h/6 (computed by
+/// the caller as the integrator computes them). Outputs: q', qdot' (n each), then each stage's
+/// diagonals and pivots (2 rows each).
+fn rk4_tape(
+    accel: &Tape,
     n: usize,
+    rest: usize,
     acceleration: usize,
     pivots: usize,
     rows: usize,
+) -> Tape {
+    let mut b = TapeBuilder::new();
+    let q: Vec<Sym> = (0..n).map(|k| b.var(k)).collect();
+    let qdot: Vec<Sym> = (0..n).map(|k| b.var(n + k)).collect();
+    let t = b.var(2 * n);
+    let rest: Vec<Sym> = (0..rest).map(|k| b.var(2 * n + 1 + k)).collect();
+    let step = 2 * n + 1 + rest.len();
+    let [t_half, t_full, half, h, sixth] = std::array::from_fn(|i| b.var(step + i));
+    let mut outputs_pivots = Vec::with_capacity(8 * rows);
+    let mut stage = |b: &mut TapeBuilder, x: &[Sym], v: &[Sym], t: Sym| -> Vec<Sym> {
+        let vars: Vec<Sym> = x
+            .iter()
+            .chain(v)
+            .chain([&t])
+            .chain(&rest)
+            .copied()
+            .collect();
+        let out = b.append_with(accel, &vars);
+        outputs_pivots.extend_from_slice(&out[pivots..pivots + 2 * rows]);
+        out[acceleration..acceleration + n].to_vec()
+    };
+    // y = x + c z (`integrate::axpy_into`).
+    let axpy = |b: &mut TapeBuilder, x: &[Sym], c: Sym, z: &[Sym]| -> Vec<Sym> {
+        x.iter()
+            .zip(z)
+            .map(|(&x, &z)| {
+                let p = b.mul(c, z);
+                b.add(x, p)
+            })
+            .collect()
+    };
+    let v1 = qdot.clone();
+    let a1 = stage(&mut b, &q, &v1, t);
+    let (x2, v2) = (axpy(&mut b, &q, half, &v1), axpy(&mut b, &qdot, half, &a1));
+    let a2 = stage(&mut b, &x2, &v2, t_half);
+    let (x3, v3) = (axpy(&mut b, &q, half, &v2), axpy(&mut b, &qdot, half, &a2));
+    let a3 = stage(&mut b, &x3, &v3, t_half);
+    let (x4, v4) = (axpy(&mut b, &q, h, &v3), axpy(&mut b, &qdot, h, &a3));
+    let a4 = stage(&mut b, &x4, &v4, t_full);
+    // y += h/6 (k1 + 2 k2 + 2 k3 + k4), the sum left to right.
+    let two = b.constant(2.0);
+    let update = |b: &mut TapeBuilder, y: &[Sym], k: [&[Sym]; 4]| -> Vec<Sym> {
+        (0..n)
+            .map(|i| {
+                let k2 = b.mul(two, k[1][i]);
+                let s = b.add(k[0][i], k2);
+                let k3 = b.mul(two, k[2][i]);
+                let s = b.add(s, k3);
+                let s = b.add(s, k[3][i]);
+                let p = b.mul(sixth, s);
+                b.add(y[i], p)
+            })
+            .collect()
+    };
+    let mut outputs = update(&mut b, &q, [&v1, &v2, &v3, &v4]);
+    outputs.extend(update(&mut b, &qdot, [&a1, &a2, &a3, &a4]));
+    outputs.extend(outputs_pivots);
+    b.finish(&outputs)
+}
+
+/// One RK4 step of a fused acceleration for L lanes at once, as one tape (see
+/// [`rk4_tape`]): what the sweep lanes run when the fused acceleration applies.
+#[derive(Debug)]
+pub(crate) struct FusedStep {
+    tape: Tape,
+    n: usize,
+    rows: usize,
     tolerance: f64,
-    a: &mut [f64],
-    failed: &mut [bool; L],
-) {
-    lanes.scratch.resize(tape.n_slots() * L, 0.0);
-    lanes.out.resize(tape.n_outputs() * L, 0.0);
-    tape.eval_lanes::<L>(&lanes.vars, &mut lanes.scratch, &mut lanes.out);
-    let out = &lanes.out;
-    a[..n * L].copy_from_slice(&out[acceleration * L..(acceleration + n) * L]);
-    // `pivots_pass` per lane: every diagonal d > 0 and pivot p > tolerance d.
-    let mut pass = [true; L];
-    for j in 0..rows {
-        let diagonal = &out[(pivots + j) * L..(pivots + j + 1) * L];
-        let pivot = &out[(pivots + rows + j) * L..(pivots + rows + j + 1) * L];
-        for l in 0..L {
-            pass[l] &= (diagonal[l] > 0.0) & (pivot[l] > tolerance * diagonal[l]);
+    /// The acceleration's constant variables after (x, v, t)
+    rest: Vec<f64>,
+    vars: Vec<f64>,
+    scratch: Vec<f64>,
+    out: Vec<f64>,
+    loaded: bool,
+}
+
+impl FusedStep {
+    fn new(tape: Tape, n: usize, rows: usize, tolerance: f64, rest: Vec<f64>) -> FusedStep {
+        FusedStep {
+            tape,
+            n,
+            rows,
+            tolerance,
+            rest,
+            vars: Vec::new(),
+            scratch: Vec::new(),
+            out: Vec::new(),
+            loaded: false,
         }
     }
-    for l in 0..L {
-        failed[l] = !pass[l];
+
+    /// One step of every lane from time t by h: (q, qdot) (n x L each) advanced in place;
+    /// `failed[l] = true` where a stage's matrix fails the pivot test (the lane's state is
+    /// then garbage).
+    pub(crate) fn step_lanes<const L: usize>(
+        &mut self,
+        t: f64,
+        h: f64,
+        q: &mut [f64],
+        qdot: &mut [f64],
+        failed: &mut [bool; L],
+    ) {
+        let (n, rows) = (self.n, self.rows);
+        let rest = self.rest.len();
+        let step = 2 * n + 1 + rest;
+        if !self.loaded {
+            self.vars.resize((step + 5) * L, 0.0);
+            self.scratch.resize(self.tape.n_slots() * L, 0.0);
+            self.out.resize(self.tape.n_outputs() * L, 0.0);
+            for (k, &value) in self.rest.iter().enumerate() {
+                let at = 2 * n + 1 + k;
+                self.vars[at * L..(at + 1) * L].fill(value);
+            }
+            self.loaded = true;
+        }
+        // As `integrate::rk4` (and the lanes' stage times) compute them.
+        let half = 0.5 * h;
+        let per_step = [t, t + half, t + h, half, h, h / 6.0];
+        self.vars[..n * L].copy_from_slice(q);
+        self.vars[n * L..2 * n * L].copy_from_slice(qdot);
+        self.vars[2 * n * L..(2 * n + 1) * L].fill(per_step[0]);
+        for (i, &value) in per_step[1..].iter().enumerate() {
+            self.vars[(step + i) * L..(step + i + 1) * L].fill(value);
+        }
+        self.tape
+            .eval_lanes::<L>(&self.vars, &mut self.scratch, &mut self.out);
+        q.copy_from_slice(&self.out[..n * L]);
+        qdot.copy_from_slice(&self.out[n * L..2 * n * L]);
+        // `pivots_pass` per lane and stage.
+        let mut pass = [true; L];
+        for stage in 0..4 {
+            let at = 2 * n + 2 * rows * stage;
+            for j in 0..rows {
+                let diagonal = &self.out[(at + j) * L..(at + j + 1) * L];
+                let pivot = &self.out[(at + rows + j) * L..(at + rows + j + 1) * L];
+                for l in 0..L {
+                    pass[l] &= (diagonal[l] > 0.0) & (pivot[l] > self.tolerance * diagonal[l]);
+                }
+            }
+        }
+        for l in 0..L {
+            failed[l] = !pass[l];
+        }
     }
 }
 
 impl FusedImplicit {
-    /// [`Self::accelerate`] for L lanes at once: `lanes.vars` must hold x, v (n x L each),
-    /// t (L) and F (n x L) (the rest is filled here; see [`Self::lane_vars`]); the
-    /// accelerations go to `a` (n x L).
-    pub(crate) fn accelerate_lanes<const L: usize>(
-        &self,
-        lanes: &mut FusedLanes,
-        a: &mut [f64],
-        failed: &mut [bool; L],
-    ) {
+    /// One RK4 step as one tape for sweep lanes (built once per constraint set), with the
+    /// applied forces `force` (constant: gravity alone).
+    pub(crate) fn rk4_step(&self, set: &ConstraintSet, force: &[f64]) -> FusedStep {
         let (n, m) = (self.n, self.m);
-        if !lanes.constants_loaded {
-            for (k, &value) in self.vars.iter().enumerate().skip(3 * n + 1) {
-                lanes.vars[k * L..(k + 1) * L].fill(value);
-            }
-            lanes.constants_loaded = true;
-        }
         let acceleration = 3 * m + self.nnz + m + n;
-        accelerate_lanes::<L>(
-            &self.tape,
-            lanes,
-            n,
-            acceleration,
-            acceleration + n,
-            m,
-            self.tolerance,
-            a,
-            failed,
-        );
-    }
-
-    /// The number of variables per lane: x, v, t, F, w, ks, kd.
-    pub(crate) fn lane_vars(&self) -> usize {
-        self.vars.len()
+        let rest = 2 * n + 2;
+        let tape = set
+            .fused_rk4_cache()
+            .get_or_init(|| {
+                Some(rk4_tape(
+                    &self.tape,
+                    n,
+                    rest,
+                    acceleration,
+                    acceleration + n,
+                    m,
+                ))
+            })
+            .clone()
+            .expect("built above");
+        let mut constants = force.to_vec();
+        constants.extend_from_slice(&self.vars[3 * n + 1..]);
+        FusedStep::new(tape, n, m, self.tolerance, constants)
     }
 }
 
@@ -543,39 +655,26 @@ impl FusedParametric {
         })
     }
 
-    /// [`Self::accelerate`] for L lanes at once: `lanes.vars` must hold q, qdot (n_q x L
-    /// each) and t (L) (the rest is filled here; see [`Self::lane_vars`]); qddot goes to
-    /// `qddot` (n_q x L).
-    pub(crate) fn accelerate_lanes<const L: usize>(
-        &self,
-        lanes: &mut FusedLanes,
-        qddot: &mut [f64],
-        failed: &mut [bool; L],
-    ) {
+    /// One RK4 step as one tape for sweep lanes (built once per map).
+    pub(crate) fn rk4_step(&self, map: &ParametricMap) -> FusedStep {
         let (n, n_q) = (self.n, self.n_q);
-        if !lanes.constants_loaded {
-            for (k, &value) in self.vars.iter().enumerate().skip(2 * n_q + 1) {
-                lanes.vars[k * L..(k + 1) * L].fill(value);
-            }
-            lanes.constants_loaded = true;
-        }
         let acceleration = 3 * n + self.nnz;
-        accelerate_lanes::<L>(
-            &self.tape,
-            lanes,
-            n_q,
-            acceleration,
-            acceleration + n_q,
-            n_q,
-            self.tolerance,
-            qddot,
-            failed,
-        );
-    }
-
-    /// The number of variables per lane: q, qdot, t, F, masses.
-    pub(crate) fn lane_vars(&self) -> usize {
-        self.vars.len()
+        let tape = map
+            .fused_rk4_cache()
+            .get_or_init(|| {
+                Some(rk4_tape(
+                    &self.tape,
+                    n_q,
+                    2 * n,
+                    acceleration,
+                    acceleration + n_q,
+                    n_q,
+                ))
+            })
+            .clone()
+            .expect("built above");
+        let constants = self.vars[2 * n_q + 1..].to_vec();
+        FusedStep::new(tape, n_q, n_q, self.tolerance, constants)
     }
 
     /// qddot at (t, q, qdot) into `qddot`; false when M fails the pivot test (run the

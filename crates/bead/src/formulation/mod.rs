@@ -20,7 +20,6 @@ use std::sync::Arc;
 
 pub use constrained::{ConstrainedSystem, ConstraintScales};
 pub use fused::prepare as prepare_fused_accelerations;
-pub(crate) use fused::FusedLanes;
 pub use gradients::{Gradients, Observation, SingularSearch};
 pub use implicit::{Feedback, Implicit};
 pub(crate) use parametric::LaneScratch;

@@ -117,6 +117,8 @@ pub struct ConstraintSet {
     /// The fused acceleration's tape, built on first use by the formulation (see
     /// `formulation::fused`) and shared by every clone of the set.
     fused: std::sync::OnceLock<Option<Tape>>,
+    /// One RK4 step of the fused acceleration as one tape (for sweep lanes; built on first use)
+    fused_rk4: std::sync::OnceLock<Option<Tape>>,
     /// Sparse row structure of J: row i owns entries row_start[i]..row_start[i+1] of `columns`.
     row_start: Vec<usize>,
     columns: Vec<usize>,
@@ -205,6 +207,7 @@ impl ConstraintSet {
             .collect();
         ConstraintSet {
             fused: std::sync::OnceLock::new(),
+            fused_rk4: std::sync::OnceLock::new(),
             time_dependent,
             n_coords,
             infos,
@@ -336,6 +339,11 @@ impl ConstraintSet {
             .into_iter()
             .chain(fused)
             .collect()
+    }
+
+    /// Where the sweep lanes keep one RK4 step of the fused acceleration as one tape.
+    pub(crate) fn fused_rk4_cache(&self) -> &std::sync::OnceLock<Option<Tape>> {
+        &self.fused_rk4
     }
 
     /// Where the formulation keeps the fused acceleration's tape (`None`: the set has none).

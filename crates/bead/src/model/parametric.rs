@@ -64,6 +64,8 @@ pub struct MapCode {
     /// The fused acceleration's tape, built on first use by the formulation (see
     /// `formulation::fused`) and shared by every clone of the map.
     fused: std::sync::OnceLock<Option<Tape>>,
+    /// One RK4 step of the fused acceleration as one tape (for sweep lanes; built on first use)
+    fused_rk4: std::sync::OnceLock<Option<Tape>>,
     /// Outputs: x (n) | xdot (n), for mapping states back to particles.
     state_tape: Tape,
     /// Outputs: x (n) | xdot (n) | J (nnz), for the monitors (no h).
@@ -198,6 +200,7 @@ impl ParametricMap {
         outputs.extend(jacobian.iter().cloned());
         let code = MapCode {
             fused: std::sync::OnceLock::new(),
+            fused_rk4: std::sync::OnceLock::new(),
             tape: Tape::compile(&outputs),
             state_tape: Tape::compile(&[positions.as_slice(), velocities.as_slice()].concat()),
             observe_tape: Tape::compile(
@@ -359,6 +362,11 @@ impl ParametricMap {
             .into_iter()
             .chain(fused)
             .collect()
+    }
+
+    /// Where the sweep lanes keep one RK4 step of the fused acceleration as one tape.
+    pub(crate) fn fused_rk4_cache(&self) -> &std::sync::OnceLock<Option<Tape>> {
+        &self.fused_rk4
     }
 
     /// Where the formulation keeps the fused acceleration's tape (`None`: the map has none).

@@ -2,9 +2,13 @@
 //! own initial state) advanced together, for sweeps.
 //!
 //! Each member is a [`Simulation`] set up as usual (its checks, energy scale and reach are
-//! its own); the lanes then take over its steps. Per RK4 stage the formulation's compiled
-//! tape runs once for all lanes ([`crate::expr::Tape::eval_lanes`], structure of arrays).
-//! With gravity as the only force the evaluation is finished across the lanes too
+//! its own); the lanes then take over its steps. Where the formulation has a fused
+//! acceleration (a small system; gravity and constant forces) the whole RK4 step is one tape
+//! built from it (`FusedStep`: the four stages and the update, `integrate::rk4`'s arithmetic),
+//! run once per step for all lanes ([`crate::expr::Tape::eval_lanes`], structure of arrays,
+//! compiled in pairs of lanes). Otherwise, per RK4 stage, the formulation's compiled tape runs
+//! once for all lanes; with gravity as the only force the evaluation is finished across the
+//! lanes too
 //! ([`implicit_across_lanes`], [`Parametric::accelerate_across_lanes`]: the same operations in
 //! the same order per member); otherwise each lane is finished by the formulation's own code
 //! ([`Implicit::accelerate_evaluated`], [`Parametric::accelerate_evaluated`]). Either way every
@@ -32,7 +36,7 @@ use std::sync::Arc;
 use super::lane_monitor::{gather, LaneMonitor};
 use super::{RunOptions, Simulation, Stepper};
 use crate::expr::Tape;
-use crate::formulation::{FusedLanes, Implicit, LaneScratch, Method, Parametric};
+use crate::formulation::{Implicit, LaneScratch, Method, Parametric};
 use crate::integrate::IntegratorKind;
 use crate::model::System;
 
@@ -101,8 +105,6 @@ struct Lanes {
     lambda: Vec<f64>,
     /// The parametric form across lanes (see [`Parametric::accelerate_across_lanes`])
     parametric: LaneScratch,
-    /// The fused accelerations across lanes
-    fused: FusedLanes,
     /// One lane's q, qdot and acceleration
     q_one: Vec<f64>,
     qdot_one: Vec<f64>,
@@ -131,7 +133,6 @@ impl Lanes {
             dense: Vec::new(),
             lambda: Vec::new(),
             parametric: LaneScratch::default(),
-            fused: FusedLanes::default(),
             q_one: vec![0.0; n],
             qdot_one: vec![0.0; n],
             a_one: vec![0.0; n],
@@ -188,6 +189,19 @@ pub(crate) fn run_lanes(
         }
     };
     let mut lanes = Lanes::new(n, &[&step_tape, &observe_tape]);
+    // The whole RK4 step as one tape, where the fused acceleration applies.
+    let mut fused_step = match &kernel {
+        Kernel::Implicit(implicit) => implicit
+            .fused
+            .as_ref()
+            .filter(|_| across_lanes(implicit).is_some())
+            .map(|fused| fused.rk4_step(system.constraints(), &gravity_force(&system))),
+        Kernel::Parametric(parametric) => parametric
+            .fused
+            .as_ref()
+            .filter(|_| parametric.across_lanes())
+            .map(|fused| fused.rk4_step(system.parametric().expect("checked by lanes_can_run"))),
+    };
     // Every lane starts from its member's state; lanes beyond `count` repeat the first.
     for l in 0..LANES {
         let member = &members[l.min(count - 1)];
@@ -212,15 +226,21 @@ pub(crate) fn run_lanes(
         lanes.q_back.copy_from_slice(&lanes.q);
         lanes.qdot_back.copy_from_slice(&lanes.qdot);
         let failed_before = active;
-        rk4_step(
-            &mut kernel,
-            &mut lanes,
-            &step_tape,
-            t,
-            h,
-            &mut active,
-            &mut outcome,
-        );
+        if let Some(step) = fused_step.as_mut() {
+            let mut failed = [false; LANES];
+            step.step_lanes::<LANES>(t, h, &mut lanes.q, &mut lanes.qdot, &mut failed);
+            leave_where_failed(&failed, &mut active, &mut outcome);
+        } else {
+            rk4_step(
+                &mut kernel,
+                &mut lanes,
+                &step_tape,
+                t,
+                h,
+                &mut active,
+                &mut outcome,
+            );
+        }
         for l in 0..count {
             if failed_before[l] && !active[l] {
                 handover(&mut members[l], &lanes, &monitor, l, k, t);
@@ -342,6 +362,32 @@ fn handover(
     member.monitor.adopt(&q, &last, before, &longest, maxima);
 }
 
+/// F = m g per coordinate, gravity the only force (as `System::accumulate_forces`).
+fn gravity_force(system: &System) -> Vec<f64> {
+    let gravity = system.gravity();
+    system
+        .particles()
+        .iter()
+        .flat_map(|particle| gravity.iter().map(move |g| particle.mass * g))
+        .collect()
+}
+
+/// Active lanes whose evaluation failed leave (to be run alone).
+fn leave_where_failed(
+    failed: &[bool; LANES],
+    active: &mut [bool; LANES],
+    outcome: &mut [LaneOutcome],
+) {
+    for l in 0..LANES {
+        if active[l] && failed[l] {
+            active[l] = false;
+            if l < outcome.len() {
+                outcome[l] = LaneOutcome::Leave;
+            }
+        }
+    }
+}
+
 /// One RK4 step of every lane from time t by h: `integrate::rk4`'s arithmetic, lane by lane:
 /// stage s + 1 starts from q + c_s v_s, qdot + c_s a_s with c = (h/2, h/2, h).
 #[allow(clippy::too_many_arguments)]
@@ -416,9 +462,6 @@ fn accelerate(
     active: &mut [bool; LANES],
     outcome: &mut [LaneOutcome],
 ) {
-    if fused_across_lanes(kernel, lanes, t, q, qdot, stage, active, outcome) {
-        return;
-    }
     lanes.load_vars(t, q, qdot);
     let width = tape.n_outputs();
     tape.eval_lanes::<LANES>(
@@ -504,81 +547,6 @@ fn accelerate(
         }
     }
     lanes.acceleration[stage] = acceleration;
-}
-
-/// The whole acceleration of every lane by the formulation's fused tape (see
-/// [`crate::formulation`]'s fused accelerations), when it has one and gravity is the only
-/// force: false (nothing done) otherwise. A lane whose matrix fails the pivot test leaves.
-#[allow(clippy::too_many_arguments)]
-fn fused_across_lanes(
-    kernel: &mut Kernel,
-    lanes: &mut Lanes,
-    t: f64,
-    q: &[f64],
-    qdot: &[f64],
-    stage: usize,
-    active: &mut [bool; LANES],
-    outcome: &mut [LaneOutcome],
-) -> bool {
-    let n = lanes.n;
-    let mut failed = [false; LANES];
-    let mut acceleration = std::mem::take(&mut lanes.acceleration[stage]);
-    let vars = &mut lanes.fused.vars;
-    match kernel {
-        Kernel::Implicit(implicit) => {
-            let system = Arc::clone(&implicit.system);
-            let Some(fused) = implicit
-                .fused
-                .as_ref()
-                .filter(|_| across_lanes(implicit).is_some())
-            else {
-                lanes.acceleration[stage] = acceleration;
-                return false;
-            };
-            vars.resize(fused.lane_vars() * LANES, 0.0);
-            vars[..n * LANES].copy_from_slice(q);
-            vars[n * LANES..2 * n * LANES].copy_from_slice(qdot);
-            vars[2 * n * LANES..(2 * n + 1) * LANES].fill(t);
-            // F = m g, gravity the only force (as `System::accumulate_forces`): constant, so
-            // loaded once with the tape's other constants.
-            if !lanes.fused.constants_loaded {
-                let forces = &mut vars[(2 * n + 1) * LANES..(3 * n + 1) * LANES];
-                let dim = system.dim();
-                for (p, particle) in system.particles().iter().enumerate() {
-                    for (a, g) in system.gravity().iter().enumerate() {
-                        forces[(p * dim + a) * LANES..(p * dim + a + 1) * LANES]
-                            .fill(particle.mass * g);
-                    }
-                }
-            }
-            fused.accelerate_lanes::<LANES>(&mut lanes.fused, &mut acceleration, &mut failed);
-        }
-        Kernel::Parametric(parametric) => {
-            let Some(fused) = parametric
-                .fused
-                .as_ref()
-                .filter(|_| parametric.across_lanes())
-            else {
-                lanes.acceleration[stage] = acceleration;
-                return false;
-            };
-            vars.resize(fused.lane_vars() * LANES, 0.0);
-            vars[..n * LANES].copy_from_slice(q);
-            vars[n * LANES..2 * n * LANES].copy_from_slice(qdot);
-            vars[2 * n * LANES..(2 * n + 1) * LANES].fill(t);
-            fused.accelerate_lanes::<LANES>(&mut lanes.fused, &mut acceleration, &mut failed);
-        }
-    }
-    for l in 0..LANES {
-        if active[l] && failed[l] {
-            active[l] = false;
-            if l < outcome.len() {
-                outcome[l] = LaneOutcome::Leave;
-            }
-        }
-    }
-    lanes.acceleration[stage] = acceleration;
-    true
 }
 
 /// The dense pivot tolerance when the implicit form's finish can run across lanes: gravity
