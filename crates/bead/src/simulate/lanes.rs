@@ -189,17 +189,26 @@ pub(crate) fn run_lanes(
         }
     };
     let mut lanes = Lanes::new(n, &[&step_tape, &observe_tape]);
-    // The whole RK4 step as one tape, where the fused acceleration applies.
+    // The whole RK4 step as one tape, where the fused acceleration applies. Building it costs
+    // a few milliseconds once per system: not for a lone member (a sweep whose members each
+    // load their own equations) unless it is built already.
+    let built = match &kernel {
+        Kernel::Implicit(_) => system.constraints().fused_rk4_cache().get().is_some(),
+        Kernel::Parametric(_) => system
+            .parametric()
+            .is_some_and(|map| map.fused_rk4_cache().get().is_some()),
+    };
+    let worth_building = count > 1 || built;
     let mut fused_step = match &kernel {
         Kernel::Implicit(implicit) => implicit
             .fused
             .as_ref()
-            .filter(|_| across_lanes(implicit).is_some())
+            .filter(|_| worth_building && across_lanes(implicit).is_some())
             .map(|fused| fused.rk4_step(system.constraints(), &gravity_force(&system))),
         Kernel::Parametric(parametric) => parametric
             .fused
             .as_ref()
-            .filter(|_| parametric.across_lanes())
+            .filter(|_| worth_building && parametric.across_lanes())
             .map(|fused| fused.rk4_step(system.parametric().expect("checked by lanes_can_run"))),
     };
     // Every lane starts from its member's state; lanes beyond `count` repeat the first.
@@ -695,6 +704,21 @@ mod tests {
                 let got = a.stats(want.wall_seconds);
                 assert_eq!(format!("{got:?}"), format!("{want:?}"));
             }
+        }
+    }
+
+    /// A lone member (no fused step built for it: the stages evaluated one by one across
+    /// the lanes, `implicit_across_lanes` and `accelerate_across_lanes`) is its run alone too.
+    #[test]
+    fn a_lone_member_runs_stage_by_stage_as_alone() {
+        for method in [Method::Implicit, Method::Parametric] {
+            let (system, mut together) = members(method, &[70.0]);
+            let outcomes = run_lanes(&system, &mut together, RunOptions::steps(240));
+            assert_eq!(outcomes, [LaneOutcome::Done]);
+            let (_, mut alone) = members(method, &[70.0]);
+            let want = run(&mut alone[0], RunOptions::steps(240), &mut NullSink).unwrap();
+            let got = together[0].stats(want.wall_seconds);
+            assert_eq!(format!("{got:?}"), format!("{want:?}"));
         }
     }
 
