@@ -627,15 +627,21 @@ mod codegen {
         };
         for &ins in code {
             let get = |s: u32| v[s as usize];
-            let mut konst = |b: &mut FunctionBuilder| -> Result<Value, String> {
+            // The next constant, in every lane (`spread`) or as one scalar.
+            let mut konst_as = |b: &mut FunctionBuilder, spread: bool| -> Result<Value, String> {
                 let offset = i32::try_from(n_const * 8)
                     .map_err(|_| "too many constants for one function".to_string())?;
                 n_const += 1;
                 let c = b
                     .ins()
                     .load(types::F64, MemFlagsData::trusted(), consts, offset);
-                Ok(if width == 1 { c } else { b.ins().splat(ty, c) })
+                Ok(if width == 1 || !spread {
+                    c
+                } else {
+                    b.ins().splat(ty, c)
+                })
             };
+            let mut konst = |b: &mut FunctionBuilder| konst_as(b, true);
             let unary = |b: &mut FunctionBuilder, f: extern "C" fn(f64) -> f64, a: u32| {
                 call(b, sig1, f as usize, &[get(a)])
             };
@@ -683,12 +689,7 @@ mod codegen {
                 }
                 Instr::Powf(a, _) => {
                     // The exponent is the same in every lane: read it once, as a scalar.
-                    let offset = i32::try_from(n_const * 8)
-                        .map_err(|_| "too many constants for one function".to_string())?;
-                    n_const += 1;
-                    let c = b
-                        .ins()
-                        .load(types::F64, MemFlagsData::trusted(), consts, offset);
+                    let c = konst_as(&mut b, false)?;
                     call(&mut b, sig2, bead_powf as *const () as usize, &[get(a), c])
                 }
                 Instr::Pow(x, y) => call(

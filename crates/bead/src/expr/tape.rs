@@ -616,21 +616,8 @@ impl TapeBuilder {
 
     /// `tape`'s code, reading the same variable slots, appended: its outputs in order.
     pub(crate) fn append(&mut self, tape: &Tape) -> Vec<Sym> {
-        let mut slots: Vec<u32> = Vec::with_capacity(tape.code.len());
-        for &ins in &tape.code {
-            let mut ins = ins;
-            for s in ins.operands_mut().into_iter().flatten() {
-                *s = slots[*s as usize];
-            }
-            match self.b.emit(ins) {
-                Val::Slot(s) => slots.push(s),
-                Val::Const(_) => unreachable!("emit returns a slot"),
-            }
-        }
-        tape.outputs
-            .iter()
-            .map(|&o| Sym(Val::Slot(slots[o as usize])))
-            .collect()
+        let vars: Vec<Sym> = (0..tape.n_vars).map(|k| self.var(k)).collect();
+        self.append_with(tape, &vars)
     }
 
     /// `tape`'s code appended with its variable k read from `vars[k]` (another evaluation of

@@ -146,10 +146,13 @@ pub(crate) struct ImplicitBuffers<'a> {
 /// own on first use; this lets [`System::machine_code`] count both before any run).
 pub fn prepare(system: &System) {
     let set = system.constraints();
-    set.fused_cache()
+    set.fused()
+        .acceleration
         .get_or_init(|| implicit_tape(set, system.n_coords()));
     if let Some(map) = system.parametric() {
-        map.fused_cache().get_or_init(|| parametric_tape(map));
+        map.fused()
+            .acceleration
+            .get_or_init(|| parametric_tape(map));
     }
 }
 
@@ -240,7 +243,8 @@ impl FusedImplicit {
         let set = system.constraints();
         let n = system.n_coords();
         let tape = set
-            .fused_cache()
+            .fused()
+            .acceleration
             .get_or_init(|| implicit_tape(set, n))
             .clone()?;
         let mut vars = vec![0.0; 4 * n + 3];
@@ -525,7 +529,8 @@ impl FusedImplicit {
         let acceleration = 3 * m + self.nnz + m + n;
         let rest = 2 * n + 2;
         let tape = set
-            .fused_rk4_cache()
+            .fused()
+            .rk4
             .get_or_init(|| {
                 Some(rk4_tape(
                     &self.tape,
@@ -635,7 +640,8 @@ impl FusedParametric {
             return None;
         }
         let tape = map
-            .fused_cache()
+            .fused()
+            .acceleration
             .get_or_init(|| parametric_tape(map))
             .clone()?;
         let (n, n_q) = (map.positions.len(), map.n_q());
@@ -660,7 +666,8 @@ impl FusedParametric {
         let (n, n_q) = (self.n, self.n_q);
         let acceleration = 3 * n + self.nnz;
         let tape = map
-            .fused_rk4_cache()
+            .fused()
+            .rk4
             .get_or_init(|| {
                 Some(rk4_tape(
                     &self.tape,

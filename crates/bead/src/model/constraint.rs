@@ -114,11 +114,8 @@ pub struct ConstraintSet {
     full_tape: Tape,
     /// Outputs: C (tape rows) | gradient entries in row order.
     gradient_tape: Tape,
-    /// The fused acceleration's tape, built on first use by the formulation (see
-    /// `formulation::fused`) and shared by every clone of the set.
-    fused: std::sync::OnceLock<Option<Tape>>,
-    /// One RK4 step of the fused acceleration as one tape (for sweep lanes; built on first use)
-    fused_rk4: std::sync::OnceLock<Option<Tape>>,
+    /// The fused tapes (see [`super::FusedTapes`])
+    fused: super::FusedTapes,
     /// Sparse row structure of J: row i owns entries row_start[i]..row_start[i+1] of `columns`.
     row_start: Vec<usize>,
     columns: Vec<usize>,
@@ -206,8 +203,7 @@ impl ConstraintSet {
             .chain(custom_rows.iter().map(|r| r.constraint.time_dependent()))
             .collect();
         ConstraintSet {
-            fused: std::sync::OnceLock::new(),
-            fused_rk4: std::sync::OnceLock::new(),
+            fused: super::FusedTapes::default(),
             time_dependent,
             n_coords,
             infos,
@@ -334,20 +330,15 @@ impl ConstraintSet {
     /// Every tape of the set (for the machine code summary), the fused acceleration's once
     /// built.
     pub(crate) fn tapes(&self) -> Vec<&Tape> {
-        let fused = self.fused.get().and_then(Option::as_ref);
+        let fused = self.fused.built_acceleration();
         [&self.value_tape, &self.full_tape, &self.gradient_tape]
             .into_iter()
             .chain(fused)
             .collect()
     }
 
-    /// Where the sweep lanes keep one RK4 step of the fused acceleration as one tape.
-    pub(crate) fn fused_rk4_cache(&self) -> &std::sync::OnceLock<Option<Tape>> {
-        &self.fused_rk4
-    }
-
-    /// Where the formulation keeps the fused acceleration's tape (`None`: the set has none).
-    pub(crate) fn fused_cache(&self) -> &std::sync::OnceLock<Option<Tape>> {
+    /// The fused tapes the formulation builds for this set (see [`super::FusedTapes`]).
+    pub(crate) fn fused(&self) -> &super::FusedTapes {
         &self.fused
     }
 

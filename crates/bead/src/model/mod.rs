@@ -241,3 +241,19 @@ impl System {
         )
     }
 }
+
+/// The fused tapes a constraint set or a parametric map keeps for its formulation (see
+/// `formulation::fused`), each built on first use and shared by the set's or map's clones:
+/// the whole acceleration (`None`: none applies) and one RK4 step of it for sweep lanes.
+#[derive(Clone, Debug, Default)]
+pub(crate) struct FusedTapes {
+    pub(crate) acceleration: std::sync::OnceLock<Option<crate::expr::Tape>>,
+    pub(crate) rk4: std::sync::OnceLock<Option<crate::expr::Tape>>,
+}
+
+impl FusedTapes {
+    /// The fused acceleration's tape, once built (for the machine code summary).
+    pub(crate) fn built_acceleration(&self) -> Option<&crate::expr::Tape> {
+        self.acceleration.get().and_then(Option::as_ref)
+    }
+}

@@ -61,11 +61,8 @@ pub struct MapCode {
     bias_reads_rates: bool,
     /// Outputs: x (n) | xdot (n) | h (n) | J (nnz).
     tape: Tape,
-    /// The fused acceleration's tape, built on first use by the formulation (see
-    /// `formulation::fused`) and shared by every clone of the map.
-    fused: std::sync::OnceLock<Option<Tape>>,
-    /// One RK4 step of the fused acceleration as one tape (for sweep lanes; built on first use)
-    fused_rk4: std::sync::OnceLock<Option<Tape>>,
+    /// The fused tapes (see [`super::FusedTapes`])
+    fused: super::FusedTapes,
     /// Outputs: x (n) | xdot (n), for mapping states back to particles.
     state_tape: Tape,
     /// Outputs: x (n) | xdot (n) | J (nnz), for the monitors (no h).
@@ -199,8 +196,7 @@ impl ParametricMap {
         outputs.extend(accelerations.iter().cloned());
         outputs.extend(jacobian.iter().cloned());
         let code = MapCode {
-            fused: std::sync::OnceLock::new(),
-            fused_rk4: std::sync::OnceLock::new(),
+            fused: super::FusedTapes::default(),
             tape: Tape::compile(&outputs),
             state_tape: Tape::compile(&[positions.as_slice(), velocities.as_slice()].concat()),
             observe_tape: Tape::compile(
@@ -353,27 +349,22 @@ impl ParametricMap {
         self.unpack_evaluation(ws);
     }
 
-    /// The tape of x, xdot, h and J (outputs in that order), variables q, qdot, t.
     /// Every tape of the map (for the machine code summary), the fused acceleration's once
     /// built.
     pub(crate) fn tapes(&self) -> Vec<&Tape> {
-        let fused = self.fused.get().and_then(Option::as_ref);
+        let fused = self.fused.built_acceleration();
         [&self.tape, &self.state_tape, &self.observe_tape]
             .into_iter()
             .chain(fused)
             .collect()
     }
 
-    /// Where the sweep lanes keep one RK4 step of the fused acceleration as one tape.
-    pub(crate) fn fused_rk4_cache(&self) -> &std::sync::OnceLock<Option<Tape>> {
-        &self.fused_rk4
-    }
-
-    /// Where the formulation keeps the fused acceleration's tape (`None`: the map has none).
-    pub(crate) fn fused_cache(&self) -> &std::sync::OnceLock<Option<Tape>> {
+    /// The fused tapes the formulation builds for this map (see [`super::FusedTapes`]).
+    pub(crate) fn fused(&self) -> &super::FusedTapes {
         &self.fused
     }
 
+    /// The tape of x, xdot, h and J (outputs in that order), variables q, qdot, t.
     pub(crate) fn evaluation_tape(&self) -> &Tape {
         &self.tape
     }

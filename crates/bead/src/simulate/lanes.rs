@@ -193,10 +193,10 @@ pub(crate) fn run_lanes(
     // a few milliseconds once per system: not for a lone member (a sweep whose members each
     // load their own equations) unless it is built already.
     let built = match &kernel {
-        Kernel::Implicit(_) => system.constraints().fused_rk4_cache().get().is_some(),
+        Kernel::Implicit(_) => system.constraints().fused().rk4.get().is_some(),
         Kernel::Parametric(_) => system
             .parametric()
-            .is_some_and(|map| map.fused_rk4_cache().get().is_some()),
+            .is_some_and(|map| map.fused().rk4.get().is_some()),
     };
     let worth_building = count > 1 || built;
     let mut fused_step = match &kernel {
