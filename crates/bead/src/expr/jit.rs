@@ -327,6 +327,25 @@ fn cache() -> &'static Cache {
     CACHE.get_or_init(Default::default)
 }
 
+/// How many of the most recently compiled functions stay alive with no tape holding them.
+const KEPT_RECENT: usize = 16;
+
+/// Keep `native` alive among the [`KEPT_RECENT`] most recently compiled functions: a sweep
+/// whose members each load their equations again, one after another (each dropping its
+/// tapes before the next compiles the same shapes), compiles each shape once, not once per
+/// member. Bounded: a few functions' code.
+fn keep_recent(native: &Arc<Native>) {
+    static RECENT: OnceLock<Mutex<std::collections::VecDeque<Arc<Native>>>> = OnceLock::new();
+    let mut recent = RECENT
+        .get_or_init(Default::default)
+        .lock()
+        .unwrap_or_else(PoisonError::into_inner);
+    if recent.len() == KEPT_RECENT {
+        recent.pop_front();
+    }
+    recent.push_back(Arc::clone(native));
+}
+
 /// Compile `code` (or reuse the code of a tape of the same shape), or say why not.
 pub(super) fn compile(code: &[Instr], outputs: &[u32]) -> (Option<Arc<Native>>, NativeStatus) {
     if outputs.is_empty() {
@@ -369,6 +388,7 @@ pub(super) fn compile(code: &[Instr], outputs: &[u32]) -> (Option<Arc<Native>>, 
     match codegen::build(code, outputs) {
         Ok(native) => {
             let native = Arc::new(native);
+            keep_recent(&native);
             let mut map = cache().lock().unwrap_or_else(PoisonError::into_inner);
             if map.len() >= 256 && map.len().is_power_of_two() {
                 map.retain(|_, w| w.strong_count() > 0);

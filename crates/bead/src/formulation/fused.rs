@@ -21,8 +21,9 @@
 //! fails the relative pivot test, the caller runs the general path, which reports the
 //! singular matrix (or the non-finite input) exactly as before.
 use crate::expr::{Sym, Tape, TapeBuilder};
+use crate::integrate::rk4::{self, AccelerationTape};
 use crate::linalg::{ConstraintMatrix, LinearSolver, SymmetricPattern};
-use crate::model::{ConstraintEval, ConstraintSet, Force, ParametricMap, System};
+use crate::model::{ConstraintEval, ConstraintSet, Force, FusedTapes, ParametricMap, System};
 
 /// The most rows (implicit) or generalized coordinates (parametric) fused: the Cholesky's
 /// code grows as m^3 / 6 and the general path's overhead stops dominating.
@@ -133,6 +134,8 @@ pub(crate) struct FusedImplicit {
     /// `vars` too, unless `vars_force_given` (a given F overwrote it).
     constant_force: Option<Vec<f64>>,
     vars_force_given: bool,
+    /// The compiled RK4 steps, once asked for
+    steps: CompiledSteps,
 }
 
 /// Where a fused implicit acceleration leaves what the general path leaves.
@@ -142,17 +145,28 @@ pub(crate) struct ImplicitBuffers<'a> {
     pub(crate) force: &'a mut [f64],
 }
 
-/// Build, once, the fused tapes of `system`'s forms where they apply (each form builds its
-/// own on first use; this lets [`System::machine_code`] count both before any run).
+/// Build, once, the fused tapes of `system`'s forms where they apply, and the RK4 step a
+/// simulation compiles from them (primed) where the forces are constant (each form builds its own on first use; this lets
+/// [`System::machine_code`] count them all before any run).
 pub fn prepare(system: &System) {
     let set = system.constraints();
     set.fused()
         .acceleration
         .get_or_init(|| implicit_tape(set, system.n_coords()));
+    // The layouts alone matter here: any tolerance, gains, forces and masses.
+    if let Some(fused) = FusedImplicit::new(system, Some(0.0), 0.0, 0.0) {
+        if fused.has_constant_force() {
+            FusedStep::new(fused.layout(), &set.fused().rk4_primed, true, 0.0);
+        }
+    }
     if let Some(map) = system.parametric() {
         map.fused()
             .acceleration
             .get_or_init(|| parametric_tape(map));
+        let zeros = vec![0.0; map.positions.len()];
+        if let Some(fused) = FusedParametric::new(system, &zeros, &zeros, 0.0) {
+            FusedStep::new(fused.layout(), &map.fused().rk4_primed, true, 0.0);
+        }
     }
 }
 
@@ -270,6 +284,10 @@ impl FusedImplicit {
             vars,
             constant_force,
             vars_force_given: false,
+            steps: CompiledSteps {
+                first: vec![0.0; n],
+                ..CompiledSteps::default()
+            },
         })
     }
 
@@ -352,160 +370,98 @@ impl FusedImplicit {
     }
 }
 
-/// One RK4 step as one tape, from an acceleration tape `accel` whose variables are x, v (n
-/// each), t and `rest` more (the same in every stage) and whose outputs hold a (n) at
-/// `acceleration` and the Cholesky's diagonals then pivots (`rows` each) at `pivots`:
-/// `integrate::rk4`'s arithmetic in its order,
-///
-/// ```text
-/// v1 = qdot              a1 = f(t, q, v1)
-/// v2 = qdot + h/2 a1     a2 = f(t + h/2, q + h/2 v1, v2)
-/// v3 = qdot + h/2 a2     a3 = f(t + h/2, q + h/2 v2, v3)
-/// v4 = qdot + h a3       a4 = f(t + h, q + h v3, v4)
-/// q' = q + h/6 (v1 + 2 v2 + 2 v3 + v4),  qdot' = qdot + h/6 (a1 + 2 a2 + 2 a3 + a4)
-/// ```
-///
-/// Variables: q, qdot (n each), t, the `rest`, then t + h/2, t + h, h/2, h, h/6 (computed by
-/// the caller as the integrator computes them). Outputs: q', qdot' (n each), then each stage's
-/// diagonals and pivots (2 rows each).
-fn rk4_tape(
-    accel: &Tape,
-    n: usize,
-    rest: usize,
-    acceleration: usize,
-    pivots: usize,
-    rows: usize,
-) -> Tape {
-    let mut b = TapeBuilder::new();
-    let q: Vec<Sym> = (0..n).map(|k| b.var(k)).collect();
-    let qdot: Vec<Sym> = (0..n).map(|k| b.var(n + k)).collect();
-    let t = b.var(2 * n);
-    let rest: Vec<Sym> = (0..rest).map(|k| b.var(2 * n + 1 + k)).collect();
-    let step = 2 * n + 1 + rest.len();
-    let [t_half, t_full, half, h, sixth] = std::array::from_fn(|i| b.var(step + i));
-    let mut outputs_pivots = Vec::with_capacity(8 * rows);
-    let mut stage = |b: &mut TapeBuilder, x: &[Sym], v: &[Sym], t: Sym| -> Vec<Sym> {
-        let vars: Vec<Sym> = x
-            .iter()
-            .chain(v)
-            .chain([&t])
-            .chain(&rest)
-            .copied()
-            .collect();
-        let out = b.append_with(accel, &vars);
-        outputs_pivots.extend_from_slice(&out[pivots..pivots + 2 * rows]);
-        out[acceleration..acceleration + n].to_vec()
-    };
-    // y = x + c z (`integrate::axpy_into`).
-    let axpy = |b: &mut TapeBuilder, x: &[Sym], c: Sym, z: &[Sym]| -> Vec<Sym> {
-        x.iter()
-            .zip(z)
-            .map(|(&x, &z)| {
-                let p = b.mul(c, z);
-                b.add(x, p)
-            })
-            .collect()
-    };
-    let v1 = qdot.clone();
-    let a1 = stage(&mut b, &q, &v1, t);
-    let (x2, v2) = (axpy(&mut b, &q, half, &v1), axpy(&mut b, &qdot, half, &a1));
-    let a2 = stage(&mut b, &x2, &v2, t_half);
-    let (x3, v3) = (axpy(&mut b, &q, half, &v2), axpy(&mut b, &qdot, half, &a2));
-    let a3 = stage(&mut b, &x3, &v3, t_half);
-    let (x4, v4) = (axpy(&mut b, &q, h, &v3), axpy(&mut b, &qdot, h, &a3));
-    let a4 = stage(&mut b, &x4, &v4, t_full);
-    // y += h/6 (k1 + 2 k2 + 2 k3 + k4), the sum left to right.
-    let two = b.constant(2.0);
-    let update = |b: &mut TapeBuilder, y: &[Sym], k: [&[Sym]; 4]| -> Vec<Sym> {
-        (0..n)
-            .map(|i| {
-                let k2 = b.mul(two, k[1][i]);
-                let s = b.add(k[0][i], k2);
-                let k3 = b.mul(two, k[2][i]);
-                let s = b.add(s, k3);
-                let s = b.add(s, k[3][i]);
-                let p = b.mul(sixth, s);
-                b.add(y[i], p)
-            })
-            .collect()
-    };
-    let mut outputs = update(&mut b, &q, [&v1, &v2, &v3, &v4]);
-    outputs.extend(update(&mut b, &qdot, [&a1, &a2, &a3, &a4]));
-    outputs.extend(outputs_pivots);
-    b.finish(&outputs)
-}
-
-/// One RK4 step of a fused acceleration for L lanes at once, as one tape (see
-/// [`rk4_tape`]): what the sweep lanes run when the fused acceleration applies.
-#[derive(Debug)]
+/// One RK4 step of a fused acceleration as one tape ([`rk4::step_tape`]), run for one
+/// state ([`Self::step_one`], a simulation's steps) or L lanes at once
+/// ([`Self::step_lanes`], the sweep lanes).
+#[derive(Clone, Debug)]
 pub(crate) struct FusedStep {
     tape: Tape,
     n: usize,
     rows: usize,
+    /// The stages evaluated in the tape: 4, or 3 when the first is given (primed)
+    stages: usize,
+    constants: usize,
     tolerance: f64,
-    /// The acceleration's constant variables after (x, v, t)
-    rest: Vec<f64>,
     vars: Vec<f64>,
     scratch: Vec<f64>,
     out: Vec<f64>,
-    loaded: bool,
+    /// The lanes the buffers are sized for (0: none yet)
+    lanes: usize,
 }
 
 impl FusedStep {
-    fn new(tape: Tape, n: usize, rows: usize, tolerance: f64, rest: Vec<f64>) -> FusedStep {
+    /// The step of `accel` (built once per constraint set or map, into `cache`), primed or
+    /// not (see [`rk4::step_tape`]).
+    fn new(
+        accel: AccelerationTape<'_>,
+        cache: &std::sync::OnceLock<Option<Tape>>,
+        primed: bool,
+        tolerance: f64,
+    ) -> FusedStep {
+        let tape = cache
+            .get_or_init(|| Some(rk4::step_tape(&accel, primed)))
+            .clone()
+            .expect("built above");
         FusedStep {
             tape,
-            n,
-            rows,
+            n: accel.n,
+            rows: accel.rows,
+            stages: if primed { 3 } else { 4 },
+            constants: accel.constants,
             tolerance,
-            rest,
             vars: Vec::new(),
             scratch: Vec::new(),
             out: Vec::new(),
-            loaded: false,
+            lanes: 0,
         }
     }
 
-    /// One step of every lane from time t by h: (q, qdot) (n x L each) advanced in place;
-    /// `failed[l] = true` where a stage's matrix fails the pivot test (the lane's state is
-    /// then garbage).
-    pub(crate) fn step_lanes<const L: usize>(
+    /// Size the buffers for L lanes.
+    fn size_for<const L: usize>(&mut self) {
+        if self.lanes != L {
+            let first = if self.stages == 3 { self.n } else { 0 };
+            let vars = 2 * self.n + 1 + self.constants + 5 + first;
+            self.vars = vec![0.0; vars * L];
+            self.scratch = vec![0.0; self.tape.n_slots() * L];
+            self.out = vec![0.0; self.tape.n_outputs() * L];
+            self.lanes = L;
+        }
+    }
+
+    /// The constants (the same for every lane) into the variables.
+    fn load_constants<const L: usize>(&mut self, constants: &[f64]) {
+        let at = 2 * self.n + 1;
+        for (k, &value) in constants.iter().enumerate() {
+            self.vars[(at + k) * L..(at + k + 1) * L].fill(value);
+        }
+    }
+
+    /// Evaluate the step of every lane from (t, q, qdot) by h (a1 from `first` when primed):
+    /// the new state stays in the outputs; returns which lanes passed every stage's pivot
+    /// test (`pivots_pass`).
+    fn run<const L: usize>(
         &mut self,
         t: f64,
         h: f64,
-        q: &mut [f64],
-        qdot: &mut [f64],
-        failed: &mut [bool; L],
-    ) {
+        q: &[f64],
+        qdot: &[f64],
+        first: Option<&[f64]>,
+    ) -> [bool; L] {
         let (n, rows) = (self.n, self.rows);
-        let rest = self.rest.len();
-        let step = 2 * n + 1 + rest;
-        if !self.loaded {
-            self.vars.resize((step + 5) * L, 0.0);
-            self.scratch.resize(self.tape.n_slots() * L, 0.0);
-            self.out.resize(self.tape.n_outputs() * L, 0.0);
-            for (k, &value) in self.rest.iter().enumerate() {
-                let at = 2 * n + 1 + k;
-                self.vars[at * L..(at + 1) * L].fill(value);
-            }
-            self.loaded = true;
-        }
-        // As `integrate::rk4` (and the lanes' stage times) compute them.
-        let half = 0.5 * h;
-        let per_step = [t, t + half, t + h, half, h, h / 6.0];
+        let after = 2 * n + 1 + self.constants;
         self.vars[..n * L].copy_from_slice(q);
         self.vars[n * L..2 * n * L].copy_from_slice(qdot);
-        self.vars[2 * n * L..(2 * n + 1) * L].fill(per_step[0]);
-        for (i, &value) in per_step[1..].iter().enumerate() {
-            self.vars[(step + i) * L..(step + i + 1) * L].fill(value);
+        self.vars[2 * n * L..(2 * n + 1) * L].fill(t);
+        for (i, value) in rk4::step_variables(t, h).into_iter().enumerate() {
+            self.vars[(after + i) * L..(after + i + 1) * L].fill(value);
+        }
+        if let Some(first) = first {
+            self.vars[(after + 5) * L..(after + 5 + n) * L].copy_from_slice(first);
         }
         self.tape
             .eval_lanes::<L>(&self.vars, &mut self.scratch, &mut self.out);
-        q.copy_from_slice(&self.out[..n * L]);
-        qdot.copy_from_slice(&self.out[n * L..2 * n * L]);
-        // `pivots_pass` per lane and stage.
         let mut pass = [true; L];
-        for stage in 0..4 {
+        for stage in 0..self.stages {
             let at = 2 * n + 2 * rows * stage;
             for j in 0..rows {
                 let diagonal = &self.out[(at + j) * L..(at + j + 1) * L];
@@ -515,6 +471,71 @@ impl FusedStep {
                 }
             }
         }
+        pass
+    }
+
+    /// One step of one state from time t by h under `constants`: (q, qdot) advanced in
+    /// place, from the first stage's acceleration `first` when the step is primed (then it
+    /// must be given). False, (q, qdot) untouched, when a stage's matrix fails the pivot
+    /// test.
+    pub(crate) fn step_one(
+        &mut self,
+        t: f64,
+        h: f64,
+        q: &mut [f64],
+        qdot: &mut [f64],
+        first: Option<&[f64]>,
+        constants: &[f64],
+    ) -> bool {
+        debug_assert_eq!(first.is_some(), self.stages == 3);
+        self.size_for::<1>();
+        // One lane: the variables are contiguous runs (copied, not filled lane by lane).
+        let (n, rows) = (self.n, self.rows);
+        let after = 2 * n + 1 + self.constants;
+        let vars = &mut self.vars;
+        vars[..n].copy_from_slice(q);
+        vars[n..2 * n].copy_from_slice(qdot);
+        vars[2 * n] = t;
+        vars[2 * n + 1..after].copy_from_slice(constants);
+        vars[after..after + 5].copy_from_slice(&rk4::step_variables(t, h));
+        if let Some(first) = first {
+            vars[after + 5..after + 5 + n].copy_from_slice(first);
+        }
+        self.tape.eval(&self.vars, &mut self.scratch, &mut self.out);
+        let tests = &self.out[2 * n..2 * n + 2 * rows * self.stages];
+        if !tests
+            .chunks_exact(2 * rows)
+            .all(|stage| pivots_pass(&stage[..rows], &stage[rows..], self.tolerance))
+        {
+            return false;
+        }
+        q.copy_from_slice(&self.out[..n]);
+        qdot.copy_from_slice(&self.out[n..2 * n]);
+        true
+    }
+
+    /// One step of every lane from time t by h under `constants` (loaded on the first call
+    /// only: the lanes' are fixed): (q, qdot) (n x L each) advanced in place;
+    /// `failed[l] = true` where a stage's matrix fails the pivot test (the lane's state is
+    /// then garbage).
+    pub(crate) fn step_lanes<const L: usize>(
+        &mut self,
+        t: f64,
+        h: f64,
+        q: &mut [f64],
+        qdot: &mut [f64],
+        constants: &[f64],
+        failed: &mut [bool; L],
+    ) {
+        debug_assert_eq!(self.stages, 4);
+        if self.lanes != L {
+            self.size_for::<L>();
+            self.load_constants::<L>(constants);
+        }
+        let pass = self.run::<L>(t, h, q, qdot, None);
+        let n = self.n;
+        q.copy_from_slice(&self.out[..n * L]);
+        qdot.copy_from_slice(&self.out[n * L..2 * n * L]);
         for l in 0..L {
             failed[l] = !pass[l];
         }
@@ -522,30 +543,111 @@ impl FusedStep {
 }
 
 impl FusedImplicit {
-    /// One RK4 step as one tape for sweep lanes (built once per constraint set), with the
-    /// applied forces `force` (constant: gravity alone).
-    pub(crate) fn rk4_step(&self, set: &ConstraintSet, force: &[f64]) -> FusedStep {
+    /// The acceleration tape's layout for a compiled step: the constants after (x, v, t)
+    /// are F, W (n each), ks and kd.
+    fn layout(&self) -> AccelerationTape<'_> {
         let (n, m) = (self.n, self.m);
         let acceleration = 3 * m + self.nnz + m + n;
-        let rest = 2 * n + 2;
-        let tape = set
-            .fused()
-            .rk4
-            .get_or_init(|| {
-                Some(rk4_tape(
-                    &self.tape,
-                    n,
-                    rest,
-                    acceleration,
-                    acceleration + n,
-                    m,
-                ))
-            })
-            .clone()
-            .expect("built above");
+        AccelerationTape {
+            tape: &self.tape,
+            n,
+            constants: 2 * n + 2,
+            acceleration,
+            pivots: acceleration + n,
+            rows: m,
+        }
+    }
+
+    /// One RK4 step as one tape for sweep lanes (built once per constraint set); the lanes
+    /// pass [`Self::step_constants`] with their applied forces.
+    pub(crate) fn rk4_step(&self, set: &ConstraintSet) -> FusedStep {
+        FusedStep::new(self.layout(), &set.fused().rk4, false, self.tolerance)
+    }
+
+    /// The step's constants under the applied forces `force`: F, then W, ks, kd as kept.
+    pub(crate) fn step_constants(&self, force: &[f64]) -> Vec<f64> {
         let mut constants = force.to_vec();
-        constants.extend_from_slice(&self.vars[3 * n + 1..]);
-        FusedStep::new(tape, n, m, self.tolerance, constants)
+        constants.extend_from_slice(&self.vars[3 * self.n + 1..]);
+        constants
+    }
+
+    /// One RK4 step of a simulation (see `SecondOrderSystem::compiled_rk4_step`) under the
+    /// system's constant forces (none external; see [`CompiledSteps`]). False when the
+    /// forces are not constant or a pivot test fails.
+    pub(crate) fn compiled_rk4_step(
+        &mut self,
+        set: &ConstraintSet,
+        t: f64,
+        h: f64,
+        q: &mut [f64],
+        qdot: &mut [f64],
+        first: Option<&[f64]>,
+    ) -> bool {
+        let n = self.n;
+        if self.constant_force.is_none() {
+            return false;
+        }
+        let mut steps = std::mem::take(&mut self.steps);
+        let unprimed = steps.runs_unprimed(first.is_some());
+        let mut a1 = std::mem::take(&mut steps.first);
+        let done = (first.is_some() || unprimed || self.accelerate(t, q, qdot, &mut a1, None)) && {
+            if self.vars_force_given {
+                // An external force was given before: the constant F back in place.
+                let force = self.constant_force.as_ref().expect("checked above");
+                self.vars[2 * n + 1..3 * n + 1].copy_from_slice(force);
+                self.vars_force_given = false;
+            }
+            let step = steps.get_or_build(unprimed, set.fused(), || self.layout(), self.tolerance);
+            let first = (!unprimed).then(|| first.unwrap_or(&a1));
+            step.step_one(t, h, q, qdot, first, &self.vars[2 * n + 1..])
+        };
+        steps.first = a1;
+        self.steps = steps;
+        done
+    }
+}
+
+/// The RK4 steps a formulation compiles from its fused acceleration (see
+/// `SecondOrderSystem::compiled_rk4_step`): the primed one (the first stage's acceleration
+/// given) the first time a step is asked for, the unprimed one the second time a step is
+/// asked for without its first stage (steps alone; a simulation primes every step but its
+/// first, so builds one tape). Without the unprimed tape, an unprimed step evaluates the
+/// fused acceleration at its start and runs the primed one: the same bits.
+#[derive(Clone, Debug, Default)]
+struct CompiledSteps {
+    primed: Option<Box<FusedStep>>,
+    unprimed: Option<Box<FusedStep>>,
+    unprimed_asked: bool,
+    /// The first stage's acceleration when evaluated here
+    first: Vec<f64>,
+}
+
+impl CompiledSteps {
+    /// Whether a step runs the unprimed tape (only without its first stage given).
+    fn runs_unprimed(&mut self, given: bool) -> bool {
+        if given {
+            return false;
+        }
+        let runs = self.unprimed.is_some() || self.unprimed_asked;
+        self.unprimed_asked = true;
+        runs
+    }
+
+    /// The unprimed or the primed step, built on first use from `layout` (the tape itself
+    /// once per constraint set or map, in `tapes`).
+    fn get_or_build<'a>(
+        &mut self,
+        unprimed: bool,
+        tapes: &FusedTapes,
+        layout: impl FnOnce() -> AccelerationTape<'a>,
+        tolerance: f64,
+    ) -> &mut FusedStep {
+        let (slot, cache) = if unprimed {
+            (&mut self.unprimed, &tapes.rk4)
+        } else {
+            (&mut self.primed, &tapes.rk4_primed)
+        };
+        slot.get_or_insert_with(|| Box::new(FusedStep::new(layout(), cache, !unprimed, tolerance)))
     }
 }
 
@@ -564,6 +666,8 @@ pub(crate) struct FusedParametric {
     vars: Vec<f64>,
     scratch: Vec<f64>,
     out: Vec<f64>,
+    /// The compiled RK4 steps, once asked for
+    steps: CompiledSteps,
 }
 
 /// Where a fused parametric acceleration leaves the map's evaluation.
@@ -658,30 +762,61 @@ impl FusedParametric {
             tolerance,
             force: force.to_vec(),
             vars,
+            steps: CompiledSteps {
+                first: vec![0.0; n_q],
+                ..CompiledSteps::default()
+            },
         })
     }
 
-    /// One RK4 step as one tape for sweep lanes (built once per map).
-    pub(crate) fn rk4_step(&self, map: &ParametricMap) -> FusedStep {
+    /// The acceleration tape's layout for a compiled step: the constants after (q, qdot, t)
+    /// are F and each coordinate's mass (n each).
+    fn layout(&self) -> AccelerationTape<'_> {
         let (n, n_q) = (self.n, self.n_q);
         let acceleration = 3 * n + self.nnz;
-        let tape = map
-            .fused()
-            .rk4
-            .get_or_init(|| {
-                Some(rk4_tape(
-                    &self.tape,
-                    n_q,
-                    2 * n,
-                    acceleration,
-                    acceleration + n_q,
-                    n_q,
-                ))
-            })
-            .clone()
-            .expect("built above");
-        let constants = self.vars[2 * n_q + 1..].to_vec();
-        FusedStep::new(tape, n_q, n_q, self.tolerance, constants)
+        AccelerationTape {
+            tape: &self.tape,
+            n: n_q,
+            constants: 2 * n,
+            acceleration,
+            pivots: acceleration + n_q,
+            rows: n_q,
+        }
+    }
+
+    /// One RK4 step as one tape for sweep lanes (built once per map), under
+    /// [`Self::step_constants`].
+    pub(crate) fn rk4_step(&self, map: &ParametricMap) -> FusedStep {
+        FusedStep::new(self.layout(), &map.fused().rk4, false, self.tolerance)
+    }
+
+    /// The step's constants: F and the masses.
+    pub(crate) fn step_constants(&self) -> &[f64] {
+        &self.vars[2 * self.n_q + 1..]
+    }
+
+    /// One RK4 step of a simulation (see `SecondOrderSystem::compiled_rk4_step` and
+    /// [`CompiledSteps`]). False when a pivot test fails.
+    pub(crate) fn compiled_rk4_step(
+        &mut self,
+        map: &ParametricMap,
+        t: f64,
+        h: f64,
+        q: &mut [f64],
+        qdot: &mut [f64],
+        first: Option<&[f64]>,
+    ) -> bool {
+        let mut steps = std::mem::take(&mut self.steps);
+        let unprimed = steps.runs_unprimed(first.is_some());
+        let mut a1 = std::mem::take(&mut steps.first);
+        let done = (first.is_some() || unprimed || self.accelerate(t, q, qdot, &mut a1)) && {
+            let step = steps.get_or_build(unprimed, map.fused(), || self.layout(), self.tolerance);
+            let first = (!unprimed).then(|| first.unwrap_or(&a1));
+            step.step_one(t, h, q, qdot, first, &self.vars[2 * self.n_q + 1..])
+        };
+        steps.first = a1;
+        self.steps = steps;
+        done
     }
 
     /// qddot at (t, q, qdot) into `qddot`; false when M fails the pivot test (run the
@@ -743,7 +878,8 @@ mod tests {
     use std::sync::Arc;
 
     use crate::expr::testutil::Rng;
-    use crate::formulation::{Feedback, Implicit, Parametric, SecondOrderSystem, StepError};
+    use crate::formulation::{Feedback, Implicit, Parametric, SecondOrderSystem, State, StepError};
+    use crate::integrate::{Integrator, Rk4};
     use crate::model::System;
     use crate::scene::Scene;
 
@@ -1062,5 +1198,104 @@ b = ["sin(th) + 0.3*ph", "cos(ph)*th", "0.5 + 0.1*sin(th*ph)"]
         let nan = fused_implicit(&mut f, 0.0, &[f64::NAN, 0.0], &v).0;
         let want = general_implicit(&mut f, 0.0, &[f64::NAN, 0.0], &v).0;
         assert!(nan.is_err() && same(&want, &nan), "{want:?} vs {nan:?}");
+    }
+
+    /// RK4 steps from perturbed states near `start` through `compiled` (its fused
+    /// acceleration kept) and through `general` (the same system without it, so every stage
+    /// takes the general path), unprimed and primed: the same bits, or the same error where
+    /// a pivot test fails. Returns how many steps were compiled (a step the system declines
+    /// leaves the state untouched).
+    fn check_rk4_steps(
+        compiled: &mut dyn SecondOrderSystem,
+        general: &mut dyn SecondOrderSystem,
+        start: &State,
+        rng: &mut Rng,
+        file: &str,
+    ) -> usize {
+        let n = start.q.len();
+        let mut count = 0;
+        for case in 0..100 {
+            let spread = [0.0, 1e-6, 0.1, 2.0][case % 4];
+            let from = State {
+                t: 10.0 * rng.uniform(0.0, 1.0),
+                q: perturbed(rng, &start.q, spread),
+                qdot: perturbed(rng, &start.qdot, spread),
+            };
+            let dt = [1.0 / 60.0, 1e-3, 0.1][case % 3];
+            let run = |system: &mut dyn SecondOrderSystem, primed: bool| {
+                let mut rk4 = Rk4::new(n);
+                let mut state = from.clone();
+                if primed {
+                    let _ = rk4.prime(system, &state);
+                }
+                rk4.step(system, &mut state, dt)
+                    .map(|()| (state.t.to_bits(), bits(&state.q), bits(&state.qdot)))
+            };
+            let want = run(general, false);
+            for primed in [false, true] {
+                let got = run(compiled, primed);
+                let what = format!("{file}: primed {primed}, dt {dt}, from {from:?}");
+                match (&want, &got) {
+                    (Ok(a), Ok(b)) => assert_eq!(a, b, "{what}"),
+                    (Err(a), Err(b)) => assert_eq!(a.to_string(), b.to_string(), "{what}"),
+                    _ => panic!("{what}: {want:?} vs {got:?}"),
+                }
+            }
+            // Asked directly: done with the same bits, or declined with the state untouched.
+            let mut state = from.clone();
+            if compiled.compiled_rk4_step(&mut state, dt, None) {
+                count += 1;
+                state.t += dt;
+                let got = (state.t.to_bits(), bits(&state.q), bits(&state.qdot));
+                assert_eq!(want.as_ref().ok(), Some(&got), "{file}: direct");
+            } else {
+                assert_eq!(bits(&state.q), bits(&from.q), "{file}: declined");
+                assert_eq!(bits(&state.qdot), bits(&from.qdot), "{file}: declined");
+            }
+        }
+        count
+    }
+
+    #[test]
+    fn compiled_rk4_steps_equal_the_general_path_bit_for_bit() {
+        let mut rng = Rng::new(67);
+        let mut compiled = Vec::new();
+        for (file, scene) in scenes() {
+            let system = &scene.system;
+            for feedback in [Feedback::default(), Feedback { ks: 4.0, kd: 3.0 }] {
+                let mut f = Implicit::new(Arc::clone(system), feedback);
+                let mut general = Implicit::new(Arc::clone(system), feedback);
+                general.fused = None;
+                let start = crate::formulation::Formulation::initial_state(&f);
+                if check_rk4_steps(&mut f, &mut general, &start, &mut rng, &file) > 0 {
+                    compiled.push(format!("implicit {file}"));
+                }
+            }
+            if let (Ok(mut f), Ok(mut general)) = (
+                Parametric::new(Arc::clone(system)),
+                Parametric::new(Arc::clone(system)),
+            ) {
+                general.fused = None;
+                let start = crate::formulation::Formulation::initial_state(&f);
+                if check_rk4_steps(&mut f, &mut general, &start, &mut rng, &file) > 0 {
+                    compiled.push(format!("parametric {file}"));
+                }
+            }
+        }
+        for must in [
+            "implicit parabola.toml",
+            "implicit mixed.toml",
+            "implicit helix.toml",
+            "implicit spinning-hoop.toml",
+            "parametric parabola.toml",
+            "parametric mixed.toml",
+            "parametric cycloid.toml",
+            "parametric double-pendulum.toml",
+        ] {
+            assert!(
+                compiled.iter().any(|c| c == must),
+                "{must} not compiled: {compiled:?}"
+            );
+        }
     }
 }

@@ -266,6 +266,19 @@ impl SecondOrderSystem for Implicit {
     fn as_constrained(&mut self) -> Option<&mut dyn super::ConstrainedSystem> {
         Some(self)
     }
+
+    /// The fused acceleration's RK4 step (see [`super::fused`]), under constant forces and
+    /// no external one.
+    fn compiled_rk4_step(&mut self, state: &mut State, dt: f64, first: Option<&[f64]>) -> bool {
+        let Some(fused) = self.fused.as_mut().filter(|_| self.external.is_empty()) else {
+            return false;
+        };
+        let set = self.system.constraints();
+        let done = fused.compiled_rk4_step(set, state.t, dt, &mut state.q, &mut state.qdot, first);
+        // Unprimed, the fused acceleration was evaluated at the start: the last evaluation.
+        self.fused_pending |= first.is_none();
+        done
+    }
 }
 
 impl Formulation for Implicit {

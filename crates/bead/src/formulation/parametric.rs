@@ -185,6 +185,21 @@ impl SecondOrderSystem for Parametric {
     fn velocity_dependent(&self) -> bool {
         self.velocity_dependent || self.external.iter().any(|f| f.depends_on_velocity())
     }
+
+    /// The fused acceleration's RK4 step (see [`super::fused`]), with no external force.
+    fn compiled_rk4_step(&mut self, state: &mut State, dt: f64, first: Option<&[f64]>) -> bool {
+        let Some(fused) = self.fused.as_mut().filter(|_| self.external.is_empty()) else {
+            return false;
+        };
+        let map = self
+            .system
+            .parametric()
+            .expect("checked in Parametric::new");
+        let done = fused.compiled_rk4_step(map, state.t, dt, &mut state.q, &mut state.qdot, first);
+        // Unprimed, the fused acceleration was evaluated at the start: the last evaluation.
+        self.fused_pending |= first.is_none();
+        done
+    }
 }
 
 impl Parametric {

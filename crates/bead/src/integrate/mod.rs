@@ -25,7 +25,7 @@ mod fixed_point;
 mod gauss_legendre;
 mod midpoint;
 mod rattle;
-mod rk4;
+pub(crate) mod rk4;
 mod symplectic_euler;
 mod verlet;
 

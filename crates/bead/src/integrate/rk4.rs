@@ -9,6 +9,7 @@
 //! energy slowly decays.
 
 use super::{axpy_into, Integrator};
+use crate::expr::{Sym, Tape, TapeBuilder};
 use crate::formulation::{SecondOrderSystem, State, StepError};
 
 /// Classic RK4.
@@ -54,6 +55,11 @@ impl Integrator for Rk4 {
             let (q, qdot) = self.primed_state.split_at(n);
             t.to_bits() == s.t.to_bits() && same_bits(q, &s.q) && same_bits(qdot, &s.qdot)
         });
+        // The whole step as one compiled tape, where the system has one (the same bits).
+        if system.compiled_rk4_step(s, dt, primed.then_some(&a1[..])) {
+            s.t += dt;
+            return Ok(());
+        }
         if !primed {
             system.acceleration(s.t, &s.q, v1, a1)?;
         }
@@ -94,6 +100,107 @@ impl Integrator for Rk4 {
     fn unprime(&mut self) {
         self.primed = None;
     }
+}
+
+/// Where a system's acceleration tape keeps what a compiled step needs (see
+/// [`step_tape`]). The tape's variables are x (n), v (n), t, then `constants` values the
+/// system holds fixed over a step; its outputs include a (n) from `acceleration` and, from
+/// `pivots`, the `rows` diagonals then the `rows` pivots of its Cholesky factorization.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct AccelerationTape<'a> {
+    pub(crate) tape: &'a Tape,
+    pub(crate) n: usize,
+    pub(crate) constants: usize,
+    pub(crate) acceleration: usize,
+    pub(crate) pivots: usize,
+    pub(crate) rows: usize,
+}
+
+/// The variables after (q, qdot, t, constants) of a [`step_tape`], computed as
+/// [`Rk4::step`] computes them: t + h/2, t + h, h/2, h, h/6.
+pub(crate) fn step_variables(t: f64, h: f64) -> [f64; 5] {
+    let half = 0.5 * h;
+    [t + half, t + h, half, h, h / 6.0]
+}
+
+/// One classic RK4 step of `accel` as one tape, with [`Rk4::step`]'s arithmetic in its
+/// order (so the same bits):
+///
+/// ```text
+/// v1 = qdot              a1 = f(t, q, v1)
+/// v2 = qdot + h/2 a1     a2 = f(t + h/2, q + h/2 v1, v2)
+/// v3 = qdot + h/2 a2     a3 = f(t + h/2, q + h/2 v2, v3)
+/// v4 = qdot + h a3       a4 = f(t + h, q + h v3, v4)
+/// q' = q + h/6 (v1 + 2 v2 + 2 v3 + v4),  qdot' = qdot + h/6 (a1 + 2 a2 + 2 a3 + a4)
+/// ```
+///
+/// Variables: q, qdot (n each), t, the constants, then [`step_variables`], then a1 (n) when
+/// `primed` (evaluated before, as [`Integrator::prime`] does; its stage is not repeated).
+/// Outputs: q', qdot' (n each), then each evaluated stage's diagonals and pivots (2 rows
+/// each; stages 2 to 4 when primed).
+pub(crate) fn step_tape(accel: &AccelerationTape<'_>, primed: bool) -> Tape {
+    let n = accel.n;
+    let mut b = TapeBuilder::new();
+    let q: Vec<Sym> = (0..n).map(|k| b.var(k)).collect();
+    let qdot: Vec<Sym> = (0..n).map(|k| b.var(n + k)).collect();
+    let t = b.var(2 * n);
+    let constants: Vec<Sym> = (0..accel.constants).map(|k| b.var(2 * n + 1 + k)).collect();
+    let after = 2 * n + 1 + accel.constants;
+    let [t_half, t_full, half, h, sixth] = std::array::from_fn(|i| b.var(after + i));
+    let mut pivots = Vec::with_capacity(8 * accel.rows);
+    let mut stage = |b: &mut TapeBuilder, x: &[Sym], v: &[Sym], t: Sym| -> Vec<Sym> {
+        let vars: Vec<Sym> = x
+            .iter()
+            .chain(v)
+            .chain([&t])
+            .chain(&constants)
+            .copied()
+            .collect();
+        let out = b.append_with(accel.tape, &vars);
+        pivots.extend_from_slice(&out[accel.pivots..accel.pivots + 2 * accel.rows]);
+        out[accel.acceleration..accel.acceleration + n].to_vec()
+    };
+    // y = x + c z (`axpy_into`).
+    let axpy = |b: &mut TapeBuilder, x: &[Sym], c: Sym, z: &[Sym]| -> Vec<Sym> {
+        x.iter()
+            .zip(z)
+            .map(|(&x, &z)| {
+                let p = b.mul(c, z);
+                b.add(x, p)
+            })
+            .collect()
+    };
+    let v1 = qdot.clone();
+    let a1 = if primed {
+        (0..n).map(|k| b.var(after + 5 + k)).collect()
+    } else {
+        stage(&mut b, &q, &v1, t)
+    };
+    let (x2, v2) = (axpy(&mut b, &q, half, &v1), axpy(&mut b, &qdot, half, &a1));
+    let a2 = stage(&mut b, &x2, &v2, t_half);
+    let (x3, v3) = (axpy(&mut b, &q, half, &v2), axpy(&mut b, &qdot, half, &a2));
+    let a3 = stage(&mut b, &x3, &v3, t_half);
+    let (x4, v4) = (axpy(&mut b, &q, h, &v3), axpy(&mut b, &qdot, h, &a3));
+    let a4 = stage(&mut b, &x4, &v4, t_full);
+    // y += h/6 (k1 + 2 k2 + 2 k3 + k4), the sum left to right.
+    let two = b.constant(2.0);
+    let update = |b: &mut TapeBuilder, y: &[Sym], k: [&[Sym]; 4]| -> Vec<Sym> {
+        (0..n)
+            .map(|i| {
+                let k2 = b.mul(two, k[1][i]);
+                let s = b.add(k[0][i], k2);
+                let k3 = b.mul(two, k[2][i]);
+                let s = b.add(s, k3);
+                let s = b.add(s, k[3][i]);
+                let p = b.mul(sixth, s);
+                b.add(y[i], p)
+            })
+            .collect()
+    };
+    let mut outputs = update(&mut b, &q, [&v1, &v2, &v3, &v4]);
+    outputs.extend(update(&mut b, &qdot, [&a1, &a2, &a3, &a4]));
+    outputs.extend(pivots);
+    b.finish(&outputs)
 }
 
 /// Whether two slices hold the same bits.

@@ -327,10 +327,10 @@ impl ConstraintSet {
         self.native_rows.is_empty() && self.custom_rows.is_empty()
     }
 
-    /// Every tape of the set (for the machine code summary), the fused acceleration's once
-    /// built.
+    /// Every tape of the set (for the machine code summary), the fused acceleration's and
+    /// its RK4 steps' once built.
     pub(crate) fn tapes(&self) -> Vec<&Tape> {
-        let fused = self.fused.built_acceleration();
+        let fused = self.fused.built();
         [&self.value_tape, &self.full_tape, &self.gradient_tape]
             .into_iter()
             .chain(fused)

@@ -244,16 +244,23 @@ impl System {
 
 /// The fused tapes a constraint set or a parametric map keeps for its formulation (see
 /// `formulation::fused`), each built on first use and shared by the set's or map's clones:
-/// the whole acceleration (`None`: none applies) and one RK4 step of it for sweep lanes.
+/// the whole acceleration (`None`: none applies) and one RK4 step of it, as the sweep lanes
+/// and a simulation's RK4 run it.
 #[derive(Clone, Debug, Default)]
 pub(crate) struct FusedTapes {
     pub(crate) acceleration: std::sync::OnceLock<Option<crate::expr::Tape>>,
     pub(crate) rk4: std::sync::OnceLock<Option<crate::expr::Tape>>,
+    /// The same step taking its first stage's acceleration as input
+    /// (`integrate::rk4::step_tape`, primed)
+    pub(crate) rk4_primed: std::sync::OnceLock<Option<crate::expr::Tape>>,
 }
 
 impl FusedTapes {
-    /// The fused acceleration's tape, once built (for the machine code summary).
-    pub(crate) fn built_acceleration(&self) -> Option<&crate::expr::Tape> {
-        self.acceleration.get().and_then(Option::as_ref)
+    /// The fused acceleration's tape and the RK4 steps, those built (for the machine code
+    /// summary).
+    pub(crate) fn built(&self) -> impl Iterator<Item = &crate::expr::Tape> {
+        [&self.acceleration, &self.rk4, &self.rk4_primed]
+            .into_iter()
+            .filter_map(|cell| cell.get().and_then(Option::as_ref))
     }
 }

@@ -349,10 +349,10 @@ impl ParametricMap {
         self.unpack_evaluation(ws);
     }
 
-    /// Every tape of the map (for the machine code summary), the fused acceleration's once
-    /// built.
+    /// Every tape of the map (for the machine code summary), the fused acceleration's and
+    /// its RK4 steps' once built.
     pub(crate) fn tapes(&self) -> Vec<&Tape> {
-        let fused = self.fused.built_acceleration();
+        let fused = self.fused.built();
         [&self.tape, &self.state_tape, &self.observe_tape]
             .into_iter()
             .chain(fused)

@@ -204,12 +204,18 @@ pub(crate) fn run_lanes(
             .fused
             .as_ref()
             .filter(|_| worth_building && across_lanes(implicit).is_some())
-            .map(|fused| fused.rk4_step(system.constraints(), &gravity_force(&system))),
+            .map(|fused| {
+                let constants = fused.step_constants(&gravity_force(&system));
+                (fused.rk4_step(system.constraints()), constants)
+            }),
         Kernel::Parametric(parametric) => parametric
             .fused
             .as_ref()
             .filter(|_| worth_building && parametric.across_lanes())
-            .map(|fused| fused.rk4_step(system.parametric().expect("checked by lanes_can_run"))),
+            .map(|fused| {
+                let map = system.parametric().expect("checked by lanes_can_run");
+                (fused.rk4_step(map), fused.step_constants().to_vec())
+            }),
     };
     // Every lane starts from its member's state; lanes beyond `count` repeat the first.
     for l in 0..LANES {
@@ -235,9 +241,10 @@ pub(crate) fn run_lanes(
         lanes.q_back.copy_from_slice(&lanes.q);
         lanes.qdot_back.copy_from_slice(&lanes.qdot);
         let failed_before = active;
-        if let Some(step) = fused_step.as_mut() {
+        if let Some((step, constants)) = fused_step.as_mut() {
             let mut failed = [false; LANES];
-            step.step_lanes::<LANES>(t, h, &mut lanes.q, &mut lanes.qdot, &mut failed);
+            let (q, qdot) = (&mut lanes.q, &mut lanes.qdot);
+            step.step_lanes::<LANES>(t, h, q, qdot, constants, &mut failed);
             leave_where_failed(&failed, &mut active, &mut outcome);
         } else {
             rk4_step(
