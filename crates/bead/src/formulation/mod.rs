@@ -63,7 +63,8 @@ pub trait SecondOrderSystem {
     /// `first` when the integrator has it. True when done, with the same bits as the
     /// integrator's own step; false, `state` untouched, when the system has no compiled step
     /// or a stage's matrix fails its pivot test: then the integrator steps as usual (and
-    /// reports what the general path reports).
+    /// reports what the general path reports). The compiled step is built on first use
+    /// (once per system and formulation; allocating then, never after).
     fn compiled_rk4_step(&mut self, _state: &mut State, _dt: f64, _first: Option<&[f64]>) -> bool {
         false
     }

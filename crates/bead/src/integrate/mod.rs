@@ -41,7 +41,8 @@ pub use verlet::Verlet;
 use crate::formulation::{SecondOrderSystem, State, StepError};
 
 /// Advances a [`State`] by one step. Implementations allocate their buffers at construction
-/// and nothing in [`Integrator::step`].
+/// and nothing in [`Integrator::step`] (a system may build its compiled step on first use:
+/// see [`SecondOrderSystem::compiled_rk4_step`]).
 pub trait Integrator: Send {
     /// Advance `state` from t to t + dt.
     fn step(
