@@ -156,7 +156,7 @@ pub fn prepare(system: &System) {
     // The layouts alone matter here: any tolerance, gains, forces and masses.
     if let Some(fused) = FusedImplicit::new(system, Some(0.0), 0.0, 0.0) {
         if fused.has_constant_force() {
-            FusedStep::new(fused.layout(), &set.fused().rk4_primed, true, 0.0);
+            FusedStep::new(fused.layout(), set.fused(), false, 0.0);
         }
     }
     if let Some(map) = system.parametric() {
@@ -165,7 +165,7 @@ pub fn prepare(system: &System) {
             .get_or_init(|| parametric_tape(map));
         let zeros = vec![0.0; map.positions.len()];
         if let Some(fused) = FusedParametric::new(system, &zeros, &zeros, 0.0) {
-            FusedStep::new(fused.layout(), &map.fused().rk4_primed, true, 0.0);
+            FusedStep::new(fused.layout(), map.fused(), false, 0.0);
         }
     }
 }
@@ -390,14 +390,19 @@ pub(crate) struct FusedStep {
 }
 
 impl FusedStep {
-    /// The step of `accel` (built once per constraint set or map, into `cache`), primed or
-    /// not (see [`rk4::step_tape`]).
+    /// The step of `accel`, primed or not (see [`rk4::step_tape`]); its tape built once per
+    /// constraint set or map, into `tapes`.
     fn new(
         accel: AccelerationTape<'_>,
-        cache: &std::sync::OnceLock<Option<Tape>>,
-        primed: bool,
+        tapes: &FusedTapes,
+        unprimed: bool,
         tolerance: f64,
     ) -> FusedStep {
+        let (cache, primed) = if unprimed {
+            (&tapes.rk4, false)
+        } else {
+            (&tapes.rk4_primed, true)
+        };
         let tape = cache
             .get_or_init(|| Some(rk4::step_tape(&accel, primed)))
             .clone()
@@ -561,7 +566,7 @@ impl FusedImplicit {
     /// One RK4 step as one tape for sweep lanes (built once per constraint set); the lanes
     /// pass [`Self::step_constants`] with their applied forces.
     pub(crate) fn rk4_step(&self, set: &ConstraintSet) -> FusedStep {
-        FusedStep::new(self.layout(), &set.fused().rk4, false, self.tolerance)
+        FusedStep::new(self.layout(), set.fused(), true, self.tolerance)
     }
 
     /// The step's constants under the applied forces `force`: F, then W, ks, kd as kept.
@@ -587,23 +592,28 @@ impl FusedImplicit {
         if self.constant_force.is_none() {
             return false;
         }
-        let mut steps = std::mem::take(&mut self.steps);
-        let unprimed = steps.runs_unprimed(first.is_some());
-        let mut a1 = std::mem::take(&mut steps.first);
-        let done = (first.is_some() || unprimed || self.accelerate(t, q, qdot, &mut a1, None)) && {
-            if self.vars_force_given {
-                // An external force was given before: the constant F back in place.
-                let force = self.constant_force.as_ref().expect("checked above");
-                self.vars[2 * n + 1..3 * n + 1].copy_from_slice(force);
-                self.vars_force_given = false;
+        let unprimed = self.steps.runs_unprimed(first.is_some());
+        if first.is_none() && !unprimed {
+            let mut a1 = std::mem::take(&mut self.steps.first);
+            let evaluated = self.accelerate(t, q, qdot, &mut a1, None);
+            self.steps.first = a1;
+            if !evaluated {
+                return false;
             }
-            let step = steps.get_or_build(unprimed, set.fused(), || self.layout(), self.tolerance);
-            let first = (!unprimed).then(|| first.unwrap_or(&a1));
-            step.step_one(t, h, q, qdot, first, &self.vars[2 * n + 1..])
-        };
-        steps.first = a1;
-        self.steps = steps;
-        done
+        }
+        if self.vars_force_given {
+            // An external force was given before: the constant F back in place.
+            let force = self.constant_force.as_ref().expect("checked above");
+            self.vars[2 * n + 1..3 * n + 1].copy_from_slice(force);
+            self.vars_force_given = false;
+        }
+        if self.steps.get(unprimed).is_none() {
+            let step = FusedStep::new(self.layout(), set.fused(), unprimed, self.tolerance);
+            self.steps.set(unprimed, step);
+        }
+        let (step, a1) = self.steps.get_mut(unprimed);
+        let first = (!unprimed).then(|| first.unwrap_or(a1));
+        step.step_one(t, h, q, qdot, first, &self.vars[2 * n + 1..])
     }
 }
 
@@ -633,21 +643,32 @@ impl CompiledSteps {
         runs
     }
 
-    /// The unprimed or the primed step, built on first use from `layout` (the tape itself
-    /// once per constraint set or map, in `tapes`).
-    fn get_or_build<'a>(
-        &mut self,
-        unprimed: bool,
-        tapes: &FusedTapes,
-        layout: impl FnOnce() -> AccelerationTape<'a>,
-        tolerance: f64,
-    ) -> &mut FusedStep {
-        let (slot, cache) = if unprimed {
-            (&mut self.unprimed, &tapes.rk4)
+    /// The unprimed or the primed step, if built.
+    fn get(&self, unprimed: bool) -> Option<&FusedStep> {
+        if unprimed {
+            self.unprimed.as_deref()
         } else {
-            (&mut self.primed, &tapes.rk4_primed)
+            self.primed.as_deref()
+        }
+    }
+
+    fn set(&mut self, unprimed: bool, step: FusedStep) {
+        let slot = if unprimed {
+            &mut self.unprimed
+        } else {
+            &mut self.primed
         };
-        slot.get_or_insert_with(|| Box::new(FusedStep::new(layout(), cache, !unprimed, tolerance)))
+        *slot = Some(Box::new(step));
+    }
+
+    /// The unprimed or the primed step (built) and the first stage's acceleration buffer.
+    fn get_mut(&mut self, unprimed: bool) -> (&mut FusedStep, &[f64]) {
+        let slot = if unprimed {
+            &mut self.unprimed
+        } else {
+            &mut self.primed
+        };
+        (slot.as_deref_mut().expect("built before"), &self.first)
     }
 }
 
@@ -787,7 +808,7 @@ impl FusedParametric {
     /// One RK4 step as one tape for sweep lanes (built once per map), under
     /// [`Self::step_constants`].
     pub(crate) fn rk4_step(&self, map: &ParametricMap) -> FusedStep {
-        FusedStep::new(self.layout(), &map.fused().rk4, false, self.tolerance)
+        FusedStep::new(self.layout(), map.fused(), true, self.tolerance)
     }
 
     /// The step's constants: F and the masses.
@@ -806,17 +827,22 @@ impl FusedParametric {
         qdot: &mut [f64],
         first: Option<&[f64]>,
     ) -> bool {
-        let mut steps = std::mem::take(&mut self.steps);
-        let unprimed = steps.runs_unprimed(first.is_some());
-        let mut a1 = std::mem::take(&mut steps.first);
-        let done = (first.is_some() || unprimed || self.accelerate(t, q, qdot, &mut a1)) && {
-            let step = steps.get_or_build(unprimed, map.fused(), || self.layout(), self.tolerance);
-            let first = (!unprimed).then(|| first.unwrap_or(&a1));
-            step.step_one(t, h, q, qdot, first, &self.vars[2 * self.n_q + 1..])
-        };
-        steps.first = a1;
-        self.steps = steps;
-        done
+        let unprimed = self.steps.runs_unprimed(first.is_some());
+        if first.is_none() && !unprimed {
+            let mut a1 = std::mem::take(&mut self.steps.first);
+            let evaluated = self.accelerate(t, q, qdot, &mut a1);
+            self.steps.first = a1;
+            if !evaluated {
+                return false;
+            }
+        }
+        if self.steps.get(unprimed).is_none() {
+            let step = FusedStep::new(self.layout(), map.fused(), unprimed, self.tolerance);
+            self.steps.set(unprimed, step);
+        }
+        let (step, a1) = self.steps.get_mut(unprimed);
+        let first = (!unprimed).then(|| first.unwrap_or(a1));
+        step.step_one(t, h, q, qdot, first, &self.vars[2 * self.n_q + 1..])
     }
 
     /// qddot at (t, q, qdot) into `qddot`; false when M fails the pivot test (run the
