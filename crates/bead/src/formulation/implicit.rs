@@ -64,7 +64,7 @@ pub struct Implicit {
     /// Per-row tolerance scales (see [`Formulation::set_constraint_scales`]); `None`:
     /// tolerances are absolute.
     pub(crate) scales: Option<super::ConstraintScales>,
-    /// The whole acceleration in one tape, for small systems (see [`super::fused`]).
+    /// The whole acceleration in one tape, for small systems (see `formulation/fused.rs`).
     pub(crate) fused: Option<FusedImplicit>,
     /// Whether the last evaluation was the fused tape's, whose C, J, lambda and F are still
     /// in its outputs (see [`Implicit::unpack`]) rather than in `constraints`, `lambda` and
@@ -267,7 +267,7 @@ impl SecondOrderSystem for Implicit {
         Some(self)
     }
 
-    /// The fused acceleration's RK4 step (see [`super::fused`]), under constant forces and
+    /// The fused acceleration's RK4 step (see `formulation/fused.rs`), under constant forces and
     /// no external one.
     fn compiled_rk4_step(&mut self, state: &mut State, dt: f64, first: Option<&[f64]>) -> bool {
         let Some(fused) = self.fused.as_mut().filter(|_| self.external.is_empty()) else {

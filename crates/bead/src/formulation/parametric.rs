@@ -186,7 +186,7 @@ impl SecondOrderSystem for Parametric {
         self.velocity_dependent || self.external.iter().any(|f| f.depends_on_velocity())
     }
 
-    /// The fused acceleration's RK4 step (see [`super::fused`]), with no external force.
+    /// The fused acceleration's RK4 step (see `formulation/fused.rs`), with no external force.
     fn compiled_rk4_step(&mut self, state: &mut State, dt: f64, first: Option<&[f64]>) -> bool {
         let Some(fused) = self.fused.as_mut().filter(|_| self.external.is_empty()) else {
             return false;
