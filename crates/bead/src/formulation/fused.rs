@@ -20,6 +20,7 @@
 //! on every shipped scene. The Cholesky's pivots come out with the accelerations: when one
 //! fails the relative pivot test, the caller runs the general path, which reports the
 //! singular matrix (or the non-finite input) exactly as before.
+use super::State;
 use crate::expr::{Sym, Tape, TapeBuilder};
 use crate::integrate::rk4::{self, AccelerationTape};
 use crate::linalg::{ConstraintMatrix, LinearSolver, SymmetricPattern};
@@ -286,6 +287,7 @@ impl FusedImplicit {
             vars_force_given: false,
             steps: CompiledSteps {
                 first: vec![0.0; n],
+                tolerance,
                 ..CompiledSteps::default()
             },
         })
@@ -548,21 +550,6 @@ impl FusedStep {
 }
 
 impl FusedImplicit {
-    /// The acceleration tape's layout for a compiled step: the constants after (x, v, t)
-    /// are F, W (n each), ks and kd.
-    fn layout(&self) -> AccelerationTape<'_> {
-        let (n, m) = (self.n, self.m);
-        let acceleration = 3 * m + self.nnz + m + n;
-        AccelerationTape {
-            tape: &self.tape,
-            n,
-            constants: 2 * n + 2,
-            acceleration,
-            pivots: acceleration + n,
-            rows: m,
-        }
-    }
-
     /// One RK4 step as one tape for sweep lanes (built once per constraint set); the lanes
     /// pass [`Self::step_constants`] with their applied forces.
     pub(crate) fn rk4_step(&self, set: &ConstraintSet) -> FusedStep {
@@ -575,46 +562,76 @@ impl FusedImplicit {
         constants.extend_from_slice(&self.vars[3 * self.n + 1..]);
         constants
     }
+}
 
-    /// One RK4 step of a simulation (see `SecondOrderSystem::compiled_rk4_step`) under the
-    /// system's constant forces (none external; see [`CompiledSteps`]). False when the
-    /// forces are not constant or a pivot test fails.
-    pub(crate) fn compiled_rk4_step(
-        &mut self,
-        set: &ConstraintSet,
-        t: f64,
-        h: f64,
-        q: &mut [f64],
-        qdot: &mut [f64],
-        first: Option<&[f64]>,
-    ) -> bool {
+impl CompiledAcceleration for FusedImplicit {
+    fn steps(&mut self) -> &mut CompiledSteps {
+        &mut self.steps
+    }
+    /// The acceleration tape's layout for a compiled step: the constants after (x, v, t)
+    /// are F, W (n each), ks and kd.
+    fn layout(&self) -> AccelerationTape<'_> {
+        let (n, m) = (self.n, self.m);
+        AccelerationTape::new(&self.tape, n, 2 * n + 2, 3 * m + self.nnz + m + n, m)
+    }
+    fn first_stage(&mut self, t: f64, q: &[f64], qdot: &[f64], a: &mut [f64]) -> bool {
+        self.accelerate(t, q, qdot, a, None)
+    }
+    fn parts(&mut self) -> (&mut CompiledSteps, &[f64]) {
         let n = self.n;
-        if self.constant_force.is_none() {
-            return false;
-        }
-        let unprimed = self.steps.runs_unprimed(first.is_some());
-        if first.is_none() && !unprimed {
-            let mut a1 = std::mem::take(&mut self.steps.first);
-            let evaluated = self.accelerate(t, q, qdot, &mut a1, None);
-            self.steps.first = a1;
-            if !evaluated {
-                return false;
-            }
-        }
         if self.vars_force_given {
             // An external force was given before: the constant F back in place.
-            let force = self.constant_force.as_ref().expect("checked above");
+            let force = self.constant_force.as_ref().expect("checked by `Implicit`");
             self.vars[2 * n + 1..3 * n + 1].copy_from_slice(force);
             self.vars_force_given = false;
         }
-        if self.steps.get(unprimed).is_none() {
-            let step = FusedStep::new(self.layout(), set.fused(), unprimed, self.tolerance);
-            self.steps.set(unprimed, step);
-        }
-        let (step, a1) = self.steps.get_mut(unprimed);
-        let first = (!unprimed).then(|| first.unwrap_or(a1));
-        step.step_one(t, h, q, qdot, first, &self.vars[2 * n + 1..])
+        (&mut self.steps, &self.vars[2 * n + 1..])
     }
+}
+
+/// What a compiled RK4 step needs of a fused acceleration (see [`compiled_rk4_step`]).
+pub(crate) trait CompiledAcceleration {
+    fn steps(&mut self) -> &mut CompiledSteps;
+    fn layout(&self) -> AccelerationTape<'_>;
+    /// The acceleration at (t, q, qdot) under the step's constants into `a`; false when a
+    /// pivot test fails.
+    fn first_stage(&mut self, t: f64, q: &[f64], qdot: &[f64], a: &mut [f64]) -> bool;
+    /// The steps, and the constants after (q, qdot, t) as the step reads them.
+    fn parts(&mut self) -> (&mut CompiledSteps, &[f64]);
+}
+
+/// One RK4 step of a simulation (see `SecondOrderSystem::compiled_rk4_step` and
+/// [`CompiledSteps`]): `state`'s q and qdot advanced by dt, the step's tape built once per
+/// constraint set or map into `tapes`. Returns whether the step was taken (else `state` is
+/// untouched: a pivot test failed) and whether the fused acceleration was evaluated (at the
+/// start, for the first stage: its outputs are then the formulation's last evaluation).
+pub(crate) fn compiled_rk4_step(
+    fused: &mut impl CompiledAcceleration,
+    tapes: &FusedTapes,
+    state: &mut State,
+    dt: f64,
+    first: Option<&[f64]>,
+) -> (bool, bool) {
+    let (t, q, qdot) = (state.t, &mut state.q[..], &mut state.qdot[..]);
+    let unprimed = fused.steps().runs_unprimed(first.is_some());
+    let evaluated = first.is_none() && !unprimed;
+    if evaluated {
+        let mut a1 = std::mem::take(&mut fused.steps().first);
+        let passed = fused.first_stage(t, q, qdot, &mut a1);
+        fused.steps().first = a1;
+        if !passed {
+            return (false, true);
+        }
+    }
+    if fused.steps().slot(unprimed).is_none() {
+        let tolerance = fused.steps().tolerance;
+        let step = FusedStep::new(fused.layout(), tapes, unprimed, tolerance);
+        *fused.steps().slot(unprimed) = Some(Box::new(step));
+    }
+    let (steps, constants) = fused.parts();
+    let (step, a1) = steps.step_and_first(unprimed);
+    let given = (!unprimed).then(|| first.unwrap_or(a1));
+    (step.step_one(t, dt, q, qdot, given, constants), evaluated)
 }
 
 /// The RK4 steps a formulation compiles from its fused acceleration (see
@@ -624,12 +641,14 @@ impl FusedImplicit {
 /// first, so builds one tape). Without the unprimed tape, an unprimed step evaluates the
 /// fused acceleration at its start and runs the primed one: the same bits.
 #[derive(Clone, Debug, Default)]
-struct CompiledSteps {
+pub(crate) struct CompiledSteps {
     primed: Option<Box<FusedStep>>,
     unprimed: Option<Box<FusedStep>>,
     unprimed_asked: bool,
     /// The first stage's acceleration when evaluated here
     first: Vec<f64>,
+    /// The Cholesky's relative pivot tolerance
+    tolerance: f64,
 }
 
 impl CompiledSteps {
@@ -643,26 +662,18 @@ impl CompiledSteps {
         runs
     }
 
-    /// The unprimed or the primed step, if built.
-    fn get(&self, unprimed: bool) -> Option<&FusedStep> {
+    /// Where the unprimed or the primed step is kept.
+    fn slot(&mut self, unprimed: bool) -> &mut Option<Box<FusedStep>> {
         if unprimed {
-            self.unprimed.as_deref()
-        } else {
-            self.primed.as_deref()
-        }
-    }
-
-    fn set(&mut self, unprimed: bool, step: FusedStep) {
-        let slot = if unprimed {
             &mut self.unprimed
         } else {
             &mut self.primed
-        };
-        *slot = Some(Box::new(step));
+        }
     }
 
-    /// The unprimed or the primed step (built) and the first stage's acceleration buffer.
-    fn get_mut(&mut self, unprimed: bool) -> (&mut FusedStep, &[f64]) {
+    /// The unprimed or the primed step (built) and the first stage's acceleration
+    /// evaluated here.
+    fn step_and_first(&mut self, unprimed: bool) -> (&mut FusedStep, &[f64]) {
         let slot = if unprimed {
             &mut self.unprimed
         } else {
@@ -785,24 +796,10 @@ impl FusedParametric {
             vars,
             steps: CompiledSteps {
                 first: vec![0.0; n_q],
+                tolerance,
                 ..CompiledSteps::default()
             },
         })
-    }
-
-    /// The acceleration tape's layout for a compiled step: the constants after (q, qdot, t)
-    /// are F and each coordinate's mass (n each).
-    fn layout(&self) -> AccelerationTape<'_> {
-        let (n, n_q) = (self.n, self.n_q);
-        let acceleration = 3 * n + self.nnz;
-        AccelerationTape {
-            tape: &self.tape,
-            n: n_q,
-            constants: 2 * n,
-            acceleration,
-            pivots: acceleration + n_q,
-            rows: n_q,
-        }
     }
 
     /// One RK4 step as one tape for sweep lanes (built once per map), under
@@ -814,35 +811,6 @@ impl FusedParametric {
     /// The step's constants: F and the masses.
     pub(crate) fn step_constants(&self) -> &[f64] {
         &self.vars[2 * self.n_q + 1..]
-    }
-
-    /// One RK4 step of a simulation (see `SecondOrderSystem::compiled_rk4_step` and
-    /// [`CompiledSteps`]). False when a pivot test fails.
-    pub(crate) fn compiled_rk4_step(
-        &mut self,
-        map: &ParametricMap,
-        t: f64,
-        h: f64,
-        q: &mut [f64],
-        qdot: &mut [f64],
-        first: Option<&[f64]>,
-    ) -> bool {
-        let unprimed = self.steps.runs_unprimed(first.is_some());
-        if first.is_none() && !unprimed {
-            let mut a1 = std::mem::take(&mut self.steps.first);
-            let evaluated = self.accelerate(t, q, qdot, &mut a1);
-            self.steps.first = a1;
-            if !evaluated {
-                return false;
-            }
-        }
-        if self.steps.get(unprimed).is_none() {
-            let step = FusedStep::new(self.layout(), map.fused(), unprimed, self.tolerance);
-            self.steps.set(unprimed, step);
-        }
-        let (step, a1) = self.steps.get_mut(unprimed);
-        let first = (!unprimed).then(|| first.unwrap_or(a1));
-        step.step_one(t, h, q, qdot, first, &self.vars[2 * self.n_q + 1..])
     }
 
     /// qddot at (t, q, qdot) into `qddot`; false when M fails the pivot test (run the
@@ -895,6 +863,24 @@ impl FusedParametric {
         buffers.bias.copy_from_slice(bias);
         buffers.jacobian.copy_from_slice(jacobian);
         buffers.force.copy_from_slice(force);
+    }
+}
+
+impl CompiledAcceleration for FusedParametric {
+    fn steps(&mut self) -> &mut CompiledSteps {
+        &mut self.steps
+    }
+    /// The acceleration tape's layout for a compiled step: the constants after (q, qdot, t)
+    /// are F and each coordinate's mass (n each).
+    fn layout(&self) -> AccelerationTape<'_> {
+        let (n, n_q) = (self.n, self.n_q);
+        AccelerationTape::new(&self.tape, n_q, 2 * n, 3 * n + self.nnz, n_q)
+    }
+    fn first_stage(&mut self, t: f64, q: &[f64], qdot: &[f64], a: &mut [f64]) -> bool {
+        self.accelerate(t, q, qdot, a)
+    }
+    fn parts(&mut self) -> (&mut CompiledSteps, &[f64]) {
+        (&mut self.steps, &self.vars[2 * self.n_q + 1..])
     }
 }
 

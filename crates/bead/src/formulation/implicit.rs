@@ -17,7 +17,7 @@
 
 use std::sync::Arc;
 
-use super::fused::{FusedImplicit, ImplicitBuffers};
+use super::fused::{compiled_rk4_step, FusedImplicit, ImplicitBuffers};
 use super::{
     Formulation, Gradients, Method, Nonconservation, Observation, SecondOrderSystem,
     SingularSearch, State, StepError, Subject,
@@ -273,10 +273,13 @@ impl SecondOrderSystem for Implicit {
         let Some(fused) = self.fused.as_mut().filter(|_| self.external.is_empty()) else {
             return false;
         };
-        let set = self.system.constraints();
-        let done = fused.compiled_rk4_step(set, state.t, dt, &mut state.q, &mut state.qdot, first);
-        // Unprimed, the fused acceleration was evaluated at the start: the last evaluation.
-        self.fused_pending |= first.is_none();
+        if !fused.has_constant_force() {
+            return false;
+        }
+        let tapes = self.system.constraints().fused();
+        let (done, evaluated) = compiled_rk4_step(fused, tapes, state, dt, first);
+        // The fused acceleration evaluated at the start is the last evaluation.
+        self.fused_pending |= evaluated;
         done
     }
 }

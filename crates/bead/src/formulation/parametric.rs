@@ -19,7 +19,7 @@
 
 use std::sync::Arc;
 
-use super::fused::{FusedParametric, ParametricBuffers};
+use super::fused::{compiled_rk4_step, FusedParametric, ParametricBuffers};
 use super::implicit::{accumulate_all_forces, external_power};
 use super::{
     Formulation, FormulationError, Gradients, Method, Nonconservation, Observation,
@@ -195,9 +195,9 @@ impl SecondOrderSystem for Parametric {
             .system
             .parametric()
             .expect("checked in Parametric::new");
-        let done = fused.compiled_rk4_step(map, state.t, dt, &mut state.q, &mut state.qdot, first);
-        // Unprimed, the fused acceleration was evaluated at the start: the last evaluation.
-        self.fused_pending |= first.is_none();
+        let (done, evaluated) = compiled_rk4_step(fused, map.fused(), state, dt, first);
+        // The fused acceleration evaluated at the start is the last evaluation.
+        self.fused_pending |= evaluated;
         done
     }
 }

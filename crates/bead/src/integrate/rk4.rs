@@ -104,16 +104,38 @@ impl Integrator for Rk4 {
 
 /// Where a system's acceleration tape keeps what a compiled step needs (see
 /// [`step_tape`]). The tape's variables are x (n), v (n), t, then `constants` values the
-/// system holds fixed over a step; its outputs include a (n) from `acceleration` and, from
-/// `pivots`, the `rows` diagonals then the `rows` pivots of its Cholesky factorization.
+/// system holds fixed over a step; its outputs include a (n) from `acceleration`, then the
+/// `rows` diagonals and the `rows` pivots of its Cholesky factorization.
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct AccelerationTape<'a> {
     pub(crate) tape: &'a Tape,
     pub(crate) n: usize,
     pub(crate) constants: usize,
     pub(crate) acceleration: usize,
-    pub(crate) pivots: usize,
     pub(crate) rows: usize,
+}
+
+impl<'a> AccelerationTape<'a> {
+    pub(crate) fn new(
+        tape: &'a Tape,
+        n: usize,
+        constants: usize,
+        acceleration: usize,
+        rows: usize,
+    ) -> Self {
+        AccelerationTape {
+            tape,
+            n,
+            constants,
+            acceleration,
+            rows,
+        }
+    }
+
+    /// Where the pivot tests start: right after a.
+    fn pivots(&self) -> usize {
+        self.acceleration + self.n
+    }
 }
 
 /// The variables after (q, qdot, t, constants) of a [`step_tape`], computed as
@@ -157,7 +179,8 @@ pub(crate) fn step_tape(accel: &AccelerationTape<'_>, primed: bool) -> Tape {
             .copied()
             .collect();
         let out = b.append_with(accel.tape, &vars);
-        pivots.extend_from_slice(&out[accel.pivots..accel.pivots + 2 * accel.rows]);
+        let at = accel.pivots();
+        pivots.extend_from_slice(&out[at..at + 2 * accel.rows]);
         out[accel.acceleration..accel.acceleration + n].to_vec()
     };
     // y = x + c z (`axpy_into`).
