@@ -278,3 +278,36 @@ fn members_with_springs_and_constant_forces_are_their_runs_alone() {
         assert!(members.iter().all(|m| m.error.is_none()));
     }
 }
+
+/// Members whose steps blow up (a spring too stiff for rk4 at this dt) leave the lanes with
+/// the divergence their runs alone report, at the same step: the lanes' divergence test
+/// (every coordinate within the floor, else within the member's reach at t) is the run's.
+#[test]
+fn members_that_blow_up_leave_with_their_divergence() {
+    let text = format!(
+        "{}\n[[force]]\nkind = \"spring\"\nparticle = \"bead\"\nanchor = [0.0, -300.0]\nstiffness = \"k\"\nrest_length = 50.0\n",
+        common::PARABOLA_SWEPT.replace("mass = 1.0\n", "mass = 1.0\nk = 2.0\n")
+    );
+    let scene = Scene::parse(&text, "parabola-stiff.toml", &[]).unwrap();
+    for method in [Method::Implicit, Method::Parametric] {
+        let members = check(
+            &scene,
+            vec![
+                Axis::linspace("x0", 10.0, 200.0, 5).unwrap(),
+                Axis::linspace("k", 1.0, 9.0e4, 5).unwrap(),
+            ],
+            rk4(method, 1.0 / 60.0, 600),
+            None,
+        );
+        let diverged = members
+            .iter()
+            .filter(|m| m.error.as_ref().is_some_and(|e| e.contains("diverged")))
+            .count();
+        let errors: Vec<_> = members.iter().filter_map(|m| m.error.clone()).collect();
+        assert!(
+            diverged >= 5 && members.iter().any(|m| m.error.is_none()),
+            "{method:?}: {diverged} diverged of {}: {errors:?}",
+            members.len()
+        );
+    }
+}

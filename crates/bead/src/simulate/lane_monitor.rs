@@ -25,7 +25,7 @@
 
 use super::lanes::LANES;
 use super::monitor::Monitor;
-use super::monitor::{lookahead, off_branch_candidate, AHEAD_FRACTION, AHEAD_STEPS, VANISHED};
+use super::monitor::{off_branch_candidate, AHEAD_FRACTION, AHEAD_STEPS, VANISHED};
 use super::Simulation;
 use crate::expr::Tape;
 use crate::formulation::Method;
@@ -68,6 +68,8 @@ pub(super) struct LaneMonitor {
     pub(super) maxima: [PerLane; 4],
     energy_initial: PerLane,
     energy_scale: PerLane,
+    /// Each member's divergence limits at t = 0: position, speed (see [`Monitor::floor`])
+    floor: [PerLane; 2],
     /// This step end's gradient values, offsets, constraint values and energies
     values: Vec<f64>,
     offset: Vec<f64>,
@@ -144,6 +146,7 @@ impl LaneMonitor {
                 per_lane(&|m| m.constraint_distance_max),
             ],
             energy_initial: per_lane(&|m| m.energy_initial),
+            floor: [per_lane(&|m| m.floor().0), per_lane(&|m| m.floor().1)],
             energy_scale: per_lane(&|m| m.energy_scale),
             values: vec![0.0; n_values * LANES],
             offset: vec![0.0; rows * LANES],
@@ -222,7 +225,7 @@ impl LaneMonitor {
         // The state is finite.
         for (q, qdot) in q.chunks_exact(LANES).zip(qdot.chunks_exact(LANES)) {
             for l in 0..LANES {
-                failed[l] |= !q[l].is_finite() || !qdot[l].is_finite();
+                failed[l] |= !q[l].is_finite() | !qdot[l].is_finite();
             }
         }
         self.observe(system, members.len(), t, out);
@@ -244,17 +247,32 @@ impl LaneMonitor {
                 constraint_error[l] = max_nan(constraint_error[l], c[l].abs());
             }
         }
-        let mut position_limit = [f64::INFINITY; LANES];
-        let mut speed_limit = [f64::INFINITY; LANES];
-        for (l, member) in members.iter().enumerate() {
-            (position_limit[l], speed_limit[l]) = member.monitor.limits(t);
-        }
-        for (x, xdot) in x.chunks_exact(LANES).zip(xdot.chunks_exact(LANES)) {
-            for l in 0..LANES {
-                failed[l] |= x[l].is_nan()
-                    | (x[l].abs() > position_limit[l])
-                    | xdot[l].is_nan()
-                    | (xdot[l].abs() > speed_limit[l]);
+        // Within the limits at t = 0, the least at any time (`Monitor::check_divergence`): a
+        // lane whose every coordinate is within them needs no limits of its own time (a NaN
+        // fails the comparison and takes the full test).
+        let beyond = |limits: &[PerLane; 2]| {
+            let [position, speed] = limits;
+            let mut beyond = [false; LANES];
+            for (x, xdot) in x.chunks_exact(LANES).zip(xdot.chunks_exact(LANES)) {
+                for l in 0..LANES {
+                    beyond[l] |= x[l].is_nan()
+                        | (x[l].abs() > position[l])
+                        | xdot[l].is_nan()
+                        | (xdot[l].abs() > speed[l]);
+                }
+            }
+            beyond
+        };
+        let beyond_floor = beyond(&self.floor);
+        if beyond_floor[..members.len()].iter().any(|&b| b) {
+            let mut limits = [[f64::INFINITY; LANES]; 2];
+            for (l, member) in members.iter().enumerate() {
+                if beyond_floor[l] {
+                    (limits[0][l], limits[1][l]) = member.monitor.limits(t);
+                }
+            }
+            for (failed, beyond) in failed.iter_mut().zip(beyond(&limits)) {
+                *failed |= beyond;
             }
         }
         for l in 0..LANES {
@@ -298,10 +316,16 @@ impl LaneMonitor {
             for l in 0..LANES {
                 let (gg, gp, pp) = (gg[l], gp[l], pp[l]);
                 let length: f64 = gg.sqrt();
-                let (s, shortest) = lookahead(gg, gp, pp);
-                let shrinking = (s > 0.0) & (shortest < AHEAD_FRACTION * AHEAD_FRACTION * gg);
+                // `lookahead` without its branch (a lane whose d vanishes or is NaN is not
+                // shrinking), so that the lanes run in vector registers.
+                let gd = gg - gp;
+                let dd = gg - 2.0 * gp + pp;
+                let s = -gd / dd;
+                let shortest = (gg - gd * gd / dd).max(0.0);
+                let shrinking =
+                    (dd > 0.0) & (s > 0.0) & (shortest < AHEAD_FRACTION * AHEAD_FRACTION * gg);
                 let ahead = shrinking & (s <= AHEAD_STEPS);
-                let change = (gg - 2.0 * gp + pp).max(0.0).sqrt();
+                let change = dd.max(0.0).sqrt();
                 let drifted = shrinking
                     & (offset[l] > 0.0)
                     & off_branch_candidate(offset[l], length, change, step[l].sqrt());

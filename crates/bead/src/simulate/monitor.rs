@@ -380,6 +380,12 @@ impl Monitor {
         self.reach.at(t)
     }
 
+    /// The divergence limits at t = 0, the least at any time (position, speed): a state
+    /// within them is within [`Monitor::limits`] at every t.
+    pub(super) fn floor(&self) -> (f64, f64) {
+        self.floor
+    }
+
     /// The longest each gradient row has been in the run so far.
     pub(super) fn longest(&self) -> &[f64] {
         &self.longest
