@@ -431,6 +431,13 @@ mod codegen {
     use super::{Instr, Native, TapeFn};
     use crate::expr::ast::sign_f64;
 
+    /// A slot loaded where it is first used: variable k, or the constant at this byte offset.
+    #[derive(Clone, Copy)]
+    enum Deferred {
+        Var(u32),
+        Const(i32),
+    }
+
     // The functions the code calls: exactly the interpreter's Rust expressions, so that both
     // reach the same routines (libm's sin, compiler-rt's __powidf2 with a run-time n, ...).
     extern "C" fn bead_sin(x: f64) -> f64 {
@@ -616,7 +623,49 @@ mod codegen {
             MemFlagsData::new().with_notrap()
         };
         let mut n_const: i64 = 0;
-        let mut v: Vec<Value> = Vec::with_capacity(code.len());
+        // Slot values; a variable or constant slot is loaded where it is first used, not at
+        // its place in the tape (which lists them first), so that it does not occupy a
+        // register, or a spill slot, from the top of the function.
+        let mut v: Vec<Option<Value>> = Vec::with_capacity(code.len());
+        let mut deferred: Vec<Option<Deferred>> = vec![None; code.len()];
+        // The output indices of each slot: stored as soon as the slot is computed, so that a
+        // value computed early does not stay live to the end.
+        let mut stored_as: Vec<Vec<usize>> = vec![Vec::new(); code.len()];
+        for (j, &s) in outputs.iter().enumerate() {
+            stored_as[s as usize].push(j);
+        }
+        let load_deferred = |b: &mut FunctionBuilder, what: Deferred| -> Value {
+            match what {
+                Deferred::Var(k) => {
+                    let addr = if k == 0 {
+                        vars_l
+                    } else {
+                        let off = b.ins().imul_imm_u(stride, i64::from(k));
+                        b.ins().iadd(vars_l, off)
+                    };
+                    b.ins().load(ty, flags, addr, 0)
+                }
+                Deferred::Const(offset) => {
+                    let c = b
+                        .ins()
+                        .load(types::F64, MemFlagsData::trusted(), consts, offset);
+                    if width == 1 {
+                        c
+                    } else {
+                        b.ins().splat(ty, c)
+                    }
+                }
+            }
+        };
+        let store = |b: &mut FunctionBuilder, value: Value, j: usize| {
+            let addr = if j == 0 {
+                out_l
+            } else {
+                let off = b.ins().imul_imm_u(stride, j as i64);
+                b.ins().iadd(out_l, off)
+            };
+            b.ins().store(flags, value, addr, 0);
+        };
         // f(args) of every lane: one call per lane, the results put back together.
         let call = |b: &mut FunctionBuilder, sig: SigRef, f: usize, args: &[Value]| {
             let addr = b.ins().iconst(ptr, f as i64);
@@ -645,8 +694,31 @@ mod codegen {
             }
             result.expect("two lanes")
         };
-        for &ins in code {
-            let get = |s: u32| v[s as usize];
+        for (index, &ins) in code.iter().enumerate() {
+            match ins {
+                Instr::Var(k) => {
+                    deferred[index] = Some(Deferred::Var(k));
+                    v.push(None);
+                    continue;
+                }
+                Instr::Const(_) => {
+                    let offset = i32::try_from(n_const * 8)
+                        .map_err(|_| "too many constants for one function".to_string())?;
+                    n_const += 1;
+                    deferred[index] = Some(Deferred::Const(offset));
+                    v.push(None);
+                    continue;
+                }
+                _ => {}
+            }
+            for s in ins.operands().into_iter().flatten() {
+                let s = s as usize;
+                if v[s].is_none() {
+                    let what = deferred[s].expect("a slot is computed before it is read");
+                    v[s] = Some(load_deferred(&mut b, what));
+                }
+            }
+            let get = |s: u32| v[s as usize].expect("loaded above");
             // The next constant, in every lane (`spread`) or as one scalar.
             let mut konst_as = |b: &mut FunctionBuilder, spread: bool| -> Result<Value, String> {
                 let offset = i32::try_from(n_const * 8)
@@ -666,16 +738,7 @@ mod codegen {
                 call(b, sig1, f as usize, &[get(a)])
             };
             let val = match ins {
-                Instr::Var(k) => {
-                    let addr = if k == 0 {
-                        vars_l
-                    } else {
-                        let off = b.ins().imul_imm_u(stride, i64::from(k));
-                        b.ins().iadd(vars_l, off)
-                    };
-                    b.ins().load(ty, flags, addr, 0)
-                }
-                Instr::Const(_) => konst(&mut b)?,
+                Instr::Var(_) | Instr::Const(_) => unreachable!("deferred above"),
                 Instr::Neg(a) => b.ins().fneg(get(a)),
                 Instr::Add(x, y) => b.ins().fadd(get(x), get(y)),
                 Instr::Sub(x, y) => b.ins().fsub(get(x), get(y)),
@@ -752,16 +815,17 @@ mod codegen {
                     b.ins().fsub(get(z), p)
                 }
             };
-            v.push(val);
+            v.push(Some(val));
+            for &j in &stored_as[index] {
+                store(&mut b, val, j);
+            }
         }
+        // Outputs that are a variable or a constant slot themselves.
         for (j, &s) in outputs.iter().enumerate() {
-            let addr = if j == 0 {
-                out_l
-            } else {
-                let off = b.ins().imul_imm_u(stride, j as i64);
-                b.ins().iadd(out_l, off)
-            };
-            b.ins().store(flags, v[s as usize], addr, 0);
+            if let Some(what) = deferred[s as usize] {
+                let value = load_deferred(&mut b, what);
+                store(&mut b, value, j);
+            }
         }
         let next = b.ins().iadd_imm_u(lane, 8 * width);
         let more = b.ins().icmp(IntCC::UnsignedLessThan, next, stride);

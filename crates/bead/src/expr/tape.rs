@@ -180,7 +180,7 @@ impl Instr {
     }
 
     /// The operand slots this instruction reads.
-    fn operands(mut self) -> [Option<u32>; 3] {
+    pub(super) fn operands(mut self) -> [Option<u32>; 3] {
         self.operands_mut().map(|o| o.map(|s| *s))
     }
 }
