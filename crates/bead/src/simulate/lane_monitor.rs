@@ -87,6 +87,14 @@ pub(super) struct LaneMonitor {
     residuals: ConstraintEval,
 }
 
+/// A structure-of-arrays buffer as its values' rows of [`LANES`] (fixed-size arrays, so that
+/// the lane loops over them compile to vector instructions without bounds checks).
+fn rows(soa: &[f64]) -> &[PerLane] {
+    let (rows, rest) = soa.as_chunks::<LANES>();
+    debug_assert!(rest.is_empty(), "a buffer of whole rows of lanes");
+    rows
+}
+
 /// Lane l's part of a structure-of-arrays buffer into `one`.
 pub(super) fn gather(soa: &[f64], l: usize, one: &mut [f64]) {
     for (k, value) in one.iter_mut().enumerate() {
@@ -223,7 +231,7 @@ impl LaneMonitor {
     ) -> [bool; LANES] {
         let mut failed = [false; LANES];
         // The state is finite.
-        for (q, qdot) in q.chunks_exact(LANES).zip(qdot.chunks_exact(LANES)) {
+        for (q, qdot) in rows(q).iter().zip(rows(qdot)) {
             for l in 0..LANES {
                 failed[l] |= !q[l].is_finite() | !qdot[l].is_finite();
             }
@@ -242,7 +250,7 @@ impl LaneMonitor {
         }
         // Divergence: E and max |C| finite, every coordinate within the member's reach.
         let mut constraint_error = [0.0; LANES];
-        for c in self.constraints.chunks_exact(LANES) {
+        for c in rows(&self.constraints) {
             for l in 0..LANES {
                 constraint_error[l] = max_nan(constraint_error[l], c[l].abs());
             }
@@ -253,7 +261,7 @@ impl LaneMonitor {
         let beyond = |limits: &[PerLane; 2]| {
             let [position, speed] = limits;
             let mut beyond = [false; LANES];
-            for (x, xdot) in x.chunks_exact(LANES).zip(xdot.chunks_exact(LANES)) {
+            for (x, xdot) in rows(x).iter().zip(rows(xdot)) {
                 for l in 0..LANES {
                     beyond[l] |= x[l].is_nan()
                         | (x[l].abs() > position[l])
@@ -282,37 +290,35 @@ impl LaneMonitor {
         // Regularity candidates, row by row: the first-order tests of `Monitor::regularity`,
         // without its memory of earlier fruitless searches (so erring towards leaving). They
         // only compare, so |g|^2 summed from -0.0 serves for `sum` from 0.0.
-        let n_q = q.len() / LANES;
+        let (values, last) = (rows(&self.values), rows(&self.last));
+        let (q, q_back) = (rows(q), rows(q_back));
+        let (squared, offset, longest) =
+            (rows(&self.squared), rows(&self.offset), rows(&self.longest));
         for r in 0..self.start.len() - 1 {
-            // g . p and |p|^2 against the last step end's row p.
+            // g . p and |p|^2 against the last step end's row p. (The lane loops build new
+            // arrays from old ones rather than update them in place: values, not memory that
+            // might alias the inputs, so that they compile to vector instructions.)
             let (mut gp, mut pp) = ([0.0; LANES], [0.0; LANES]);
             for e in self.start[r]..self.start[r + 1] {
-                let g = &self.values[e * LANES..(e + 1) * LANES];
-                let p = &self.last[e * LANES..(e + 1) * LANES];
-                for l in 0..LANES {
-                    gp[l] += g[l] * p[l];
-                    pp[l] += p[l] * p[l];
-                }
+                let (g, p) = (&values[e], &last[e]);
+                gp = std::array::from_fn(|l| gp[l] + g[l] * p[l]);
+                pp = std::array::from_fn(|l| pp[l] + p[l] * p[l]);
             }
             // The step's length in the row's variables (`row_step_length`; for a drift).
-            let mut step = [empty_sum(); LANES];
-            let mut add_step = |k: usize| {
-                let q = &q[k * LANES..(k + 1) * LANES];
-                let before = &q_back[k * LANES..(k + 1) * LANES];
-                for l in 0..LANES {
+            let add_step = |step: PerLane, k: usize| -> PerLane {
+                let (q, before) = (&q[k], &q_back[k]);
+                std::array::from_fn(|l| {
                     let d = q[l] - before[l];
-                    step[l] += d * d;
-                }
+                    step[l] + d * d
+                })
             };
-            match &self.source {
-                Source::Implicit { row_columns } => {
-                    row_columns[r].iter().for_each(|&k| add_step(k))
-                }
-                Source::Parametric { .. } => (0..n_q).for_each(add_step),
-            }
-            let gg = &self.squared[r * LANES..(r + 1) * LANES];
-            let offset = &self.offset[r * LANES..(r + 1) * LANES];
-            let longest = &self.longest[r * LANES..(r + 1) * LANES];
+            let step = match &self.source {
+                Source::Implicit { row_columns } => row_columns[r]
+                    .iter()
+                    .fold([empty_sum(); LANES], |step, &k| add_step(step, k)),
+                Source::Parametric { .. } => (0..q.len()).fold([empty_sum(); LANES], add_step),
+            };
+            let (gg, offset, longest) = (&squared[r], &offset[r], &longest[r]);
             for l in 0..LANES {
                 let (gg, gp, pp) = (gg[l], gp[l], pp[l]);
                 let length: f64 = gg.sqrt();
