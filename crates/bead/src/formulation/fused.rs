@@ -147,7 +147,7 @@ pub(crate) struct ImplicitBuffers<'a> {
 }
 
 /// Build, once, the fused tapes of `system`'s forms where they apply, and the RK4 step a
-/// simulation compiles from them (primed) where the forces are constant (each form builds
+/// simulation compiles from them where the forces are constant (each form builds
 /// its own on first use; this lets [`System::machine_code`] count them all before any run).
 pub fn prepare(system: &System) {
     let set = system.constraints();
@@ -157,7 +157,7 @@ pub fn prepare(system: &System) {
     // The layouts alone matter here: any tolerance, gains, forces and masses.
     if let Some(fused) = FusedImplicit::new(system, Some(0.0), 0.0, 0.0) {
         if fused.has_constant_force() {
-            FusedStep::new(fused.layout(), set.fused(), false, 0.0);
+            FusedStep::new(fused.layout(), set.fused(), 0.0);
         }
     }
     if let Some(map) = system.parametric() {
@@ -166,7 +166,7 @@ pub fn prepare(system: &System) {
             .get_or_init(|| parametric_tape(map));
         let zeros = vec![0.0; map.positions.len()];
         if let Some(fused) = FusedParametric::new(system, &zeros, &zeros, 0.0) {
-            FusedStep::new(fused.layout(), map.fused(), false, 0.0);
+            FusedStep::new(fused.layout(), map.fused(), 0.0);
         }
     }
 }
@@ -286,9 +286,8 @@ impl FusedImplicit {
             constant_force,
             vars_force_given: false,
             steps: CompiledSteps {
-                first: vec![0.0; n],
+                step: None,
                 tolerance,
-                ..CompiledSteps::default()
             },
         })
     }
@@ -380,8 +379,6 @@ pub(crate) struct FusedStep {
     tape: Tape,
     n: usize,
     rows: usize,
-    /// The stages evaluated in the tape: 4, or 3 when the first is given (primed)
-    stages: usize,
     constants: usize,
     tolerance: f64,
     vars: Vec<f64>,
@@ -392,28 +389,18 @@ pub(crate) struct FusedStep {
 }
 
 impl FusedStep {
-    /// The step of `accel`, primed or not (see [`rk4::step_tape`]); its tape built once per
-    /// constraint set or map, into `tapes`.
-    fn new(
-        accel: AccelerationTape<'_>,
-        tapes: &FusedTapes,
-        unprimed: bool,
-        tolerance: f64,
-    ) -> FusedStep {
-        let (cache, primed) = if unprimed {
-            (&tapes.rk4, false)
-        } else {
-            (&tapes.rk4_primed, true)
-        };
-        let tape = cache
-            .get_or_init(|| Some(rk4::step_tape(&accel, primed)))
+    /// The step of `accel` (see [`rk4::step_tape`]); its tape built once per constraint set
+    /// or map, into `tapes`.
+    fn new(accel: AccelerationTape<'_>, tapes: &FusedTapes, tolerance: f64) -> FusedStep {
+        let tape = tapes
+            .rk4
+            .get_or_init(|| Some(rk4::step_tape(&accel)))
             .clone()
             .expect("built above");
         FusedStep {
             tape,
             n: accel.n,
             rows: accel.rows,
-            stages: if primed { 3 } else { 4 },
             constants: accel.constants,
             tolerance,
             vars: Vec::new(),
@@ -426,8 +413,7 @@ impl FusedStep {
     /// Size the buffers for L lanes.
     fn size_for<const L: usize>(&mut self) {
         if self.lanes != L {
-            let first = if self.stages == 3 { self.n } else { 0 };
-            let vars = 2 * self.n + 1 + self.constants + 5 + first;
+            let vars = 2 * self.n + 1 + self.constants + 5;
             self.vars = vec![0.0; vars * L];
             self.scratch = vec![0.0; self.tape.n_slots() * L];
             self.out = vec![0.0; self.tape.n_outputs() * L];
@@ -443,17 +429,9 @@ impl FusedStep {
         }
     }
 
-    /// Evaluate the step of every lane from (t, q, qdot) by h (a1 from `first` when primed):
-    /// the new state stays in the outputs; returns which lanes passed every stage's pivot
-    /// test (`pivots_pass`).
-    fn run<const L: usize>(
-        &mut self,
-        t: f64,
-        h: f64,
-        q: &[f64],
-        qdot: &[f64],
-        first: Option<&[f64]>,
-    ) -> [bool; L] {
+    /// Evaluate the step of every lane from (t, q, qdot) by h: the new state stays in the
+    /// outputs; returns which lanes passed every stage's pivot test (`pivots_pass`).
+    fn run<const L: usize>(&mut self, t: f64, h: f64, q: &[f64], qdot: &[f64]) -> [bool; L] {
         let (n, rows) = (self.n, self.rows);
         let after = 2 * n + 1 + self.constants;
         self.vars[..n * L].copy_from_slice(q);
@@ -462,13 +440,10 @@ impl FusedStep {
         for (i, value) in rk4::step_variables(t, h).into_iter().enumerate() {
             self.vars[(after + i) * L..(after + i + 1) * L].fill(value);
         }
-        if let Some(first) = first {
-            self.vars[(after + 5) * L..(after + 5 + n) * L].copy_from_slice(first);
-        }
         self.tape
             .eval_lanes::<L>(&self.vars, &mut self.scratch, &mut self.out);
         let mut pass = [true; L];
-        for stage in 0..self.stages {
+        for stage in 0..4 {
             let at = 2 * n + 2 * rows * stage;
             for j in 0..rows {
                 let diagonal = &self.out[(at + j) * L..(at + j + 1) * L];
@@ -482,19 +457,15 @@ impl FusedStep {
     }
 
     /// One step of one state from time t by h under `constants`: (q, qdot) advanced in
-    /// place, from the first stage's acceleration `first` when the step is primed (then it
-    /// must be given). False, (q, qdot) untouched, when a stage's matrix fails the pivot
-    /// test.
+    /// place. False, (q, qdot) untouched, when a stage's matrix fails the pivot test.
     pub(crate) fn step_one(
         &mut self,
         t: f64,
         h: f64,
         q: &mut [f64],
         qdot: &mut [f64],
-        first: Option<&[f64]>,
         constants: &[f64],
     ) -> bool {
-        debug_assert_eq!(first.is_some(), self.stages == 3);
         self.size_for::<1>();
         // One lane: the variables are contiguous runs (copied, not filled lane by lane).
         let (n, rows) = (self.n, self.rows);
@@ -505,11 +476,8 @@ impl FusedStep {
         vars[2 * n] = t;
         vars[2 * n + 1..after].copy_from_slice(constants);
         vars[after..after + 5].copy_from_slice(&rk4::step_variables(t, h));
-        if let Some(first) = first {
-            vars[after + 5..after + 5 + n].copy_from_slice(first);
-        }
         self.tape.eval(&self.vars, &mut self.scratch, &mut self.out);
-        let tests = &self.out[2 * n..2 * n + 2 * rows * self.stages];
+        let tests = &self.out[2 * n..2 * n + 2 * rows * 4];
         if !tests
             .chunks_exact(2 * rows)
             .all(|stage| pivots_pass(&stage[..rows], &stage[rows..], self.tolerance))
@@ -525,6 +493,7 @@ impl FusedStep {
     /// only: the lanes' are fixed): (q, qdot) (n x L each) advanced in place;
     /// `failed[l] = true` where a stage's matrix fails the pivot test (the lane's state is
     /// then garbage).
+    #[inline(always)]
     pub(crate) fn step_lanes<const L: usize>(
         &mut self,
         t: f64,
@@ -534,12 +503,11 @@ impl FusedStep {
         constants: &[f64],
         failed: &mut [bool; L],
     ) {
-        debug_assert_eq!(self.stages, 4);
         if self.lanes != L {
             self.size_for::<L>();
             self.load_constants::<L>(constants);
         }
-        let pass = self.run::<L>(t, h, q, qdot, None);
+        let pass = self.run::<L>(t, h, q, qdot);
         let n = self.n;
         q.copy_from_slice(&self.out[..n * L]);
         qdot.copy_from_slice(&self.out[n * L..2 * n * L]);
@@ -553,7 +521,7 @@ impl FusedImplicit {
     /// One RK4 step as one tape for sweep lanes (built once per constraint set); the lanes
     /// pass [`Self::step_constants`] with their applied forces.
     pub(crate) fn rk4_step(&self, set: &ConstraintSet) -> FusedStep {
-        FusedStep::new(self.layout(), set.fused(), true, self.tolerance)
+        FusedStep::new(self.layout(), set.fused(), self.tolerance)
     }
 
     /// The step's constants under the applied forces `force`: F, then W, ks, kd as kept.
@@ -574,9 +542,6 @@ impl CompiledAcceleration for FusedImplicit {
         let (n, m) = (self.n, self.m);
         AccelerationTape::new(&self.tape, n, 2 * n + 2, 3 * m + self.nnz + m + n, m)
     }
-    fn first_stage(&mut self, t: f64, q: &[f64], qdot: &[f64], a: &mut [f64]) -> bool {
-        self.accelerate(t, q, qdot, a, None)
-    }
     fn parts(&mut self) -> (&mut CompiledSteps, &[f64]) {
         let n = self.n;
         if self.vars_force_given {
@@ -593,94 +558,36 @@ impl CompiledAcceleration for FusedImplicit {
 pub(crate) trait CompiledAcceleration {
     fn steps(&mut self) -> &mut CompiledSteps;
     fn layout(&self) -> AccelerationTape<'_>;
-    /// The acceleration at (t, q, qdot) under the step's constants into `a`; false when a
-    /// pivot test fails.
-    fn first_stage(&mut self, t: f64, q: &[f64], qdot: &[f64], a: &mut [f64]) -> bool;
-    /// The steps, and the constants after (q, qdot, t) as the step reads them.
+    /// The step, and the constants after (q, qdot, t) as the step reads them.
     fn parts(&mut self) -> (&mut CompiledSteps, &[f64]);
 }
 
-/// One RK4 step of a simulation (see `SecondOrderSystem::compiled_rk4_step` and
-/// [`CompiledSteps`]): `state`'s q and qdot advanced by dt, the step's tape built once per
-/// constraint set or map into `tapes`. Returns whether the step was taken (else `state` is
-/// untouched: a pivot test failed) and whether the fused acceleration was evaluated (at the
-/// start, for the first stage: its outputs are then the formulation's last evaluation).
+/// One RK4 step of a simulation (see `SecondOrderSystem::compiled_rk4_step`): `state`'s q
+/// and qdot advanced by dt, the step's tape built on first use, once per constraint set or
+/// map into `tapes`. False, `state` untouched, when a pivot test failed.
 pub(crate) fn compiled_rk4_step(
     fused: &mut impl CompiledAcceleration,
     tapes: &FusedTapes,
     state: &mut State,
     dt: f64,
-    first: Option<&[f64]>,
-) -> (bool, bool) {
-    let (t, q, qdot) = (state.t, &mut state.q[..], &mut state.qdot[..]);
-    let unprimed = fused.steps().runs_unprimed(first.is_some());
-    let evaluated = first.is_none() && !unprimed;
-    if evaluated {
-        let mut a1 = std::mem::take(&mut fused.steps().first);
-        let passed = fused.first_stage(t, q, qdot, &mut a1);
-        fused.steps().first = a1;
-        if !passed {
-            return (false, true);
-        }
-    }
-    if fused.steps().slot(unprimed).is_none() {
+) -> bool {
+    if fused.steps().step.is_none() {
         let tolerance = fused.steps().tolerance;
-        let step = FusedStep::new(fused.layout(), tapes, unprimed, tolerance);
-        *fused.steps().slot(unprimed) = Some(Box::new(step));
+        let step = FusedStep::new(fused.layout(), tapes, tolerance);
+        fused.steps().step = Some(Box::new(step));
     }
     let (steps, constants) = fused.parts();
-    let (step, a1) = steps.step_and_first(unprimed);
-    let given = (!unprimed).then(|| first.unwrap_or(a1));
-    (step.step_one(t, dt, q, qdot, given, constants), evaluated)
+    let step = steps.step.as_deref_mut().expect("built above");
+    step.step_one(state.t, dt, &mut state.q, &mut state.qdot, constants)
 }
 
-/// The RK4 steps a formulation compiles from its fused acceleration (see
-/// `SecondOrderSystem::compiled_rk4_step`): the primed one (the first stage's acceleration
-/// given) the first time a step is asked for, the unprimed one the second time a step is
-/// asked for without its first stage (steps alone; a simulation primes every step but its
-/// first, so builds one tape). Without the unprimed tape, an unprimed step evaluates the
-/// fused acceleration at its start and runs the primed one: the same bits.
+/// The RK4 step a formulation compiles from its fused acceleration (see
+/// `SecondOrderSystem::compiled_rk4_step`), built the first time a step is asked for.
 #[derive(Clone, Debug, Default)]
 pub(crate) struct CompiledSteps {
-    primed: Option<Box<FusedStep>>,
-    unprimed: Option<Box<FusedStep>>,
-    unprimed_asked: bool,
-    /// The first stage's acceleration when evaluated here
-    first: Vec<f64>,
+    step: Option<Box<FusedStep>>,
     /// The Cholesky's relative pivot tolerance
     tolerance: f64,
-}
-
-impl CompiledSteps {
-    /// Whether a step runs the unprimed tape (only without its first stage given).
-    fn runs_unprimed(&mut self, given: bool) -> bool {
-        if given {
-            return false;
-        }
-        let runs = self.unprimed.is_some() || self.unprimed_asked;
-        self.unprimed_asked = true;
-        runs
-    }
-
-    /// Where the unprimed or the primed step is kept.
-    fn slot(&mut self, unprimed: bool) -> &mut Option<Box<FusedStep>> {
-        if unprimed {
-            &mut self.unprimed
-        } else {
-            &mut self.primed
-        }
-    }
-
-    /// The unprimed or the primed step (built) and the first stage's acceleration
-    /// evaluated here.
-    fn step_and_first(&mut self, unprimed: bool) -> (&mut FusedStep, &[f64]) {
-        let slot = if unprimed {
-            &mut self.unprimed
-        } else {
-            &mut self.primed
-        };
-        (slot.as_deref_mut().expect("built before"), &self.first)
-    }
 }
 
 /// The parametric form's fused acceleration, for maps whose applied forces are constant
@@ -795,9 +702,8 @@ impl FusedParametric {
             force: force.to_vec(),
             vars,
             steps: CompiledSteps {
-                first: vec![0.0; n_q],
+                step: None,
                 tolerance,
-                ..CompiledSteps::default()
             },
         })
     }
@@ -805,7 +711,7 @@ impl FusedParametric {
     /// One RK4 step as one tape for sweep lanes (built once per map), under
     /// [`Self::step_constants`].
     pub(crate) fn rk4_step(&self, map: &ParametricMap) -> FusedStep {
-        FusedStep::new(self.layout(), map.fused(), true, self.tolerance)
+        FusedStep::new(self.layout(), map.fused(), self.tolerance)
     }
 
     /// The step's constants: F and the masses.
@@ -875,9 +781,6 @@ impl CompiledAcceleration for FusedParametric {
     fn layout(&self) -> AccelerationTape<'_> {
         let (n, n_q) = (self.n, self.n_q);
         AccelerationTape::new(&self.tape, n_q, 2 * n, 3 * n + self.nnz, n_q)
-    }
-    fn first_stage(&mut self, t: f64, q: &[f64], qdot: &[f64], a: &mut [f64]) -> bool {
-        self.accelerate(t, q, qdot, a)
     }
     fn parts(&mut self) -> (&mut CompiledSteps, &[f64]) {
         (&mut self.steps, &self.vars[2 * self.n_q + 1..])
@@ -1268,7 +1171,7 @@ b = ["sin(th) + 0.3*ph", "cos(ph)*th", "0.5 + 0.1*sin(th*ph)"]
             }
             // Asked directly: done with the same bits, or declined with the state untouched.
             let mut state = from.clone();
-            if compiled.compiled_rk4_step(&mut state, dt, None) {
+            if compiled.compiled_rk4_step(&mut state, dt) {
                 count += 1;
                 state.t += dt;
                 let got = (state.t.to_bits(), values(&state.q), values(&state.qdot));

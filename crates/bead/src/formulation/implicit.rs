@@ -268,19 +268,22 @@ impl SecondOrderSystem for Implicit {
     }
 
     /// The fused acceleration's RK4 step (see `formulation/fused.rs`), under constant forces and
-    /// no external one.
-    fn compiled_rk4_step(&mut self, state: &mut State, dt: f64, first: Option<&[f64]>) -> bool {
-        let Some(fused) = self.fused.as_mut().filter(|_| self.external.is_empty()) else {
-            return false;
-        };
-        if !fused.has_constant_force() {
+    /// no external force.
+    fn compiled_rk4_step(&mut self, state: &mut State, dt: f64) -> bool {
+        if !self.compiles_rk4_step() {
             return false;
         }
         let tapes = self.system.constraints().fused();
-        let (done, evaluated) = compiled_rk4_step(fused, tapes, state, dt, first);
-        // The fused acceleration evaluated at the start is the last evaluation.
-        self.fused_pending |= evaluated;
-        done
+        let fused = self.fused.as_mut().expect("checked above");
+        compiled_rk4_step(fused, tapes, state, dt)
+    }
+
+    fn compiles_rk4_step(&self) -> bool {
+        self.external.is_empty()
+            && self
+                .fused
+                .as_ref()
+                .is_some_and(FusedImplicit::has_constant_force)
     }
 }
 

@@ -59,13 +59,20 @@ pub trait SecondOrderSystem {
     /// A whole classic RK4 step with this system's acceleration compiled into it
     /// ([`crate::integrate::Rk4`]'s arithmetic as one tape), where the system has its
     /// acceleration as one tape (a small system under constant forces, see
-    /// `formulation/fused.rs`): advance `state`'s q and qdot (not t) by dt, taking the first
-    /// stage's acceleration `first` when the integrator has it. True when done, with the same
-    /// bits as the integrator's own step; false, `state` untouched, when the system has no
-    /// compiled step or a stage's matrix fails its pivot test: then the integrator steps as
-    /// usual (and reports what the general path reports). The compiled step is built on
-    /// first use (once per system and formulation; allocating then, never after).
-    fn compiled_rk4_step(&mut self, _state: &mut State, _dt: f64, _first: Option<&[f64]>) -> bool {
+    /// `formulation/fused.rs`): advance `state`'s q and qdot (not t) by dt. True when done,
+    /// with the same bits as the integrator's own step; false, `state` untouched, when the
+    /// system has no compiled step or a stage's matrix fails its pivot test: then the
+    /// integrator steps as usual (and reports what the general path reports). The compiled
+    /// step is built on first use (once per system and formulation; allocating then, never
+    /// after). It evaluates none of the system's own accelerations: after it, what "the last
+    /// evaluation" holds (multipliers, the power) is not at the step.
+    fn compiled_rk4_step(&mut self, _state: &mut State, _dt: f64) -> bool {
+        false
+    }
+
+    /// Whether [`Self::compiled_rk4_step`] applies (it may still decline a step whose pivot
+    /// test fails).
+    fn compiles_rk4_step(&self) -> bool {
         false
     }
 }

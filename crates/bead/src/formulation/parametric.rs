@@ -187,18 +187,20 @@ impl SecondOrderSystem for Parametric {
     }
 
     /// The fused acceleration's RK4 step (see `formulation/fused.rs`), with no external force.
-    fn compiled_rk4_step(&mut self, state: &mut State, dt: f64, first: Option<&[f64]>) -> bool {
-        let Some(fused) = self.fused.as_mut().filter(|_| self.external.is_empty()) else {
+    fn compiled_rk4_step(&mut self, state: &mut State, dt: f64) -> bool {
+        if !self.compiles_rk4_step() {
             return false;
-        };
+        }
         let map = self
             .system
             .parametric()
             .expect("checked in Parametric::new");
-        let (done, evaluated) = compiled_rk4_step(fused, map.fused(), state, dt, first);
-        // The fused acceleration evaluated at the start is the last evaluation.
-        self.fused_pending |= evaluated;
-        done
+        let fused = self.fused.as_mut().expect("checked above");
+        compiled_rk4_step(fused, map.fused(), state, dt)
+    }
+
+    fn compiles_rk4_step(&self) -> bool {
+        self.external.is_empty() && self.fused.is_some()
     }
 }
 

@@ -56,7 +56,7 @@ impl Integrator for Rk4 {
             t.to_bits() == s.t.to_bits() && same_bits(q, &s.q) && same_bits(qdot, &s.qdot)
         });
         // The whole step as one compiled tape, where the system has one (the same bits).
-        if system.compiled_rk4_step(s, dt, primed.then_some(&a1[..])) {
+        if system.compiled_rk4_step(s, dt) {
             s.t += dt;
             return Ok(());
         }
@@ -87,6 +87,11 @@ impl Integrator for Rk4 {
         s: &State,
     ) -> Option<Result<(), StepError>> {
         self.primed = None;
+        // A system with a compiled step evaluates all four stages in it, cheaper than the
+        // first one apart: nothing to prime.
+        if system.compiles_rk4_step() {
+            return None;
+        }
         let result = system.acceleration(s.t, &s.q, &s.qdot, &mut self.acceleration[0]);
         if result.is_ok() {
             let n = s.q.len();
@@ -156,11 +161,9 @@ pub(crate) fn step_variables(t: f64, h: f64) -> [f64; 5] {
 /// q' = q + h/6 (v1 + 2 v2 + 2 v3 + v4),  qdot' = qdot + h/6 (a1 + 2 a2 + 2 a3 + a4)
 /// ```
 ///
-/// Variables: q, qdot (n each), t, the constants, then [`step_variables`], then a1 (n) when
-/// `primed` (evaluated before, as [`Integrator::prime`] does; its stage is not repeated).
-/// Outputs: q', qdot' (n each), then each evaluated stage's diagonals and pivots (2 rows
-/// each; stages 2 to 4 when primed).
-pub(crate) fn step_tape(accel: &AccelerationTape<'_>, primed: bool) -> Tape {
+/// Variables: q, qdot (n each), t, the constants, then [`step_variables`]. Outputs: q',
+/// qdot' (n each), then each stage's diagonals and pivots (2 rows each).
+pub(crate) fn step_tape(accel: &AccelerationTape<'_>) -> Tape {
     let n = accel.n;
     let mut b = TapeBuilder::new();
     let q: Vec<Sym> = (0..n).map(|k| b.var(k)).collect();
@@ -194,11 +197,7 @@ pub(crate) fn step_tape(accel: &AccelerationTape<'_>, primed: bool) -> Tape {
             .collect()
     };
     let v1 = qdot.clone();
-    let a1 = if primed {
-        (0..n).map(|k| b.var(after + 5 + k)).collect()
-    } else {
-        stage(&mut b, &q, &v1, t)
-    };
+    let a1 = stage(&mut b, &q, &v1, t);
     let (x2, v2) = (axpy(&mut b, &q, half, &v1), axpy(&mut b, &qdot, half, &a1));
     let a2 = stage(&mut b, &x2, &v2, t_half);
     let (x3, v3) = (axpy(&mut b, &q, half, &v2), axpy(&mut b, &qdot, half, &a2));

@@ -250,16 +250,13 @@ impl System {
 pub(crate) struct FusedTapes {
     pub(crate) acceleration: std::sync::OnceLock<Option<crate::expr::Tape>>,
     pub(crate) rk4: std::sync::OnceLock<Option<crate::expr::Tape>>,
-    /// The same step taking its first stage's acceleration as input
-    /// (`integrate::rk4::step_tape`, primed)
-    pub(crate) rk4_primed: std::sync::OnceLock<Option<crate::expr::Tape>>,
 }
 
 impl FusedTapes {
-    /// The fused acceleration's tape and the RK4 steps, those built (for the machine code
+    /// The fused acceleration's tape and the RK4 step, those built (for the machine code
     /// summary).
     pub(crate) fn built(&self) -> impl Iterator<Item = &crate::expr::Tape> {
-        [&self.acceleration, &self.rk4, &self.rk4_primed]
+        [&self.acceleration, &self.rk4]
             .into_iter()
             .filter_map(|cell| cell.get().and_then(Option::as_ref))
     }

@@ -219,6 +219,7 @@ impl LaneMonitor {
     /// lanes' simulations (for their reach). Returns which lanes fail one and must leave;
     /// the others' observation stays for [`LaneMonitor::accept`].
     #[allow(clippy::too_many_arguments)]
+    #[inline(always)]
     pub(super) fn check(
         &mut self,
         system: &System,
@@ -412,6 +413,7 @@ impl LaneMonitor {
     /// Every lane's step end accepted (lanes that left no longer matter): the regularity
     /// monitor's reference and the maxima move on, as `Monitor::remember` and
     /// `Monitor::accumulate` do.
+    #[inline(always)]
     pub(super) fn accept(&mut self) {
         std::mem::swap(&mut self.before, &mut self.last);
         self.last.copy_from_slice(&self.values);
