@@ -362,6 +362,9 @@ fn beside_numpy(members: usize) {
         );
         return;
     }
+    if let Some(warning) = stale_package(&python, &root) {
+        println!("beside numpy: {warning}");
+    }
     let status = std::process::Command::new(&python)
         .arg(root.join("examples/numpy_ensemble.py"))
         .args(["--members", &members.to_string(), "--rounds", "1"])
@@ -369,4 +372,42 @@ fn beside_numpy(members: usize) {
     if !status.is_ok_and(|s| s.success()) {
         println!("beside numpy: examples/numpy_ensemble.py failed");
     }
+}
+
+/// Why the figures of `python`'s bead may not be this tree's: its compiled extension is
+/// older than the newest source of the library or the package (a `.venv` left from an
+/// earlier build measures that build, silently). `None` when it is as new, or when either
+/// cannot be found.
+fn stale_package(python: &std::path::Path, root: &std::path::Path) -> Option<String> {
+    let out = std::process::Command::new(python)
+        .args(["-c", "import bead._bead as m; print(m.__file__)"])
+        .output()
+        .ok()?;
+    let extension = std::path::PathBuf::from(String::from_utf8(out.stdout).ok()?.trim());
+    let built = std::fs::metadata(&extension).ok()?.modified().ok()?;
+    fn newest_in(dir: &std::path::Path) -> Option<std::time::SystemTime> {
+        let mut newest = None;
+        for entry in std::fs::read_dir(dir).ok()?.flatten() {
+            let path = entry.path();
+            let time = if path.is_dir() {
+                newest_in(&path)
+            } else {
+                entry.metadata().ok()?.modified().ok()
+            };
+            newest = newest.max(time);
+        }
+        newest
+    }
+    let source = ["crates/bead/src", "crates/bead-py/src"]
+        .iter()
+        .filter_map(|dir| newest_in(&root.join(dir)))
+        .max()?;
+    (built < source).then(|| {
+        format!(
+            "WARNING: {} was built before the latest change to the sources, so the \
+             bead.sweep figures below are an older build's (rebuild: `maturin develop \
+             --release` in crates/bead-py with that Python's environment)",
+            extension.display()
+        )
+    })
 }
