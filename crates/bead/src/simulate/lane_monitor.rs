@@ -73,8 +73,9 @@ pub(super) struct LaneMonitor {
     /// This step end's gradient values, offsets, constraint values and energies
     values: Vec<f64>,
     offset: Vec<f64>,
-    /// |g_r|^2 per row (summed from -0.0, as `sum()`)
+    /// |g_r|^2 per row (summed from -0.0, as `sum()`) and |g_r|
     squared: Vec<f64>,
+    lengths: Vec<f64>,
     constraints: Vec<f64>,
     energy: PerLane,
     constraint_error: PerLane,
@@ -159,6 +160,7 @@ impl LaneMonitor {
             values: vec![0.0; n_values * LANES],
             offset: vec![0.0; rows * LANES],
             squared: vec![0.0; rows * LANES],
+            lengths: vec![0.0; rows * LANES],
             constraints: vec![0.0; m * LANES],
             energy: [0.0; LANES],
             constraint_error: [0.0; LANES],
@@ -293,8 +295,12 @@ impl LaneMonitor {
         // only compare, so |g|^2 summed from -0.0 serves for `sum` from 0.0.
         let (values, last) = (rows(&self.values), rows(&self.last));
         let (q, q_back) = (rows(q), rows(q_back));
-        let (squared, offset, longest) =
-            (rows(&self.squared), rows(&self.offset), rows(&self.longest));
+        let (squared, lengths, offset, longest) = (
+            rows(&self.squared),
+            rows(&self.lengths),
+            rows(&self.offset),
+            rows(&self.longest),
+        );
         for r in 0..self.start.len() - 1 {
             // g . p and |p|^2 against the last step end's row p. (The lane loops build new
             // arrays from old ones rather than update them in place: values, not memory that
@@ -319,10 +325,9 @@ impl LaneMonitor {
                     .fold([empty_sum(); LANES], |step, &k| add_step(step, k)),
                 Source::Parametric { .. } => (0..q.len()).fold([empty_sum(); LANES], add_step),
             };
-            let (gg, offset, longest) = (&squared[r], &offset[r], &longest[r]);
+            let (gg, length, offset, longest) = (&squared[r], &lengths[r], &offset[r], &longest[r]);
             for l in 0..LANES {
-                let (gg, gp, pp) = (gg[l], gp[l], pp[l]);
-                let length: f64 = gg.sqrt();
+                let (gg, gp, pp, length) = (gg[l], gp[l], pp[l], length[l]);
                 // `lookahead` without its branch (a lane whose d vanishes or is NaN is not
                 // shrinking), so that the lanes run in vector registers.
                 let gd = gg - gp;
@@ -360,14 +365,19 @@ impl LaneMonitor {
                 self.values
                     .copy_from_slice(&out[m * LANES..m * LANES + nnz]);
                 // |C_r| / |g_r| (as `observe_from`).
-                squared_lengths(&self.start, &self.values, &mut self.squared);
-                for ((offset, c), gg) in self
+                row_lengths(
+                    &self.start,
+                    &self.values,
+                    &mut self.squared,
+                    &mut self.lengths,
+                );
+                for ((offset, c), length) in self
                     .offset
                     .iter_mut()
                     .zip(&self.constraints)
-                    .zip(&self.squared)
+                    .zip(&self.lengths)
                 {
-                    *offset = c.abs() / gg.sqrt();
+                    *offset = c.abs() / length;
                 }
             }
             Source::Parametric {
@@ -379,7 +389,12 @@ impl LaneMonitor {
                     self.values[i * LANES..(i + 1) * LANES]
                         .copy_from_slice(&jacobian[e * LANES..(e + 1) * LANES]);
                 }
-                squared_lengths(&self.start, &self.values, &mut self.squared);
+                row_lengths(
+                    &self.start,
+                    &self.values,
+                    &mut self.squared,
+                    &mut self.lengths,
+                );
                 if m == 0 {
                     return;
                 }
@@ -418,15 +433,14 @@ impl LaneMonitor {
         std::mem::swap(&mut self.before, &mut self.last);
         self.last.copy_from_slice(&self.values);
         let mut distance = [0.0; LANES];
-        for ((longest, gg), offset) in self
+        for ((longest, length), offset) in self
             .longest
             .chunks_exact_mut(LANES)
-            .zip(self.squared.chunks_exact(LANES))
-            .zip(self.offset.chunks_exact(LANES))
+            .zip(rows(&self.lengths))
+            .zip(rows(&self.offset))
         {
             for l in 0..LANES {
-                // norm(): sum() from -0.0, then the root.
-                longest[l] = longest[l].max(gg[l].sqrt());
+                longest[l] = longest[l].max(length[l]);
                 distance[l] = max_nan(distance[l], offset[l].abs());
             }
         }
@@ -449,17 +463,19 @@ fn empty_sum() -> f64 {
     std::iter::empty::<f64>().sum()
 }
 
-/// |g_r|^2 of every row r (entries start[r]..start[r + 1] of `values`) and lane, summed
-/// from [`empty_sum`] as `sum()`.
-fn squared_lengths(start: &[usize], values: &[f64], squared: &mut [f64]) {
-    for (r, gg) in squared.chunks_exact_mut(LANES).enumerate() {
-        gg.fill(empty_sum());
-        for e in start[r]..start[r + 1] {
-            let g = &values[e * LANES..(e + 1) * LANES];
-            for l in 0..LANES {
-                gg[l] += g[l] * g[l];
-            }
+/// |g_r|^2 and |g_r| of every row r (entries start[r]..start[r + 1] of `values`) and lane,
+/// summed from [`empty_sum`] as `sum()` (then the root: `norm`'s bits).
+fn row_lengths(start: &[usize], values: &[f64], squared: &mut [f64], lengths: &mut [f64]) {
+    let values = rows(values);
+    let squared = squared.as_chunks_mut::<LANES>().0;
+    let lengths = lengths.as_chunks_mut::<LANES>().0;
+    for (r, (gg, length)) in squared.iter_mut().zip(lengths).enumerate() {
+        let mut sum = [empty_sum(); LANES];
+        for g in &values[start[r]..start[r + 1]] {
+            sum = std::array::from_fn(|l| sum[l] + g[l] * g[l]);
         }
+        *gg = sum;
+        *length = sum.map(f64::sqrt);
     }
 }
 
