@@ -157,7 +157,7 @@ pub fn prepare(system: &System) {
     // The layouts alone matter here: any tolerance, gains, forces and masses.
     if let Some(fused) = FusedImplicit::new(system, Some(0.0), 0.0, 0.0) {
         if fused.has_constant_force() {
-            FusedStep::new(fused.layout(), set.fused(), 0.0);
+            FusedStep::new(fused.layout(), set.fused(), None, 0.0);
         }
     }
     if let Some(map) = system.parametric() {
@@ -166,7 +166,7 @@ pub fn prepare(system: &System) {
             .get_or_init(|| parametric_tape(map));
         let zeros = vec![0.0; map.positions.len()];
         if let Some(fused) = FusedParametric::new(system, &zeros, &zeros, 0.0) {
-            FusedStep::new(fused.layout(), map.fused(), 0.0);
+            FusedStep::new(fused.layout(), map.fused(), None, 0.0);
         }
     }
 }
@@ -391,10 +391,18 @@ pub(crate) struct FusedStep {
 impl FusedStep {
     /// The step of `accel` (see [`rk4::step_tape`]); its tape built once per constraint set
     /// or map, into `tapes`.
-    fn new(accel: AccelerationTape<'_>, tapes: &FusedTapes, tolerance: f64) -> FusedStep {
-        let tape = tapes
-            .rk4
-            .get_or_init(|| Some(rk4::step_tape(&accel)))
+    fn new(
+        accel: AccelerationTape<'_>,
+        tapes: &FusedTapes,
+        observe: Option<&Tape>,
+        tolerance: f64,
+    ) -> FusedStep {
+        let cache = match observe {
+            None => &tapes.rk4,
+            Some(_) => &tapes.rk4_observed,
+        };
+        let tape = cache
+            .get_or_init(|| Some(rk4::step_tape(&accel, observe)))
             .clone()
             .expect("built above");
         FusedStep {
@@ -489,6 +497,13 @@ impl FusedStep {
         true
     }
 
+    /// The observation tape's outputs at the end of the last [`Self::step_lanes`] (lanes
+    /// innermost, as the observation tape evaluated there leaves them), for a step built
+    /// with one.
+    pub(crate) fn observation<const L: usize>(&self) -> &[f64] {
+        &self.out[(2 * self.n + 2 * self.rows * 4) * L..]
+    }
+
     /// One step of every lane from time t by h under `constants` (loaded on the first call
     /// only: the lanes' are fixed): (q, qdot) (n x L each) advanced in place;
     /// `failed[l] = true` where a stage's matrix fails the pivot test (the lane's state is
@@ -518,10 +533,16 @@ impl FusedStep {
 }
 
 impl FusedImplicit {
-    /// One RK4 step as one tape for sweep lanes (built once per constraint set); the lanes
-    /// pass [`Self::step_constants`] with their applied forces.
+    /// One RK4 step as one tape for sweep lanes (built once per constraint set), with the
+    /// monitors' observation (C and J, the gradient tape) at its end; the lanes pass
+    /// [`Self::step_constants`] with their applied forces.
     pub(crate) fn rk4_step(&self, set: &ConstraintSet) -> FusedStep {
-        FusedStep::new(self.layout(), set.fused(), self.tolerance)
+        FusedStep::new(
+            self.layout(),
+            set.fused(),
+            Some(set.gradient_tape()),
+            self.tolerance,
+        )
     }
 
     /// The step's constants under the applied forces `force`: F, then W, ks, kd as kept.
@@ -573,7 +594,7 @@ pub(crate) fn compiled_rk4_step(
 ) -> bool {
     if fused.steps().step.is_none() {
         let tolerance = fused.steps().tolerance;
-        let step = FusedStep::new(fused.layout(), tapes, tolerance);
+        let step = FusedStep::new(fused.layout(), tapes, None, tolerance);
         fused.steps().step = Some(Box::new(step));
     }
     let (steps, constants) = fused.parts();
@@ -708,10 +729,16 @@ impl FusedParametric {
         })
     }
 
-    /// One RK4 step as one tape for sweep lanes (built once per map), under
+    /// One RK4 step as one tape for sweep lanes (built once per map), with the monitors'
+    /// observation (x, xdot and J, the observation tape) at its end, under
     /// [`Self::step_constants`].
     pub(crate) fn rk4_step(&self, map: &ParametricMap) -> FusedStep {
-        FusedStep::new(self.layout(), map.fused(), self.tolerance)
+        FusedStep::new(
+            self.layout(),
+            map.fused(),
+            Some(map.observation_tape()),
+            self.tolerance,
+        )
     }
 
     /// The step's constants: F and the masses.

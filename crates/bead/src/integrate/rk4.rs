@@ -162,8 +162,10 @@ pub(crate) fn step_variables(t: f64, h: f64) -> [f64; 5] {
 /// ```
 ///
 /// Variables: q, qdot (n each), t, the constants, then [`step_variables`]. Outputs: q',
-/// qdot' (n each), then each stage's diagonals and pivots (2 rows each).
-pub(crate) fn step_tape(accel: &AccelerationTape<'_>) -> Tape {
+/// qdot' (n each), then each stage's diagonals and pivots (2 rows each), then, with
+/// `observe` (a tape of variables q, qdot, t: what a run's monitors evaluate at a step's
+/// end), its outputs at (q', qdot', t + h).
+pub(crate) fn step_tape(accel: &AccelerationTape<'_>, observe: Option<&Tape>) -> Tape {
     let n = accel.n;
     let mut b = TapeBuilder::new();
     let q: Vec<Sym> = (0..n).map(|k| b.var(k)).collect();
@@ -222,6 +224,11 @@ pub(crate) fn step_tape(accel: &AccelerationTape<'_>) -> Tape {
     let mut outputs = update(&mut b, &q, [&v1, &v2, &v3, &v4]);
     outputs.extend(update(&mut b, &qdot, [&a1, &a2, &a3, &a4]));
     outputs.extend(pivots);
+    if let Some(observe) = observe {
+        let end: Vec<Sym> = outputs[..2 * n].iter().chain([&t_full]).copied().collect();
+        let observed = b.append_with(observe, &end);
+        outputs.extend(observed);
+    }
     b.finish(&outputs)
 }
 

@@ -250,13 +250,15 @@ impl System {
 pub(crate) struct FusedTapes {
     pub(crate) acceleration: std::sync::OnceLock<Option<crate::expr::Tape>>,
     pub(crate) rk4: std::sync::OnceLock<Option<crate::expr::Tape>>,
+    /// The same step with the monitors' observation at its end (the sweep lanes')
+    pub(crate) rk4_observed: std::sync::OnceLock<Option<crate::expr::Tape>>,
 }
 
 impl FusedTapes {
     /// The fused acceleration's tape and the RK4 step, those built (for the machine code
     /// summary).
     pub(crate) fn built(&self) -> impl Iterator<Item = &crate::expr::Tape> {
-        [&self.acceleration, &self.rk4]
+        [&self.acceleration, &self.rk4, &self.rk4_observed]
             .into_iter()
             .filter_map(|cell| cell.get().and_then(Option::as_ref))
     }
