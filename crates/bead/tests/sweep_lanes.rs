@@ -95,6 +95,16 @@ fn shipped(name: &str) -> Scene {
     Scene::load(&path, &[]).unwrap_or_else(|e| panic!("{e}"))
 }
 
+/// The swept parabola with a spring of stiffness `k` (a parameter, 2 by default) from the
+/// bead to an anchor, then the TOML `more`.
+fn parabola_with_spring(file: &str, more: &str) -> Scene {
+    let text = format!(
+        "{}\n[[force]]\nkind = \"spring\"\nparticle = \"bead\"\nanchor = [0.0, -300.0]\nstiffness = \"k\"\nrest_length = 50.0\n{more}",
+        common::PARABOLA_SWEPT.replace("mass = 1.0\n", "mass = 1.0\nk = 2.0\n")
+    );
+    Scene::parse(&text, file, &[]).unwrap()
+}
+
 fn rk4(method: Method, dt: f64, steps: u64) -> PlanRequest {
     PlanRequest {
         method: Some(method),
@@ -260,11 +270,8 @@ fn stop_conditions_sampled_inside_the_steps_leave_the_lanes_as_alone() {
 /// is still the member's alone, bit for bit, in both forms.
 #[test]
 fn members_with_springs_and_constant_forces_are_their_runs_alone() {
-    let text = format!(
-        "{}\n[[force]]\nkind = \"spring\"\nparticle = \"bead\"\nanchor = [0.0, -300.0]\nstiffness = \"k\"\nrest_length = 50.0\n\n[[force]]\nkind = \"constant\"\nparticle = \"bead\"\nvector = [40.0, 0.0]\n",
-        common::PARABOLA_SWEPT.replace("mass = 1.0\n", "mass = 1.0\nk = 2.0\n")
-    );
-    let scene = Scene::parse(&text, "parabola-spring.toml", &[]).unwrap();
+    let push = "\n[[force]]\nkind = \"constant\"\nparticle = \"bead\"\nvector = [40.0, 0.0]\n";
+    let scene = parabola_with_spring("parabola-spring.toml", push);
     for method in [Method::Implicit, Method::Parametric] {
         let members = check(
             &scene,
@@ -284,11 +291,7 @@ fn members_with_springs_and_constant_forces_are_their_runs_alone() {
 /// (every coordinate within the floor, else within the member's reach at t) is the run's.
 #[test]
 fn members_that_blow_up_leave_with_their_divergence() {
-    let text = format!(
-        "{}\n[[force]]\nkind = \"spring\"\nparticle = \"bead\"\nanchor = [0.0, -300.0]\nstiffness = \"k\"\nrest_length = 50.0\n",
-        common::PARABOLA_SWEPT.replace("mass = 1.0\n", "mass = 1.0\nk = 2.0\n")
-    );
-    let scene = Scene::parse(&text, "parabola-stiff.toml", &[]).unwrap();
+    let scene = parabola_with_spring("parabola-stiff.toml", "");
     for method in [Method::Implicit, Method::Parametric] {
         let members = check(
             &scene,

@@ -634,6 +634,17 @@ mod codegen {
         for (j, &s) in outputs.iter().enumerate() {
             stored_as[s as usize].push(j);
         }
+        // The constant at byte `offset`, in every lane (`spread`) or as one scalar.
+        let load_const = |b: &mut FunctionBuilder, offset: i32, spread: bool| -> Value {
+            let c = b
+                .ins()
+                .load(types::F64, MemFlagsData::trusted(), consts, offset);
+            if width == 1 || !spread {
+                c
+            } else {
+                b.ins().splat(ty, c)
+            }
+        };
         let load_deferred = |b: &mut FunctionBuilder, what: Deferred| -> Value {
             match what {
                 Deferred::Var(k) => {
@@ -645,16 +656,7 @@ mod codegen {
                     };
                     b.ins().load(ty, flags, addr, 0)
                 }
-                Deferred::Const(offset) => {
-                    let c = b
-                        .ins()
-                        .load(types::F64, MemFlagsData::trusted(), consts, offset);
-                    if width == 1 {
-                        c
-                    } else {
-                        b.ins().splat(ty, c)
-                    }
-                }
+                Deferred::Const(offset) => load_const(b, offset, true),
             }
         };
         let store = |b: &mut FunctionBuilder, value: Value, j: usize| {
@@ -724,14 +726,7 @@ mod codegen {
                 let offset = i32::try_from(n_const * 8)
                     .map_err(|_| "too many constants for one function".to_string())?;
                 n_const += 1;
-                let c = b
-                    .ins()
-                    .load(types::F64, MemFlagsData::trusted(), consts, offset);
-                Ok(if width == 1 || !spread {
-                    c
-                } else {
-                    b.ins().splat(ty, c)
-                })
+                Ok(load_const(b, offset, spread))
             };
             let mut konst = |b: &mut FunctionBuilder| konst_as(b, true);
             let unary = |b: &mut FunctionBuilder, f: extern "C" fn(f64) -> f64, a: u32| {

@@ -371,6 +371,9 @@ impl FusedImplicit {
     }
 }
 
+/// The stages of an RK4 step, each with its pivot tests in the step's outputs.
+const STAGES: usize = 4;
+
 /// One RK4 step of a fused acceleration as one tape ([`rk4::step_tape`]), run for one
 /// state ([`Self::step_one`], a simulation's steps) or L lanes at once
 /// ([`Self::step_lanes`], the sweep lanes).
@@ -451,7 +454,7 @@ impl FusedStep {
         self.tape
             .eval_lanes::<L>(&self.vars, &mut self.scratch, &mut self.out);
         let mut pass = [true; L];
-        for stage in 0..4 {
+        for stage in 0..STAGES {
             let at = 2 * n + 2 * rows * stage;
             for j in 0..rows {
                 let diagonal = &self.out[(at + j) * L..(at + j + 1) * L];
@@ -485,7 +488,7 @@ impl FusedStep {
         vars[2 * n + 1..after].copy_from_slice(constants);
         vars[after..after + 5].copy_from_slice(&rk4::step_variables(t, h));
         self.tape.eval(&self.vars, &mut self.scratch, &mut self.out);
-        let tests = &self.out[2 * n..2 * n + 2 * rows * 4];
+        let tests = &self.out[2 * n..2 * n + 2 * rows * STAGES];
         if !tests
             .chunks_exact(2 * rows)
             .all(|stage| pivots_pass(&stage[..rows], &stage[rows..], self.tolerance))
@@ -501,7 +504,7 @@ impl FusedStep {
     /// innermost, as the observation tape evaluated there leaves them), for a step built
     /// with one.
     pub(crate) fn observation<const L: usize>(&self) -> &[f64] {
-        &self.out[(2 * self.n + 2 * self.rows * 4) * L..]
+        &self.out[(2 * self.n + 2 * self.rows * STAGES) * L..]
     }
 
     /// One step of every lane from time t by h under `constants` (loaded on the first call

@@ -48,7 +48,6 @@ impl Integrator for Rk4 {
         let [v1, v2, v3, v4] = &mut self.velocity;
         let [a1, a2, a3, a4] = &mut self.acceleration;
         let q = &mut self.q_stage;
-        v1.copy_from_slice(&s.qdot);
         // The first stage evaluated by `prime` at bitwise this state is this one.
         let primed = self.primed.take().is_some_and(|t| {
             let n = s.q.len();
@@ -60,6 +59,7 @@ impl Integrator for Rk4 {
             s.t += dt;
             return Ok(());
         }
+        v1.copy_from_slice(&s.qdot);
         if !primed {
             system.acceleration(s.t, &s.q, v1, a1)?;
         }
