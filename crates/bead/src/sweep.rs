@@ -53,7 +53,8 @@ use crate::plan::{Plan, PlanError, PlanRequest};
 use crate::scene::{Rebinder, Scene};
 use crate::simulate::lanes::{lanes_can_run, run_lanes, LaneOutcome, LANES};
 use crate::simulate::{
-    run, run_rest, Event, NullSink, RunFailure, RunOptions, RunStats, Simulation,
+    run, run_rest, solve_holding, Event, NullSink, RunFailure, RunOptions, RunStats, Simulation,
+    StateRequest,
 };
 
 /// The most members a sweep may have: 2^32. Members stream ([`Sweep::run_each`]), so memory
@@ -166,7 +167,7 @@ pub enum SweepError {
     NotFinite { name: String },
     #[error("`{name}` is swept twice")]
     Repeated { name: String },
-    #[error("unknown parameter `{name}`; {}", known_params(.known))]
+    #[error("unknown parameter `{name}`; {}; or sweep the initial state: NAME.x, NAME.vx (a particle's position and velocity), q.NAME, qdot.NAME (the parametric form's)", known_params(.known))]
     UnknownParam { name: String, known: Vec<String> },
     #[error("zipped parameters must have the same number of values: {}", .lengths.iter().map(|(n, l)| format!("`{n}` has {l}")).collect::<Vec<_>>().join(", "))]
     ZipLengths { lengths: Vec<(String, usize)> },
@@ -427,6 +428,80 @@ enum Stop {
     Each(String),
 }
 
+/// A number of a scene's start that a sweep's axis may set instead of a parameter, named
+/// as the trace's columns are: `NAME.x|y|z` and `NAME.vx|vy|vz` (particle NAME's position
+/// and velocity), `q.NAME` and `qdot.NAME` (the parametric form's coordinate and rate).
+/// A member's start is the scene's with these replaced, placed on the constraints
+/// ([`Scene::with_state`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum StatePart {
+    Position(usize),
+    Velocity(usize),
+    Q(usize),
+    Qdot(usize),
+}
+
+impl StatePart {
+    fn of(system: &System, name: &str) -> Option<StatePart> {
+        let (head, tail) = name.rsplit_once('.')?;
+        let coordinates = system.parametric().map_or(&[][..], |m| m.coordinates());
+        match head {
+            "q" => return coordinates.iter().position(|c| c == tail).map(StatePart::Q),
+            "qdot" => {
+                return coordinates
+                    .iter()
+                    .position(|c| c == tail)
+                    .map(StatePart::Qdot)
+            }
+            _ => {}
+        }
+        let p = system.particle_id(head)?.0;
+        let dim = system.dim();
+        let axis = |a: &str| ["x", "y", "z"][..dim].iter().position(|&n| n == a);
+        match tail.strip_prefix('v') {
+            Some(a) => axis(a).map(|a| StatePart::Velocity(p * dim + a)),
+            None => axis(tail).map(|a| StatePart::Position(p * dim + a)),
+        }
+    }
+
+    /// The scene's start with `values` set. Particle coordinates set are held and the
+    /// others placed on the constraints around them ([`solve_holding`]: `bead.x` swept on a
+    /// curve puts the bead on the curve at that x); q and qdot set are taken as they are.
+    /// Only the parts (positions and velocities, q, qdot) they touch are asked for.
+    fn request(system: &System, values: &[(StatePart, f64)]) -> Result<StateRequest, String> {
+        let (mut x, mut v) = system.initial_particle_state();
+        let n = x.len();
+        let (mut held_x, mut held_v) = (vec![false; n], vec![false; n]);
+        for &(part, value) in values {
+            match part {
+                StatePart::Position(k) => (x[k], held_x[k]) = (value, true),
+                StatePart::Velocity(k) => (v[k], held_v[k]) = (value, true),
+                _ => {}
+            }
+        }
+        let cartesian = held_x.iter().chain(&held_v).any(|&h| h);
+        if cartesian {
+            solve_holding(system, 0.0, &mut x, &mut v, &held_x, &held_v)?;
+        }
+        let (q, qdot) = system.parametric().map_or((Vec::new(), Vec::new()), |m| {
+            (m.initial().to_vec(), m.rates().to_vec())
+        });
+        let mut request = StateRequest::default();
+        if cartesian {
+            request.positions = Some(x);
+            request.velocities = Some(v);
+        }
+        for &(part, value) in values {
+            match part {
+                StatePart::Q(k) => request.q.get_or_insert_with(|| q.clone())[k] = value,
+                StatePart::Qdot(k) => request.qdot.get_or_insert_with(|| qdot.clone())[k] = value,
+                _ => {}
+            }
+        }
+        Ok(request)
+    }
+}
+
 impl Sweep {
     /// A sweep of `scene` (with the overrides it was loaded with) over `axes`, each member
     /// run as `request` asks over its own scene's `[run]` table (recording nothing), until
@@ -446,7 +521,8 @@ impl Sweep {
             return Err(SweepError::NoAxes);
         }
         for (i, axis) in axes.iter().enumerate() {
-            if !scene.params.iter().any(|(n, _)| *n == axis.name) {
+            let is_param = scene.params.iter().any(|(n, _)| *n == axis.name);
+            if !is_param && StatePart::of(&scene.system, &axis.name).is_none() {
                 return Err(SweepError::UnknownParam {
                     name: axis.name.clone(),
                     known: scene.params.iter().map(|(n, _)| n.clone()).collect(),
@@ -508,6 +584,16 @@ impl Sweep {
         request: &PlanRequest,
         stop_when: Option<&str>,
     ) -> MemberSetup {
+        if let Some(axis) = axes
+            .iter()
+            .find(|a| StatePart::of(&scene.system, &a.name).is_some())
+        {
+            return MemberSetup::Reload(vec![format!(
+                "the initial state is swept (`{}`): each member's start is placed on the \
+                 constraints",
+                axis.name
+            )]);
+        }
         let names: Vec<String> = axes.iter().map(|a| a.name.clone()).collect();
         let rebinder = match scene.rebinder(&names) {
             Ok(rebinder) => rebinder,
@@ -698,18 +784,35 @@ impl Sweep {
                 layout,
             }))
         };
-        let overrides: Vec<(String, f64)> = self
-            .axes
-            .iter()
-            .zip(&params)
-            .map(|(a, &v)| (a.name.clone(), v))
-            .collect();
-        let scene = match self.scene.with_params(&overrides) {
+        let mut overrides: Vec<(String, f64)> = Vec::new();
+        let mut state: Vec<(StatePart, f64)> = Vec::new();
+        for (axis, &value) in self.axes.iter().zip(&params) {
+            match StatePart::of(&self.scene.system, &axis.name) {
+                Some(part) => state.push((part, value)),
+                None => overrides.push((axis.name.clone(), value)),
+            }
+        }
+        let scene = if overrides.is_empty() {
+            Ok(self.scene.clone())
+        } else {
+            self.scene.with_params(&overrides)
+        };
+        let scene = match scene {
             Ok(scene) => scene,
             // `file:line:column: message`, without the snippet under it: one line per member.
             Err(e) => {
                 let line = e.to_string().lines().next().unwrap_or_default().to_string();
                 return fail(line, None);
+            }
+        };
+        let scene = if state.is_empty() {
+            scene
+        } else {
+            let placed = StatePart::request(&scene.system, &state)
+                .and_then(|request| scene.with_state(&request).map_err(|e| e.to_string()));
+            match placed {
+                Ok((scene, _)) => scene,
+                Err(e) => return fail(format!("the initial state: {e}"), None),
             }
         };
         let plan = match Plan::resolve(&scene, &self.request) {
@@ -1105,7 +1208,13 @@ impl Sweep {
     /// `member`, the parameters and [`FIGURES`].
     fn leading_columns(&self) -> Vec<String> {
         let mut columns: Vec<String> = vec!["member".into()];
-        columns.extend(self.axes.iter().map(|a| a.name.clone()));
+        // An axis of the start is `start.bead.x`: `bead.x` is the final position's column.
+        columns.extend(self.axes.iter().map(|a| {
+            match StatePart::of(&self.scene.system, &a.name) {
+                Some(_) => format!("start.{}", a.name),
+                None => a.name.clone(),
+            }
+        }));
         columns.extend(FIGURES.map(String::from));
         columns
     }

@@ -274,7 +274,9 @@ fn unknown_and_repeated_parameters_are_refused() {
     };
     assert_eq!(
         make(vec![Axis::linspace("h", 1.0, 2.0, 2).unwrap()]),
-        "unknown parameter `h`; the scene's parameters are g, x0, mass"
+        "unknown parameter `h`; the scene's parameters are g, x0, mass; or sweep the initial \
+         state: NAME.x, NAME.vx (a particle's position and velocity), q.NAME, qdot.NAME (the \
+         parametric form's)"
     );
     assert_eq!(
         make(vec![
@@ -612,4 +614,123 @@ fn sweep_members_stream_in_order_and_stop_when_asked() {
         sweep.run_each(5..4001, 2, |_| Ok::<(), SweepError>(())),
         Err(SweepError::OutOfRange { .. })
     ));
+}
+
+/// A sweep over the initial state (`bead.x`) with a parameter: each member is the scene with
+/// that parameter, started at that x on the curve (the bead's y solved, at rest), as
+/// `Scene::with_state` starts it, bit for bit; `q.q` sets the parametric coordinate itself.
+#[test]
+fn initial_state_axes_start_each_member_on_the_curve_at_that_coordinate() {
+    let scene = scene();
+    for method in [Method::Implicit, Method::Parametric] {
+        let sweep = Sweep::new(
+            &scene,
+            vec![
+                Axis::new("bead.x", vec![40.0, -80.0, 120.0]),
+                Axis::new("g", vec![100.0, 200.0]),
+            ],
+            Combine::Grid,
+            request(method, 60),
+            None,
+        )
+        .unwrap();
+        assert!(sweep.reload_reasons()[0].contains("`bead.x`"));
+        let members = sweep.run(2).unwrap();
+        for member in &members {
+            let (x, g) = (member.params[0], member.params[1]);
+            let start = bead::simulate::StateRequest {
+                positions: Some(vec![x, -x * x / 100.0]),
+                velocities: Some(vec![0.0, 0.0]),
+                ..Default::default()
+            };
+            let (alone, _) = scene
+                .with_params(&[("g".into(), g)])
+                .unwrap()
+                .with_state(&start)
+                .unwrap();
+            let plan = Plan::resolve(&alone, &request(method, 60)).unwrap();
+            let mut sim = Simulation::new(Arc::clone(&alone.system), plan.config(method)).unwrap();
+            let stats = run(&mut sim, plan.options(), &mut NullSink).unwrap();
+            assert_eq!(member.error, None);
+            assert_eq!(
+                member.stats.as_ref().map(figures),
+                Some(figures(&stats)),
+                "{method:?}"
+            );
+        }
+    }
+    // The parametric coordinate, and the errors.
+    let sweep = Sweep::new(
+        &scene,
+        vec![Axis::new("q.q", vec![10.0, 20.0])],
+        Combine::Grid,
+        request(Method::Parametric, 1),
+        None,
+    )
+    .unwrap();
+    let members = sweep.run(1).unwrap();
+    for (member, q) in members.iter().zip([10.0, 20.0]) {
+        let x = &member.stats.as_ref().unwrap().x;
+        assert!((x[0] - q).abs() < 2.0 && (x[1] + x[0] * x[0] / 100.0).abs() < 1e-9);
+    }
+    let unknown = Sweep::new(
+        &scene,
+        vec![Axis::new("bead.w", vec![1.0])],
+        Combine::Grid,
+        request(Method::Implicit, 1),
+        None,
+    )
+    .unwrap_err();
+    assert!(unknown.to_string().contains("NAME.x"), "{unknown}");
+}
+
+/// Holding the start's coordinates swept: on the helix (two rows), `bead.z` puts the bead at
+/// (R cos(z/b), R sin(z/b), z); on the circle, both x and y given leave nothing to solve:
+/// the start is the closest point to them, as `Scene::with_state` places it.
+#[test]
+fn held_coordinates_of_the_start_are_kept_and_the_rest_solved() {
+    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../../scenes/helix.toml");
+    let helix = Scene::parse(&std::fs::read_to_string(path).unwrap(), "helix.toml", &[]).unwrap();
+    let request = PlanRequest {
+        method: Some(Method::Implicit),
+        dt: Some(1e-9),
+        steps: Some(1),
+        ..Default::default()
+    };
+    let sweep = Sweep::new(
+        &helix,
+        vec![Axis::new("bead.z", vec![0.1, 0.5, -0.7])],
+        Combine::Grid,
+        request.clone(),
+        None,
+    )
+    .unwrap();
+    for member in sweep.run(1).unwrap() {
+        let z = member.params[0];
+        let x = &member.stats.as_ref().unwrap().x;
+        let expected = [(z / 0.2).cos(), (z / 0.2).sin(), z];
+        for (a, b) in x.iter().zip(expected) {
+            assert!((a - b).abs() < 1e-6, "{x:?} vs {expected:?}");
+        }
+    }
+    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../../scenes/circle.toml");
+    let circle = Scene::parse(&std::fs::read_to_string(path).unwrap(), "circle.toml", &[]).unwrap();
+    let sweep = Sweep::new(
+        &circle,
+        vec![
+            Axis::new("bead.x", vec![0.6, 1.2]),
+            Axis::new("bead.y", vec![0.8, 1.6]),
+        ],
+        Combine::Zip,
+        request,
+        None,
+    )
+    .unwrap();
+    for member in sweep.run(1).unwrap() {
+        let x = &member.stats.as_ref().unwrap().x;
+        assert!(
+            (x[0] - 0.6).abs() < 1e-6 && (x[1] - 0.8).abs() < 1e-6,
+            "{x:?}"
+        );
+    }
 }

@@ -352,6 +352,29 @@ impl Formulation for Implicit {
         system.nonconservative_power(x, v) + external_power(system, &self.external, x, v)
     }
 
+    fn constraint_forces(
+        &mut self,
+        t: f64,
+        q: &[f64],
+        qdot: &[f64],
+        qddot: &mut [f64],
+        multipliers: &mut Vec<f64>,
+        force: &mut [f64],
+    ) -> Result<(), StepError> {
+        self.acceleration(t, q, qdot, qddot)?;
+        let set = self.system.constraints();
+        let (jacobian, lambda) = (self.jacobian(), self.multipliers());
+        multipliers.clear();
+        multipliers.extend_from_slice(lambda);
+        force.fill(0.0);
+        for (i, &l) in lambda.iter().enumerate() {
+            for (&k, &jik) in set.row_columns(i).iter().zip(&jacobian[set.row_entries(i)]) {
+                force[k] += jik * l;
+            }
+        }
+        Ok(())
+    }
+
     fn nonconservation(&self) -> Vec<Nonconservation> {
         let set = self.system.constraints();
         let mut out: Vec<Nonconservation> = self

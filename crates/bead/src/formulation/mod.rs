@@ -349,6 +349,26 @@ pub trait Formulation: SecondOrderSystem {
     /// feedback; parametric: m a - F, which works only when the map moves). d(T + V)/dt = P
     /// holds exactly for the equations the integrator advances.
     fn power(&self, q: &[f64], qdot: &[f64], qddot: &[f64]) -> f64;
+    /// The constraint forces at (t, q, qdot), from one evaluation of the acceleration there
+    /// (into `qddot`, n): into `force` (n_coords) the total force the constraints put on each
+    /// particle coordinate, into `multipliers` the multiplier of each implicit row.
+    ///
+    /// ```text
+    /// implicit:    M a = F + J^T lambda,  F_c = J^T lambda   (feedback included)
+    /// parametric:  a = J_map qddot + h,   F_c = M a - F      (the map's reaction)
+    /// ```
+    /// The parametric form has no rows (its map holds the particles on the constraints), so
+    /// `multipliers` is left empty there; F_c is defined for both forms and agrees between
+    /// them on the same state.
+    fn constraint_forces(
+        &mut self,
+        t: f64,
+        q: &[f64],
+        qdot: &[f64],
+        qddot: &mut [f64],
+        multipliers: &mut Vec<f64>,
+        force: &mut [f64],
+    ) -> Result<(), StepError>;
     /// P of the applied forces only (no constraint force) at (q, qdot): what RATTLE's
     /// unconstrained kicks need beside the constraint impulses it handles itself.
     fn applied_power(&self, q: &[f64], qdot: &[f64]) -> f64;

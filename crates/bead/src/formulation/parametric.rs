@@ -221,6 +221,21 @@ impl Parametric {
         }
     }
 
+    /// The map's reaction on particle coordinate k at the last evaluation (`evaluated`, from
+    /// [`Parametric::evaluated`]), whose result was `qddot`: m_k a_k - F_k with
+    /// a = J qddot + h (the constraint force the map exerts).
+    fn reaction(&self, evaluated: &[&[f64]; 5], k: usize, qddot: &[f64]) -> f64 {
+        let [_, _, bias, jacobian, force] = *evaluated;
+        let map = self.parametric_map();
+        let entries = map.row_entries(k);
+        let jq: f64 = jacobian[entries.clone()]
+            .iter()
+            .zip(&map.jacobian_columns()[entries])
+            .map(|(v, &j)| v * qddot[j])
+            .sum();
+        self.coordinate_mass[k] * (jq + bias[k]) - force[k]
+    }
+
     /// The last evaluation's x, xdot, h, J and F, wherever they are.
     pub(super) fn evaluated(&self) -> [&[f64]; 5] {
         match &self.fused {
@@ -426,20 +441,10 @@ impl Formulation for Parametric {
     /// m a - F (which works only when the map moves, since J^T (m a - F) = 0) plus the forces
     /// without a potential, at the last evaluation.
     fn power(&self, _q: &[f64], _qdot: &[f64], qddot: &[f64]) -> f64 {
-        let [position, velocity, bias, jacobian, force] = self.evaluated();
-        let map = self.parametric_map();
-        let columns = map.jacobian_columns();
+        let evaluated = self.evaluated();
+        let [position, velocity, _, _, _] = evaluated;
         let reaction: f64 = (0..position.len())
-            .map(|k| {
-                let entries = map.row_entries(k);
-                let jq: f64 = jacobian[entries.clone()]
-                    .iter()
-                    .zip(&columns[entries])
-                    .map(|(v, &j)| v * qddot[j])
-                    .sum();
-                let a = jq + bias[k];
-                velocity[k] * (self.coordinate_mass[k] * a - force[k])
-            })
+            .map(|k| velocity[k] * self.reaction(&evaluated, k, qddot))
             .sum();
         reaction + self.applied_power(position, velocity)
     }
@@ -452,6 +457,24 @@ impl Formulation for Parametric {
             return 0.0;
         }
         system.nonconservative_power(x, v) + external_power(system, &self.external, x, v)
+    }
+
+    fn constraint_forces(
+        &mut self,
+        t: f64,
+        q: &[f64],
+        qdot: &[f64],
+        qddot: &mut [f64],
+        multipliers: &mut Vec<f64>,
+        force: &mut [f64],
+    ) -> Result<(), StepError> {
+        self.acceleration(t, q, qdot, qddot)?;
+        multipliers.clear();
+        let evaluated = self.evaluated();
+        for (k, f) in force.iter_mut().enumerate() {
+            *f = self.reaction(&evaluated, k, qddot);
+        }
+        Ok(())
     }
 
     fn nonconservation(&self) -> Vec<Nonconservation> {

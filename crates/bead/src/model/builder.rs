@@ -694,6 +694,31 @@ impl System {
     }
 }
 
+impl System {
+    /// This system started elsewhere: particle positions `x` and velocities `v` (n_coords
+    /// each) and, when the system has a parametric form, its initial q and qdot. The
+    /// equations are shared, not compiled again; the values are taken as they are (the
+    /// caller placed them on the constraints).
+    pub fn with_initial_state(
+        &self,
+        x: &[f64],
+        v: &[f64],
+        parametric: Option<(Vec<f64>, Vec<f64>)>,
+    ) -> System {
+        let dim = self.dim();
+        let particles = (0..self.particles.len())
+            .map(|p| {
+                let range = p * dim..(p + 1) * dim;
+                (p, x[range.clone()].to_vec(), v[range].to_vec())
+            })
+            .collect();
+        let declared = self
+            .declared
+            .restarted(self.declared.params.clone(), particles, parametric);
+        self.restarted(Arc::new(declared))
+    }
+}
+
 impl SystemBuilder {
     /// This declaration with parameters `params` (every one, in order), the initial position
     /// and velocity of the particles `particles` (index, position, velocity) and, when given,

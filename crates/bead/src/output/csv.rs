@@ -5,8 +5,9 @@ use std::io::{self, BufWriter, Write};
 
 #[cfg(doc)]
 use crate::formulation::Formulation;
+use crate::formulation::Method;
 use crate::model::System;
-use crate::simulate::{Sample, Simulation, Sink};
+use crate::simulate::{ConstraintForceProbe, ConstraintForces, Sample, Simulation, Sink};
 
 const AXES: [&str; 3] = ["x", "y", "z"];
 
@@ -56,6 +57,27 @@ pub fn trace_header(system: &System, coordinates: &[String], work: bool) -> Vec<
     columns
 }
 
+/// The columns a trace with constraint forces adds after [`trace_header`]'s, in order:
+/// `lambda.1` .. `lambda.m`, the multipliers of the implicit form's constraint rows in the
+/// order of the constraints (none for the parametric form, which has no rows), then per
+/// particle `NAME.Fcx NAME.Fcy [NAME.Fcz]`, the total constraint force on it (see
+/// [`crate::formulation::Formulation::constraint_forces`]).
+pub fn constraint_force_header(system: &System, method: Method) -> Vec<String> {
+    let rows = match method {
+        Method::Implicit => system.constraints().n_rows(),
+        Method::Parametric => 0,
+    };
+    let mut columns: Vec<String> = (1..=rows).map(|i| format!("lambda.{i}")).collect();
+    for particle in system.particles() {
+        columns.extend(
+            AXES[..system.dim()]
+                .iter()
+                .map(|a| format!("{}.Fc{a}", particle.name)),
+        );
+    }
+    columns
+}
+
 /// A [`Sink`] that writes a CSV trace: a header row (see [`trace_header`]), then one row per
 /// recorded sample.
 ///
@@ -86,6 +108,8 @@ pub struct CsvTrace<W: Write> {
     work: bool,
     /// The row being formatted, reused so that recording allocates nothing once warm.
     line: String,
+    /// With constraint forces: their evaluation and its buffer.
+    forces: Option<(ConstraintForceProbe, ConstraintForces)>,
 }
 
 impl<W: Write> CsvTrace<W> {
@@ -93,18 +117,33 @@ impl<W: Write> CsvTrace<W> {
     /// `coordinates` are the parametric coordinates' names, empty for the implicit form;
     /// `work` adds the energy ledger's column (see [`trace_header`]).
     pub fn new(writer: W, system: &System, coordinates: &[String], work: bool) -> io::Result<Self> {
+        let header = trace_header(system, coordinates, work);
+        Self::start(writer, header, system, coordinates.len(), work, None)
+    }
+
+    /// Write (and flush) `header`, then rows of `n_q` generalized coordinates, the work
+    /// when `work`, and the constraint forces when `forces` evaluates them.
+    fn start(
+        writer: W,
+        header: Vec<String>,
+        system: &System,
+        n_q: usize,
+        work: bool,
+        forces: Option<(ConstraintForceProbe, ConstraintForces)>,
+    ) -> io::Result<Self> {
         let mut out = BufWriter::new(writer);
-        let header = trace_header(system, coordinates, work).join(",");
+        let header = header.join(",");
         out.write_all(header.as_bytes())?;
         out.write_all(b"\n")?;
         out.flush()?;
         Ok(CsvTrace {
             out,
             n_coords: system.n_coords(),
-            n_q: coordinates.len(),
+            n_q,
             dim: system.dim(),
             work,
             line: String::with_capacity(header.len() * 2),
+            forces,
         })
     }
 
@@ -118,6 +157,28 @@ impl<W: Write> CsvTrace<W> {
             formulation.coordinate_names(),
             simulation.tracks_work(),
         )
+    }
+
+    /// [`CsvTrace::for_simulation`] with the constraint forces of every recorded state
+    /// after each row ([`constraint_force_header`]), evaluated at the state as
+    /// [`Simulation::constraint_forces`] does (without external forces: a trace of a run
+    /// has none).
+    pub fn with_constraint_forces(writer: W, simulation: &Simulation) -> io::Result<Self> {
+        let formulation = simulation.formulation();
+        let system = formulation.system();
+        let coordinates = formulation.coordinate_names();
+        let method = formulation.method();
+        let probe = ConstraintForceProbe::new(
+            formulation.shared_system(),
+            method,
+            simulation.config().feedback,
+        )
+        .map_err(io::Error::other)?;
+        let work = simulation.tracks_work();
+        let mut header = trace_header(system, coordinates, work);
+        header.extend(constraint_force_header(system, method));
+        let forces = Some((probe, ConstraintForces::default()));
+        Self::start(writer, header, system, coordinates.len(), work, forces)
     }
 
     /// Flush and hand back the writer.
@@ -159,6 +220,19 @@ impl<W: Write> Sink for CsvTrace<W> {
         }
         for (q, qdot) in sample.q[..self.n_q].iter().zip(&sample.qdot[..self.n_q]) {
             let _ = write!(line, ",{q},{qdot}");
+        }
+        if let Some((probe, forces)) = &mut self.forces {
+            probe
+                .evaluate(sample.t, sample.q, sample.qdot, forces)
+                .map_err(|e| {
+                    io::Error::other(format!(
+                        "the constraint forces at t = {}: {e}",
+                        crate::readable(sample.t)
+                    ))
+                })?;
+            for value in forces.multipliers.iter().chain(&forces.force) {
+                let _ = write!(line, ",{value}");
+            }
         }
         line.push('\n');
         self.out.write_all(line.as_bytes())?;

@@ -2,7 +2,7 @@
 //!
 //! - [`CsvTrace`]: a [`Sink`](crate::simulate::Sink) that writes one CSV row per recorded
 //!   sample (time, particle positions and velocities, energy, constraint error and, for the
-//!   parametric form, q and qdot).
+//!   parametric form, q and qdot; optionally the constraint forces).
 //! - [`Summary`]: the figures of a run ([`RunStats`](crate::simulate::RunStats)) as a
 //!   serializable record with a fixed set of keys, written as JSON by `bead run --json`.
 //!
@@ -15,5 +15,5 @@
 mod csv;
 mod summary;
 
-pub use csv::{trace_header, CsvTrace};
+pub use csv::{constraint_force_header, trace_header, CsvTrace};
 pub use summary::{CoordinateStates, ParticleState, ParticleStates, Summary};

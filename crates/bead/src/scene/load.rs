@@ -190,6 +190,7 @@ fn load_limited(
         text: Arc::from(text),
         overrides: overrides.to_vec(),
         edits: Vec::new(),
+        start: None,
         lines: l.lines,
     })
 }

@@ -86,7 +86,7 @@ use std::sync::Arc;
 use crate::formulation::{Feedback, Method};
 use crate::integrate::IntegratorKind;
 use crate::model::System;
-use crate::simulate::Event;
+use crate::simulate::{Event, PlacedState, SetStateError, StateRequest};
 
 /// Relative tolerance of the consistency checks of [`Scene::warnings`].
 const WARN_TOLERANCE: f64 = 1e-9;
@@ -112,6 +112,8 @@ pub struct Scene {
     overrides: Vec<(String, f64)>,
     /// Constraint expressions replaced since (declared index, new expression), in order.
     edits: Vec<(usize, String)>,
+    /// The start set since ([`Scene::with_state`]), placed again after every change.
+    start: Option<StateRequest>,
     /// Where in the text each particle and constraint is given, for [`Scene::located_warnings`].
     lines: Lines,
 }
@@ -210,6 +212,9 @@ pub enum SceneEditError {
     Edit(#[from] EditError),
     #[error(transparent)]
     Load(#[from] SceneError),
+    /// The start set with [`Scene::with_state`] cannot be placed on the changed scene.
+    #[error("the start set on the scene: {0}")]
+    Start(#[from] SetStateError),
 }
 
 /// `[run]` defaults; every field may be overridden on the command line.
@@ -365,7 +370,82 @@ impl Scene {
         for (index, source) in &self.edits {
             scene = scene.with_constraint_expr(*index, source)?;
         }
+        if let Some(start) = &self.start {
+            scene = scene.with_state(start)?.0;
+        }
         Ok(scene)
+    }
+
+    /// The scene with the TOML tables `tables` added after its text (e.g. a `[[force]]`
+    /// table: `bead.Scene.with_force` in Python), loaded again as
+    /// [`Scene::with_params`] loads it, with its overrides, constraint edits and start. An
+    /// error in the added text is located in the text with it (the lines after the file's).
+    pub fn with_tables(&self, tables: &str) -> Result<Scene, SceneEditError> {
+        let mut text = self.text.to_string();
+        if !text.ends_with('\n') {
+            text.push('\n');
+        }
+        text.push_str(tables);
+        let mut scene = load::load(&text, &self.file, &self.overrides, Some(&self.system))?;
+        for (index, source) in &self.edits {
+            scene = scene.with_constraint_expr(*index, source)?;
+        }
+        if let Some(start) = &self.start {
+            scene = scene.with_state(start)?.0;
+        }
+        Ok(scene)
+    }
+
+    /// The scene started from `request` (its `t` must be absent or 0: a scene starts at
+    /// t = 0), placed on the constraints as [`crate::simulate::Simulation::set_state`]
+    /// places it, the same start for both forms: the particles' positions and velocities
+    /// and the parametric form's initial q and qdot are replaced (parts not asked for keep
+    /// the scene's values; see `simulate/state.rs`). With where the start was put and how far
+    /// that is from what was asked for. The start is kept through
+    /// [`Scene::with_params`] (placed again on the changed scene); the text stays the
+    /// file's.
+    ///
+    /// ```
+    /// # use bead::scene::Scene;
+    /// # use bead::simulate::StateRequest;
+    /// let scene = Scene::load("../../scenes/parabola.toml".as_ref(), &[]).unwrap();
+    /// let request = StateRequest { positions: Some(vec![100.0, -100.0]), ..Default::default() };
+    /// let (moved, placed) = scene.with_state(&request).unwrap();
+    /// assert_eq!(moved.system.initial_particle_state().0, vec![100.0, -100.0]);
+    /// let (q, _) = placed.parametric.unwrap();
+    /// assert!((q[0] - 100.0).abs() < 1e-9);
+    /// ```
+    pub fn with_state(
+        &self,
+        request: &StateRequest,
+    ) -> Result<(Scene, PlacedState), SetStateError> {
+        if let Some(t) = request.t.filter(|&t| t != 0.0) {
+            return Err(SetStateError::StartTime(t));
+        }
+        let system = &self.system;
+        let (x, v) = system.initial_particle_state();
+        let parametric = system.parametric().map(|m| (m.initial(), m.rates()));
+        let current = crate::simulate::Current {
+            t: 0.0,
+            x: &x,
+            v: &v,
+            parametric,
+        };
+        let placed = crate::simulate::place_start(system, current, request)?;
+        let moved = system.with_initial_state(
+            &placed.positions,
+            &placed.velocities,
+            placed.parametric.clone(),
+        );
+        let mut scene = self.clone();
+        scene.system = Arc::new(moved);
+        scene.start = Some(request.clone());
+        Ok((scene, placed))
+    }
+
+    /// The start set with [`Scene::with_state`], if any (as asked for).
+    pub fn start(&self) -> Option<&StateRequest> {
+        self.start.as_ref()
     }
 
     /// Whether `name` is a parameter of the scene and `value` finite.

@@ -58,6 +58,11 @@ impl Scene {
     /// them) reach beyond the initial values, one place per entry (`` `g` reaches world
     /// `gravity` ``).
     pub(crate) fn rebinder(&self, names: &[String]) -> Result<Rebinder, Vec<String>> {
+        if self.start.is_some() {
+            return Err(vec![
+                "the scene's start was set (with_state), which each member places again".into(),
+            ]);
+        }
         let unreadable = || vec!["the scene's text cannot be read again".to_string()];
         let raw: toml::Table = toml::from_str(&self.text).map_err(|_| unreadable())?;
         let doc: SceneFile = toml::from_str(&self.text).map_err(|_| unreadable())?;

@@ -62,6 +62,7 @@ mod ledger;
 mod monitor;
 mod restart;
 mod run;
+mod state;
 
 use std::sync::Arc;
 
@@ -71,9 +72,11 @@ pub use event::{Event, EventError};
 pub use monitor::Quantity;
 pub(crate) use run::run_rest;
 pub use run::{
-    run, run_with_progress, NoProgress, NullSink, Progress, RunError, RunFailure, RunOptions,
-    RunStats, Sample, Sink,
+    run, run_at_times, run_with_progress, NoProgress, NullSink, Progress, RunError, RunFailure,
+    RunOptions, RunStats, Sample, Sink,
 };
+pub(crate) use state::{place_start, solve_holding, Current};
+pub use state::{ConstraintForceProbe, ConstraintForces, PlacedState, SetStateError, StateRequest};
 
 use crate::formulation::{
     formulate, ConstraintScales, Formulation, Method, Nonconservation, SecondOrderSystem,
@@ -291,47 +294,15 @@ impl Simulation {
 
     /// The checks of the initial state (see [`Simulation::new`]).
     fn check_initial_state(&mut self) -> Result<(), SetupError> {
-        let t = self.state.t;
-        let n = self.n;
-        let initial = |e: StepError| SetupError::Initial(e);
-        let observation = &self.monitor.observation;
-        let system = self.formulation.system();
-        if let Some(k) = observation.x.iter().position(|c| !c.is_finite()) {
-            return Err(initial(StepError::NonFinite {
-                t,
-                quantity: format!("the position {}", system.coordinate_name(k)),
-            }));
-        }
-        if let Some(i) = observation.constraints.iter().position(|c| !c.is_finite()) {
-            let name = &system.constraints().info_of_row(i).name;
-            return Err(initial(StepError::NonFinite {
-                t,
-                quantity: format!("the value of {name} ({})", observation.constraints[i]),
-            }));
-        }
-        if let Some(row) = self.monitor.singular_at_start() {
-            return Err(initial(StepError::SingularPoint {
-                t,
-                subject: self.formulation.gradient_subject(row),
-                position: self.formulation.gradient_position(row, &self.state.q[..n]),
-                kind: crate::formulation::SingularKind::AtStart,
-                cause: None,
-            }));
-        }
-        let a = self.current_acceleration().map_err(initial)?;
-        if let Some(k) = a.iter().position(|c| !c.is_finite()) {
-            let names = self.formulation.coordinate_names();
-            let quantity = if k >= self.n {
-                "the initial rate of work of the energy ledger".to_string()
-            } else if names.is_empty() {
-                let name = self.formulation.system().coordinate_name(k);
-                format!("the initial acceleration of {name}")
-            } else {
-                format!("the initial acceleration of q.{}", names[k])
-            };
-            return Err(initial(StepError::NonFinite { t, quantity }));
-        }
-        Ok(())
+        let Simulation {
+            formulation,
+            ledger,
+            state,
+            monitor,
+            n,
+            ..
+        } = self;
+        check_start(formulation, ledger, *n, state, monitor).map_err(SetupError::Initial)
     }
 
     /// The configuration (with the constraint tolerance it resolved).
@@ -1404,7 +1375,7 @@ impl Simulation {
             (Method::Parametric, Some(map)) => {
                 let seeds = [current_q.as_slice(), map.initial()];
                 let masses = self.masses();
-                let q = restart::fit_coordinates(map, &seeds, &target, &masses)?;
+                let q = restart::fit_coordinates(map, 0.0, &seeds, &target, &masses)?;
                 state.q[..n].copy_from_slice(&q);
             }
             _ => {
@@ -1448,6 +1419,7 @@ impl Simulation {
         if system.constraints().n_rows() > 0 {
             return restart::closest_on_constraints(
                 self.formulation.shared_system(),
+                0.0,
                 x,
                 &self.config,
             );
@@ -1460,8 +1432,8 @@ impl Simulation {
                 } else {
                     vec![map.initial()]
                 };
-                let q = restart::fit_coordinates(map, &seeds, x, &self.masses())?;
-                Ok(restart::map_positions(map, &q))
+                let q = restart::fit_coordinates(map, 0.0, &seeds, x, &self.masses())?;
+                Ok(restart::map_positions(map, 0.0, &q))
             }
             None => Ok(x.to_vec()),
         }
@@ -1656,7 +1628,7 @@ fn with_system<R>(
 }
 
 /// Why [`Simulation::restart_at_rest`] refused a state.
-#[derive(Debug, thiserror::Error)]
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
 pub enum RestartError {
     #[error("positions need {expected} numbers, got {got}")]
     Length { expected: usize, got: usize },
@@ -1688,6 +1660,60 @@ fn project(
     )?;
     constrained.project_velocities(state.t, &state.q, &mut state.qdot)?;
     Ok(iterations)
+}
+
+/// Whether a simulation can start from `state` (n formulation coordinates, then the work
+/// coordinate when the ledger runs), whose observation `monitor` made: positions and
+/// constraint values finite, no gradient vanishing there, a finite acceleration.
+fn check_start(
+    formulation: &mut Box<dyn Formulation + Send>,
+    ledger: &mut Option<LedgerScratch>,
+    n: usize,
+    state: &State,
+    monitor: &Monitor,
+) -> Result<(), StepError> {
+    let t = state.t;
+    let observation = &monitor.observation;
+    let system = formulation.system();
+    if let Some(k) = observation.x.iter().position(|c| !c.is_finite()) {
+        return Err(StepError::NonFinite {
+            t,
+            quantity: format!("the position {}", system.coordinate_name(k)),
+        });
+    }
+    if let Some(i) = observation.constraints.iter().position(|c| !c.is_finite()) {
+        let name = &system.constraints().info_of_row(i).name;
+        return Err(StepError::NonFinite {
+            t,
+            quantity: format!("the value of {name} ({})", observation.constraints[i]),
+        });
+    }
+    if let Some(row) = monitor.singular_at_start() {
+        return Err(StepError::SingularPoint {
+            t,
+            subject: formulation.gradient_subject(row),
+            position: formulation.gradient_position(row, &state.q[..n]),
+            kind: crate::formulation::SingularKind::AtStart,
+            cause: None,
+        });
+    }
+    let mut a = vec![0.0; state.q.len()];
+    with_system(formulation, ledger, |system| {
+        system.acceleration(t, &state.q, &state.qdot, &mut a)
+    })?;
+    if let Some(k) = a.iter().position(|c| !c.is_finite()) {
+        let names = formulation.coordinate_names();
+        let quantity = if k >= n {
+            "the initial rate of work of the energy ledger".to_string()
+        } else if names.is_empty() {
+            let name = formulation.system().coordinate_name(k);
+            format!("the initial acceleration of {name}")
+        } else {
+            format!("the initial acceleration of q.{}", names[k])
+        };
+        return Err(StepError::NonFinite { t, quantity });
+    }
+    Ok(())
 }
 
 /// (q, qdot, W) of a state with n formulation coordinates (W = 0 without the ledger).

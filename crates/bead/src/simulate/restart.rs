@@ -12,7 +12,7 @@
 use std::sync::Arc;
 
 use super::{project, RestartError, SimulationConfig};
-use crate::formulation::{formulate, ConstraintScales, Feedback, Method, State};
+use crate::formulation::{formulate, ConstraintScales, Feedback, Formulation, Method, State};
 use crate::model::{ParametricMap, System};
 
 /// Tangent steps at most (each one projection and one or two velocity projections).
@@ -22,7 +22,7 @@ const MAX_TANGENT_STEPS: usize = 200;
 const SLOW_RATIO: f64 = 0.9;
 const SLOW_STEPS: usize = 10;
 
-/// The positions on C(y, 0) = 0 closest to `x` in the kinetic metric: the first-order
+/// The positions on C(y, t) = 0 closest to `x` in the kinetic metric: the first-order
 /// conditions are C(y) = 0 and M (y - x) + J^T mu = 0, i.e. the tangent part of x - y
 /// vanishes. Found by tangent steps and projections (gradient descent on the constraint
 /// manifold in the M metric):
@@ -45,18 +45,40 @@ const SLOW_STEPS: usize = 10;
 /// the constraints move (C_t != 0).
 pub(super) fn closest_on_constraints(
     system: Arc<System>,
+    t: f64,
     x: &[f64],
     config: &SimulationConfig,
 ) -> Result<Vec<f64>, RestartError> {
-    let moving =
-        (0..system.constraints().n_rows()).any(|r| system.constraints().is_time_dependent(r));
-    let w = system.inverse_mass().to_vec();
+    let mut formulation = implicit_projector(system, config)?;
+    closest_with(&mut *formulation, t, x, config)
+}
+
+/// The implicit form of `system` as the placements use it: no feedback, the constraint
+/// tolerance measured as `config` says.
+pub(super) fn implicit_projector(
+    system: Arc<System>,
+    config: &SimulationConfig,
+) -> Result<Box<dyn Formulation + Send>, RestartError> {
     let scales = config
         .scaled_constraint_tolerance
         .then(|| ConstraintScales::of(&system));
     let mut formulation = formulate(system, Method::Implicit, Feedback::default())
         .map_err(|_| RestartError::NoCoordinates("the system has no implicit form"))?;
     formulation.set_constraint_scales(scales);
+    Ok(formulation)
+}
+
+/// [`closest_on_constraints`] with the implicit form `formulation` of the system.
+pub(super) fn closest_with(
+    formulation: &mut dyn Formulation,
+    t: f64,
+    x: &[f64],
+    config: &SimulationConfig,
+) -> Result<Vec<f64>, RestartError> {
+    let system = formulation.shared_system();
+    let moving =
+        (0..system.constraints().n_rows()).any(|r| system.constraints().is_time_dependent(r));
+    let w = system.inverse_mass().to_vec();
     let norm = |v: &[f64]| -> f64 { v.iter().zip(&w).map(|(v, w)| v * v / w).sum::<f64>().sqrt() };
     let distance = |y: &[f64]| -> f64 {
         x.iter()
@@ -68,11 +90,11 @@ pub(super) fn closest_on_constraints(
     };
     let n = x.len();
     let mut state = State {
-        t: 0.0,
+        t,
         q: x.to_vec(),
         qdot: vec![0.0; n],
     };
-    project(&mut *formulation, &mut state, config).map_err(RestartError::Projection)?;
+    project(formulation, &mut state, config).map_err(RestartError::Projection)?;
     let Some(constrained) = formulation.as_constrained() else {
         return Ok(state.q);
     };
@@ -90,12 +112,12 @@ pub(super) fn closest_on_constraints(
             step[k] = x[k] - y[k];
         }
         constrained
-            .project_velocities(0.0, &y, &mut step)
+            .project_velocities(t, &y, &mut step)
             .map_err(RestartError::Projection)?;
         if moving {
             offset.fill(0.0);
             constrained
-                .project_velocities(0.0, &y, &mut offset)
+                .project_velocities(t, &y, &mut offset)
                 .map_err(RestartError::Projection)?;
             for (s, o) in step.iter_mut().zip(&offset) {
                 *s -= o;
@@ -124,7 +146,7 @@ pub(super) fn closest_on_constraints(
                 trial[k] = y[k] + a * step[k];
             }
             let projected = constrained.project_positions(
-                0.0,
+                t,
                 &mut trial,
                 settings.constraint_tolerance,
                 settings.constraint_max_iterations,
@@ -151,12 +173,13 @@ pub(super) fn closest_on_constraints(
     Ok(y)
 }
 
-/// The coordinates q whose x(q, 0) is closest to `target` in the kinetic metric (weighted
+/// The coordinates q whose x(q, t) is closest to `target` in the kinetic metric (weighted
 /// least squares, `masses` per particle coordinate), by [`closest_coordinates`] from each
 /// of `seeds`; the closest of the results. Several seeds guard against the local minima of
 /// the fit (a seed on the far side of a bowl).
 pub(super) fn fit_coordinates(
     map: &ParametricMap,
+    t: f64,
     seeds: &[&[f64]],
     target: &[f64],
     masses: &[f64],
@@ -164,7 +187,7 @@ pub(super) fn fit_coordinates(
     let mut best: Option<(f64, Vec<f64>)> = None;
     let mut failure = None;
     for seed in seeds {
-        match closest_coordinates(map, seed, target, masses) {
+        match closest_coordinates(map, t, seed, target, masses) {
             Ok((q, residual)) => {
                 if best.as_ref().is_none_or(|(r, _)| residual < *r) {
                     best = Some((residual, q));
@@ -180,19 +203,20 @@ pub(super) fn fit_coordinates(
     }
 }
 
-/// x(q, 0) (particle positions) of the map at coordinates q.
-pub(super) fn map_positions(map: &ParametricMap, q: &[f64]) -> Vec<f64> {
+/// x(q, t) (particle positions) of the map at coordinates q.
+pub(super) fn map_positions(map: &ParametricMap, t: f64, q: &[f64]) -> Vec<f64> {
     let mut ws = map.workspace();
-    map.observe(0.0, q, &vec![0.0; q.len()], &mut ws);
+    map.observe(t, q, &vec![0.0; q.len()], &mut ws);
     ws.position
 }
 
-/// The coordinates q whose x(q, 0) is closest to `x` (least squares weighted by `masses`),
+/// The coordinates q whose x(q, t) is closest to `x` (least squares weighted by `masses`),
 /// by Gauss-Newton from `q0`, with a little Levenberg damping so that a singular J^T M J (a
 /// point where the map does not depend on q) does not stop it; with the weighted squared
 /// distance reached.
 fn closest_coordinates(
     map: &ParametricMap,
+    t: f64,
     q0: &[f64],
     x: &[f64],
     masses: &[f64],
@@ -204,7 +228,6 @@ fn closest_coordinates(
     let mut q = q0.to_vec();
     let zero = vec![0.0; n_q];
     let mut ws = map.workspace();
-    let columns = map.jacobian_columns();
     let residual = |ws: &crate::model::ParametricEval| -> f64 {
         ws.position
             .iter()
@@ -214,22 +237,10 @@ fn closest_coordinates(
             .sum()
     };
     for _ in 0..50 {
-        map.observe(0.0, &q, &zero, &mut ws);
+        map.observe(t, &q, &zero, &mut ws);
         let r0 = residual(&ws);
         // Normal equations J^T M J dq = J^T M (x - x(q)), dense (n_q is small).
-        let mut a = vec![0.0; n_q * n_q];
-        let mut b = vec![0.0; n_q];
-        for (k, (&xk, &pk)) in x.iter().zip(&ws.position).enumerate() {
-            let entries = map.row_entries(k);
-            let m = masses[k];
-            for e in entries.clone() {
-                let (i, ji) = (columns[e], ws.jacobian[e]);
-                b[i] += m * ji * (xk - pk);
-                for f in entries.clone() {
-                    a[i * n_q + columns[f]] += m * ji * ws.jacobian[f];
-                }
-            }
-        }
+        let (mut a, b) = normal_equations(map, &ws, masses, |k| x[k] - ws.position[k]);
         let scale = (0..n_q).map(|i| a[i * n_q + i]).fold(0.0_f64, f64::max);
         for i in 0..n_q {
             a[i * n_q + i] += 1e-9 * scale.max(1e-300);
@@ -244,7 +255,7 @@ fn closest_coordinates(
             for i in 0..n_q {
                 trial[i] = q[i] + step * dq[i];
             }
-            map.observe(0.0, &trial, &zero, &mut ws);
+            map.observe(t, &trial, &zero, &mut ws);
             if residual(&ws) <= r0 || step < 1e-6 {
                 break;
             }
@@ -259,14 +270,63 @@ fn closest_coordinates(
     if q.iter().any(|v| !v.is_finite()) {
         return Err(RestartError::NoCoordinates("the fit diverged"));
     }
-    map.observe(0.0, &q, &zero, &mut ws);
+    map.observe(t, &q, &zero, &mut ws);
     let r = residual(&ws);
     Ok((q, r))
 }
 
+/// The rates qdot whose velocities xdot = J(q, t) qdot + dx/dt are closest to `v` in the
+/// kinetic metric: the normal equations (J^T M J) qdot = J^T M (v - dx/dt), which for a map
+/// that traces the constraints is the mass-weighted projection of `v` onto their velocity
+/// constraint (the implicit form's).
+pub(super) fn fit_rates(
+    map: &ParametricMap,
+    t: f64,
+    q: &[f64],
+    v: &[f64],
+    masses: &[f64],
+) -> Result<Vec<f64>, RestartError> {
+    let n_q = map.n_q();
+    let mut ws = map.workspace();
+    map.observe(t, q, &vec![0.0; n_q], &mut ws);
+    let (a, b) = normal_equations(map, &ws, masses, |k| v[k] - ws.velocity[k]);
+    solve_dense(a, b, n_q)
+        .filter(|qdot| qdot.iter().all(|r| r.is_finite()))
+        .ok_or(RestartError::NoCoordinates(
+            "the map does not depend on its coordinates here (J^T M J is singular)",
+        ))
+}
+
+/// The normal equations of a weighted least-squares fit through the map's Jacobian J at the
+/// evaluation `ws`: (J^T M J, J^T M r) with M = diag(`masses`) and r_k = `residual(k)`,
+/// dense (n_q x n_q, row-major; n_q is small).
+fn normal_equations(
+    map: &ParametricMap,
+    ws: &crate::model::ParametricEval,
+    masses: &[f64],
+    residual: impl Fn(usize) -> f64,
+) -> (Vec<f64>, Vec<f64>) {
+    let n_q = map.n_q();
+    let columns = map.jacobian_columns();
+    let mut a = vec![0.0; n_q * n_q];
+    let mut b = vec![0.0; n_q];
+    for (k, &m) in masses.iter().enumerate().take(ws.position.len()) {
+        let entries = map.row_entries(k);
+        let r = residual(k);
+        for e in entries.clone() {
+            let (i, ji) = (columns[e], ws.jacobian[e]);
+            b[i] += m * ji * r;
+            for f in entries.clone() {
+                a[i * n_q + columns[f]] += m * ji * ws.jacobian[f];
+            }
+        }
+    }
+    (a, b)
+}
+
 /// Solve the dense n x n system `a` y = `b` (row-major) by Gaussian elimination with partial
 /// pivoting; `None` when singular.
-fn solve_dense(mut a: Vec<f64>, mut b: Vec<f64>, n: usize) -> Option<Vec<f64>> {
+pub(super) fn solve_dense(mut a: Vec<f64>, mut b: Vec<f64>, n: usize) -> Option<Vec<f64>> {
     for col in 0..n {
         let pivot =
             (col..n).max_by(|&i, &j| a[i * n + col].abs().total_cmp(&a[j * n + col].abs()))?;

@@ -318,6 +318,72 @@ pub(crate) fn run_rest(
     }
 }
 
+/// A run's result from its failure, if any, and the sink's `finish` (whose error fails a
+/// run that went well).
+fn outcome(
+    failure: Option<RunError>,
+    finish: std::io::Result<()>,
+    stats: RunStats,
+) -> Result<RunStats, RunFailure> {
+    match (failure, finish) {
+        (Some(error), _) => Err(RunFailure {
+            error,
+            stats: Box::new(stats),
+        }),
+        (None, Err(e)) => Err(RunFailure {
+            error: RunError::Io(e),
+            stats: Box::new(stats),
+        }),
+        (None, Ok(())) => Ok(stats),
+    }
+}
+
+/// Run `simulation` from where it is to each of `times` in turn and record the state there,
+/// exactly at that time (scipy's `t_eval`): a fixed-step integrator keeps its grid of steps
+/// t0 + k dt and lands on a time between two of them by one shorter step, from which the
+/// next step returns to the grid; an adaptive one takes its own steps and reads the state
+/// from its dense output ([`Simulation::advance_to`]). `times` must not decrease and must not
+/// lie before the current time ([`RunError::TimeBehind`] otherwise; nothing is recorded for
+/// that time). The run ends after the last time, or where the stop condition fires: only
+/// the times before it are recorded ([`RunStats::stop_time`] says when). On failure the
+/// simulation holds the last good state, which is not recorded (the rows stay at `times`).
+pub fn run_at_times(
+    simulation: &mut Simulation,
+    times: &[f64],
+    sink: &mut dyn Sink,
+    progress: &mut dyn Progress,
+) -> Result<RunStats, RunFailure> {
+    let start = Instant::now();
+    let end = times.iter().copied().fold(simulation.t(), f64::max);
+    simulation.set_stop_time(Some(end));
+    let mut failure = None;
+    let total = times.len() as u64;
+    for (k, &t) in times.iter().enumerate() {
+        if let Err(e) = simulation.advance_to_with(t, &mut || progress.interrupted()) {
+            failure = Some(e);
+            break;
+        }
+        if simulation.stopped_at_event() {
+            break;
+        }
+        if let Err(e) = sink.record(&simulation.sample(k as u64)) {
+            failure = Some(RunError::Io(e));
+            break;
+        }
+        progress.advance(k as u64 + 1, total);
+        if progress.interrupted() && k + 1 < times.len() {
+            failure = Some(RunError::Interrupted {
+                t: simulation.t(),
+                step: k as u64,
+            });
+            break;
+        }
+    }
+    simulation.set_stop_time(None);
+    let stats = simulation.stats(start.elapsed().as_secs_f64());
+    outcome(failure, sink.finish(), stats)
+}
+
 /// [`run`], telling `progress` how far it has got (see [`Progress`]).
 ///
 /// Output time k is t0 + k dt, computed from k so that it does not accumulate rounding (the
@@ -384,16 +450,5 @@ pub fn run_with_progress(
     }
     simulation.set_stop_time(None);
     let stats = simulation.stats(start.elapsed().as_secs_f64());
-    let finish = sink.finish();
-    match (failure, finish) {
-        (Some(error), _) => Err(RunFailure {
-            error,
-            stats: Box::new(stats),
-        }),
-        (None, Err(e)) => Err(RunFailure {
-            error: RunError::Io(e),
-            stats: Box::new(stats),
-        }),
-        (None, Ok(())) => Ok(stats),
-    }
+    outcome(failure, sink.finish(), stats)
 }
