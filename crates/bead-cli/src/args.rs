@@ -102,6 +102,12 @@ pub struct RunArgs {
     #[arg(long, value_name = "FILE.csv")]
     pub trace: Option<PathBuf>,
 
+    /// Add the constraint forces to the trace: lambda.1 .. lambda.m, the implicit form's
+    /// multipliers (one per constraint row), and NAME.Fcx NAME.Fcy [NAME.Fcz], the total
+    /// constraint force on each particle (for the parametric form the map's reaction m a - F)
+    #[arg(long, requires = "trace")]
+    pub constraint_forces: bool,
+
     #[command(flatten)]
     pub output: OutputArgs,
 }
@@ -122,6 +128,12 @@ pub struct CompareArgs {
     /// --trace out.csv writes out.implicit.csv and out.parametric.csv.
     #[arg(long, value_name = "FILE.csv")]
     pub trace: Option<PathBuf>,
+
+    /// Add the constraint forces to the trace: lambda.1 .. lambda.m, the implicit form's
+    /// multipliers (one per constraint row), and NAME.Fcx NAME.Fcy [NAME.Fcz], the total
+    /// constraint force on each particle (for the parametric form the map's reaction m a - F)
+    #[arg(long, requires = "trace")]
+    pub constraint_forces: bool,
 
     #[command(flatten)]
     pub output: OutputArgs,
@@ -171,8 +183,15 @@ pub struct SweepArgs {
     pub scene: PathBuf,
     /// A parameter to sweep: NAME=START:STOP:COUNT, COUNT values from START to STOP
     /// inclusive (repeatable: a grid, the first outermost)
-    #[arg(long = "param", value_name = "NAME=START:STOP:COUNT", value_parser = parse_param, required = true)]
+    #[arg(long = "param", value_name = "NAME=START:STOP:COUNT", value_parser = parse_param, required_unless_present = "initial")]
     pub params: Vec<ParamRange>,
+    /// A number of the start to sweep, after the parameters: a particle's position or
+    /// velocity (bead.x, bead.vy) or the parametric form's coordinate or rate (q.theta,
+    /// qdot.theta), COUNT values from START to STOP inclusive (repeatable). Each member
+    /// starts with it set and the rest placed on the constraints around it (bead.x on a
+    /// curve: the bead on the curve at that x); its column is start.NAME
+    #[arg(long = "initial", value_name = "NAME.COORD=START:STOP:COUNT", value_parser = parse_initial)]
+    pub initial: Vec<ParamRange>,
     /// Combine the parameters position by position instead of as a grid (equal COUNTs)
     #[arg(long)]
     pub zip: bool,
@@ -428,18 +447,45 @@ fn parse_stabilize(s: &str) -> Result<Feedback, String> {
 /// `NAME=START:STOP:COUNT`: a name, two finite numbers (expressions) and a count >= 1; errors
 /// point at the offending part.
 fn parse_param(s: &str) -> Result<ParamRange, String> {
-    const USAGE: &str = "expected NAME=START:STOP:COUNT (e.g. x0=10:200:100)";
+    parse_range(
+        s,
+        "expected NAME=START:STOP:COUNT (e.g. x0=10:200:100)",
+        "a parameter name",
+        bead::expr::is_identifier,
+    )
+}
+
+/// `--initial NAME.COORD=START:STOP:COUNT`: a number of the start (`bead.x`, `q.theta`).
+fn parse_initial(s: &str) -> Result<ParamRange, String> {
+    parse_range(
+        s,
+        "expected NAME.COORD=START:STOP:COUNT (e.g. bead.x=10:200:100, q.theta=0.1:1.5:30)",
+        "a particle's NAME.x, NAME.vx, ... or q.NAME, qdot.NAME",
+        |name| {
+            name.split_once('.')
+                .is_some_and(|(a, b)| bead::expr::is_identifier(a) && bead::expr::is_identifier(b))
+        },
+    )
+}
+
+/// NAME=START:STOP:COUNT with a NAME that `valid` accepts (`what` it must be, in messages).
+fn parse_range(
+    s: &str,
+    usage: &str,
+    what: &str,
+    valid: fn(&str) -> bool,
+) -> Result<ParamRange, String> {
     let Some(equals) = s.find('=') else {
-        return Err(NumberError::new(format!("{USAGE}: no `=`"), 0, s.len()).render(s));
+        return Err(NumberError::new(format!("{usage}: no `=`"), 0, s.len()).render(s));
     };
     let name = s[..equals].trim();
-    if !bead::expr::is_identifier(name) {
-        let what = if name.is_empty() {
+    if !valid(name) {
+        let why = if name.is_empty() {
             "the name is empty".to_string()
         } else {
-            format!("`{name}` is not a parameter name")
+            format!("`{name}` is not {what}")
         };
-        return Err(NumberError::new(format!("{USAGE}: {what}"), 0, equals).render(s));
+        return Err(NumberError::new(format!("{usage}: {why}"), 0, equals).render(s));
     }
     let mut parts = Vec::new();
     let mut start = equals + 1;
@@ -453,7 +499,7 @@ fn parse_param(s: &str) -> Result<ParamRange, String> {
     if parts.len() != 3 {
         return Err(NumberError::new(
             format!(
-                "{USAGE}: got {} part{} after `=`",
+                "{usage}: got {} part{} after `=`",
                 parts.len(),
                 if parts.len() == 1 { "" } else { "s" }
             ),

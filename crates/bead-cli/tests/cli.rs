@@ -153,6 +153,57 @@ fn parametric_trace_adds_q_and_qdot() {
     assert_eq!(text.lines().count(), 1 + 6);
 }
 
+/// `--constraint-forces`: the rod's force on the pendulum's bead in every row of both traces
+/// is Newton's along the rod, T = m (g y / r + |v|^2 / r) toward the pivot, from the
+/// row's own state; the implicit trace's lambda gives it as lambda grad C = 2 lambda x.
+#[test]
+fn constraint_force_columns_hold_the_rod_tension_in_both_traces() {
+    let dir = TempDir::new("forces");
+    let circle = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes/circle.toml");
+    ok(bead_in(
+        &dir.0,
+        &[
+            "compare",
+            p(&circle),
+            "--duration",
+            "2",
+            "--every",
+            "50",
+            "--trace",
+            "t.csv",
+            "--constraint-forces",
+        ],
+    ));
+    for (file, lambda) in [("t.implicit.csv", true), ("t.parametric.csv", false)] {
+        let text = std::fs::read_to_string(dir.path(file)).expect(file);
+        let mut lines = text.lines();
+        let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+        let column = |name: &str| header.iter().position(|h| *h == name).expect(name);
+        assert_eq!(header.contains(&"lambda.1"), lambda, "{file}");
+        let (fx, fy) = (column("bead.Fcx"), column("bead.Fcy"));
+        let mut rows = 0;
+        for line in lines {
+            let row: Vec<f64> = line.split(',').map(|v| v.parse().unwrap()).collect();
+            let (x, y) = (row[column("bead.x")], row[column("bead.y")]);
+            let (vx, vy) = (row[column("bead.vx")], row[column("bead.vy")]);
+            let r = (x * x + y * y).sqrt();
+            let tension = 9.81 * y / r + (vx * vx + vy * vy) / r;
+            let expected = [-tension * x / r, -tension * y / r];
+            assert!((row[fx] - expected[0]).abs() < 1e-9, "{file}: {line}");
+            assert!((row[fy] - expected[1]).abs() < 1e-9, "{file}: {line}");
+            if lambda {
+                let l = row[column("lambda.1")];
+                assert!((2.0 * l * x - row[fx]).abs() < 1e-12, "{line}");
+            }
+            rows += 1;
+        }
+        assert_eq!(rows, 1 + 2000 / 50, "{file}");
+    }
+    // Only with a trace to put them in.
+    let error = fails(bead(&["run", p(&circle), "--constraint-forces"]), 2);
+    assert!(error.contains("--trace"), "{error}");
+}
+
 #[test]
 fn every_10_records_11_rows_of_100_steps() {
     let dir = TempDir::new("every");
@@ -2521,4 +2572,49 @@ fn compare_runs_the_adaptive_integrator_once_per_tolerance() {
         2,
     );
     assert!(err.contains("--rtols"), "{err}");
+}
+
+/// `bead sweep --initial`: the start's column is `start.bead.x`, apart from the final
+/// `bead.x`; every column name once; the bead starts on the curve at that x.
+#[test]
+fn sweep_over_the_start_names_its_column_apart_from_the_final_state() {
+    let out = ok(bead(&[
+        "sweep",
+        p(&parabola()),
+        "--initial",
+        "bead.x=30:90:3",
+        "--steps",
+        "1",
+        "--dt",
+        "1e-9",
+    ]));
+    let mut lines = out.lines();
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    let mut unique = header.clone();
+    unique.sort();
+    unique.dedup();
+    assert_eq!(unique.len(), header.len(), "{header:?}");
+    let (start, x, y) = (
+        header.iter().position(|h| *h == "start.bead.x").unwrap(),
+        header.iter().position(|h| *h == "bead.x").unwrap(),
+        header.iter().position(|h| *h == "bead.y").unwrap(),
+    );
+    for (line, expected) in lines.zip([30.0, 60.0, 90.0]) {
+        let row: Vec<&str> = line.split(',').collect();
+        let value = |k: usize| row[k].parse::<f64>().unwrap();
+        assert_eq!(value(start), expected);
+        assert!((value(x) - expected).abs() < 1e-6, "{line}");
+        assert!(
+            (value(y) + expected * expected / 100.0).abs() < 1e-6,
+            "{line}"
+        );
+    }
+    let error = fails(
+        bead(&["sweep", p(&parabola()), "--initial", "bead.w=1:2:2"]),
+        2,
+    );
+    assert!(
+        error.contains("--initial: unknown") && error.contains("NAME.x"),
+        "{error}"
+    );
 }

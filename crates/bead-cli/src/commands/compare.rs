@@ -8,6 +8,7 @@ use bead::formulation::{Feedback, Method};
 
 use super::{
     json, load_scene, print, report_error, run_method, stop_when, warn_implicit_only, write_file,
+    Trace,
 };
 use crate::args::CompareArgs;
 use crate::outputs::Files;
@@ -45,7 +46,8 @@ pub fn compare(args: &CompareArgs) -> Result<()> {
             config.feedback = Feedback::default();
             config.project = false;
         }
-        let outcome = run_method(&scene, &plan, config, stop_when.as_ref(), trace.as_deref())?;
+        let trace = Trace::at(trace.as_deref(), args.constraint_forces);
+        let outcome = run_method(&scene, &plan, config, stop_when.as_ref(), trace)?;
         if let Err(failure) = &outcome.result {
             failures.push(format!("{}: {}", method.name(), failure.error));
         }

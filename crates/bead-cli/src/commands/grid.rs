@@ -13,7 +13,7 @@ use bead_report::report::{report_files, write_report, Recorder, Report, ReportRu
 
 use super::{
     json, load_scene, print, report_error, run_method_with, stop_when, warn_implicit_only,
-    write_file,
+    write_file, Trace,
 };
 use crate::args::CompareArgs;
 use crate::outputs::Files;
@@ -169,7 +169,7 @@ pub fn compare_grid(args: &CompareArgs) -> Result<()> {
                 &planned,
                 config,
                 stop_when.as_ref(),
-                trace.as_deref(),
+                Trace::at(trace.as_deref(), args.constraint_forces),
                 Some(&mut recorder),
             )?;
             let (stats, error) = match &outcome.result {

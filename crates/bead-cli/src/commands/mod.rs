@@ -139,6 +139,22 @@ struct Outcome {
     summary: Summary,
 }
 
+/// Where a run writes its CSV trace, and whether with the constraint forces.
+#[derive(Clone, Copy)]
+struct Trace<'a> {
+    path: &'a Path,
+    constraint_forces: bool,
+}
+
+impl<'a> Trace<'a> {
+    fn at(path: Option<&'a Path>, constraint_forces: bool) -> Option<Trace<'a>> {
+        path.map(|path| Trace {
+            path,
+            constraint_forces,
+        })
+    }
+}
+
 /// Run `scene` as `config` says (checked by the library: an illegal combination or an
 /// initial state that cannot be simulated is the error), with an optional CSV trace.
 fn run_method(
@@ -146,7 +162,7 @@ fn run_method(
     plan: &Plan,
     config: SimulationConfig,
     stop_when: Option<&Event>,
-    trace: Option<&Path>,
+    trace: Option<Trace<'_>>,
 ) -> Result<Outcome> {
     run_method_with(scene, plan, config, stop_when, trace, None)
 }
@@ -158,18 +174,26 @@ fn run_method_with(
     plan: &Plan,
     config: SimulationConfig,
     stop_when: Option<&Event>,
-    trace: Option<&Path>,
+    trace: Option<Trace<'_>>,
     recorder: Option<&mut dyn Sink>,
 ) -> Result<Outcome> {
     let mut simulation = Simulation::new(Arc::clone(&scene.system), config)?;
     simulation.set_stop_when(stop_when.cloned())?;
     let coordinates = simulation.formulation().coordinate_names().to_vec();
     let mut sink: Box<dyn Sink> = match trace {
-        Some(path) => {
+        Some(Trace {
+            path,
+            constraint_forces,
+        }) => {
             let file = File::create(path)
                 .with_context(|| format!("cannot create trace file `{}`", path.display()))?;
-            let trace = CsvTrace::for_simulation(file, &simulation)
-                .with_context(|| format!("cannot write trace file `{}`", path.display()))?;
+            let trace = if constraint_forces {
+                CsvTrace::with_constraint_forces(file, &simulation)
+            } else {
+                CsvTrace::for_simulation(file, &simulation)
+            };
+            let trace =
+                trace.with_context(|| format!("cannot write trace file `{}`", path.display()))?;
             Box::new(trace)
         }
         None => Box::new(NullSink),

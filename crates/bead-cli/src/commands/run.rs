@@ -2,7 +2,7 @@
 
 use anyhow::{bail, Result};
 
-use super::{json, load_scene, print, run_method, stop_when, warn, write_file};
+use super::{json, load_scene, print, run_method, stop_when, warn, write_file, Trace};
 use crate::args::RunArgs;
 use crate::outputs::Files;
 use crate::plan;
@@ -31,7 +31,7 @@ pub fn run(args: &RunArgs) -> Result<()> {
         &plan,
         plan.config(method),
         stop_when.as_ref(),
-        args.trace.as_deref(),
+        Trace::at(args.trace.as_deref(), args.constraint_forces),
     )?;
     let summary_json = json(&outcome.summary)?;
     if let Some(path) = &args.output.summary {

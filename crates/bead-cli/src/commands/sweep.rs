@@ -35,9 +35,13 @@ pub fn sweep(args: &SweepArgs) -> Result<()> {
     let axes = args
         .params
         .iter()
-        .map(|p| Axis::linspace(&p.name, p.start, p.stop, p.count))
-        .collect::<Result<Vec<_>, _>>()
-        .map_err(|e| Usage(format!("--param: {e}")))?;
+        .map(|p| ("--param", p))
+        .chain(args.initial.iter().map(|p| ("--initial", p)))
+        .map(|(flag, p)| {
+            Axis::linspace(&p.name, p.start, p.stop, p.count)
+                .map_err(|e| Usage(format!("{flag}: {e}")))
+        })
+        .collect::<Result<Vec<_>, _>>()?;
     let combine = if args.zip {
         Combine::Zip
     } else {
@@ -50,7 +54,13 @@ pub fn sweep(args: &SweepArgs) -> Result<()> {
         plan::request(&args.sim, args.method.map(|m| m.0)),
         args.sim.stop_when.clone(),
     )
-    .map_err(|e| Usage(format!("--param: {e}")))?;
+    .map_err(|e| {
+        let flag = match &e {
+            bead::sweep::SweepError::UnknownParam { name, .. } if name.contains('.') => "--initial",
+            _ => "--param",
+        };
+        Usage(format!("{flag}: {e}"))
+    })?;
     // The output file is created before the members run, so that a missing directory is
     // reported at once.
     let mut out: Box<dyn Write> = match &args.out {
