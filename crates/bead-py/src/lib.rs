@@ -6,25 +6,30 @@
 
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::path::PathBuf;
-use std::sync::{Arc, Mutex};
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use bead::formulation::{Feedback, Method};
+use bead::formulation::{Feedback, Method, StepError};
 use bead::integrate::IntegratorKind;
 use bead::output::{trace_header, Summary};
 use bead::plan::{self, Plan, PlanError, PlanRequest};
-use bead::scene::{Scene, SceneError};
+use bead::scene::{Scene, SceneEditError, SceneError};
 use bead::simulate::{
-    self, Event, EventError, RunError, RunFailure, RunStats, Sample, SetupError, Simulation, Sink,
+    self, ConstraintForceProbe, ConstraintForces, Event, EventError, RunError, RunFailure,
+    RunStats, Sample, SetupError, Simulation, Sink, StateRequest,
 };
 use bead::sweep::{Axis, Combine, Member, Sweep, SweepError};
 use numpy::ndarray::{Array2, Array3};
-use numpy::{IntoPyArray, PyArray1, PyArrayMethods, PyReadonlyArray1};
+use numpy::{IntoPyArray, PyArrayMethods, PyReadonlyArray1};
 use pyo3::exceptions::{PyIndexError, PyTypeError, PyUserWarning, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyString};
 
 mod args;
+mod simulation;
+mod toml_text;
+
+use simulation::PySimulation;
 
 /// Most bytes of arrays a run may record before it is refused: 8 GiB.
 const MAX_RECORDED_BYTES: u64 = 8 << 30;
@@ -35,9 +40,11 @@ fn _bead(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(load, m)?)?;
     m.add_function(wrap_pyfunction!(loads, m)?)?;
     m.add_function(wrap_pyfunction!(_unpickle, m)?)?;
+    m.add_function(wrap_pyfunction!(toml_text::_toml_value, m)?)?;
     m.add_class::<PyScene>()?;
     m.add_class::<PySimulation>()?;
     m.add_class::<PySweepPlan>()?;
+    m.add_class::<ConstraintForceSource>()?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     m.add(
         "INTEGRATORS",
@@ -47,6 +54,8 @@ fn _bead(m: &Bound<'_, PyModule>) -> PyResult<()> {
             .collect::<Vec<_>>(),
     )?;
     m.add("METHODS", ["implicit", "parametric"])?;
+    // What a parametric run or simulation says when asked for multipliers (`Run` reads it).
+    m.add("_NO_MULTIPLIERS", simulation::NO_MULTIPLIERS)?;
     Ok(())
 }
 
@@ -92,15 +101,40 @@ fn loads(
 /// A pickled `Scene` loaded again (`Scene.__reduce__`): as `loads`, without raising the
 /// scene's warnings again, which were raised where it was first loaded.
 #[pyfunction]
+#[pyo3(signature = (text, params, name, start = None))]
 fn _unpickle(
     py: Python<'_>,
     text: &str,
     params: &Bound<'_, PyAny>,
     name: &str,
+    start: Option<&Bound<'_, PyAny>>,
 ) -> PyResult<PyScene> {
     let overrides = overrides(Some(params))?;
     let scene = Scene::parse(text, name, &overrides).map_err(|e| scene_error(py, &e))?;
-    Ok(PyScene::new(scene))
+    let scene = PyScene::new(scene);
+    match start {
+        Some(start) if !start.is_none() => {
+            let started = scene.started(py, Some(start))?;
+            Ok(PyScene { inner: started })
+        }
+        _ => Ok(scene),
+    }
+}
+
+/// A start as asked for ([`Scene::with_state`]), as a dict of the parts given.
+fn start_dict<'py>(py: Python<'py>, request: &StateRequest) -> PyResult<Bound<'py, PyDict>> {
+    let out = PyDict::new(py);
+    for (key, part) in [
+        ("positions", &request.positions),
+        ("velocities", &request.velocities),
+        ("q", &request.q),
+        ("qdot", &request.qdot),
+    ] {
+        if let Some(values) = part {
+            out.set_item(key, values.clone().into_pyarray(py))?;
+        }
+    }
+    Ok(out)
 }
 
 /// Raise each of the scene's warnings (a start off a constraint, a parametric form that
@@ -179,6 +213,55 @@ pub struct PyScene {
 }
 
 impl PyScene {
+    /// This scene started from `initial` (a mapping with keys positions, velocities, q,
+    /// qdot), or this scene itself.
+    fn started(&self, py: Python<'_>, initial: Option<&Bound<'_, PyAny>>) -> PyResult<Arc<Scene>> {
+        let Some(initial) = initial.filter(|i| !i.is_none()) else {
+            return Ok(Arc::clone(&self.inner));
+        };
+        let mut parts: [Option<Bound<'_, PyAny>>; 4] = Default::default();
+        let keys = ["positions", "velocities", "q", "qdot"];
+        let items = initial.call_method0("items").map_err(|_| {
+            PyTypeError::new_err(format!(
+                "initial={}: must be a dict with keys among {}",
+                args::shown(initial),
+                keys.join(", ")
+            ))
+        })?;
+        for item in items.try_iter()? {
+            let (key, value): (String, Bound<'_, PyAny>) = item?.extract()?;
+            let Some(k) = keys.iter().position(|k| *k == key) else {
+                return Err(PyValueError::new_err(format!(
+                    "initial: unknown key '{key}'; the keys are {}",
+                    keys.join(", ")
+                )));
+            };
+            parts[k] = Some(value);
+        }
+        let system = &self.inner.system;
+        let [positions, velocities, q, qdot] = &parts;
+        let request = simulation::state_request(
+            system.dim(),
+            system.particles().len(),
+            positions.as_ref(),
+            velocities.as_ref(),
+            q.as_ref(),
+            qdot.as_ref(),
+            None,
+        )?;
+        Ok(Arc::new(self.placed(py, &request)?))
+    }
+
+    /// [`Scene::with_state`] with its warning and its error for Python.
+    fn placed(&self, py: Python<'_>, request: &StateRequest) -> PyResult<Scene> {
+        let (scene, placed) = self
+            .inner
+            .with_state(request)
+            .map_err(|e| PyValueError::new_err(format!("with_state: {e}")))?;
+        simulation::warn_placed(py, "with_state", request, &placed)?;
+        Ok(scene)
+    }
+
     fn new(scene: Scene) -> PyScene {
         PyScene {
             inner: Arc::new(scene),
@@ -402,15 +485,81 @@ impl PyScene {
     /// A copy of this scene with parameters replaced, e.g. `scene.with_params({"g": 1.62})`:
     /// the scene is loaded again from its text with these overrides on top of its own.
     fn with_params(&self, py: Python<'_>, params: &Bound<'_, PyAny>) -> PyResult<PyScene> {
-        let mut all = self.inner.overrides().to_vec();
-        for (name, value) in overrides(Some(params))? {
-            all.retain(|(n, _)| *n != name);
-            all.push((name, value));
-        }
-        let scene = Scene::parse(self.inner.text(), &self.inner.file, &all)
-            .map_err(|e| scene_error(py, &e))?;
+        let values = overrides(Some(params))?;
+        let scene = self
+            .inner
+            .with_params(&values)
+            .map_err(|e| scene_edit_error(py, &e))?;
         warn_scene(py, &scene)?;
         Ok(PyScene::new(scene))
+    }
+
+    /// A copy of this scene started elsewhere, e.g. `scene.with_state(positions=[[100, -100]])`:
+    /// `positions` and `velocities` ((P, D) arrays) or the parametric form's `q` and `qdot`;
+    /// what is not given keeps the scene's value. The start is put on the constraints
+    /// (positions at the closest point, velocities along them) and is the same for both
+    /// forms: the particles' positions and velocities and `[parametric] initial` and
+    /// `rates` all change (`scene.text` stays the file's). A `UserWarning` says how far
+    /// the start moved when that is more than rounding. The start is kept by
+    /// `with_params` (placed again) and by pickling. Raises ValueError when it cannot be
+    /// placed.
+    #[pyo3(signature = (*, positions = None, velocities = None, q = None, qdot = None))]
+    fn with_state(
+        &self,
+        py: Python<'_>,
+        positions: Option<&Bound<'_, PyAny>>,
+        velocities: Option<&Bound<'_, PyAny>>,
+        q: Option<&Bound<'_, PyAny>>,
+        qdot: Option<&Bound<'_, PyAny>>,
+    ) -> PyResult<PyScene> {
+        let system = &self.inner.system;
+        let request = simulation::state_request(
+            system.dim(),
+            system.particles().len(),
+            positions,
+            velocities,
+            q,
+            qdot,
+            None,
+        )?;
+        let scene = self.placed(py, &request)?;
+        Ok(PyScene::new(scene))
+    }
+
+    /// A copy of this scene with a force added, as a `[[force]]` table of the scene file
+    /// (see docs/scene-format.md): `with_force("drag", coefficient=0.5)` (on every particle,
+    /// or `particle="bead"`), `with_force("constant", particle="bead", vector=[0, -2])`,
+    /// `with_force("spring", between=["a", "b"], stiffness=10, rest_length=1)` or with
+    /// `particle` and `anchor`. Numbers may be expressions of the parameters ("k/2"). The
+    /// energy ledger counts the work of forces without a potential (drag). Raises
+    /// bead.SceneError, located in the scene text with the table added after it.
+    #[pyo3(signature = (kind, **keys))]
+    fn with_force(
+        &self,
+        py: Python<'_>,
+        kind: &Bound<'_, PyAny>,
+        keys: Option<&Bound<'_, PyDict>>,
+    ) -> PyResult<PyScene> {
+        let mut entries = vec![("kind".to_string(), kind.clone())];
+        if let Some(keys) = keys {
+            for (k, v) in keys.iter() {
+                entries.push((k.extract::<String>()?, v));
+            }
+        }
+        let table = toml_text::array_table("force", &entries)?;
+        let scene = self
+            .inner
+            .with_tables(&table)
+            .map_err(|e| scene_edit_error(py, &e))?;
+        warn_scene(py, &scene)?;
+        Ok(PyScene::new(scene))
+    }
+
+    /// The start set with `with_state` (or `initial=`), as asked for: a dict of arrays, or
+    /// None.
+    #[getter]
+    fn start<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyDict>>> {
+        self.inner.start().map(|r| start_dict(py, r)).transpose()
     }
 
     /// Run the scene and return a `bead.Run` with its recorded states as numpy arrays.
@@ -431,7 +580,7 @@ impl PyScene {
     /// start (e.g. rattle on the parametric form), and `bead.RunError` (`bead.DivergenceError`
     /// when the state blew up) when a step fails, with the run up to the last good state as
     /// `.run`. The GIL is released while the run steps.
-    #[pyo3(signature = (*, method = None, integrator = None, dt = None, duration = None, steps = None, every = None, stabilize = None, rtol = None, atol = None, project = false, substeps = None, max_substeps = None, stop_when = None, event_samples = None))]
+    #[pyo3(signature = (*, method = None, integrator = None, dt = None, duration = None, steps = None, every = None, stabilize = None, rtol = None, atol = None, project = false, substeps = None, max_substeps = None, stop_when = None, event_samples = None, initial = None, t_eval = None))]
     #[allow(clippy::too_many_arguments)]
     fn run(
         &self,
@@ -450,7 +599,14 @@ impl PyScene {
         max_substeps: Option<&Bound<'_, PyAny>>,
         stop_when: Option<&str>,
         event_samples: Option<&Bound<'_, PyAny>>,
+        initial: Option<&Bound<'_, PyAny>>,
+        t_eval: Option<&Bound<'_, PyAny>>,
     ) -> PyResult<Py<PyAny>> {
+        let scene = self.started(py, initial)?;
+        let times = output_times(
+            t_eval,
+            [("duration", duration), ("steps", steps), ("every", every)],
+        )?;
         let asked = Asked {
             method,
             integrator,
@@ -466,15 +622,21 @@ impl PyScene {
             max_substeps,
             event_samples,
         };
-        let request = asked.request()?;
-        let plan = resolve(py, &self.inner, &request)?;
-        let event = stop_event(&self.inner, stop_when)?;
-        run_plan(py, &self.inner, &plan, event)
+        let mut request = asked.request()?;
+        if times.is_some() {
+            // t_eval sets where the run ends: one step keeps the scene's duration from being
+            // checked against the step.
+            request.steps = Some(1);
+            request.duration = None;
+        }
+        let plan = resolve(py, &scene, &request)?;
+        let event = stop_event(&scene, stop_when)?;
+        run_plan(py, &scene, &plan, event, times)
     }
 
     /// A `bead.Simulation` to step by hand (`step()`, `advance_to(t)`), at the scene's
     /// initial state. The arguments are those of `run()` without the run's length.
-    #[pyo3(signature = (*, method = None, integrator = None, dt = None, stabilize = None, rtol = None, atol = None, project = false, substeps = None, max_substeps = None, stop_when = None, event_samples = None))]
+    #[pyo3(signature = (*, method = None, integrator = None, dt = None, stabilize = None, rtol = None, atol = None, project = false, substeps = None, max_substeps = None, stop_when = None, event_samples = None, initial = None))]
     #[allow(clippy::too_many_arguments)]
     fn simulation(
         &self,
@@ -490,7 +652,9 @@ impl PyScene {
         max_substeps: Option<&Bound<'_, PyAny>>,
         stop_when: Option<&str>,
         event_samples: Option<&Bound<'_, PyAny>>,
+        initial: Option<&Bound<'_, PyAny>>,
     ) -> PyResult<PySimulation> {
+        let scene = self.started(py, initial)?;
         let asked = Asked {
             method,
             integrator,
@@ -508,17 +672,14 @@ impl PyScene {
         // one step keeps the scene's duration from being checked against the new dt.
         let mut request = asked.request()?;
         request.steps = Some(1);
-        let plan = resolve(py, &self.inner, &request)?;
+        let plan = resolve(py, &scene, &request)?;
         let config = plan.config(plan.method);
-        let system = Arc::clone(&self.inner.system);
-        let event = stop_event(&self.inner, stop_when)?;
+        let system = Arc::clone(&scene.system);
+        let event = stop_event(&scene, stop_when)?;
         let mut simulation = detached(py, move || Simulation::new(system, config))?
             .map_err(|e| setup_error(py, &e))?;
         simulation.set_stop_when(event).map_err(event_error)?;
-        Ok(PySimulation {
-            inner: Mutex::new(simulation),
-            scene: Arc::clone(&self.inner),
-        })
+        Ok(PySimulation::new(simulation::Held::new(simulation, scene)))
     }
 
     /// Pickled as its text, file name and parameter overrides (loaded again as
@@ -530,7 +691,8 @@ impl PyScene {
         for (name, value) in self.inner.overrides() {
             params.set_item(name, value)?;
         }
-        (loads, (self.inner.text(), params, &self.inner.file))
+        let start = self.inner.start().map(|r| start_dict(py, r)).transpose()?;
+        (loads, (self.inner.text(), params, &self.inner.file, start))
             .into_pyobject(py)
             .map(|t| t.into_any())
     }
@@ -609,6 +771,44 @@ impl RowWidth {
     fn values(self) -> u64 {
         4 + 2 * self.coordinates as u64 + 2 * self.k as u64
     }
+}
+
+/// `t_eval` as times: numbers, finite, >= 0 and not decreasing; none of `excluded` (the
+/// arguments that set a run's length or grid) given with it.
+fn output_times<const N: usize>(
+    t_eval: Option<&Bound<'_, PyAny>>,
+    excluded: [(&str, Option<&Bound<'_, PyAny>>); N],
+) -> PyResult<Option<Vec<f64>>> {
+    let Some(t_eval) = t_eval.filter(|t| !t.is_none()) else {
+        return Ok(None);
+    };
+    if let Some((name, _)) = excluded
+        .iter()
+        .find(|(_, v)| v.is_some_and(|v| !v.is_none()))
+    {
+        return Err(PyValueError::new_err(format!(
+            "t_eval and {name}: give one; t_eval sets the times recorded and the run ends at the last"
+        )));
+    }
+    let times = simulation::numbers("t_eval", t_eval, "a 1-D array of times")?;
+    if times.is_empty() {
+        return Err(PyValueError::new_err("t_eval: give at least one time"));
+    }
+    for (k, &t) in times.iter().enumerate() {
+        if !(t.is_finite() && t >= 0.0) {
+            return Err(PyValueError::new_err(format!(
+                "t_eval[{k}] = {t}: times must be finite and >= 0 (a run starts at t = 0)"
+            )));
+        }
+        if k > 0 && t < times[k - 1] {
+            return Err(PyValueError::new_err(format!(
+                "t_eval[{k}] = {t} is before t_eval[{}] = {}: the times must not decrease",
+                k - 1,
+                times[k - 1]
+            )));
+        }
+    }
+    Ok(Some(times))
 }
 
 /// The most rows `plan` can record: the first state, every `every`-th, the last (or the
@@ -715,7 +915,7 @@ fn stop_event(scene: &Scene, stop_when: Option<&str>) -> PyResult<Option<Event>>
 }
 
 /// A stop condition that does not fit the run (generalized coordinates on the implicit form).
-fn event_error(e: EventError) -> PyErr {
+pub(crate) fn event_error(e: EventError) -> PyErr {
     PyValueError::new_err(format!("stop_when: {e}"))
 }
 
@@ -732,7 +932,7 @@ enum StartError {
 /// signal handlers (`PyErr_CheckSignals`); when one raises (KeyboardInterrupt), the run
 /// stops there ([`simulate::Progress::interrupted`]) and the exception is raised once the
 /// run has let go. Only on the main thread, the only one where Python runs signal handlers.
-struct Interrupt {
+pub(crate) struct Interrupt {
     watch: bool,
     countdown: u32,
     last: Instant,
@@ -793,6 +993,7 @@ fn run_plan(
     scene: &Arc<Scene>,
     plan: &Plan,
     event: Option<Event>,
+    times: Option<Vec<f64>>,
 ) -> PyResult<Py<PyAny>> {
     let system = &scene.system;
     let coordinates = system.n_coords();
@@ -801,7 +1002,10 @@ fn run_plan(
         Method::Implicit => coordinates,
     };
     let width = RowWidth { coordinates, k };
-    let rows = record_guard(plan, width)?;
+    let rows = match &times {
+        Some(times) => times.len() as u64,
+        None => record_guard(plan, width)?,
+    };
     let config = plan.config(plan.method);
     let options = plan.options();
     let shared = Arc::clone(scene);
@@ -813,8 +1017,14 @@ fn run_plan(
         let coordinates = simulation.formulation().coordinate_names().to_vec();
         let tracks_work = simulation.tracks_work();
         let mut recorder = Recorder::with_room(rows, width, tracks_work);
-        let result =
-            simulate::run_with_progress(&mut simulation, options, &mut recorder, &mut watch);
+        let result = match &times {
+            Some(times) => {
+                simulate::run_at_times(&mut simulation, times, &mut recorder, &mut watch)
+            }
+            None => {
+                simulate::run_with_progress(&mut simulation, options, &mut recorder, &mut watch)
+            }
+        };
         if let Some(interrupt) = watch.error {
             return Err(StartError::Interrupted(interrupt));
         }
@@ -840,7 +1050,20 @@ fn run_plan(
         coordinates,
         tracks_work,
     } = finished;
-    let run = build_run(py, scene, recorder, &summary, &coordinates, tracks_work)?;
+    let source = ConstraintForceSource {
+        system: Arc::clone(&scene.system),
+        method: plan.method,
+        feedback: config.feedback,
+    };
+    let run = build_run(
+        py,
+        scene,
+        recorder,
+        &summary,
+        &coordinates,
+        tracks_work,
+        source,
+    )?;
     match result {
         Ok(_) => Ok(run),
         Err(failure) => Err(run_error(py, &failure.error, Some(run))),
@@ -856,6 +1079,7 @@ fn build_run(
     summary: &Summary,
     coordinates: &[String],
     tracks_work: bool,
+    source: ConstraintForceSource,
 ) -> PyResult<Py<PyAny>> {
     let system = &scene.system;
     let (p, d) = (system.particles().len(), system.dim());
@@ -900,11 +1124,77 @@ fn build_run(
     kwargs.set_item("particles", particle_names(scene))?;
     kwargs.set_item("coordinates", coordinates.to_vec())?;
     kwargs.set_item("columns", trace_header(system, coordinates, has_work))?;
+    kwargs.set_item("constraint_force_source", source)?;
     let run_class = py.import("bead._run")?.getattr("Run")?;
     Ok(run_class.call((), Some(&kwargs))?.unbind())
 }
 
-fn particle_names(scene: &Scene) -> Vec<String> {
+/// The constraint forces of a run's recorded states, evaluated when `Run` first asks
+/// ([`ConstraintForceProbe`]: the same evaluation as the run's own at each state).
+#[pyclass(frozen, module = "bead._bead", name = "ConstraintForceSource")]
+pub struct ConstraintForceSource {
+    system: Arc<bead::model::System>,
+    method: Method,
+    feedback: Feedback,
+}
+
+#[pymethods]
+impl ConstraintForceSource {
+    /// "implicit" or "parametric".
+    #[getter]
+    fn method(&self) -> &'static str {
+        self.method.name()
+    }
+
+    /// (multipliers (T, m), forces (T, P, D)) at the states (t (T,), q (T, K), qdot (T, K)).
+    fn __call__<'py>(
+        &self,
+        py: Python<'py>,
+        t: PyReadonlyArray1<'py, f64>,
+        q: numpy::PyReadonlyArray2<'py, f64>,
+        qdot: numpy::PyReadonlyArray2<'py, f64>,
+    ) -> PyResult<(Bound<'py, PyAny>, Bound<'py, PyAny>)> {
+        let t = t.as_slice()?.to_vec();
+        let q = q.as_array().to_owned();
+        let qdot = qdot.as_array().to_owned();
+        let rows = t.len();
+        let (system, method, feedback) = (Arc::clone(&self.system), self.method, self.feedback);
+        let (p, d) = (system.particles().len(), system.dim());
+        let m = match method {
+            Method::Implicit => system.constraints().n_rows(),
+            Method::Parametric => 0,
+        };
+        let computed = detached(py, move || -> Result<(Vec<f64>, Vec<f64>), String> {
+            let mut probe =
+                ConstraintForceProbe::new(system, method, feedback).map_err(|e| e.to_string())?;
+            let mut out = ConstraintForces::default();
+            let (mut multipliers, mut forces) = (
+                Vec::with_capacity(rows * m),
+                Vec::with_capacity(rows * p * d),
+            );
+            for (k, &t) in t.iter().enumerate() {
+                let (q, qdot) = (q.row(k).to_vec(), qdot.row(k).to_vec());
+                probe.evaluate(t, &q, &qdot, &mut out).map_err(|e| {
+                    format!("the constraint forces at t = {}: {e}", bead::readable(t))
+                })?;
+                multipliers.extend_from_slice(&out.multipliers);
+                forces.extend_from_slice(&out.force);
+            }
+            Ok((multipliers, forces))
+        })?
+        .map_err(|e| step_error_text(py, &e))?;
+        let (multipliers, forces) = computed;
+        let shape_error = |e: numpy::ndarray::ShapeError| PyValueError::new_err(e.to_string());
+        let multipliers = Array2::from_shape_vec((rows, m), multipliers).map_err(shape_error)?;
+        let forces = Array3::from_shape_vec((rows, p, d), forces).map_err(shape_error)?;
+        Ok((
+            multipliers.into_pyarray(py).into_any(),
+            forces.into_pyarray(py).into_any(),
+        ))
+    }
+}
+
+pub(crate) fn particle_names(scene: &Scene) -> Vec<String> {
     scene
         .system
         .particles()
@@ -927,7 +1217,7 @@ pub struct PySweepPlan {
 }
 
 /// A sweep that cannot be set up, in Python's terms (`params[...]`, `zip=True`).
-fn sweep_error(e: SweepError) -> PyErr {
+fn sweep_error(e: SweepError, particles: &[String]) -> PyErr {
     match e {
         SweepError::UnknownParam { name, known } => {
             let known = if known.is_empty() {
@@ -935,10 +1225,19 @@ fn sweep_error(e: SweepError) -> PyErr {
             } else {
                 format!("the scene's parameters are {}", known.join(", "))
             };
+            if name.contains('.') {
+                return PyValueError::new_err(format!(
+                    "initial[{name:?}]: not a number of the scene's start; sweep a particle's \
+                     position or velocity as NAME.x, NAME.y, NAME.vx, ... (particles: {}) or \
+                     the parametric form's q.NAME, qdot.NAME",
+                    particles.join(", ")
+                ));
+            }
             PyValueError::new_err(format!(
                 "params[{name:?}]: not a parameter of the scene; {known}. A swept name must be \
                  in the scene's [params] table: add it there (e.g. `{name} = 1.0`) and write \
-                 the numbers it should change as expressions of it"
+                 the numbers it should change as expressions of it (or sweep the start with \
+                 initial={{\"bead.x\": values}})"
             ))
         }
         SweepError::NoValues { name } => {
@@ -1064,7 +1363,7 @@ impl PySweepPlan {
         }
         let combine = if zip { Combine::Zip } else { Combine::Grid };
         let sweep = Sweep::new(scene, axes, combine, request, stop_when.map(str::to_string))
-            .map_err(sweep_error)?;
+            .map_err(|e| sweep_error(e, &particle_names(scene)))?;
         Ok(PySweepPlan {
             inner: Arc::new(sweep),
             method: plan.method,
@@ -1142,11 +1441,14 @@ impl PySweepPlan {
         let stop = args::integer_value("stop", stop, 0, len, "")? as usize;
         let threads = threads_arg(threads)?;
         if start > stop || stop > sweep.len() {
-            return Err(sweep_error(SweepError::OutOfRange {
-                start,
-                end: stop,
-                len: sweep.len(),
-            }));
+            return Err(sweep_error(
+                SweepError::OutOfRange {
+                    start,
+                    end: stop,
+                    len: sweep.len(),
+                },
+                &[],
+            ));
         }
         let count = stop - start;
         let per_member = Columns::bytes_per_member(sweep);
@@ -1182,7 +1484,7 @@ impl PySweepPlan {
             detached(py, move || {
                 sweep.run_each(next..end, threads, |member| columns.push(sweep, member))
             })?
-            .map_err(sweep_error)?;
+            .map_err(|e| sweep_error(e, &[]))?;
             py.check_signals()?;
             let seconds = segment.elapsed().as_secs_f64();
             if seconds < 0.25 {
@@ -1378,210 +1680,12 @@ impl Columns {
 // ---------------------------------------------------------------------------------------
 // Simulations
 
-/// A simulation to step by hand: `step()`, `advance_to(t)`, and the current state. Made by
-/// `Scene.simulation()`. After an error it holds the last good state. The GIL is released
-/// while it steps; calls from several threads take turns.
-#[pyclass(frozen, module = "bead", name = "Simulation")]
-pub struct PySimulation {
-    inner: Mutex<Simulation>,
-    scene: Arc<Scene>,
-}
-
-impl PySimulation {
-    /// Read the simulation (with the GIL held: nothing steps it meanwhile for long, since
-    /// stepping happens with the lock taken only while detached).
-    fn read<T>(&self, py: Python<'_>, f: impl FnOnce(&Simulation) -> T + Send) -> PyResult<T>
-    where
-        T: Send,
-    {
-        // Wait for the lock detached, so that a thread stepping this simulation can re-attach.
-        let inner = &self.inner;
-        let out = py.detach(|| inner.lock().map(|s| f(&s)).map_err(|_| ()));
-        out.map_err(|_| poisoned())
-    }
-
-    /// Step the simulation with the GIL released.
-    fn advance(
-        &self,
-        py: Python<'_>,
-        f: impl FnOnce(&mut Simulation) -> Result<(), RunError> + Send,
-    ) -> PyResult<()> {
-        let inner = &self.inner;
-        let result = detached(py, move || match inner.lock() {
-            Ok(mut simulation) => Ok(f(&mut simulation)),
-            Err(_) => Err(()),
-        })?;
-        match result {
-            Ok(Ok(())) => Ok(()),
-            Ok(Err(e)) => Err(run_error(py, &e, None)),
-            Err(()) => Err(poisoned()),
-        }
-    }
-
-    /// An (n / dim, dim) array of `values`.
-    fn matrix<'py>(&self, py: Python<'py>, values: Vec<f64>) -> PyResult<Bound<'py, PyAny>> {
-        let d = self.scene.system.dim();
-        let shape = (values.len() / d, d);
-        Ok(Array2::from_shape_vec(shape, values)
-            .map_err(|e| PyValueError::new_err(e.to_string()))?
-            .into_pyarray(py)
-            .into_any())
-    }
-}
-
-#[pymethods]
-impl PySimulation {
-    /// Take `count` steps (default 1): dt each for fixed-step integrators, one accepted step
-    /// of its own size each for dopri5. Raises `bead.RunError` when a step fails.
-    #[pyo3(signature = (count = None), text_signature = "($self, count=1)")]
-    fn step(&self, py: Python<'_>, count: Option<&Bound<'_, PyAny>>) -> PyResult<()> {
-        let count = args::integer("count", count, 0, u64::MAX, "")?.unwrap_or(1);
-        // Ctrl-C stops a long call between two steps, at a good state.
-        let mut watch = Interrupt::new(py)?;
-        let checking = &mut watch;
-        self.advance(py, move |simulation| {
-            for _ in 0..count {
-                simulation.step()?;
-                if checking.check() {
-                    break;
-                }
-            }
-            Ok(())
-        })?;
-        watch.error.map_or(Ok(()), Err)
-    }
-
-    /// Advance to exactly time `t` (not before the current time): steps of dt and, when `t`
-    /// is not on the grid of steps, one shorter step to land on it. Ctrl-C stops it within a
-    /// fraction of a second at the end of a step (KeyboardInterrupt); the simulation holds
-    /// that state and can go on.
-    fn advance_to(&self, py: Python<'_>, t: &Bound<'_, PyAny>) -> PyResult<()> {
-        let t = args::real_value("t", t, "a finite time (s) >= the current time")?;
-        let mut watch = Interrupt::new(py)?;
-        let checking = &mut watch;
-        let stepped = self.advance(py, move |simulation| {
-            match simulation.advance_to_with(t, &mut || checking.check()) {
-                Err(RunError::Interrupted { .. }) => Ok(()),
-                other => other,
-            }
-        });
-        match watch.error {
-            Some(interrupt) => Err(interrupt),
-            None => stepped,
-        }
-    }
-
-    /// Back to the scene's initial state.
-    fn reset(&self, py: Python<'_>) -> PyResult<()> {
-        self.advance(py, |simulation| {
-            simulation.reset();
-            Ok(())
-        })
-    }
-
-    /// Time of the current state (s).
-    #[getter]
-    fn t(&self, py: Python<'_>) -> PyResult<f64> {
-        self.read(py, Simulation::t)
-    }
-
-    /// Particle positions now, a (P, D) array (a copy).
-    #[getter]
-    fn positions<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
-        let values = self.read(py, |s| s.positions().to_vec())?;
-        self.matrix(py, values)
-    }
-
-    /// Particle velocities now, a (P, D) array (a copy).
-    #[getter]
-    fn velocities<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
-        let values = self.read(py, |s| s.velocities().to_vec())?;
-        self.matrix(py, values)
-    }
-
-    /// The formulation's coordinates now, a (K,) array: the particle coordinates for the
-    /// implicit form, the generalized coordinates for the parametric one.
-    #[getter]
-    fn q<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray1<f64>>> {
-        let values = self.read(py, |s| s.q().to_vec())?;
-        Ok(values.into_pyarray(py))
-    }
-
-    /// Their rates, a (K,) array.
-    #[getter]
-    fn qdot<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray1<f64>>> {
-        let values = self.read(py, |s| s.qdot().to_vec())?;
-        Ok(values.into_pyarray(py))
-    }
-
-    /// Total mechanical energy T + V now.
-    #[getter]
-    fn energy(&self, py: Python<'_>) -> PyResult<f64> {
-        self.read(py, Simulation::energy)
-    }
-
-    /// max_i |C_i| now, over the scene's implicit constraints (for both forms).
-    #[getter]
-    fn constraint_error(&self, py: Python<'_>) -> PyResult<f64> {
-        self.read(py, Simulation::constraint_error)
-    }
-
-    /// Integrator steps taken (accepted steps for dopri5).
-    #[getter]
-    fn steps(&self, py: Python<'_>) -> PyResult<u64> {
-        self.read(py, Simulation::steps)
-    }
-
-    /// "implicit" or "parametric".
-    #[getter]
-    fn method(&self, py: Python<'_>) -> PyResult<&'static str> {
-        self.read(py, |s| s.method().name())
-    }
-
-    /// The integrator's name.
-    #[getter]
-    fn integrator(&self, py: Python<'_>) -> PyResult<&'static str> {
-        self.read(py, |s| s.integrator().name())
-    }
-
-    /// The step size (s).
-    #[getter]
-    fn dt(&self, py: Python<'_>) -> PyResult<f64> {
-        self.read(py, |s| s.config().dt)
-    }
-
-    /// Particle names, in the order of the rows of `positions`.
-    #[getter]
-    fn particles(&self) -> Vec<String> {
-        particle_names(&self.scene)
-    }
-
-    /// Names of the formulation's coordinates (the entries of `q`).
-    #[getter]
-    fn coordinates(&self, py: Python<'_>) -> PyResult<Vec<String>> {
-        self.read(py, |s| s.formulation().coordinate_names().to_vec())
-    }
-
-    fn __repr__(&self, py: Python<'_>) -> PyResult<String> {
-        self.read(py, |s| {
-            format!(
-                "<bead.Simulation {} {} dt={} at t={} after {} steps>",
-                s.method().name(),
-                s.integrator().name(),
-                bead::readable(s.config().dt),
-                bead::readable(s.t()),
-                s.steps()
-            )
-        })
-    }
-}
-
 // ---------------------------------------------------------------------------------------
 // Releasing the GIL, and errors
 
 /// Run `f` with the GIL released. A panic in `f` (a bug in bead) becomes a `bead.BeadError`
 /// instead of unwinding into Python.
-fn detached<T: Send>(py: Python<'_>, f: impl FnOnce() -> T + Send) -> PyResult<T> {
+pub(crate) fn detached<T: Send>(py: Python<'_>, f: impl FnOnce() -> T + Send) -> PyResult<T> {
     py.detach(|| catch_unwind(AssertUnwindSafe(f)))
         .map_err(|panic| {
             let what = panic
@@ -1597,7 +1701,7 @@ fn detached<T: Send>(py: Python<'_>, f: impl FnOnce() -> T + Send) -> PyResult<T
 }
 
 /// A simulation whose lock was poisoned by a panic while it stepped.
-fn poisoned() -> PyErr {
+pub(crate) fn poisoned() -> PyErr {
     Python::attach(|py| {
         bead_error(
             py,
@@ -1664,7 +1768,26 @@ fn python_wording(message: &str) -> String {
 }
 
 /// `bead.SetupError`: the simulation cannot start with these settings or this state.
-fn setup_error(py: Python<'_>, e: &SetupError) -> PyErr {
+/// A scene that cannot take new parameters: the load's located error, or why the start set
+/// on it cannot be placed on the changed scene.
+pub(crate) fn scene_edit_error(py: Python<'_>, e: &SceneEditError) -> PyErr {
+    match e {
+        SceneEditError::Load(e) => scene_error(py, e),
+        other => PyValueError::new_err(other.to_string()),
+    }
+}
+
+/// An evaluation that failed at the current state (a singular point): `bead.RunError`.
+pub(crate) fn step_error(py: Python<'_>, e: &StepError) -> PyErr {
+    step_error_text(py, &e.to_string())
+}
+
+/// `bead.RunError` with `message` and no run.
+fn step_error_text(py: Python<'_>, message: &str) -> PyErr {
+    python_error(py, "RunError", (message.to_string(), None::<Py<PyAny>>))
+}
+
+pub(crate) fn setup_error(py: Python<'_>, e: &SetupError) -> PyErr {
     python_error(py, "SetupError", (e.to_string(),))
 }
 
@@ -1675,7 +1798,7 @@ fn plan_error(e: PlanError) -> PyErr {
 }
 
 /// `bead.RunError` (`bead.DivergenceError` when the state blew up) with the partial run.
-fn run_error(py: Python<'_>, e: &RunError, run: Option<Py<PyAny>>) -> PyErr {
+pub(crate) fn run_error(py: Python<'_>, e: &RunError, run: Option<Py<PyAny>>) -> PyErr {
     let class = match e {
         RunError::Diverged { .. } => "DivergenceError",
         // advance_to(t) before the current time: a bad argument, nothing ran.

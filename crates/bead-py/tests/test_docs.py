@@ -34,6 +34,7 @@ READMES = [ROOT / "README.md", ROOT / "crates" / "bead-py" / "README.md"]
 
 def docstrings():
     """(name, docstring) of the package's modules and everything public in them."""
+    import bead._builder
     import bead._errors
     import bead._run
     import bead._sweep
@@ -45,7 +46,7 @@ def docstrings():
         if doc and name not in found:
             found[name] = doc
 
-    for module in (bead, bead._bead, bead._run, bead._sweep, bead._errors):
+    for module in (bead, bead._bead, bead._run, bead._sweep, bead._errors, bead._builder):
         add(module.__name__, module.__doc__ or "")
         for name, obj in vars(module).items():
             if name.startswith("__"):
@@ -221,3 +222,44 @@ def test_readme_sweep_example_runs_on_a_shipped_scene(cli):
             continue
         assert line in rows, line
     assert len(rows) == 11 and shown[-1].startswith("sweep: 10 members")
+
+
+# ---------------------------------------------------------------------------------------
+# The scene format's reference
+
+
+SCENE_FORMAT = ROOT / "docs" / "scene-format.md"
+
+
+def scene_format_examples():
+    text = SCENE_FORMAT.read_text()
+    return re.findall(r"```toml\n(.*?)```", text, re.S)
+
+
+@pytest.mark.parametrize("k", range(len(scene_format_examples())))
+def test_every_scene_of_the_format_reference_loads_and_runs(k):
+    """Each ```toml block of docs/scene-format.md is a scene: it loads and runs two steps
+    with every form it has."""
+    scene = bead.loads(scene_format_examples()[k], name=f"scene-format.md example {k + 1}")
+    for method in scene.methods:
+        run = scene.run(method=method, steps=2)
+        assert run.completed, (method, run.error)
+
+
+def test_the_format_reference_names_every_key_the_loader_knows():
+    text = SCENE_FORMAT.read_text()
+    for key in ("title", "[params]", "[world]", "gravity", "[[particle]]", "name", "mass",
+                "position", "velocity", "[[force]]", "constant", "spring", "drag", "between",
+                "anchor", "stiffness", "rest_length", "coefficient", "vector",
+                "[[constraint]]", "expression", "distance", "pin", "expr", "length",
+                "[parametric]", "coordinates", "initial", "rates", "[parametric.positions]",
+                "[run]", "method", "integrator", "dt", "duration", "steps", "stabilize",
+                "stop_when", "event_samples", "for"):
+        # `key`, `key = ...` or "key" (a kind's name).
+        assert re.search(f"`{re.escape(key)}[` ]", text) or f'"{key}"' in text, key
+    for name in bead.INTEGRATORS:
+        assert f"`{name}`" in text, name
+
+
+def test_help_of_the_package_points_to_the_format_reference():
+    assert "docs/scene-format.md" in bead.__doc__

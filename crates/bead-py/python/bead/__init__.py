@@ -25,10 +25,27 @@ A sweep runs a scene once per value of its parameters, on every core:
 >>> result.to_pandas().shape[0]
 1000
 
+A state can be set, a force held, a parameter changed, and the constraint forces read:
+
+>>> sim = bead.load("scenes/circle.toml").simulation(dt=1e-3)
+>>> sim.set_state(positions=[[0.0, 1.0]], velocities=[[2.0, 0.0]])
+>>> sim.constraint_force_vectors.round(12).tolist()   # the rod pulls with m (g + v^2 / L)
+[[0.0, -13.81]]
+>>> sim.apply_force("bead", [3.0, 0.0])
+>>> sim.set_param("g", 1.62)
+>>> run = bead.load("scenes/circle.toml").run(t_eval=[0.0, 0.5, 1.0])
+>>> run.t.tolist(), run.constraint_force_vectors.shape
+([0.0, 0.5, 1.0], (3, 1, 2))
+
+A scene can be built in Python (`bead.Builder`, which writes the scene file's TOML) or
+started elsewhere (`scene.with_state`, `run(initial=...)`, `bead.sweep(initial=...)`). The
+scene file format: docs/scene-format.md in the repository.
+
 The physics is the Rust library's (the same as the `bead` command line): the run's
 `summary` has the keys and values of `bead run --json`.
 """
 
+from ._builder import Builder
 from ._errors import BeadError, DivergenceError, RunError, SceneError, SetupError
 from ._run import Run
 from ._sweep import Sweep, SweepResult, sweep
@@ -44,6 +61,7 @@ from ._bead import (
 
 __all__ = [
     "BeadError",
+    "Builder",
     "DivergenceError",
     "INTEGRATORS",
     "METHODS",

@@ -4,6 +4,7 @@ import os
 from typing import Any, Dict, List, Mapping, Optional, Tuple, Union
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from ._run import Run
 
@@ -49,6 +50,20 @@ class Scene:
     @property
     def text(self) -> str: ...
     def with_params(self, params: Mapping[str, float]) -> Scene: ...
+    def with_state(
+        self,
+        *,
+        positions: Optional[ArrayLike] = None,
+        velocities: Optional[ArrayLike] = None,
+        q: Optional[ArrayLike] = None,
+        qdot: Optional[ArrayLike] = None,
+    ) -> Scene:
+        """A copy started elsewhere, placed on the constraints (the same start for both
+        forms); a UserWarning says how far the start moved when more than rounding."""
+    @property
+    def start(self) -> Optional[Dict[str, np.ndarray]]: ...
+    def with_force(self, kind: str, **keys: Any) -> Scene:
+        """A copy with a [[force]] table added (constant, spring or drag)."""
     def run(
         self,
         *,
@@ -66,6 +81,8 @@ class Scene:
         max_substeps: Optional[int] = None,
         stop_when: Optional[str] = None,
         event_samples: Optional[int] = None,
+        initial: Optional[Mapping[str, ArrayLike]] = None,
+        t_eval: Optional[ArrayLike] = None,
     ) -> Run:
         """Run the scene; arguments override its [run] table. stop_when ends the run where
         the expression (e.g. "bead.y - 100") crosses zero upward (summary["stop_time"]).
@@ -84,6 +101,7 @@ class Scene:
         max_substeps: Optional[int] = None,
         stop_when: Optional[str] = None,
         event_samples: Optional[int] = None,
+        initial: Optional[Mapping[str, ArrayLike]] = None,
     ) -> Simulation:
         """A simulation to step by hand, at the scene's initial state."""
 
@@ -119,6 +137,41 @@ class Simulation:
     def particles(self) -> List[str]: ...
     @property
     def coordinates(self) -> List[str]: ...
+    def set_state(
+        self,
+        *,
+        positions: Optional[ArrayLike] = None,
+        velocities: Optional[ArrayLike] = None,
+        q: Optional[ArrayLike] = None,
+        qdot: Optional[ArrayLike] = None,
+        t: Optional[float] = None,
+    ) -> None:
+        """Set the state (placed on the constraints) and start from it."""
+    def apply_force(self, particle: Union[str, int], force: Optional[ArrayLike]) -> None:
+        """Hold a constant force on a particle from now on (None removes it)."""
+    @property
+    def applied_forces(self) -> Dict[str, np.ndarray]: ...
+    def set_param(self, name: str, value: float) -> None:
+        """Change a parameter of the scene and go on from the current state."""
+    @property
+    def params(self) -> Dict[str, float]: ...
+    @property
+    def constraint_forces(self) -> np.ndarray: ...
+    @property
+    def constraint_force_vectors(self) -> np.ndarray: ...
+    @property
+    def work(self) -> float: ...
+    @property
+    def energy_initial(self) -> float: ...
+
+class ConstraintForceSource:
+    """The constraint forces of a run's recorded states (used by bead.Run)."""
+
+    @property
+    def method(self) -> str: ...
+    def __call__(
+        self, t: np.ndarray, q: np.ndarray, qdot: np.ndarray
+    ) -> Tuple[np.ndarray, np.ndarray]: ...
 
 class SweepPlan:
     """The native half of bead.Sweep (use bead.sweep or bead.Sweep instead)."""

@@ -79,26 +79,27 @@ def _integer(name: str, value: Any, low: int) -> int:
     return n
 
 
-def _axes(params: Mapping[str, Any]) -> Tuple[List[str], List[np.ndarray]]:
-    """Names and float64 value arrays (1-D, C-contiguous) of `params`."""
+def _axes(params: Mapping[str, Any], what: str = "params") -> Tuple[List[str], List[np.ndarray]]:
+    """Names and float64 value arrays (1-D, C-contiguous) of `params` (the argument `what`)."""
     if not hasattr(params, "items"):
-        raise TypeError("params must be a mapping of parameter names to arrays of values")
+        kind = "parameter names" if what == "params" else "initial-state names (bead.x, q.theta)"
+        raise TypeError(f"{what} must be a mapping of {kind} to arrays of values")
     names, values = [], []
     for name, value in params.items():
         if not isinstance(name, str):
-            raise TypeError(f"params: the name {name!r} is not a string")
+            raise TypeError(f"{what}: the name {name!r} is not a string")
         try:
             array = np.asarray(value, dtype=np.float64)
         except OverflowError:
             raise ValueError(
-                f"params[{_quoted(name)}]: a value is beyond the range of a float (about 1.8e308); "
+                f"{what}[{_quoted(name)}]: a value is beyond the range of a float (about 1.8e308); "
                 "the values must be finite numbers"
             ) from None
         except (TypeError, ValueError) as e:
-            raise TypeError(f"params[{_quoted(name)}]: not an array of numbers ({e})") from None
+            raise TypeError(f"{what}[{_quoted(name)}]: not an array of numbers ({e})") from None
         if array.ndim > 1:
             raise ValueError(
-                f"params[{_quoted(name)}]: a 1-D array of values is needed, got shape {array.shape} "
+                f"{what}[{_quoted(name)}]: a 1-D array of values is needed, got shape {array.shape} "
                 "(several parameters make the grid themselves: give each its own values)"
             )
         names.append(name)
@@ -216,8 +217,9 @@ class SweepResult:
         flat = self._flat
         n = len(self)
         data: Dict[str, np.ndarray] = {"member": np.arange(self.members.start, self.members.stop)}
-        for i, name in enumerate(self.names):
-            data[name] = flat["params"][:, i]
+        # The CSV's names: an axis of the start is start.bead.x (bead.x is the final state's).
+        for i, column in enumerate(self.columns[1:1 + len(self.names)]):
+            data[column] = flat["params"][:, i]
         data["status"] = _STATUS[flat["status"]]
         for key in _FIGURES[1:]:
             data[key] = flat[key]
@@ -282,8 +284,9 @@ class Sweep:
     def __init__(
         self,
         scene: _bead.Scene,
-        params: Mapping[str, Any],
+        params: Optional[Mapping[str, Any]] = None,
         *,
+        initial: Optional[Mapping[str, Any]] = None,
         zip: bool = False,
         **options: Any,
     ) -> None:
@@ -296,7 +299,14 @@ class Sweep:
             )
         if not isinstance(scene, _bead.Scene):
             raise TypeError(f"Sweep: scene must be a bead.Scene, got {type(scene).__name__}")
-        names, values = _axes(params)
+        names, values = _axes(params if params is not None else {})
+        more, more_values = _axes(initial if initial is not None else {}, "initial")
+        names, values = names + more, values + more_values
+        if not names:
+            raise ValueError(
+                "a sweep needs values to sweep: params={name: values} and/or "
+                "initial={'bead.x': values} (a particle's NAME.x, NAME.vx, or q.NAME, qdot.NAME)"
+            )
         self._scene = scene
         self._names = names
         self._values = values
@@ -460,8 +470,9 @@ def _unless_all_failed(result: SweepResult) -> SweepResult:
 
 def sweep(
     scene: _bead.Scene,
-    params: Mapping[str, Any],
+    params: Optional[Mapping[str, Any]] = None,
     *,
+    initial: Optional[Mapping[str, Any]] = None,
     zip: bool = False,
     members: Optional[Union[range, Sequence[int]]] = None,
     threads: int = 0,
@@ -483,7 +494,11 @@ def sweep(
     `bead.SweepResult` of numpy arrays shaped like the parameter grid.
 
     ``params`` maps names of the scene's ``[params]`` table to 1-D arrays of values, e.g.
-    ``{"x0": np.linspace(10, 200, 10_000)}``. Several names make the full grid (the first
+    ``{"x0": np.linspace(10, 200, 10_000)}``; ``initial`` maps numbers of the scene's start
+    to values, named as the trace's columns: ``{"bead.x": xs}`` (a particle's position,
+    ``bead.vx`` its velocity) or ``{"q.theta": thetas}`` (the parametric form's coordinate,
+    ``qdot.theta`` its rate); each member's start is the scene's with those numbers set,
+    placed on the constraints as `Scene.with_state` places it. Several names make the full grid (the first
     outermost; the result's shape is the arrays' lengths), or with ``zip=True`` one member
     per position (all arrays of one length n; shape (n,)). Each member is exactly
     ``scene.with_params({...}).run(...)`` with the same options, bit for bit: method,
@@ -521,7 +536,7 @@ def sweep(
         "stop_when": stop_when,
         "event_samples": event_samples,
     }
-    plan = Sweep(scene, params, zip=zip, **options)
+    plan = Sweep(scene, params, initial=initial, zip=zip, **options)
     if members is None:
         return plan.run(threads)
     try:

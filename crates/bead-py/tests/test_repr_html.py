@@ -1,0 +1,17 @@
+"""`Run._repr_html_`: what a notebook shows for a run."""
+
+import bead
+from conftest import ROOT
+
+
+def test_a_run_shows_its_figures_and_a_light_sketch_of_the_paths():
+    run = bead.load(ROOT / "scenes" / "circle.toml").run(duration=2.0)
+    page = run._repr_html_()
+    assert "<table>" in page and "completed" in page and "rk4" in page
+    assert page.count("<polyline") == 1
+    points = page.split("points='")[1].split("'")[0].split()
+    assert 2 <= len(points) <= 401
+    # Every point inside the 240 px box.
+    assert all(0 <= float(c) <= 240 for p in points for c in p.split(","))
+    stopped = bead.load(ROOT / "scenes" / "circle.toml").run(stop_when="-bead.x")
+    assert "stop_when fired at t" in stopped._repr_html_()
