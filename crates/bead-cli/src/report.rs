@@ -162,6 +162,13 @@ pub fn run_text(scene: &Scene, plan: &Plan, summary: &Summary) -> String {
         };
         row(&mut s, "stop_when", format!("{condition}: {outcome}"));
     }
+    // Events beyond a single stop condition: each with its crossing times.
+    let lone_stop = summary.events.len() == 1 && summary.events[0].terminal;
+    if !lone_stop {
+        for (i, event) in summary.events.iter().enumerate() {
+            row(&mut s, &format!("event {}", i + 1), event_line(event));
+        }
+    }
     if let (Some(duration), Some(last)) = (plan.duration, plan.last_step()) {
         let _ = writeln!(
             s,
@@ -933,4 +940,28 @@ mod tests {
             "method      x\n-------------\nimplicit   12\np           3\n"
         );
     }
+}
+
+/// `EXPR (downward, terminal): crossed at t = 0.5, 1.5 s`, at most 8 times listed.
+fn event_line(event: &bead::output::EventTimes) -> String {
+    const LISTED: usize = 8;
+    let direction = match event.direction {
+        1 => "upward",
+        -1 => "downward",
+        _ => "either way",
+    };
+    let kind = if event.terminal { ", terminal" } else { "" };
+    let times = &event.times;
+    let crossed = if times.is_empty() {
+        "did not cross zero".to_string()
+    } else {
+        let shown: Vec<String> = times.iter().take(LISTED).map(|t| exact(*t)).collect();
+        let more = if times.len() > LISTED {
+            format!(", ... ({} crossings in all)", times.len())
+        } else {
+            String::new()
+        };
+        format!("crossed at t = {}{more} s", shown.join(", "))
+    };
+    format!("{} ({direction}{kind}): {crossed}", event.when)
 }

@@ -15,15 +15,15 @@ use bead::output::{trace_header, Summary};
 use bead::plan::{self, Plan, PlanError, PlanRequest};
 use bead::scene::{Scene, SceneEditError, SceneError};
 use bead::simulate::{
-    self, ConstraintForceProbe, ConstraintForces, Event, EventError, RunError, RunFailure,
-    RunStats, Sample, SetupError, Simulation, Sink, StateRequest,
+    self, ConstraintForceProbe, ConstraintForces, Direction, Event, EventError, EventSpec,
+    RunError, RunFailure, RunStats, Sample, SetupError, Simulation, Sink, StateRequest,
 };
 use bead::sweep::{Axis, Combine, Member, Sweep, SweepError};
 use numpy::ndarray::{Array2, Array3};
 use numpy::{IntoPyArray, PyArrayMethods, PyReadonlyArray1};
 use pyo3::exceptions::{PyIndexError, PyTypeError, PyUserWarning, PyValueError};
 use pyo3::prelude::*;
-use pyo3::types::{PyDict, PyString};
+use pyo3::types::{PyDict, PyList, PyString};
 
 mod args;
 mod simulation;
@@ -580,7 +580,7 @@ impl PyScene {
     /// start (e.g. rattle on the parametric form), and `bead.RunError` (`bead.DivergenceError`
     /// when the state blew up) when a step fails, with the run up to the last good state as
     /// `.run`. The GIL is released while the run steps.
-    #[pyo3(signature = (*, method = None, integrator = None, dt = None, duration = None, steps = None, every = None, stabilize = None, rtol = None, atol = None, project = false, substeps = None, max_substeps = None, stop_when = None, event_samples = None, initial = None, t_eval = None))]
+    #[pyo3(signature = (*, method = None, integrator = None, dt = None, duration = None, steps = None, every = None, stabilize = None, rtol = None, atol = None, project = false, substeps = None, max_substeps = None, stop_when = None, event_samples = None, initial = None, t_eval = None, events = None))]
     #[allow(clippy::too_many_arguments)]
     fn run(
         &self,
@@ -601,6 +601,7 @@ impl PyScene {
         event_samples: Option<&Bound<'_, PyAny>>,
         initial: Option<&Bound<'_, PyAny>>,
         t_eval: Option<&Bound<'_, PyAny>>,
+        events: Option<&Bound<'_, PyAny>>,
     ) -> PyResult<Py<PyAny>> {
         let scene = self.started(py, initial)?;
         let times = output_times(
@@ -630,13 +631,13 @@ impl PyScene {
             request.duration = None;
         }
         let plan = resolve(py, &scene, &request)?;
-        let event = stop_event(&scene, stop_when)?;
-        run_plan(py, &scene, &plan, event, times)
+        let events = watched_events(&scene, events, stop_when)?;
+        run_plan(py, &scene, &plan, events, times)
     }
 
     /// A `bead.Simulation` to step by hand (`step()`, `advance_to(t)`), at the scene's
     /// initial state. The arguments are those of `run()` without the run's length.
-    #[pyo3(signature = (*, method = None, integrator = None, dt = None, stabilize = None, rtol = None, atol = None, project = false, substeps = None, max_substeps = None, stop_when = None, event_samples = None, initial = None))]
+    #[pyo3(signature = (*, method = None, integrator = None, dt = None, stabilize = None, rtol = None, atol = None, project = false, substeps = None, max_substeps = None, stop_when = None, event_samples = None, initial = None, events = None))]
     #[allow(clippy::too_many_arguments)]
     fn simulation(
         &self,
@@ -653,6 +654,7 @@ impl PyScene {
         stop_when: Option<&str>,
         event_samples: Option<&Bound<'_, PyAny>>,
         initial: Option<&Bound<'_, PyAny>>,
+        events: Option<&Bound<'_, PyAny>>,
     ) -> PyResult<PySimulation> {
         let scene = self.started(py, initial)?;
         let asked = Asked {
@@ -675,10 +677,10 @@ impl PyScene {
         let plan = resolve(py, &scene, &request)?;
         let config = plan.config(plan.method);
         let system = Arc::clone(&scene.system);
-        let event = stop_event(&scene, stop_when)?;
+        let events = watched_events(&scene, events, stop_when)?;
         let mut simulation = detached(py, move || Simulation::new(system, config))?
             .map_err(|e| setup_error(py, &e))?;
-        simulation.set_stop_when(event).map_err(event_error)?;
+        simulation.set_events(events).map_err(event_error)?;
         Ok(PySimulation::new(simulation::Held::new(simulation, scene)))
     }
 
@@ -887,36 +889,144 @@ struct Finished {
     recorder: Recorder,
     result: Result<RunStats, RunFailure>,
     summary: Summary,
+    crossings: EventCrossings,
     coordinates: Vec<String>,
     tracks_work: bool,
 }
 
-/// Run `plan` on `scene` with the GIL released, and build the Python `Run` (or raise the
-/// `RunError` that carries it).
+/// The crossings of a run's (or a simulation's) events, by event: scipy's `t_events` and
+/// `y_events`.
+pub(crate) struct EventCrossings {
+    /// Per event: the times, and the particle states there (positions, then velocities).
+    times: Vec<Vec<f64>>,
+    states: Vec<Vec<f64>>,
+    width: usize,
+}
+
+impl EventCrossings {
+    pub(crate) fn of(simulation: &Simulation, n_events: usize) -> EventCrossings {
+        let width = 2 * simulation.system().n_coords();
+        let mut times = vec![Vec::new(); n_events];
+        let mut states = vec![Vec::new(); n_events];
+        for c in simulation.crossings() {
+            if c.event < n_events {
+                times[c.event].push(c.t);
+                states[c.event].extend_from_slice(&c.x);
+                states[c.event].extend_from_slice(&c.xdot);
+            }
+        }
+        EventCrossings {
+            times,
+            states,
+            width,
+        }
+    }
+
+    /// Lists of numpy arrays: the times (k,) and the states (k, 2 P D) of each event.
+    pub(crate) fn arrays<'py>(
+        self,
+        py: Python<'py>,
+    ) -> PyResult<(Bound<'py, PyList>, Bound<'py, PyList>)> {
+        let t_events = PyList::empty(py);
+        let y_events = PyList::empty(py);
+        for (times, states) in self.times.into_iter().zip(self.states) {
+            let k = times.len();
+            t_events.append(times.into_pyarray(py))?;
+            let states = Array2::from_shape_vec((k, self.width), states)
+                .map_err(|e| PyValueError::new_err(e.to_string()))?;
+            y_events.append(states.into_pyarray(py))?;
+        }
+        Ok((t_events, y_events))
+    }
+}
+
 /// The stop condition of a run: `stop_when`, parsed against the scene's system (a bad one is
 /// a ValueError showing where in the expression), else the scene's `[run] stop_when`, else
 /// none: as `bead run --stop-when` resolves it.
 fn stop_event(scene: &Scene, stop_when: Option<&str>) -> PyResult<Option<Event>> {
     match stop_when {
         None => Ok(scene.run.stop_when.clone()),
-        Some(source) => Event::parse(&scene.system, source).map(Some).map_err(|e| {
-            let start = source[..e.span.start.min(source.len())].chars().count();
-            let width = source
-                .get(e.span.start..e.span.end.max(e.span.start))
-                .map_or(1, |s| s.chars().count().max(1));
-            PyValueError::new_err(format!(
-                "stop_when: {}\n  {source}\n  {}{}",
-                e.message,
-                " ".repeat(start),
-                "^".repeat(width)
-            ))
-        }),
+        Some(source) => parse_event(scene, source, "stop_when").map(Some),
     }
+}
+
+/// `source` parsed as an event of `scene`'s system; a ValueError starting with `label` shows
+/// where in the expression it fails.
+fn parse_event(scene: &Scene, source: &str, label: &str) -> PyResult<Event> {
+    Event::parse(&scene.system, source).map_err(|e| {
+        let start = source[..e.span.start.min(source.len())].chars().count();
+        let width = source
+            .get(e.span.start..e.span.end.max(e.span.start))
+            .map_or(1, |s| s.chars().count().max(1));
+        PyValueError::new_err(format!(
+            "{label}: {}\n  {source}\n  {}{}",
+            e.message,
+            " ".repeat(start),
+            "^".repeat(width)
+        ))
+    })
+}
+
+/// The events a run watches: `events` (each a `bead.Event`, or an expression string: a
+/// non-terminal event of either direction), else the scene's `[[event]]` tables; then the
+/// stop condition (`stop_when`, else the scene's), a terminal upward event.
+pub(crate) fn watched_events(
+    scene: &Scene,
+    events: Option<&Bound<'_, PyAny>>,
+    stop_when: Option<&str>,
+) -> PyResult<Vec<EventSpec>> {
+    let stop = stop_event(scene, stop_when)?;
+    let Some(events) = events.filter(|e| !e.is_none()) else {
+        return Ok(scene.run.events_with(stop));
+    };
+    if events.is_instance_of::<PyString>() {
+        return Err(PyTypeError::new_err(
+            "events: expected a list of bead.Event (or expression strings), got a string; \
+             write events=[...]",
+        ));
+    }
+    let mut specs = Vec::new();
+    for (i, item) in events.try_iter()?.enumerate() {
+        let item = item?;
+        let label = format!("events[{i}]");
+        let spec = if let Ok(source) = item.extract::<String>() {
+            EventSpec {
+                event: parse_event(scene, &source, &label)?,
+                direction: Direction::Either,
+                terminal: false,
+            }
+        } else {
+            let attribute = |name: &str| {
+                item.getattr(name).map_err(|_| {
+                    PyTypeError::new_err(format!(
+                        "{label}: expected a bead.Event or an expression string, got {}",
+                        item.get_type()
+                            .name()
+                            .map_or("an object".to_string(), |n| n.to_string())
+                    ))
+                })
+            };
+            let source: String = attribute("expr")?.extract()?;
+            let sign: f64 = attribute("direction")?.extract()?;
+            let terminal: bool = attribute("terminal")?.extract()?;
+            let direction = Direction::from_sign(sign).ok_or_else(|| {
+                PyValueError::new_err(format!("{label}: direction must be 1, -1 or 0"))
+            })?;
+            EventSpec {
+                event: parse_event(scene, &source, &label)?,
+                direction,
+                terminal,
+            }
+        };
+        specs.push(spec);
+    }
+    specs.extend(stop.map(EventSpec::stop));
+    Ok(specs)
 }
 
 /// A stop condition that does not fit the run (generalized coordinates on the implicit form).
 pub(crate) fn event_error(e: EventError) -> PyErr {
-    PyValueError::new_err(format!("stop_when: {e}"))
+    PyValueError::new_err(format!("events: {e}"))
 }
 
 /// Why a run could not start.
@@ -988,11 +1098,13 @@ impl simulate::Progress for Interrupt {
     }
 }
 
+/// Run `plan` on `scene` with the GIL released, and build the Python `Run` (or raise the
+/// `RunError` that carries it).
 fn run_plan(
     py: Python<'_>,
     scene: &Arc<Scene>,
     plan: &Plan,
-    event: Option<Event>,
+    events: Vec<EventSpec>,
     times: Option<Vec<f64>>,
 ) -> PyResult<Py<PyAny>> {
     let system = &scene.system;
@@ -1013,7 +1125,8 @@ fn run_plan(
     let finished = detached(py, move || -> Result<Finished, StartError> {
         let mut simulation =
             Simulation::new(Arc::clone(&shared.system), config).map_err(StartError::Setup)?;
-        simulation.set_stop_when(event).map_err(StartError::Event)?;
+        let n_events = events.len();
+        simulation.set_events(events).map_err(StartError::Event)?;
         let coordinates = simulation.formulation().coordinate_names().to_vec();
         let tracks_work = simulation.tracks_work();
         let mut recorder = Recorder::with_room(rows, width, tracks_work);
@@ -1033,6 +1146,7 @@ fn run_plan(
             recorder,
             result,
             summary,
+            crossings: EventCrossings::of(&simulation, n_events),
             coordinates,
             // The ledger may have started during the run (external forces); the rows say.
             tracks_work: tracks_work || simulation.tracks_work(),
@@ -1047,6 +1161,7 @@ fn run_plan(
         recorder,
         result,
         summary,
+        crossings,
         coordinates,
         tracks_work,
     } = finished;
@@ -1064,6 +1179,9 @@ fn run_plan(
         tracks_work,
         source,
     )?;
+    let (t_events, y_events) = crossings.arrays(py)?;
+    run.bind(py).setattr("t_events", t_events)?;
+    run.bind(py).setattr("y_events", y_events)?;
     match result {
         Ok(_) => Ok(run),
         Err(failure) => Err(run_error(py, &failure.error, Some(run))),

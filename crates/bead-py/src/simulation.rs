@@ -6,15 +6,15 @@ use std::sync::{Arc, Mutex};
 
 use bead::model::{Force, ParticleId};
 use bead::scene::Scene;
-use bead::simulate::{Event, ForceId, PlacedState, RunError, Simulation, StateRequest};
+use bead::simulate::{Event, EventSpec, ForceId, PlacedState, RunError, Simulation, StateRequest};
 use numpy::ndarray::Array2;
 use numpy::{IntoPyArray, PyArray1};
 use pyo3::exceptions::{PyIndexError, PyTypeError, PyUserWarning, PyValueError};
 use pyo3::prelude::*;
-use pyo3::types::PyDict;
+use pyo3::types::{PyDict, PyList};
 
 use crate::{
-    args, detached, event_error, particle_names, poisoned, run_error, scene_edit_error,
+    args, detached, event_error, EventCrossings, particle_names, poisoned, run_error, scene_edit_error,
     setup_error, step_error, Interrupt,
 };
 
@@ -110,6 +110,14 @@ impl PySimulation {
     }
 
     /// The index of particle `particle` (its name, or its index in `particles`).
+    fn event_arrays<'py>(
+        &self,
+        py: Python<'py>,
+    ) -> PyResult<(Bound<'py, PyList>, Bound<'py, PyList>)> {
+        let crossings = self.read(py, |s| EventCrossings::of(s, s.events().len()))?;
+        crossings.arrays(py)
+    }
+
     fn particle_index(&self, particle: &Bound<'_, PyAny>) -> PyResult<usize> {
         if let Ok(name) = particle.extract::<String>() {
             return self
@@ -513,13 +521,14 @@ impl PySimulation {
                 let config = *old.config();
                 let mut simulation = Simulation::new(Arc::clone(&scene.system), config)
                     .map_err(ChangeError::Setup)?;
-                if let Some(event) = old.stop_when() {
-                    let event = Event::parse(&scene.system, event.source())
-                        .map_err(|e| ChangeError::Other(format!("the stop condition: {e}")))?;
-                    simulation
-                        .set_stop_when(Some(event))
-                        .map_err(ChangeError::Event)?;
+                let mut events = Vec::new();
+                for spec in old.events() {
+                    let source = spec.event.source();
+                    let event = Event::parse(&scene.system, source)
+                        .map_err(|e| ChangeError::Other(format!("the event `{source}`: {e}")))?;
+                    events.push(EventSpec { event, ..spec });
                 }
+                simulation.set_events(events).map_err(ChangeError::Event)?;
                 let request = match old.method() {
                     bead::formulation::Method::Parametric => StateRequest {
                         t: Some(old.t()),
@@ -552,6 +561,7 @@ impl PySimulation {
                 let placed = simulation
                     .set_state(&request)
                     .map_err(|e| ChangeError::Other(e.to_string()))?;
+                simulation.prepend_crossings(old.crossings());
                 held.simulation = simulation;
                 held.scene = Arc::new(scene);
                 held.applied = applied;
@@ -565,6 +575,36 @@ impl PySimulation {
             Err(ChangeError::Event(e)) => Err(event_error(e)),
             Err(ChangeError::Other(e)) => Err(PyValueError::new_err(format!("set_param: {e}"))),
         }
+    }
+
+    /// Whether the last `step()` or `advance_to()` stopped early at a terminal event (then
+    /// `t` is its crossing time, and `fired_event` says which).
+    #[getter]
+    fn event_fired(&self, py: Python<'_>) -> PyResult<bool> {
+        self.read(py, |s| s.stopped_at_event())
+    }
+
+    /// The index (in the simulation's events: those given to `simulation(events=...)`, or the
+    /// scene's `[[event]]` tables, then `stop_when`) of the terminal event that stopped the
+    /// last `step()` or `advance_to()`, or None.
+    #[getter]
+    fn fired_event(&self, py: Python<'_>) -> PyResult<Option<usize>> {
+        self.read(py, |s| s.fired_event())
+    }
+
+    /// The crossing times of each event since the start (or the last `set_state` or
+    /// `reset`), up to now: a list with an array (k,) per event, as scipy's `t_events`.
+    #[getter]
+    fn t_events<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyList>> {
+        self.event_arrays(py).map(|(t, _)| t)
+    }
+
+    /// The particle states at those crossings: a list with an array (k, 2 P D) per event,
+    /// each row the positions then the velocities of every particle, flattened (scipy's
+    /// `y_events`).
+    #[getter]
+    fn y_events<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyList>> {
+        self.event_arrays(py).map(|(_, y)| y)
     }
 
     /// The scene's parameters now (after `set_param`).

@@ -254,7 +254,7 @@ def test_the_format_reference_names_every_key_the_loader_knows():
                 "[[constraint]]", "expression", "distance", "pin", "expr", "length",
                 "[parametric]", "coordinates", "initial", "rates", "[parametric.positions]",
                 "[run]", "method", "integrator", "dt", "duration", "steps", "stabilize",
-                "stop_when", "event_samples", "for"):
+                "stop_when", "event_samples", "[[event]]", "direction", "terminal", "for"):
         # `key`, `key = ...` or "key" (a kind's name).
         assert re.search(f"`{re.escape(key)}[` ]", text) or f'"{key}"' in text, key
     for name in bead.INTEGRATORS:

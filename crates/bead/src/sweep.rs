@@ -53,8 +53,8 @@ use crate::plan::{Plan, PlanError, PlanRequest};
 use crate::scene::{Rebinder, Scene};
 use crate::simulate::lanes::{lanes_can_run, run_lanes, LaneOutcome, LANES};
 use crate::simulate::{
-    run, run_rest, solve_holding, Event, NullSink, RunFailure, RunOptions, RunStats, Simulation,
-    StateRequest,
+    run, run_rest, solve_holding, Event, EventSpec, NullSink, RunFailure, RunOptions, RunStats,
+    Simulation, StateRequest,
 };
 
 /// The most members a sweep may have: 2^32. Members stream ([`Sweep::run_each`]), so memory
@@ -416,6 +416,8 @@ struct Restart {
     rebinder: Rebinder,
     plan: Plan,
     stop: Stop,
+    /// The scene's `[[event]]` tables (the parameters swept do not reach them).
+    events: Vec<EventSpec>,
 }
 
 /// A restarted member's stop condition.
@@ -615,6 +617,7 @@ impl Sweep {
             rebinder,
             plan,
             stop,
+            events: scene.run.events.clone(),
         }))
     }
 
@@ -833,7 +836,7 @@ impl Sweep {
             },
             None => scene.run.stop_when.clone(),
         };
-        if let Err(e) = simulation.set_stop_when(event) {
+        if let Err(e) = simulation.set_events(scene.run.events_with(event)) {
             return fail(e.to_string(), layout);
         }
         Prepared::Ready(Box::new(Ready {
@@ -865,7 +868,9 @@ impl Sweep {
             Stop::Once(event) => Some(event.as_ref().ok()?.clone()),
             Stop::Each(source) => Some(Event::parse(&system, source).ok()?),
         };
-        simulation.set_stop_when(event).ok()?;
+        let mut events = restart.events.clone();
+        events.extend(event.map(EventSpec::stop));
+        simulation.set_events(events).ok()?;
         Some(Ready {
             index,
             params: params.to_vec(),

@@ -734,3 +734,55 @@ fn held_coordinates_of_the_start_are_kept_and_the_rest_solved() {
         );
     }
 }
+
+/// A scene's `[[event]]` tables are watched by every member as by a run of the member's
+/// scene alone: a non-terminal event's crossing times and a terminal one's stop, bit for bit,
+/// on the lanes and alone, members set up from the compiled equations or loaded again.
+#[test]
+fn members_watch_the_scene_event_tables_as_a_run_does() {
+    let text = format!(
+        "{}\n[[event]]\nexpr = \"bead.x\"\n\n[[event]]\nexpr = \"bead.vx - x0/20\"\ndirection = 1\nterminal = true\n",
+        common::PARABOLA_SWEPT
+    );
+    let base = Scene::parse(&text, "parabola.toml", &[]).unwrap();
+    assert_eq!(base.run.events.len(), 2);
+    for (method, integrator) in [
+        (Method::Implicit, IntegratorKind::Rk4),
+        (Method::Parametric, IntegratorKind::Rk4),
+        (Method::Implicit, IntegratorKind::Dopri5),
+    ] {
+        // x0 reaches the terminal event: every member is loaded again; g does not.
+        for axis in [
+            Axis::linspace("x0", 10.0, 200.0, 4).unwrap(),
+            Axis::linspace("g", 300.0, 900.0, 4).unwrap(),
+        ] {
+            let name = axis.name.clone();
+            let mut req = request(method, 600);
+            req.integrator = Some(integrator);
+            let sweep = Sweep::new(&base, vec![axis], Combine::Grid, req.clone(), None).unwrap();
+            let members = sweep.run(2).unwrap();
+            let mut crossed = 0;
+            for member in &members {
+                let alone =
+                    Scene::parse(&text, "parabola.toml", &[(name.clone(), member.params[0])])
+                        .unwrap();
+                let plan = Plan::resolve(&alone, &req).unwrap();
+                let mut simulation =
+                    Simulation::new(Arc::clone(&alone.system), plan.config(method)).unwrap();
+                simulation.set_events(alone.run.events_with(None)).unwrap();
+                let stats = run(&mut simulation, plan.options(), &mut NullSink).unwrap();
+                let swept = member.stats.as_ref().unwrap();
+                assert_eq!(
+                    figures(swept),
+                    figures(&stats),
+                    "{name} {method:?} {integrator:?}"
+                );
+                crossed += swept.events[0].times.len();
+            }
+            assert!(
+                crossed > 0,
+                "{name} {method:?} {integrator:?}: no crossing tested"
+            );
+        }
+    }
+}

@@ -178,7 +178,7 @@ fn run_method_with(
     recorder: Option<&mut dyn Sink>,
 ) -> Result<Outcome> {
     let mut simulation = Simulation::new(Arc::clone(&scene.system), config)?;
-    simulation.set_stop_when(stop_when.cloned())?;
+    simulation.set_events(scene.run.events_with(stop_when.cloned()))?;
     let coordinates = simulation.formulation().coordinate_names().to_vec();
     let mut sink: Box<dyn Sink> = match trace {
         Some(Trace {

@@ -37,6 +37,14 @@ A state can be set, a force held, a parameter changed, and the constraint forces
 >>> run.t.tolist(), run.constraint_force_vectors.shape
 ([0.0, 0.5, 1.0], (3, 1, 2))
 
+Events are scipy's: each with a direction (1 up, -1 down, 0 either) and terminal or not,
+their crossings located on the integrator's path:
+
+>>> run = bead.load("scenes/circle.toml").run(duration=3.5, events=[
+...     bead.Event("bead.x", direction=-1), bead.Event("bead.vx", direction=1)])
+>>> [t.round(9).tolist() for t in run.t_events]   # T/4, 5T/4 and T/2, 3T/2 (T = 2.1529 s)
+[[0.538218667, 2.691093334], [1.076437333, 3.229312]]
+
 A scene can be built in Python (`bead.Builder`, which writes the scene file's TOML) or
 started elsewhere (`scene.with_state`, `run(initial=...)`, `bead.sweep(initial=...)`). The
 scene file format: docs/scene-format.md in the repository.
@@ -46,6 +54,7 @@ The physics is the Rust library's (the same as the `bead` command line): the run
 """
 
 from ._builder import Builder
+from ._events import Event
 from ._errors import BeadError, DivergenceError, RunError, SceneError, SetupError
 from ._run import Run
 from ._sweep import Sweep, SweepResult, sweep
@@ -63,6 +72,7 @@ __all__ = [
     "BeadError",
     "Builder",
     "DivergenceError",
+    "Event",
     "INTEGRATORS",
     "METHODS",
     "Run",

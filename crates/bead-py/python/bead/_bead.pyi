@@ -1,11 +1,12 @@
 """Type stubs of the native module `bead._bead` (kept in sync by tests/test_stubs.py)."""
 
 import os
-from typing import Any, Dict, List, Mapping, Optional, Tuple, Union
+from typing import Any, Dict, List, Mapping, Optional, Sequence, Tuple, Union
 
 import numpy as np
 from numpy.typing import ArrayLike
 
+from ._events import Event
 from ._run import Run
 
 __version__: str
@@ -83,9 +84,11 @@ class Scene:
         event_samples: Optional[int] = None,
         initial: Optional[Mapping[str, ArrayLike]] = None,
         t_eval: Optional[ArrayLike] = None,
+        events: Optional[Sequence[Union[Event, str]]] = None,
     ) -> Run:
         """Run the scene; arguments override its [run] table. stop_when ends the run where
-        the expression (e.g. "bead.y - 100") crosses zero upward (summary["stop_time"]).
+        the expression (e.g. "bead.y - 100") crosses zero upward (summary["stop_time"]);
+        events (bead.Event, scipy's) are recorded in run.t_events and run.y_events.
         Raises ValueError, bead.SetupError, bead.RunError (with .run, the partial run)."""
     def simulation(
         self,
@@ -102,6 +105,7 @@ class Scene:
         stop_when: Optional[str] = None,
         event_samples: Optional[int] = None,
         initial: Optional[Mapping[str, ArrayLike]] = None,
+        events: Optional[Sequence[Union[Event, str]]] = None,
     ) -> Simulation:
         """A simulation to step by hand, at the scene's initial state."""
 
@@ -163,6 +167,14 @@ class Simulation:
     def work(self) -> float: ...
     @property
     def energy_initial(self) -> float: ...
+    @property
+    def event_fired(self) -> bool: ...
+    @property
+    def fired_event(self) -> Optional[int]: ...
+    @property
+    def t_events(self) -> List[np.ndarray]: ...
+    @property
+    def y_events(self) -> List[np.ndarray]: ...
 
 class ConstraintForceSource:
     """The constraint forces of a run's recorded states (used by bead.Run)."""

@@ -29,6 +29,11 @@ class Run:
     - ``constraint_forces`` (T, m): the multiplier lambda of each implicit constraint row
       (implicit form only: the parametric form has no rows)
 
+    - ``t_events``, ``y_events``: the crossings of the run's events (``run(events=...)``,
+      else the scene's ``[[event]]`` tables, then ``stop_when``), as scipy's: a list with
+      one array per event, of the times (k,) and of the particle states there (k, 2 P D:
+      the positions then the velocities of every particle, flattened)
+
     The constraint forces are evaluated at the recorded states when first read (one
     evaluation of the equations of motion per state, the run's own).
 
@@ -43,6 +48,8 @@ class Run:
     q: np.ndarray
     qdot: np.ndarray
     work: Optional[np.ndarray]
+    t_events: List[np.ndarray]
+    y_events: List[np.ndarray]
     particles: List[str]
     coordinates: List[str]
     columns: List[str]
@@ -77,6 +84,8 @@ class Run:
         self.coordinates = coordinates
         self.columns = columns
         self._force_source = constraint_force_source
+        self.t_events = []
+        self.y_events = []
         self._forces: Optional[Tuple[np.ndarray, np.ndarray]] = None
 
     def _constraint_force_arrays(self) -> Tuple[np.ndarray, np.ndarray]:

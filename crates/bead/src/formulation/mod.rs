@@ -264,7 +264,7 @@ impl std::str::FromStr for Method {
 }
 
 /// Time and the formulation's own coordinates and rates.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, Default, PartialEq)]
 pub struct State {
     pub t: f64,
     /// q (n)

@@ -16,4 +16,4 @@ mod csv;
 mod summary;
 
 pub use csv::{constraint_force_header, trace_header, CsvTrace};
-pub use summary::{CoordinateStates, ParticleState, ParticleStates, Summary};
+pub use summary::{CoordinateStates, EventTimes, ParticleState, ParticleStates, Summary};

@@ -39,6 +39,7 @@ use crate::simulate::{RunFailure, RunStats};
 /// | `retried_steps` | only when some were: steps retried with more substeps because an iteration did not converge |
 /// | `stop_when` | the stop condition as written (`null` when none) |
 /// | `stop_time` | the time the stop condition fired and the run ended (`null` when it did not) |
+/// | `events` | only when events were watched: `[{"when": EXPR, "direction": 1, -1 or 0, "terminal": bool, "times": [..]}]`, the times each crossed |
 /// | `particles` | `{NAME: {"position": [..], "velocity": [..]}}` at the end, in particle order |
 /// | `coordinates` | parametric runs only: `{NAME: [q, qdot]}` at the end, in coordinate order |
 /// | `error` | only when the run stopped early: why |
@@ -148,6 +149,9 @@ pub struct Summary {
     /// The time the stop condition fired, which ended the run (`null` when it did not).
     #[serde(serialize_with = "optional_number")]
     pub stop_time: Option<f64>,
+    /// Every watched event with its crossing times (written only when there are events).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub events: Vec<EventTimes>,
     /// Final particle states, in particle order.
     pub particles: ParticleStates,
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -172,6 +176,20 @@ pub struct ParticleState {
 }
 
 /// Particle states by name, serialized as a map in particle order.
+/// A watched event and its crossing times, as `bead run --json` writes it.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct EventTimes {
+    /// The expression as written.
+    pub when: String,
+    /// +1 (upward crossings), -1 (downward) or 0 (either), as scipy writes it.
+    pub direction: i8,
+    /// Whether a crossing ends the run.
+    pub terminal: bool,
+    /// The crossing times, in order.
+    #[serde(serialize_with = "numbers")]
+    pub times: Vec<f64>,
+}
+
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct ParticleStates(pub Vec<(String, ParticleState)>);
 
@@ -244,6 +262,16 @@ impl Summary {
             retried_steps: stats.retried_steps,
             stop_when: stats.stop_when.clone(),
             stop_time: stats.stop_time,
+            events: stats
+                .events
+                .iter()
+                .map(|e| EventTimes {
+                    when: e.when.clone(),
+                    direction: e.direction.sign(),
+                    terminal: e.terminal,
+                    times: e.times.clone(),
+                })
+                .collect(),
             particles: ParticleStates(particles),
             coordinates,
             error: None,
@@ -446,6 +474,7 @@ mod tests {
             retried_steps: 0,
             stop_when: None,
             stop_time: None,
+            events: Vec::new(),
         }
     }
 

@@ -25,6 +25,8 @@ pub(super) struct SceneFile {
     pub constraint: Tables<ConstraintDef>,
     pub parametric: Option<Spanned<ParametricDef>>,
     pub run: Option<Spanned<RunDef>>,
+    #[serde(default)]
+    pub event: Tables<EventDef>,
 }
 
 #[derive(Debug, Deserialize)]
@@ -96,6 +98,14 @@ pub(super) struct RunDef {
     pub stabilize: Option<Spanned<Stabilize>>,
     pub stop_when: Option<Spanned<String>>,
     pub event_samples: Option<Spanned<Num>>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct EventDef {
+    pub expr: Option<Spanned<String>>,
+    pub direction: Option<Spanned<Num>>,
+    pub terminal: Option<Spanned<bool>>,
 }
 
 /// `stabilize = [ks, kd]` or `stabilize = { frequency = f, damping = zeta }`.

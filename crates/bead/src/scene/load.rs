@@ -9,8 +9,8 @@ use std::sync::Arc;
 use toml::Spanned;
 
 use super::file::{
-    span_of, ConstraintDef, Entries, ForceDef, Names, Num, NumVec, ParametricDef, ParticleDef,
-    RangeText, RunDef, SceneFile, Stabilize, StringBytes,
+    span_of, ConstraintDef, Entries, EventDef, ForceDef, Names, Num, NumVec, ParametricDef,
+    ParticleDef, RangeText, RunDef, SceneFile, Stabilize, StringBytes,
 };
 use super::location::Source;
 use super::template::{self, Expanded, Scope, StringError};
@@ -21,8 +21,9 @@ use super::{
 use crate::expr::{parse, Expr, ExprError, Func, Resolved};
 use crate::formulation::{Feedback, Method};
 use crate::integrate::IntegratorKind;
+use crate::model::System;
 use crate::model::{Endpoint, Force, ModelError, ParticleId, SystemBuilder};
-use crate::simulate::Event;
+use crate::simulate::{Direction, Event, EventSpec};
 
 /// Names a parameter may not take (the model's reserved names).
 const RESERVED: [&str; 6] = ["t", "pi", "e", "x", "y", "z"];
@@ -180,6 +181,9 @@ fn load_limited(
         })?;
         run.stop_when = Some(event);
     }
+    for (i, table) in doc.event.0.iter().enumerate() {
+        run.events.push(event_table(&src, &system, i, table)?);
+    }
     Ok(Scene {
         title,
         file: file.to_string(),
@@ -192,6 +196,52 @@ fn load_limited(
         edits: Vec::new(),
         start: None,
         lines: l.lines,
+    })
+}
+
+/// An `[[event]]` table (`i` 0-based): its expression parsed against the system,
+/// `direction` 1, -1 or 0 (default 0), `terminal` (default false).
+fn event_table(
+    src: &Source,
+    system: &System,
+    i: usize,
+    table: &Spanned<EventDef>,
+) -> Result<EventSpec> {
+    let ctx = format!("event {}", i + 1);
+    let def = table.get_ref();
+    let Some(expr) = &def.expr else {
+        return Err(src.error(table.span(), format!("{ctx}: missing `expr`")));
+    };
+    let source = expr.get_ref();
+    let event = Event::parse(system, source).map_err(|err| {
+        src.expr_error(
+            expr.span(),
+            source,
+            &err,
+            format!("{ctx}: `expr`: {}", err.message),
+        )
+    })?;
+    let direction = match &def.direction {
+        None => Direction::Either,
+        Some(d) => match d.get_ref() {
+            Num::Value(v) if *v == 1.0 || *v == -1.0 || *v == 0.0 => {
+                Direction::from_sign(*v).expect("a sign")
+            }
+            _ => {
+                return Err(src.error(
+                    d.span(),
+                    format!(
+                    "{ctx}: `direction` must be 1 (upward crossings), -1 (downward) or 0 (either)"
+                ),
+                ))
+            }
+        },
+    };
+    let terminal = def.terminal.as_ref().is_some_and(|t| *t.get_ref());
+    Ok(EventSpec {
+        event,
+        direction,
+        terminal,
     })
 }
 

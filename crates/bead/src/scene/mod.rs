@@ -53,6 +53,10 @@
 //!   `q.q`, rates `qdot.q`), `t` and parameters, crosses zero upward
 //!   ([`crate::simulate::Event`]), and `event_samples = K`, the interior times per step at
 //!   which it is sampled.
+//! - `[[event]]`: `expr`, an expression as `stop_when`'s, `direction` (1: upward crossings,
+//!   -1: downward, 0: either, the default) and `terminal` (true: the first crossing ends
+//!   the run; false, the default: crossings are recorded, `bead run --json` lists their
+//!   times). `stop_when` is one more terminal upward event, after them.
 //! - `for = { i = "START..STOP", j = ... }` on a `[[particle]]`, `[[constraint]]` or
 //!   `[[force]]` table repeats it for i = START, ..., STOP - 1 (the first variable outermost,
 //!   as written; bounds are integer expressions of the parameters and the earlier loop
@@ -86,7 +90,7 @@ use std::sync::Arc;
 use crate::formulation::{Feedback, Method};
 use crate::integrate::IntegratorKind;
 use crate::model::System;
-use crate::simulate::{Event, PlacedState, SetStateError, StateRequest};
+use crate::simulate::{Event, EventSpec, PlacedState, SetStateError, StateRequest};
 
 /// Relative tolerance of the consistency checks of [`Scene::warnings`].
 const WARN_TOLERANCE: f64 = 1e-9;
@@ -235,10 +239,24 @@ pub struct RunDefaults {
     /// `stop_when = "EXPR"`: stop the run where EXPR crosses zero upward (see
     /// [`crate::simulate::Event`]).
     pub stop_when: Option<Event>,
+    /// The `[[event]]` tables, in file order: `expr = "EXPR"`, `direction = 1 | -1 | 0`
+    /// (default 0: either crossing), `terminal = true | false` (default false: recorded
+    /// only).
+    pub events: Vec<EventSpec>,
     /// `event_samples = K`: interior times per step at which the stop condition is sampled
     /// (see [`crate::simulate::SimulationConfig::event_samples`]), 0 to
     /// [`crate::simulate::MAX_EVENT_SAMPLES`].
     pub event_samples: Option<u32>,
+}
+
+impl RunDefaults {
+    /// The events a run of the scene watches: its `[[event]]` tables, then `stop_when` (the
+    /// scene's, or one that overrides it) as a terminal upward event.
+    pub fn events_with(&self, stop_when: Option<Event>) -> Vec<EventSpec> {
+        let mut events = self.events.clone();
+        events.extend(stop_when.map(EventSpec::stop));
+        events
+    }
 }
 
 /// A scene that cannot be loaded: what and where.

@@ -1,27 +1,33 @@
-//! Events: a run that stops where an expression of the state crosses zero upward.
+//! Events: where an expression of the state crosses zero, located on the integrator's path.
 //!
 //! An [`Event`] is an expression g over the particle positions and velocities (`a.x`,
 //! `a.vy`, and with a single particle `x`, `vy`), the generalized coordinates of the
 //! parametric form (`theta` or `q.theta`, rates `qdot.theta`), the time `t`, the scene's
-//! parameters, `pi` and `e`. A simulation with an event ([`super::Simulation::set_stop_when`])
-//! evaluates g after every step at its end and at K evenly spaced times inside it
-//! ([`super::SimulationConfig::event_samples`], default 4), and stops at the first time t*
-//! where g goes from g < 0 to g >= 0 between two consecutive of these times: an upward
-//! crossing. An expression already >= 0 at the start does not fire there (there is no
-//! crossing); it fires once it has gone below zero and come back. A crossing and its return
-//! that both fall between two samples are missed; a g that is NaN is an error
+//! parameters, `pi` and `e`. A simulation watches any number of them
+//! ([`super::Simulation::set_events`]), each as an [`EventSpec`]: which crossings it reports
+//! ([`Direction`]: upward, g < 0 before and g >= 0 after; downward, g > 0 before and g <= 0
+//! after; or either) and whether it ends the run (`terminal`) or is only recorded
+//! ([`super::Simulation::crossings`], scipy's `t_events` and `y_events`). The stop condition
+//! `stop_when` is a terminal upward event. g is evaluated after every step at its end and at K
+//! evenly spaced times inside it ([`super::SimulationConfig::event_samples`], default 4); a
+//! crossing is a sign change between two consecutive of these times. An expression that
+//! starts at or beyond zero does not fire there (there is no crossing); a crossing and its
+//! return that both fall between two samples are missed; a g that is NaN is an error
 //! ([`super::RunError::EventNotANumber`]).
 //!
 //! Fixed-step integrators screen the samples on a cubic Hermite interpolant of the step
 //! ([`Watch::screen`]) and evaluate g on their own path only where it shows a crossing (or a
-//! NaN); dopri5 samples its dense output. t* is then located to 1e-10 of the step dt:
-//! fixed-step integrators re-integrate the step from its saved start over a part of its
-//! length, so that every state tried is the integrator's own (with its substeps, retries and
-//! projection), and dopri5 evaluates its dense output, the continuous solution its error
-//! control is about. The root of g along that path is bracketed by the two samples around it
-//! and found by the Illinois variant of regula falsi, with a bisection whenever a secant
-//! point would not shrink the bracket by half in two iterations. The state the run ends at is
-//! the bracket's upper end, where g >= 0.
+//! NaN); dopri5 samples its dense output. The crossing time t* is then located to 1e-10 of
+//! the step dt: fixed-step integrators re-integrate the step from its saved start over a part
+//! of its length, so that every state tried is the integrator's own (with its substeps,
+//! retries and projection), and dopri5 evaluates its dense output, the continuous solution
+//! its error control is about. The root of s g (s = +1 for an upward crossing, -1 for a
+//! downward one) is bracketed by the two samples around it and found by the Illinois variant
+//! of regula falsi, with a bisection whenever a secant point would not shrink the bracket by
+//! half in two iterations. The state reported is the bracket's upper end, where s g >= 0. A
+//! terminal event ends the run there (the earliest, when several cross in one step); the
+//! non-terminal crossings before it are recorded, and a step with only non-terminal crossings
+//! stands as the integrator took it: recording them changes no number of the run.
 
 use crate::expr::{parse, Expr, ExprError, Resolved, Tape};
 use crate::formulation::Formulation;
@@ -70,14 +76,109 @@ impl PartialEq for Event {
 /// An event that cannot be used by a simulation.
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
 pub enum EventError {
-    #[error("the stop condition `{source_text}` uses the generalized coordinates of the parametric form, and this run uses the implicit form; use particle coordinates (like a.x, a.vy) or the parametric method")]
+    #[error("the event `{source_text}` uses the generalized coordinates of the parametric form, and this run uses the implicit form; use particle coordinates (like a.x, a.vy) or the parametric method")]
     NeedsParametric { source_text: String },
-    #[error("the stop condition `{source_text}` was parsed for another system (with {n_coords} particle coordinates and {n_q} generalized ones)")]
+    #[error("the event `{source_text}` was parsed for another system (with {n_coords} particle coordinates and {n_q} generalized ones)")]
     OtherSystem {
         source_text: String,
         n_coords: usize,
         n_q: usize,
     },
+}
+
+/// Which zero crossings of an event's expression g it reports.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Direction {
+    /// From g < 0 to g >= 0 (scipy's `direction = 1`; the stop condition's).
+    #[default]
+    Up,
+    /// From g > 0 to g <= 0 (`direction = -1`).
+    Down,
+    /// Either of the two (`direction = 0`).
+    Either,
+}
+
+impl Direction {
+    /// The direction of scipy's `direction` argument: its sign (+1 up, -1 down, 0 either).
+    pub fn from_sign(sign: f64) -> Option<Direction> {
+        if sign > 0.0 {
+            Some(Direction::Up)
+        } else if sign < 0.0 {
+            Some(Direction::Down)
+        } else if sign == 0.0 {
+            Some(Direction::Either)
+        } else {
+            None
+        }
+    }
+
+    /// +1, -1 or 0, as scipy writes it.
+    pub fn sign(self) -> i8 {
+        match self {
+            Direction::Up => 1,
+            Direction::Down => -1,
+            Direction::Either => 0,
+        }
+    }
+
+    /// `up`, `down` or `either`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Direction::Up => "up",
+            Direction::Down => "down",
+            Direction::Either => "either",
+        }
+    }
+
+    /// The sign s of a crossing it reports between consecutive values `before` and `after`
+    /// of g (s g goes from < 0 to >= 0): +1 upward, -1 downward; `None` when it reports none.
+    pub fn crossing(self, before: f64, after: f64) -> Option<f64> {
+        let up = before < 0.0 && after >= 0.0;
+        let down = before > 0.0 && after <= 0.0;
+        match self {
+            Direction::Up if up => Some(1.0),
+            Direction::Down if down => Some(-1.0),
+            Direction::Either if up => Some(1.0),
+            Direction::Either if down => Some(-1.0),
+            _ => None,
+        }
+    }
+}
+
+/// An event a simulation watches: its expression, the crossings it reports, and whether the
+/// first of them ends the run.
+#[derive(Clone, Debug, PartialEq)]
+pub struct EventSpec {
+    pub event: Event,
+    pub direction: Direction,
+    /// Whether a crossing ends the run (else it is only recorded).
+    pub terminal: bool,
+}
+
+impl EventSpec {
+    /// The stop condition `stop_when`: terminal, upward.
+    pub fn stop(event: Event) -> EventSpec {
+        EventSpec {
+            event,
+            direction: Direction::Up,
+            terminal: true,
+        }
+    }
+}
+
+/// One crossing of a watched event, located on the integrator's path: its time and the state
+/// there (particle positions and velocities; the formulation's coordinates).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Crossing {
+    /// The event's index in the list given to [`super::Simulation::set_events`].
+    pub event: usize,
+    pub t: f64,
+    /// +1 for an upward crossing, -1 for a downward one.
+    pub sign: i8,
+    pub x: Vec<f64>,
+    pub xdot: Vec<f64>,
+    pub q: Vec<f64>,
+    pub qdot: Vec<f64>,
 }
 
 const AXES: [&str; 3] = ["x", "y", "z"];
@@ -268,6 +369,8 @@ fn particle_list(system: &System) -> String {
 #[derive(Debug)]
 pub(super) struct Watch {
     pub(super) event: Event,
+    pub(super) direction: Direction,
+    pub(super) terminal: bool,
     vars: Vec<f64>,
     scratch: Vec<f64>,
     /// Interior points per step at which g is sampled (see [`Watch::screen`]).
@@ -289,7 +392,12 @@ pub(super) struct Watch {
 }
 
 impl Watch {
-    pub(super) fn new(event: Event, samples: u32) -> Watch {
+    pub(super) fn new(spec: EventSpec, samples: u32) -> Watch {
+        let EventSpec {
+            event,
+            direction,
+            terminal,
+        } = spec;
         let tape_vars = event.tape.n_vars();
         let slots = 2 * event.n_coords + 1 + 2 * event.n_q;
         let pairs = event.pairs.len();
@@ -298,6 +406,8 @@ impl Watch {
             vars: vec![0.0; slots.max(tape_vars)],
             scratch: vec![0.0; event.tape.n_slots()],
             event,
+            direction,
+            terminal,
             samples,
             g_last: f64::NAN,
             t_last: f64::NAN,
@@ -398,10 +508,11 @@ impl Watch {
     ///
     /// s = (t - t0) / h, (y, v) a position and its velocity (or q and qdot), exact at both
     /// ends, O(h^4) between, from the step's end states alone (every integrator has them),
-    /// goes from g < 0 to g >= 0 between two consecutive times, or is not a number
-    /// somewhere (g at the start included). Those values only say where to look: the caller
-    /// evaluates g on the integrator's own path there. When nothing needs a look, this state
-    /// is remembered as the start of the next step.
+    /// crosses zero in the event's direction between two consecutive times, or is not a
+    /// number somewhere (g at the start included). Those values only say where to look: the
+    /// caller evaluates g on the integrator's own path there. When no event of the step needs
+    /// a look, the caller remembers its end as the start of the next step
+    /// ([`Watch::remember`]).
     #[allow(clippy::too_many_arguments)]
     pub(super) fn screen(
         &mut self,
@@ -437,17 +548,13 @@ impl Watch {
                 let ti = sample_time(t0, t, i, self.samples);
                 self.vars[t_slot] = ti;
                 let g = self.eval_loaded();
-                if g.is_nan() || (before < 0.0 && g >= 0.0) {
+                if g.is_nan() || self.direction.crossing(before, g).is_some() {
                     return true;
                 }
                 before = g;
             }
         }
-        if before < 0.0 && g_end >= 0.0 {
-            return true;
-        }
-        self.remember(t, x, xdot, q, qdot, g_end);
-        false
+        self.direction.crossing(before, g_end).is_some()
     }
 
     /// The error for g = NaN at time t, at the state last given to [`Watch::eval`]; the run

@@ -293,16 +293,20 @@ pub(crate) fn run_lanes(
                 continue;
             }
             let member = &mut members[l];
-            // The stop condition's screen (`Watch::screen`, which remembers this step end
-            // when nothing needs a look); a look is the member's own to take.
+            // The events' screen (`screen_all`, which remembers this step end when no event
+            // needs a look); a look is the member's own to take.
             let leaves = failed[l]
-                || member.watch.as_mut().is_some_and(|watch| {
+                || (!member.watches.is_empty() && {
                     gather(&lanes.q, l, &mut lanes.q_one);
                     gather(&lanes.qdot, l, &mut lanes.qdot_one);
-                    let (q, qdot) = (&lanes.q_one, &lanes.qdot_one);
+                    let (q, qdot) = (&lanes.q_one[..], &lanes.qdot_one[..]);
                     let (x, xdot) = monitor.lane_state(out, &lanes.q, &lanes.qdot, l);
-                    let g_end = watch.eval(t, x, xdot, q, qdot);
-                    watch.screen(t, x, xdot, q, qdot, g_end)
+                    super::watching::screen_all(
+                        &mut member.watches,
+                        &mut member.g_now,
+                        t,
+                        (x, xdot, q, qdot),
+                    )
                 });
             if leaves {
                 active[l] = false;

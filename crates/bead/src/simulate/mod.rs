@@ -63,17 +63,18 @@ mod monitor;
 mod restart;
 mod run;
 mod state;
+mod watching;
 
 use std::sync::Arc;
 
 pub use crate::readable;
 pub use config::{ConfigError, Requirement, SetupError, SimulationConfig};
-pub use event::{Event, EventError};
+pub use event::{Crossing, Direction, Event, EventError, EventSpec};
 pub use monitor::Quantity;
 pub(crate) use run::run_rest;
 pub use run::{
-    run, run_at_times, run_with_progress, NoProgress, NullSink, Progress, RunError, RunFailure,
-    RunOptions, RunStats, Sample, Sink,
+    run, run_at_times, run_with_progress, EventRecord, NoProgress, NullSink, Progress, RunError,
+    RunFailure, RunOptions, RunStats, Sample, Sink,
 };
 pub(crate) use state::{place_start, solve_holding, Current};
 pub use state::{ConstraintForceProbe, ConstraintForces, PlacedState, SetStateError, StateRequest};
@@ -84,7 +85,7 @@ use crate::formulation::{
 };
 use crate::integrate::{Dopri5, Integrator, IntegratorKind};
 use crate::model::{Force, ModelError, System};
-use event::{sample_time, Bracket, Watch};
+use event::Watch;
 use ledger::{LedgerScratch, WithWork};
 use monitor::{Monitor, Rejection};
 
@@ -159,19 +160,30 @@ pub struct Simulation {
     calm_steps: u32,
     /// The substeps the last fixed step took (an event re-integrates part of it with them)
     last_substeps: u32,
-    /// The stop condition being watched, if any
-    watch: Option<Box<Watch>>,
-    /// The state at the upper end of an event's bracket while it is located (sized when the
-    /// event is set, so that locating allocates nothing)
+    /// The events being watched (see `watching.rs`)
+    watches: Vec<Watch>,
+    /// g of each event at the previous and the current sample time while a step is scanned
+    g_before: Vec<f64>,
+    g_now: Vec<f64>,
+    /// The state at the upper end of an event's bracket while it is located, the step's end
+    /// and the current sample while a fixed step is scanned, and the earliest terminal
+    /// crossing of a sample interval (sized when the events are set, so that locating
+    /// allocates only the crossing's record)
     event_state: State,
-    /// Adaptive integrators: the time of an event located in the last step, not yet reached
-    /// by the output
-    pending_event: Option<f64>,
-    /// Adaptive integrators: the event that fired inside the last step (its time and g
-    /// there), from which the rest of that step is still to be searched
-    resume_event: Option<(f64, f64)>,
-    /// The time the stop condition last fired
+    step_end: State,
+    sample_state: State,
+    stop_state: State,
+    /// The crossings located so far, in time order
+    crossings: Vec<event::Crossing>,
+    /// Adaptive integrators: the time and the index of a terminal event located in the last
+    /// step, not yet reached by the output
+    pending_event: Option<(f64, usize)>,
+    /// Adaptive integrators: the time inside the last step at which a terminal event fired,
+    /// from which the rest of that step is still to be searched
+    resume_event: Option<f64>,
+    /// The time a terminal event last fired, and which
     event_time: Option<f64>,
+    fired_event: Option<usize>,
     /// Whether the last `step` or `advance_to` ended at an event
     stopped_at_event: bool,
     /// Whether a step's end primes the integrator's first stage for the next step and the
@@ -263,15 +275,18 @@ impl Simulation {
             sticky_substeps: 0,
             calm_steps: 0,
             last_substeps: 1,
-            watch: None,
-            event_state: State {
-                t: 0.0,
-                q: Vec::new(),
-                qdot: Vec::new(),
-            },
+            watches: Vec::new(),
+            g_before: Vec::new(),
+            g_now: Vec::new(),
+            event_state: State::default(),
+            step_end: State::default(),
+            sample_state: State::default(),
+            stop_state: State::default(),
+            crossings: Vec::new(),
             pending_event: None,
             resume_event: None,
             event_time: None,
+            fired_event: None,
             stopped_at_event: false,
             prime_first_stage: true,
             config,
@@ -425,69 +440,6 @@ impl Simulation {
         self.stop_time = t;
     }
 
-    /// Watch `event` from now on (or stop watching with `None`): [`Simulation::step`] and
-    /// [`Simulation::advance_to`] stop at the first time after the current one where the
-    /// event's expression g crosses zero upward (g < 0 before, g >= 0 after), located to
-    /// 1e-10 of dt (see [`Event`]), and [`Simulation::stopped_at_event`] says so. A g
-    /// already >= 0 now does not fire until it has gone below zero and come back. The
-    /// simulation can go on after an event (the next crossing fires again). g is sampled
-    /// at the end of every step and at `config.event_samples` times inside it (see
-    /// [`Event`]); a g that is not a number makes the step fail with
-    /// [`RunError::EventNotANumber`], the simulation standing at the step's start.
-    ///
-    /// Fails when the event was parsed for another system, or reads generalized
-    /// coordinates and the simulation runs the implicit form.
-    pub fn set_stop_when(&mut self, event: Option<Event>) -> Result<(), EventError> {
-        self.pending_event = None;
-        self.resume_event = None;
-        self.stopped_at_event = false;
-        let Some(event) = event else {
-            self.watch = None;
-            return Ok(());
-        };
-        event.check(self.system(), self.method() == Method::Parametric)?;
-        self.watch = Some(Box::new(Watch::new(event, self.config.event_samples)));
-        self.rearm_event();
-        Ok(())
-    }
-
-    /// The stop condition being watched.
-    pub fn stop_when(&self) -> Option<&Event> {
-        self.watch.as_ref().map(|w| &w.event)
-    }
-
-    /// The time the stop condition last fired, if it has since the start (or the last reset).
-    pub fn event_time(&self) -> Option<f64> {
-        self.event_time
-    }
-
-    /// Whether the last [`Simulation::step`] or [`Simulation::advance_to`] stopped early, at
-    /// the stop condition's crossing (then [`Simulation::t`] is [`Simulation::event_time`]).
-    pub fn stopped_at_event(&self) -> bool {
-        self.stopped_at_event
-    }
-
-    /// g at the observed state, as the start of the next crossing test.
-    fn rearm_event(&mut self) {
-        let n = self.n;
-        let observed = if self.output_behind {
-            &self.output
-        } else {
-            &self.state
-        };
-        if let Some(watch) = &mut self.watch {
-            let x = &self.monitor.observation.x;
-            let xdot = &self.monitor.observation.xdot;
-            let (q, qdot) = (&observed.q[..n], &observed.qdot[..n]);
-            let g = watch.eval(observed.t, x, xdot, q, qdot);
-            watch.remember(observed.t, x, xdot, q, qdot, g);
-            if self.output_behind {
-                // The stop condition starts inside the last adaptive step: search its rest.
-                self.resume_event = Some((observed.t, g));
-            }
-        }
-    }
-
     /// One step: dt for fixed-step integrators; for adaptive ones one accepted step of their
     /// own size, never past the stop time (or t + dt when none is set).
     pub fn step(&mut self) -> Result<(), RunError> {
@@ -511,8 +463,8 @@ impl Simulation {
                 if self.pending_event.is_none() {
                     self.adaptive_step(horizon)?;
                 }
-                if let Some(te) = self.pending_event.take() {
-                    self.fire_adaptive(te);
+                if let Some((te, k)) = self.pending_event.take() {
+                    self.fire_adaptive(te, k);
                     return Ok(());
                 }
             }
@@ -590,10 +542,10 @@ impl Simulation {
                         return Err(self.interrupted_error());
                     }
                 }
-                if let Some(te) = self.pending_event {
+                if let Some((te, k)) = self.pending_event {
                     if te <= t {
                         self.pending_event = None;
-                        self.fire_adaptive(te);
+                        self.fire_adaptive(te, k);
                         return Ok(());
                     }
                 }
@@ -873,7 +825,7 @@ impl Simulation {
         let (q, _, _) = split(&self.state, n);
         match self.monitor.check_step(&*self.formulation, t, q) {
             Ok(()) => {
-                if self.watch.is_some() {
+                if !self.watches.is_empty() {
                     return self.watch_step();
                 }
                 self.monitor.accumulate();
@@ -934,356 +886,6 @@ impl Simulation {
         monitor.observe(&mut **formulation, state.t, q, qdot, work);
     }
 
-    /// With a stop condition, after a step was accepted (its end observed): look for the
-    /// first upward crossing of g inside it. Fixed-step integrators screen the step on an
-    /// interpolant ([`Watch::screen`]) and, when it asks, evaluate g on their own path at the
-    /// sample times ([`Simulation::scan_fixed`]); dopri5 samples its dense output, its own
-    /// path between steps ([`Simulation::scan_dense`]).
-    fn watch_step(&mut self) -> Result<(), RunError> {
-        let n = self.n;
-        let g_end = self.event_value(false);
-        let watch = self.watch.as_mut().expect("an event is watched");
-        match self.stepper {
-            Stepper::Fixed(_) => {
-                let (state, observation) = (&self.state, &self.monitor.observation);
-                let look = watch.screen(
-                    state.t,
-                    &observation.x,
-                    &observation.xdot,
-                    &state.q[..n],
-                    &state.qdot[..n],
-                    g_end,
-                );
-                if look {
-                    return self.scan_fixed(g_end);
-                }
-                self.monitor.accumulate();
-                Ok(())
-            }
-            Stepper::Adaptive(_) => {
-                let g_start = watch.g_last;
-                watch.g_last = g_end;
-                let start = self.previous.t;
-                if let Err(e) = self.scan_dense(start, g_start, g_end, start) {
-                    self.steps -= 1;
-                    self.restore();
-                    self.rearm_event();
-                    return Err(e);
-                }
-                if self.pending_event.is_none() {
-                    self.monitor.accumulate();
-                }
-                Ok(())
-            }
-        }
-    }
-
-    /// The error for a g that is not a number at time t (the watch holds the state it was
-    /// evaluated at): the step is undone, the run stands at its start.
-    fn event_not_a_number(&mut self, t: f64) -> RunError {
-        let watch = self.watch.as_ref().expect("an event is watched");
-        let error = watch.not_a_number(t, self.previous.t);
-        self.steps -= 1;
-        self.restore();
-        error
-    }
-
-    /// The screen flagged the step from `previous` to `state` (g = `g_end` there): evaluate
-    /// g on the integrator's own path (the step integrated again from its start, as when
-    /// locating) at the sample times in order, and locate the first upward crossing between
-    /// two of them ([`Simulation::locate_fixed`]); a g that is not a number there is an
-    /// error. When the path has no crossing at those times the step stands.
-    fn scan_fixed(&mut self, g_end: f64) -> Result<(), RunError> {
-        let n = self.n;
-        let samples = self.watch.as_ref().map_or(0, |w| w.samples);
-        let (t0, t1) = (self.previous.t, self.state.t);
-        let mut before = (t0, self.watch.as_ref().map_or(f64::NAN, |w| w.g_last));
-        if before.1.is_nan() {
-            self.restore();
-            self.event_value(false);
-            self.steps -= 1;
-            let watch = self.watch.as_ref().expect("an event is watched");
-            return Err(watch.not_a_number(t0, t0));
-        }
-        self.event_state.clone_from(&self.state);
-        for i in 1..=samples + 1 {
-            let ti = sample_time(t0, t1, i, samples);
-            if i <= samples {
-                self.restore_state_only();
-                if let Err(e) = self.partial_step(ti) {
-                    return Err(self.fail(e));
-                }
-            } else {
-                self.state.clone_from(&self.event_state);
-            }
-            let (q, qdot, work) = split(&self.state, n);
-            self.monitor
-                .observe(&mut *self.formulation, ti, q, qdot, work);
-            let g = if i <= samples {
-                self.event_value(false)
-            } else {
-                g_end
-            };
-            if g.is_nan() {
-                self.event_value(false);
-                return Err(self.event_not_a_number(ti));
-            }
-            if before.1 < 0.0 && g >= 0.0 {
-                return self.locate_fixed(Bracket::new(before.0, before.1, ti, g));
-            }
-            before = (ti, g);
-        }
-        // No crossing on the integrator's path: the step stands, observed at its end.
-        let (state, observation) = (&self.state, &self.monitor.observation);
-        if let Some(watch) = &mut self.watch {
-            watch.remember(
-                t1,
-                &observation.x,
-                &observation.xdot,
-                &state.q[..n],
-                &state.qdot[..n],
-                g_end,
-            );
-        }
-        self.monitor.accumulate();
-        Ok(())
-    }
-
-    /// The tolerance of an event's time: 1e-10 of dt, or a few ulps of t when that is less.
-    fn event_tolerance(&self, t: f64) -> f64 {
-        (EVENT_TOLERANCE * self.config.dt).max(4.0 * f64::EPSILON * t.abs())
-    }
-
-    /// g at the state last observed by the monitor, at time t with the formulation's
-    /// coordinates `state`.
-    fn event_value(&mut self, at_output: bool) -> f64 {
-        let n = self.n;
-        let state = if at_output { &self.output } else { &self.state };
-        let observation = &self.monitor.observation;
-        let watch = self.watch.as_mut().expect("an event is watched");
-        watch.eval(
-            state.t,
-            &observation.x,
-            &observation.xdot,
-            &state.q[..n],
-            &state.qdot[..n],
-        )
-    }
-
-    /// Fixed-step integrators: re-integrate the step from its start over a part of its
-    /// length until the crossing is bracketed to the tolerance, and end the step at the
-    /// bracket's upper end (g >= 0), whose state is `state` on entry. The grid of steps
-    /// restarts there.
-    fn locate_fixed(&mut self, mut bracket: Bracket) -> Result<(), RunError> {
-        self.event_state.clone_from(&self.state);
-        let tolerance = self.event_tolerance(bracket.hi);
-        while !bracket.done(tolerance) {
-            let t = bracket.next();
-            self.restore_state_only();
-            if let Err(e) = self.partial_step(t) {
-                return Err(self.fail(e));
-            }
-            let (q, qdot, work) = split(&self.state, self.n);
-            self.monitor
-                .observe(&mut *self.formulation, t, q, qdot, work);
-            let g = self.event_value(false);
-            if g.is_nan() {
-                return Err(self.event_not_a_number(t));
-            }
-            if g >= 0.0 {
-                self.event_state.clone_from(&self.state);
-            }
-            bracket.update(t, g);
-        }
-        self.state.clone_from(&self.event_state);
-        let t = self.state.t;
-        let (q, qdot, work) = split(&self.state, self.n);
-        self.monitor
-            .observe(&mut *self.formulation, t, q, qdot, work);
-        self.monitor.accumulate();
-        let g = self.event_value(false);
-        let n = self.n;
-        let (state, observation) = (&self.state, &self.monitor.observation);
-        if let Some(watch) = &mut self.watch {
-            watch.remember(
-                t,
-                &observation.x,
-                &observation.xdot,
-                &state.q[..n],
-                &state.qdot[..n],
-                g,
-            );
-        }
-        self.grid_origin = t;
-        self.grid_steps = 0;
-        self.event_time = Some(t);
-        self.stopped_at_event = true;
-        Ok(())
-    }
-
-    /// The current step from its start (`previous`, already restored) to `t_end`, with the
-    /// substeps the whole step took, retried with more when an iteration does not converge.
-    fn partial_step(&mut self, t_end: f64) -> Result<(), StepError> {
-        let mut substeps = self.last_substeps.max(1);
-        loop {
-            match self.substeps(t_end, substeps) {
-                Ok(()) => return Ok(()),
-                Err(e) if retryable(&e) && substeps * 2 <= self.config.max_substeps => {
-                    self.restore_state_only();
-                    substeps *= 2;
-                }
-                Err(e) => return Err(e),
-            }
-        }
-    }
-
-    /// Adaptive integrators: g on the last step's dense output from time `from` (where it is
-    /// `g_from`) to the step's end (`g_end`), at the step's sample times after `from`; the
-    /// first upward crossing between two of them is located on the dense output and left
-    /// pending for the output to reach ([`Simulation::fire_adaptive`]). A g that is not a
-    /// number is an error (the caller moves the run to `stopped`, its last good state).
-    fn scan_dense(
-        &mut self,
-        from: f64,
-        g_from: f64,
-        g_end: f64,
-        stopped: f64,
-    ) -> Result<(), RunError> {
-        let Stepper::Adaptive(dopri) = &self.stepper else {
-            unreachable!("scan_dense is called for adaptive integrators only");
-        };
-        let (t_old, t_new) = dopri.last_step();
-        let samples = dense_samples(
-            t_new - t_old,
-            self.config.dt,
-            self.watch.as_ref().map_or(0, |w| w.samples),
-        );
-        let not_a_number = |sim: &mut Simulation, t: f64| {
-            let watch = sim.watch.as_ref().expect("an event is watched");
-            watch.not_a_number(t, stopped)
-        };
-        if g_from.is_nan() {
-            self.dense_value(from);
-            return Err(not_a_number(self, from));
-        }
-        let mut before = (from, g_from);
-        for i in 1..=samples + 1 {
-            let ti = sample_time(t_old, t_new, i, samples);
-            if ti <= from {
-                continue;
-            }
-            let g = if i <= samples {
-                self.dense_value(ti)
-            } else {
-                g_end
-            };
-            if g.is_nan() {
-                self.dense_value(ti);
-                return Err(not_a_number(self, ti));
-            }
-            if before.1 < 0.0 && g >= 0.0 {
-                return self.locate_adaptive(Bracket::new(before.0, before.1, ti, g), stopped);
-            }
-            before = (ti, g);
-        }
-        Ok(())
-    }
-
-    /// Adaptive integrators: g at time t of the last step's dense output (put into
-    /// `output`, not observed: the watch maps it to particle space itself).
-    fn dense_value(&mut self, t: f64) -> f64 {
-        if let Stepper::Adaptive(dopri) = &self.stepper {
-            dopri.interpolate(t, &mut self.output.q, &mut self.output.qdot);
-        }
-        self.output.t = t;
-        let n = self.n;
-        let watch = self.watch.as_mut().expect("an event is watched");
-        watch.eval_state(
-            &mut *self.formulation,
-            t,
-            &self.output.q[..n],
-            &self.output.qdot[..n],
-        )
-    }
-
-    /// Adaptive integrators: the dense output at time t of the last step into `output`,
-    /// observed.
-    fn observe_state_at(&mut self, t: f64) {
-        if let Stepper::Adaptive(dopri) = &self.stepper {
-            dopri.interpolate(t, &mut self.output.q, &mut self.output.qdot);
-        }
-        self.output.t = t;
-        let (q, qdot, work) = split(&self.output, self.n);
-        self.monitor
-            .observe(&mut *self.formulation, t, q, qdot, work);
-    }
-
-    /// Adaptive integrators: find the crossing on the last step's dense output; the output
-    /// reaches it later ([`Simulation::fire_adaptive`]).
-    fn locate_adaptive(&mut self, mut bracket: Bracket, stopped: f64) -> Result<(), RunError> {
-        let tolerance = self.event_tolerance(bracket.hi);
-        while !bracket.done(tolerance) {
-            let t = bracket.next();
-            let g = self.dense_value(t);
-            if g.is_nan() {
-                let watch = self.watch.as_ref().expect("an event is watched");
-                return Err(watch.not_a_number(t, stopped));
-            }
-            bracket.update(t, g);
-        }
-        self.pending_event = Some(bracket.hi);
-        Ok(())
-    }
-
-    /// Adaptive integrators, after an event fired inside the last step (or the stop condition
-    /// was set with the output inside it): search the rest of that step before going on. On
-    /// error the run stands at the output's time, which becomes the integrator's state.
-    fn resume_dense_scan(&mut self) -> Result<(), RunError> {
-        let Some((from, g_from)) = self.resume_event.take() else {
-            return Ok(());
-        };
-        if self.watch.is_none() || self.pending_event.is_some() || from >= self.state.t {
-            return Ok(());
-        }
-        let n = self.n;
-        let Some(watch) = self.watch.as_mut() else {
-            return Ok(());
-        };
-        let (q, qdot) = (&self.state.q[..n], &self.state.qdot[..n]);
-        let g_end = watch.eval_state(&mut *self.formulation, self.state.t, q, qdot);
-        watch.g_last = g_end;
-        let result = self.scan_dense(from, g_from, g_end, from);
-        if result.is_err() {
-            // The last good state is the output at `from`: the integrator starts again there.
-            self.observe_state_at(from);
-            self.state.clone_from(&self.output);
-            self.previous.clone_from(&self.output);
-            self.output_behind = false;
-            self.rearm_event();
-        }
-        result
-    }
-
-    /// Adaptive integrators: the output reached the event located at `te`: it becomes the
-    /// observable state and the step or advance stops there; the rest of the step is searched
-    /// for the next crossing when the simulation goes on.
-    fn fire_adaptive(&mut self, te: f64) {
-        if te == self.state.t {
-            self.output_behind = false;
-            let (q, qdot, work) = split(&self.state, self.n);
-            self.monitor
-                .observe(&mut *self.formulation, te, q, qdot, work);
-        } else {
-            self.observe_state_at(te);
-            self.output_behind = true;
-            let g = self.dense_value(te);
-            self.resume_event = Some((te, g));
-        }
-        self.monitor.accumulate();
-        self.event_time = Some(te);
-        self.stopped_at_event = true;
-    }
-
     /// Back to the initial state: monitors, statistics and the integrator's memory restart;
     /// external forces stay (and energy counts as not conserved only while there are any).
     pub fn reset(&mut self) {
@@ -1323,8 +925,10 @@ impl Simulation {
         self.pending_event = None;
         self.resume_event = None;
         self.event_time = None;
+        self.fired_event = None;
         self.stopped_at_event = false;
-        self.rearm_event();
+        self.crossings.clear();
+        self.rearm_events();
     }
 
     /// Back to the initial state moved onto the constraints (implicit form): positions onto
@@ -1559,8 +1163,29 @@ impl Simulation {
             substeps: self.config.substeps.max(1),
             substeps_max: self.substeps_max.max(self.config.substeps.max(1)),
             retried_steps: self.retried_steps,
-            stop_when: self.stop_when().map(|e| e.source().to_string()),
+            stop_when: self
+                .fired_event
+                .and_then(|k| self.watches.get(k))
+                .map(|w| &w.event)
+                .or(self.stop_when())
+                .map(|e| e.source().to_string()),
             stop_time: self.event_time,
+            events: self
+                .watches
+                .iter()
+                .enumerate()
+                .map(|(k, w)| EventRecord {
+                    when: w.event.source().to_string(),
+                    direction: w.direction,
+                    terminal: w.terminal,
+                    times: self
+                        .crossings()
+                        .iter()
+                        .filter(|c| c.event == k)
+                        .map(|c| c.t)
+                        .collect(),
+                })
+                .collect(),
         }
     }
 

@@ -157,10 +157,25 @@ pub struct RunStats {
     pub substeps_max: u32,
     /// Steps retried with more substeps because an iteration did not converge.
     pub retried_steps: u64,
-    /// The stop condition watched (see [`super::Event`]), as written.
+    /// The stop condition watched (see [`super::Event`]), as written: the terminal event
+    /// that fired, else the first terminal event.
     pub stop_when: Option<String>,
     /// The time it fired, when it did: the run ended there (`t_final`).
     pub stop_time: Option<f64>,
+    /// Every watched event with the times it crossed, in the order they were set (empty when
+    /// none).
+    pub events: Vec<EventRecord>,
+}
+
+/// A watched event and the times it crossed zero in its direction during a run.
+#[derive(Clone, Debug, PartialEq)]
+pub struct EventRecord {
+    /// The expression as written.
+    pub when: String,
+    pub direction: super::Direction,
+    pub terminal: bool,
+    /// The crossing times, in order.
+    pub times: Vec<f64>,
 }
 
 impl RunStats {
