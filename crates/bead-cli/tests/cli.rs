@@ -2618,3 +2618,57 @@ fn sweep_over_the_start_names_its_column_apart_from_the_final_state() {
         "{error}"
     );
 }
+
+/// `[[event]]` tables in the scene: `bead run` prints each event's crossing times, the JSON
+/// summary lists them, and the run's trace and end are those without the non-terminal
+/// events; a terminal event stops the run. The times against the pendulum's T/4 + kT from
+/// 60 degrees (T by the arithmetic-geometric mean).
+#[test]
+fn scene_event_tables_are_reported_in_the_summary_and_the_text() {
+    let dir = TempDir::new("events");
+    let circle = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes/circle.toml");
+    let base = std::fs::read_to_string(&circle).unwrap();
+    let tables = "\n[[event]]\nexpr = \"bead.x\"\ndirection = -1\n\n[[event]]\nexpr = \"bead.vx - 1\"\ndirection = 1\nterminal = true\n";
+    std::fs::write(dir.path("events.toml"), format!("{base}{tables}")).unwrap();
+    let (mut a, mut b) = (1.0f64, (1.0f64 - 0.25).sqrt());
+    for _ in 0..40 {
+        (a, b) = ((a + b) / 2.0, (a * b).sqrt());
+    }
+    let period = 4.0 / 9.81f64.sqrt() * std::f64::consts::PI / (2.0 * a);
+    let json = ok(bead_in(&dir.0, &["run", "events.toml", "--json"]));
+    let summary: serde_json::Value = serde_json::from_str(&json).unwrap();
+    let events = summary["events"].as_array().unwrap();
+    assert_eq!(events.len(), 2);
+    assert_eq!(events[0]["when"], "bead.x");
+    assert_eq!(events[0]["direction"], -1);
+    assert_eq!(events[1]["terminal"], true);
+    // vx - 1 crosses upward on the way back: after 3T/4 ... the run stops there, before
+    // 5T/4, and bead.x crossed downward once, at T/4.
+    let stop = summary["stop_time"].as_f64().unwrap();
+    assert_eq!(summary["stop_when"], "bead.vx - 1");
+    assert_eq!(events[1]["times"][0].as_f64().unwrap(), stop);
+    let down = events[0]["times"].as_array().unwrap();
+    assert_eq!(down.len(), 1, "{json}");
+    assert!((down[0].as_f64().unwrap() - period / 4.0).abs() < 1e-9);
+    assert!(stop > period / 2.0 && stop < period, "{stop} {period}");
+    let text = ok(bead_in(&dir.0, &["run", "events.toml"]));
+    assert!(
+        text.contains("  event 1      bead.x (downward): crossed at t = "),
+        "{text}"
+    );
+    assert!(
+        text.contains("  event 2      bead.vx - 1 (upward, terminal): crossed at t = "),
+        "{text}"
+    );
+    // A table with a bad direction is refused where it is.
+    std::fs::write(
+        dir.path("bad.toml"),
+        format!("{base}\n[[event]]\nexpr = \"bead.x\"\ndirection = 3\n"),
+    )
+    .unwrap();
+    let error = fails(bead_in(&dir.0, &["run", "bad.toml"]), 1);
+    assert!(
+        error.contains("bad.toml:") && error.contains("event 1: `direction` must be 1"),
+        "{error}"
+    );
+}

@@ -73,11 +73,15 @@ def test_three_events_with_directions_match_the_analytic_crossing_times(
     assert [e["direction"] for e in run.summary["events"]] == [-1, 1, 0]
 
 
-@pytest.mark.parametrize("integrator", ["rk4", "rattle", "verlet", "dopri5"])
-def test_recording_events_changes_no_number_of_the_run(integrator):
+@pytest.mark.parametrize(
+    "method,integrator",
+    [("implicit", "rk4"), ("implicit", "rattle"), ("implicit", "verlet"),
+     ("parametric", "gauss-legendre"), ("implicit", "dopri5"), ("parametric", "dopri5")],
+)
+def test_recording_events_changes_no_number_of_the_run(method, integrator):
     scene = bead.load(CIRCLE)
-    plain = scene.run(integrator=integrator, duration=3.0)
-    watched = scene.run(integrator=integrator, duration=3.0, events=THREE)
+    plain = scene.run(method=method, integrator=integrator, duration=3.0)
+    watched = scene.run(method=method, integrator=integrator, duration=3.0, events=THREE)
     assert sum(len(t) for t in watched.t_events) >= 5
     np.testing.assert_array_equal(plain.t, watched.t)
     np.testing.assert_array_equal(plain.positions, watched.positions)
