@@ -555,6 +555,34 @@ impl PyScene {
         Ok(PyScene::new(scene))
     }
 
+    /// A copy of this scene with an event added, as an `[[event]]` table of the scene file
+    /// (see docs/scene-format.md and `bead.Event`): `expr` crossing zero in `direction` (1
+    /// up, -1 down, 0 either), recorded (`t_events`) or, when `terminal`, ending the run.
+    /// Runs, simulations and sweeps of the copy watch it. Raises bead.SceneError, located in
+    /// the scene text with the table added after it.
+    #[pyo3(signature = (expr, direction = None, terminal = None), text_signature = "($self, expr, direction=0, terminal=False)")]
+    fn with_event(
+        &self,
+        py: Python<'_>,
+        expr: &Bound<'_, PyAny>,
+        direction: Option<&Bound<'_, PyAny>>,
+        terminal: Option<&Bound<'_, PyAny>>,
+    ) -> PyResult<PyScene> {
+        let mut entries = vec![("expr".to_string(), expr.clone())];
+        if let Some(direction) = direction {
+            entries.push(("direction".to_string(), direction.clone()));
+        }
+        if let Some(terminal) = terminal {
+            entries.push(("terminal".to_string(), terminal.clone()));
+        }
+        let table = toml_text::array_table("event", &entries)?;
+        let scene = self
+            .inner
+            .with_tables(&table)
+            .map_err(|e| scene_edit_error(py, &e))?;
+        Ok(PyScene::new(scene))
+    }
+
     /// The start set with `with_state` (or `initial=`), as asked for: a dict of arrays, or
     /// None.
     #[getter]
@@ -1654,6 +1682,8 @@ struct Columns {
     xdot: Vec<f64>,
     q: Vec<f64>,
     qdot: Vec<f64>,
+    /// Per member, per event: the crossing times.
+    event_times: Vec<Vec<Vec<f64>>>,
 }
 
 impl Columns {
@@ -1696,6 +1726,7 @@ impl Columns {
             xdot: Vec::with_capacity(count * nc),
             q: Vec::with_capacity(count * nq),
             qdot: Vec::with_capacity(count * nq),
+            event_times: Vec::with_capacity(count),
         }
     }
 
@@ -1726,6 +1757,8 @@ impl Columns {
                     self.q.extend_from_slice(&stats.q);
                     self.qdot.extend_from_slice(&stats.qdot);
                 }
+                self.event_times
+                    .push(stats.events.iter().map(|e| e.times.clone()).collect());
             }
             None => {
                 for column in [
@@ -1742,6 +1775,7 @@ impl Columns {
                 self.xdot.resize(self.xdot.len() + nc, f64::NAN);
                 self.q.resize(self.q.len() + nq, f64::NAN);
                 self.qdot.resize(self.qdot.len() + nq, f64::NAN);
+                self.event_times.push(Vec::new());
             }
         }
         self.errors.push(member.error);
@@ -1789,6 +1823,15 @@ impl Columns {
             dict.set_item("q", py.None())?;
             dict.set_item("qdot", py.None())?;
         }
+        let t_events = PyList::empty(py);
+        for member in self.event_times {
+            let times = PyList::empty(py);
+            for event in member {
+                times.append(event.into_pyarray(py))?;
+            }
+            t_events.append(times)?;
+        }
+        dict.set_item("t_events", t_events)?;
         dict.set_item("threads", threads)?;
         dict.set_item("wall_seconds", clock.elapsed().as_secs_f64())?;
         Ok(dict)

@@ -114,7 +114,7 @@ impl PySimulation {
         &self,
         py: Python<'py>,
     ) -> PyResult<(Bound<'py, PyList>, Bound<'py, PyList>)> {
-        let crossings = self.read(py, |s| EventCrossings::of(s, s.events().len()))?;
+        let crossings = self.read(py, |s| EventCrossings::of(s, s.event_count()))?;
         crossings.arrays(py)
     }
 

@@ -85,3 +85,19 @@ def test_a_bad_force_is_a_located_scene_error():
     with pytest.raises(bead.SceneError, match="stiffness") as e:
         bead.load(CIRCLE).with_force("spring", particle="bead", anchor=[0, 0])
     assert e.value.line > 30
+
+
+def test_built_events_are_the_scene_files_event_tables():
+    built = pendulum().event("bead.x", direction=-1).event("bead.vx", direction=1, terminal=True)
+    text = built.to_toml()
+    assert text.endswith(
+        '[[event]]\nexpr = "bead.x"\ndirection = -1\nterminal = false\n'
+        '[[event]]\nexpr = "bead.vx"\ndirection = 1\nterminal = true\n'
+    )
+    a = built.build().run(duration=3.0)
+    b = bead.loads(text).run(duration=3.0)
+    assert a.positions.tobytes() == b.positions.tobytes()
+    assert [t.tolist() for t in a.t_events] == [t.tolist() for t in b.t_events]
+    assert len(a.t_events[0]) == 1 and a.summary["stop_time"] == a.t_events[1][0]
+    with pytest.raises(bead.SceneError, match=r"event\('bead.q'\)"):
+        pendulum().event("bead.q").build()

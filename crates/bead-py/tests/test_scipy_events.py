@@ -179,3 +179,34 @@ def test_bad_events_are_refused_with_their_place():
     with pytest.raises(bead.SceneError, match="event 1: missing `expr`"):
         bead.loads(CIRCLE.read_text() + "\n[[event]]\nterminal = true\n")
     assert bead.Event("x", direction=-3.5) == bead.Event("x", direction=-1)
+
+
+def test_a_sweep_records_each_members_crossings_as_its_run_does():
+    # The period against the amplitude from one sweep with a non-terminal event: the time
+    # between two leftward passages through the bottom, against 4 sqrt(L/g) K(sin(a/2)).
+    scene = bead.load(CIRCLE)
+    amplitudes = np.radians(np.linspace(10, 170, 9))
+    options = dict(method="parametric", integrator="gauss-legendre", dt=1e-3, duration=8.0)
+    result = bead.sweep(scene, initial={"q.theta": amplitudes},
+                        events=[bead.Event("bead.x", direction=-1)], **options)
+    assert result.t_events.shape == (9,) and set(result.status) == {"ok"}
+    for a, times in zip(amplitudes, result.t_events):
+        alone = scene.with_state(q=[a]).run(events=[bead.Event("bead.x", direction=-1)],
+                                             **options)
+        assert len(times) == 1 and times[0].tolist() == alone.t_events[0].tolist()
+        k = math.sin(a / 2)
+        x, y = 1.0, math.sqrt(1 - k * k)
+        for _ in range(40):
+            x, y = (x + y) / 2, math.sqrt(x * y)
+        exact = 4 * math.sqrt(L / G) * math.pi / (2 * x)
+        assert abs((times[0][1] - times[0][0]) / exact - 1) < 1e-12
+    # A scene's own tables and stop_when come through too; chunks join.
+    tabled = scene.with_event("bead.vx", 1, True)
+    plan = bead.Sweep(tabled, {"g": [5.0, 9.81, 20.0]}, duration=5.0)
+    joined = plan.assemble([plan.run_range(0, 1), plan.run_range(1, 3)])
+    for g, times in zip([5.0, 9.81, 20.0], joined.t_events):
+        alone = tabled.with_params({"g": g}).run(duration=5.0)
+        assert [t.tolist() for t in times] == [t.tolist() for t in alone.t_events]
+        assert len(times[0]) == 1
+    with pytest.raises(TypeError, match="a list of bead.Event"):
+        bead.sweep(scene, {"g": [1.0]}, events="bead.x")

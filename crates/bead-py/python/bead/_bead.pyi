@@ -63,6 +63,8 @@ class Scene:
         forms); a UserWarning says how far the start moved when more than rounding."""
     @property
     def start(self) -> Optional[Dict[str, np.ndarray]]: ...
+    def with_event(self, expr: str, direction: int = 0, terminal: bool = False) -> Scene:
+        """A copy with an [[event]] table added (see bead.Event)."""
     def with_force(self, kind: str, **keys: Any) -> Scene:
         """A copy with a [[force]] table added (constant, spring or drag)."""
     def run(

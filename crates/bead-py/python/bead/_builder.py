@@ -66,6 +66,7 @@ class Builder:
         self._tables: List[Tuple[str, List[Tuple[str, Any]], str]] = []
         self._parametric: Optional[Tuple[List[Tuple[str, Any]], Dict[str, Any], str]] = None
         self._run: Optional[Tuple[List[Tuple[str, Any]], str]] = None
+        self._events: List[Tuple[List[Tuple[str, Any]], str]] = []
 
     @staticmethod
     def _caller(call: str) -> str:
@@ -143,6 +144,14 @@ class Builder:
         self._run = (list(defaults.items()), self._caller("run(...)"))
         return self
 
+    def event(self, expr: str, direction: int = 0, terminal: bool = False) -> "Builder":
+        """An [[event]] table, as `bead.Event`: `expr` crossing zero in `direction` (1 up,
+        -1 down, 0 either), recorded in the run's `t_events`, or ending the run when
+        `terminal`."""
+        keys = [("expr", expr), ("direction", direction), ("terminal", terminal)]
+        self._events.append((keys, self._caller(f"event({expr!r})")))
+        return self
+
     def _lines(self) -> Tuple[List[str], List[Tuple[int, int, str]]]:
         lines: List[str] = []
         spans: List[Tuple[int, int, str]] = []
@@ -168,6 +177,8 @@ class Builder:
             table("[parametric.positions]", list(positions.items()), call)
         if self._run is not None:
             table("[run]", *self._run)
+        for keys, call in self._events:
+            table("[[event]]", keys, call)
         return lines, spans
 
     def to_toml(self) -> str:

@@ -17,6 +17,7 @@ import numpy as np
 
 from . import _bead
 from ._errors import RunError
+from ._events import Event
 
 # The run options of `Scene.run` that a sweep takes (all but `every`), with their defaults.
 _OPTIONS: Dict[str, Any] = {
@@ -124,6 +125,9 @@ class SweepResult:
     - ``positions``, ``velocities`` ``shape + (P, D)``: the final state
     - ``q``, ``qdot`` ``shape + (K,)`` for the parametric form, else None
     - ``errors`` ``shape`` (object): each member's error message, or None
+    - ``t_events`` ``shape`` (object): each member's crossing times, a list with an array
+      per event (the scene's ``[[event]]`` tables, ``events=``, then ``stop_when``), as a
+      run's ``t_events``
 
     A member that failed keeps the figures up to its last good state; one that could not
     start has NaN (and 0 steps). ``to_pandas()`` gives one row per member with the columns of
@@ -149,6 +153,7 @@ class SweepResult:
     q: Optional[np.ndarray]
     qdot: Optional[np.ndarray]
     errors: np.ndarray
+    t_events: np.ndarray
     particles: List[str]
     coordinates: List[str]
     columns: List[str]
@@ -192,6 +197,10 @@ class SweepResult:
         errors = np.empty(len(flat["errors"]), dtype=object)
         errors[:] = flat["errors"]
         self.errors = errors.reshape(self.shape)
+        t_events = np.empty(len(flat["t_events"]), dtype=object)
+        for i, times in enumerate(flat["t_events"]):
+            t_events[i] = times
+        self.t_events = t_events.reshape(self.shape)
         for field in _FIELDS:
             value = flat[field]
             setattr(
@@ -288,6 +297,7 @@ class Sweep:
         *,
         initial: Optional[Mapping[str, Any]] = None,
         zip: bool = False,
+        events: Optional[Sequence[Any]] = None,
         **options: Any,
     ) -> None:
         unknown = sorted(set(options) - set(_OPTIONS))
@@ -307,6 +317,22 @@ class Sweep:
                 "a sweep needs values to sweep: params={name: values} and/or "
                 "initial={'bead.x': values} (a particle's NAME.x, NAME.vx, or q.NAME, qdot.NAME)"
             )
+        # Events watched by every member: `[[event]]` tables added to the scene, so that a
+        # member is exactly that scene's run (and the tables travel with a pickled sweep).
+        if isinstance(events, str):
+            raise TypeError(
+                "Sweep: events must be a list of bead.Event (or expression strings), got a "
+                "string; write events=[...]"
+            )
+        for i, event in enumerate(events or []):
+            if isinstance(event, str):
+                event = Event(event)
+            if not isinstance(event, Event):
+                raise TypeError(
+                    f"Sweep: events[{i}]: expected a bead.Event or an expression string, got "
+                    f"{type(event).__name__}"
+                )
+            scene = scene.with_event(event.expr, event.direction, event.terminal)
         self._scene = scene
         self._names = names
         self._values = values
@@ -439,6 +465,7 @@ class Sweep:
             arrays = [f[key] for f in flats]
             flat[key] = None if arrays[0] is None else np.concatenate(arrays)
         flat["errors"] = [e for f in flats for e in f["errors"]]
+        flat["t_events"] = [e for f in flats for e in f["t_events"]]
         flat["threads"] = max(int(f["threads"]) for f in flats)
         flat["wall_seconds"] = sum(float(f["wall_seconds"]) for f in flats)
         return _unless_all_failed(self._result(flat, range(len(self)), self.shape))
@@ -489,6 +516,7 @@ def sweep(
     max_substeps: Optional[int] = None,
     stop_when: Optional[str] = None,
     event_samples: Optional[int] = None,
+    events: Optional[Sequence[Any]] = None,
 ) -> SweepResult:
     """Run `scene` once per combination of parameter values, on every core, and return a
     `bead.SweepResult` of numpy arrays shaped like the parameter grid.
@@ -504,7 +532,9 @@ def sweep(
     ``scene.with_params({...}).run(...)`` with the same options, bit for bit: method,
     integrator, dt, duration or steps, stabilize, rtol, atol, project, substeps,
     max_substeps, stop_when and event_samples are those of `Scene.run` (the scene's ``[run]`` table
-    supplies what is not given). A member that fails is reported (status "failed", its
+    supplies what is not given), and ``events`` (a list of `bead.Event`) are watched by
+    every member as ``[[event]]`` tables of the scene (`Scene.with_event`): their crossing
+    times are the result's ``t_events``. A member that fails is reported (status "failed", its
     message in ``errors``), not raised; but when every member fails (the whole sweep, not a
     chunk given by ``members=``) `bead.RunError` is raised, with the first member's error as
     its message and the `SweepResult` as its ``result``.
@@ -536,7 +566,7 @@ def sweep(
         "stop_when": stop_when,
         "event_samples": event_samples,
     }
-    plan = Sweep(scene, params, initial=initial, zip=zip, **options)
+    plan = Sweep(scene, params, initial=initial, zip=zip, events=events, **options)
     if members is None:
         return plan.run(threads)
     try:

@@ -90,6 +90,11 @@ impl Simulation {
             .collect()
     }
 
+    /// How many events are watched.
+    pub fn event_count(&self) -> usize {
+        self.watches.len()
+    }
+
     /// The first terminal event being watched (the stop condition).
     pub fn stop_when(&self) -> Option<&Event> {
         self.watches.iter().find(|w| w.terminal).map(|w| &w.event)
@@ -119,14 +124,6 @@ impl Simulation {
         let t = self.t();
         let end = self.crossings.partition_point(|c| c.t <= t);
         &self.crossings[..end]
-    }
-
-    /// Forget the crossings recorded so far.
-    pub fn clear_crossings(&mut self) {
-        let t = self.t();
-        // Those ahead of the output (an adaptive step past it) are still to come.
-        let end = self.crossings.partition_point(|c| c.t <= t);
-        self.crossings.drain(..end);
     }
 
     /// Put `earlier` crossings (of the same events, e.g. recorded by the simulation this one
