@@ -904,6 +904,30 @@ fn start_text(s: &mut String, start: &StartCheck) {
     }
 }
 
+/// `EXPR (downward, terminal): crossed at t = 0.5, 1.5 s`, at most 8 times listed.
+fn event_line(event: &bead::output::EventTimes) -> String {
+    const LISTED: usize = 8;
+    let direction = match event.direction {
+        1 => "upward",
+        -1 => "downward",
+        _ => "either way",
+    };
+    let kind = if event.terminal { ", terminal" } else { "" };
+    let times = &event.times;
+    let crossed = if times.is_empty() {
+        "did not cross zero".to_string()
+    } else {
+        let shown: Vec<String> = times.iter().take(LISTED).map(|t| exact(*t)).collect();
+        let more = if times.len() > LISTED {
+            format!(", ... ({} crossings in all)", times.len())
+        } else {
+            String::new()
+        };
+        format!("crossed at t = {}{more} s", shown.join(", "))
+    };
+    format!("{} ({direction}{kind}): {crossed}", event.when)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -940,28 +964,4 @@ mod tests {
             "method      x\n-------------\nimplicit   12\np           3\n"
         );
     }
-}
-
-/// `EXPR (downward, terminal): crossed at t = 0.5, 1.5 s`, at most 8 times listed.
-fn event_line(event: &bead::output::EventTimes) -> String {
-    const LISTED: usize = 8;
-    let direction = match event.direction {
-        1 => "upward",
-        -1 => "downward",
-        _ => "either way",
-    };
-    let kind = if event.terminal { ", terminal" } else { "" };
-    let times = &event.times;
-    let crossed = if times.is_empty() {
-        "did not cross zero".to_string()
-    } else {
-        let shown: Vec<String> = times.iter().take(LISTED).map(|t| exact(*t)).collect();
-        let more = if times.len() > LISTED {
-            format!(", ... ({} crossings in all)", times.len())
-        } else {
-            String::new()
-        };
-        format!("crossed at t = {}{more} s", shown.join(", "))
-    };
-    format!("{} ({direction}{kind}): {crossed}", event.when)
 }
