@@ -14,8 +14,8 @@ use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
 
 use crate::{
-    args, detached, event_error, EventCrossings, particle_names, poisoned, run_error, scene_edit_error,
-    setup_error, step_error, Interrupt,
+    args, detached, event_error, particle_names, poisoned, run_error, scene_edit_error,
+    setup_error, step_error, EventCrossings, Interrupt,
 };
 
 /// What a `bead.Simulation` holds behind its lock: the simulation, the scene it simulates
