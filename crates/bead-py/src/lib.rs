@@ -11,14 +11,14 @@ use std::time::{Duration, Instant};
 
 use bead::formulation::{Feedback, Method, StepError};
 use bead::integrate::IntegratorKind;
-use bead::output::{trace_header, Summary};
+use bead::output::{trace_header, Summary, Trajectory};
 use bead::plan::{self, Plan, PlanError, PlanRequest};
 use bead::scene::{Scene, SceneEditError, SceneError};
 use bead::simulate::{
     self, ConstraintForceProbe, ConstraintForces, Direction, Event, EventError, EventSpec,
-    RunError, RunFailure, RunStats, Sample, SetupError, Simulation, Sink, StateRequest,
+    RunError, RunFailure, RunStats, SetupError, Simulation, StateRequest,
 };
-use bead::sweep::{Axis, Combine, Member, Sweep, SweepError};
+use bead::sweep::{Axis, Combine, Member, Recording, Sweep, SweepError};
 use numpy::ndarray::{Array2, Array3};
 use numpy::{IntoPyArray, PyArrayMethods, PyReadonlyArray1};
 use pyo3::exceptions::{PyIndexError, PyTypeError, PyUserWarning, PyValueError};
@@ -776,19 +776,6 @@ fn counted(n: usize, thing: &str) -> String {
 // ---------------------------------------------------------------------------------------
 // Runs
 
-/// Every recorded sample of a run, row after row (a [`Sink`]).
-#[derive(Default)]
-struct Recorder {
-    t: Vec<f64>,
-    x: Vec<f64>,
-    xdot: Vec<f64>,
-    energy: Vec<f64>,
-    constraint_error: Vec<f64>,
-    q: Vec<f64>,
-    qdot: Vec<f64>,
-    work: Vec<f64>,
-}
-
 /// The numbers in one recorded row: t, energy, constraint_error and work, the particles'
 /// positions and velocities (`coordinates` each), q and qdot (`k` each).
 #[derive(Clone, Copy)]
@@ -869,52 +856,9 @@ fn record_guard(plan: &Plan, width: RowWidth) -> PyResult<u64> {
     )))
 }
 
-impl Recorder {
-    /// A recorder with room for `rows` rows reserved up front, so that no vector is moved
-    /// while it grows: the peak is then the arrays themselves. When the system will not
-    /// reserve that much at once (a run may stop long before its end), they grow as needed.
-    fn with_room(rows: u64, width: RowWidth, work: bool) -> Recorder {
-        let rows = usize::try_from(rows).unwrap_or(usize::MAX);
-        let room = |per_row: usize| {
-            let mut v = Vec::new();
-            let wanted = rows.saturating_mul(per_row);
-            if v.try_reserve_exact(wanted).is_err() {
-                v.reserve(wanted.min(1 << 16));
-            }
-            v
-        };
-        Recorder {
-            t: room(1),
-            x: room(width.coordinates),
-            xdot: room(width.coordinates),
-            energy: room(1),
-            constraint_error: room(1),
-            q: room(width.k),
-            qdot: room(width.k),
-            work: if work { room(1) } else { Vec::new() },
-        }
-    }
-}
-
-impl Sink for Recorder {
-    fn record(&mut self, sample: &Sample) -> std::io::Result<()> {
-        self.t.push(sample.t);
-        self.x.extend_from_slice(sample.x);
-        self.xdot.extend_from_slice(sample.xdot);
-        self.energy.push(sample.energy);
-        self.constraint_error.push(sample.constraint_error);
-        self.q.extend_from_slice(sample.q);
-        self.qdot.extend_from_slice(sample.qdot);
-        if let Some(w) = sample.work {
-            self.work.push(w);
-        }
-        Ok(())
-    }
-}
-
 /// What a run left: the recorded rows, the outcome and its summary.
 struct Finished {
-    recorder: Recorder,
+    recorder: Trajectory,
     result: Result<RunStats, RunFailure>,
     summary: Summary,
     crossings: EventCrossings,
@@ -1022,6 +966,7 @@ pub(crate) fn watched_events(
                 event: parse_event(scene, &source, &label)?,
                 direction: Direction::Either,
                 terminal: false,
+                stop_when: false,
             }
         } else {
             let attribute = |name: &str| {
@@ -1044,6 +989,7 @@ pub(crate) fn watched_events(
                 event: parse_event(scene, &source, &label)?,
                 direction,
                 terminal,
+                stop_when: false,
             }
         };
         specs.push(spec);
@@ -1157,7 +1103,7 @@ fn run_plan(
         simulation.set_events(events).map_err(StartError::Event)?;
         let coordinates = simulation.formulation().coordinate_names().to_vec();
         let tracks_work = simulation.tracks_work();
-        let mut recorder = Recorder::with_room(rows, width, tracks_work);
+        let mut recorder = Trajectory::with_room(rows, width.coordinates, width.k, tracks_work);
         let result = match &times {
             Some(times) => {
                 simulate::run_at_times(&mut simulation, times, &mut recorder, &mut watch)
@@ -1221,7 +1167,7 @@ fn run_plan(
 fn build_run(
     py: Python<'_>,
     scene: &Scene,
-    recorder: Recorder,
+    recorder: Trajectory,
     summary: &Summary,
     coordinates: &[String],
     tracks_work: bool,
@@ -1232,7 +1178,7 @@ fn build_run(
     let rows = recorder.t.len();
     let k = recorder.q.len().checked_div(rows).unwrap_or(0);
     let shape_error = |e: numpy::ndarray::ShapeError| PyValueError::new_err(e.to_string());
-    let Recorder {
+    let Trajectory {
         t,
         x,
         xdot,
@@ -1241,6 +1187,7 @@ fn build_run(
         q,
         qdot,
         work,
+        ..
     } = recorder;
     // A run that stopped early leaves room it did not use: give it back (in place for the
     // large buffers, which the allocator maps on their own) before numpy owns them.
@@ -1429,10 +1376,10 @@ fn thread_count(threads: usize) -> usize {
 impl PySweepPlan {
     /// A sweep of `scene` over `names` (parameters of its `[params]` table) taking `values`
     /// (one 1-D float64 array per name): every combination (first name outermost), or with
-    /// `zip=True` value i of each. The keyword arguments are those of `Scene.run` without
-    /// `every` (each member records nothing but its figures).
+    /// `zip=True` value i of each. The keyword arguments are those of `Scene.run`; with
+    /// `every` or `t_eval` each member records its states (a trajectory), as that run would.
     #[new]
-    #[pyo3(signature = (scene, names, values, zip = false, *, method = None, integrator = None, dt = None, duration = None, steps = None, stabilize = None, rtol = None, atol = None, project = false, substeps = None, max_substeps = None, stop_when = None, event_samples = None))]
+    #[pyo3(signature = (scene, names, values, zip = false, *, method = None, integrator = None, dt = None, duration = None, steps = None, every = None, stabilize = None, rtol = None, atol = None, project = false, substeps = None, max_substeps = None, stop_when = None, event_samples = None, t_eval = None))]
     #[allow(clippy::too_many_arguments)]
     fn new(
         py: Python<'_>,
@@ -1445,6 +1392,7 @@ impl PySweepPlan {
         dt: Option<&Bound<'_, PyAny>>,
         duration: Option<&Bound<'_, PyAny>>,
         steps: Option<&Bound<'_, PyAny>>,
+        every: Option<&Bound<'_, PyAny>>,
         stabilize: Option<&Bound<'_, PyAny>>,
         rtol: Option<&Bound<'_, PyAny>>,
         atol: Option<&Bound<'_, PyAny>>,
@@ -1453,6 +1401,7 @@ impl PySweepPlan {
         max_substeps: Option<&Bound<'_, PyAny>>,
         stop_when: Option<&str>,
         event_samples: Option<&Bound<'_, PyAny>>,
+        t_eval: Option<&Bound<'_, PyAny>>,
     ) -> PyResult<PySweepPlan> {
         let scene = &scene.get().inner;
         if names.len() != values.len() {
@@ -1480,12 +1429,17 @@ impl PySweepPlan {
             }
             axes.push(Axis::new(&name, values));
         }
+        let times = output_times(
+            t_eval,
+            [("duration", duration), ("steps", steps), ("every", every)],
+        )?;
         let asked = Asked {
             method,
             integrator,
             dt,
             duration,
             steps,
+            every,
             stabilize,
             rtol,
             atol,
@@ -1493,10 +1447,24 @@ impl PySweepPlan {
             substeps,
             max_substeps,
             event_samples,
-            ..Asked::default()
         };
-        let request = asked.request()?;
+        let mut request = asked.request()?;
+        if times.is_some() {
+            // As in `Scene.run`: t_eval sets where each member ends.
+            request.steps = Some(1);
+            request.duration = None;
+        }
+        let recording = match (times, every) {
+            (Some(times), _) => Recording::Times(times.into()),
+            (None, Some(every)) if !every.is_none() => Recording::Steps,
+            (None, _) => Recording::Nothing,
+        };
         let plan = resolve(py, scene, &request)?;
+        // A run option the formulation cannot take (rattle on the parametric form) is refused
+        // here in `Scene.run`'s words, rather than failing every member.
+        plan.config(plan.method)
+            .check(&scene.system)
+            .map_err(|e| setup_error(py, &SetupError::Config(e)))?;
         // A stop condition that does not parse, or does not fit the formulation, is refused
         // here with its place marked, rather than failing every member.
         let event = stop_event(scene, stop_when)?;
@@ -1509,6 +1477,7 @@ impl PySweepPlan {
         }
         let combine = if zip { Combine::Zip } else { Combine::Grid };
         let sweep = Sweep::new(scene, axes, combine, request, stop_when.map(str::to_string))
+            .and_then(|sweep| sweep.recording(recording))
             .map_err(|e| sweep_error(e, &particle_names(scene)))?;
         Ok(PySweepPlan {
             inner: Arc::new(sweep),
@@ -1684,6 +1653,8 @@ struct Columns {
     qdot: Vec<f64>,
     /// Per member, per event: the crossing times.
     event_times: Vec<Vec<Vec<f64>>>,
+    /// Per member, the states it recorded (when the sweep records any).
+    trajectories: Option<Vec<Option<Box<Trajectory>>>>,
 }
 
 impl Columns {
@@ -1691,11 +1662,17 @@ impl Columns {
     /// parameters, t_final, stop_time, steps, the three error maxima, 2 x P x D of
     /// positions and velocities, 2 x Q of q and qdot), its status (1 byte here, 24 as
     /// numpy's `<U6`) and its error slot (24 here while it is converted, 8 in the list, 8 in
-    /// the object array). An error message itself is not counted.
+    /// the object array). An error message itself is not counted. A recorded trajectory
+    /// counts twice its rows (t, energy, constraint_error, work, positions, velocities, q,
+    /// qdot): as recorded, then padded into the arrays.
     fn bytes_per_member(sweep: &Sweep) -> u64 {
         let layout = sweep.layout();
-        let floats = sweep.axes().len() + 7 + 2 * (layout.n_coords() + layout.coordinates.len());
-        8 * floats as u64 + 1 + 24 + 24 + 8 + 8
+        let state = layout.n_coords() + layout.coordinates.len();
+        let floats = sweep.axes().len() + 7 + 2 * state;
+        let recorded = sweep
+            .rows_per_member()
+            .saturating_mul(2 * 8 * (4 + 2 * state as u64));
+        (8 * floats as u64 + 1 + 24 + 24 + 8 + 8).saturating_add(recorded)
     }
 
     /// Empty columns for `count` members of `sweep`, reserved in full.
@@ -1727,6 +1704,8 @@ impl Columns {
             q: Vec::with_capacity(count * nq),
             qdot: Vec::with_capacity(count * nq),
             event_times: Vec::with_capacity(count),
+            trajectories: (*sweep.recorded() != Recording::Nothing)
+                .then(|| Vec::with_capacity(count)),
         }
     }
 
@@ -1779,6 +1758,9 @@ impl Columns {
             }
         }
         self.errors.push(member.error);
+        if let Some(trajectories) = &mut self.trajectories {
+            trajectories.push(member.trajectory);
+        }
         Ok(())
     }
 
@@ -1832,10 +1814,95 @@ impl Columns {
             t_events.append(times)?;
         }
         dict.set_item("t_events", t_events)?;
+        match self.trajectories {
+            Some(trajectories) => {
+                let recorded = trajectories_dict(py, trajectories, (p, d, nq))?;
+                dict.set_item("trajectory", recorded)?
+            }
+            None => dict.set_item("trajectory", py.None())?,
+        }
         dict.set_item("threads", threads)?;
         dict.set_item("wall_seconds", clock.elapsed().as_secs_f64())?;
         Ok(dict)
     }
+}
+
+/// Members' recorded states as arrays padded with NaN to the most rows any recorded:
+/// `t`, `energy`, `constraint_error` (n, T), `positions`, `velocities` (n, T, P, D), `q`,
+/// `qdot` (n, T, K) or None (implicit form), `work` (n, T) or None (no member ran the
+/// ledger), `rows` (n,) int64: how many rows each recorded. Each member's rows are freed as
+/// they are copied.
+fn trajectories_dict<'py>(
+    py: Python<'py>,
+    trajectories: Vec<Option<Box<Trajectory>>>,
+    (p, d, k): (usize, usize, usize),
+) -> PyResult<Bound<'py, PyDict>> {
+    let n = trajectories.len();
+    let longest = trajectories
+        .iter()
+        .flatten()
+        .map(|r| r.rows())
+        .max()
+        .unwrap_or(0);
+    let any_work = trajectories.iter().flatten().any(|r| !r.work.is_empty());
+    let nc = p * d;
+    let padded = |per_row: usize| vec![f64::NAN; n * longest * per_row];
+    let (mut t, mut energy, mut error, mut work) = (padded(1), padded(1), padded(1), padded(1));
+    let (mut x, mut xdot) = (padded(nc), padded(nc));
+    let (mut q, mut qdot) = (padded(k), padded(k));
+    let mut rows = Vec::with_capacity(n);
+    for (i, recorded) in trajectories.into_iter().enumerate() {
+        let Some(recorded) = recorded else {
+            rows.push(0i64);
+            continue;
+        };
+        let m = recorded.rows();
+        rows.push(m as i64);
+        let place = |to: &mut [f64], from: &[f64], per_row: usize| {
+            let at = i * longest * per_row;
+            let len = from.len().min(m * per_row);
+            to[at..at + len].copy_from_slice(&from[..len]);
+        };
+        place(&mut t, &recorded.t, 1);
+        place(&mut energy, &recorded.energy, 1);
+        place(&mut error, &recorded.constraint_error, 1);
+        place(&mut x, &recorded.x, nc);
+        place(&mut xdot, &recorded.xdot, nc);
+        if k > 0 {
+            place(&mut q, &recorded.q, k);
+            place(&mut qdot, &recorded.qdot, k);
+        }
+        if recorded.work.len() == m {
+            place(&mut work, &recorded.work, 1);
+        }
+    }
+    let shape_error = |e: numpy::ndarray::ShapeError| PyValueError::new_err(e.to_string());
+    let dict = PyDict::new(py);
+    for (key, values) in [("t", t), ("energy", energy), ("constraint_error", error)] {
+        let array = Array2::from_shape_vec((n, longest), values).map_err(shape_error)?;
+        dict.set_item(key, array.into_pyarray(py))?;
+    }
+    for (key, values) in [("positions", x), ("velocities", xdot)] {
+        let array = numpy::ndarray::Array4::from_shape_vec((n, longest, p, d), values)
+            .map_err(shape_error)?;
+        dict.set_item(key, array.into_pyarray(py))?;
+    }
+    for (key, values) in [("q", q), ("qdot", qdot)] {
+        if k > 0 {
+            let array = Array3::from_shape_vec((n, longest, k), values).map_err(shape_error)?;
+            dict.set_item(key, array.into_pyarray(py))?;
+        } else {
+            dict.set_item(key, py.None())?;
+        }
+    }
+    if any_work {
+        let array = Array2::from_shape_vec((n, longest), work).map_err(shape_error)?;
+        dict.set_item("work", array.into_pyarray(py))?;
+    } else {
+        dict.set_item("work", py.None())?;
+    }
+    dict.set_item("rows", rows.into_pyarray(py))?;
+    Ok(dict)
 }
 
 // ---------------------------------------------------------------------------------------

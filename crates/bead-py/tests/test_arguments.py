@@ -125,6 +125,12 @@ def test_a_real_beyond_a_float_names_the_argument(scene, f, name, accepts, value
 @pytest.mark.parametrize("f,name,accepts", REALS, ids=ids(REALS))
 @pytest.mark.parametrize("value", [True, "1.0", [1.0]], ids=["bool", "str", "list"])
 def test_a_real_of_the_wrong_type_is_a_type_error_naming_the_argument(scene, f, name, accepts, value):
+    if f is sweep and name == "dt" and isinstance(value, list):
+        # A list of dt values is a sweep over dt: an axis of the grid.
+        result = call(f, name, value, scene)
+        assert result.names == ["dt", "g"] and result.shape == (1, 1)
+        assert result.params["dt"].tolist() == [[1.0]]
+        return
     with pytest.raises(TypeError) as caught:
         call(f, name, value, scene)
     text = str(caught.value)

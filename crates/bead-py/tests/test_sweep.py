@@ -189,8 +189,8 @@ def test_bad_sweeps_say_what_to_do_in_python():
         bead.sweep(scene, {"th1": [0.0]}, dt=0.0)
     with pytest.raises(ValueError, match="stop_when: "):
         bead.sweep(scene, {"th1": [0.0]}, stop_when="theta9")
-    with pytest.raises(TypeError, match="a sweep records no states"):
-        bead.Sweep(scene, {"th1": [0.0]}, every=3)
+    with pytest.raises(ValueError, match="t_eval and every: give one"):
+        bead.Sweep(scene, {"th1": [0.0]}, every=3, t_eval=[0.0, 1.0])
     # Loading with an unknown parameter: Python words, not the command line's --set.
     with pytest.raises(bead.SceneError) as caught:
         bead.load(PENDULUM, params={"x0": 1.0})

@@ -49,12 +49,13 @@ use std::time::Instant;
 
 use crate::formulation::Method;
 use crate::model::System;
+use crate::output::Trajectory;
 use crate::plan::{Plan, PlanError, PlanRequest};
 use crate::scene::{Rebinder, Scene};
 use crate::simulate::lanes::{lanes_can_run, run_lanes, LaneOutcome, LANES};
 use crate::simulate::{
-    run, run_rest, solve_holding, Event, EventSpec, NullSink, RunFailure, RunOptions, RunStats,
-    Simulation, StateRequest,
+    run, run_at_times, run_rest, run_with_progress, solve_holding, Event, EventSpec, NoProgress,
+    NullSink, RunFailure, RunOptions, RunStats, Simulation, StateRequest,
 };
 
 /// The most members a sweep may have: 2^32. Members stream ([`Sweep::run_each`]), so memory
@@ -156,13 +157,28 @@ pub enum Combine {
     Zip,
 }
 
+/// What each member of a sweep records besides its figures.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub enum Recording {
+    /// Nothing: the members may be stepped together ([`crate::simulate::lanes`]).
+    #[default]
+    Nothing,
+    /// The states its run records ([`run`]): the first, every `every`-th output interval of
+    /// the request ([`PlanRequest::every`]), the last (or the state where its stop condition
+    /// fired, or its last good state when it failed).
+    Steps,
+    /// The states at these times (not decreasing, none before the start), exactly there, as
+    /// [`run_at_times`] records them: only those before a stop condition fires.
+    Times(Arc<[f64]>),
+}
+
 /// A sweep that cannot be set up or run as asked.
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
 pub enum SweepError {
-    #[error("a sweep needs at least one parameter to vary")]
-    NoAxes,
     #[error("`{name}` has no values (a count of 0)")]
     NoValues { name: String },
+    #[error("the times to record: {0}")]
+    Times(String),
     #[error("`{name}`: the start and stop must be finite numbers")]
     NotFinite { name: String },
     #[error("`{name}` is swept twice")]
@@ -344,6 +360,9 @@ pub struct Member {
     /// Its particles and coordinates when they are not the scene's (a parameter changed
     /// them); `None` when they are, or when its scene could not be loaded.
     pub layout: Option<Arc<Layout>>,
+    /// The states it recorded, as [`Sweep::recording`] asked (`None` when it asked for none,
+    /// or when the member could not start): q and qdot only for the parametric form.
+    pub trajectory: Option<Box<Trajectory>>,
 }
 
 impl Member {
@@ -398,6 +417,10 @@ pub struct Sweep {
     setup: Arc<MemberSetup>,
     /// Members set up from the scene's compiled equations so far
     restarted: Arc<AtomicUsize>,
+    /// What each member records
+    recording: Recording,
+    /// Rows a member records at most
+    rows: u64,
 }
 
 /// How a sweep sets its members up.
@@ -519,9 +542,6 @@ impl Sweep {
         stop_when: Option<String>,
     ) -> Result<Sweep, SweepError> {
         let method = Plan::resolve(scene, &request)?.method;
-        if axes.is_empty() {
-            return Err(SweepError::NoAxes);
-        }
         for (i, axis) in axes.iter().enumerate() {
             let is_param = scene.params.iter().any(|(n, _)| *n == axis.name);
             if !is_param && StatePart::of(&scene.system, &axis.name).is_none() {
@@ -574,7 +594,57 @@ impl Sweep {
             len,
             setup: Arc::new(setup),
             restarted: Arc::new(AtomicUsize::new(0)),
+            recording: Recording::Nothing,
+            rows: 0,
         })
+    }
+
+    /// This sweep with each member recording `recording` (see [`Member::trajectory`]).
+    /// Members that record run one by one rather than stepped together; their figures are
+    /// unchanged, bit for bit, and their rows are those of the same run alone. Refuses
+    /// times that decrease, are not finite or lie before the start (t = 0), or none.
+    pub fn recording(mut self, recording: Recording) -> Result<Sweep, SweepError> {
+        if let Recording::Times(times) = &recording {
+            if times.is_empty() {
+                return Err(SweepError::Times("no times given".into()));
+            }
+            for (k, &t) in times.iter().enumerate() {
+                if !t.is_finite() || t < 0.0 {
+                    return Err(SweepError::Times(format!(
+                        "time {k} is {}: times must be finite and >= 0 (a member starts at t = 0)",
+                        crate::readable(t)
+                    )));
+                }
+                if k > 0 && t < times[k - 1] {
+                    return Err(SweepError::Times(format!(
+                        "time {k} ({}) is before time {} ({}): the times must not decrease",
+                        crate::readable(t),
+                        k - 1,
+                        crate::readable(times[k - 1])
+                    )));
+                }
+            }
+        }
+        let plan = Plan::resolve(&self.scene, &self.request)?;
+        self.rows = match &recording {
+            Recording::Nothing => 0,
+            Recording::Steps => plan.steps / plan.every.max(1) + 2,
+            Recording::Times(times) => times.len() as u64,
+        };
+        self.recording = recording;
+        Ok(self)
+    }
+
+    /// What each member records.
+    pub fn recorded(&self) -> &Recording {
+        &self.recording
+    }
+
+    /// The most rows a member records (0 when it records none): `times.len()`, or for
+    /// [`Recording::Steps`] steps / every + 2 of the scene's plan (a member whose parameters
+    /// change its duration or dt may record more, and its trajectory then has them all).
+    pub fn rows_per_member(&self) -> u64 {
+        self.rows
     }
 
     /// How the members of a sweep of `scene` over `axes` are set up: restarted from the
@@ -758,13 +828,14 @@ impl Sweep {
             stats: None,
             error: Some(format!("internal error (a bug in bead): {message}")),
             layout: None,
+            trajectory: None,
         }
     }
 
     fn member(&self, index: usize) -> Member {
         match self.prepare(index) {
             Prepared::Finished(member) => *member,
-            Prepared::Ready(ready) => ready.run_alone(),
+            Prepared::Ready(ready) => ready.run_alone(&self.recording),
         }
     }
 
@@ -785,6 +856,7 @@ impl Sweep {
                 stats: None,
                 error: Some(error),
                 layout,
+                trajectory: None,
             }))
         };
         let mut overrides: Vec<(String, f64)> = Vec::new();
@@ -895,12 +967,13 @@ impl Sweep {
             match prepared {
                 Ok(Prepared::Finished(member)) => done.push(*member),
                 Ok(Prepared::Ready(ready)) => {
-                    let joins = lanes_can_run(ready.sim())
+                    let joins = self.recording == Recording::Nothing
+                        && lanes_can_run(ready.sim())
                         && together.first().is_none_or(|first| first.runs_like(&ready));
                     if joins {
                         together.push(*ready);
                     } else {
-                        done.push(self.guarded(index, || ready.run_alone()));
+                        done.push(self.guarded(index, || ready.run_alone(&self.recording)));
                     }
                 }
                 Err(_) => done.push(self.run_member(index)),
@@ -928,13 +1001,17 @@ impl Sweep {
                                 stats: Some(simulation.stats(wall)),
                                 error: None,
                                 layout: ready.layout,
+                                trajectory: None,
                             },
                             LaneOutcome::Handover { intervals } => {
                                 let index = ready.index;
                                 let mut simulation = simulation;
                                 self.guarded(index, || {
                                     let options = ready.options;
-                                    ready.finish(run_rest(&mut simulation, 0.0, intervals, options))
+                                    ready.finish(
+                                        run_rest(&mut simulation, 0.0, intervals, options),
+                                        None,
+                                    )
                                 })
                             }
                             LaneOutcome::Leave => self.run_member(ready.index),
@@ -1025,7 +1102,7 @@ impl Sweep {
         }
         // Blocks a thread may run ahead of the next member to hand over: 2 to 32 per thread,
         // as many as fit in 16 MiB of results.
-        let per_block = LANES * self.member_bytes();
+        let per_block = LANES.saturating_mul(self.member_bytes());
         let ahead = ((16usize << 20) / per_block).clamp(2, 32);
         let window = threads * ahead * LANES;
         let next = AtomicUsize::new(range.start);
@@ -1103,7 +1180,10 @@ impl Sweep {
     /// About how much memory one member's result takes (its struct, values and state).
     fn member_bytes(&self) -> usize {
         let state = 2 * self.layout.n_coords() + 2 * self.layout.coordinates.len();
-        std::mem::size_of::<Member>() + 8 * (self.axes.len() + 2 * state) + 256
+        let rows = usize::try_from(self.rows).unwrap_or(usize::MAX);
+        let recorded = rows.saturating_mul(8 * (state + 4));
+        (std::mem::size_of::<Member>() + 8 * (self.axes.len() + 2 * state) + 256)
+            .saturating_add(recorded)
     }
 }
 
@@ -1143,15 +1223,41 @@ impl Ready {
         self.simulation.as_ref().expect("not taken yet")
     }
 
-    /// Run it on its own.
-    fn run_alone(mut self: Box<Self>) -> Member {
+    /// Run it on its own, recording what `recording` asks.
+    fn run_alone(mut self: Box<Self>, recording: &Recording) -> Member {
         let mut simulation = self.take_simulation();
-        let result = run(&mut simulation, self.options, &mut NullSink);
-        self.finish(result)
+        let (coordinates, k) = (
+            self.system.n_coords(),
+            match simulation.config().method {
+                Method::Parametric => simulation.formulation().coordinate_names().len(),
+                Method::Implicit => 0,
+            },
+        );
+        let work = simulation.tracks_work();
+        let (result, trajectory) = match recording {
+            Recording::Nothing => (run(&mut simulation, self.options, &mut NullSink), None),
+            Recording::Steps => {
+                let rows = self.options.steps / self.options.every.max(1) + 2;
+                let mut rows = Trajectory::with_room(rows, coordinates, k, work);
+                let result =
+                    run_with_progress(&mut simulation, self.options, &mut rows, &mut NoProgress);
+                (result, Some(rows))
+            }
+            Recording::Times(times) => {
+                let mut rows = Trajectory::with_room(times.len() as u64, coordinates, k, work);
+                let result = run_at_times(&mut simulation, times, &mut rows, &mut NoProgress);
+                (result, Some(rows))
+            }
+        };
+        self.finish(result, trajectory.map(Box::new))
     }
 
-    /// Its member, from the result of its run.
-    fn finish(self, result: Result<RunStats, RunFailure>) -> Member {
+    /// Its member, from the result of its run and what it recorded.
+    fn finish(
+        self,
+        result: Result<RunStats, RunFailure>,
+        trajectory: Option<Box<Trajectory>>,
+    ) -> Member {
         let (stats, error) = match result {
             Ok(stats) => (stats, None),
             Err(failure) => (*failure.stats, Some(failure.error.to_string())),
@@ -1162,6 +1268,7 @@ impl Ready {
             stats: Some(stats),
             error,
             layout: self.layout,
+            trajectory,
         }
     }
 }

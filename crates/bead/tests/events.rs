@@ -12,8 +12,8 @@ use bead::integrate::IntegratorKind;
 use bead::output::Summary;
 use bead::scene::Scene;
 use bead::simulate::{
-    run, Event, EventError, NullSink, RunOptions, RunStats, Sample, Simulation, SimulationConfig,
-    Sink,
+    run, Direction, Event, EventError, EventSpec, NullSink, RunOptions, RunStats, Sample,
+    Simulation, SimulationConfig, Sink,
 };
 
 /// A bead dropped from rest at the origin (+y down, g = 10) on the vertical line x = 0; its
@@ -745,6 +745,28 @@ fn event_condition_nan_is_an_error() {
     );
     assert_eq!(failure.stats.t_final, 0.0);
     assert_eq!(failure.stats.steps, 0);
+}
+
+/// An event that is not the stop condition is named as an event in the same error.
+#[test]
+fn an_event_that_is_not_a_number_is_named_as_an_event() {
+    let scene = circle();
+    let config = config(Method::Implicit, IntegratorKind::Rk4, 0.01);
+    let mut sim = Simulation::new(Arc::clone(&scene.system), config).unwrap();
+    let event = Event::parse(&scene.system, "sqrt(bead.x)").unwrap();
+    sim.set_events(vec![EventSpec {
+        event,
+        direction: Direction::Down,
+        terminal: false,
+        stop_when: false,
+    }])
+    .unwrap();
+    let failure = run(&mut sim, RunOptions::steps(100), &mut NullSink).unwrap_err();
+    let message = failure.error.to_string();
+    assert!(
+        message.starts_with("the event `sqrt(bead.x)` is not a number at t = 0.5"),
+        "{message}"
+    );
 }
 
 /// The first thing on the path decides: g = 0.2 - sqrt(0.07 - t) crosses zero upward at

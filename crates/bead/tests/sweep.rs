@@ -9,10 +9,11 @@ mod common;
 
 use bead::formulation::Method;
 use bead::integrate::IntegratorKind;
+use bead::output::Trajectory;
 use bead::plan::{Plan, PlanRequest};
 use bead::scene::Scene;
-use bead::simulate::{run, Event, NullSink, RunStats, Simulation};
-use bead::sweep::{Axis, Combine, CsvFormat, Member, Sweep, SweepError};
+use bead::simulate::{run, run_at_times, Event, NoProgress, NullSink, RunStats, Simulation};
+use bead::sweep::{Axis, Combine, CsvFormat, Member, Recording, Sweep, SweepError};
 
 fn scene() -> Scene {
     Scene::parse(common::PARABOLA_SWEPT, "parabola.toml", &[]).unwrap()
@@ -285,7 +286,6 @@ fn unknown_and_repeated_parameters_are_refused() {
         ]),
         "`g` is swept twice"
     );
-    assert_eq!(make(vec![]), "a sweep needs at least one parameter to vary");
 }
 
 #[test]
@@ -594,11 +594,18 @@ fn sweep_members_stream_in_order_and_stop_when_asked() {
     let stopped = sweep.run_each(0..sweep.len(), 2, |member| {
         seen += 1;
         if member.index == 40 {
-            return Err(SweepError::NoAxes);
+            return Err(SweepError::NoValues {
+                name: "stop".into(),
+            });
         }
         Ok(())
     });
-    assert_eq!(stopped, Err(SweepError::NoAxes));
+    assert_eq!(
+        stopped,
+        Err(SweepError::NoValues {
+            name: "stop".into()
+        })
+    );
     assert_eq!(seen, 41);
     assert!(start.elapsed().as_secs_f64() < 0.5 * last);
     // A chunk streams the same members.
@@ -784,5 +791,115 @@ fn members_watch_the_scene_event_tables_as_a_run_does() {
                 "{name} {method:?} {integrator:?}: no crossing tested"
             );
         }
+    }
+}
+
+/// Members that record (every K-th step, or chosen times) keep the figures of the members
+/// that do not, bit for bit, and record exactly the rows of the same run alone: for both
+/// forms, a fixed-step and an adaptive integrator, members that stop at their event early
+/// (fewer rows) and a restarted and a reloaded sweep.
+#[test]
+fn recording_members_record_the_rows_of_their_run_alone() {
+    let times: Arc<[f64]> = vec![0.0, 0.1, 0.37, 0.37, 1.0, 2.5, 4.0].into();
+    for (method, integrator) in [
+        (Method::Implicit, IntegratorKind::Rk4),
+        (Method::Parametric, IntegratorKind::Rk4),
+        (Method::Implicit, IntegratorKind::Dopri5),
+    ] {
+        for axis in [
+            Axis::linspace("x0", 10.0, 200.0, 5).unwrap(),
+            Axis::linspace("g", 300.0, 900.0, 3).unwrap(),
+        ] {
+            for recording in [Recording::Steps, Recording::Times(Arc::clone(&times))] {
+                let name = axis.name.clone();
+                let mut req = request(method, 240);
+                req.integrator = Some(integrator);
+                req.every = Some(7);
+                let stop = Some("bead.vx - 25".to_string());
+                let plain = Sweep::new(
+                    &scene(),
+                    vec![axis.clone()],
+                    Combine::Grid,
+                    req.clone(),
+                    stop.clone(),
+                )
+                .unwrap();
+                let recorder = plain.clone().recording(recording.clone()).unwrap();
+                let recorded = recorder.run(2).unwrap();
+                if recording == Recording::Steps {
+                    // Recording every K-th step changes no number of the run.
+                    same(&plain.run(2).unwrap(), &recorded);
+                }
+                let mut rows_seen = Vec::new();
+                for member in &recorded {
+                    let alone = Scene::parse(
+                        common::PARABOLA_SWEPT,
+                        "parabola.toml",
+                        &[(name.clone(), member.params[0])],
+                    )
+                    .unwrap();
+                    let plan = Plan::resolve(&alone, &req).unwrap();
+                    let mut simulation =
+                        Simulation::new(Arc::clone(&alone.system), plan.config(method)).unwrap();
+                    let event = Event::parse(&alone.system, "bead.vx - 25").unwrap();
+                    simulation.set_stop_when(Some(event)).unwrap();
+                    let k = if method == Method::Parametric { 1 } else { 0 };
+                    let mut rows = Trajectory::with_room(0, 2, k, false);
+                    // t_eval lands a fixed step on each time: a run of its own.
+                    let stats = match &recording {
+                        Recording::Times(times) => {
+                            run_at_times(&mut simulation, times, &mut rows, &mut NoProgress)
+                        }
+                        _ => run(&mut simulation, plan.options(), &mut rows),
+                    }
+                    .unwrap();
+                    assert_eq!(figures(member.stats.as_ref().unwrap()), figures(&stats));
+                    let swept = member.trajectory.as_deref().unwrap();
+                    assert_eq!(swept, &rows, "{name} {method:?} {integrator:?}");
+                    assert_eq!(swept.q.len(), k * swept.rows());
+                    rows_seen.push(swept.rows());
+                }
+                // Some members stop at the event before the end, with fewer rows.
+                let (least, most) = (rows_seen.iter().min(), rows_seen.iter().max());
+                assert!(
+                    least < most,
+                    "{name} {method:?} {recording:?}: {rows_seen:?}"
+                );
+                assert!(*most.unwrap() as u64 <= recorder.rows_per_member());
+            }
+        }
+    }
+}
+
+#[test]
+fn recording_times_are_checked_and_a_sweep_of_no_axes_is_the_scene() {
+    let sweep = Sweep::new(
+        &scene(),
+        Vec::new(),
+        Combine::Grid,
+        request(Method::Implicit, 60),
+        None,
+    )
+    .unwrap();
+    assert_eq!((sweep.len(), sweep.shape()), (1, &[][..]));
+    let members = sweep.run(1).unwrap();
+    let alone = scene();
+    let plan = Plan::resolve(&alone, &request(Method::Implicit, 60)).unwrap();
+    let mut simulation =
+        Simulation::new(Arc::clone(&alone.system), plan.config(Method::Implicit)).unwrap();
+    let stats = run(&mut simulation, plan.options(), &mut NullSink).unwrap();
+    assert_eq!(figures(members[0].stats.as_ref().unwrap()), figures(&stats));
+    for (times, says) in [
+        (vec![], "no times given"),
+        (vec![0.5, 0.25], "time 1 (0.25) is before time 0 (0.5)"),
+        (vec![-1.0], "time 0 is -1: times must be finite and >= 0"),
+        (vec![f64::NAN], "time 0 is NaN"),
+    ] {
+        let error = sweep
+            .clone()
+            .recording(Recording::Times(times.into()))
+            .unwrap_err()
+            .to_string();
+        assert!(error.contains(says), "{error}");
     }
 }

@@ -25,6 +25,13 @@ A sweep runs a scene once per value of its parameters, on every core:
 >>> result.to_pandas().shape[0]
 1000
 
+Integrators and step sizes can be axes too, and members can record their states:
+
+>>> grid = bead.sweep(scene, integrator=["rk4", "rattle"], dt=[1/60, 1/120], steps=60,
+...                   every=30)
+>>> grid.shape, grid.trajectory.positions.shape   # (integrator, dt) + (rows, P, D)
+((2, 2), (2, 2, 3, 1, 2))
+
 A state can be set, a force held, a parameter changed, and the constraint forces read:
 
 >>> sim = bead.load("scenes/circle.toml").simulation(dt=1e-3)
@@ -57,7 +64,7 @@ from ._builder import Builder
 from ._events import Event
 from ._errors import BeadError, DivergenceError, RunError, SceneError, SetupError
 from ._run import Run
-from ._sweep import Sweep, SweepResult, sweep
+from ._sweep import Sweep, SweepResult, SweepTrajectory, sweep
 from ._bead import (
     INTEGRATORS,
     METHODS,
@@ -83,6 +90,7 @@ __all__ = [
     "Simulation",
     "Sweep",
     "SweepResult",
+    "SweepTrajectory",
     "__version__",
     "load",
     "loads",

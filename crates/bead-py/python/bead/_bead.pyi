@@ -202,6 +202,7 @@ class SweepPlan:
         dt: Optional[float] = None,
         duration: Optional[float] = None,
         steps: Optional[int] = None,
+        every: Optional[int] = None,
         stabilize: Optional[Tuple[float, float]] = None,
         rtol: Optional[float] = None,
         atol: Optional[float] = None,
@@ -210,6 +211,7 @@ class SweepPlan:
         max_substeps: Optional[int] = None,
         stop_when: Optional[str] = None,
         event_samples: Optional[int] = None,
+        t_eval: Optional[Any] = None,
     ) -> None: ...
     def __len__(self) -> int: ...
     @property

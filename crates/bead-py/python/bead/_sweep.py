@@ -9,6 +9,7 @@ swept and the run options).
 from __future__ import annotations
 
 import csv
+import itertools
 import json
 import operator
 from typing import Any, Dict, Iterable, List, Mapping, Optional, Sequence, Tuple, Union
@@ -19,13 +20,15 @@ from . import _bead
 from ._errors import RunError
 from ._events import Event
 
-# The run options of `Scene.run` that a sweep takes (all but `every`), with their defaults.
+# The run options of `Scene.run` that a sweep takes, with their defaults.
 _OPTIONS: Dict[str, Any] = {
     "method": None,
     "integrator": None,
     "dt": None,
     "duration": None,
     "steps": None,
+    "every": None,
+    "t_eval": None,
     "stabilize": None,
     "rtol": None,
     "atol": None,
@@ -35,6 +38,13 @@ _OPTIONS: Dict[str, Any] = {
     "stop_when": None,
     "event_samples": None,
 }
+
+# The run options that may take a list of values, each value a member of the grid: their
+# axes come first (outermost), in this order.
+_RUN_AXES = ("integrator", "dt")
+
+# The arrays of a member's recorded states, with their trailing dimensions besides (T,).
+_TRAJECTORY = ("t", "energy", "constraint_error", "work", "positions", "velocities", "q", "qdot")
 
 # The per-member arrays a result holds, with their trailing dimensions besides the grid's.
 _FIELDS = (
@@ -57,6 +67,134 @@ _STATUS = np.array(["ok", "event", "failed"], dtype="<U6")
 # The columns of `bead sweep`'s CSV before the final state: member, the parameters, then these.
 _FIGURES = ("status", "t_final", "stop_time", "steps", "energy_rel_error_max",
             "energy_balance_error_max", "constraint_error_max")
+
+
+def _run_axis(key: str, value: Any) -> Optional[np.ndarray]:
+    """The values of run option `key` when a list of them was given (a grid axis), else
+    None (one value, or none: every member takes it)."""
+    if value is None or isinstance(value, (str, bytes)) or np.ndim(value) == 0:
+        return None
+    if key == "integrator":
+        names = list(value)
+        for i, name in enumerate(names):
+            if not isinstance(name, str):
+                raise TypeError(
+                    f"integrator[{i}] = {name!r}: each integrator is a name (bead.INTEGRATORS)"
+                )
+        if len(set(names)) != len(names):
+            raise ValueError(f"integrator={names!r}: an integrator is listed twice")
+        array = np.array(names)
+    else:
+        array = _float_values(key, value)
+        if array.ndim != 1:
+            raise ValueError(f"{key}: a number or a 1-D array of values, got shape {array.shape}")
+    if len(array) == 0:
+        raise ValueError(f"{key}: no values to sweep (an empty list)")
+    return array
+
+
+def _float_values(label: str, value: Any) -> np.ndarray:
+    """`value` as a float64 array, or an error starting with `label`: ValueError for a value
+    beyond a float's range, TypeError for what is not numbers."""
+    try:
+        return np.asarray(value, dtype=np.float64)
+    except OverflowError:
+        raise ValueError(
+            f"{label}: a value is beyond the range of a float (about 1.8e308); the values "
+            "must be finite numbers"
+        ) from None
+    except (TypeError, ValueError) as e:
+        raise TypeError(f"{label}: not an array of numbers ({e})") from None
+
+
+def _value(x: Any) -> str:
+    """A swept value as messages write it: a float's repr, a name quoted."""
+    return repr(x) if isinstance(x, str) else repr(float(x))
+
+
+def _pad(arrays: List[np.ndarray], rows: int) -> List[np.ndarray]:
+    """Each array (n, T_i, ...) padded with NaN along its second axis to `rows`."""
+    padded = []
+    for a in arrays:
+        if a.shape[1] < rows:
+            wider = np.full((a.shape[0], rows) + a.shape[2:], np.nan)
+            wider[:, : a.shape[1]] = a
+            a = wider
+        padded.append(a)
+    return padded
+
+
+def _merge(flats: List[Dict[str, Any]]) -> Dict[str, Any]:
+    """Consecutive members' flat results (native dicts, each with its "run" indices) as one."""
+    if len(flats) == 1:
+        return flats[0]
+    flat: Dict[str, Any] = {}
+    for key in ("params", "status", "run") + _FIELDS:
+        arrays = [f[key] for f in flats]
+        flat[key] = None if arrays[0] is None else np.concatenate(arrays)
+    flat["errors"] = [e for f in flats for e in f["errors"]]
+    flat["t_events"] = [e for f in flats for e in f["t_events"]]
+    recorded = [f["trajectory"] for f in flats]
+    if recorded[0] is None:
+        flat["trajectory"] = None
+    else:
+        rows = max(r["t"].shape[1] for r in recorded)
+        merged: Dict[str, Any] = {"rows": np.concatenate([r["rows"] for r in recorded])}
+        for key in _TRAJECTORY:
+            parts = [r[key] for r in recorded]
+            if all(p is None for p in parts):
+                merged[key] = None
+                continue
+            like = next(p for p in parts if p is not None)
+            parts = [
+                p if p is not None else np.full((len(r["rows"]),) + like.shape[1:], np.nan)
+                for p, r in zip(parts, recorded)
+            ]
+            merged[key] = np.concatenate(_pad(parts, rows))
+        flat["trajectory"] = merged
+    flat["threads"] = max(int(f["threads"]) for f in flats)
+    flat["wall_seconds"] = sum(float(f["wall_seconds"]) for f in flats)
+    return flat
+
+
+class SweepTrajectory:
+    """The states each member of a sweep recorded (``every=K`` or ``t_eval=``), as numpy
+    arrays shaped like the grid, then the rows: with T the most rows any member recorded,
+
+    - ``t``, ``energy``, ``constraint_error``: ``shape + (T,)``
+    - ``positions``, ``velocities``: ``shape + (T, P, D)``
+    - ``q``, ``qdot``: ``shape + (T, K)`` for the parametric form, else None
+    - ``work``: ``shape + (T,)``, the work done by forces other than gravity and springs
+      (the energy ledger's W) where it runs, else None
+    - ``rows``: ``shape`` (int64), how many rows each member recorded.
+
+    A member's rows are exactly those of its run alone (``scene.with_params(...).run(...)``
+    with the same ``every`` or ``t_eval``, bit for bit); the rows past them are NaN (a
+    member that stopped at its terminal event or failed records fewer; one that could not
+    start none). With ``t_eval`` every member's ``t`` is ``t_eval`` up to its end.
+    """
+
+    t: np.ndarray
+    energy: np.ndarray
+    constraint_error: np.ndarray
+    work: Optional[np.ndarray]
+    positions: np.ndarray
+    velocities: np.ndarray
+    q: Optional[np.ndarray]
+    qdot: Optional[np.ndarray]
+    rows: np.ndarray
+
+    def __init__(self, recorded: Dict[str, Any], shape: Tuple[int, ...]) -> None:
+        self.rows = recorded["rows"].reshape(shape)
+        for key in _TRAJECTORY:
+            value = recorded[key]
+            setattr(self, key, None if value is None else value.reshape(shape + value.shape[1:]))
+
+    def __repr__(self) -> str:
+        return (
+            f"<bead.SweepTrajectory: t {self.t.shape}, positions {self.positions.shape}, "
+            f"{int(self.rows.sum())} rows recorded>"
+        )
 
 
 def _quoted(name: str) -> str:
@@ -89,15 +227,7 @@ def _axes(params: Mapping[str, Any], what: str = "params") -> Tuple[List[str], L
     for name, value in params.items():
         if not isinstance(name, str):
             raise TypeError(f"{what}: the name {name!r} is not a string")
-        try:
-            array = np.asarray(value, dtype=np.float64)
-        except OverflowError:
-            raise ValueError(
-                f"{what}[{_quoted(name)}]: a value is beyond the range of a float (about 1.8e308); "
-                "the values must be finite numbers"
-            ) from None
-        except (TypeError, ValueError) as e:
-            raise TypeError(f"{what}[{_quoted(name)}]: not an array of numbers ({e})") from None
+        array = _float_values(f"{what}[{_quoted(name)}]", value)
         if array.ndim > 1:
             raise ValueError(
                 f"{what}[{_quoted(name)}]: a 1-D array of values is needed, got shape {array.shape} "
@@ -113,9 +243,12 @@ class SweepResult:
 
     ``shape`` is the grid's: the lengths of the swept arrays in the order given (the first
     outermost), or ``(n,)`` for ``zip=True``, or ``(stop - start,)`` for a chunk (``members``
-    says which). With P particles in D dimensions and K generalized coordinates:
+    says which); a list of integrators, then of dt, adds its axis in front (outermost).
+    ``names`` lists the axes in that order. With P particles in D dimensions and K
+    generalized coordinates:
 
     - ``params``: dict name -> array ``shape``, each member's value of each swept parameter
+      (and of ``integrator`` (str) and ``dt`` when they are swept)
     - ``status`` ``shape`` (str): "ok" (ran to the end), "event" (stopped at its stop_when),
       "failed" (``errors`` says why)
     - ``t_final``, ``stop_time`` (NaN where the event did not fire), ``steps`` (int64),
@@ -128,6 +261,8 @@ class SweepResult:
     - ``t_events`` ``shape`` (object): each member's crossing times, a list with an array
       per event (the scene's ``[[event]]`` tables, ``events=``, then ``stop_when``), as a
       run's ``t_events``
+    - ``trajectory``: the states each member recorded (a `bead.SweepTrajectory`, arrays
+      ``shape + (T, ...)``) when the sweep was given ``every=`` or ``t_eval=``, else None
 
     A member that failed keeps the figures up to its last good state; one that could not
     start has NaN (and 0 steps). ``to_pandas()`` gives one row per member with the columns of
@@ -154,6 +289,7 @@ class SweepResult:
     qdot: Optional[np.ndarray]
     errors: np.ndarray
     t_events: np.ndarray
+    trajectory: Optional[SweepTrajectory]
     particles: List[str]
     coordinates: List[str]
     columns: List[str]
@@ -168,6 +304,7 @@ class SweepResult:
         *,
         names: List[str],
         axes: Dict[str, np.ndarray],
+        run_axes: Dict[str, np.ndarray],
         shape: Tuple[int, ...],
         members: range,
         particles: List[str],
@@ -179,8 +316,10 @@ class SweepResult:
     ) -> None:
         self._flat = flat
         self._total = total
-        self.names = list(names)
-        self.axes = axes
+        self._param_names = list(names)
+        self._run_axes = run_axes
+        self.names = list(run_axes) + list(names)
+        self.axes = {**run_axes, **axes}
         self.shape = tuple(shape)
         self.members = members
         self.particles = particles
@@ -190,9 +329,13 @@ class SweepResult:
         self.title = title
         self.threads = int(flat["threads"])
         self.wall_seconds = float(flat["wall_seconds"])
-        self.params = {
-            name: flat["params"][:, i].reshape(self.shape) for i, name in enumerate(self.names)
-        }
+        self.params = {}
+        if run_axes:
+            run_shape = tuple(len(v) for v in run_axes.values())
+            for name, at in zip(run_axes, np.unravel_index(flat["run"], run_shape)):
+                self.params[name] = run_axes[name][at].reshape(self.shape)
+        for i, name in enumerate(self._param_names):
+            self.params[name] = flat["params"][:, i].reshape(self.shape)
         self.status = _STATUS[flat["status"]].reshape(self.shape)
         errors = np.empty(len(flat["errors"]), dtype=object)
         errors[:] = flat["errors"]
@@ -201,6 +344,8 @@ class SweepResult:
         for i, times in enumerate(flat["t_events"]):
             t_events[i] = times
         self.t_events = t_events.reshape(self.shape)
+        recorded = flat.get("trajectory")
+        self.trajectory = None if recorded is None else SweepTrajectory(recorded, self.shape)
         for field in _FIELDS:
             value = flat[field]
             setattr(
@@ -226,8 +371,11 @@ class SweepResult:
         flat = self._flat
         n = len(self)
         data: Dict[str, np.ndarray] = {"member": np.arange(self.members.start, self.members.stop)}
+        for name in self._run_axes:
+            data[name] = self.params[name].ravel()
         # The CSV's names: an axis of the start is start.bead.x (bead.x is the final state's).
-        for i, column in enumerate(self.columns[1:1 + len(self.names)]):
+        first_param = 1 + len(self._run_axes)
+        for i, column in enumerate(self.columns[first_param:first_param + len(self._param_names)]):
             data[column] = flat["params"][:, i]
         data["status"] = _STATUS[flat["status"]]
         for key in _FIGURES[1:]:
@@ -246,7 +394,7 @@ class SweepResult:
 
     def to_pandas(self) -> Any:
         """One row per member, with the columns of ``bead sweep``'s CSV: member, the swept
-        parameters, status, t_final, stop_time, steps, energy_rel_error_max,
+        parameters (``integrator`` and ``dt`` first when they are swept), status, t_final, stop_time, steps, energy_rel_error_max,
         energy_balance_error_max, constraint_error_max, each particle's final position and
         velocity (P.x, P.vx, ...), q.NAME and qdot.NAME for the parametric form, error. Needs
         pandas."""
@@ -279,8 +427,11 @@ class Sweep:
     ``params`` maps names of the scene's ``[params]`` table to 1-D arrays of values; with
     several names the members are every combination (the first name outermost, like a C
     array of shape ``tuple(len(v) for v in params.values())``), or with ``zip=True`` value i
-    of each (all of one length). ``options`` are ``Scene.run``'s keyword arguments without
-    ``every``: each member is exactly ``scene.with_params({...}).run(**options)``, bit for bit.
+    of each (all of one length). ``options`` are ``Scene.run``'s keyword arguments: each
+    member is exactly ``scene.with_params({...}).run(**options)``, bit for bit. A list of
+    ``integrator`` names and a list of ``dt`` values are axes too, in front of the others
+    (integrator outermost): each member runs one of each. ``every=K`` or ``t_eval=times``
+    makes each member record its states (the result's ``trajectory``).
 
     ``run(threads=0)`` runs every member; ``run_range(start, stop)`` runs a chunk of them
     (members are numbered row-major over the grid) and ``assemble(chunks)`` joins chunks into
@@ -302,9 +453,8 @@ class Sweep:
     ) -> None:
         unknown = sorted(set(options) - set(_OPTIONS))
         if unknown:
-            hint = " (a sweep records no states)" if "every" in unknown else ""
             raise TypeError(
-                f"Sweep: unexpected keyword argument(s) {', '.join(unknown)}{hint}; the run "
+                f"Sweep: unexpected keyword argument(s) {', '.join(unknown)}; the run "
                 f"options are {', '.join(_OPTIONS)}"
             )
         if not isinstance(scene, _bead.Scene):
@@ -312,10 +462,16 @@ class Sweep:
         names, values = _axes(params if params is not None else {})
         more, more_values = _axes(initial if initial is not None else {}, "initial")
         names, values = names + more, values + more_values
-        if not names:
+        run_axes: Dict[str, np.ndarray] = {}
+        for key in _RUN_AXES:
+            axis = _run_axis(key, options.get(key))
+            if axis is not None:
+                run_axes[key] = axis
+        if not names and not run_axes:
             raise ValueError(
                 "a sweep needs values to sweep: params={name: values} and/or "
-                "initial={'bead.x': values} (a particle's NAME.x, NAME.vx, or q.NAME, qdot.NAME)"
+                "initial={'bead.x': values} (a particle's NAME.x, NAME.vx, or q.NAME, qdot.NAME), "
+                "or a list of integrators or of dt values"
             )
         # Events watched by every member: `[[event]]` tables added to the scene, so that a
         # member is exactly that scene's run (and the tables travel with a pickled sweep).
@@ -336,25 +492,47 @@ class Sweep:
         self._scene = scene
         self._names = names
         self._values = values
+        self._run_axes = run_axes
         self._zip = bool(zip)
         # Only what was given, so that the pickled form is short and says what was asked.
-        self._options = {k: v for k, v in options.items() if v != _OPTIONS[k]}
-        self._plan = self._make_plan()
+        self._options = {
+            k: v for k, v in options.items() if v is not _OPTIONS[k]
+        }
+        self._plans = self._make_plans()
 
-    def _make_plan(self) -> _bead.SweepPlan:
+    def _make_plans(self) -> List[_bead.SweepPlan]:
+        """One native plan per combination of the run options swept (integrator outermost),
+        each over the parameters."""
         # The native side reads the values in place: C-contiguous and aligned (an array from
         # a buffer, or unpickled by Dask from a frame, may be neither).
         values = [np.require(v, np.float64, ["C", "A"]) for v in self._values]
-        return _bead.SweepPlan(self._scene, self._names, values, self._zip, **self._options)
+        fixed = {k: v for k, v in self._options.items() if k not in self._run_axes}
+        plans = []
+        for combination in itertools.product(*self._run_axes.values()):
+            run = {
+                k: str(v) if k == "integrator" else float(v)
+                for k, v in zip(self._run_axes, combination)
+            }
+            try:
+                plans.append(
+                    _bead.SweepPlan(self._scene, self._names, values, self._zip, **fixed, **run)
+                )
+            except ValueError as e:
+                # A bad option, or one the formulation cannot take (bead.SetupError).
+                if not run:
+                    raise
+                which = ", ".join(f"{k}={_value(v)}" for k, v in run.items())
+                raise type(e)(f"the members with {which}: {e}") from None
+        return plans
 
     def __getstate__(self) -> Dict[str, Any]:
         state = dict(self.__dict__)
-        del state["_plan"]
+        del state["_plans"]
         return state
 
     def __setstate__(self, state: Dict[str, Any]) -> None:
         self.__dict__.update(state)
-        self._plan = self._make_plan()
+        self._plans = self._make_plans()
 
     @property
     def scene(self) -> _bead.Scene:
@@ -363,13 +541,15 @@ class Sweep:
 
     @property
     def names(self) -> List[str]:
-        """The swept parameters, in order."""
-        return list(self._names)
+        """The axes, in order: the run options swept (integrator, dt), then the parameters."""
+        return list(self._run_axes) + list(self._names)
 
     @property
     def axes(self) -> Dict[str, np.ndarray]:
-        """Each swept parameter's values (copies)."""
-        return {n: v.copy() for n, v in zip(self._names, self._values)}
+        """Each axis's values (copies)."""
+        axes = {n: v.copy() for n, v in self._run_axes.items()}
+        axes.update({n: v.copy() for n, v in zip(self._names, self._values)})
+        return axes
 
     @property
     def zip(self) -> bool:
@@ -383,16 +563,17 @@ class Sweep:
 
     @property
     def shape(self) -> Tuple[int, ...]:
-        """The shape of the results: the axes' lengths, or (n,) when zipped."""
-        return tuple(self._plan.shape)
+        """The shape of the results: the run options' and parameters' axes' lengths (the
+        parameters' (n,) when zipped)."""
+        return tuple(len(v) for v in self._run_axes.values()) + tuple(self._plans[0].shape)
 
     @property
     def method(self) -> str:
         """The formulation the members run: "implicit" or "parametric"."""
-        return self._plan.method
+        return self._plans[0].method
 
     def __len__(self) -> int:
-        return len(self._plan)
+        return len(self._plans) * len(self._plans[0])
 
     def chunks(self, count: int) -> List[Tuple[int, int]]:
         """`count` ranges (start, stop) of about equal size covering the members in order."""
@@ -403,20 +584,50 @@ class Sweep:
         return [(a, b) for a, b in zip(bounds, bounds[1:])]
 
     def _result(self, flat: Dict[str, Any], members: range, shape: Tuple[int, ...]) -> SweepResult:
-        plan = self._plan
+        plan = self._plans[0]
+        columns = next(csv.reader([plan.csv_header]))
+        columns[1:1] = list(self._run_axes)
         return SweepResult(
             flat,
-            names=self.names,
-            axes=self.axes,
+            names=list(self._names),
+            axes={n: v.copy() for n, v in zip(self._names, self._values)},
+            run_axes={n: v.copy() for n, v in self._run_axes.items()},
             shape=shape,
             members=members,
             particles=plan.particles,
             coordinates=plan.coordinates,
-            columns=next(csv.reader([plan.csv_header])),
+            columns=columns,
             method=plan.method,
             title=self._scene.title,
             total=len(self),
         )
+
+    def _run(self, start: int, stop: int, threads: int) -> Dict[str, Any]:
+        """Members `start` .. `stop` - 1 as one flat result: each plan runs its share."""
+        per_plan = len(self._plans[0])
+        if len(self._plans) == 1:
+            flat = self._plans[0].run_range(start, stop, threads)
+            flat["run"] = np.zeros(len(flat["status"]), dtype=np.int64)
+            return flat
+        n = len(self)
+        start = _integer("start", start, 0)
+        stop = _integer("stop", stop, 0)
+        if not start <= stop <= n:
+            raise IndexError(
+                f"members {start}..{stop}: not a range of the sweep's {n} members (0..{n})"
+            )
+        flats = []
+        for v, plan in enumerate(self._plans):
+            a, b = max(start, v * per_plan), min(stop, (v + 1) * per_plan)
+            if a < b:
+                flat = plan.run_range(a - v * per_plan, b - v * per_plan, threads)
+                flat["run"] = np.full(b - a, v, dtype=np.int64)
+                flats.append(flat)
+        if not flats:
+            flat = self._plans[0].run_range(0, 0, threads)
+            flat["run"] = np.zeros(0, dtype=np.int64)
+            flats.append(flat)
+        return _merge(flats)
 
     def run_range(self, start: int, stop: int, threads: int = 0) -> SweepResult:
         """Run members `start` .. `stop` - 1 on `threads` threads (0: one per core) with the
@@ -428,8 +639,8 @@ class Sweep:
         names the argument), when the result would take more than 8 GiB (the message says
         how much; run smaller chunks) or when a member's particles are not the scene's (see
         `SweepResult`)."""
-        flat = self._plan.run_range(start, stop, threads)
-        # The native side accepted them as integers in range.
+        flat = self._run(start, stop, threads)
+        # Accepted as integers in range.
         start, stop = operator.index(start), operator.index(stop)
         return self._result(flat, range(start, stop), (stop - start,))
 
@@ -437,7 +648,7 @@ class Sweep:
         """Run every member on `threads` threads (0: one per core); arrays shaped like the
         grid. Raises `bead.RunError` when every member failed (its ``result`` holds the
         `SweepResult`, its message the first member's error)."""
-        flat = self._plan.run_range(0, len(self), threads)
+        flat = self._run(0, len(self), threads)
         return _unless_all_failed(self._result(flat, range(len(self)), self.shape))
 
     def assemble(self, chunks: Iterable[SweepResult]) -> SweepResult:
@@ -454,26 +665,21 @@ class Sweep:
                     f"assemble: the chunks {what} at member {min(at, part.members.start)} "
                     f"(a chunk starts at {part.members.start}, the members before end at {at})"
                 )
-            if part.names != self._names:
+            if part.names != self.names:
                 raise ValueError("assemble: a chunk of another sweep (other parameters)")
             at = part.members.stop
         if at != len(self):
             raise ValueError(f"assemble: the chunks end at member {at} of {len(self)}")
-        flats = [p._flat for p in parts]
-        flat: Dict[str, Any] = {}
-        for key in ("params", "status") + _FIELDS:
-            arrays = [f[key] for f in flats]
-            flat[key] = None if arrays[0] is None else np.concatenate(arrays)
-        flat["errors"] = [e for f in flats for e in f["errors"]]
-        flat["t_events"] = [e for f in flats for e in f["t_events"]]
-        flat["threads"] = max(int(f["threads"]) for f in flats)
-        flat["wall_seconds"] = sum(float(f["wall_seconds"]) for f in flats)
+        flat = _merge([p._flat for p in parts])
         return _unless_all_failed(self._result(flat, range(len(self)), self.shape))
 
     def __repr__(self) -> str:
         joined = " zip " if self._zip else " x "
         grid = joined.join(f"{n}[{len(v)}]" for n, v in zip(self._names, self._values))
-        options = ", ".join(f"{k}={v!r}" for k, v in self._options.items() if k != "method")
+        grid = " x ".join([f"{n}[{len(v)}]" for n, v in self._run_axes.items()] + [grid] * bool(grid))
+        options = ", ".join(
+            f"{k}={v!r}" for k, v in self._options.items() if k != "method" and k not in self._run_axes
+        )
         return (
             f"<bead.Sweep {self._scene.title!r}: {grid} = {len(self)} members, "
             f"{self.method}{', ' + options if options else ''}>"
@@ -486,7 +692,7 @@ def _unless_all_failed(result: SweepResult) -> SweepResult:
     if len(result) == 0 or not failed.all():
         return result
     first = int(np.flatnonzero(failed.ravel())[0])
-    values = ", ".join(f"{n} = {float(result.params[n].ravel()[first])!r}" for n in result.names)
+    values = ", ".join(f"{n} = {_value(result.params[n].ravel()[first])}" for n in result.names)
     message = result.errors.ravel()[first] or "it could not start"
     error = RunError(
         f"every member of the sweep failed ({len(result)} of {len(result)}); the first, "
@@ -504,10 +710,12 @@ def sweep(
     members: Optional[Union[range, Sequence[int]]] = None,
     threads: int = 0,
     method: Optional[str] = None,
-    integrator: Optional[str] = None,
-    dt: Optional[float] = None,
+    integrator: Optional[Union[str, Sequence[str]]] = None,
+    dt: Optional[Union[float, Sequence[float]]] = None,
     duration: Optional[float] = None,
     steps: Optional[int] = None,
+    every: Optional[int] = None,
+    t_eval: Optional[Sequence[float]] = None,
     stabilize: Optional[Tuple[float, float]] = None,
     rtol: Optional[float] = None,
     atol: Optional[float] = None,
@@ -530,11 +738,19 @@ def sweep(
     outermost; the result's shape is the arrays' lengths), or with ``zip=True`` one member
     per position (all arrays of one length n; shape (n,)). Each member is exactly
     ``scene.with_params({...}).run(...)`` with the same options, bit for bit: method,
-    integrator, dt, duration or steps, stabilize, rtol, atol, project, substeps,
+    integrator, dt, duration or steps, every, t_eval, stabilize, rtol, atol, project, substeps,
     max_substeps, stop_when and event_samples are those of `Scene.run` (the scene's ``[run]`` table
     supplies what is not given), and ``events`` (a list of `bead.Event`) are watched by
     every member as ``[[event]]`` tables of the scene (`Scene.with_event`): their crossing
-    times are the result's ``t_events``. A member that fails is reported (status "failed", its
+    times are the result's ``t_events``.
+
+    A list of integrators (``integrator=["rk4", "rattle"]``) or of step sizes
+    (``dt=[1e-2, 5e-3]``) sweeps them too: their axes come first (integrator outermost, then
+    dt, then the parameters), and ``params`` may then be omitted. ``every=K`` (every K-th
+    step, as `Scene.run` records) or ``t_eval=times`` (the states at those times, exactly)
+    makes each member record its states: the result's ``trajectory`` holds them as arrays
+    shaped ``shape + (T, ...)`` (MuJoCo's ``rollout``); without them a member records only
+    its figures and final state, and members that share their equations step together. A member that fails is reported (status "failed", its
     message in ``errors``), not raised; but when every member fails (the whole sweep, not a
     chunk given by ``members=``) `bead.RunError` is raised, with the first member's error as
     its message and the `SweepResult` as its ``result``.
@@ -557,6 +773,8 @@ def sweep(
         "dt": dt,
         "duration": duration,
         "steps": steps,
+        "every": every,
+        "t_eval": t_eval,
         "stabilize": stabilize,
         "rtol": rtol,
         "atol": atol,

@@ -5,6 +5,8 @@
 //!   parametric form, q and qdot; optionally the constraint forces).
 //! - [`Summary`]: the figures of a run ([`RunStats`](crate::simulate::RunStats)) as a
 //!   serializable record with a fixed set of keys, written as JSON by `bead run --json`.
+//! - [`Trajectory`]: a [`Sink`](crate::simulate::Sink) that keeps every sample in memory, in
+//!   flat vectors (the Python package's arrays, a sweep member's trajectory).
 //!
 //! Plots and HTML reports live in the separate crate `bead-report`, so that the library does
 //! not depend on plotting.
@@ -14,6 +16,8 @@
 
 mod csv;
 mod summary;
+mod trajectory;
 
 pub use csv::{constraint_force_header, trace_header, CsvTrace};
 pub use summary::{CoordinateStates, EventTimes, ParticleState, ParticleStates, Summary};
+pub use trajectory::Trajectory;

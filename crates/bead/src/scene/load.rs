@@ -242,6 +242,7 @@ fn event_table(
         event,
         direction,
         terminal,
+        stop_when: false,
     })
 }
 

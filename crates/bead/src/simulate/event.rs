@@ -153,6 +153,9 @@ pub struct EventSpec {
     pub direction: Direction,
     /// Whether a crossing ends the run (else it is only recorded).
     pub terminal: bool,
+    /// Whether it is the run's stop condition (`stop_when`, [`EventSpec::stop`]), which
+    /// messages name so; else an event (`[[event]]`, Python's `bead.Event`).
+    pub stop_when: bool,
 }
 
 impl EventSpec {
@@ -162,6 +165,7 @@ impl EventSpec {
             event,
             direction: Direction::Up,
             terminal: true,
+            stop_when: true,
         }
     }
 }
@@ -371,6 +375,7 @@ pub(super) struct Watch {
     pub(super) event: Event,
     pub(super) direction: Direction,
     pub(super) terminal: bool,
+    pub(super) stop_when: bool,
     vars: Vec<f64>,
     scratch: Vec<f64>,
     /// Interior points per step at which g is sampled (see [`Watch::screen`]).
@@ -397,6 +402,7 @@ impl Watch {
             event,
             direction,
             terminal,
+            stop_when,
         } = spec;
         let tape_vars = event.tape.n_vars();
         let slots = 2 * event.n_coords + 1 + 2 * event.n_q;
@@ -408,6 +414,7 @@ impl Watch {
             event,
             direction,
             terminal,
+            stop_when,
             samples,
             g_last: f64::NAN,
             t_last: f64::NAN,
@@ -562,6 +569,7 @@ impl Watch {
     pub(super) fn not_a_number(&self, t: f64, stopped: f64) -> super::RunError {
         super::RunError::EventNotANumber {
             source_text: self.event.source.clone(),
+            stop_when: self.stop_when,
             t,
             values: self
                 .event

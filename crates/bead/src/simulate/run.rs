@@ -214,13 +214,15 @@ pub enum RunError {
     },
     #[error("cannot advance to t = {} from t = {}: time only moves forward, to a finite time", crate::readable(*requested), crate::readable(*now))]
     TimeBehind { requested: f64, now: f64 },
-    /// The stop condition is not a number (NaN) at time `t` of the integrator's path (a step
-    /// end, a sample inside a step, or a time its crossing was looked for): it can neither
-    /// cross zero nor stay below it. `values` are the quantities it reads there; the run
-    /// stands at `stopped`, the start of that step, its last good state.
-    #[error("stop_when `{source_text}` is not a number at t = {}{}; the run stopped at the last good state, t = {}", crate::readable(*t), event_values(values), crate::readable(*stopped))]
+    /// The stop condition (`stop_when`) or an event is not a number (NaN) at time `t` of the
+    /// integrator's path (a step end, a sample inside a step, or a time its crossing was
+    /// looked for): it can neither cross zero nor stay below it. `values` are the quantities
+    /// it reads there; the run stands at `stopped`, the start of that step, its last good
+    /// state.
+    #[error("{} `{source_text}` is not a number at t = {}{}; the run stopped at the last good state, t = {}", if *stop_when { "stop_when" } else { "the event" }, crate::readable(*t), event_values(values), crate::readable(*stopped))]
     EventNotANumber {
         source_text: String,
+        stop_when: bool,
         t: f64,
         values: Vec<(String, f64)>,
         stopped: f64,

@@ -86,6 +86,7 @@ impl Simulation {
                 event: w.event.clone(),
                 direction: w.direction,
                 terminal: w.terminal,
+                stop_when: w.stop_when,
             })
             .collect()
     }
