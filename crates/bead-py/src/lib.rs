@@ -1508,6 +1508,13 @@ impl PySweepPlan {
         self.method.name()
     }
 
+    /// About how many bytes one member's result takes at its peak (what `run_range` counts
+    /// against the 8 GiB a sweep returns at once).
+    #[getter]
+    fn bytes_per_member(&self) -> u64 {
+        Columns::bytes_per_member(&self.inner)
+    }
+
     /// The columns of `bead sweep`'s CSV, as its header line.
     #[getter]
     fn csv_header(&self) -> String {

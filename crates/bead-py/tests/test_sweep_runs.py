@@ -185,3 +185,14 @@ def test_bad_run_axes_say_what_and_where():
     # rattle runs only the implicit form: refused before any member runs.
     with pytest.raises(bead.SetupError, match="the members with integrator='rattle': rattle needs"):
         bead.sweep(scene, integrator=["gauss-legendre", "rattle"], method="parametric")
+
+
+def test_run_axes_together_are_held_to_the_8_gib_of_one_sweep():
+    """Each integrator's share fits, all of them together do not: refused before running."""
+    scene = bead.load(CIRCLE)
+    plan = bead.Sweep(scene, {"theta0": np.linspace(0.1, 1.0, 30)},
+                      integrator=["rk4", "rattle", "midpoint"], t_eval=np.linspace(0.0, 1.0, 10**6))
+    share = 30 * plan._plans[0].bytes_per_member
+    assert 3 << 30 < share < 8 << 30
+    with pytest.raises(ValueError, match=r"90 members need about .* GiB .* sweep.chunks\("):
+        plan.run()

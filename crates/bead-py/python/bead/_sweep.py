@@ -39,6 +39,9 @@ _OPTIONS: Dict[str, Any] = {
     "event_samples": None,
 }
 
+# The most bytes a sweep's result may take at once (as the native side counts them).
+_MAX_BYTES = 8 << 30
+
 # The run options that may take a list of values, each value a member of the grid: their
 # axes come first (outermost), in this order.
 _RUN_AXES = ("integrator", "dt")
@@ -615,6 +618,20 @@ class Sweep:
         if not start <= stop <= n:
             raise IndexError(
                 f"members {start}..{stop}: not a range of the sweep's {n} members (0..{n})"
+            )
+        # Each plan refuses a share past 8 GiB; the shares together must fit too.
+        need = sum(
+            (min(stop, (v + 1) * per_plan) - max(start, v * per_plan)) * plan.bytes_per_member
+            for v, plan in enumerate(self._plans)
+            if min(stop, (v + 1) * per_plan) > max(start, v * per_plan)
+        )
+        if need > _MAX_BYTES:
+            raise ValueError(
+                f"{stop - start} members need about {need / 2**30:.3g} GiB for their result "
+                "arrays, more than the 8 GiB a sweep returns at once; run it in chunks that "
+                "fit and keep what you need of each: sweep = bead.Sweep(scene, params, ...), "
+                f"then sweep.run_range(start, stop) for each (start, stop) in "
+                f"sweep.chunks({max(2, -(-need // (_MAX_BYTES // 2)))})"
             )
         flats = []
         for v, plan in enumerate(self._plans):
