@@ -529,11 +529,12 @@ impl StatePart {
 
 impl Sweep {
     /// A sweep of `scene` (with the overrides it was loaded with) over `axes`, each member
-    /// run as `request` asks over its own scene's `[run]` table (recording nothing), until
-    /// the end or until `stop_when` ([`Event`]; `None`: the scene's `[run] stop_when`, if
-    /// any) fires. Checks the axes (at least one, each a parameter of the scene, once, with
-    /// values; zipped axes of one length; at most [`MAX_MEMBERS`] members) and the request
-    /// against the scene itself.
+    /// run as `request` asks over its own scene's `[run]` table (recording nothing unless
+    /// [`Sweep::recording`] says), until the end or until `stop_when` ([`Event`]; `None`:
+    /// the scene's `[run] stop_when`, if any) fires. Checks the axes (each a parameter of
+    /// the scene or a number of its start, once, with values; zipped axes of one length; at
+    /// most [`MAX_MEMBERS`] members) and the request against the scene itself. No axes make
+    /// one member: the scene as it is.
     pub fn new(
         scene: &Scene,
         axes: Vec<Axis>,

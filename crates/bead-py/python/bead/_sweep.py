@@ -167,8 +167,8 @@ class SweepTrajectory:
     - ``t``, ``energy``, ``constraint_error``: ``shape + (T,)``
     - ``positions``, ``velocities``: ``shape + (T, P, D)``
     - ``q``, ``qdot``: ``shape + (T, K)`` for the parametric form, else None
-    - ``work``: ``shape + (T,)``, the work done by forces other than gravity and springs
-      (the energy ledger's W) where it runs, else None
+    - ``work``: ``shape + (T,)``, the energy ledger's W (the work of drag, applied forces and
+      moving constraints on T + V) where it runs, else None
     - ``rows``: ``shape`` (int64), how many rows each member recorded.
 
     A member's rows are exactly those of its run alone (``scene.with_params(...).run(...)``
