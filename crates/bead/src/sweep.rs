@@ -160,7 +160,7 @@ pub enum Combine {
 /// What each member of a sweep records besides its figures.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub enum Recording {
-    /// Nothing: the members may be stepped together ([`crate::simulate::lanes`]).
+    /// Nothing: the members may be stepped together, 16 at a time (the lanes).
     #[default]
     Nothing,
     /// The states its run records ([`run`]): the first, every `every`-th output interval of
