@@ -1,20 +1,35 @@
 //! The scenes the viewer offers by name: the shipped scenes, embedded in the binary, plus any
 //! scene given on the command line.
 
-/// The shipped scenes (`scenes/*.toml`), embedded at build time.
-pub const SHIPPED: [(&str, &str); 6] = [
+/// The shipped scenes (`scenes/*.toml`, every one: a test checks the list against the
+/// folder), embedded at build time, in the picker's order: the article's parabola first, then
+/// the curves, the 3D and moving ones, the systems of several particles, the singular curves
+/// and the large ones.
+pub const SHIPPED: [(&str, &str); 12] = [
     ("parabola", include_str!("../../../scenes/parabola.toml")),
+    (
+        "parabola-x0",
+        include_str!("../../../scenes/parabola-x0.toml"),
+    ),
     ("circle", include_str!("../../../scenes/circle.toml")),
     ("cycloid", include_str!("../../../scenes/cycloid.toml")),
     (
-        "double-pendulum",
-        include_str!("../../../scenes/double-pendulum.toml"),
+        "lemniscate",
+        include_str!("../../../scenes/lemniscate.toml"),
     ),
     ("helix", include_str!("../../../scenes/helix.toml")),
     (
         "spinning-hoop",
         include_str!("../../../scenes/spinning-hoop.toml"),
     ),
+    (
+        "double-pendulum",
+        include_str!("../../../scenes/double-pendulum.toml"),
+    ),
+    ("cusp", include_str!("../../../scenes/cusp.toml")),
+    ("node", include_str!("../../../scenes/node.toml")),
+    ("chain", include_str!("../../../scenes/chain.toml")),
+    ("cloth", include_str!("../../../scenes/cloth.toml")),
 ];
 
 /// A named scene text.

@@ -178,6 +178,60 @@ fn in_browser(config: ServerConfig, checks: Checks) {
     runtime.block_on(end_to_end(chromium, chromedriver, config, checks));
 }
 
+/// Every shipped scene is in the page's picker, in the catalog's order, and each, chosen
+/// there, loads and is drawn in every panel (the singular curves' implicit panel may have
+/// stopped at the singular point, saying so).
+#[test]
+fn every_shipped_scene_is_in_the_picker_and_drawn() {
+    in_browser(ServerConfig::default(), |client, addr| {
+        picker_checks(client, addr).boxed_local()
+    });
+}
+
+async fn picker_checks(client: &Client, addr: SocketAddr) {
+    client.goto(&format!("http://{addr}/")).await.unwrap();
+    wait_until(
+        client,
+        "window.__viewer && window.__viewer.scene",
+        "the page",
+    )
+    .await;
+    let listed = js(
+        client,
+        "return [...document.getElementById('scene-select').options].map(o => o.value);",
+    )
+    .await;
+    let shipped: Vec<&str> = bead_viewer::scenes::SHIPPED
+        .iter()
+        .map(|(n, _)| *n)
+        .collect();
+    assert_eq!(listed, json!(shipped));
+    for name in shipped {
+        js(
+            client,
+            &format!(
+                "const s = document.getElementById('scene-select'); s.value = '{name}';
+                 s.dispatchEvent(new Event('change')); return null;"
+            ),
+        )
+        .await;
+        wait_within(
+            client,
+            &format!(
+                "window.__viewer.scene.name === '{name}' && window.__viewer.panels.size > 0 && \
+                 [...window.__viewer.panels.values()].every(p => p.frame && \
+                 p.frame.epoch === p.info.epoch && p.lastDraw && \
+                 (p.frame.steps > 0 || p.frame.status === 'failed'))"
+            ),
+            &format!("{name} loaded and drawn"),
+            Duration::from_secs(60),
+        )
+        .await;
+    }
+    let errors = js(client, "return window.__errors;").await;
+    assert_eq!(errors, json!([]), "errors in the page");
+}
+
 #[test]
 fn page_end_to_end() {
     in_browser(ServerConfig::default(), |client, addr| {
