@@ -703,11 +703,16 @@
     // the panel that holds the others back, if one does.
     const clock = msg.clock || { generation: 0, sim_rate: 0, limited_by: null };
     state.clock = clock;
+    // What happens at the scene's end, as the server has it (a page restored or another tab).
+    if (clock.at_end && $("at-end").value !== clock.at_end) $("at-end").value = clock.at_end;
     const rate = $("rate");
-    rate.textContent = anyRunning ?
+    rate.textContent = clock.ended ?
+      `ended at t = ${fmt(clock.end)} s, the scene's duration: Play starts again` :
+      anyRunning ?
       `simulation rate ×${clock.sim_rate.toFixed(2)} real time` + (clock.limited_by != null ?
         ` — all panels slowed to panel #${clock.limited_by}'s pace (it cannot keep up)` : "") :
       "simulation rate: paused";
+    rate.classList.toggle("ended", !!clock.ended);
     rate.classList.toggle("limited", clock.limited_by != null);
     rate.dataset.limitedBy = clock.limited_by == null ? "" : String(clock.limited_by);
     state.overlay.dirty = true;
@@ -1687,6 +1692,7 @@
   };
   $("reset").onclick = () => send({ type: "reset" });
   $("time-scale").onchange = () => send({ type: "set_time_scale", scale: Number($("time-scale").value) });
+  $("at-end").onchange = () => send({ type: "set_at_end", at_end: $("at-end").value });
   $("scene-select").onchange = () => send({ type: "load_scene", name: $("scene-select").value });
   $("scene-file").onchange = async () => {
     const file = $("scene-file").files[0];

@@ -64,7 +64,12 @@
 //!
 //! # Versions
 //!
-//! Version 5 (this one) runs the panels on one clock: frames carry the session's
+//! Version 6 (this one) ends runs where the scene ends: the clock stops every panel at the
+//! scene's `[run]` duration ([`Clock::end`]; `play` then starts again from the start), or
+//! loops, or goes on, as `set_at_end` asks ([`AtEnd`]); frames' [`Clock`] carries `end`,
+//! `at_end` and `ended`. Version 5 ran the panels until paused.
+//!
+//! Version 5 runs the panels on one clock: frames carry the session's
 //! [`Clock`] (a `generation` that counts restarts, the simulation rate and the panel that
 //! limits it) and each panel's `distance` to the first panel at the same t (overlay mode);
 //! `add_panel`, `configure_panel` and `reset` restart every panel; new requests
@@ -95,7 +100,7 @@
 use serde::{Deserialize, Serialize};
 
 /// The protocol version; bumped on any incompatible change.
-pub const PROTOCOL_VERSION: u32 = 5;
+pub const PROTOCOL_VERSION: u32 = 6;
 
 /// Which panels a message applies to: one panel by id, or all when absent / `null`.
 pub type PanelTarget = Option<u32>;
@@ -142,6 +147,9 @@ pub enum ClientMessage {
     },
     /// Simulated seconds per wall-clock second, in `[0, Limits::max_time_scale]`.
     SetTimeScale { scale: f64 },
+    /// What the clock does at the scene's end ([`Clock::end`]): stop there, loop back to
+    /// the start, or go on.
+    SetAtEnd { at_end: AtEnd },
     /// Load a scene: exactly one of `name` (a name from [`Welcome::scenes`]) or `toml` (the
     /// text of a scene file the user picked; `file_name` names it in messages). On success
     /// all panels are replaced by the new scene's default panels; on failure the server
@@ -211,6 +219,7 @@ impl ClientMessage {
             ClientMessage::Step { .. } => "step",
             ClientMessage::Reset { .. } => "reset",
             ClientMessage::SetTimeScale { .. } => "set_time_scale",
+            ClientMessage::SetAtEnd { .. } => "set_at_end",
             ClientMessage::LoadScene { .. } => "load_scene",
             ClientMessage::SetCurve { .. } => "set_curve",
             ClientMessage::DragStart { .. } => "drag_start",
@@ -323,6 +332,27 @@ pub struct Clock {
     /// The panel that could not keep up in the last frame (all panels were held back to its
     /// time), when one could not.
     pub limited_by: Option<u32>,
+    /// The scene's end: its `[run]` duration (or steps x dt; 10 s when it gives neither), as
+    /// `bead run` runs it. `None` without a scene.
+    pub end: Option<f64>,
+    /// What happens there.
+    pub at_end: AtEnd,
+    /// Whether the panels stopped at the end ([`AtEnd::Stop`]): Play starts them again from
+    /// the start.
+    pub ended: bool,
+}
+
+/// What the clock does when it reaches the scene's end ([`Clock::end`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum AtEnd {
+    /// Every panel stops at the end (the default: a run as long as the scene says).
+    #[default]
+    Stop,
+    /// Every panel starts again from the start.
+    Loop,
+    /// The panels go on past the end.
+    Continue,
 }
 
 /// Why a request was rejected: stable names (`snake_case` in JSON) for programs.

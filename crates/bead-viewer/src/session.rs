@@ -15,7 +15,7 @@ use bead::simulate::{ConfigError, RunError, SetupError};
 use crate::geometry;
 use crate::panel::{DragError, Panel, PanelFailure, PanelSettings};
 use crate::protocol::{
-    ClientMessage, Clock, ConstraintInfo, ErrorCode, IntegratorInfo, Limits, PanelFrame,
+    AtEnd, ClientMessage, Clock, ConstraintInfo, ErrorCode, IntegratorInfo, Limits, PanelFrame,
     PanelSettingsPatch, ParamInfo, ParticleInfo, Pin, Rod, SceneInfo, ServerMessage, Welcome,
     PROTOCOL_VERSION,
 };
@@ -196,6 +196,9 @@ pub struct Session {
     sim_rate: f64,
     /// The panel that held the others back in the last frame.
     limited_by: Option<u32>,
+    /// What the clock does at the scene's end, and whether it stopped there.
+    at_end: AtEnd,
+    ended: bool,
 }
 
 /// Parse a scene as a session would: refusing more particles than a session allows
@@ -237,6 +240,8 @@ impl Session {
             generation: 0,
             sim_rate: 0.0,
             limited_by: None,
+            at_end: AtEnd::Stop,
+            ended: false,
         };
         if let Some(first) = session.catalog.first().cloned() {
             // A bad command-line scene was reported by the CLI already; leave it empty.
@@ -298,6 +303,9 @@ impl Session {
                 generation: self.generation,
                 sim_rate: self.sim_rate,
                 limited_by: self.limited_by,
+                end: self.end(),
+                at_end: self.at_end,
+                ended: self.ended,
             },
             panels,
         }
@@ -313,6 +321,14 @@ impl Session {
         self.generation += 1;
         self.clock = 0.0;
         self.limited_by = None;
+        self.ended = false;
+    }
+
+    /// The scene's end ([`Clock::end`]): the time at which `bead run` ends its run.
+    pub fn end(&self) -> Option<f64> {
+        let scene = &self.scene.as_ref()?.scene;
+        let plan = bead::plan::Plan::resolve(scene, &bead::plan::PlanRequest::default()).ok()?;
+        Some(plan.t_end())
     }
 
     /// Restart every panel but those at `except` (rebuilt already) from the scene's initial
@@ -363,7 +379,13 @@ impl Session {
         // A panel resumed or stepped on its own is caught up with, not overtaken.
         self.clock = self.clock.max(earliest(&self.panels));
         let start = self.clock;
-        let target = start + self.time_scale * elapsed;
+        let mut target = start + self.time_scale * elapsed;
+        // The scene's end holds the clock there (unless it goes on past it).
+        let end = self.end().filter(|_| self.at_end != AtEnd::Continue);
+        let at_end = end.is_some_and(|end| target >= end);
+        if let Some(end) = end {
+            target = target.min(end);
+        }
         let max_steps = (self.limits.max_steps_per_frame / running).max(1);
         let budget = FRAME_BUDGET / running as u32;
         // The first panel that could not get there, and the earliest time such a panel
@@ -380,6 +402,24 @@ impl Session {
         self.limited_by = limited;
         // Do not try to catch up later: fall behind real time instead, all together.
         self.clock = if reached.is_finite() { reached } else { target };
+        // Every running panel has taken its last whole step within the end.
+        if at_end && limited.is_none() {
+            match self.at_end {
+                AtEnd::Stop => {
+                    for panel in &mut self.panels {
+                        panel.running = false;
+                    }
+                    self.ended = true;
+                }
+                AtEnd::Loop => {
+                    self.restart_others(&[]);
+                    for panel in &mut self.panels {
+                        panel.running = !panel.failed();
+                    }
+                }
+                AtEnd::Continue => {}
+            }
+        }
         if elapsed > 0.0 {
             let rate = ((self.clock - start) / elapsed).max(0.0);
             self.sim_rate = if self.sim_rate > 0.0 {
@@ -455,6 +495,10 @@ impl Session {
                 Ok(vec![self.panels_message()])
             }
             ClientMessage::Play { panel } => {
+                // Stopped at the end: Play starts again from the start.
+                if self.ended {
+                    self.restart_others(&[]);
+                }
                 for p in self.targets(panel)? {
                     p.running = !p.failed();
                 }
@@ -504,6 +548,14 @@ impl Session {
                     ));
                 }
                 self.time_scale = scale;
+                Ok(Vec::new())
+            }
+            ClientMessage::SetAtEnd { at_end } => {
+                self.at_end = at_end;
+                // Going on past the end: Play resumes from where the panels stopped.
+                if at_end == AtEnd::Continue {
+                    self.ended = false;
+                }
                 Ok(Vec::new())
             }
             ClientMessage::LoadScene {

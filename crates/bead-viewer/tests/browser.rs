@@ -232,6 +232,76 @@ async fn picker_checks(client: &Client, addr: SocketAddr) {
     assert_eq!(errors, json!([]), "errors in the page");
 }
 
+/// The page stops at the scene's duration (issue 18: it ran forever) and says so; "loop"
+/// in the at-the-end picker starts the panels again.
+#[test]
+fn the_page_stops_at_the_scenes_end_and_loops_on_request() {
+    let text = bead_viewer::scenes::SHIPPED
+        .iter()
+        .find(|(n, _)| *n == "circle")
+        .unwrap()
+        .1
+        .replace("dt = 0.001", "dt = 0.01")
+        .replace("duration = 10.0", "duration = 1.0");
+    in_browser(serving("short", text), |client, addr| {
+        end_checks(client, addr).boxed_local()
+    });
+}
+
+async fn end_checks(client: &Client, addr: SocketAddr) {
+    client.goto(&format!("http://{addr}/")).await.unwrap();
+    // Every panel paused at its 100th step, t = 1, and the readout says why.
+    wait_within(
+        client,
+        "window.__viewer && window.__viewer.clock && window.__viewer.clock.ended && \
+         window.__viewer.panels.size === 2 && [...window.__viewer.panels.values()].every(p => \
+         p.frame && p.frame.status === 'paused' && p.frame.steps === 100 && \
+         Math.abs(p.frame.t - 1) < 1e-12)",
+        "the end of the scene",
+        Duration::from_secs(30),
+    )
+    .await;
+    let readout = js(
+        client,
+        "return document.getElementById('rate').textContent;",
+    )
+    .await;
+    assert!(
+        readout.as_str().unwrap().starts_with("ended at t = 1 s"),
+        "{readout}"
+    );
+    assert_eq!(
+        js(
+            client,
+            "return document.getElementById('play').textContent;"
+        )
+        .await,
+        "Play"
+    );
+    // Loop, then Play: the panels run again and start over at the end.
+    let generation = js(client, "return window.__viewer.clock.generation;").await;
+    js(
+        client,
+        "const s = document.getElementById('at-end'); s.value = 'loop';
+         s.dispatchEvent(new Event('change'));
+         document.getElementById('play').click(); return null;",
+    )
+    .await;
+    wait_within(
+        client,
+        &format!(
+            "window.__viewer.clock.at_end === 'loop' && !window.__viewer.clock.ended && \
+             window.__viewer.clock.generation >= {generation} + 2 && \
+             [...window.__viewer.panels.values()].every(p => p.frame && p.frame.status === 'running')"
+        ),
+        "a loop",
+        Duration::from_secs(30),
+    )
+    .await;
+    let errors = js(client, "return window.__errors;").await;
+    assert_eq!(errors, json!([]), "errors in the page");
+}
+
 #[test]
 fn page_end_to_end() {
     in_browser(ServerConfig::default(), |client, addr| {

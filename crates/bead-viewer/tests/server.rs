@@ -276,6 +276,8 @@ async fn divergence_in_one_panel_is_reported_in_that_panel() {
     .await;
     next_of(&mut c, "panels").await;
     send(&mut c, r#"{"type":"set_time_scale","scale":100}"#).await;
+    // Past the scene's 10 s: the other panel must still be running when the first fails.
+    send(&mut c, r#"{"type":"set_at_end","at_end":"continue"}"#).await;
     send(&mut c, r#"{"type":"play"}"#).await;
     let deadline = tokio::time::Instant::now() + Duration::from_secs(10);
     loop {

@@ -6,8 +6,9 @@ use std::sync::Arc;
 use bead::integrate::IntegratorKind;
 use bead::simulate::{ConfigError, Requirement};
 use bead_viewer::protocol::{
-    decode_frame, encode_frame, parse_client_message, ClientMessage, Encoded, ErrorCode, Limits,
-    PanelFrame, PanelInfo, Pin, Rod, SceneInfo, ServerMessage, FRAME_MAGIC, PROTOCOL_VERSION,
+    decode_frame, encode_frame, parse_client_message, AtEnd, ClientMessage, Encoded, ErrorCode,
+    Limits, PanelFrame, PanelInfo, Pin, Rod, SceneInfo, ServerMessage, FRAME_MAGIC,
+    PROTOCOL_VERSION,
 };
 use bead_viewer::scenes::{Catalog, SHIPPED};
 use bead_viewer::session::{parse_scene, Session};
@@ -1225,4 +1226,83 @@ fn drag_start_puts_both_panels_at_the_closest_point_and_says_how_far_it_moved() 
         panic!("{replies:?}");
     };
     assert!(*moved < 1e-9, "{moved}");
+}
+
+/// A scene of 1 s: a bead on a circle (two panels, dt 0.01).
+fn one_second() -> Session {
+    let text = SHIPPED
+        .iter()
+        .find(|(n, _)| *n == "circle")
+        .unwrap()
+        .1
+        .replace("dt = 0.001", "dt = 0.01")
+        .replace("duration = 10.0", "duration = 1.0");
+    let mut s = session();
+    let message =
+        serde_json::json!({"type": "load_scene", "toml": text, "file_name": "short.toml"});
+    assert!(panels_of(&send(&mut s, &message.to_string())).is_some());
+    s
+}
+
+fn clock(s: &Session) -> bead_viewer::protocol::Clock {
+    match s.frame() {
+        ServerMessage::Frame { clock, .. } => clock,
+        other => panic!("not a frame: {other:?}"),
+    }
+}
+
+/// The viewer runs the scene's duration, as `bead run` does, and stops there (issue 18: it
+/// ran forever): every panel at its last step within the end, paused; Play starts again
+/// from the start. Loop starts again by itself; Continue goes on past the end.
+#[test]
+fn the_clock_stops_loops_or_goes_on_at_the_scenes_end() {
+    let mut s = one_second();
+    assert_eq!(clock(&s).end, Some(1.0));
+    assert_eq!(clock(&s).at_end, AtEnd::Stop);
+    run(&mut s, 1.5);
+    let c = clock(&s);
+    assert!(c.ended);
+    for f in frames(&s) {
+        assert_eq!(f.status, "paused", "{} at {}", f.status, f.t);
+        assert_eq!(f.steps, 100);
+        assert!((f.t - 1.0).abs() < 1e-12, "t = {}", f.t);
+    }
+    // Stays there.
+    run(&mut s, 0.5);
+    assert!(frames(&s).iter().all(|f| f.steps == 100));
+    // Play: from the start again, one restart.
+    let generation = c.generation;
+    send(&mut s, r#"{"type":"play"}"#);
+    run(&mut s, 0.25);
+    let c = clock(&s);
+    assert!(!c.ended && c.generation == generation + 1);
+    assert!(frames(&s)
+        .iter()
+        .all(|f| f.status == "running" && (f.t - 0.25).abs() < 0.011));
+    // Loop: at the end every panel starts again and goes on.
+    send(&mut s, r#"{"type":"set_at_end","at_end":"loop"}"#);
+    run(&mut s, 1.0);
+    let c = clock(&s);
+    assert_eq!((c.at_end, c.ended), (AtEnd::Loop, false));
+    assert_eq!(c.generation, generation + 2);
+    for f in frames(&s) {
+        assert_eq!(f.status, "running");
+        assert!(f.t < 0.3, "t = {}", f.t);
+    }
+    // Continue: past the end.
+    send(&mut s, r#"{"type":"set_at_end","at_end":"continue"}"#);
+    run(&mut s, 1.5);
+    assert!(frames(&s)
+        .iter()
+        .all(|f| f.status == "running" && f.t > 1.2));
+    // Back to Stop past the end: the clock stops where it stands.
+    send(&mut s, r#"{"type":"set_at_end","at_end":"stop"}"#);
+    run(&mut s, 0.1);
+    assert!(clock(&s).ended);
+    assert!(frames(&s).iter().all(|f| f.status == "paused"));
+    let message = parse_client_message(
+        r#"{"type":"set_at_end","at_end":"later"}"#,
+        &Limits::default(),
+    );
+    assert!(message.is_err());
 }
