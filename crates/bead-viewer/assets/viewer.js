@@ -478,6 +478,9 @@
         p = {
           info, frame: null, dom: buildPanel(info), trail: [], history: [], samples: [], dirty: true,
           chartsDirty: true, view: null, box: null, displayT: null,
+          // The curves drawn and the x-y region they cover: the panel's, or the last a frame
+          // carried; when the page last asked for curves over its view (ms).
+          curves: info.curves, curveRegion: info.curve_region, regionAsked: null,
           // What the last draw drew (counts, the frame and its time in ms) and the recent
           // draw times: for the tests.
           lastDraw: null, drawTimes: [],
@@ -490,6 +493,9 @@
         // New curves (a curve edit): fit the view to them again.
         if (JSON.stringify(p.info.view) !== JSON.stringify(info.view) && p.view) p.view.auto = true;
         p.info = info;
+        p.curves = info.curves;
+        p.curveRegion = info.curve_region;
+        p.regionAsked = null;
         p.box = null;
         p.dirty = true;
         p.chartsDirty = true;
@@ -647,6 +653,9 @@
       if (f.epoch < p.info.epoch) continue;
       const previous = p.frame;
       p.frame = f;
+      // Curves made again (moving, following the bead or the view) replace the panel's.
+      if (f.curves) p.curves = f.curves;
+      p.curveRegion = f.curve_region;
       if (previous && f.epoch !== previous.epoch) { p.trail = []; p.history = []; p.samples = []; p.displayT = null; }
       p.dirty = true;
       if (!previous || f.t !== previous.t || f.steps !== previous.steps || f.epoch !== previous.epoch) {
@@ -920,6 +929,29 @@
   // One colour per particle (trails and markers), for scenes with few particles.
   const PARTICLE_COLORS = ["#e67814", "#7b3fc4", "#1a9c6b", "#d6336c", "#0c7bb3", "#8c6d1f"];
 
+  // 2D: the curves cover the panel's `curveRegion` (contours padded by 10% a side). When the
+  // canvas shows more than that (a pan, a zoom out, the view growing with the motion), or
+  // less than a quarter of it (a zoom in: too coarse), ask for curves over what it shows
+  // padded by a quarter a side, so that a small pan does not ask again; at most every 250 ms.
+  function followView(p, T) {
+    const c = p.curveRegion;
+    if (state.scene.dim !== 2 || !c || p.info.curve_source === "none") return;
+    const r = T.r;
+    const a = T.unproject(r.x0, r.y0), b = T.unproject(r.x1, r.y1);
+    const shown = [Math.min(a[0], b[0]), Math.min(a[1], b[1]), Math.max(a[0], b[0]), Math.max(a[1], b[1])];
+    if (!shown.every(Number.isFinite)) return;
+    const w = c[2] - c[0], h = c[3] - c[1];
+    const sw = shown[2] - shown[0], sh = shown[3] - shown[1];
+    const inside = shown[0] >= c[0] - 0.1 * w && shown[1] >= c[1] - 0.1 * h &&
+      shown[2] <= c[2] + 0.1 * w && shown[3] <= c[3] + 0.1 * h;
+    if (inside && Math.max(sw / w, sh / h) >= 0.25) return;
+    const now = performance.now();
+    if (p.regionAsked && now - p.regionAsked < 250) return;
+    p.regionAsked = now;
+    const view = [shown[0] - 0.25 * sw, shown[1] - 0.25 * sh, shown[2] + 0.25 * sw, shown[3] + 0.25 * sh];
+    send({ type: "set_view", panel: p.info.id, view });
+  }
+
   function drawPanel(p) {
     const c = p.dom.canvas, ctx = c.getContext("2d");
     const scene = state.scene;
@@ -934,10 +966,12 @@
     ctx.beginPath();
     ctx.rect(r.x0, r.y0, r.x1 - r.x0, r.y1 - r.y0);
     ctx.clip();
-    // Curves: one path (marching squares make hundreds of short pieces). Moving curves: the
-    // frame's, at its t.
+    // Curves: one path (marching squares make hundreds of short pieces). The last the server
+    // sent: the panel's, or a frame's (moving curves at its t, or made again to follow the
+    // bead or the view).
+    followView(p, T);
     const f = p.frame;
-    const curves = f && f.epoch === p.info.epoch && f.curves ? f.curves : p.info.curves;
+    const curves = p.curves || p.info.curves;
     ctx.save();
     ctx.strokeStyle = "#1f6feb";
     ctx.lineWidth = 2.5;
@@ -1518,7 +1552,7 @@
     ctx.beginPath();
     ctx.rect(r.x0, r.y0, r.x1 - r.x0, r.y1 - r.y0);
     ctx.clip();
-    const curves = first.frame.epoch === first.info.epoch && first.frame.curves ? first.frame.curves : first.info.curves;
+    const curves = first.curves || first.info.curves;
     ctx.strokeStyle = "#9db9e8";
     ctx.lineWidth = 2;
     ctx.beginPath();

@@ -14,6 +14,11 @@
 //!
 //! A parametric panel with one coordinate draws its map; otherwise contours are drawn when
 //! there are any, else the map.
+//!
+//! Curves follow the motion: a map is sampled over an interval of q ([`Curves::q_range`])
+//! that [`follow_range`] widens when the bead comes near its end (a bead sliding down a
+//! helix), and contours and 2D maps are made again over the region the page shows when it
+//! pans or zooms past the region they were made over (`set_view`).
 
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -68,6 +73,72 @@ pub struct Curves {
     pub source: &'static str,
     /// They depend on t: a driven constraint row was contoured, or the map x(q, t) moves.
     pub moving: bool,
+    /// The interval of q a one-coordinate map was sampled over (`source == "parametric"`).
+    pub q_range: Option<[f64; 2]>,
+}
+
+/// A map's sampled interval grows at most to this many times its first width
+/// ([`default_q_range`]); beyond, it becomes a window of that width around the bead.
+pub const MAX_Q_RANGE_FACTOR: f64 = 16.0;
+
+/// The interval of q a one-coordinate map is first sampled over: q0 +- max(3 |q0|, 2 pi).
+pub fn default_q_range(system: &System) -> Option<[f64; 2]> {
+    let map = system.parametric().filter(|m| m.n_q() == 1)?;
+    let q0 = map.initial()[0];
+    let span = (3.0 * q0.abs()).max(2.0 * std::f64::consts::PI);
+    Some([q0 - span, q0 + span])
+}
+
+/// The interval to sample a map over now that the bead is at `q`, when `range` no longer
+/// does: `None` while q is inside `range` by more than a tenth of its width. Else the side q
+/// is near moves to half a width beyond q; an interval wider than `max_width` becomes a
+/// window of that width centered on q (a bead sliding on forever is drawn on its wire, and
+/// the work per sample stays bounded).
+pub fn follow_range(q: f64, range: [f64; 2], max_width: f64) -> Option<[f64; 2]> {
+    let [lo, hi] = range;
+    let width = hi - lo;
+    if !(q.is_finite() && width > 0.0) {
+        return None;
+    }
+    let margin = 0.1 * width;
+    if q > lo + margin && q < hi - margin {
+        return None;
+    }
+    let (mut lo, mut hi) = (lo.min(q - 0.5 * width), hi.max(q + 0.5 * width));
+    if hi - lo > max_width {
+        if q < 0.5 * (lo + hi) {
+            hi = lo + max_width;
+        } else {
+            lo = hi - max_width;
+        }
+        if !(q > lo + 0.1 * max_width && q < hi - 0.1 * max_width) {
+            (lo, hi) = (q - 0.5 * max_width, q + 0.5 * max_width);
+        }
+    }
+    Some([lo, hi])
+}
+
+/// The q in `range` (to 1/512 of its width) whose map positions at `t` are nearest `x` (all
+/// particles): where on a drawn map an implicit panel's bead is.
+pub fn nearest_q(system: &System, range: [f64; 2], x: &[f64], t: f64) -> Option<f64> {
+    const SAMPLES: usize = 512;
+    let map = system.parametric().filter(|m| m.n_q() == 1)?;
+    let mut ws = map.workspace();
+    let mut best = (f64::INFINITY, None);
+    for i in 0..=SAMPLES {
+        let q = range[0] + (range[1] - range[0]) * i as f64 / SAMPLES as f64;
+        map.state_at(t, &[q], &[0.0], &mut ws);
+        let d: f64 = ws
+            .position
+            .iter()
+            .zip(x)
+            .map(|(a, b)| (a - b) * (a - b))
+            .sum();
+        if d < best.0 {
+            best = (d, Some(q));
+        }
+    }
+    best.1
 }
 
 /// Systems up to this many particles and constraint rows get a trial run for their view box:
@@ -283,19 +354,36 @@ pub fn reach(system: &System) -> Vec<Option<([f64; 2], f64)>> {
 
 /// The curves of a panel at time `t` (see the module doc): the map for a parametric panel
 /// with one coordinate, else the contours when there are any, else the map when it has one
-/// coordinate.
+/// coordinate. Contours over `view` (padded by 10% a side); a map over `q_range` (default
+/// [`default_q_range`]), clipped to `view` padded by 20% a side in 2D.
 pub fn curves(
     system: &System,
     method: Method,
     view: [f64; 4],
+    q_range: Option<[f64; 2]>,
     t: f64,
     resolution: Resolution,
 ) -> Curves {
     let map = system.parametric().filter(|m| m.n_q() == 1);
-    let parametric = |map: &bead::model::ParametricMap| Curves {
-        lines: parametric_curves(system, view, t, resolution.samples()),
-        source: "parametric",
-        moving: map.is_time_dependent(),
+    let parametric = |map: &bead::model::ParametricMap| {
+        let first = default_q_range(system).unwrap_or([-1.0, 1.0]);
+        let range = q_range.unwrap_or(first);
+        // As many samples per unit of q as over the first interval, up to the widest one.
+        let widths = ((range[1] - range[0]) / (first[1] - first[0]))
+            .ceil()
+            .clamp(1.0, MAX_Q_RANGE_FACTOR);
+        Curves {
+            lines: parametric_curves(
+                system,
+                view,
+                range,
+                t,
+                resolution.samples() * widths as usize,
+            ),
+            source: "parametric",
+            moving: map.is_time_dependent(),
+            q_range: Some(range),
+        }
     };
     if let (Method::Parametric, Some(map)) = (method, map) {
         return parametric(map);
@@ -308,6 +396,7 @@ pub fn curves(
                 lines,
                 source: "contour",
                 moving: contoured_rows(system).any(|row| set.is_time_dependent(row)),
+                q_range: None,
             };
         }
     }
@@ -319,6 +408,7 @@ pub fn curves(
             lines: Vec::new(),
             source: "none",
             moving: false,
+            q_range: None,
         },
     }
 }
@@ -339,15 +429,19 @@ fn map_satisfies_constraints(system: &System, map: &bead::model::ParametricMap, 
     })
 }
 
-/// Sample x(q) of a one-coordinate parametric map, one polyline per particle, broken where
-/// it leaves the (padded) view box.
-fn parametric_curves(system: &System, view: [f64; 4], t: f64, samples: usize) -> Vec<Vec<f64>> {
+/// Sample x(q) of a one-coordinate parametric map over `range`, one polyline per particle,
+/// broken where it leaves the (padded) view box.
+fn parametric_curves(
+    system: &System,
+    view: [f64; 4],
+    range: [f64; 2],
+    t: f64,
+    samples: usize,
+) -> Vec<Vec<f64>> {
     let Some(map) = system.parametric() else {
         return Vec::new();
     };
     let dim = system.dim();
-    let q0 = map.initial()[0];
-    let span = (3.0 * q0.abs()).max(2.0 * std::f64::consts::PI);
     let (w, h) = (view[2] - view[0], view[3] - view[1]);
     // 3D curves are sent whole: the page projects them, and the view box is x-y only.
     let inside = |x: f64, y: f64| {
@@ -361,7 +455,7 @@ fn parametric_curves(system: &System, view: [f64; 4], t: f64, samples: usize) ->
     let n_particles = system.particles().len();
     let mut lines: Vec<Vec<Vec<f64>>> = vec![vec![Vec::new()]; n_particles];
     for i in 0..=samples {
-        let q = q0 - span + 2.0 * span * i as f64 / samples as f64;
+        let q = range[0] + (range[1] - range[0]) * i as f64 / samples as f64;
         map.state_at(t, &[q], &[0.0], &mut ws);
         for (p, particle_lines) in lines.iter_mut().enumerate() {
             let point = &ws.position[p * dim..(p + 1) * dim];

@@ -177,10 +177,18 @@ pub struct Panel {
     drag: Option<Drag>,
     /// Scene scale (largest side of the view box), for the drag spring.
     scale: f64,
-    /// The view box the curves are made over.
+    /// The scene's view box (the page fits its view to it).
     view: [f64; 4],
-    /// The curves at t = 0.
+    /// The x-y region the curves were made over: the view box, or the region the page
+    /// showed when it asked for curves there ([`Panel::set_region`]).
+    curve_region: [f64; 4],
+    /// The curves (at t = 0 when they move).
     curves: Curves,
+    /// The curves were made again (see [`Panel::follow_motion`], [`Panel::set_region`]) and
+    /// no frame has carried them yet.
+    curves_unsent: bool,
+    /// The (epoch, steps) at which [`Panel::follow_motion`] last looked.
+    followed_at: Option<(u64, u64)>,
     /// What the page should say about the curve (e.g. a curve edit that did not apply here).
     pub curve_note: Option<String>,
     /// The states of the last advance, `1 + n_coords` numbers each (t, positions); see
@@ -204,8 +212,14 @@ impl Panel {
         view: [f64; 4],
     ) -> Result<Panel, SetupError> {
         let simulation = Simulation::new(Arc::clone(&scene.system), settings.config())?;
-        let curves =
-            crate::geometry::curves(&scene.system, settings.method, view, 0.0, Resolution::Scene);
+        let curves = crate::geometry::curves(
+            &scene.system,
+            settings.method,
+            view,
+            None,
+            0.0,
+            Resolution::Scene,
+        );
         let mut panel = Panel {
             id,
             epoch,
@@ -220,7 +234,10 @@ impl Panel {
             drag: None,
             scale: (view[2] - view[0]).max(view[3] - view[1]),
             view,
+            curve_region: view,
             curves,
+            curves_unsent: false,
+            followed_at: None,
             curve_note: None,
             path: Vec::new(),
             path_stride: 1,
@@ -344,6 +361,61 @@ impl Panel {
         panel.running = self.running;
         panel.curve_note = self.curve_note.clone();
         Ok(panel)
+    }
+
+    /// Make the curves again over `region` (x-y, scene units): the page panned or zoomed
+    /// past the region they were made over. The next frame carries them.
+    pub fn set_region(&mut self, region: [f64; 4]) {
+        self.curve_region = region;
+        self.curves = crate::geometry::curves(
+            self.simulation.system(),
+            self.settings.method,
+            region,
+            self.curves.q_range,
+            self.simulation.t(),
+            Resolution::Scene,
+        );
+        self.curves_unsent = true;
+    }
+
+    /// Keep the drawn map under the bead: when the bead comes near the end of the interval
+    /// of q the map was sampled over ([`crate::geometry::follow_range`]), sample it again over
+    /// a wider one. The bead's q is its coordinate in a parametric panel, else the nearest
+    /// point of the map ([`crate::geometry::nearest_q`]).
+    fn follow_motion(&mut self) {
+        let Some(range) = self.curves.q_range else {
+            return;
+        };
+        let at = (self.epoch, self.simulation.steps());
+        if self.followed_at == Some(at) {
+            return;
+        }
+        self.followed_at = Some(at);
+        let system = self.simulation.system();
+        let q = match self.settings.method {
+            Method::Parametric => self.simulation.q().first().copied(),
+            Method::Implicit => crate::geometry::nearest_q(
+                system,
+                range,
+                self.simulation.positions(),
+                self.simulation.t(),
+            ),
+        };
+        let Some(first) = crate::geometry::default_q_range(system) else {
+            return;
+        };
+        let max_width = crate::geometry::MAX_Q_RANGE_FACTOR * (first[1] - first[0]);
+        if let Some(wider) = q.and_then(|q| crate::geometry::follow_range(q, range, max_width)) {
+            self.curves = crate::geometry::curves(
+                system,
+                self.settings.method,
+                self.curve_region,
+                Some(wider),
+                self.simulation.t(),
+                Resolution::Scene,
+            );
+            self.curves_unsent = true;
+        }
     }
 
     /// Which settings apply, by the library's legality check: feedback and projection are
@@ -571,27 +643,38 @@ impl Panel {
             curve_source: self.curves.source.into(),
             curves_move: self.curves.moving,
             view: self.view,
+            curve_region: self.curve_region,
             curve_note: self.curve_note.clone(),
             applies: self.applies(),
         }
     }
 
-    /// The current state for a frame; with the curves at the current t when they move.
-    pub fn frame(&self) -> PanelFrame {
+    /// The current state for a frame; with the curves at the current t when they move, and
+    /// when they were made again since the last frame.
+    pub fn frame(&mut self) -> PanelFrame {
+        self.follow_motion();
         let finite = |v: f64| if v.is_finite() { v } else { 0.0 };
         let s = &self.simulation;
-        let curves = self.curves.moving.then(|| {
-            crate::geometry::curves(
+        let curves = if self.curves.moving {
+            let lines = crate::geometry::curves(
                 s.system(),
                 self.settings.method,
-                self.view,
+                self.curve_region,
+                self.curves.q_range,
                 s.t(),
                 Resolution::Frame,
             )
-            .lines
-            .into_iter()
-            .map(|line| line.into_iter().map(finite).collect())
-            .collect()
+            .lines;
+            Some(lines)
+        } else {
+            self.curves_unsent.then(|| self.curves.lines.clone())
+        };
+        self.curves_unsent = false;
+        let curves = curves.map(|lines| {
+            lines
+                .into_iter()
+                .map(|line| line.into_iter().map(finite).collect())
+                .collect()
         });
         PanelFrame {
             id: self.id,
@@ -627,6 +710,7 @@ impl Panel {
             }),
             path: self.path.clone(),
             curves,
+            curve_region: self.curve_region,
         }
     }
 }

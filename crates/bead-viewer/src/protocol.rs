@@ -64,7 +64,12 @@
 //!
 //! # Versions
 //!
-//! Version 6 (this one) ends runs where the scene ends: the clock stops every panel at the
+//! Version 7 (this one) keeps the curves under the bead: a frame carries a panel's curves
+//! also when they were made again (the bead neared the end of the drawn part of its map, or
+//! the page asked with `set_view` for a region it shows), and the page keeps the last it
+//! got; panels and frames say the region the curves cover (`curve_region`).
+//!
+//! Version 6 ends runs where the scene ends: the clock stops every panel at the
 //! scene's `[run]` duration ([`Clock::end`]; `play` then starts again from the start), or
 //! loops, or goes on, as `set_at_end` asks ([`AtEnd`]); frames' [`Clock`] carries `end`,
 //! `at_end` and `ended`. Version 5 ran the panels until paused.
@@ -100,7 +105,7 @@
 use serde::{Deserialize, Serialize};
 
 /// The protocol version; bumped on any incompatible change.
-pub const PROTOCOL_VERSION: u32 = 6;
+pub const PROTOCOL_VERSION: u32 = 7;
 
 /// Which panels a message applies to: one panel by id, or all when absent / `null`.
 pub type PanelTarget = Option<u32>;
@@ -202,6 +207,11 @@ pub enum ClientMessage {
         particle: usize,
         target: Vec<f64>,
     },
+    /// The page shows the x-y region `view` (`[x_min, y_min, x_max, y_max]`, scene units) of
+    /// 2D panel `panel`, outside the region its curves were made over
+    /// ([`PanelInfo::curve_region`]) or much smaller: the curves are made again over `view`
+    /// and the next frame carries them ([`PanelFrame::curves`]). No other reply.
+    SetView { panel: u32, view: [f64; 4] },
     /// Ask for the equations panel `panel`'s formulation derived (the text `bead check`
     /// prints for it); the reply is [`ServerMessage::Equations`].
     Equations { panel: u32 },
@@ -213,6 +223,7 @@ impl ClientMessage {
         match self {
             ClientMessage::AddPanel(_) => "add_panel",
             ClientMessage::RemovePanel { .. } => "remove_panel",
+            ClientMessage::SetView { .. } => "set_view",
             ClientMessage::ConfigurePanel { .. } => "configure_panel",
             ClientMessage::Play { .. } => "play",
             ClientMessage::Pause { .. } => "pause",
@@ -589,6 +600,10 @@ pub struct PanelInfo {
     /// This panel's view box `[x_min, y_min, x_max, y_max]`: the scene's, or made again for
     /// the panel's edited curves (see [`SceneInfo::view`]).
     pub view: [f64; 4],
+    /// The x-y region `[x_min, y_min, x_max, y_max]` the curves were made over: contours
+    /// cover it padded by 10% a side, a 2D map it padded by 20%. The view box, or the region
+    /// of the last `set_view`; a page that shows more (or far less) asks again.
+    pub curve_region: [f64; 4],
     /// Something to say about the curve, e.g. that a curve edit did not change this
     /// (parametric) panel's map.
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -659,11 +674,15 @@ pub struct PanelFrame {
     /// after the positions (see [Frames](self#frames)).
     #[serde(skip)]
     pub path: Vec<f64>,
-    /// The curves at this frame's t, when they move ([`PanelInfo::curves_move`]); as in
-    /// [`PanelInfo::curves`] but made coarser ([`crate::geometry::Resolution::Frame`]).
-    /// Packed after the path (see [Frames](self#frames)).
+    /// The panel's curves, when they move ([`PanelInfo::curves_move`]: at this frame's t,
+    /// made coarser, [`crate::geometry::Resolution::Frame`]) or were made again since the
+    /// last frame (the bead neared the end of the part of its map that was drawn, or a
+    /// `set_view` asked for another region). They replace the curves the page has. Packed
+    /// after the path (see [Frames](self#frames)).
     #[serde(skip)]
     pub curves: Option<Vec<Vec<f64>>>,
+    /// The x-y region the panel's curves cover (see [`PanelInfo::curve_region`]).
+    pub curve_region: [f64; 4],
 }
 
 /// Most path samples a frame carries per panel.

@@ -74,6 +74,9 @@ pub enum SessionError {
     /// The scene does not load or start with the new value (the library's message).
     #[error("cannot use this value: {0}")]
     ParamFailed(String),
+    /// A `set_view` region that is not one.
+    #[error("view must be [x_min, y_min, x_max, y_max], finite within 1e12 with x_min < x_max and y_min < y_max; got {view:?}")]
+    Region { view: [f64; 4] },
     /// A panel cannot start from the dragged state.
     #[error("cannot start from this state: panel {panel} ({method}): {message}")]
     StartFailed {
@@ -98,7 +101,7 @@ impl SessionError {
             SessionError::Drag(_) => ErrorCode::BadValue,
             SessionError::StepFailed { .. } => ErrorCode::StepFailed,
             SessionError::UnknownParam { .. } => ErrorCode::UnknownParam,
-            SessionError::ParamRange { .. } => ErrorCode::BadValue,
+            SessionError::ParamRange { .. } | SessionError::Region { .. } => ErrorCode::BadValue,
             SessionError::ParamFailed(_) => ErrorCode::SetupFailed,
             SessionError::StartFailed { .. } => ErrorCode::StartFailed,
         }
@@ -290,8 +293,8 @@ impl Session {
 
     /// The current state of every panel, with each panel's distance to the first panel when
     /// both are at the same t.
-    pub fn frame(&self) -> ServerMessage {
-        let mut panels: Vec<PanelFrame> = self.panels.iter().map(Panel::frame).collect();
+    pub fn frame(&mut self) -> ServerMessage {
+        let mut panels: Vec<PanelFrame> = self.panels.iter_mut().map(Panel::frame).collect();
         if let Some((first, others)) = self.panels.split_first() {
             for (frame, other) in panels.iter_mut().skip(1).zip(others) {
                 frame.distance = distance(first, other);
@@ -628,6 +631,16 @@ impl Session {
                 particle,
                 target,
             } => self.set_start(panel, particle, target),
+            ClientMessage::SetView { panel, view } => {
+                let index = self.index(panel)?;
+                let [x0, y0, x1, y1] = view;
+                let sane = |v: f64| v.is_finite() && v.abs() <= 1e12;
+                if !(view.iter().all(|&v| sane(v)) && x1 > x0 && y1 > y0) {
+                    return Err((SessionError::Region { view }, Some(panel)));
+                }
+                self.panels[index].set_region(view);
+                Ok(Vec::new())
+            }
             ClientMessage::Equations { panel } => {
                 let index = self.index(panel)?;
                 let p = &self.panels[index];

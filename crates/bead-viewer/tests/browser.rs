@@ -302,6 +302,150 @@ async fn end_checks(client: &Client, addr: SocketAddr) {
     assert_eq!(errors, json!([]), "errors in the page");
 }
 
+/// The distance (scene units) of each panel's first particle to the nearest segment of the
+/// curves the page draws for it (`p.curves`), as JSON numbers.
+const BEAD_TO_DRAWN_WIRE: &str = "
+    const dim = window.__viewer.scene.dim;
+    return [...window.__viewer.panels.values()].map(p => {
+      const x = p.frame.x; let best = Infinity;
+      for (const line of (p.curves || p.info.curves)) {
+        for (let i = 0; i + 2 * dim <= line.length; i += dim) {
+          let ab2 = 0, t = 0;
+          for (let a = 0; a < dim; a++) { const d = line[i + dim + a] - line[i + a]; ab2 += d * d; t += d * (x[a] - line[i + a]); }
+          t = ab2 > 0 ? Math.min(1, Math.max(0, t / ab2)) : 0;
+          let d2 = 0;
+          for (let a = 0; a < dim; a++) { const e = x[a] - line[i + a] - t * (line[i + dim + a] - line[i + a]); d2 += e * e; }
+          best = Math.min(best, Math.sqrt(d2));
+        }
+      }
+      return best;
+    });";
+
+#[test]
+fn the_helix_wire_is_under_the_bead_at_the_end_and_after_a_loop() {
+    // The helix ends at 4.9 s, where the bead has slid to phi = -7.9, past the first drawn
+    // interval [-2 pi, 2 pi] of its wire.
+    let text = bead_viewer::scenes::SHIPPED
+        .iter()
+        .find(|(n, _)| *n == "helix")
+        .unwrap()
+        .1
+        .replace("duration = 5.0", "duration = 4.9");
+    in_browser(serving("helix", text), |client, addr| {
+        helix_checks(client, addr).boxed_local()
+    });
+}
+
+async fn helix_checks(client: &Client, addr: SocketAddr) {
+    client.goto(&format!("http://{addr}/")).await.unwrap();
+    // Five times real time (the page's time-scale control), so that the test takes seconds.
+    wait_within(
+        client,
+        "window.__viewer && window.__viewer.panels.size === 2",
+        "the panels",
+        Duration::from_secs(30),
+    )
+    .await;
+    js(
+        client,
+        "const s = document.getElementById('time-scale'); s.value = '5';
+         s.dispatchEvent(new Event('change')); return null;",
+    )
+    .await;
+    wait_within(
+        client,
+        "window.__viewer && window.__viewer.clock && window.__viewer.clock.ended && \
+         window.__viewer.panels.size === 2 && [...window.__viewer.panels.values()].every(p => \
+         p.frame && p.frame.status === 'paused' && Math.abs(p.frame.t - 4.9) < 1e-9)",
+        "the end of the scene",
+        Duration::from_secs(60),
+    )
+    .await;
+    let distances = js(client, BEAD_TO_DRAWN_WIRE).await;
+    for d in distances.as_array().unwrap() {
+        assert!(
+            d.as_f64().unwrap() < 1e-3,
+            "bead to drawn wire at 4.9 s: {distances}"
+        );
+    }
+    // Loop: past the end into the next run, the wire is still under the bead.
+    let generation = js(client, "return window.__viewer.clock.generation;").await;
+    js(
+        client,
+        "const s = document.getElementById('at-end'); s.value = 'loop';
+         s.dispatchEvent(new Event('change'));
+         document.getElementById('play').click(); return null;",
+    )
+    .await;
+    wait_within(
+        client,
+        &format!(
+            "window.__viewer.clock.generation >= {generation} + 2 && \
+             [...window.__viewer.panels.values()].every(p => p.frame && p.frame.t > 0.5)"
+        ),
+        "a loop",
+        Duration::from_secs(60),
+    )
+    .await;
+    js(
+        client,
+        "document.getElementById('play').click(); return null;",
+    )
+    .await;
+    wait_within(
+        client,
+        "[...window.__viewer.panels.values()].every(p => p.frame && p.frame.status === 'paused')",
+        "a pause",
+        Duration::from_secs(30),
+    )
+    .await;
+    let distances = js(client, BEAD_TO_DRAWN_WIRE).await;
+    for d in distances.as_array().unwrap() {
+        assert!(
+            d.as_f64().unwrap() < 1e-3,
+            "bead to drawn wire after a loop: {distances}"
+        );
+    }
+    let errors = js(client, "return window.__errors;").await;
+    assert_eq!(errors, json!([]), "errors in the page");
+}
+
+#[test]
+fn zooming_out_draws_the_curve_over_the_whole_view() {
+    in_browser(ServerConfig::default(), |client, addr| {
+        zoom_checks(client, addr).boxed_local()
+    });
+}
+
+async fn zoom_checks(client: &Client, addr: SocketAddr) {
+    client.goto(&format!("http://{addr}/")).await.unwrap();
+    wait_within(
+        client,
+        "window.__viewer && window.__viewer.scene && window.__viewer.scene.name === 'parabola' && \
+         window.__viewer.panels.has(1) && window.__viewer.panels.get(1).frame",
+        "the parabola",
+        Duration::from_secs(30),
+    )
+    .await;
+    // Zoom out 20 times: the page shows far more than the contours were made over, asks for
+    // them over what it shows, and draws the parabola (y = -x^2 / 100) down to the new
+    // bottom edge, ten times deeper than the view box.
+    js(client, "window.__viewer.zoom(1, 0.05); return null;").await;
+    wait_within(
+        client,
+        "(() => { const p = window.__viewer.panels.get(1), c = p.info.curve_region;
+                  const w = c[2] - c[0];
+                  return p.curveRegion[2] - p.curveRegion[0] > 15 * w &&
+                    p.curves.some(l => l[1] < 10 * c[1] &&
+                                       Math.abs(l[1] + l[0] * l[0] / 100) < 0.02 * l[0] * l[0] / 100); })()",
+        "curves over the zoomed-out view",
+        Duration::from_secs(30),
+    )
+    .await;
+    let errors = js(client, "return window.__errors;").await;
+    assert_eq!(errors, json!([]), "errors in the page");
+}
+
 #[test]
 fn page_end_to_end() {
     in_browser(ServerConfig::default(), |client, addr| {
@@ -967,6 +1111,7 @@ async fn cloth_at_scale(client: &Client, addr: SocketAddr) {
             curve_source: "none".into(),
             curves_move: false,
             view: scene_view,
+            curve_region: scene_view,
             curve_note: None,
             applies: Applies {
                 feedback: true,
@@ -1035,6 +1180,7 @@ async fn cloth_at_scale(client: &Client, addr: SocketAddr) {
             drag: None,
             path: Vec::new(),
             curves: None,
+            curve_region: scene_view,
         };
         let bytes = encode_frame(1.0, &[panel]).unwrap();
         bytes_per_frame = bytes.len();

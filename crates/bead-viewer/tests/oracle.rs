@@ -54,7 +54,7 @@ fn session(spec: &Spec) -> Session {
 }
 
 /// The frame as the page gets it: encoded, then decoded.
-fn frame(s: &Session) -> Value {
+fn frame(s: &mut Session) -> Value {
     let ServerMessage::Frame { .. } = s.frame() else {
         panic!("not a frame")
     };
@@ -131,7 +131,7 @@ fn frames_are_the_library_run_and_meet_the_oracle() {
         let mut reached = Vec::new();
         while seen < steps {
             s.advance(0.05);
-            let f = frame(&s);
+            let f = frame(&mut s);
             frames += 1;
             assert!(
                 frames < 10 * steps + 100,
@@ -260,6 +260,7 @@ fn decode_frame_reads_header_numbers_exactly() {
             drag: None,
             path: vec![v, v, -v],
             curves: None,
+            curve_region: [-v, -v, v, v],
         };
         let decoded = decode_frame(&encode_frame(1.0, &[frame]).unwrap()).unwrap();
         let panel = &decoded["panels"][0];

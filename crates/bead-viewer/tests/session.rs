@@ -28,7 +28,7 @@ fn send(session: &mut Session, json: &str) -> Vec<ServerMessage> {
     }
 }
 
-fn frames(session: &Session) -> Vec<PanelFrame> {
+fn frames(session: &mut Session) -> Vec<PanelFrame> {
     match session.frame() {
         ServerMessage::Frame { panels, .. } => panels,
         other => panic!("not a frame: {other:?}"),
@@ -66,7 +66,7 @@ fn run(session: &mut Session, seconds: f64) {
 
 #[test]
 fn greeting_has_welcome_scene_and_default_panels() {
-    let s = session();
+    let mut s = session();
     let greeting = s.greeting();
     let ServerMessage::Welcome(welcome) = &greeting[0] else {
         panic!("first message is not welcome: {:?}", greeting[0]);
@@ -112,7 +112,7 @@ fn greeting_has_welcome_scene_and_default_panels() {
 fn panels_advance_in_real_time() {
     let mut s = session();
     run(&mut s, 1.0);
-    for f in frames(&s) {
+    for f in frames(&mut s) {
         assert_eq!(f.status, "running");
         assert!((f.t - 1.0).abs() < 0.05, "t = {}", f.t);
         // RK4 at dt = 1/60 on the implicit form drifts slowly (the article's observation).
@@ -121,16 +121,16 @@ fn panels_advance_in_real_time() {
     }
     send(&mut s, r#"{"type":"set_time_scale","scale":2}"#);
     run(&mut s, 0.5);
-    assert!((frames(&s)[0].t - 2.0).abs() < 0.05);
+    assert!((frames(&mut s)[0].t - 2.0).abs() < 0.05);
     send(&mut s, r#"{"type":"pause"}"#);
-    let t = frames(&s)[0].t;
+    let t = frames(&mut s)[0].t;
     run(&mut s, 0.5);
-    assert_eq!(frames(&s)[0].t, t);
+    assert_eq!(frames(&mut s)[0].t, t);
     send(&mut s, r#"{"type":"step"}"#);
-    let f = &frames(&s)[0];
+    let f = &frames(&mut s)[0];
     assert!((f.t - (t + 1.0 / 60.0)).abs() < 1e-9 && f.status == "paused");
     send(&mut s, r#"{"type":"reset"}"#);
-    assert_eq!(frames(&s)[0].t, 0.0);
+    assert_eq!(frames(&mut s)[0].t, 0.0);
 }
 
 #[test]
@@ -218,7 +218,7 @@ fn panel_limit() {
     assert!(error_of(&replies).unwrap().contains("too many panels"));
     assert_eq!(s.panel_count(), limit);
     run(&mut s, 0.2);
-    assert!(frames(&s).iter().all(|f| f.status == "running"));
+    assert!(frames(&mut s).iter().all(|f| f.status == "running"));
 }
 
 #[test]
@@ -231,7 +231,7 @@ fn steps_per_frame_are_capped() {
     );
     send(&mut s, r#"{"type":"set_time_scale","scale":100}"#);
     s.advance(1.0 / 60.0);
-    let f = &frames(&s)[0];
+    let f = &frames(&mut s)[0];
     assert!(f.steps <= limits.max_steps_per_frame / 2, "{}", f.steps);
     assert!(f.behind);
 }
@@ -255,7 +255,7 @@ fn every_integrator_runs_where_it_applies() {
         );
         assert!(panels_of(&replies).is_some(), "{kind}: {replies:?}");
         run(&mut s, 0.3);
-        let f = &frames(&s)[0];
+        let f = &frames(&mut s)[0];
         assert_eq!(f.status, "running", "{kind}: {f:?}");
         assert!(f.t > 0.2, "{kind}: t = {}", f.t);
     }
@@ -305,7 +305,7 @@ fn shipped_scenes_load_and_run() {
             _ => (0.5, 0.4),
         };
         run(&mut s, seconds);
-        let frames = frames(&s);
+        let frames = frames(&mut s);
         let said = |f: &PanelFrame| format!("{name}: {} at t = {}, {:?}", f.status, f.t, f.error);
         for f in &frames {
             match (name, f.status.as_str()) {
@@ -428,7 +428,7 @@ fn curve_edit_errors_point_into_the_expression_and_leave_panels_alone() {
         r#"{"type":"configure_panel","panel":2,"dt":0.016666666666666666}"#,
     );
     // (A configuration restarts every panel: one clock.)
-    let t = frames(&s)[0].t;
+    let t = frames(&mut s)[0].t;
     let replies = send(
         &mut s,
         r#"{"type":"set_curve","constraint":3,"expr":"bead.x"}"#,
@@ -436,7 +436,7 @@ fn curve_edit_errors_point_into_the_expression_and_leave_panels_alone() {
     assert!(matches!(&replies[0], ServerMessage::CurveError { .. }));
     // Untouched: still running from where it was.
     run(&mut s, 0.1);
-    let f = &frames(&s)[0];
+    let f = &frames(&mut s)[0];
     assert!(f.t > t && f.status == "running");
 
     // A valid edit: a flatter parabola; the implicit panel restarts on it.
@@ -447,11 +447,11 @@ fn curve_edit_errors_point_into_the_expression_and_leave_panels_alone() {
     let panels = panels_of(&replies).unwrap_or_else(|| panic!("{replies:?}"));
     assert_eq!(panels[0].exprs[0].as_deref(), Some("bead.x^2 + 200*bead.y"));
     assert_eq!(panels[1].exprs[0].as_deref(), Some("bead.x^2 + 100*bead.y"));
-    let f = &frames(&s)[0];
+    let f = &frames(&mut s)[0];
     assert!(f.t < 0.05, "{f:?}");
     assert!(f.constraint_error < 1e-6, "{f:?}");
     run(&mut s, 0.5);
-    assert!(frames(&s)[0].constraint_error < 1e-2);
+    assert!(frames(&mut s)[0].constraint_error < 1e-2);
     // Without implicit panels there is nothing to apply a curve to.
     send(&mut s, r#"{"type":"remove_panel","panel":1}"#);
     let replies = send(
@@ -511,7 +511,7 @@ fn divergence_stops_one_panel_only() {
     );
     assert!(panels_of(&replies).is_some(), "{replies:?}");
     run(&mut s, 3.0);
-    let f = frames(&s);
+    let f = frames(&mut s);
     assert_eq!(f[0].status, "failed", "{:?}", f[0]);
     let error = f[0].error.as_deref().unwrap();
     assert!(error.contains("diverged"), "{error}");
@@ -526,9 +526,9 @@ fn divergence_stops_one_panel_only() {
     };
     decode_frame(&encode_frame(time_scale, &panels).unwrap()).unwrap();
     send(&mut s, r#"{"type":"play"}"#);
-    assert_eq!(frames(&s)[0].status, "failed");
+    assert_eq!(frames(&mut s)[0].status, "failed");
     send(&mut s, &format!(r#"{{"type":"reset","panel":{implicit}}}"#));
-    assert_eq!(frames(&s)[0].status, "paused");
+    assert_eq!(frames(&mut s)[0].status, "paused");
 }
 
 #[test]
@@ -551,7 +551,7 @@ fn dragging_pulls_the_bead_along_the_curve() {
     }
     send(&mut s, r#"{"type":"play"}"#);
     run(&mut s, 3.0);
-    for f in frames(&s) {
+    for f in frames(&mut s) {
         let (x, y) = (f.x[0], f.x[1]);
         assert!(f.drag.is_some());
         assert!(x < -50.0, "panel {}: x = {x}", f.id);
@@ -569,14 +569,14 @@ fn dragging_pulls_the_bead_along_the_curve() {
         );
     }
     run(&mut s, 3.0);
-    for f in frames(&s) {
+    for f in frames(&mut s) {
         assert!(f.x[0] > 50.0, "panel {}: x = {}", f.id, f.x[0]);
     }
     for panel in [1, 2] {
         send(&mut s, &format!(r#"{{"type":"drag_end","panel":{panel}}}"#));
     }
     run(&mut s, 1.0);
-    for f in frames(&s) {
+    for f in frames(&mut s) {
         assert!(f.drag.is_none() && f.status == "running");
         // The drag did work (about half the scene's energy scale, 1.1e5) and it is counted:
         // E - W stays conserved to rk4's accuracy against the stiff spring (omega dt = 0.2).
@@ -664,7 +664,7 @@ fn the_drag_does_counted_work_and_e_minus_w_is_conserved() {
         r#"{"type":"configure_panel","panel":1,"integrator":"dopri5"}"#,
     );
     assert!(panels_of(&replies).is_some(), "{replies:?}");
-    let f = &frames(&s)[0];
+    let f = &frames(&mut s)[0];
     assert!(f.energy_conserved && f.work == 0.0 && f.not_conserved_by.is_empty());
     drag(&mut s, 1, [-100.0, -100.0]);
     run(&mut s, 2.0);
@@ -673,10 +673,10 @@ fn the_drag_does_counted_work_and_e_minus_w_is_conserved() {
         r#"{"type":"drag_move","panel":1,"target":[100,-100]}"#,
     );
     run(&mut s, 2.0);
-    let during = frames(&s)[0].clone();
+    let during = frames(&mut s)[0].clone();
     send(&mut s, r#"{"type":"drag_end","panel":1}"#);
     run(&mut s, 1.0);
-    let f = &frames(&s)[0];
+    let f = &frames(&mut s)[0];
     assert_eq!(f.status, "running", "{f:?}");
     for f in [&during, f] {
         assert!(!f.energy_conserved, "{f:?}");
@@ -686,7 +686,7 @@ fn the_drag_does_counted_work_and_e_minus_w_is_conserved() {
     }
     // A reset starts a new epoch without external forces: T + V is conserved again.
     send(&mut s, r#"{"type":"reset","panel":1}"#);
-    let f = &frames(&s)[0];
+    let f = &frames(&mut s)[0];
     assert!(
         f.energy_conserved && f.work == 0.0 && f.energy_error == 0.0,
         "{f:?}"
@@ -704,7 +704,7 @@ fn dragging_works_with_verlet_and_rattle_at_the_default_dt() {
         assert!(panels_of(&replies).is_some(), "{replies:?}");
         drag(&mut s, 1, [-100.0, -100.0]);
         run(&mut s, 3.0);
-        let f = &frames(&s)[0];
+        let f = &frames(&mut s)[0];
         assert_eq!(f.status, "running", "{integrator}: {f:?}");
         assert!(f.drag.is_some() && f.x[0] < -50.0, "{integrator}: {f:?}");
         send(
@@ -712,7 +712,7 @@ fn dragging_works_with_verlet_and_rattle_at_the_default_dt() {
             r#"{"type":"drag_move","panel":1,"target":[100,-100]}"#,
         );
         run(&mut s, 3.0);
-        let f = &frames(&s)[0];
+        let f = &frames(&mut s)[0];
         assert_eq!(f.status, "running", "{integrator}: {f:?}");
         assert!(f.x[0] > 50.0, "{integrator}: {f:?}");
         if integrator == "rattle" {
@@ -735,7 +735,7 @@ fn dragging_works_with_verlet_and_rattle_at_the_default_dt() {
             );
             drag(&mut s, 1, [-100.0, -100.0]);
             run(&mut s, 4.0);
-            let f = &frames(&s)[0];
+            let f = &frames(&mut s)[0];
             assert_eq!(f.status, "running", "{integrator} dt = {dt}: {f:?}");
             assert!(f.x[0] < -50.0, "{integrator} dt = {dt}: {f:?}");
         }
@@ -826,7 +826,7 @@ fn error_replies_carry_stable_codes() {
     }
     let (code, replies) = failed.expect("explicit Euler on the stiff spring never failed");
     assert_eq!(code, ErrorCode::StepFailed);
-    let f = &frames(&s)[0];
+    let f = &frames(&mut s)[0];
     assert_eq!(f.status, "failed");
     assert_eq!(error_of(&replies), f.error);
 }
@@ -843,8 +843,9 @@ fn epochs_change_whenever_a_panel_restarts_and_frames_carry_them() {
     };
     let first = epochs(&s.greeting());
     assert_ne!(first[0], first[1]);
-    let frame_epochs = |s: &Session| -> Vec<u64> { frames(s).iter().map(|f| f.epoch).collect() };
-    assert_eq!(frame_epochs(&s), first);
+    let frame_epochs =
+        |s: &mut Session| -> Vec<u64> { frames(s).iter().map(|f| f.epoch).collect() };
+    assert_eq!(frame_epochs(&mut s), first);
     // Play, pause, step and the time scale keep the epoch.
     for request in [
         r#"{"type":"pause"}"#,
@@ -855,7 +856,7 @@ fn epochs_change_whenever_a_panel_restarts_and_frames_carry_them() {
         send(&mut s, request);
     }
     run(&mut s, 0.2);
-    assert_eq!(frame_epochs(&s), first);
+    assert_eq!(frame_epochs(&mut s), first);
     // configure_panel, reset and a curve edit start a new epoch of every panel: the panels
     // share one clock, so that one restarting restarts all (protocol version 5).
     let configured = epochs(&send(
@@ -863,7 +864,7 @@ fn epochs_change_whenever_a_panel_restarts_and_frames_carry_them() {
         r#"{"type":"configure_panel","panel":1,"integrator":"midpoint"}"#,
     ));
     assert!(configured.iter().all(|&e| e > first[1]));
-    assert_eq!(frame_epochs(&s), configured);
+    assert_eq!(frame_epochs(&mut s), configured);
     let reset = epochs(&send(&mut s, r#"{"type":"reset","panel":2}"#));
     assert!(reset.iter().all(|&e| e > configured[0].max(configured[1])));
     let curve = epochs(&send(
@@ -871,14 +872,14 @@ fn epochs_change_whenever_a_panel_restarts_and_frames_carry_them() {
         r#"{"type":"set_curve","constraint":0,"expr":"bead.x^2 + 200*bead.y"}"#,
     ));
     assert!(curve.iter().all(|&e| e > reset[0].max(reset[1])));
-    assert_eq!(frame_epochs(&s), curve);
+    assert_eq!(frame_epochs(&mut s), curve);
     // A failed request changes nothing.
     send(&mut s, r#"{"type":"configure_panel","panel":1,"dt":-1}"#);
-    assert_eq!(frame_epochs(&s), curve);
+    assert_eq!(frame_epochs(&mut s), curve);
     // A new scene: new panels, new epochs.
     let loaded = epochs(&send(&mut s, r#"{"type":"load_scene","name":"circle"}"#));
     assert!(loaded.iter().all(|&e| e > curve[0]));
-    assert_eq!(frame_epochs(&s), loaded);
+    assert_eq!(frame_epochs(&mut s), loaded);
 }
 
 #[test]
@@ -951,7 +952,7 @@ expr = "bead.x^2 + bead.y^2 - (1 + 0.2*sin(3*t))^2"
     let replies = send(&mut s, &message.to_string());
     assert!(panels_of(&replies).is_some(), "{replies:?}");
     run(&mut s, 1.0);
-    let f = &frames(&s)[0];
+    let f = &frames(&mut s)[0];
     assert_eq!(f.status, "running", "{f:?}");
     assert!(!f.energy_conserved);
     assert_eq!(
@@ -1108,7 +1109,7 @@ fn generated_chains_and_cloths_have_their_rods_and_pins() {
     // One panel (implicit, rattle), and it runs on the rods.
     let mut s = s;
     run(&mut s, 0.1);
-    let f = &frames(&s)[0];
+    let f = &frames(&mut s)[0];
     assert_eq!(f.status, "running", "{f:?}");
     assert!(f.t > 0.0 && f.constraint_error < 1e-6, "{f:?}");
     assert_eq!(f.x.len(), 2 * rows * cols);
@@ -1128,9 +1129,9 @@ fn generated_chains_and_cloths_have_their_rods_and_pins() {
         vec![vec![0.0, 0.0, 0.0], vec![1.0, 0.0, 0.0]]
     );
     let bottom_middle = 3 * generated::index(cols, rows - 1, cols / 2) + 2;
-    assert!(frames(&s)[0].x[bottom_middle] > 0.9 * generated::BOW);
+    assert!(frames(&mut s)[0].x[bottom_middle] > 0.9 * generated::BOW);
     run(&mut s, 0.1);
-    let f = &frames(&s)[0];
+    let f = &frames(&mut s)[0];
     assert_eq!(f.status, "running", "{f:?}");
     assert!(f.t > 0.0 && f.constraint_error < 1e-6, "{f:?}");
     assert_eq!(f.x.len(), 3 * rows * cols);
@@ -1206,7 +1207,7 @@ fn drag_start_puts_both_panels_at_the_closest_point_and_says_how_far_it_moved() 
     let distance = ((exact[0] + 100.0).powi(2) + (exact[1] + 200.0).powi(2)).sqrt();
     assert!((moved - distance).abs() < 1e-9, "{moved} {distance}");
     assert!(panels_of(&replies).is_some(), "{replies:?}");
-    let panels = frames(&s);
+    let panels = frames(&mut s);
     assert_eq!(panels.len(), 2);
     for p in &panels {
         assert_eq!(p.t, 0.0);
@@ -1244,7 +1245,7 @@ fn one_second() -> Session {
     s
 }
 
-fn clock(s: &Session) -> bead_viewer::protocol::Clock {
+fn clock(s: &mut Session) -> bead_viewer::protocol::Clock {
     match s.frame() {
         ServerMessage::Frame { clock, .. } => clock,
         other => panic!("not a frame: {other:?}"),
@@ -1257,52 +1258,188 @@ fn clock(s: &Session) -> bead_viewer::protocol::Clock {
 #[test]
 fn the_clock_stops_loops_or_goes_on_at_the_scenes_end() {
     let mut s = one_second();
-    assert_eq!(clock(&s).end, Some(1.0));
-    assert_eq!(clock(&s).at_end, AtEnd::Stop);
+    assert_eq!(clock(&mut s).end, Some(1.0));
+    assert_eq!(clock(&mut s).at_end, AtEnd::Stop);
     run(&mut s, 1.5);
-    let c = clock(&s);
+    let c = clock(&mut s);
     assert!(c.ended);
-    for f in frames(&s) {
+    for f in frames(&mut s) {
         assert_eq!(f.status, "paused", "{} at {}", f.status, f.t);
         assert_eq!(f.steps, 100);
         assert!((f.t - 1.0).abs() < 1e-12, "t = {}", f.t);
     }
     // Stays there.
     run(&mut s, 0.5);
-    assert!(frames(&s).iter().all(|f| f.steps == 100));
+    assert!(frames(&mut s).iter().all(|f| f.steps == 100));
     // Play: from the start again, one restart.
     let generation = c.generation;
     send(&mut s, r#"{"type":"play"}"#);
     run(&mut s, 0.25);
-    let c = clock(&s);
+    let c = clock(&mut s);
     assert!(!c.ended && c.generation == generation + 1);
-    assert!(frames(&s)
+    assert!(frames(&mut s)
         .iter()
         .all(|f| f.status == "running" && (f.t - 0.25).abs() < 0.011));
     // Loop: at the end every panel starts again and goes on.
     send(&mut s, r#"{"type":"set_at_end","at_end":"loop"}"#);
     run(&mut s, 1.0);
-    let c = clock(&s);
+    let c = clock(&mut s);
     assert_eq!((c.at_end, c.ended), (AtEnd::Loop, false));
     assert_eq!(c.generation, generation + 2);
-    for f in frames(&s) {
+    for f in frames(&mut s) {
         assert_eq!(f.status, "running");
         assert!(f.t < 0.3, "t = {}", f.t);
     }
     // Continue: past the end.
     send(&mut s, r#"{"type":"set_at_end","at_end":"continue"}"#);
     run(&mut s, 1.5);
-    assert!(frames(&s)
+    assert!(frames(&mut s)
         .iter()
         .all(|f| f.status == "running" && f.t > 1.2));
     // Back to Stop past the end: the clock stops where it stands.
     send(&mut s, r#"{"type":"set_at_end","at_end":"stop"}"#);
     run(&mut s, 0.1);
-    assert!(clock(&s).ended);
-    assert!(frames(&s).iter().all(|f| f.status == "paused"));
+    assert!(clock(&mut s).ended);
+    assert!(frames(&mut s).iter().all(|f| f.status == "paused"));
     let message = parse_client_message(
         r#"{"type":"set_at_end","at_end":"later"}"#,
         &Limits::default(),
     );
     assert!(message.is_err());
+}
+
+/// Advance `seconds` of wall time in frames of 1/60 s, a frame after each advance as the
+/// server sends them, keeping in `drawn` the curves each panel's page draws (the panel's, or
+/// the last a frame carried); calls `check` with every frame's panels and their curves.
+fn run_drawn(
+    s: &mut Session,
+    seconds: f64,
+    drawn: &mut [Vec<Vec<f64>>],
+    mut check: impl FnMut(&PanelFrame, &[Vec<f64>]),
+) {
+    for _ in 0..(seconds * 60.0).round() as usize {
+        s.advance(1.0 / 60.0);
+        for (k, f) in frames(s).iter().enumerate() {
+            if let Some(curves) = &f.curves {
+                drawn[k] = curves.clone();
+            }
+            check(f, &drawn[k]);
+        }
+    }
+}
+
+/// The distance from point `x` to the nearest segment of `lines` (points of `dim` numbers).
+fn distance_to_lines(x: &[f64], lines: &[Vec<f64>], dim: usize) -> f64 {
+    let mut best = f64::INFINITY;
+    for line in lines {
+        let points: Vec<&[f64]> = line.chunks(dim).collect();
+        for pair in points.windows(2) {
+            let (a, b) = (pair[0], pair[1]);
+            let ab: Vec<f64> = (0..dim).map(|i| b[i] - a[i]).collect();
+            let ax: Vec<f64> = (0..dim).map(|i| x[i] - a[i]).collect();
+            let len2: f64 = ab.iter().map(|v| v * v).sum();
+            let s = if len2 > 0.0 {
+                (ab.iter().zip(&ax).map(|(u, v)| u * v).sum::<f64>() / len2).clamp(0.0, 1.0)
+            } else {
+                0.0
+            };
+            let d2: f64 = (0..dim).map(|i| (ax[i] - s * ab[i]).powi(2)).sum();
+            best = best.min(d2.sqrt());
+        }
+    }
+    best
+}
+
+#[test]
+fn the_helix_wire_is_drawn_under_the_bead_at_every_frame() {
+    // The bead climbs to phi = 2.4 and slides down past phi = -7.9 at 4.9 s, beyond the
+    // first interval drawn (phi in [-2 pi, 2 pi]); with at_end = continue it is at phi = -760
+    // at 30 s. The wire drawn (both panels: the parametric map, the implicit panel's map)
+    // is under the bead at every frame: to 1e-3 m of R = 1 m.
+    let mut s = session();
+    let replies = send(&mut s, r#"{"type":"load_scene","name":"helix"}"#);
+    let panels = panels_of(&replies).expect("panels");
+    assert_eq!(panels.len(), 2);
+    let mut drawn: Vec<Vec<Vec<f64>>> = panels.iter().map(|p| p.curves.clone()).collect();
+    assert!(panels.iter().all(|p| p.curve_source == "parametric"));
+    send(&mut s, r#"{"type":"play"}"#);
+    let mut checked = 0usize;
+    let mut latest = 0.0f64;
+    let mut check = |f: &PanelFrame, curves: &[Vec<f64>]| {
+        let d = distance_to_lines(&f.x, curves, 3);
+        assert!(
+            d < 1e-3,
+            "panel {} at t = {}: the bead is {d} m from the drawn wire",
+            f.id,
+            f.t
+        );
+        latest = latest.max(f.t);
+        checked += 1;
+    };
+    // To the end (5 s), where it stops; then a loop around and past the end again.
+    run_drawn(&mut s, 5.2, &mut drawn, &mut check);
+    assert!(clock(&mut s).ended);
+    send(&mut s, r#"{"type":"set_at_end","at_end":"loop"}"#);
+    send(&mut s, r#"{"type":"play"}"#);
+    run_drawn(&mut s, 6.0, &mut drawn, &mut check);
+    // Going on far past the end: the drawn part is a window around the bead.
+    send(&mut s, r#"{"type":"set_at_end","at_end":"continue"}"#);
+    send(&mut s, r#"{"type":"set_time_scale","scale":4}"#);
+    run_drawn(&mut s, 7.0, &mut drawn, &mut check);
+    assert!(checked > 2 * 1000, "{checked} frames checked");
+    assert!(latest > 25.0, "ran to t = {latest}");
+    // A frame carries the curves only when they were made again.
+    let carried = frames(&mut s).iter().filter(|f| f.curves.is_some()).count();
+    assert_eq!(carried, 0);
+}
+
+#[test]
+fn set_view_makes_the_curves_again_over_the_region_shown() {
+    let mut s = session();
+    send(&mut s, r#"{"type":"load_scene","name":"parabola"}"#);
+    let first = frames(&mut s);
+    assert!(first.iter().all(|f| f.curves.is_none()));
+    let id = first[0].id;
+    // Far to the right of the view box: the parabola x^2 + 100 y = 0 at x in [2000, 3000]
+    // has y in [-90000, -40000].
+    let view = [2000.0, -95000.0, 3000.0, -35000.0];
+    let replies = send(
+        &mut s,
+        &format!(r#"{{"type":"set_view","panel":{id},"view":{view:?}}}"#),
+    );
+    assert!(replies.is_empty(), "{replies:?}");
+    let f = frames(&mut s);
+    assert_eq!(f[0].curve_region, view);
+    let curves = f[0].curves.as_ref().expect("the new curves");
+    let points: Vec<&[f64]> = curves.iter().flat_map(|l| l.chunks(2)).collect();
+    assert!(points.len() > 100);
+    for p in &points {
+        assert!(p[0] >= 1900.0 && p[0] <= 3100.0, "{p:?}");
+        // On the parabola, to the contour's resolution (1.2 * 60000 / 160 in y).
+        assert!((p[1] + p[0] * p[0] / 100.0).abs() < 500.0, "{p:?}");
+    }
+    // Sent once; the other panel keeps its own.
+    assert!(f[1].curves.is_none() && f[1].curve_region != view);
+    assert!(frames(&mut s).iter().all(|f| f.curves.is_none()));
+    // Regions that are not one.
+    for bad in [
+        "[1, 0, 0, 1]",
+        "[0, 0, 1, 0]",
+        "[0, 0, 1e13, 1]",
+        r#"[0, 0, 1, "x"]"#,
+    ] {
+        let json = format!(r#"{{"type":"set_view","panel":{id},"view":{bad}}}"#);
+        match parse_client_message(&json, &Limits::default()) {
+            Ok(message) => {
+                let replies = s.handle(message);
+                assert_eq!(code_of(&replies), Some(ErrorCode::BadValue), "{bad}");
+                assert!(
+                    error_of(&replies).unwrap().contains("x_min < x_max"),
+                    "{bad}"
+                );
+            }
+            Err(_) => assert!(bad.contains('"'), "{bad} should parse"),
+        }
+    }
+    assert_eq!(frames(&mut s)[0].curve_region, view);
 }

@@ -21,7 +21,7 @@ fn send(session: &mut Session, json: &str) -> Vec<ServerMessage> {
     }
 }
 
-fn frame(session: &Session) -> (Clock, Vec<PanelFrame>) {
+fn frame(session: &mut Session) -> (Clock, Vec<PanelFrame>) {
     match session.frame() {
         ServerMessage::Frame { clock, panels, .. } => (clock, panels),
         other => panic!("not a frame: {other:?}"),
@@ -61,7 +61,7 @@ fn error_of(replies: &[ServerMessage]) -> Option<(ErrorCode, String)> {
 fn panels_share_one_clock_and_the_frame_has_their_distance() {
     let mut s = session();
     run(&mut s, 1.0);
-    let (clock, panels) = frame(&s);
+    let (clock, panels) = frame(&mut s);
     assert_eq!(panels.len(), 2);
     assert_eq!(panels[0].t, panels[1].t, "{panels:?}");
     assert!(panels[0].t > 0.0);
@@ -84,17 +84,17 @@ fn panels_share_one_clock_and_the_frame_has_their_distance() {
 fn add_and_reset_act_on_all_panels() {
     let mut s = session();
     run(&mut s, 0.5);
-    let generation = frame(&s).0.generation;
+    let generation = frame(&mut s).0.generation;
     let replies = send(&mut s, r#"{"type":"add_panel","integrator":"verlet"}"#);
     assert_eq!(panels_of(&replies).unwrap().len(), 3);
-    let (clock, panels) = frame(&s);
+    let (clock, panels) = frame(&mut s);
     assert!(clock.generation > generation);
     assert!(panels.iter().all(|p| p.t == 0.0), "{panels:?}");
     run(&mut s, 0.5);
-    let panels = frame(&s).1;
+    let panels = frame(&mut s).1;
     assert!(panels.iter().all(|p| p.t == panels[0].t && p.t > 0.0));
     send(&mut s, r#"{"type":"reset","panel":2}"#);
-    assert!(frame(&s).1.iter().all(|p| p.t == 0.0));
+    assert!(frame(&mut s).1.iter().all(|p| p.t == 0.0));
 }
 
 /// A panel that cannot keep up holds the others back, and the frame names it.
@@ -104,7 +104,7 @@ fn a_slow_panel_slows_every_panel_and_is_named() {
     // 1e-6 s steps: real time needs 10^6 steps a second, far beyond a frame's budget.
     send(&mut s, r#"{"type":"configure_panel","panel":2,"dt":1e-6}"#);
     run(&mut s, 0.5);
-    let (clock, panels) = frame(&s);
+    let (clock, panels) = frame(&mut s);
     assert_eq!(clock.limited_by, Some(2), "{clock:?}");
     assert!(panels[1].behind);
     // The fast panel waited: it is at most one frame of real time ahead.
@@ -127,7 +127,7 @@ fn a_parameter_change_reloads_the_scene_and_restarts_the_panels() {
         .expect("parabola has g");
     assert!(g.min < g.value && g.value < g.max);
     run(&mut s, 0.3);
-    let (before, panels) = frame(&s);
+    let (before, panels) = frame(&mut s);
     let v0 = panels[0].energy_initial;
     let replies = send(
         &mut s,
@@ -147,7 +147,7 @@ fn a_parameter_change_reloads_the_scene_and_restarts_the_panels() {
         g.max
     );
     assert_eq!(panels_of(&replies).unwrap().len(), 2);
-    let (after, panels) = frame(&s);
+    let (after, panels) = frame(&mut s);
     assert!(after.generation > before.generation);
     assert!(panels.iter().all(|p| p.t == 0.0));
     assert!(
@@ -173,7 +173,7 @@ fn a_parameter_change_reloads_the_scene_and_restarts_the_panels() {
         let (got, message) = error_of(&replies).expect("an error");
         assert_eq!(got, code, "{message}");
         assert!(message.contains('g'), "{message}");
-        assert_eq!(frame(&s).0.generation, after.generation);
+        assert_eq!(frame(&mut s).0.generation, after.generation);
     }
     assert!(parse_client_message(
         r#"{"type":"set_param","name":"g","value":"NaN"}"#,
@@ -188,13 +188,13 @@ fn a_parameter_change_reloads_the_scene_and_restarts_the_panels() {
 fn a_start_state_set_while_paused_restarts_every_panel_on_the_curve() {
     let mut s = session();
     send(&mut s, r#"{"type":"pause"}"#);
-    let generation = frame(&s).0.generation;
+    let generation = frame(&mut s).0.generation;
     let replies = send(
         &mut s,
         r#"{"type":"set_start","panel":1,"particle":0,"target":[-70,-45]}"#,
     );
     assert!(panels_of(&replies).is_some(), "{replies:?}");
-    let (clock, panels) = frame(&s);
+    let (clock, panels) = frame(&mut s);
     assert!(clock.generation > generation);
     for p in &panels {
         assert_eq!(p.t, 0.0);
@@ -214,7 +214,7 @@ fn a_start_state_set_while_paused_restarts_every_panel_on_the_curve() {
     ] {
         let replies = send(&mut s, json);
         assert!(error_of(&replies).is_some(), "{json}: {replies:?}");
-        assert_eq!(frame(&s).0.generation, clock.generation, "{json}");
+        assert_eq!(frame(&mut s).0.generation, clock.generation, "{json}");
     }
 }
 

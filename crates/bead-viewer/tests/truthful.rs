@@ -28,7 +28,7 @@ fn send(session: &mut Session, json: &str) -> Vec<ServerMessage> {
     session.handle(message)
 }
 
-fn frames(session: &Session) -> Vec<PanelFrame> {
+fn frames(session: &mut Session) -> Vec<PanelFrame> {
     match session.frame() {
         ServerMessage::Frame { panels, .. } => panels,
         other => panic!("not a frame: {other:?}"),
@@ -85,7 +85,7 @@ fn a_moving_contour_is_sent_at_the_frames_time_and_lies_on_the_curve_then() {
     let mut times = Vec::new();
     for _ in 0..2 {
         run(&mut session, 40);
-        let frame = &frames(&session)[0];
+        let frame = &frames(&mut session)[0];
         let curves = frame.curves.as_ref().expect("moving curves in the frame");
         assert!(curves.len() > 20, "{} segments", curves.len());
         // Marching squares interpolate C linearly along a cell's edge: the error is of
@@ -124,7 +124,7 @@ fn the_spinning_hoops_curve_turns_with_the_hoop() {
         assert!(info.curves.iter().all(|l| l.len() % 3 == 0));
     }
     run(&mut session, 30);
-    for frame in frames(&session) {
+    for frame in frames(&mut session) {
         let curves = frame.curves.as_ref().expect("moving curves");
         // The map's points satisfy the implicit form's constraints at the frame's t...
         let worst = worst_residual(&scene, curves, frame.t, 0);
@@ -140,9 +140,9 @@ fn frames_carry_the_steps_path_and_the_cores_energy_split() {
     let mut session = Session::new(Arc::new(Catalog::shipped()), Limits::default());
     send(&mut session, r#"{"type": "load_scene", "name": "circle"}"#);
     run(&mut session, 1);
-    let before = frames(&session)[0].t;
+    let before = frames(&mut session)[0].t;
     session.advance(1.0 / 60.0);
-    let frame = &frames(&session)[0];
+    let frame = &frames(&mut session)[0];
     // dt = 0.001: about 16 steps in a frame of 1/60 s, every one on the path, in order,
     // ending at the frame's state.
     let sample = 1 + frame.x.len();
