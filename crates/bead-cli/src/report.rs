@@ -637,7 +637,16 @@ pub fn check_text(scene: &Scene, start: &StartCheck) -> String {
         let params: Vec<String> = scene
             .params
             .iter()
-            .map(|(n, v)| format!("{n} = {}", exact(*v)))
+            .map(|(n, v)| {
+                let unit = scene
+                    .param_specs
+                    .iter()
+                    .find(|s| s.name == *n)
+                    .and_then(|s| s.unit.as_deref())
+                    .map(|u| format!(" {u}"))
+                    .unwrap_or_default();
+                format!("{n} = {}{unit}", exact(*v))
+            })
             .collect();
         let _ = writeln!(s, "  parameters   {}", params.join(", "));
     }

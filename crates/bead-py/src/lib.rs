@@ -409,6 +409,32 @@ impl PyScene {
         Ok(dict)
     }
 
+    /// What the scene says about each parameter besides its value, in file order: a dict
+    /// name -> {"value", "unit", "range" ((lo, hi) or None), "description", "integer",
+    /// "derived" (the expression of a parameter computed from others, else None),
+    /// "depends_on"} -- what a slider or a table of parameters shows.
+    #[getter]
+    fn param_info<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let out = PyDict::new(py);
+        for (name, value) in &self.inner.params {
+            let spec = self.inner.param_specs.iter().find(|s| s.name == *name);
+            let entry = PyDict::new(py);
+            entry.set_item("value", value)?;
+            entry.set_item("unit", spec.and_then(|s| s.unit.clone()))?;
+            entry.set_item("range", spec.and_then(|s| s.range).map(|[lo, hi]| (lo, hi)))?;
+            entry.set_item("description", spec.and_then(|s| s.description.clone()))?;
+            entry.set_item("integer", spec.is_some_and(|s| s.integer))?;
+            let derived = spec.filter(|s| !s.depends_on.is_empty());
+            entry.set_item("derived", derived.and_then(|s| s.expr.clone()))?;
+            entry.set_item(
+                "depends_on",
+                derived.map(|s| s.depends_on.clone()).unwrap_or_default(),
+            )?;
+            out.set_item(name, entry)?;
+        }
+        Ok(out)
+    }
+
     /// The formulations the scene defines: "implicit" when it has a constraint or no
     /// parametric form, "parametric" when it has a parametric form.
     #[getter]

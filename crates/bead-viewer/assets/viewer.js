@@ -235,7 +235,9 @@
   function shareUrl() {
     const q = new URLSearchParams();
     if (state.scene) q.set("scene", state.scene.name);
-    for (const prm of (state.scene && state.scene.params) || []) q.append("param." + prm.name, String(prm.value));
+    for (const prm of (state.scene && state.scene.params) || []) {
+      if (prm.derived == null) q.append("param." + prm.name, String(prm.value));
+    }
     for (const p of state.panels.values()) {
       const i = p.info;
       let spec = `${i.method}:${i.integrator}:${i.dt}`;
@@ -301,7 +303,7 @@
         const known = new Map(msg.params.map((prm) => [prm.name, prm]));
         for (const [name, value] of r.params) {
           const prm = known.get(name);
-          if (prm && sameNumber(prm.value, value)) continue;
+          if (prm && (sameNumber(prm.value, value) || prm.derived != null)) continue;
           send({ type: "set_param", name, value });
           r.awaiting++;
         }
@@ -378,36 +380,84 @@
     return Math.max(2, Math.min(TRAIL, Math.floor(TRAIL_BUDGET / Math.max(n, 1))));
   }
 
-  // ---------- parameter sliders ----------
-  // One slider per `[params]` value, over the range the server accepts; a change reloads the
-  // scene with that value on the server and restarts every panel.
+  // ---------- parameters ----------
+  // One row per `[params]` value: its name, a slider over its range, a number box (a number
+  // or an expression of pi and e, e.g. pi/3) and its unit; the description as the row's
+  // title and below it. A change reloads the scene with that value on the server and
+  // restarts every panel. Whole parameters step by 1; derived ones are shown, not set.
+  const SLIDER_STEPS = 1000;
+  // The slider's position k (0..SLIDER_STEPS) and its value: the ends are the range's exact
+  // values (pi stays pi), the steps between a thousandth of the range.
+  function sliderValue(prm, k) {
+    if (prm.integer) return k;
+    if (k <= 0) return prm.min;
+    if (k >= SLIDER_STEPS) return prm.max;
+    return prm.min + (prm.max - prm.min) * (k / SLIDER_STEPS);
+  }
+  function sliderPosition(prm, v) {
+    if (prm.integer) return Math.round(v);
+    return Math.round(((v - prm.min) / (prm.max - prm.min)) * SLIDER_STEPS);
+  }
   function buildParams(scene) {
     const box = $("params");
     box.innerHTML = "";
     for (const prm of scene.params || []) {
-      const row = el("label", "param");
+      const row = el("div", "param");
       row.dataset.param = prm.name;
-      row.title = `${prm.name}: ${fmt(prm.min)} to ${fmt(prm.max)}; the scene reloads with the new value and every panel restarts`;
+      const unit = prm.unit ? ` ${prm.unit}` : "";
+      if (prm.derived != null) {
+        row.classList.add("derived");
+        row.title = `${prm.name} = ${prm.derived}: follows ${prm.depends_on.join(", ")}` +
+          (prm.description ? `\n${prm.description}` : "");
+        row.append(el("span", "param-name", prm.name), " = ",
+          el("span", "value", fmt(prm.value, 5)), el("span", "unit", unit),
+          el("span", "param-expr", ` (= ${prm.derived})`));
+        if (prm.description) row.append(el("div", "param-desc", prm.description));
+        box.appendChild(row);
+        continue;
+      }
+      row.title = (prm.description ? prm.description + "\n" : "") +
+        `${prm.name}: ${fmt(prm.min)} to ${fmt(prm.max)}${unit}` +
+        (prm.bounded ? "" : " on the slider; any value can be typed") +
+        (prm.integer ? ", whole numbers" : "") +
+        "; the scene reloads with the new value and every panel restarts";
+      const label = el("label", "param-control");
       const slider = el("input");
       slider.type = "range";
-      slider.min = String(prm.min);
-      slider.max = String(prm.max);
-      slider.step = "any";
-      slider.value = String(prm.value);
-      const value = el("span", "value", fmt(prm.value));
-      slider.oninput = () => { value.textContent = fmt(Number(slider.value)); };
-      slider.onchange = () => send({ type: "set_param", name: prm.name, value: Number(slider.value) });
-      row.append(`${prm.name} `, slider, " ", value);
+      slider.min = prm.integer ? String(prm.min) : "0";
+      slider.max = prm.integer ? String(prm.max) : String(SLIDER_STEPS);
+      slider.step = "1";
+      slider.value = String(sliderPosition(prm, prm.value));
+      slider.setAttribute("aria-label", prm.name);
+      const number = el("input", "param-value");
+      number.type = "text";
+      number.inputMode = "decimal";
+      number.size = 9;
+      number.value = String(prm.value);
+      number.setAttribute("aria-label", `${prm.name} value`);
+      slider.oninput = () => { number.value = String(sliderValue(prm, Number(slider.value))); };
+      slider.onchange = () => send({ type: "set_param", name: prm.name, value: sliderValue(prm, Number(slider.value)) });
+      const submit = () => {
+        const text = number.value.trim();
+        if (text === "" || text === String(prm.value)) return;
+        const v = Number(text);
+        send(Number.isFinite(v) ? { type: "set_param", name: prm.name, value: v } :
+          { type: "set_param", name: prm.name, expr: text });
+      };
+      number.addEventListener("keydown", (e) => { if (e.key === "Enter") submit(); });
+      number.addEventListener("change", submit);
+      label.append(el("span", "param-name", prm.name), " ", slider, " ", number, el("span", "unit", unit));
+      row.append(label);
+      if (prm.description) row.append(el("div", "param-desc", prm.description));
       box.appendChild(row);
     }
   }
-  // For the tests: set parameter `name` to exactly `value` (a range input would clamp an
-  // out-of-range value; the server must refuse it).
+  // For the tests: set parameter `name` to exactly `value` (a number, or an expression
+  // string) as typing it in the number box does.
   state.setParam = (name, value) => {
-    const slider = document.querySelector(`#params .param[data-param="${name}"] input`);
-    slider.value = String(value);
-    slider.dispatchEvent(new Event("input"));
-    send({ type: "set_param", name, value });
+    const number = document.querySelector(`#params .param[data-param="${name}"] .param-value`);
+    number.value = String(value);
+    number.dispatchEvent(new KeyboardEvent("keydown", { key: "Enter" }));
   };
 
   // ---------- curve editor ----------

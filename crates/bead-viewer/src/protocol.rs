@@ -191,10 +191,19 @@ pub enum ClientMessage {
     DragMove { panel: u32, target: Vec<f64> },
     /// Release: the spring and the damping are removed (the work they did stays counted).
     DragEnd { panel: u32 },
-    /// Reload the scene with parameter `name` (one of [`SceneInfo::params`]) set to `value`
-    /// (within the parameter's `min`..`max`), and restart every panel with its settings.
-    /// The reply is a new [`ServerMessage::Scene`] and [`ServerMessage::Panels`].
-    SetParam { name: String, value: f64 },
+    /// Reload the scene with parameter `name` (one of [`SceneInfo::params`], not a derived
+    /// one) set to `value`, or to the value of `expr` (an expression of numbers, pi and e,
+    /// e.g. `"pi/3"`: exactly the bits the scene file gets from it), and restart every panel
+    /// with its settings. Exactly one of `value` and `expr`. A bounded parameter's value must
+    /// be within its `min`..`max`, a whole parameter's whole. The reply is a new
+    /// [`ServerMessage::Scene`] and [`ServerMessage::Panels`].
+    SetParam {
+        name: String,
+        #[serde(default)]
+        value: Option<f64>,
+        #[serde(default)]
+        expr: Option<String>,
+    },
     /// Set the start state (while paused): particle `particle` of panel `panel` moved to
     /// `target` (2 or 3 numbers; a missing z is the particle's), the others where they are in
     /// that panel, all at rest. Every panel restarts from it at t = 0 (implicit: projected
@@ -513,18 +522,54 @@ pub struct SceneInfo {
     pub has_parametric: bool,
     /// Scene warnings (initial state off the constraints, ...).
     pub warnings: Vec<String>,
-    /// The scene's `[params]`, in file order, with the range `set_param` accepts (a decade
-    /// either side of the value the scene was loaded with).
+    /// The scene's `[params]`, in file order, with what a slider and a number box need.
     pub params: Vec<ParamInfo>,
 }
 
-/// A `[params]` value of the scene and the range of its slider.
+/// A `[params]` value of the scene and what its control shows (from the scene's parameter
+/// table, `bead::scene::ParamSpec`).
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct ParamInfo {
     pub name: String,
     pub value: f64,
+    /// The slider's ends: the scene's `range` (the exact values of its ends), else
+    /// [`default_param_range`] of the value first loaded, widened to any value typed beyond.
     pub min: f64,
     pub max: f64,
+    /// The ends are the scene's `range`: `set_param` refuses values beyond them. Without a
+    /// range any finite value can be typed.
+    pub bounded: bool,
+    /// A whole number (`integer = true`, or a count in a `for` range): steps of 1.
+    pub integer: bool,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub unit: Option<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub description: Option<String>,
+    /// Derived from other parameters (the expression it is written as, e.g. `S/(W-1)`):
+    /// shown, not set; `depends_on` are the parameters it follows.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub derived: Option<String>,
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub depends_on: Vec<String>,
+}
+
+/// A slider's range for a parameter of value `value` whose scene gives none: through 0 and
+/// twice the value (`[0, 2v]`, `[2v, 0]`, `[-1, 1]` at 0); whole numbers from 1 (or `v - 10`
+/// when v < 1) to `max(2v, 10)`.
+pub fn default_param_range(value: f64, integer: bool) -> (f64, f64) {
+    if integer {
+        if value >= 1.0 {
+            (1.0, (2.0 * value).max(10.0))
+        } else {
+            (value - 10.0, value + 10.0)
+        }
+    } else if value == 0.0 || !value.is_finite() {
+        (-1.0, 1.0)
+    } else if value > 0.0 {
+        (0.0, 2.0 * value)
+    } else {
+        (2.0 * value, 0.0)
+    }
 }
 
 /// Which settings do something for a panel's method and integrator, decided by the

@@ -15,9 +15,9 @@ use bead::simulate::{ConfigError, RunError, SetupError};
 use crate::geometry;
 use crate::panel::{DragError, Panel, PanelFailure, PanelSettings};
 use crate::protocol::{
-    AtEnd, ClientMessage, Clock, ConstraintInfo, ErrorCode, IntegratorInfo, Limits, PanelFrame,
-    PanelSettingsPatch, ParamInfo, ParticleInfo, Pin, Rod, SceneInfo, ServerMessage, Welcome,
-    PROTOCOL_VERSION,
+    default_param_range, AtEnd, ClientMessage, Clock, ConstraintInfo, ErrorCode, IntegratorInfo,
+    Limits, PanelFrame, PanelSettingsPatch, ParamInfo, ParticleInfo, Pin, Rod, SceneInfo,
+    ServerMessage, Welcome, PROTOCOL_VERSION,
 };
 use crate::scenes::Catalog;
 
@@ -74,6 +74,19 @@ pub enum SessionError {
     /// The scene does not load or start with the new value (the library's message).
     #[error("cannot use this value: {0}")]
     ParamFailed(String),
+    #[error("set_param needs exactly one of `value` and `expr`")]
+    ParamSource,
+    /// A typed expression that is not a constant.
+    #[error("parameter `{name}`: {message}")]
+    ParamExpr { name: String, message: String },
+    #[error("parameter `{name}` is derived ({name} = {expr}): change {} instead", if from.is_empty() { "the scene".to_string() } else { from.join(", ") })]
+    DerivedParam {
+        name: String,
+        expr: String,
+        from: Vec<String>,
+    },
+    #[error("parameter `{name}` is a whole number, got {}", bead::readable(*value))]
+    ParamWhole { name: String, value: f64 },
     /// A `set_view` region that is not one.
     #[error("view must be [x_min, y_min, x_max, y_max], finite within 1e12 with x_min < x_max and y_min < y_max; got {view:?}")]
     Region { view: [f64; 4] },
@@ -101,7 +114,12 @@ impl SessionError {
             SessionError::Drag(_) => ErrorCode::BadValue,
             SessionError::StepFailed { .. } => ErrorCode::StepFailed,
             SessionError::UnknownParam { .. } => ErrorCode::UnknownParam,
-            SessionError::ParamRange { .. } | SessionError::Region { .. } => ErrorCode::BadValue,
+            SessionError::ParamRange { .. }
+            | SessionError::Region { .. }
+            | SessionError::ParamExpr { .. }
+            | SessionError::DerivedParam { .. }
+            | SessionError::ParamWhole { .. } => ErrorCode::BadValue,
+            SessionError::ParamSource => ErrorCode::BadRequest,
             SessionError::ParamFailed(_) => ErrorCode::SetupFailed,
             SessionError::StartFailed { .. } => ErrorCode::StartFailed,
         }
@@ -625,7 +643,14 @@ impl Session {
                 self.panels[index].drag_end();
                 Ok(Vec::new())
             }
-            ClientMessage::SetParam { name, value } => self.set_param(&name, value),
+            ClientMessage::SetParam { name, value, expr } => {
+                let value = match (value, expr) {
+                    (Some(value), None) => value,
+                    (None, Some(expr)) => constant_value(&name, &expr).map_err(|e| (e, None))?,
+                    _ => return Err((SessionError::ParamSource, None)),
+                };
+                self.set_param(&name, value)
+            }
             ClientMessage::SetStart {
                 panel,
                 particle,
@@ -666,12 +691,37 @@ impl Session {
                 None,
             ));
         };
-        if !(value.is_finite() && value >= range.min && value <= range.max) {
+        if let Some(expr) = &range.derived {
+            return Err((
+                SessionError::DerivedParam {
+                    name: range.name.clone(),
+                    expr: expr.clone(),
+                    from: range.depends_on.clone(),
+                },
+                None,
+            ));
+        }
+        let within = !range.bounded || (value >= range.min && value <= range.max);
+        if !(value.is_finite() && value.abs() <= 1e12 && within) {
+            let (min, max) = if range.bounded {
+                (range.min, range.max)
+            } else {
+                (-1e12, 1e12)
+            };
             return Err((
                 SessionError::ParamRange {
                     name: range.name.clone(),
-                    min: range.min,
-                    max: range.max,
+                    min,
+                    max,
+                },
+                None,
+            ));
+        }
+        if range.integer && value.fract() != 0.0 {
+            return Err((
+                SessionError::ParamWhole {
+                    name: range.name.clone(),
+                    value,
                 },
                 None,
             ));
@@ -703,6 +753,8 @@ impl Session {
         }
         self.next_epoch += rebuilt.len() as u64;
         self.panels = rebuilt;
+        // Widened ranges stay widened.
+        let params = info.params.clone();
         self.scene = Some(CurrentScene {
             scene,
             info,
@@ -1047,42 +1099,91 @@ pub fn scene_info(name: &str, scene: &Scene) -> SceneInfo {
             .params
             .iter()
             .map(|(name, value)| {
-                let (min, max) = param_range(*value);
+                let spec = scene.param_specs.iter().find(|s| s.name == *name);
+                let integer = spec.is_some_and(|s| s.integer);
+                let range = spec.and_then(|s| s.range);
+                let (min, max) = match range {
+                    Some([lo, hi]) => (lo, hi),
+                    None => default_param_range(*value, integer),
+                };
+                let derived = spec
+                    .filter(|s| !s.depends_on.is_empty())
+                    .and_then(|s| s.expr.clone());
                 ParamInfo {
                     name: name.clone(),
                     value: *value,
                     min,
                     max,
+                    bounded: range.is_some(),
+                    integer,
+                    unit: spec.and_then(|s| s.unit.clone()),
+                    description: spec.and_then(|s| s.description.clone()),
+                    depends_on: if derived.is_some() {
+                        spec.map(|s| s.depends_on.clone()).unwrap_or_default()
+                    } else {
+                        Vec::new()
+                    },
+                    derived,
                 }
             })
             .collect(),
     }
 }
 
-/// A slider's range for a parameter of value `value`: a decade either side (through 0 for
-/// a value of 0: -1..1).
-fn param_range(value: f64) -> (f64, f64) {
-    if value == 0.0 || !value.is_finite() {
-        (-1.0, 1.0)
-    } else if value > 0.0 {
-        (value / 10.0, value * 10.0)
+/// The value of `expr`, an expression of numbers, pi and e typed for parameter `name`.
+fn constant_value(name: &str, expr: &str) -> Result<f64, SessionError> {
+    let failed = |message: String| SessionError::ParamExpr {
+        name: truncate(name, 80),
+        message,
+    };
+    if expr.chars().count() > 200 {
+        return Err(failed(
+            "the expression is longer than 200 characters".into(),
+        ));
+    }
+    let resolve = |word: &str| match word {
+        "pi" => Ok(bead::expr::Resolved::Value(std::f64::consts::PI)),
+        "e" => Ok(bead::expr::Resolved::Value(std::f64::consts::E)),
+        other => Err(format!(
+            "unknown name `{}`; a typed value may use numbers, pi and e",
+            truncate(other, 40)
+        )),
+    };
+    let parsed = bead::expr::parse(expr, &resolve).map_err(|e| failed(e.to_string()))?;
+    let value = parsed.eval(&[]);
+    if value.is_finite() {
+        Ok(value)
     } else {
-        (value * 10.0, value / 10.0)
+        Err(failed(format!(
+            "`{}` is not a finite number",
+            truncate(expr, 80)
+        )))
     }
 }
 
-/// The scene's current parameter values with the ranges of `first` (as first loaded).
+/// The scene's current parameter values with the ranges of `first` (as first loaded); an
+/// unbounded range widened to hold a value typed beyond it.
 fn params_with_ranges(scene: &Scene, first: &[ParamInfo]) -> Vec<ParamInfo> {
     first
         .iter()
-        .map(|p| ParamInfo {
-            value: scene
+        .map(|p| {
+            let value = scene
                 .params
                 .iter()
                 .find(|(n, _)| *n == p.name)
                 .map(|(_, v)| *v)
-                .unwrap_or(p.value),
-            ..p.clone()
+                .unwrap_or(p.value);
+            let (min, max) = if p.bounded {
+                (p.min, p.max)
+            } else {
+                (p.min.min(value), p.max.max(value))
+            };
+            ParamInfo {
+                value,
+                min,
+                max,
+                ..p.clone()
+            }
         })
         .collect()
 }

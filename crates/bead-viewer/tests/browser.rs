@@ -447,6 +447,117 @@ async fn zoom_checks(client: &Client, addr: SocketAddr) {
 }
 
 #[test]
+fn parameters_are_typed_including_zero_negatives_and_whole_numbers() {
+    // The shipped chain at 5 links, released at an angle theta0 from the downward vertical.
+    let text = bead_viewer::scenes::SHIPPED
+        .iter()
+        .find(|(n, _)| *n == "chain")
+        .unwrap()
+        .1
+        .replace("N = { value = 1000,", "N = { value = 5,")
+        .replace(
+            "[world]",
+            "theta0 = { value = \"pi/2\", unit = \"rad\", range = [\"-pi\", \"pi\"] }   # release angle\n\n[world]",
+        )
+        .replace(
+            "position = [\"(i+1)*L\", 0.0]",
+            "position = [\"(i+1)*L*sin(theta0)\", \"(i+1)*L*cos(theta0)\"]",
+        );
+    in_browser(serving("angled-chain", text), |client, addr| {
+        param_checks(client, addr).boxed_local()
+    });
+}
+
+async fn param_checks(client: &Client, addr: SocketAddr) {
+    client.goto(&format!("http://{addr}/")).await.unwrap();
+    wait_within(
+        client,
+        "window.__viewer && window.__viewer.scene && window.__viewer.scene.params.length === 4 && \
+         document.querySelector('#params .param[data-param=\"theta0\"] .param-value')",
+        "the parameters",
+        Duration::from_secs(30),
+    )
+    .await;
+    let value =
+        |name: &str| format!("window.__viewer.scene.params.find(p => p.name === '{name}').value");
+    // Units and descriptions on the page; whole numbers step by 1.
+    let shown = js(
+        client,
+        "const row = (n) => document.querySelector(`#params .param[data-param=\"${n}\"]`);
+         const n = row('N').querySelector('input[type=range]');
+         return [row('theta0').textContent, row('g').textContent, n.step, n.min, n.max];",
+    )
+    .await;
+    let shown = shown.as_array().unwrap();
+    assert!(
+        shown[0].as_str().unwrap().contains("rad")
+            && shown[0].as_str().unwrap().contains("release angle"),
+        "{shown:?}"
+    );
+    assert!(
+        shown[1].as_str().unwrap().contains("m/s^2")
+            && shown[1]
+                .as_str()
+                .unwrap()
+                .contains("gravitational acceleration"),
+        "{shown:?}"
+    );
+    assert_eq!(&shown[2..], &[json!("1"), json!("1"), json!("2000")]);
+    // Typed: 0, a negative expression; the slider's right end is pi exactly.
+    for (typed, expected) in [("'0'", "0"), ("'-pi/4'", "-Math.PI / 4")] {
+        js(
+            client,
+            &format!("window.__viewer.setParam('theta0', {typed}); return null;"),
+        )
+        .await;
+        wait_within(
+            client,
+            &format!("{} === {expected}", value("theta0")),
+            "the typed value",
+            Duration::from_secs(30),
+        )
+        .await;
+    }
+    js(
+        client,
+        "const s = document.querySelector('#params .param[data-param=\"theta0\"] input[type=range]');
+         s.value = s.max; s.dispatchEvent(new Event('input')); s.dispatchEvent(new Event('change'));
+         return null;",
+    )
+    .await;
+    wait_within(
+        client,
+        &format!("{} === Math.PI", value("theta0")),
+        "theta0 = pi from the slider's end",
+        Duration::from_secs(30),
+    )
+    .await;
+    // A whole number of links, then one that is not: refused and said.
+    js(client, "window.__viewer.setParam('N', '7'); return null;").await;
+    wait_within(
+        client,
+        &format!(
+            "{} === 7 && window.__viewer.scene.particles.length === 7",
+            value("N")
+        ),
+        "N = 7",
+        Duration::from_secs(30),
+    )
+    .await;
+    js(client, "window.__viewer.setParam('N', '7.5'); return null;").await;
+    wait_within(
+        client,
+        "document.getElementById('messages').textContent.includes('parameter `N` is a whole number, got 7.5')",
+        "the whole-number message",
+        Duration::from_secs(30),
+    )
+    .await;
+    screenshot(client, "params").await;
+    let errors = js(client, "return window.__errors;").await;
+    assert_eq!(errors, json!([]), "errors in the page");
+}
+
+#[test]
 fn page_end_to_end() {
     in_browser(ServerConfig::default(), |client, addr| {
         checks(client, addr).boxed_local()
@@ -1839,12 +1950,21 @@ async fn teaching_checks(client: &Client, addr: SocketAddr) {
         .as_f64()
         .unwrap();
     assert!((e1 - 2.0 * e0).abs() < 1e-9 * e0.abs(), "E0 {e0} -> {e1}");
-    let slider = js(
+    // The number box shows the value; the slider (a thousand steps over g's range [0, 2000])
+    // stands at its middle.
+    let shown = js(
         client,
-        "return Number(document.querySelector('#params .param[data-param=\"g\"] input').value);",
+        "const r = document.querySelector('#params .param[data-param=\"g\"]');
+         return [Number(r.querySelector('.param-value').value), Number(r.querySelector('input[type=range]').value)];",
     )
     .await;
-    assert_eq!(slider.as_f64().unwrap(), 2.0 * g);
+    let shown: Vec<f64> = shown
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_f64().unwrap())
+        .collect();
+    assert_eq!(shown, [2.0 * g, 500.0], "g = {g}");
     // Out of range: said on the page, nothing restarts.
     let before = generation(client).await;
     js(client, "window.__viewer.setParam('g', 1e9); return null;").await;

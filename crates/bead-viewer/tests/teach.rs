@@ -249,3 +249,175 @@ fn settings_that_do_nothing_are_marked() {
     let panels = panels_of(&replies).unwrap();
     assert!(!panels[0].applies.project, "{:?}", panels[0].applies);
 }
+
+fn load(s: &mut Session, name: &str) -> SceneInfo {
+    let replies = send(s, &format!(r#"{{"type":"load_scene","name":"{name}"}}"#));
+    scene_of(&replies).unwrap_or_else(|| panic!("{name} did not load: {replies:?}"))
+}
+
+fn load_text(s: &mut Session, text: &str) -> SceneInfo {
+    let message = serde_json::json!({"type": "load_scene", "toml": text, "file_name": "t.toml"});
+    let replies = send(s, &message.to_string());
+    scene_of(&replies).unwrap_or_else(|| panic!("did not load: {replies:?}"))
+}
+
+fn param<'a>(scene: &'a SceneInfo, name: &str) -> &'a bead_viewer::protocol::ParamInfo {
+    scene.params.iter().find(|p| p.name == name).unwrap()
+}
+
+fn set(s: &mut Session, name: &str, field: &str, value: serde_json::Value) -> Vec<ServerMessage> {
+    let message = serde_json::json!({"type": "set_param", "name": name, field: value});
+    send(s, &message.to_string())
+}
+
+/// Issue 18, item 2: parameters a class can use. Ranges from the scene through 0 and
+/// negatives with exact ends, typed values and expressions, whole numbers, derived
+/// parameters shown and not set, units and descriptions.
+#[test]
+fn parameters_take_typed_values_zero_negatives_exact_ends_and_whole_numbers() {
+    use std::f64::consts::PI;
+    let mut s = session();
+    let scene = load(&mut s, "circle");
+    let theta0 = param(&scene, "theta0");
+    assert_eq!((theta0.min, theta0.max), (-PI, PI));
+    assert!(theta0.bounded && !theta0.integer && theta0.derived.is_none());
+    assert_eq!(theta0.unit.as_deref(), Some("rad"));
+    assert!(theta0
+        .description
+        .as_deref()
+        .unwrap()
+        .contains("initial angle"));
+    assert_eq!(param(&scene, "g").unit.as_deref(), Some("m/s^2"));
+    // The right end exactly (pi from the slider's end is the range's own bits), 0, negative
+    // values, and an expression typed in the number box.
+    for (field, value, expected) in [
+        ("value", serde_json::json!(PI), PI),
+        ("value", serde_json::json!(0.0), 0.0),
+        ("value", serde_json::json!(-1.25), -1.25),
+        ("expr", serde_json::json!("-pi/4"), -PI / 4.0),
+        ("expr", serde_json::json!("pi/3"), PI / 3.0),
+    ] {
+        let replies = set(&mut s, "theta0", field, value.clone());
+        let scene = scene_of(&replies).unwrap_or_else(|| panic!("{value}: {replies:?}"));
+        assert_eq!(
+            param(&scene, "theta0").value.to_bits(),
+            expected.to_bits(),
+            "{value}"
+        );
+        assert_eq!(param(&scene, "theta0").min, -PI);
+    }
+    // "pi/3" typed is the scene file's own "pi/3", bit for bit: the start is the same.
+    let (_, panels) = frame(&mut s);
+    let mut fresh = session();
+    load(&mut fresh, "circle");
+    assert_eq!(frame(&mut fresh).1[0].x, panels[0].x);
+    // Beyond the scene's range, a bad expression, both or neither of value and expr.
+    for (json, code, words) in [
+        (
+            r#"{"type":"set_param","name":"theta0","value":3.2}"#,
+            ErrorCode::BadValue,
+            "must be a number in [-3.14159",
+        ),
+        (
+            r#"{"type":"set_param","name":"theta0","expr":"pi/"}"#,
+            ErrorCode::BadValue,
+            "parameter `theta0`: ",
+        ),
+        (
+            r#"{"type":"set_param","name":"theta0","expr":"2*L"}"#,
+            ErrorCode::BadValue,
+            "unknown name `L`; a typed value may use numbers, pi and e",
+        ),
+        (
+            r#"{"type":"set_param","name":"theta0","expr":"1/0"}"#,
+            ErrorCode::BadValue,
+            "not a finite number",
+        ),
+        (
+            r#"{"type":"set_param","name":"theta0","value":1,"expr":"1"}"#,
+            ErrorCode::BadRequest,
+            "exactly one of `value` and `expr`",
+        ),
+        (
+            r#"{"type":"set_param","name":"theta0"}"#,
+            ErrorCode::BadRequest,
+            "exactly one of `value` and `expr`",
+        ),
+    ] {
+        let replies = send(&mut s, json);
+        let (got, message) = error_of(&replies).unwrap_or_else(|| panic!("{json}: {replies:?}"));
+        assert_eq!(got, code, "{json}: {message}");
+        assert!(message.contains(words), "{json}: {message}");
+    }
+
+    // Whole numbers: the chain's N counts links (a `for` range).
+    let chain = load_text(
+        &mut s,
+        &std::fs::read_to_string(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../../scenes/chain.toml"
+        ))
+        .unwrap()
+        .replace("N = { value = 1000,", "N = { value = 5,"),
+    );
+    let n = param(&chain, "N");
+    assert!(
+        n.integer && n.bounded && (n.min, n.max) == (1.0, 2000.0),
+        "{n:?}"
+    );
+    let replies = set(&mut s, "N", "value", serde_json::json!(7));
+    assert_eq!(scene_of(&replies).expect("N = 7").particles.len(), 7);
+    let replies = set(&mut s, "N", "value", serde_json::json!(7.5));
+    let (code, message) = error_of(&replies).unwrap();
+    assert_eq!(code, ErrorCode::BadValue);
+    assert_eq!(message, "parameter `N` is a whole number, got 7.5");
+
+    // Derived parameters: shown with their expression, not set.
+    let cloth = load_text(
+        &mut s,
+        &std::fs::read_to_string(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../../scenes/cloth.toml"
+        ))
+        .unwrap()
+        .replace("W = { value = 50,", "W = { value = 4,")
+        .replace("H = { value = 50,", "H = { value = 4,"),
+    );
+    let l = param(&cloth, "L");
+    assert_eq!(l.derived.as_deref(), Some("S/(W-1)"));
+    assert_eq!(l.depends_on, ["S", "W"]);
+    assert_eq!(l.value, 1.0 / 3.0);
+    assert!(param(&cloth, "W").integer && param(&cloth, "H").integer);
+    assert!(
+        param(&cloth, "A").derived.is_none(),
+        "pi/3 names no parameter"
+    );
+    let replies = set(&mut s, "L", "value", serde_json::json!(0.5));
+    let (code, message) = error_of(&replies).unwrap();
+    assert_eq!(code, ErrorCode::BadValue);
+    assert_eq!(
+        message,
+        "parameter `L` is derived (L = S/(W-1)): change S, W instead"
+    );
+    // Changing W moves L with it.
+    let replies = set(&mut s, "W", "value", serde_json::json!(5));
+    assert_eq!(param(&scene_of(&replies).unwrap(), "L").value, 0.25);
+
+    // No range in the scene: through 0 to twice the value, and any finite value typed
+    // (the slider widens to it and stays so).
+    let plain = load_text(
+        &mut s,
+        "[params]\nk = 3.0  # spring constant\n[world]\ngravity = [0.0, 1.0]\n[[particle]]\nname = \"a\"\nmass = 1.0\nposition = [\"k\", 0.0]\n",
+    );
+    let k = param(&plain, "k");
+    assert!(!k.bounded && (k.min, k.max) == (0.0, 6.0), "{k:?}");
+    assert_eq!(k.description.as_deref(), Some("spring constant"));
+    let replies = set(&mut s, "k", "value", serde_json::json!(-40.0));
+    let k = param(&scene_of(&replies).unwrap(), "k").clone();
+    assert_eq!((k.value, k.min, k.max), (-40.0, -40.0, 6.0));
+    let replies = set(&mut s, "k", "value", serde_json::json!(1.0));
+    let k = param(&scene_of(&replies).unwrap(), "k").clone();
+    assert_eq!((k.value, k.min, k.max), (1.0, -40.0, 6.0));
+    let replies = set(&mut s, "k", "value", serde_json::json!(1e13));
+    assert_eq!(error_of(&replies).unwrap().0, ErrorCode::BadValue);
+}

@@ -584,9 +584,9 @@ fn mutated_scenes_never_panic() {
     let small = |text: String| {
         let mut text = text;
         for (from, to) in [
-            ("N = 1000 ", "N = 5 "),
-            ("W = 50 ", "W = 4 "),
-            ("H = 50 ", "H = 4 "),
+            ("N = { value = 1000,", "N = { value = 5,"),
+            ("W = { value = 50,", "W = { value = 4,"),
+            ("H = { value = 50,", "H = { value = 4,"),
         ] {
             text = text.replacen(from, to, 1);
         }

@@ -15,7 +15,7 @@ use toml::Spanned;
 #[serde(deny_unknown_fields)]
 pub(super) struct SceneFile {
     pub title: Option<Spanned<String>>,
-    pub params: Option<Spanned<Entries<Num>>>,
+    pub params: Option<Spanned<Entries<ParamDef>>>,
     pub world: Option<Spanned<World>>,
     #[serde(default)]
     pub particle: Tables<ParticleDef>,
@@ -127,6 +127,25 @@ pub(super) struct StabilizeTable {
 pub(super) enum Num {
     Value(f64),
     Expr(String),
+}
+
+/// A `[params]` entry: a number or expression, or a table with the value and what the
+/// viewer shows of it.
+#[derive(Debug)]
+pub(super) enum ParamDef {
+    Value(Num),
+    Table(ParamTable),
+}
+
+/// `name = { value = ..., range = [lo, hi], unit = "...", description = "...", integer = true }`.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct ParamTable {
+    pub value: Option<Spanned<Num>>,
+    pub range: Option<Spanned<NumVec>>,
+    pub unit: Option<Spanned<String>>,
+    pub description: Option<Spanned<String>>,
+    pub integer: Option<Spanned<bool>>,
 }
 
 /// A range of a `for` key: `"START..STOP"`, as written.
@@ -252,6 +271,35 @@ impl<'de> Deserialize<'de> for Num {
             }
             fn visit_str<E: de::Error>(self, v: &str) -> Result<Num, E> {
                 Ok(Num::Expr(v.to_string()))
+            }
+        }
+        d.deserialize_any(V)
+    }
+}
+
+impl<'de> Deserialize<'de> for ParamDef {
+    fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        struct V;
+        impl<'de> Visitor<'de> for V {
+            type Value = ParamDef;
+            fn expecting(&self, f: &mut fmt::Formatter) -> fmt::Result {
+                f.write_str("a number, an expression string or a table with `value`")
+            }
+            fn visit_i64<E: de::Error>(self, v: i64) -> Result<ParamDef, E> {
+                Ok(ParamDef::Value(Num::Value(v as f64)))
+            }
+            fn visit_u64<E: de::Error>(self, v: u64) -> Result<ParamDef, E> {
+                Ok(ParamDef::Value(Num::Value(v as f64)))
+            }
+            fn visit_f64<E: de::Error>(self, v: f64) -> Result<ParamDef, E> {
+                Ok(ParamDef::Value(Num::Value(v)))
+            }
+            fn visit_str<E: de::Error>(self, v: &str) -> Result<ParamDef, E> {
+                Ok(ParamDef::Value(Num::Expr(v.to_string())))
+            }
+            fn visit_map<A: MapAccess<'de>>(self, map: A) -> Result<ParamDef, A::Error> {
+                ParamTable::deserialize(de::value::MapAccessDeserializer::new(map))
+                    .map(ParamDef::Table)
             }
         }
         d.deserialize_any(V)

@@ -9,13 +9,13 @@ use std::sync::Arc;
 use toml::Spanned;
 
 use super::file::{
-    span_of, ConstraintDef, Entries, EventDef, ForceDef, Names, Num, NumVec, ParametricDef,
-    ParticleDef, RangeText, RunDef, SceneFile, Stabilize, StringBytes,
+    span_of, ConstraintDef, Entries, EventDef, ForceDef, Names, Num, NumVec, ParamDef, ParamTable,
+    ParametricDef, ParticleDef, RangeText, RunDef, SceneFile, Stabilize, StringBytes,
 };
 use super::location::Source;
 use super::template::{self, Expanded, Scope, StringError};
 use super::{
-    Generated, Lines, RunDefaults, Scene, SceneError, TableKind, MAX_EXPANDED_BYTES,
+    Generated, Lines, ParamSpec, RunDefaults, Scene, SceneError, TableKind, MAX_EXPANDED_BYTES,
     MAX_LOOP_VARIABLES, MAX_REPETITIONS,
 };
 use crate::expr::{parse, Expr, ExprError, Func, Resolved};
@@ -64,6 +64,7 @@ fn load_limited(
     };
 
     let params = loader.params(doc.params.as_ref(), overrides)?;
+    let param_specs = param_specs(&doc, &src)?;
     let title = match &doc.title {
         Some(t) => {
             no_control_characters(&src, t, "`title`")?;
@@ -189,6 +190,7 @@ fn load_limited(
         file: file.to_string(),
         system: Arc::new(system),
         params,
+        param_specs,
         run,
         generated: l.generated,
         text: Arc::from(text),
@@ -332,6 +334,162 @@ pub(super) fn initial_values(
     })
 }
 
+/// A `[params]` entry's value (`None`: a table without `value`) and its table, if any.
+fn param_value(def: &Spanned<ParamDef>) -> (Option<Spanned<Num>>, Option<&ParamTable>) {
+    match def.get_ref() {
+        ParamDef::Value(n) => (Some(Spanned::new(def.span(), n.clone())), None),
+        ParamDef::Table(t) => (t.value.clone(), Some(t)),
+    }
+}
+
+/// The identifiers in `text` (letters, digits, `_`, not starting with a digit).
+fn identifiers(text: &str) -> impl Iterator<Item = &str> {
+    text.split(|c: char| !(c.is_ascii_alphanumeric() || c == '_'))
+        .filter(|w| {
+            w.chars()
+                .next()
+                .is_some_and(|c| c.is_ascii_alphabetic() || c == '_')
+        })
+}
+
+/// What the scene says about each parameter besides its value (see [`ParamSpec`]): its
+/// expression and the parameters it names, the table's `range`, `unit`, `description` (else
+/// the comment after it on its line) and whether it is whole (`integer = true`, or named by a
+/// `for` range, directly or through the parameters derived from it).
+fn param_specs(doc: &SceneFile, src: &Source<'_>) -> Result<Vec<ParamSpec>> {
+    let Some(table) = doc.params.as_ref() else {
+        return Ok(Vec::new());
+    };
+    let entries = &table.get_ref().0;
+    let names: Vec<&str> = entries.iter().map(|(k, _)| k.get_ref().as_str()).collect();
+    // Constants only in a range: pi, e and numbers.
+    let constants = Loader {
+        src: *src,
+        params: Vec::new(),
+        scope: None,
+        expanded: Cell::new(0),
+        limit: MAX_EXPANDED_BYTES,
+    };
+    let mut specs = Vec::with_capacity(entries.len());
+    for (key, def) in entries {
+        let name = key.get_ref().clone();
+        let ctx = format!("parameter `{name}`");
+        let (value, table) = param_value(def);
+        let expr = match value.as_ref().map(|v| v.get_ref()) {
+            Some(Num::Expr(text)) => Some(text.clone()),
+            _ => None,
+        };
+        let mut depends_on: Vec<String> = Vec::new();
+        for word in expr.iter().flat_map(|e| identifiers(e)) {
+            if names.contains(&word) && word != name && !depends_on.iter().any(|d| d == word) {
+                depends_on.push(word.to_string());
+            }
+        }
+        let range = match table.and_then(|t| t.range.as_ref()) {
+            Some(range) => {
+                let values = constants.vector(range, &ctx, &"`range`").map_err(|e| {
+                    if names.iter().any(|n| e.to_string().contains(&format!("`{n}`"))) {
+                        src.error(range.span(), format!("{ctx}: `range` may use numbers, pi and e only (it does not change with the other parameters)"))
+                    } else {
+                        e
+                    }
+                })?;
+                match values[..] {
+                    [lo, hi] if lo < hi => Some([lo, hi]),
+                    _ => {
+                        return Err(src.error(
+                            range.span(),
+                            format!(
+                                "{ctx}: `range` must be [lo, hi] with lo < hi, got {}",
+                                values
+                                    .iter()
+                                    .map(|v| crate::readable(*v))
+                                    .collect::<Vec<_>>()
+                                    .join(", ")
+                            ),
+                        ))
+                    }
+                }
+            }
+            None => None,
+        };
+        let text_of = |s: &Option<Spanned<String>>| {
+            s.as_ref()
+                .map(|s| s.get_ref().trim().to_string())
+                .filter(|s| !s.is_empty())
+        };
+        let unit = table.and_then(|t| text_of(&t.unit));
+        let description = table
+            .and_then(|t| text_of(&t.description))
+            .or_else(|| line_comment(src.text, def.span().end))
+            .or_else(|| comment_above(src.text, key.span().start));
+        let integer = table
+            .and_then(|t| t.integer.as_ref())
+            .is_some_and(|b| *b.get_ref());
+        specs.push(ParamSpec {
+            name,
+            expr,
+            depends_on,
+            range,
+            unit,
+            description,
+            integer,
+        });
+    }
+    // Whole numbers: what a `for` range names, and what those are derived from.
+    let mut counted: Vec<String> = Vec::new();
+    let ranges = doc
+        .particle
+        .0
+        .iter()
+        .map(|t| &t.get_ref().repeat)
+        .chain(doc.force.0.iter().map(|t| &t.get_ref().repeat))
+        .chain(doc.constraint.0.iter().map(|t| &t.get_ref().repeat));
+    for repeat in ranges.flatten() {
+        for (_, range) in &repeat.get_ref().0 {
+            for word in identifiers(&range.get_ref().0) {
+                if names.contains(&word) && !counted.iter().any(|c| c == word) {
+                    counted.push(word.to_string());
+                }
+            }
+        }
+    }
+    while let Some(name) = counted.pop() {
+        if let Some(spec) = specs.iter_mut().find(|s| s.name == name) {
+            if !spec.integer {
+                spec.integer = true;
+                counted.extend(spec.depends_on.iter().cloned());
+            }
+        }
+    }
+    Ok(specs)
+}
+
+/// The comment lines right above the line of byte `start` (`# ...` each, no blank line
+/// between), joined by spaces; `None` when there are none.
+fn comment_above(text: &str, start: usize) -> Option<String> {
+    let before = text.get(..start)?;
+    let line_start = before.rfind('\n').map_or(0, |i| i + 1);
+    let mut lines: Vec<&str> = Vec::new();
+    for line in text[..line_start].lines().rev() {
+        match line.trim_start().strip_prefix('#') {
+            Some(comment) => lines.push(comment.trim()),
+            None => break,
+        }
+    }
+    lines.reverse();
+    let joined = lines.join(" ");
+    (!joined.trim().is_empty()).then(|| joined.trim().to_string())
+}
+
+/// The comment after byte `end` on its line (`# ...`), trimmed; `None` when there is none.
+fn line_comment(text: &str, end: usize) -> Option<String> {
+    let rest = text.get(end..)?;
+    let line = rest.split('\n').next()?;
+    let comment = line.trim_start().strip_prefix('#')?.trim();
+    (!comment.is_empty()).then(|| comment.to_string())
+}
+
 struct Loader<'a> {
     src: Source<'a>,
     /// Parameters evaluated so far, in file order.
@@ -349,10 +507,10 @@ impl Loader<'_> {
     /// Evaluate `[params]` in file order, applying `overrides`.
     fn params(
         &mut self,
-        table: Option<&Spanned<Entries<Num>>>,
+        table: Option<&Spanned<Entries<ParamDef>>>,
         overrides: &[(String, f64)],
     ) -> Result<Vec<(String, f64)>> {
-        let entries: &[(Spanned<String>, Spanned<Num>)] =
+        let entries: &[(Spanned<String>, Spanned<ParamDef>)] =
             table.map(|t| t.get_ref().0.as_slice()).unwrap_or(&[]);
         let known: Vec<&str> = entries.iter().map(|(k, _)| k.get_ref().as_str()).collect();
         for (name, value) in overrides {
@@ -401,10 +559,34 @@ impl Loader<'_> {
                 .find(|(n, _)| n == name)
                 .map(|(_, v)| *v);
             let later: Vec<&str> = known[i + 1..].to_vec();
+            let (value, table) = param_value(value);
+            let value = value.ok_or_else(|| {
+                self.src.error(
+                    key.span(),
+                    format!("{ctx}: a parameter table needs `value`, e.g. `{name} = {{ value = 1.0, unit = \"m\" }}`"),
+                )
+            })?;
             let v = match overridden {
                 Some(v) => v,
-                None => self.number_with(value, &ctx, &"the value", &later)?,
+                None => self.number_with(&value, &ctx, &"the value", &later)?,
             };
+            let integer = table
+                .and_then(|t| t.integer.as_ref())
+                .is_some_and(|b| *b.get_ref());
+            if integer && v.fract() != 0.0 {
+                let place = if overridden.is_some() {
+                    format!("--set {name}={}: ", crate::readable(v))
+                } else {
+                    String::new()
+                };
+                return Err(self.src.error(
+                    value.span(),
+                    format!(
+                        "{place}{ctx} is a whole number (`integer = true`), got {}",
+                        crate::readable(v)
+                    ),
+                ));
+            }
             self.params.push((name.clone(), v));
         }
         Ok(self.params.clone())

@@ -106,6 +106,9 @@ pub struct Scene {
     pub system: Arc<System>,
     /// Parameter values after overrides, in file order.
     pub params: Vec<(String, f64)>,
+    /// What the file says about each parameter besides its value, in file order (see
+    /// [`ParamSpec`]).
+    pub param_specs: Vec<ParamSpec>,
     /// The `[run]` table.
     pub run: RunDefaults,
     /// The tables with a `for` key, in file order within each kind.
@@ -120,6 +123,36 @@ pub struct Scene {
     start: Option<StateRequest>,
     /// Where in the text each particle and constraint is given, for [`Scene::located_warnings`].
     lines: Lines,
+}
+
+/// What a scene file says about one of its `[params]` besides its value: what a slider, a
+/// number box or a table of parameters shows. A parameter is written as a number, an
+/// expression of pi, e and the parameters before it, or a table:
+///
+/// ```toml
+/// [params]
+/// g = { value = 9.81, unit = "m/s^2", range = [0, 30] }   # gravitational acceleration
+/// N = { value = 20, integer = true }                       # links
+/// L = "1/N"                                                # derived: rod length
+/// ```
+#[derive(Clone, Debug, PartialEq)]
+pub struct ParamSpec {
+    pub name: String,
+    /// The expression it is written as (`"pi/3"`, `"S/(W-1)"`), if it is one.
+    pub expr: Option<String>,
+    /// The parameters its expression names: it is derived from them (a front end shows it,
+    /// and changes them instead).
+    pub depends_on: Vec<String>,
+    /// `range = [lo, hi]` (numbers, pi and e): the values a front end offers. Not enforced
+    /// by the library (`--set` may go beyond).
+    pub range: Option<[f64; 2]>,
+    /// `unit = "..."`.
+    pub unit: Option<String>,
+    /// `description = "..."`, else the comment after the parameter on its line.
+    pub description: Option<String>,
+    /// A whole number: `integer = true` (checked on load and on `--set`), or named by a
+    /// `for` range (directly or through parameters derived from it).
+    pub integer: bool,
 }
 
 /// The lines of the scene text that [`Scene::located_warnings`] points at (1-based).

@@ -227,7 +227,16 @@ fn places(raw: &toml::Table) -> Vec<(Place, Vec<String>)> {
             ("title", _) => {}
             ("params", toml::Value::Table(params)) => {
                 for (name, value) in params {
-                    out.push((Place::Param(name.clone()), collect(value)));
+                    // A table's unit and description are labels, never evaluated.
+                    let evaluated = match value.as_table() {
+                        Some(table) => ["value", "range"]
+                            .iter()
+                            .filter_map(|k| table.get(*k))
+                            .flat_map(collect)
+                            .collect(),
+                        None => collect(value),
+                    };
+                    out.push((Place::Param(name.clone()), evaluated));
                 }
             }
             ("particle", toml::Value::Array(tables)) => {
