@@ -368,8 +368,15 @@
     }
     scene.draw = { pairs: Int32Array.from(pairs), anchored, pins: scene.pins || [] };
     $("trails").checked = scene.particles.length <= TRAIL_MAX_PARTICLES;
+    // Arrows: on for scenes of a few particles (a bead, a pendulum); none come for large ones.
+    const few = scene.particles.length <= ARROW_DEFAULT_PARTICLES;
+    for (const kind of ARROW_KINDS) $("arrow-" + kind.key).checked = few;
+    $("arrow-toggles").hidden = scene.particles.length > ARROW_MAX_PARTICLES;
   }
 
+  // Arrows are drawn by default for scenes of at most this many particles; the server sends
+  // them for at most ARROW_MAX_PARTICLES (protocol.rs).
+  const ARROW_DEFAULT_PARTICLES = 4, ARROW_MAX_PARTICLES = 16;
   function trailsOn() {
     return $("trails").checked;
   }
@@ -1165,6 +1172,7 @@
       ctx.stroke();
     }
     ctx.restore();
+    p.lastArrows = drawArrows(ctx, p, T, f, x, n, dim);
     ctx.restore(); // the clip
     // Particles outside the plot: a triangle at the edge pointing at each (the first 50).
     const markers = [];
@@ -1204,6 +1212,92 @@
     }
     return { rods, particles: n, pins: pins.length, frame: f, x, markers, offView, t: p.displayT };
   }
+
+  // ---------- arrows: velocity and forces ----------
+  // At each particle, from the frame's state (the server's numbers): the velocity v, the
+  // weight m g, the scene's other forces F and the constraint force, per implicit row
+  // lambda_i grad C_i, in the parametric form the map's reaction F_c. Forces share one scale
+  // (the frame's force_ref, a typical force of the scene, is 12% of the view box's larger
+  // side), velocities another (speed_ref is 25%): lengths compare within an epoch.
+  const ARROW_KINDS = [
+    { key: "velocity", color: "#1a7f37", label: "v" },
+    { key: "gravity", color: "#57606a", label: "mg" },
+    { key: "applied", color: "#8250df", label: "F" },
+    { key: "constraint", color: "#cf222e", label: "λ∇C" },
+  ];
+  const ARROW_FRACTION = { force: 0.12, velocity: 0.25 };
+  function arrowOn(key) { const box = $("arrow-" + key); return !!(box && box.checked); }
+  // Scene units per unit of velocity and of force.
+  function arrowScales(p, a) {
+    const v = p.info.view || state.scene.view;
+    const extent = Math.max(v[2] - v[0], v[3] - v[1]);
+    return {
+      velocity: ARROW_FRACTION.velocity * extent / a.speed_ref,
+      force: ARROW_FRACTION.force * extent / a.force_ref,
+    };
+  }
+  function drawArrows(ctx, p, T, f, x, n, dim) {
+    const a = f.arrows;
+    if (!a || !ARROW_KINDS.some((k) => arrowOn(k.key))) return [];
+    const scales = arrowScales(p, a);
+    const list = [];
+    const add = (kind, k, vec, o, scale, label, row) => {
+      if (!vec || vec.length < o + dim) return;
+      const tip = new Array(dim);
+      for (let c = 0; c < dim; c++) tip[c] = x[k * dim + c] + scale * vec[o + c];
+      const x0 = T.px(x, k * dim), y0 = T.py(x, k * dim), x1 = T.px(tip, 0), y1 = T.py(tip, 0);
+      let mag = 0;
+      for (let c = 0; c < dim; c++) mag += vec[o + c] * vec[o + c];
+      if (!(Math.hypot(x1 - x0, y1 - y0) >= 2)) return;
+      list.push({ kind: kind.key, color: kind.color, label, particle: k, row, x0, y0, x1, y1, magnitude: Math.sqrt(mag) });
+    };
+    for (const kind of ARROW_KINDS) {
+      if (!arrowOn(kind.key)) continue;
+      const scale = kind.key === "velocity" ? scales.velocity : scales.force;
+      if (kind.key === "constraint" && a.rows.length) {
+        const several = a.rows.length > 1;
+        for (const r of a.rows) {
+          const label = several ? `λ${subscript(r.row + 1)}∇C${subscript(r.row + 1)}` : "λ∇C";
+          for (let k = 0; k < n; k++) add(kind, k, r.force, k * dim, scale, label, r.row);
+        }
+      } else {
+        const label = kind.key === "constraint" ? "F_c" : kind.label;
+        for (let k = 0; k < n; k++) add(kind, k, a[kind.key], k * dim, scale, label, null);
+      }
+    }
+    ctx.save();
+    ctx.lineWidth = 4;
+    ctx.lineCap = "round";
+    ctx.font = "24px system-ui, sans-serif";
+    for (const ar of list) {
+      const angle = Math.atan2(ar.y1 - ar.y0, ar.x1 - ar.x0), head = Math.min(16, 0.45 * Math.hypot(ar.x1 - ar.x0, ar.y1 - ar.y0));
+      ctx.strokeStyle = ar.color;
+      ctx.fillStyle = ar.color;
+      ctx.beginPath();
+      ctx.moveTo(ar.x0, ar.y0);
+      ctx.lineTo(ar.x1 - 0.8 * head * Math.cos(angle), ar.y1 - 0.8 * head * Math.sin(angle));
+      ctx.stroke();
+      ctx.beginPath();
+      ctx.moveTo(ar.x1, ar.y1);
+      ctx.lineTo(ar.x1 - head * Math.cos(angle - 0.45), ar.y1 - head * Math.sin(angle - 0.45));
+      ctx.lineTo(ar.x1 - head * Math.cos(angle + 0.45), ar.y1 - head * Math.sin(angle + 0.45));
+      ctx.closePath();
+      ctx.fill();
+      if (n <= 4) ctx.fillText(ar.label, ar.x1 + 8 * Math.cos(angle) + 4, ar.y1 + 8 * Math.sin(angle) + 8);
+    }
+    ctx.restore();
+    return list;
+  }
+  function subscript(k) {
+    return String(k).split("").map((d) => "₀₁₂₃₄₅₆₇₈₉"[Number(d)]).join("");
+  }
+  // For the tests: the arrows panel `id` drew last (canvas pixels) and its scales (scene
+  // units per unit of velocity and of force) and pixels per scene unit.
+  state.arrowsOf = (id) => {
+    const p = state.panels.get(id);
+    const a = p.frame && p.frame.arrows;
+    return { arrows: p.lastArrows || [], scales: a ? arrowScales(p, a) : null, pixelsPerUnit: transform(p).s };
+  };
 
   // Sizes in canvas pixels: particles shrink with their number and their spacing on screen
   // (a fraction of the median rod length, from the first frame drawn), from 11 down to 1.5.
@@ -1771,6 +1865,9 @@
     send({ type: $("play").textContent === "Pause" ? "pause" : "play" });
   };
   $("step").onclick = () => send({ type: "step" });
+  for (const kind of ARROW_KINDS) {
+    $("arrow-" + kind.key).onchange = () => { for (const p of state.panels.values()) p.dirty = true; };
+  }
   $("trails").onchange = () => {
     for (const p of state.panels.values()) { p.trail = []; p.dirty = true; }
   };

@@ -19,7 +19,8 @@ use bead::simulate::{ForceId, RunError, SetupError, Simulation, SimulationConfig
 
 use crate::geometry::{Curves, Resolution};
 use crate::protocol::{
-    Applies, DragInfo, PanelFrame, PanelInfo, PATH_MAX_NUMBERS, PATH_MAX_SAMPLES,
+    Applies, Arrows, DragInfo, PanelFrame, PanelInfo, RowForce, ARROW_MAX_PARTICLES,
+    ARROW_MAX_ROWS, PATH_MAX_NUMBERS, PATH_MAX_SAMPLES,
 };
 
 /// What a panel runs.
@@ -189,6 +190,8 @@ pub struct Panel {
     curves_unsent: bool,
     /// The (epoch, steps) at which [`Panel::follow_motion`] last looked.
     followed_at: Option<(u64, u64)>,
+    /// [`Arrows::speed_ref`] and [`Arrows::force_ref`] of this epoch.
+    arrow_refs: (f64, f64),
     /// What the page should say about the curve (e.g. a curve edit that did not apply here).
     pub curve_note: Option<String>,
     /// The states of the last advance, `1 + n_coords` numbers each (t, positions); see
@@ -238,6 +241,7 @@ impl Panel {
             curves,
             curves_unsent: false,
             followed_at: None,
+            arrow_refs: (1.0, 1.0),
             curve_note: None,
             path: Vec::new(),
             path_stride: 1,
@@ -252,6 +256,7 @@ impl Panel {
             self.failure = Some(PanelFailure::Start(e));
             self.running = false;
         }
+        self.arrow_refs = self.arrow_references();
     }
 
     pub fn epoch(&self) -> u64 {
@@ -358,6 +363,7 @@ impl Panel {
             .restart_at_rest(x)
             .map_err(|e| e.to_string())?;
         panel.failure = None;
+        panel.arrow_refs = panel.arrow_references();
         panel.running = self.running;
         panel.curve_note = self.curve_note.clone();
         Ok(panel)
@@ -416,6 +422,90 @@ impl Panel {
             );
             self.curves_unsent = true;
         }
+    }
+
+    /// The velocities and forces at the current state, for arrows (small scenes only, see
+    /// [`Arrows`]): v, m g, the scene's other forces F - m g, and the constraint forces from
+    /// one evaluation of the acceleration ([`Simulation::constraint_forces`]); in the
+    /// implicit form each row's lambda_i grad C_i with J at the current state.
+    fn arrows(&mut self) -> Option<Arrows> {
+        let system = Arc::clone(&self.scene.system);
+        let n_particles = system.particles().len();
+        let n_rows = system.constraints().n_rows();
+        if n_particles > ARROW_MAX_PARTICLES || n_rows > ARROW_MAX_ROWS {
+            return None;
+        }
+        let dim = system.dim();
+        let finite = |v: f64| if v.is_finite() { v } else { 0.0 };
+        let s = &mut self.simulation;
+        let (x, v) = (s.positions().to_vec(), s.velocities().to_vec());
+        let mut gravity = vec![0.0; x.len()];
+        for (p, particle) in system.particles().iter().enumerate() {
+            for a in 0..dim {
+                gravity[p * dim + a] = particle.mass * system.gravity()[a];
+            }
+        }
+        let mut applied = vec![0.0; x.len()];
+        system.accumulate_forces(&x, &v, &mut applied);
+        for (f, w) in applied.iter_mut().zip(&gravity) {
+            *f -= w;
+        }
+        let (constraint, multipliers) = match s.constraint_forces() {
+            Ok(forces) => (forces.force, forces.multipliers),
+            Err(_) => (Vec::new(), Vec::new()),
+        };
+        let mut rows = Vec::new();
+        if self.settings.method == Method::Implicit && multipliers.len() == n_rows {
+            let set = system.constraints();
+            let mut ws = set.workspace();
+            set.gradient(s.t(), &x, &mut ws);
+            for (row, &lambda) in multipliers.iter().enumerate() {
+                let mut force = vec![0.0; x.len()];
+                let mut norm2 = 0.0;
+                for (&column, &dc) in set
+                    .row_columns(row)
+                    .iter()
+                    .zip(&ws.jacobian[set.row_entries(row)])
+                {
+                    force[column] += lambda * dc;
+                    norm2 += dc * dc;
+                }
+                rows.push(RowForce {
+                    row,
+                    lambda: finite(lambda),
+                    gradient_norm: finite(norm2.sqrt()),
+                    force: force.into_iter().map(finite).collect(),
+                });
+            }
+        }
+        let clean = |v: Vec<f64>| v.into_iter().map(finite).collect::<Vec<_>>();
+        Some(Arrows {
+            velocity: clean(v),
+            gravity: clean(gravity),
+            applied: clean(applied),
+            constraint: clean(constraint),
+            rows,
+            speed_ref: self.arrow_refs.0,
+            force_ref: self.arrow_refs.1,
+        })
+    }
+
+    /// The speed and force references of [`Arrows`] for the epoch starting now.
+    fn arrow_references(&self) -> (f64, f64) {
+        let system = &self.scene.system;
+        let e_scale = self.simulation.energy_scale();
+        let mass: f64 = system.particles().iter().map(|p| p.mass).sum();
+        let extent = (self.view[2] - self.view[0]).max(self.view[3] - self.view[1]);
+        let g = system.gravity().iter().map(|c| c * c).sum::<f64>().sqrt();
+        let weight = system
+            .particles()
+            .iter()
+            .map(|p| p.mass * g)
+            .fold(0.0, f64::max);
+        let speed = (2.0 * e_scale / mass).sqrt();
+        let force = weight.max(e_scale / extent);
+        let sane = |v: f64| if v.is_finite() && v > 0.0 { v } else { 1.0 };
+        (sane(speed), sane(force))
     }
 
     /// Which settings apply, by the library's legality check: feedback and projection are
@@ -670,6 +760,8 @@ impl Panel {
             self.curves_unsent.then(|| self.curves.lines.clone())
         };
         self.curves_unsent = false;
+        let arrows = self.arrows();
+        let s = &self.simulation;
         let curves = curves.map(|lines| {
             lines
                 .into_iter()
@@ -711,6 +803,7 @@ impl Panel {
             path: self.path.clone(),
             curves,
             curve_region: self.curve_region,
+            arrows,
         }
     }
 }

@@ -67,7 +67,9 @@
 //! Version 7 (this one) keeps the curves under the bead: a frame carries a panel's curves
 //! also when they were made again (the bead neared the end of the drawn part of its map, or
 //! the page asked with `set_view` for a region it shows), and the page keeps the last it
-//! got; panels and frames say the region the curves cover (`curve_region`).
+//! got; panels and frames say the region the curves cover (`curve_region`). Frames of small
+//! scenes carry the velocities and forces for arrows ([`Arrows`]); parameters say their
+//! unit, description, whether they are whole or derived, and `set_param` takes `expr`.
 //!
 //! Version 6 ends runs where the scene ends: the clock stops every panel at the
 //! scene's `[run]` duration ([`Clock::end`]; `play` then starts again from the start), or
@@ -728,6 +730,52 @@ pub struct PanelFrame {
     pub curves: Option<Vec<Vec<f64>>>,
     /// The x-y region the panel's curves cover (see [`PanelInfo::curve_region`]).
     pub curve_region: [f64; 4],
+    /// Velocities and forces at this frame's state, for arrows: scenes of at most
+    /// [`ARROW_MAX_PARTICLES`] particles and [`ARROW_MAX_ROWS`] constraint rows.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub arrows: Option<Arrows>,
+}
+
+/// Scenes with more particles than this send no [`Arrows`].
+pub const ARROW_MAX_PARTICLES: usize = 16;
+/// Scenes with more constraint rows than this send no [`Arrows`].
+pub const ARROW_MAX_ROWS: usize = 32;
+
+/// What a panel's arrows show, at the frame's state: `dim` numbers per particle each
+/// (`n_coords` in all), in the scene's units.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Arrows {
+    /// The velocities v.
+    pub velocity: Vec<f64>,
+    /// The weights m g.
+    pub gravity: Vec<f64>,
+    /// The scene's other forces (springs, constant forces, drag), summed per particle; the
+    /// drag spring of the mouse is not among them.
+    pub applied: Vec<f64>,
+    /// The total constraint force on each particle: J^T lambda in the implicit form
+    /// (feedback included), M a - F in the parametric form (the map's reaction). Empty when
+    /// it cannot be computed here (singular constraints).
+    pub constraint: Vec<f64>,
+    /// The implicit form's rows: lambda_i grad C_i each (their sum is `constraint`).
+    pub rows: Vec<RowForce>,
+    /// A speed and a force typical of the scene, constant within an epoch, that the page
+    /// scales arrows by: sqrt(2 E_scale / M) and max(max m |g|, E_scale / L) with M the total
+    /// mass and L the view box's larger side.
+    pub speed_ref: f64,
+    pub force_ref: f64,
+}
+
+/// One constraint row's force lambda_i grad C_i.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct RowForce {
+    /// The row (0-based, as in the scene's constraint rows).
+    pub row: usize,
+    /// Its multiplier lambda_i.
+    pub lambda: f64,
+    /// |grad C_i| over all coordinates.
+    pub gradient_norm: f64,
+    /// lambda_i dC_i/dx per coordinate (`n_coords` numbers).
+    pub force: Vec<f64>,
 }
 
 /// Most path samples a frame carries per panel.

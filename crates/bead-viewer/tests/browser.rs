@@ -558,6 +558,133 @@ async fn param_checks(client: &Client, addr: SocketAddr) {
 }
 
 #[test]
+fn arrows_show_the_rods_force_to_scale() {
+    let text = bead_viewer::scenes::SHIPPED
+        .iter()
+        .find(|(n, _)| *n == "circle")
+        .unwrap()
+        .1
+        .to_string();
+    in_browser(serving("circle", text), |client, addr| {
+        arrow_checks(client, addr).boxed_local()
+    });
+}
+
+async fn arrow_checks(client: &Client, addr: SocketAddr) {
+    client.goto(&format!("http://{addr}/")).await.unwrap();
+    // Running, then paused a moment later: the state the arrows are drawn at.
+    wait_within(
+        client,
+        "window.__viewer && window.__viewer.panels.size === 2 && \
+         [...window.__viewer.panels.values()].every(p => p.frame && p.frame.t > 0.4 && p.frame.arrows)",
+        "the pendulum swinging",
+        Duration::from_secs(30),
+    )
+    .await;
+    js(
+        client,
+        "document.getElementById('play').click(); return null;",
+    )
+    .await;
+    wait_within(
+        client,
+        "[...window.__viewer.panels.values()].every(p => p.frame && p.frame.status === 'paused')",
+        "a pause",
+        Duration::from_secs(30),
+    )
+    .await;
+    let toggles = js(
+        client,
+        "return ['velocity', 'gravity', 'applied', 'constraint'].map(k => document.getElementById('arrow-' + k).checked);",
+    )
+    .await;
+    assert_eq!(
+        toggles,
+        json!([true, true, true, true]),
+        "arrows on for one particle"
+    );
+    let ids: Vec<u64> = js(client, "return [...window.__viewer.panels.keys()];")
+        .await
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_u64().unwrap())
+        .collect();
+    for (k, id) in ids.iter().enumerate() {
+        let got = js(
+            client,
+            &format!(
+                "window.__viewer.drawTimes({id}, 1);
+                 const f = window.__viewer.panels.get({id}).frame;
+                 return [window.__viewer.arrowsOf({id}), [...f.x], f.arrows];"
+            ),
+        )
+        .await;
+        let (drawn, x, arrows) = (&got[0], &got[1], &got[2]);
+        let list = drawn["arrows"].as_array().unwrap();
+        let kinds: Vec<&str> = list.iter().map(|a| a["kind"].as_str().unwrap()).collect();
+        // No applied forces in this scene: v, m g and the constraint force.
+        assert_eq!(kinds, ["velocity", "gravity", "constraint"], "panel {id}");
+        let c = list.iter().find(|a| a["kind"] == "constraint").unwrap();
+        let length = (c["x1"].as_f64().unwrap() - c["x0"].as_f64().unwrap())
+            .hypot(c["y1"].as_f64().unwrap() - c["y0"].as_f64().unwrap());
+        // The rod's force from Newton's law at the server's state (m = 1, g = 9.81, L = 1):
+        // T = m (g y / r + |v|^2 / r).
+        let (x, v) = (
+            [x[0].as_f64().unwrap(), x[1].as_f64().unwrap()],
+            [
+                arrows["velocity"][0].as_f64().unwrap(),
+                arrows["velocity"][1].as_f64().unwrap(),
+            ],
+        );
+        let r = x[0].hypot(x[1]);
+        let tension = 9.81 * x[1] / r + (v[0] * v[0] + v[1] * v[1]) / r;
+        let pixels_per_newton =
+            drawn["scales"]["force"].as_f64().unwrap() * drawn["pixelsPerUnit"].as_f64().unwrap();
+        let expected = tension.abs() * pixels_per_newton;
+        assert!(expected > 20.0, "a visible arrow: {expected} px");
+        assert!(
+            (length - expected).abs() < 1.0,
+            "panel {id}: drawn {length} px, Newton {expected} px"
+        );
+        // The implicit panel labels it lambda grad C and the server's lambda |grad C| is it.
+        if k == 0 {
+            assert_eq!(c["label"], "λ∇C");
+            let row = &arrows["rows"][0];
+            let server =
+                row["lambda"].as_f64().unwrap().abs() * row["gradient_norm"].as_f64().unwrap();
+            assert!(
+                (server * pixels_per_newton - length).abs() < 1.0,
+                "{server} N vs {length} px"
+            );
+        } else {
+            assert_eq!(c["label"], "F_c");
+        }
+    }
+    screenshot(client, "arrows").await;
+    // Off: nothing drawn.
+    js(
+        client,
+        "for (const k of ['velocity', 'gravity', 'applied', 'constraint']) {
+           const b = document.getElementById('arrow-' + k); b.checked = false; b.dispatchEvent(new Event('change'));
+         }
+         return null;",
+    )
+    .await;
+    let none = js(
+        client,
+        &format!(
+            "window.__viewer.drawTimes({}, 1); return window.__viewer.arrowsOf({}).arrows.length;",
+            ids[0], ids[0]
+        ),
+    )
+    .await;
+    assert_eq!(none, json!(0));
+    let errors = js(client, "return window.__errors;").await;
+    assert_eq!(errors, json!([]), "errors in the page");
+}
+
+#[test]
 fn page_end_to_end() {
     in_browser(ServerConfig::default(), |client, addr| {
         checks(client, addr).boxed_local()
@@ -1292,6 +1419,7 @@ async fn cloth_at_scale(client: &Client, addr: SocketAddr) {
             path: Vec::new(),
             curves: None,
             curve_region: scene_view,
+            arrows: None,
         };
         let bytes = encode_frame(1.0, &[panel]).unwrap();
         bytes_per_frame = bytes.len();

@@ -261,6 +261,7 @@ fn decode_frame_reads_header_numbers_exactly() {
             path: vec![v, v, -v],
             curves: None,
             curve_region: [-v, -v, v, v],
+            arrows: None,
         };
         let decoded = decode_frame(&encode_frame(1.0, &[frame]).unwrap()).unwrap();
         let panel = &decoded["panels"][0];

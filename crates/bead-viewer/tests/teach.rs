@@ -421,3 +421,77 @@ fn parameters_take_typed_values_zero_negatives_exact_ends_and_whole_numbers() {
     let replies = set(&mut s, "k", "value", serde_json::json!(1e13));
     assert_eq!(error_of(&replies).unwrap().0, ErrorCode::BadValue);
 }
+
+/// The rod's force on the pendulum bob of mass m at x moving with v, gravity g along +y:
+/// Newton along the rod, T = m (g y / r + |v|^2 / r), F = -T x / r (independent of bead).
+fn rod_force(m: f64, g: f64, x: &[f64], v: &[f64]) -> [f64; 2] {
+    let r = x[0].hypot(x[1]);
+    let tension = m * (g * x[1] / r + (v[0] * v[0] + v[1] * v[1]) / r);
+    [-tension * x[0] / r, -tension * x[1] / r]
+}
+
+/// Issue 18, item 4: the arrows' forces. On the circle pendulum the implicit panel's row
+/// force lambda grad C and both panels' total constraint force are the rod's tension from
+/// Newton's law; the weight is m g; nothing else acts.
+#[test]
+fn arrows_carry_the_rods_force_from_newtons_law() {
+    let mut s = session();
+    let replies = send(&mut s, r#"{"type":"load_scene","name":"circle"}"#);
+    let methods: Vec<String> = panels_of(&replies)
+        .unwrap()
+        .iter()
+        .map(|p| p.method.clone())
+        .collect();
+    assert_eq!(methods, ["implicit", "parametric"]);
+    send(&mut s, r#"{"type":"play"}"#);
+    run(&mut s, 0.7);
+    let (_, panels) = frame(&mut s);
+    assert_eq!(panels.len(), 2);
+    for (k, f) in panels.iter().enumerate() {
+        let arrows = f.arrows.as_ref().expect("arrows for a one-particle scene");
+        let v = &arrows.velocity;
+        let speed = v[0].hypot(v[1]);
+        assert!(speed > 1.0, "the bob moves: {speed}");
+        let expected = rod_force(1.0, 9.81, &f.x, v);
+        let scale = expected[0].hypot(expected[1]);
+        let close = |got: &[f64], what: &str| {
+            let d = (got[0] - expected[0]).hypot(got[1] - expected[1]);
+            assert!(
+                d < 1e-8 * scale,
+                "panel {} {what}: {got:?} vs {expected:?}",
+                f.id
+            );
+        };
+        close(&arrows.constraint, "total constraint force");
+        assert_eq!(arrows.gravity, [0.0, 9.81]);
+        assert_eq!(arrows.applied, [0.0, 0.0]);
+        match k {
+            // The implicit panel (first): one row, C = x^2 + y^2 - L^2, grad C = 2 x, |grad C| = 2 L.
+            0 => {
+                assert_eq!(arrows.rows.len(), 1);
+                let row = &arrows.rows[0];
+                close(&row.force, "lambda grad C");
+                assert!((row.gradient_norm - 2.0 * f.x[0].hypot(f.x[1])).abs() < 1e-12);
+                assert!((row.lambda.abs() * row.gradient_norm - scale).abs() < 1e-8 * scale);
+            }
+            // The parametric panel has no rows: its map's reaction only.
+            _ => assert!(arrows.rows.is_empty(), "{arrows:?}"),
+        }
+        // References: the weight (m |g| = 9.81) and sqrt(2 E_scale / M).
+        assert_eq!(arrows.force_ref, 9.81);
+        assert!(
+            arrows.speed_ref > 1.0 && arrows.speed_ref < 10.0,
+            "{}",
+            arrows.speed_ref
+        );
+    }
+    // A scene of more than 16 particles sends none.
+    let chain = std::fs::read_to_string(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../../scenes/chain.toml"
+    ))
+    .unwrap()
+    .replace("N = { value = 1000,", "N = { value = 17,");
+    load_text(&mut s, &chain);
+    assert!(frame(&mut s).1.iter().all(|f| f.arrows.is_none()));
+}
