@@ -173,12 +173,21 @@
       case "curve_error": onCurveError(msg); break;
       case "equations": onEquations(msg); break;
       case "start_placed": onStartPlaced(msg); break;
+      case "state_set": onStateSet(msg); break;
       default: break;
     }
   }
 
   // A drop while paused starts every panel at the point of the curve closest to it: say how
   // far that is on the screen of the panel dropped on, unless under half a pixel.
+  // A typed or dragged start state was placed on the constraints: say how far it moved.
+  function onStateSet(msg) {
+    const parts = [];
+    if (msg.position_moved > 0) parts.push(`positions moved ${fmt(msg.position_moved)} onto the constraints`);
+    if (msg.velocity_moved > 0) parts.push(`velocity changed by ${fmt(msg.velocity_moved)} (its part across the constraints removed)`);
+    showMessage(parts.length ? "start set: " + parts.join("; ") : "start set");
+  }
+
   function onStartPlaced(msg) {
     const p = state.panels.get(msg.panel);
     let pixels = null;
@@ -348,6 +357,7 @@
     picker.value = scene.name;
     buildCurveEditors(scene);
     buildParams(scene);
+    buildStartForm(scene);
     prepareScene(scene);
     state.overlay.view = null;
     state.overlay.box = null;
@@ -466,6 +476,69 @@
     number.value = String(value);
     number.dispatchEvent(new KeyboardEvent("keydown", { key: "Enter" }));
   };
+
+  // ---------- start state, typed ----------
+  // For scenes of a few particles: each particle's position and velocity in number boxes,
+  // filled from the first panel while paused (until edited); "Set start" places them on the
+  // constraints (the server says how far they moved) and restarts every panel from there.
+  const START_FORM_PARTICLES = 4;
+  function buildStartForm(scene) {
+    const box = $("start-state");
+    box.innerHTML = "";
+    state.startForm = null;
+    if (scene.particles.length > START_FORM_PARTICLES) return;
+    const axes = scene.dim === 3 ? ["x", "y", "z"] : ["x", "y"];
+    const inputs = { positions: [], velocities: [] };
+    box.append(el("span", "start-title", "start (paused):"));
+    scene.particles.forEach((particle, k) => {
+      const group = el("span", "start-particle");
+      group.dataset.particle = String(k);
+      group.append(el("span", "param-name", particle.name));
+      for (const [key, prefix] of [["positions", ""], ["velocities", "v"]]) {
+        axes.forEach((axis) => {
+          const input = el("input", "start-value");
+          input.type = "text";
+          input.inputMode = "decimal";
+          input.size = 7;
+          input.dataset.kind = key;
+          input.setAttribute("aria-label", `${particle.name} ${prefix}${axis}`);
+          input.addEventListener("input", () => { state.startForm.edited = true; });
+          input.addEventListener("keydown", (e) => { if (e.key === "Enter") submitStart(); });
+          inputs[key].push(input);
+          group.append(` ${prefix}${axis} `, input);
+        });
+      }
+      box.append(group);
+    });
+    const button = el("button", "start-set", "Set start");
+    button.onclick = submitStart;
+    box.append(button);
+    state.startForm = { inputs, edited: false };
+  }
+  function submitStart() {
+    const form = state.startForm, first = state.panels.values().next().value;
+    if (!form || !first) return;
+    const read = (list) => list.map((input) => Number(input.value));
+    const positions = read(form.inputs.positions), velocities = read(form.inputs.velocities);
+    if (![...positions, ...velocities].every(Number.isFinite)) {
+      showMessage("start: every box needs a number");
+      return;
+    }
+    form.edited = false;
+    send({ type: "set_start_state", panel: first.info.id, positions, velocities });
+  }
+  // Fill the form from the first panel's state while it is paused and the form unedited.
+  function fillStartForm() {
+    const form = state.startForm, first = state.panels.values().next().value;
+    if (!form || form.edited || !first || !first.frame || first.frame.status === "running") return;
+    const f = first.frame, v = f.arrows ? f.arrows.velocity : null;
+    form.inputs.positions.forEach((input, i) => {
+      if (document.activeElement !== input) input.value = String(f.x[i]);
+    });
+    form.inputs.velocities.forEach((input, i) => {
+      if (document.activeElement !== input && v) input.value = String(v[i]);
+    });
+  }
 
   // ---------- curve editor ----------
   function buildCurveEditors(scene) {
@@ -763,6 +836,7 @@
       }
       p.dom.failure.textContent = f.error || "";
     }
+    fillStartForm();
     const anyRunning = msg.panels.some((f) => f.status === "running");
     $("play").textContent = anyRunning ? "Pause" : "Play";
     // One clock for all panels: the simulation rate (simulated seconds per wall second) and
@@ -1147,6 +1221,18 @@
       ctx.lineWidth = 3;
       ctx.beginPath();
       ctx.arc(T.px(q, 0), T.py(q, 0), size.radius + 3, 0, 2 * Math.PI);
+      ctx.stroke();
+      ctx.restore();
+    }
+    // A velocity arrow being dragged while paused: the new start velocity.
+    if (p.aiming) {
+      ctx.save();
+      ctx.strokeStyle = "#1a7f37";
+      ctx.setLineDash([8, 6]);
+      ctx.lineWidth = 4;
+      ctx.beginPath();
+      ctx.moveTo(p.aiming.from[0], p.aiming.from[1]);
+      ctx.lineTo(p.aiming.to[0], p.aiming.to[1]);
       ctx.stroke();
       ctx.restore();
     }
@@ -1560,6 +1646,16 @@
       }
       try { canvas.setPointerCapture(event.pointerId); } catch (e) { /* synthetic events */ }
       event.preventDefault();
+      // Paused: the tip of a velocity arrow sets that particle's start velocity.
+      if (p.frame.status !== "running") {
+        const tip = (p.lastArrows || []).find((a) => a.kind === "velocity" && Math.hypot(a.x1 - cx, a.y1 - cy) < 16);
+        if (tip) {
+          gesture = { kind: "velocity", particle: tip.particle, ref: positionOf(x, tip.particle, dim) };
+          p.aiming = { particle: tip.particle, from: [tip.x0, tip.y0], to: [cx, cy] };
+          p.dirty = true;
+          return;
+        }
+      }
       if (best < 0) {
         // Empty space: pan the view (2D, or 3D with shift) or orbit (3D).
         const orbit = dim === 3 && !event.shiftKey;
@@ -1587,6 +1683,11 @@
         p.dirty = true;
         return;
       }
+      if (gesture && gesture.kind === "velocity") {
+        p.aiming.to = [cx, cy];
+        p.dirty = true;
+        return;
+      }
       if (gesture) {
         const dx = cx - gesture.x, dy = cy - gesture.y, v0 = gesture.view;
         if (gesture.kind === "orbit") {
@@ -1606,6 +1707,22 @@
       state.pendingMoves.set(id, { type: "drag_move", panel: id, target: T.unproject(cx, cy, drag.ref) });
     });
     const end = () => {
+      if (gesture && gesture.kind === "velocity") {
+        const p = state.panels.get(id);
+        const a = p && p.frame && p.frame.arrows;
+        if (a && p.aiming) {
+          // The new velocity: (tip - particle) in scene units over the velocity scale.
+          const T = transform(p), dim = state.scene.dim, k = p.aiming.particle;
+          const tip = T.unproject(p.aiming.to[0], p.aiming.to[1], gesture.ref);
+          const scale = arrowScales(p, a).velocity;
+          const velocities = Array.from(a.velocity);
+          for (let c = 0; c < dim; c++) velocities[k * dim + c] = (tip[c] - gesture.ref[c]) / scale;
+          send({ type: "set_start_state", panel: id, velocities });
+        }
+        if (p) { p.aiming = null; p.dirty = true; }
+        gesture = null;
+        return;
+      }
       if (gesture && gesture.kind === "place") {
         const p = state.panels.get(id);
         if (p && p.placing) {

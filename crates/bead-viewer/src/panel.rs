@@ -15,7 +15,9 @@ use bead::formulation::{Feedback, Method, StepError};
 use bead::integrate::IntegratorKind;
 use bead::model::{Endpoint, Force, ModelError, ParticleId};
 use bead::scene::Scene;
-use bead::simulate::{ForceId, RunError, SetupError, Simulation, SimulationConfig};
+use bead::simulate::{
+    ForceId, PlacedState, RunError, SetupError, Simulation, SimulationConfig, StateRequest,
+};
 
 use crate::geometry::{Curves, Resolution};
 use crate::protocol::{
@@ -506,6 +508,38 @@ impl Panel {
         let force = weight.max(e_scale / extent);
         let sane = |v: f64| if v.is_finite() && v > 0.0 { v } else { 1.0 };
         (sane(speed), sane(force))
+    }
+
+    /// This panel restarted at t = 0 from `request` placed on its constraints
+    /// ([`Simulation::set_state`]), as a new panel in epoch `epoch`, with where the state
+    /// was put; `self` is left as it was.
+    pub fn restarted_from(
+        &self,
+        epoch: u64,
+        request: &StateRequest,
+    ) -> Result<(Panel, PlacedState), String> {
+        let mut panel = Panel::new(
+            self.id,
+            epoch,
+            self.settings,
+            Arc::clone(&self.scene),
+            self.view,
+        )
+        .map_err(|e| e.to_string())?;
+        let placed = panel
+            .simulation
+            .set_state(request)
+            .map_err(|e| e.to_string())?;
+        panel.failure = None;
+        panel.arrow_refs = panel.arrow_references();
+        panel.running = self.running;
+        panel.curve_note = self.curve_note.clone();
+        Ok((panel, placed))
+    }
+
+    /// The velocities (`dim` numbers per particle).
+    pub fn velocities(&self) -> &[f64] {
+        self.simulation.velocities()
     }
 
     /// Which settings apply, by the library's legality check: feedback and projection are

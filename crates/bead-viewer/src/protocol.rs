@@ -223,6 +223,20 @@ pub enum ClientMessage {
     /// ([`PanelInfo::curve_region`]) or much smaller: the curves are made again over `view`
     /// and the next frame carries them ([`PanelFrame::curves`]). No other reply.
     SetView { panel: u32, view: [f64; 4] },
+    /// Set the start state (while paused) to `positions` and `velocities` (`n_coords`
+    /// numbers each; either may be absent: panel `panel`'s current ones), typed or from a
+    /// dragged velocity arrow. Panel `panel` places them on its constraints (positions moved
+    /// to the closest point, velocities projected onto the constraints' tangent, see
+    /// `bead::simulate::Simulation::set_state`); every panel restarts at t = 0 from that
+    /// placed state. The reply is [`ServerMessage::StateSet`] and the new
+    /// [`ServerMessage::Panels`]; if a panel cannot start, nothing changes.
+    SetStartState {
+        panel: u32,
+        #[serde(default)]
+        positions: Option<Vec<f64>>,
+        #[serde(default)]
+        velocities: Option<Vec<f64>>,
+    },
     /// Ask for the equations panel `panel`'s formulation derived (the text `bead check`
     /// prints for it); the reply is [`ServerMessage::Equations`].
     Equations { panel: u32 },
@@ -235,6 +249,7 @@ impl ClientMessage {
             ClientMessage::AddPanel(_) => "add_panel",
             ClientMessage::RemovePanel { .. } => "remove_panel",
             ClientMessage::SetView { .. } => "set_view",
+            ClientMessage::SetStartState { .. } => "set_start_state",
             ClientMessage::ConfigurePanel { .. } => "configure_panel",
             ClientMessage::Play { .. } => "play",
             ClientMessage::Pause { .. } => "pause",
@@ -314,6 +329,17 @@ pub enum ServerMessage {
         dropped: Vec<f64>,
         placed: Vec<f64>,
         moved: f64,
+    },
+    /// A `set_start_state` was carried out: every panel starts from `positions` and
+    /// `velocities` (on the constraints), which are `position_moved` and `velocity_moved`
+    /// (Euclidean, scene units) from what was asked for. Sent before the new
+    /// [`ServerMessage::Panels`].
+    StateSet {
+        panel: u32,
+        positions: Vec<f64>,
+        velocities: Vec<f64>,
+        position_moved: f64,
+        velocity_moved: f64,
     },
     /// The equations panel `panel`'s formulation derived, as `bead check` prints them.
     Equations {

@@ -10,7 +10,7 @@ use bead::formulation::Method;
 use bead::integrate::IntegratorKind;
 use bead::model::{DeclaredConstraint, EditError, Endpoint};
 use bead::scene::{Scene, SceneError};
-use bead::simulate::{ConfigError, RunError, SetupError};
+use bead::simulate::{ConfigError, RunError, SetupError, StateRequest};
 
 use crate::geometry;
 use crate::panel::{DragError, Panel, PanelFailure, PanelSettings};
@@ -87,6 +87,13 @@ pub enum SessionError {
     },
     #[error("parameter `{name}` is a whole number, got {}", bead::readable(*value))]
     ParamWhole { name: String, value: f64 },
+    /// `set_start_state` values of the wrong length.
+    #[error("{what} need {expected} numbers (the particles' coordinates), got {got}")]
+    StateValues {
+        what: &'static str,
+        expected: usize,
+        got: usize,
+    },
     /// A `set_view` region that is not one.
     #[error("view must be [x_min, y_min, x_max, y_max], finite within 1e12 with x_min < x_max and y_min < y_max; got {view:?}")]
     Region { view: [f64; 4] },
@@ -118,7 +125,8 @@ impl SessionError {
             | SessionError::Region { .. }
             | SessionError::ParamExpr { .. }
             | SessionError::DerivedParam { .. }
-            | SessionError::ParamWhole { .. } => ErrorCode::BadValue,
+            | SessionError::ParamWhole { .. }
+            | SessionError::StateValues { .. } => ErrorCode::BadValue,
             SessionError::ParamSource => ErrorCode::BadRequest,
             SessionError::ParamFailed(_) => ErrorCode::SetupFailed,
             SessionError::StartFailed { .. } => ErrorCode::StartFailed,
@@ -656,6 +664,11 @@ impl Session {
                 particle,
                 target,
             } => self.set_start(panel, particle, target),
+            ClientMessage::SetStartState {
+                panel,
+                positions,
+                velocities,
+            } => self.set_start_state(panel, positions, velocities),
             ClientMessage::SetView { panel, view } => {
                 let index = self.index(panel)?;
                 let [x0, y0, x1, y1] = view;
@@ -848,6 +861,86 @@ impl Session {
                 dropped: target,
                 placed,
                 moved,
+            },
+            self.panels_message(),
+        ])
+    }
+
+    /// A new start state from typed or dragged positions and velocities: panel `panel`
+    /// places them on its constraints, every panel restarts from the placed state (the same
+    /// for both forms), or none does.
+    fn set_start_state(
+        &mut self,
+        panel: u32,
+        positions: Option<Vec<f64>>,
+        velocities: Option<Vec<f64>>,
+    ) -> Result<Vec<ServerMessage>, Rejection> {
+        let index = self.index(panel)?;
+        let source = &self.panels[index];
+        let n = source.positions().len();
+        for (what, values) in [("positions", &positions), ("velocities", &velocities)] {
+            if let Some(values) = values {
+                if values.len() != n {
+                    return Err((
+                        SessionError::StateValues {
+                            what,
+                            expected: n,
+                            got: values.len(),
+                        },
+                        Some(panel),
+                    ));
+                }
+                if values.iter().any(|v| !v.is_finite() || v.abs() > 1e12) {
+                    return Err((SessionError::Drag(DragError::TargetRange), Some(panel)));
+                }
+            }
+        }
+        let request = StateRequest {
+            positions: Some(positions.unwrap_or_else(|| source.positions().to_vec())),
+            velocities: Some(velocities.unwrap_or_else(|| source.velocities().to_vec())),
+            ..StateRequest::default()
+        };
+        let failed = |p: &Panel, message: String| {
+            (
+                SessionError::StartFailed {
+                    panel: p.id,
+                    method: p.method().name(),
+                    message,
+                },
+                Some(p.id),
+            )
+        };
+        let (first, placed) = source
+            .restarted_from(self.next_epoch + index as u64, &request)
+            .map_err(|m| failed(source, m))?;
+        // The others start from the placed state, on the constraints already.
+        let start = StateRequest {
+            positions: Some(placed.positions.clone()),
+            velocities: Some(placed.velocities.clone()),
+            ..StateRequest::default()
+        };
+        let mut rebuilt = Vec::new();
+        let mut first = Some(first);
+        for (k, old) in self.panels.iter().enumerate() {
+            if k == index {
+                rebuilt.push(first.take().expect("once"));
+                continue;
+            }
+            let (panel, _) = old
+                .restarted_from(self.next_epoch + k as u64, &start)
+                .map_err(|m| failed(old, m))?;
+            rebuilt.push(panel);
+        }
+        self.next_epoch += rebuilt.len() as u64;
+        self.panels = rebuilt;
+        self.restarted();
+        Ok(vec![
+            ServerMessage::StateSet {
+                panel,
+                positions: placed.positions,
+                velocities: placed.velocities,
+                position_moved: placed.position_moved,
+                velocity_moved: placed.velocity_moved,
             },
             self.panels_message(),
         ])

@@ -662,6 +662,82 @@ async fn arrow_checks(client: &Client, addr: SocketAddr) {
         }
     }
     screenshot(client, "arrows").await;
+
+    // Paused, drag the tip of the implicit panel's velocity arrow on along itself: every
+    // panel restarts at t = 0 with the longer velocity (along the circle, so kept whole).
+    let id = ids[0];
+    let before = js(
+        client,
+        &format!(
+            "window.__viewer.drawTimes({id}, 1);
+             const a = window.__viewer.arrowsOf({id}).arrows.find(a => a.kind === 'velocity');
+             const f = window.__viewer.panels.get({id}).frame;
+             return [a.x0, a.y0, a.x1, a.y1, Math.hypot(f.arrows.velocity[0], f.arrows.velocity[1]), f.epoch];"
+        ),
+    )
+    .await;
+    let b: Vec<f64> = before
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_f64().unwrap())
+        .collect();
+    let (length, speed) = ((b[2] - b[0]).hypot(b[3] - b[1]), b[4]);
+    let (ux, uy) = ((b[2] - b[0]) / length, (b[3] - b[1]) / length);
+    let to = (b[2] + 40.0 * ux, b[3] + 40.0 * uy);
+    let canvas_event = |kind: &str, (cx, cy): (f64, f64)| {
+        format!(
+            "const c = window.__viewer.panels.get({id}).dom.canvas, r = c.getBoundingClientRect();
+             c.dispatchEvent(new PointerEvent('{kind}', {{clientX: r.left + {cx} * r.width / c.width,
+                 clientY: r.top + {cy} * r.height / c.height, pointerId: 1, bubbles: true,
+                 isPrimary: true, button: 0, buttons: 1}}));
+             return null;"
+        )
+    };
+    js(client, &canvas_event("pointerdown", (b[2], b[3]))).await;
+    js(client, &canvas_event("pointermove", to)).await;
+    js(client, &canvas_event("pointerup", to)).await;
+    let epoch = b[5];
+    wait_within(
+        client,
+        &format!(
+            "[...window.__viewer.panels.values()].every(p => p.frame && p.frame.epoch > {epoch} && p.frame.t === 0 && p.frame.arrows)"
+        ),
+        "the restart with the dragged velocity",
+        Duration::from_secs(30),
+    )
+    .await;
+    let speeds = js(
+        client,
+        "return [...window.__viewer.panels.values()].map(p => Math.hypot(p.frame.arrows.velocity[0], p.frame.arrows.velocity[1]));",
+    )
+    .await;
+    let expected = speed * (length + 40.0) / length;
+    for v in speeds.as_array().unwrap() {
+        let v = v.as_f64().unwrap();
+        assert!(
+            (v - expected).abs() < 0.02 * expected,
+            "dragged speed {v}, expected {expected}"
+        );
+    }
+    // Typed: at the bottom, 1.5 m/s to the right, in both panels.
+    js(
+        client,
+        "const boxes = [...document.querySelectorAll('#start-state .start-value')];
+         const values = ['0', '1', '1.5', '0'];
+         boxes.forEach((b, i) => { b.value = values[i]; b.dispatchEvent(new Event('input')); });
+         document.querySelector('#start-state .start-set').click(); return null;",
+    )
+    .await;
+    wait_within(
+        client,
+        "[...window.__viewer.panels.values()].every(p => p.frame && p.frame.t === 0 && p.frame.arrows && \
+           Math.abs(p.frame.x[0]) < 1e-9 && Math.abs(p.frame.x[1] - 1) < 1e-9 && \
+           Math.abs(p.frame.arrows.velocity[0] - 1.5) < 1e-9 && Math.abs(p.frame.arrows.velocity[1]) < 1e-9)",
+        "the typed start",
+        Duration::from_secs(30),
+    )
+    .await;
     // Off: nothing drawn.
     js(
         client,
@@ -1584,6 +1660,22 @@ fn first_current(condition: &str) -> String {
 
 async fn truthful_checks(client: &Client, addr: SocketAddr) {
     client.goto(&format!("http://{addr}/")).await.unwrap();
+    // No arrows: the velocity arrow lies along the curve and would hide it from the pixel
+    // count below.
+    wait_until(
+        client,
+        "window.__viewer && window.__viewer.scene",
+        "the scene",
+    )
+    .await;
+    js(
+        client,
+        "for (const k of ['velocity', 'gravity', 'applied', 'constraint']) {
+           const b = document.getElementById('arrow-' + k); b.checked = false; b.dispatchEvent(new Event('change'));
+         }
+         return null;",
+    )
+    .await;
     let shaken = "(x, y, t) => y + 0.5 * x * x + 0.3 * Math.sin(2 * t)";
     // 1. The moving curve is drawn at the frame's t, at two times: its samples satisfy
     //    C(x, t) = 0 there (and not C(x, 0) = 0), and the bead sits on the blue curve drawn.

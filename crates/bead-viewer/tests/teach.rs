@@ -495,3 +495,100 @@ fn arrows_carry_the_rods_force_from_newtons_law() {
     load_text(&mut s, &chain);
     assert!(frame(&mut s).1.iter().all(|f| f.arrows.is_none()));
 }
+
+/// Issue 18, item 2: a typed start state (positions and velocities). At the bottom of the
+/// circle a velocity with a radial part is projected onto the tangent, the same start for
+/// both forms, and the energy of the start is 1/2 m |v|^2 + V of the placed state.
+#[test]
+fn a_typed_start_state_is_placed_on_the_constraints_for_every_panel() {
+    let mut s = session();
+    let replies = send(&mut s, r#"{"type":"load_scene","name":"circle"}"#);
+    let ids: Vec<u32> = panels_of(&replies).unwrap().iter().map(|p| p.id).collect();
+    // Off the circle (r = 1.1) at its bottom, moving right and outwards.
+    let replies = send(
+        &mut s,
+        &format!(
+            r#"{{"type":"set_start_state","panel":{},"positions":[0.0,1.1],"velocities":[2.0,0.5]}}"#,
+            ids[0]
+        ),
+    );
+    let (positions, velocities, position_moved, velocity_moved) = replies
+        .iter()
+        .find_map(|m| match m {
+            ServerMessage::StateSet {
+                positions,
+                velocities,
+                position_moved,
+                velocity_moved,
+                ..
+            } => Some((
+                positions.clone(),
+                velocities.clone(),
+                *position_moved,
+                *velocity_moved,
+            )),
+            _ => None,
+        })
+        .unwrap_or_else(|| panic!("{replies:?}"));
+    assert!(panels_of(&replies).is_some());
+    // The closest point of the circle, and the tangential part of the velocity.
+    assert!(
+        (positions[0]).abs() < 1e-12 && (positions[1] - 1.0).abs() < 1e-9,
+        "{positions:?}"
+    );
+    assert!((position_moved - 0.1).abs() < 1e-9);
+    assert!(
+        (velocities[0] - 2.0).abs() < 1e-9 && velocities[1].abs() < 1e-9,
+        "{velocities:?}"
+    );
+    assert!((velocity_moved - 0.5).abs() < 1e-9);
+    let (_, panels) = frame(&mut s);
+    for f in &panels {
+        assert_eq!(f.t, 0.0);
+        assert!(
+            (f.x[0]).abs() < 1e-9 && (f.x[1] - 1.0).abs() < 1e-9,
+            "{:?}",
+            f.x
+        );
+        let v = &f.arrows.as_ref().unwrap().velocity;
+        assert!((v[0] - 2.0).abs() < 1e-9 && v[1].abs() < 1e-9, "{v:?}");
+        // E0 = 1/2 m v^2 - m g y = 2 - 9.81.
+        assert!(
+            (f.energy_initial - (2.0 - 9.81)).abs() < 1e-8,
+            "{}",
+            f.energy_initial
+        );
+    }
+    // Only velocities: the positions stay; wrong lengths and non-numbers are refused.
+    let replies = send(
+        &mut s,
+        &format!(
+            r#"{{"type":"set_start_state","panel":{},"velocities":[-1.0,0.0]}}"#,
+            ids[1]
+        ),
+    );
+    assert!(panels_of(&replies).is_some(), "{replies:?}");
+    let (_, panels) = frame(&mut s);
+    assert!(panels.iter().all(|f| (f.x[1] - 1.0).abs() < 1e-9));
+    assert!(panels
+        .iter()
+        .all(|f| (f.arrows.as_ref().unwrap().velocity[0] + 1.0).abs() < 1e-9));
+    let replies = send(
+        &mut s,
+        &format!(
+            r#"{{"type":"set_start_state","panel":{},"positions":[1.0]}}"#,
+            ids[0]
+        ),
+    );
+    let (code, message) = error_of(&replies).unwrap();
+    assert_eq!(code, ErrorCode::BadValue);
+    assert_eq!(
+        message,
+        "positions need 2 numbers (the particles' coordinates), got 1"
+    );
+    assert!(parse_client_message(
+        r#"{"type":"set_start_state","panel":1,"positions":[1.0,"x"]}"#,
+        &Limits::default()
+    )
+    .is_err());
+}
