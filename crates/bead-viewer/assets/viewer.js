@@ -634,6 +634,7 @@
       fillConfig(p);
       p.dom.configError.textContent = "";
     }
+    if (state.presenting) requestAnimationFrame(fitToWindow);
     for (const [id, p] of state.panels) {
       if (!seen.has(id)) { p.dom.root.remove(); state.panels.delete(id); }
     }
@@ -1259,6 +1260,7 @@
     }
     ctx.restore();
     p.lastArrows = drawArrows(ctx, p, T, f, x, n, dim);
+    p.lastClock = drawClock(ctx, T, f);
     ctx.restore(); // the clip
     // Particles outside the plot: a triangle at the edge pointing at each (the first 50).
     const markers = [];
@@ -1297,6 +1299,39 @@
       ctx.fillText("stopped: see the message below", 80, 44);
     }
     return { rods, particles: n, pins: pins.length, frame: f, x, markers, offView, t: p.displayT };
+  }
+
+  // ---------- the clock and readouts on the canvas ----------
+  // Large, at the plot's top right, readable from the back of a room: t, then the error of
+  // what the panel conserves and |C|. Returns the text's box (canvas pixels) for the tests.
+  function drawClock(ctx, T, f) {
+    const r = T.r;
+    const lines = [
+      { text: `t = ${f.t.toFixed(2)} s`, font: "600 44px system-ui, sans-serif", height: 46 },
+      { text: (f.energy_conserved ? "|ΔE|/E_scale " : "|Δ(E−W)|/E_scale ") + (f.energy_error === 0 ? "0" : fmt(f.energy_error, 2)), font: "26px system-ui, sans-serif", height: 30 },
+    ];
+    if (f.constraint_error > 0 || state.scene.constraints.length) {
+      lines.push({ text: `|C| ${f.constraint_error === 0 ? "0 (exact)" : fmt(f.constraint_error, 2)}`, font: "26px system-ui, sans-serif", height: 30 });
+    }
+    ctx.save();
+    ctx.textAlign = "right";
+    ctx.textBaseline = "top";
+    let y = r.y0 + 8, width = 0;
+    for (const line of lines) {
+      ctx.font = line.font;
+      width = Math.max(width, ctx.measureText(line.text).width);
+    }
+    ctx.fillStyle = "rgba(255, 255, 255, 0.8)";
+    const height = lines.reduce((h, l) => h + l.height, 0);
+    ctx.fillRect(r.x1 - 12 - width - 8, y - 4, width + 16, height + 8);
+    ctx.fillStyle = "#1d1d1f";
+    for (const line of lines) {
+      ctx.font = line.font;
+      ctx.fillText(line.text, r.x1 - 12, y);
+      y += line.height;
+    }
+    ctx.restore();
+    return { x0: r.x1 - 12 - width, y0: r.y0 + 8, x1: r.x1 - 12, y1: r.y0 + 8 + height, text: lines.map((l) => l.text) };
   }
 
   // ---------- arrows: velocity and forces ----------
@@ -1965,10 +2000,48 @@
     if (event.key === " ") { event.preventDefault(); if (t && t.blur && t.tagName === "BUTTON") t.blur(); $("play").click(); }
     else if (event.key === "s") { event.preventDefault(); $("step").click(); }
     else if (event.key === "r") { event.preventDefault(); $("reset").click(); }
+    else if (event.key === "p") { event.preventDefault(); setPresenting(!state.presenting); }
   });
+
+  // ---------- presentation mode ----------
+  // For a projector: the settings, notes and the second chart are hidden, each panel shows
+  // its canvas (with the clock and readouts drawn large on it), the energy bars and the
+  // energy chart, and the canvases shrink until all of it fits the window without scrolling.
+  // Full screen when the browser allows it. Key p or the toolbar's "present".
+  function setPresenting(on) {
+    state.presenting = on;
+    document.body.classList.toggle("presenting", on);
+    $("present").textContent = on ? "exit presentation" : "present";
+    const fullscreen = document.fullscreenElement;
+    if (on && !fullscreen && document.documentElement.requestFullscreen) {
+      document.documentElement.requestFullscreen().catch(() => {});
+    } else if (!on && fullscreen && document.exitFullscreen) {
+      document.exitFullscreen().catch(() => {});
+    }
+    fitToWindow();
+  }
+  // Presenting: each canvas as wide as fits the height left under it for the bars and the
+  // chart (the canvas keeps its 920 x 680 shape). Otherwise: the column's width.
+  function fitToWindow() {
+    for (const p of state.panels.values()) {
+      const canvas = p.dom.canvas;
+      if (!state.presenting) { canvas.style.maxWidth = ""; continue; }
+      canvas.style.maxWidth = "";
+      const top = canvas.getBoundingClientRect().top + window.scrollY;
+      const root = p.dom.root.getBoundingClientRect();
+      const below = root.bottom - canvas.getBoundingClientRect().bottom;
+      // Below the panel: the panels' bottom padding (12 px) and a margin.
+      const height = window.innerHeight - top - below - 20;
+      canvas.style.maxWidth = `${Math.max(160, Math.floor(height * 920 / 680))}px`;
+      p.dirty = true;
+    }
+  }
+  window.addEventListener("resize", fitToWindow);
+  state.setPresenting = setPresenting;
 
   // ---------- toolbar ----------
   $("overlay").onchange = () => setOverlay($("overlay").checked);
+  $("present").onclick = () => setPresenting(!state.presenting);
   $("share").onclick = () => {
     const url = shareUrl();
     $("share-box").hidden = false;

@@ -761,6 +761,74 @@ async fn arrow_checks(client: &Client, addr: SocketAddr) {
 }
 
 #[test]
+fn presentation_mode_fits_a_projector_without_scrolling() {
+    in_browser(ServerConfig::default(), |client, addr| {
+        presentation_checks(client, addr).boxed_local()
+    });
+}
+
+/// For every panel: whether its canvas, energy bars and energy chart lie inside the
+/// window, the canvas's CSS width, and the clock drawn on the canvas.
+const PRESENTED: &str = "
+    return [...window.__viewer.panels.values()].map(p => {
+      const inside = (e) => { const r = e.getBoundingClientRect();
+        return r.width > 0 && r.top >= 0 && r.left >= 0 && r.bottom <= window.innerHeight && r.right <= window.innerWidth; };
+      window.__viewer.drawTimes(p.info.id, 1);
+      return { canvas: inside(p.dom.canvas), bars: inside(p.dom.bars), chart: inside(p.dom.chartE),
+               width: p.dom.canvas.getBoundingClientRect().width, clock: p.lastClock && p.lastClock.text[0],
+               scrolls: document.documentElement.scrollHeight > window.innerHeight + 1,
+               viewport: [window.innerWidth, window.innerHeight] };
+    });";
+
+async fn presentation_checks(client: &Client, addr: SocketAddr) {
+    client.goto(&format!("http://{addr}/")).await.unwrap();
+    wait_within(
+        client,
+        "window.__viewer && window.__viewer.panels.size === 2 && \
+         [...window.__viewer.panels.values()].every(p => p.frame)",
+        "the panels",
+        Duration::from_secs(30),
+    )
+    .await;
+    js(client, "window.__viewer.setPresenting(true); return null;").await;
+    for (w, h, min_width) in [(1920u32, 1080u32, 600.0), (1366, 768, 360.0)] {
+        client.set_window_size(w, h).await.unwrap();
+        // The resize reaches the page, then its layout settles.
+        wait_within(
+            client,
+            &format!("window.innerWidth <= {w} && window.outerWidth === {w}"),
+            "the window size",
+            Duration::from_secs(30),
+        )
+        .await;
+        js(
+            client,
+            "window.dispatchEvent(new Event('resize')); return null;",
+        )
+        .await;
+        let shown = js(client, PRESENTED).await;
+        for panel in shown.as_array().unwrap() {
+            assert_eq!(panel["canvas"], true, "{w}x{h}: {shown}");
+            assert_eq!(panel["bars"], true, "{w}x{h}: {shown}");
+            assert_eq!(panel["chart"], true, "{w}x{h}: {shown}");
+            assert_eq!(panel["scrolls"], false, "{w}x{h}: {shown}");
+            assert!(
+                panel["width"].as_f64().unwrap() >= min_width,
+                "{w}x{h}: {shown}"
+            );
+            assert!(
+                panel["clock"].as_str().unwrap().starts_with("t = "),
+                "{shown}"
+            );
+        }
+        screenshot(client, &format!("present-{w}x{h}")).await;
+    }
+    js(client, "window.__viewer.setPresenting(false); return null;").await;
+    let errors = js(client, "return window.__errors;").await;
+    assert_eq!(errors, json!([]), "errors in the page");
+}
+
+#[test]
 fn page_end_to_end() {
     in_browser(ServerConfig::default(), |client, addr| {
         checks(client, addr).boxed_local()
