@@ -345,6 +345,7 @@
       ["x", "y", "z"].map((n, a) => (Math.abs(up[a]) > 0.99 ? (up[a] > 0 ? n : "−" + n) : null)).filter(Boolean)[0] : null;
     $("scene-title").textContent = `${scene.title} (${scene.name})` +
       (scene.dim === 3 ? ` — 3D view, ${upName ? upName + " up" : "up against gravity"}: drag empty space to orbit, shift-drag to pan, wheel to zoom` : "");
+    $("scene-about").textContent = scene.about || "";
     $("scene-warnings").textContent = scene.warnings.map((w) => "warning: " + w).join("\n");
     const picker = $("scene-select");
     // A file loaded in the page joins the picker once (picking it again reloads the shipped

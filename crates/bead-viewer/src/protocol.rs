@@ -532,6 +532,9 @@ pub struct SceneInfo {
     /// The name it was loaded by (a shipped scene's name or the file name).
     pub name: String,
     pub title: String,
+    /// The scene's `about`: what to show with it.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub about: Option<String>,
     /// 2 or 3.
     pub dim: usize,
     /// The scene's gravity, `dim` numbers (m/s^2): the page draws "up" against it.

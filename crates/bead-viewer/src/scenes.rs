@@ -3,9 +3,9 @@
 
 /// The shipped scenes (`scenes/*.toml`, every one: a test checks the list against the
 /// folder), embedded at build time, in the picker's order: the article's parabola first, then
-/// the curves, the 3D and moving ones, the systems of several particles, the singular curves
-/// and the large ones.
-pub const SHIPPED: [(&str, &str); 12] = [
+/// the curves, the teaching tracks, the 3D and moving ones, the systems of several
+/// particles, the singular curves and the large ones.
+pub const SHIPPED: [(&str, &str); 16] = [
     ("parabola", include_str!("../../../scenes/parabola.toml")),
     (
         "parabola-x0",
@@ -17,6 +17,10 @@ pub const SHIPPED: [(&str, &str); 12] = [
         "lemniscate",
         include_str!("../../../scenes/lemniscate.toml"),
     ),
+    ("hump", include_str!("../../../scenes/hump.toml")),
+    ("loop", include_str!("../../../scenes/loop.toml")),
+    ("infinity", include_str!("../../../scenes/infinity.toml")),
+    ("spiral", include_str!("../../../scenes/spiral.toml")),
     ("helix", include_str!("../../../scenes/helix.toml")),
     (
         "spinning-hoop",

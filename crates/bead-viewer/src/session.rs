@@ -1171,6 +1171,7 @@ pub fn scene_info(name: &str, scene: &Scene) -> SceneInfo {
     SceneInfo {
         name: name.to_string(),
         title: scene.title.clone(),
+        about: scene.about.clone(),
         dim: system.dim(),
         gravity: system.gravity().to_vec(),
         particles: system

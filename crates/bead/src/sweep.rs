@@ -1509,17 +1509,23 @@ mod tests {
 
     /// The parameters whose sweeps are expected to restart members: those that reach only
     /// initial values in the shipped scenes.
-    const RESTARTED: [(&str, &str); 10] = [
+    const RESTARTED: [(&str, &str); 16] = [
         ("circle.toml", "theta0"),
         ("cusp.toml", "s0"),
         ("cycloid.toml", "phi0"),
         ("double-pendulum.toml", "th1"),
         ("double-pendulum.toml", "th2"),
         ("helix.toml", "w0"),
+        ("hump.toml", "v0"),
+        ("hump.toml", "x0"),
+        ("hump.toml", "s0"),
+        ("infinity.toml", "v0"),
         ("lemniscate.toml", "v0"),
+        ("loop.toml", "v0"),
         ("node.toml", "s0"),
         ("parabola-x0.toml", "x0"),
         ("spinning-hoop.toml", "th0"),
+        ("spiral.toml", "w0"),
     ];
 
     /// Every parameter of every shipped scene, swept to two values: a restarted member is

@@ -82,7 +82,7 @@ fn unknown_key() {
     );
     assert_eq!(
         error(&format!("{BASE}[wrold]\n")),
-        "s.toml:12:2: unknown key `wrold`, expected one of `title`, `params`, `world`, `particle`, `force`, \
+        "s.toml:12:2: unknown key `wrold`, expected one of `title`, `about`, `params`, `world`, `particle`, `force`, \
          `constraint`, `parametric`, `run`, `event`\n  [wrold]\n   ^^^^^"
     );
     assert_eq!(

@@ -120,7 +120,8 @@ impl Force {
 
     /// Whether the force derives from a potential (drag does not).
     pub fn is_conservative(&self) -> bool {
-        !matches!(self, Force::Drag { .. })
+        // A drag of coefficient 0 (a damping slider at 0) is no force and does no work.
+        !matches!(self, Force::Drag { coefficient, .. } if *coefficient != 0.0)
     }
 
     /// Whether the force depends on the velocities (drag does).

@@ -15,6 +15,7 @@ use toml::Spanned;
 #[serde(deny_unknown_fields)]
 pub(super) struct SceneFile {
     pub title: Option<Spanned<String>>,
+    pub about: Option<Spanned<String>>,
     pub params: Option<Spanned<Entries<ParamDef>>>,
     pub world: Option<Spanned<World>>,
     #[serde(default)]

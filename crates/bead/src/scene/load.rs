@@ -76,6 +76,14 @@ fn load_limited(
             .unwrap_or_default(),
     };
 
+    let about = match &doc.about {
+        Some(a) => {
+            no_control_characters(&src, a, "`about`")?;
+            Some(a.get_ref().trim().to_string()).filter(|a| !a.is_empty())
+        }
+        None => None,
+    };
+
     // [world]
     let world = doc.world.as_ref().ok_or_else(|| {
         src.error_at_start(
@@ -187,6 +195,7 @@ fn load_limited(
     }
     Ok(Scene {
         title,
+        about,
         file: file.to_string(),
         system: Arc::new(system),
         params,

@@ -100,6 +100,9 @@ const WARN_TOLERANCE: f64 = 1e-9;
 pub struct Scene {
     /// `title`, or the file stem when the file has none.
     pub title: String,
+    /// `about`: a sentence or two on what the scene shows (a front end shows it under the
+    /// title).
+    pub about: Option<String>,
     /// The file name as given (for messages and summaries).
     pub file: String,
     /// The compiled system: particles, forces, implicit constraints, parametric form.

@@ -223,8 +223,8 @@ fn places(raw: &toml::Table) -> Vec<(Place, Vec<String>)> {
     };
     for (key, value) in raw {
         match (key.as_str(), value) {
-            // A label, never evaluated.
-            ("title", _) => {}
+            // Labels, never evaluated.
+            ("title" | "about", _) => {}
             ("params", toml::Value::Table(params)) => {
                 for (name, value) in params {
                     // A table's unit and description are labels, never evaluated.
