@@ -257,6 +257,16 @@
     return `${location.origin}${location.pathname}?${q.toString()}`;
   }
 
+  // The address bar follows the page's state (a share URL without the click), so that a
+  // refresh comes back to the same scene, parameters, panels and time scale.
+  function keepUrl() {
+    if (state.restore || !state.scene) return;
+    const url = shareUrl();
+    if (url !== location.href) {
+      try { history.replaceState(null, "", url); } catch (e) { /* file:// and the like */ }
+    }
+  }
+
   // What a share URL asks for, or null when it asks for nothing; bad parts are said on the
   // page and left out.
   function parseShareUrl(search, welcome) {
@@ -636,6 +646,7 @@
       p.dom.configError.textContent = "";
     }
     if (state.presenting) requestAnimationFrame(fitToWindow);
+    keepUrl();
     for (const [id, p] of state.panels) {
       if (!seen.has(id)) { p.dom.root.remove(); state.panels.delete(id); }
     }
@@ -674,7 +685,13 @@
     fitButton.title = "fit the view to the curves, the particles and the anchors (pan: drag empty space; zoom: wheel)";
     fitButton.onclick = () => { const p = state.panels.get(info.id); if (p) fitView(p); };
     const curveNote = el("span", "curve-note");
-    tools.append(fitButton, curveNote);
+    const csvButton = el("button", "export-csv", "CSV");
+    csvButton.title = "download this panel's trace since its start: t, positions, velocities, energies, work, errors (one row per frame)";
+    csvButton.onclick = () => { const p = state.panels.get(info.id); if (p) exportCsv(p); };
+    const pngButton = el("button", "export-png", "PNG");
+    pngButton.title = "download this panel's picture as drawn";
+    pngButton.onclick = () => { const p = state.panels.get(info.id); if (p) exportPng(p); };
+    tools.append(fitButton, csvButton, pngButton, curveNote);
     const bars = el("canvas", "chart chart-bars");
     bars.width = 920; bars.height = 190;
     const energyWhy = el("div", "energy-why");
@@ -777,7 +794,9 @@
   }
 
   function onFrame(msg) {
+    const scaleChanged = state.timeScale !== msg.time_scale;
     state.timeScale = msg.time_scale;
+    if (scaleChanged) keepUrl();
     for (const f of msg.panels) {
       const p = state.panels.get(f.id);
       if (!p) continue;
@@ -805,6 +824,12 @@
           if (p.trail.length > keep) p.trail.splice(0, p.trail.length - keep);
         } else if (p.trail.length) {
           p.trail = [];
+        }
+        // The trace the CSV export writes: one row per new frame of this epoch.
+        if (!p.record || p.record.epoch !== f.epoch) p.record = { epoch: f.epoch, rows: [] };
+        if (p.record.rows.length < RECORD_ROWS) {
+          p.record.rows.push([f.t, ...f.x, ...(f.arrows ? f.arrows.velocity : []), f.kinetic, f.potential,
+            f.energy, f.work, f.energy_error, f.constraint_error]);
         }
         // (E - W - E0)/E_scale, signed; W = 0 when nothing does work.
         const signed = f.energy_scale > 0 ? (f.energy - f.work - f.energy_initial) / f.energy_scale : 0;
@@ -1301,6 +1326,50 @@
     }
     return { rods, particles: n, pins: pins.length, frame: f, x, markers, offView, t: p.displayT };
   }
+
+  // ---------- export: the panel's trace (CSV) and picture (PNG) ----------
+  // The CSV holds one row per frame the page received in the panel's epoch (at most
+  // RECORD_ROWS), each number as JSON wrote it (the server's bits); velocities for scenes
+  // small enough to send them. The PNG is the panel's canvas as drawn.
+  const RECORD_ROWS = 200000;
+  function panelCsv(p) {
+    const scene = state.scene, dim = scene.dim, axes = ["x", "y", "z"].slice(0, dim);
+    const rows = p.record ? p.record.rows : [];
+    const n = scene.particles.length;
+    const withV = rows.length > 0 && rows[0].length === 1 + 2 * n * dim + 6;
+    const header = ["t"];
+    for (const part of scene.particles) for (const a of axes) header.push(`${part.name}.${a}`);
+    if (withV) for (const part of scene.particles) for (const a of axes) header.push(`${part.name}.v${a}`);
+    header.push("kinetic", "potential", "energy", "work", "energy_error", "constraint_error");
+    const lines = [`# ${scene.title} (${scene.name}); panel #${p.info.id} ${p.info.method} ${p.info.integrator} dt ${p.info.dt}; ` +
+      scene.params.map((prm) => `${prm.name} = ${prm.value}`).join(", "), header.join(",")];
+    for (const row of rows) lines.push(row.map(String).join(","));
+    return lines.join("\n") + "\n";
+  }
+  function download(name, href) {
+    const a = document.createElement("a");
+    a.href = href;
+    a.download = name;
+    document.body.appendChild(a);
+    a.click();
+    a.remove();
+  }
+  function exportCsv(p) {
+    const text = panelCsv(p);
+    const url = URL.createObjectURL(new Blob([text], { type: "text/csv" }));
+    download(`${state.scene.name}-panel${p.info.id}-${p.info.method}.csv`, url);
+    setTimeout(() => URL.revokeObjectURL(url), 10000);
+    return text;
+  }
+  function exportPng(p) {
+    draw(p, false);
+    const url = p.dom.canvas.toDataURL("image/png");
+    download(`${state.scene.name}-panel${p.info.id}-${p.info.method}.png`, url);
+    return url;
+  }
+  // For the tests: what the export buttons write.
+  state.panelCsv = (id) => panelCsv(state.panels.get(id));
+  state.panelPng = (id) => { const p = state.panels.get(id); draw(p, false); return p.dom.canvas.toDataURL("image/png"); };
 
   // ---------- the clock and readouts on the canvas ----------
   // Large, at the plot's top right, readable from the back of a room: t, then the error of

@@ -829,6 +829,128 @@ async fn presentation_checks(client: &Client, addr: SocketAddr) {
 }
 
 #[test]
+fn export_and_refresh_keep_what_the_page_shows() {
+    let text = bead_viewer::scenes::SHIPPED
+        .iter()
+        .find(|(n, _)| *n == "circle")
+        .unwrap()
+        .1
+        .to_string();
+    in_browser(serving("circle", text), |client, addr| {
+        export_checks(client, addr).boxed_local()
+    });
+}
+
+async fn export_checks(client: &Client, addr: SocketAddr) {
+    client.goto(&format!("http://{addr}/")).await.unwrap();
+    wait_within(
+        client,
+        "window.__viewer && window.__viewer.panels.size === 2 && \
+         [...window.__viewer.panels.values()].every(p => p.frame && p.frame.t > 0.5)",
+        "the pendulum swinging",
+        Duration::from_secs(30),
+    )
+    .await;
+    js(
+        client,
+        "document.getElementById('play').click(); return null;",
+    )
+    .await;
+    wait_within(
+        client,
+        "[...window.__viewer.panels.values()].every(p => p.frame && p.frame.status === 'paused')",
+        "a pause",
+        Duration::from_secs(30),
+    )
+    .await;
+    let got = js(
+        client,
+        "const id = [...window.__viewer.panels.keys()][0], f = window.__viewer.panels.get(id).frame;
+         return [window.__viewer.panelCsv(id), [f.t, ...f.x, ...f.arrows.velocity, f.energy]];",
+    )
+    .await;
+    let csv = got[0].as_str().unwrap();
+    let last_frame: Vec<f64> = got[1]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_f64().unwrap())
+        .collect();
+    let lines: Vec<&str> = csv.lines().collect();
+    assert!(
+        lines[0].starts_with("# Bead on a circle") && lines[0].contains("theta0 = "),
+        "{}",
+        lines[0]
+    );
+    assert_eq!(
+        lines[1],
+        "t,bead.x,bead.y,bead.vx,bead.vy,kinetic,potential,energy,work,energy_error,constraint_error"
+    );
+    let rows: Vec<Vec<f64>> = lines[2..]
+        .iter()
+        .map(|l| l.split(',').map(|v| v.parse::<f64>().unwrap()).collect())
+        .collect();
+    assert!(rows.len() > 20, "{} rows", rows.len());
+    for row in &rows {
+        // On the circle of radius 1 and T = m |v|^2 / 2, computed here, not by bead.
+        assert!((row[1].hypot(row[2]) - 1.0).abs() < 1e-6, "{row:?}");
+        assert!(
+            (row[5] - 0.5 * (row[3] * row[3] + row[4] * row[4])).abs() < 1e-12 * (1.0 + row[5]),
+            "{row:?}"
+        );
+        assert!(row[0] >= 0.0);
+    }
+    assert!(rows.windows(2).all(|w| w[1][0] > w[0][0]), "times increase");
+    // The last row is the last frame, bit for bit.
+    let last = rows.last().unwrap();
+    assert_eq!(&last[..5], &last_frame[..5]);
+    assert_eq!(last[7], last_frame[5]);
+    // The picture: a PNG of the canvas's size.
+    let size = js(
+        client,
+        "const url = window.__viewer.panelPng([...window.__viewer.panels.keys()][0]);
+         if (!url.startsWith('data:image/png;base64,')) return url.slice(0, 30);
+         const img = new Image(); img.src = url; await img.decode(); return [img.naturalWidth, img.naturalHeight];",
+    )
+    .await;
+    assert_eq!(size, json!([920, 680]));
+
+    // A parameter and the time scale, then a refresh: the page comes back to them.
+    js(client, "window.__viewer.setParam('g', '5'); return null;").await;
+    wait_within(
+        client,
+        "window.__viewer.scene.params.find(p => p.name === 'g').value === 5",
+        "g = 5",
+        Duration::from_secs(30),
+    )
+    .await;
+    js(
+        client,
+        "const s = document.getElementById('time-scale'); s.value = '2'; s.dispatchEvent(new Event('change')); return null;",
+    )
+    .await;
+    wait_within(
+        client,
+        "location.search.includes('param.g=5') && location.search.includes('ts=2')",
+        "the address bar",
+        Duration::from_secs(30),
+    )
+    .await;
+    client.refresh().await.unwrap();
+    wait_within(
+        client,
+        "window.__viewer && window.__viewer.scene && window.__viewer.restore === null && \
+         window.__viewer.scene.params.find(p => p.name === 'g').value === 5 && window.__viewer.timeScale === 2 && \
+         window.__viewer.panels.size === 2",
+        "the page after a refresh",
+        Duration::from_secs(30),
+    )
+    .await;
+    let errors = js(client, "return window.__errors;").await;
+    assert_eq!(errors, json!([]), "errors in the page");
+}
+
+#[test]
 fn page_end_to_end() {
     in_browser(ServerConfig::default(), |client, addr| {
         checks(client, addr).boxed_local()
