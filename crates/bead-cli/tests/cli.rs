@@ -1426,14 +1426,14 @@ fn check_summarizes_a_generated_scene() {
     assert_eq!(stderr(&out), "");
     let text = ok(out);
     for expected in [
-        "\n  generated    particle 1 (line 27): i = 0..N, 1000 particles\n               \
-         constraint 2 (line 42): i = 1..N, 999 constraints\n\nparticles (1000)\n  p0    mass 1, \
+        "\n  generated    particle 1 (line 28): i = 0..N, 1000 particles\n               \
+         constraint 2 (line 43): i = 1..N, 999 constraints\n\nparticles (1000)\n  p0    mass 1, \
          position [1, 0], velocity [0, 0]\n",
         "\n  p7    mass 1, position [8, 0], velocity [0, 0]\n  \
-         ... 991 more made by particle 1 (line 27: for i = 0..N)\n  \
+         ... 991 more made by particle 1 (line 28: for i = 0..N)\n  \
          p999  mass 1, position [1000, 0], velocity [0, 0]\n\nforces (gravity only)\n",
         "\nconstraints (1000, 1000 rows)\n  pivot rod: distance(p0, [0.0, 0.0]) = 1 (row 0)\n",
-        "\n  ... 990 more made by constraint 2 (line 42: for i = 1..N)\n  \
+        "\n  ... 990 more made by constraint 2 (line 43: for i = 1..N)\n  \
          rod 999: distance(p998, p999) = 1 (row 999)\n",
         "\ndegrees of freedom: 1000\n",
         "\n  implicit     ok\n",

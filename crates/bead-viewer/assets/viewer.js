@@ -1575,14 +1575,14 @@
     }
     ctx.textAlign = "right";
     ctx.fillText(`t (s): ${fmt(t0, 3)} – ${fmt(t1, 3)}`, W - R, H - 8);
-    if (log && exactZeros) {
-      // Said in words inside the plot (a log axis has no 0), on a white ground.
-      const note = `${exactZeros} × 0 (exact), not drawn`;
+    if (log && exactZeros === pts.length && pts.length) {
+      // Nothing to draw on a log axis: said in the middle of the plot.
+      ctx.textAlign = "center";
+      ctx.fillText("0 (exact) at every step", (L + W - R) / 2, (Tp + H - B) / 2 + 9);
+    } else if (log && exactZeros) {
+      // Under the plot, left, where no other text is (a log axis has no 0).
       ctx.textAlign = "left";
-      ctx.fillStyle = "#fff";
-      ctx.fillRect(L + 2, Tp + 2, ctx.measureText(note).width + 6, 30);
-      ctx.fillStyle = "#55555a";
-      ctx.fillText(note, L + 5, Tp + 26);
+      ctx.fillText(`${exactZeros} exact 0s not drawn`, 6, H - 8);
     }
     if (unit) { ctx.textAlign = "left"; ctx.fillText(unit, 6, H - 8); }
     ctx.strokeStyle = color;
@@ -1637,7 +1637,8 @@
       ctx.textAlign = "left";
       ctx.fillText(name, 6, y + row / 2 + 9);
       ctx.textAlign = "right";
-      ctx.fillText(v === 0 ? "0 (exact) J" : `${fmt(v, 5)} J`, W - 6, y + row / 2 + 9);
+      const unit = state.scene && state.scene.energy_unit ? " " + state.scene.energy_unit : "";
+      ctx.fillText(v === 0 ? `0 (exact)${unit}` : `${fmt(v, 5)}${unit}`, W - 6, y + row / 2 + 9);
     });
     return { kinetic: f.kinetic, potential: f.potential, total: f.energy, work: f.work, rows: rows.length };
   }
@@ -1655,7 +1656,13 @@
     p.dom.energyWhy.textContent = conserved ? "" : `E changes because ${why}; E − W is conserved (W: work done on the system)`;
     const values = p.history.map((h) => [h[0], h[1]]);
     p.lastChart = drawSeries(p.dom.chartE, values, { title, color: "#1f6feb", log });
-    drawSeries(p.dom.chartC, p.history.map((h) => [h[0], h[2]]), { title: "constraint error max |C|", color: "#b42318", log: true });
+    // No |C| chart for a scene without constraints (there is no C).
+    const hasC = !!(state.scene && state.scene.constraints.length);
+    p.dom.chartC.hidden = !hasC;
+    p.dom.chartE.classList.toggle("alone", !hasC);
+    const width = hasC ? 454 : 908;
+    if (p.dom.chartE.width !== width) p.dom.chartE.width = width;
+    if (hasC) drawSeries(p.dom.chartC, p.history.map((h) => [h[0], h[2]]), { title: "constraint error max |C|", color: "#b42318", log: true });
     p.lastBars = drawBars(p);
   }
 

@@ -535,6 +535,10 @@ pub struct SceneInfo {
     /// The scene's `about`: what to show with it.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub about: Option<String>,
+    /// The unit of energies, from `[world] units` (`"J"` for SI, `"kg px^2/s^2"` for px);
+    /// absent when the scene does not say.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub energy_unit: Option<String>,
     /// 2 or 3.
     pub dim: usize,
     /// The scene's gravity, `dim` numbers (m/s^2): the page draws "up" against it.

@@ -1172,6 +1172,13 @@ pub fn scene_info(name: &str, scene: &Scene) -> SceneInfo {
         name: name.to_string(),
         title: scene.title.clone(),
         about: scene.about.clone(),
+        energy_unit: scene.units.as_deref().map(|u| {
+            if u.eq_ignore_ascii_case("SI") {
+                "J".to_string()
+            } else {
+                format!("kg {u}^2/s^2")
+            }
+        }),
         dim: system.dim(),
         gravity: system.gravity().to_vec(),
         particles: system

@@ -227,6 +227,21 @@ async fn picker_checks(client: &Client, addr: SocketAddr) {
             Duration::from_secs(60),
         )
         .await;
+        // A |C| chart only where there is a C; energies in the scene's unit.
+        let shown = js(
+            client,
+            "const s = window.__viewer.scene;
+             return [...window.__viewer.panels.values()].map(p => [p.dom.chartC.hidden === (s.constraints.length === 0), s.energy_unit || null]);",
+        )
+        .await;
+        let unit = if name.starts_with("parabola") {
+            "kg px^2/s^2"
+        } else {
+            "J"
+        };
+        for panel in shown.as_array().unwrap() {
+            assert_eq!(panel, &json!([true, unit]), "{name}: {shown}");
+        }
     }
     let errors = js(client, "return window.__errors;").await;
     assert_eq!(errors, json!([]), "errors in the page");

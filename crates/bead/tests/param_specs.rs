@@ -146,3 +146,35 @@ fn shipped_scenes_describe_every_parameter() {
         }
     }
 }
+
+#[test]
+fn world_units_say_what_the_numbers_are_in() {
+    let base = "[world]\ngravity = [0.0, 1.0]\n{units}\n[[particle]]\nname = \"a\"\nmass = 1.0\nposition = [0.0, 0.0]\n";
+    let with = |units: &str| base.replace("{units}", units);
+    assert_eq!(
+        Scene::parse(&with("units = \"SI\""), "u.toml", &[])
+            .unwrap()
+            .units
+            .as_deref(),
+        Some("SI")
+    );
+    assert_eq!(
+        Scene::parse(&with("units = \" px \""), "u.toml", &[])
+            .unwrap()
+            .units
+            .as_deref(),
+        Some("px")
+    );
+    assert_eq!(Scene::parse(&with(""), "u.toml", &[]).unwrap().units, None);
+    let e = error(&with("units = \"\""), &[]);
+    assert!(
+        e.starts_with("s.toml:3:9: world: `units` must be \"SI\" or the length unit"),
+        "{e}"
+    );
+    // Every shipped scene says its units.
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes");
+    for entry in std::fs::read_dir(&dir).unwrap().flatten() {
+        let scene = Scene::load(&entry.path(), &[]).unwrap();
+        assert!(scene.units.is_some(), "{}", entry.path().display());
+    }
+}

@@ -34,6 +34,7 @@ pub(super) struct SceneFile {
 #[serde(deny_unknown_fields)]
 pub(super) struct World {
     pub gravity: Option<Spanned<NumVec>>,
+    pub units: Option<Spanned<String>>,
 }
 
 #[derive(Debug, Deserialize)]

@@ -97,6 +97,20 @@ fn load_limited(
         )
     })?;
     let gravity = loader.vector(gravity_def, "world", &"`gravity`")?;
+    let units = match &world.get_ref().units {
+        Some(u) => {
+            no_control_characters(&src, u, "world: `units`")?;
+            let text = u.get_ref().trim();
+            if text.is_empty() || text.chars().count() > 20 {
+                return Err(src.error(
+                    u.span(),
+                    "world: `units` must be \"SI\" or the length unit the scene's numbers are in (e.g. \"px\"), at most 20 characters",
+                ));
+            }
+            Some(text.to_string())
+        }
+        None => None,
+    };
     if !(2..=3).contains(&gravity.len()) {
         return Err(src.error(
             gravity_def.span(),
@@ -196,6 +210,7 @@ fn load_limited(
     Ok(Scene {
         title,
         about,
+        units,
         file: file.to_string(),
         system: Arc::new(system),
         params,

@@ -103,6 +103,10 @@ pub struct Scene {
     /// `about`: a sentence or two on what the scene shows (a front end shows it under the
     /// title).
     pub about: Option<String>,
+    /// `[world] units`: `"SI"` (metres, kilograms, seconds: energies in J), or the length
+    /// unit the scene's numbers are in (`"px"`: energies in kg px^2/s^2); `None` when the
+    /// scene does not say (front ends then print no unit).
+    pub units: Option<String>,
     /// The file name as given (for messages and summaries).
     pub file: String,
     /// The compiled system: particles, forces, implicit constraints, parametric form.
