@@ -1540,8 +1540,10 @@
     const ctx = canvas.getContext("2d");
     const W = canvas.width, H = canvas.height;
     chartFrame(ctx, W, H, title);
-    const L = 120, R = 10, Tp = 40, B = 40;
     const pts = history.filter((h) => Number.isFinite(h[1]));
+    const zeros = pts.filter((h) => h[1] === 0).length;
+    // A log chart with some exact zeros says so on a line of its own under the plot.
+    const L = 120, R = 10, Tp = 40, B = log && zeros && zeros < pts.length ? 72 : 40;
     const t0 = pts.length ? pts[0][0] : 0, t1 = pts.length ? pts[pts.length - 1][0] : 1;
     const span = t1 > t0 ? t1 - t0 : 1;
     const px = (t) => L + ((t - t0) / span) * (W - L - R);
@@ -1580,9 +1582,9 @@
       ctx.textAlign = "center";
       ctx.fillText("0 (exact) at every step", (L + W - R) / 2, (Tp + H - B) / 2 + 9);
     } else if (log && exactZeros) {
-      // Under the plot, left, where no other text is (a log axis has no 0).
+      // Under the plot, on its own line above the time axis (a log axis has no 0).
       ctx.textAlign = "left";
-      ctx.fillText(`${exactZeros} exact 0s not drawn`, 6, H - 8);
+      ctx.fillText(`${exactZeros} exact 0s not drawn`, 6, H - 40);
     }
     if (unit) { ctx.textAlign = "left"; ctx.fillText(unit, 6, H - 8); }
     ctx.strokeStyle = color;
@@ -1621,7 +1623,12 @@
     rows.push(["E0 (start)", f.energy_initial, "#9a9a96"]);
     const m = Math.max(...rows.map((r) => Math.abs(r[1])), 1e-300);
     const anyNegative = rows.some((r) => r[1] < 0), anyPositive = rows.some((r) => r[1] > 0);
-    const L = 190, R = 200, row = (H - 10) / rows.length;
+    // The values (with the scene's energy unit) get the room they need on the right.
+    const unit = state.scene && state.scene.energy_unit ? " " + state.scene.energy_unit : "";
+    const valueText = (v) => (v === 0 ? `0 (exact)${unit}` : `${fmt(v, 5)}${unit}`);
+    ctx.font = CHART_FONT;
+    const R = Math.max(200, ...rows.map((r) => ctx.measureText(valueText(r[1])).width + 20));
+    const L = 190, row = (H - 10) / rows.length;
     const width = W - L - R;
     const zero = anyNegative && anyPositive ? L + width / 2 : anyNegative ? L + width : L;
     const scale = (anyNegative && anyPositive ? width / 2 : width) / m;
@@ -1637,8 +1644,7 @@
       ctx.textAlign = "left";
       ctx.fillText(name, 6, y + row / 2 + 9);
       ctx.textAlign = "right";
-      const unit = state.scene && state.scene.energy_unit ? " " + state.scene.energy_unit : "";
-      ctx.fillText(v === 0 ? `0 (exact)${unit}` : `${fmt(v, 5)}${unit}`, W - 6, y + row / 2 + 9);
+      ctx.fillText(valueText(v), W - 6, y + row / 2 + 9);
     });
     return { kinetic: f.kinetic, potential: f.potential, total: f.energy, work: f.work, rows: rows.length };
   }

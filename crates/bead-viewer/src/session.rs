@@ -670,7 +670,11 @@ impl Session {
                 velocities,
             } => self.set_start_state(panel, positions, velocities),
             ClientMessage::SetView { panel, view } => {
-                let index = self.index(panel)?;
+                // A hint about what a page shows: one for a panel replaced meanwhile (a scene
+                // load crossed it) is dropped without an error.
+                let Ok(index) = self.index(panel) else {
+                    return Ok(Vec::new());
+                };
                 let [x0, y0, x1, y1] = view;
                 let sane = |v: f64| v.is_finite() && v.abs() <= 1e12;
                 if !(view.iter().all(|&v| sane(v)) && x1 > x0 && y1 > y0) {
