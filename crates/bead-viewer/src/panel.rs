@@ -348,18 +348,23 @@ impl Panel {
         self.simulation.closest_start(x).map_err(|e| e.to_string())
     }
 
-    /// This panel restarted at t = 0 at rest from positions `x` (see
-    /// [`Simulation::restart_at_rest`]), as a new panel in epoch `epoch`; `self` is left as
-    /// it was, so that a session can replace its panels only when all of them can start.
-    pub fn restarted_at_rest(&self, epoch: u64, x: &[f64]) -> Result<Panel, String> {
-        let mut panel = Panel::new(
+    /// A new panel with this one's id, settings, scene and view, in epoch `epoch`.
+    fn fresh(&self, epoch: u64) -> Result<Panel, String> {
+        Panel::new(
             self.id,
             epoch,
             self.settings,
             Arc::clone(&self.scene),
             self.view,
         )
-        .map_err(|e| e.to_string())?;
+        .map_err(|e| e.to_string())
+    }
+
+    /// This panel restarted at t = 0 at rest from positions `x` (see
+    /// [`Simulation::restart_at_rest`]), as a new panel in epoch `epoch`; `self` is left as
+    /// it was, so that a session can replace its panels only when all of them can start.
+    pub fn restarted_at_rest(&self, epoch: u64, x: &[f64]) -> Result<Panel, String> {
+        let mut panel = self.fresh(epoch)?;
         panel
             .simulation
             .restart_at_rest(x)
@@ -518,14 +523,7 @@ impl Panel {
         epoch: u64,
         request: &StateRequest,
     ) -> Result<(Panel, PlacedState), String> {
-        let mut panel = Panel::new(
-            self.id,
-            epoch,
-            self.settings,
-            Arc::clone(&self.scene),
-            self.view,
-        )
-        .map_err(|e| e.to_string())?;
+        let mut panel = self.fresh(epoch)?;
         let placed = panel
             .simulation
             .set_state(request)

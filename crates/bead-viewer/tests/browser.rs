@@ -146,6 +146,44 @@ async fn pointer(client: &Client, panel: u64, kind: &str, x: f64, y: f64) {
     .await;
 }
 
+/// The text of the shipped scene `name`.
+fn shipped(name: &str) -> String {
+    bead_viewer::scenes::SHIPPED
+        .iter()
+        .find(|(n, _)| *n == name)
+        .unwrap_or_else(|| panic!("no shipped scene {name}"))
+        .1
+        .to_string()
+}
+
+/// Press Play/Pause (every panel running) and wait until every panel is paused.
+async fn pause_all(client: &Client) {
+    js(
+        client,
+        "document.getElementById('play').click(); return null;",
+    )
+    .await;
+    wait_within(
+        client,
+        "[...window.__viewer.panels.values()].every(p => p.frame && p.frame.status === 'paused')",
+        "a pause",
+        Duration::from_secs(30),
+    )
+    .await;
+}
+
+/// Turn every kind of arrow off.
+async fn arrows_off(client: &Client) {
+    js(
+        client,
+        "for (const k of ['velocity', 'gravity', 'applied', 'constraint']) {
+           const b = document.getElementById('arrow-' + k); b.checked = false; b.dispatchEvent(new Event('change'));
+         }
+         return null;",
+    )
+    .await;
+}
+
 /// One browser test at a time: each starts chromium, and the large scenes keep a core busy.
 static BROWSER: std::sync::Mutex<()> = std::sync::Mutex::new(());
 
@@ -251,11 +289,7 @@ async fn picker_checks(client: &Client, addr: SocketAddr) {
 /// in the at-the-end picker starts the panels again.
 #[test]
 fn the_page_stops_at_the_scenes_end_and_loops_on_request() {
-    let text = bead_viewer::scenes::SHIPPED
-        .iter()
-        .find(|(n, _)| *n == "circle")
-        .unwrap()
-        .1
+    let text = shipped("circle")
         .replace("dt = 0.001", "dt = 0.01")
         .replace("duration = 10.0", "duration = 1.0");
     in_browser(serving("short", text), |client, addr| {
@@ -340,12 +374,7 @@ const BEAD_TO_DRAWN_WIRE: &str = "
 fn the_helix_wire_is_under_the_bead_at_the_end_and_after_a_loop() {
     // The helix ends at 4.9 s, where the bead has slid to phi = -7.9, past the first drawn
     // interval [-2 pi, 2 pi] of its wire.
-    let text = bead_viewer::scenes::SHIPPED
-        .iter()
-        .find(|(n, _)| *n == "helix")
-        .unwrap()
-        .1
-        .replace("duration = 5.0", "duration = 4.9");
+    let text = shipped("helix").replace("duration = 5.0", "duration = 4.9");
     in_browser(serving("helix", text), |client, addr| {
         helix_checks(client, addr).boxed_local()
     });
@@ -402,18 +431,7 @@ async fn helix_checks(client: &Client, addr: SocketAddr) {
         Duration::from_secs(60),
     )
     .await;
-    js(
-        client,
-        "document.getElementById('play').click(); return null;",
-    )
-    .await;
-    wait_within(
-        client,
-        "[...window.__viewer.panels.values()].every(p => p.frame && p.frame.status === 'paused')",
-        "a pause",
-        Duration::from_secs(30),
-    )
-    .await;
+    pause_all(client).await;
     let distances = js(client, BEAD_TO_DRAWN_WIRE).await;
     for d in distances.as_array().unwrap() {
         assert!(
@@ -464,11 +482,7 @@ async fn zoom_checks(client: &Client, addr: SocketAddr) {
 #[test]
 fn parameters_are_typed_including_zero_negatives_and_whole_numbers() {
     // The shipped chain at 5 links, released at an angle theta0 from the downward vertical.
-    let text = bead_viewer::scenes::SHIPPED
-        .iter()
-        .find(|(n, _)| *n == "chain")
-        .unwrap()
-        .1
+    let text = shipped("chain")
         .replace("N = { value = 1000,", "N = { value = 5,")
         .replace(
             "[world]",
@@ -574,12 +588,7 @@ async fn param_checks(client: &Client, addr: SocketAddr) {
 
 #[test]
 fn arrows_show_the_rods_force_to_scale() {
-    let text = bead_viewer::scenes::SHIPPED
-        .iter()
-        .find(|(n, _)| *n == "circle")
-        .unwrap()
-        .1
-        .to_string();
+    let text = shipped("circle");
     in_browser(serving("circle", text), |client, addr| {
         arrow_checks(client, addr).boxed_local()
     });
@@ -596,18 +605,7 @@ async fn arrow_checks(client: &Client, addr: SocketAddr) {
         Duration::from_secs(30),
     )
     .await;
-    js(
-        client,
-        "document.getElementById('play').click(); return null;",
-    )
-    .await;
-    wait_within(
-        client,
-        "[...window.__viewer.panels.values()].every(p => p.frame && p.frame.status === 'paused')",
-        "a pause",
-        Duration::from_secs(30),
-    )
-    .await;
+    pause_all(client).await;
     let toggles = js(
         client,
         "return ['velocity', 'gravity', 'applied', 'constraint'].map(k => document.getElementById('arrow-' + k).checked);",
@@ -754,14 +752,7 @@ async fn arrow_checks(client: &Client, addr: SocketAddr) {
     )
     .await;
     // Off: nothing drawn.
-    js(
-        client,
-        "for (const k of ['velocity', 'gravity', 'applied', 'constraint']) {
-           const b = document.getElementById('arrow-' + k); b.checked = false; b.dispatchEvent(new Event('change'));
-         }
-         return null;",
-    )
-    .await;
+    arrows_off(client).await;
     let none = js(
         client,
         &format!(
@@ -845,12 +836,7 @@ async fn presentation_checks(client: &Client, addr: SocketAddr) {
 
 #[test]
 fn export_and_refresh_keep_what_the_page_shows() {
-    let text = bead_viewer::scenes::SHIPPED
-        .iter()
-        .find(|(n, _)| *n == "circle")
-        .unwrap()
-        .1
-        .to_string();
+    let text = shipped("circle");
     in_browser(serving("circle", text), |client, addr| {
         export_checks(client, addr).boxed_local()
     });
@@ -866,18 +852,7 @@ async fn export_checks(client: &Client, addr: SocketAddr) {
         Duration::from_secs(30),
     )
     .await;
-    js(
-        client,
-        "document.getElementById('play').click(); return null;",
-    )
-    .await;
-    wait_within(
-        client,
-        "[...window.__viewer.panels.values()].every(p => p.frame && p.frame.status === 'paused')",
-        "a pause",
-        Duration::from_secs(30),
-    )
-    .await;
+    pause_all(client).await;
     let got = js(
         client,
         "const id = [...window.__viewer.panels.keys()][0], f = window.__viewer.panels.get(id).frame;
@@ -1873,14 +1848,7 @@ async fn truthful_checks(client: &Client, addr: SocketAddr) {
         "the scene",
     )
     .await;
-    js(
-        client,
-        "for (const k of ['velocity', 'gravity', 'applied', 'constraint']) {
-           const b = document.getElementById('arrow-' + k); b.checked = false; b.dispatchEvent(new Event('change'));
-         }
-         return null;",
-    )
-    .await;
+    arrows_off(client).await;
     let shaken = "(x, y, t) => y + 0.5 * x * x + 0.3 * Math.sin(2 * t)";
     // 1. The moving curve is drawn at the frame's t, at two times: its samples satisfy
     //    C(x, t) = 0 there (and not C(x, 0) = 0), and the bead sits on the blue curve drawn.
