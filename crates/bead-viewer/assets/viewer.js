@@ -587,11 +587,17 @@
     });
   }
 
+  // The equations of motion typeset (MathML, rendered by the browser), and under them, on
+  // request, the derived expressions as `bead check` prints them.
   function onEquations(msg) {
     const p = state.panels.get(msg.panel);
     if (!p) return;
-    p.dom.equations.textContent = msg.text;
-    p.dom.equations.hidden = false;
+    const box = p.dom.equations;
+    box.innerHTML = msg.mathml || "";
+    const details = el("details", "equations-text");
+    details.append(el("summary", null, "as bead check prints them"), el("pre", null, msg.text));
+    box.appendChild(details);
+    box.hidden = false;
   }
 
   function onCurveError(msg) {
@@ -703,6 +709,23 @@
     logEnergy.onchange = () => { const p = state.panels.get(info.id); if (p) { p.chartsDirty = true; p.dirty = true; } };
     const logLabel = el("label", "log-energy-label", " log |ΔE|");
     logLabel.prepend(logEnergy);
+    // The live plot: any recorded quantity against any other.
+    const plotRow = el("div", "plot-choice");
+    const plotY = el("select", "plot-y"), plotX = el("select", "plot-x");
+    const plotLog = el("input", "plot-log"); plotLog.type = "checkbox";
+    const plotLogLabel = el("label", "plot-log-label", " log |y|");
+    plotLogLabel.prepend(plotLog);
+    plotRow.append("plot ", plotY, " against ", plotX, plotLogLabel);
+    plotRow.title = "a live chart of any quantity this panel records (the CSV's columns) against any other, e.g. a phase portrait: velocity against position";
+    const plotChanged = () => {
+      const p = state.panels.get(info.id);
+      if (!p) return;
+      p.plot = { x: plotX.value, y: plotY.value, log: plotLog.checked };
+      p.chartsDirty = true; p.dirty = true;
+    };
+    plotX.onchange = plotY.onchange = plotLog.onchange = plotChanged;
+    const plot = el("canvas", "chart chart-plot");
+    plot.width = 920; plot.height = 360;
     const config = el("div", "config");
     const method = el("select", "method");
     for (const m of state.welcome ? state.welcome.methods : ["implicit", "parametric"]) option(method, m, m);
@@ -717,7 +740,7 @@
     playOne.title = "play / pause this panel";
     const showEquations = el("button", "show-equations", "equations");
     showEquations.title = "the equations this formulation derived (as `bead check` prints them)";
-    const equations = el("pre", "equations");
+    const equations = el("div", "equations");
     equations.hidden = true;
     showEquations.onclick = () => {
       if (!equations.hidden) { equations.hidden = true; return; }
@@ -749,22 +772,74 @@
       const running = p && p.frame && p.frame.status === "running";
       send({ type: running ? "pause" : "play", panel: info.id });
     };
-    root.append(title, canvas, tools, note, bars, energyWhy, readout, charts, logLabel, config, configError, failure, equations);
-    const dom = { root, name, canvas, note, curveNote, fields, bars, energyWhy, chartE, chartC, logEnergy, method, integrator, dt, ks, kd, project, configError, failure, equations, ksLabel, kdLabel, projectLabel };
+    for (const c of [bars, chartE, chartC, plot]) countCalls(c);
+    root.append(title, canvas, tools, note, bars, energyWhy, readout, charts, logLabel, plotRow, plot, config, configError, failure, equations);
+    const dom = { root, name, canvas, note, curveNote, fields, bars, energyWhy, chartE, chartC, logEnergy, plotX, plotY, plotLog, plot, method, integrator, dt, ks, kd, project, configError, failure, equations, ksLabel, kdLabel, projectLabel };
     installDrag(info.id, canvas);
     return dom;
   }
 
   // Count the canvas's painting calls (each stroke, fill, rect or text is one): a draw's cost
   // grows with them, so the tests can check that drawing is batched whatever the scene's size.
+  // And keep the box of every text the last draw wrote (a draw starts by filling the whole
+  // canvas), so the tests can check that no text is clipped or overlaps another.
   function countCalls(canvas) {
     const ctx = canvas.getContext("2d");
     canvas.paintCalls = 0;
+    canvas.texts = [];
     for (const name of ["stroke", "fill", "fillRect", "strokeRect", "fillText", "strokeText"]) {
       const call = ctx[name].bind(ctx);
       ctx[name] = (...args) => { canvas.paintCalls++; return call(...args); };
     }
+    const fillRect = ctx.fillRect;
+    ctx.fillRect = (x, y, w, h) => {
+      if (x <= 0 && y <= 0 && x + w >= canvas.width && y + h >= canvas.height) canvas.texts = [];
+      return fillRect(x, y, w, h);
+    };
+    const fillText = ctx.fillText;
+    ctx.fillText = (text, x, y, ...rest) => {
+      const m = ctx.measureText(text);
+      const left = x - m.actualBoundingBoxLeft, right = x + m.actualBoundingBoxRight;
+      const top = y - m.actualBoundingBoxAscent, bottom = y + m.actualBoundingBoxDescent;
+      const T = ctx.getTransform();
+      const corners = [[left, top], [right, top], [left, bottom], [right, bottom]].map(([u, v]) => [T.a * u + T.c * v + T.e, T.b * u + T.d * v + T.f]);
+      const xs = corners.map((c) => c[0]), ys = corners.map((c) => c[1]);
+      if (String(text).trim()) canvas.texts.push({ text: String(text), x0: Math.min(...xs), y0: Math.min(...ys), x1: Math.max(...xs), y1: Math.max(...ys) });
+      return fillText(text, x, y, ...rest);
+    };
   }
+
+  // For the tests: every text the page shows, with its box. Canvases: the texts of their
+  // last draw (canvas pixels) with the canvas's size; the page: every visible text node's
+  // line boxes (CSS pixels) with the panel it is in, if any.
+  state.textLayout = () => {
+    for (const p of state.panels.values()) { draw(p, false); drawCharts(p); }
+    if (state.overlay.on) { state.overlay.dirty = true; updateOverlay(); }
+    const canvases = [];
+    for (const c of document.querySelectorAll("canvas")) {
+      if (!c.texts || !c.getClientRects().length) continue;
+      const panel = c.closest(".panel");
+      canvases.push({ name: (panel ? `panel ${panel.dataset.panel} ` : "") + (c.id || c.className), width: c.width, height: c.height, texts: c.texts });
+    }
+    const nodes = [];
+    const walker = document.createTreeWalker(document.body, NodeFilter.SHOW_TEXT);
+    for (let n = walker.nextNode(); n; n = walker.nextNode()) {
+      const parent = n.parentElement;
+      if (!n.textContent.trim() || !parent || parent.closest("script, style, select, option")) continue;
+      const range = document.createRange();
+      range.selectNodeContents(n);
+      const rects = [...range.getClientRects()].filter((r) => r.width > 0 && r.height > 0);
+      if (!rects.length) continue;
+      const panel = parent.closest(".panel");
+      const box = panel ? panel.getBoundingClientRect() : null;
+      nodes.push({
+        text: n.textContent.trim().slice(0, 60),
+        rects: rects.map((r) => [r.left, r.top, r.right, r.bottom]),
+        panel: box ? [box.left, box.top, box.right, box.bottom] : null,
+      });
+    }
+    return { canvases, nodes, width: document.documentElement.clientWidth, scrollWidth: document.documentElement.scrollWidth };
+  };
 
   function fillConfig(p) {
     const { info, dom } = p;
@@ -825,12 +900,13 @@
         } else if (p.trail.length) {
           p.trail = [];
         }
-        // The trace the CSV export writes: one row per new frame of this epoch.
-        if (!p.record || p.record.epoch !== f.epoch) p.record = { epoch: f.epoch, rows: [] };
-        if (p.record.rows.length < RECORD_ROWS) {
-          p.record.rows.push([f.t, ...f.x, ...(f.arrows ? f.arrows.velocity : []), f.kinetic, f.potential,
-            f.energy, f.work, f.energy_error, f.constraint_error]);
+        // The trace the CSV export writes and the live plot draws: one row per new frame of
+        // this epoch, one number per quantity.
+        if (!p.record || p.record.epoch !== f.epoch) {
+          p.record = { epoch: f.epoch, columns: quantityColumns(p, f), rows: [] };
+          fillPlotChoices(p);
         }
+        if (p.record.rows.length < RECORD_ROWS) p.record.rows.push(p.record.columns.map((c) => c.get(f)));
         // (E - W - E0)/E_scale, signed; W = 0 when nothing does work.
         const signed = f.energy_scale > 0 ? (f.energy - f.work - f.energy_initial) / f.energy_scale : 0;
         p.history.push([f.t, signed, f.constraint_error]);
@@ -843,17 +919,18 @@
       r.t.textContent = `t = ${fmt(f.t)} s`;
       // What the panel conserves: T + V, or E - W when something does work on the system.
       const reasons = f.not_conserved_by.join("; ");
-      r.energy.textContent = f.energy_conserved ? `E = ${fmt(f.energy, 7)}` :
-        `E = ${fmt(f.energy, 7)}, W = ${fmt(f.work, 5)}`;
-      r.erel.textContent = (f.energy_conserved ? "|ΔE|/E_scale = " : "|Δ(E − W)|/E_scale = ") +
+      const eu = state.scene && state.scene.energy_unit ? " " + state.scene.energy_unit : "";
+      r.energy.textContent = f.energy_conserved ? `E = ${fmt(f.energy, 7)}${eu}` :
+        `E = ${fmt(f.energy, 7)}${eu}, W = ${fmt(f.work, 5)}${eu}`;
+      r.erel.textContent = (f.energy_conserved ? "energy error (relative) " : "error of E − W (relative) ") +
         (f.energy_error === 0 ? "0 (exact)" : fmt(f.energy_error));
       r.erel.title = f.energy_conserved ? "relative energy error, |E - E0| / E_scale with E_scale = max(|E0|, T0 + |V0|, T0 + M g L)" :
         `energy not conserved (${reasons}): the error of E − W, W the work done on the system`;
       r.erel.dataset.value = String(f.energy_error);
       r.cerr.textContent = `|C| = ${f.constraint_error === 0 ? "0 (exact)" : fmt(f.constraint_error)}`;
       r.cerr.dataset.value = String(f.constraint_error);
-      r.sps.textContent = `compute rate: ${fmt(f.steps_per_second, 3)} steps/s`;
-      r.sps.title = "compute rate: integrator steps per second of compute time";
+      r.sps.textContent = `${fmt(f.steps_per_second, 3)} steps per second of computing`;
+      r.sps.title = "how fast this panel computes: integrator steps per second of compute time";
       r.status.textContent = f.status + (f.behind ? " (cannot keep up: holds every panel back)" : "");
       if (f.distance != null) {
         let h = state.overlay.history.get(f.id);
@@ -1285,8 +1362,9 @@
       ctx.stroke();
     }
     ctx.restore();
-    p.lastArrows = drawArrows(ctx, p, T, f, x, n, dim);
-    p.lastClock = drawClock(ctx, T, f);
+    const clock = clockLayout(ctx, T, f);
+    p.lastArrows = drawArrows(ctx, p, T, f, x, n, dim, [clock.box]);
+    p.lastClock = drawClock(ctx, clock);
     ctx.restore(); // the clip
     // Particles outside the plot: a triangle at the edge pointing at each (the first 50).
     const markers = [];
@@ -1327,20 +1405,241 @@
     return { rods, particles: n, pins: pins.length, frame: f, x, markers, offView, t: p.displayT };
   }
 
+  // ---------- quantities: what a panel records, exports and plots ----------
+  // One column per quantity a frame gives, fixed for an epoch from its first frame: t, the
+  // positions, the velocities and every constraint row's multiplier lambda (frames of small
+  // scenes carry them with the arrows), the energies and errors, and a parametric panel's
+  // q and q'. `key` is the CSV header and the share URL's word, `label` what the page says.
+  function quantityColumns(p, f) {
+    const scene = state.scene, dim = scene.dim, axes = ["x", "y", "z"].slice(0, dim);
+    const L = scene.length_unit || "", E = scene.energy_unit || "";
+    const columns = [{ key: "t", label: "time t", unit: "s", get: (g) => g.t }];
+    scene.particles.forEach((part, k) => axes.forEach((a, i) => columns.push({
+      key: `${part.name}.${a}`, label: `${part.name} position ${a}`, unit: L, get: (g) => g.x[k * dim + i],
+    })));
+    if (f.arrows) {
+      scene.particles.forEach((part, k) => axes.forEach((a, i) => columns.push({
+        key: `${part.name}.v${a}`, label: `${part.name} velocity v${a}`, unit: L ? L + "/s" : "",
+        get: (g) => (g.arrows ? g.arrows.velocity[k * dim + i] : NaN),
+      })));
+    }
+    columns.push(
+      { key: "kinetic", label: "kinetic energy T", unit: E, get: (g) => g.kinetic },
+      { key: "potential", label: "potential energy V", unit: E, get: (g) => g.potential },
+      { key: "energy", label: "energy E = T + V", unit: E, get: (g) => g.energy },
+      { key: "work", label: "work W done on the system", unit: E, get: (g) => g.work },
+      { key: "energy_error", label: "energy error (relative)", unit: "", get: (g) => g.energy_error },
+      { key: "constraint_error", label: "constraint error max |C|", unit: "", get: (g) => g.constraint_error });
+    const names = p.info.coordinates || [];
+    if (names.length && f.generalized && f.generalized.length === 2 * names.length) {
+      names.forEach((q, i) => columns.push({
+        key: q, label: `coordinate ${q}`, unit: "", get: (g) => (g.generalized ? g.generalized[i] : NaN),
+      }));
+      names.forEach((q, i) => columns.push({
+        key: q + "'", label: `rate ${q}' = d${q}/dt`, unit: "", get: (g) => (g.generalized ? g.generalized[names.length + i] : NaN),
+      }));
+    }
+    if (f.arrows) {
+      for (const r of f.arrows.rows) {
+        columns.push({
+          key: `lambda${r.row}`, label: `multiplier λ of constraint row ${r.row}`, unit: "",
+          get: (g) => { const row = g.arrows && g.arrows.rows.find((x) => x.row === r.row); return row ? row.lambda : NaN; },
+        });
+      }
+    }
+    return columns;
+  }
+  const withUnit = (c) => (c.unit ? `${c.label} (${c.unit})` : c.label);
+
+  // ---------- the live plot: any quantity against any other ----------
+  // Per panel, and in overlay mode for every panel in its colour. The choice of each is
+  // `{ x, y, log }` by column key; the default is the first coordinate against time.
+  const PLOT_POINTS = 4000; // the newest rows drawn per series
+  function defaultPlot(columns) {
+    const second = columns.length > 1 ? columns[1].key : "t";
+    return { x: "t", y: second, log: false };
+  }
+  // The selects offer the columns; a choice that is still there is kept.
+  function fillPlotChoices(p) {
+    const columns = p.record.columns;
+    const fallback = defaultPlot(columns);
+    if (!p.plot) p.plot = fallback;
+    fillSelect(p.dom.plotX, columns, p.plot.x, fallback.x);
+    fillSelect(p.dom.plotY, columns, p.plot.y, fallback.y);
+    p.plot.x = p.dom.plotX.value; p.plot.y = p.dom.plotY.value;
+    fillOverlayChoices();
+  }
+  function fillSelect(select, columns, chosen, fallback) {
+    const keys = columns.map((c) => c.key);
+    if (select.dataset.keys !== keys.join("\n")) {
+      select.innerHTML = "";
+      for (const c of columns) option(select, c.key, withUnit(c));
+      select.dataset.keys = keys.join("\n");
+    }
+    select.value = keys.includes(chosen) ? chosen : keys.includes(fallback) ? fallback : keys[0];
+  }
+  function fillOverlayChoices() {
+    const ov = state.overlay;
+    const union = [];
+    for (const p of state.panels.values()) {
+      for (const c of (p.record ? p.record.columns : [])) if (!union.some((u) => u.key === c.key)) union.push(c);
+    }
+    if (!union.length) return;
+    const fallback = defaultPlot(union);
+    if (!ov.plot) ov.plot = fallback;
+    fillSelect($("overlay-plot-x"), union, ov.plot.x, fallback.x);
+    fillSelect($("overlay-plot-y"), union, ov.plot.y, fallback.y);
+    ov.plot.x = $("overlay-plot-x").value; ov.plot.y = $("overlay-plot-y").value;
+    $("overlay-plot-log").checked = !!ov.plot.log;
+  }
+  // The points (x, y) of a panel's record for a choice; none when the panel lacks a column.
+  function plotPoints(p, choice) {
+    if (!p.record) return null;
+    const cols = p.record.columns;
+    const i = cols.findIndex((c) => c.key === choice.x), j = cols.findIndex((c) => c.key === choice.y);
+    if (i < 0 || j < 0) return null;
+    const rows = p.record.rows;
+    const out = [];
+    for (let k = Math.max(0, rows.length - PLOT_POINTS); k < rows.length; k++) out.push([rows[k][i], rows[k][j]]);
+    return { points: out, x: cols[i], y: cols[j] };
+  }
+  function drawPanelPlot(p) {
+    const got = p.plot && plotPoints(p, p.plot);
+    if (!got) return null;
+    return drawXY(p.dom.plot, {
+      xLabel: withUnit(got.x), yLabel: withUnit(got.y),
+      log: p.plot.log, series: [{ color: "#1f6feb", points: got.points }],
+    });
+  }
+  function drawOverlayPlot() {
+    const ov = state.overlay;
+    if (!ov.plot) return null;
+    const series = [];
+    let x = null, y = null;
+    const missing = [];
+    [...state.panels.values()].forEach((p, k) => {
+      const got = plotPoints(p, ov.plot);
+      if (!got) { missing.push(`#${p.info.id}`); return; }
+      x = got.x; y = got.y;
+      series.push({ color: PANEL_COLORS[k % PANEL_COLORS.length], points: got.points, panel: p.info.id });
+    });
+    if (!x) return null;
+    const drawn = drawXY($("overlay-plot"), {
+      xLabel: withUnit(x) + (missing.length ? ` · not in panel ${missing.join(", ")}` : ""), yLabel: withUnit(y), log: ov.plot.log, series,
+    });
+    ov.lastPlot = drawn;
+    return drawn;
+  }
+
+  // A chart of y against x: ticks and labels on both axes in one number format, the axes'
+  // names with their units; `log`: log10 |y| (exact zeros are counted, not drawn). Returns
+  // the data ranges and the pixel mapping (for the tests).
+  function drawXY(canvas, options) {
+    const { xLabel, yLabel, log, series } = options;
+    const ctx = canvas.getContext("2d");
+    const W = canvas.width, H = canvas.height;
+    // The title names the vertical axis; the horizontal one is named under its ticks.
+    chartFrame(ctx, W, H, log ? `log |${yLabel}|` : yLabel);
+    const finite = (q) => Number.isFinite(q[0]) && Number.isFinite(q[1]) && (!log || q[1] !== 0);
+    const all = series.flatMap((sr) => sr.points.filter(finite));
+    const zeros = log ? series.reduce((n, sr) => n + sr.points.filter((q) => q[1] === 0).length, 0) : 0;
+    const R = 16, Tp = 50, B = 92;
+    let L = 130;
+    if (!all.length) {
+      ctx.textAlign = "center";
+      ctx.fillStyle = "#55555a";
+      ctx.fillText(zeros ? "0 (exact) at every point: nothing on a log axis" : "no data yet", W / 2, H / 2);
+      return { points: 0 };
+    }
+    const ys = all.map((q) => (log ? Math.log10(Math.abs(q[1])) : q[1]));
+    let x0 = Math.min(...all.map((q) => q[0])), x1 = Math.max(...all.map((q) => q[0]));
+    let y0 = Math.min(...ys), y1 = Math.max(...ys);
+    const pad = (a, b) => (b > a ? [a - 0.05 * (b - a), b + 0.05 * (b - a)] : [a - (Math.abs(a) || 1) * 0.5, a + (Math.abs(a) || 1) * 0.5]);
+    [x0, x1] = pad(x0, x1);
+    if (log) { y0 = Math.floor(y0); y1 = Math.max(Math.ceil(y1), y0 + 1); } else [y0, y1] = pad(y0, y1);
+    const px = (v) => L + ((v - x0) / (x1 - x0)) * (W - L - R);
+    const py = (v) => Tp + (1 - (v - y0) / (y1 - y0)) * (H - Tp - B);
+    ctx.strokeStyle = "#e6e6e2";
+    ctx.fillStyle = "#55555a";
+    ctx.lineWidth = 1;
+    const yTicks = log ? logTicks(y0, y1) : niceTicks(y0, y1, 4);
+    const yText = (v) => (log ? "1e" + v : fmt(v, 3));
+    // The left margin fits the widest value label.
+    L = Math.max(L, 24 + Math.max(...yTicks.map((v) => ctx.measureText(yText(v)).width)));
+    const xTicks = niceTicks(x0, x1, Math.max(2, Math.floor((W - L - R) / 160)));
+    ctx.beginPath();
+    for (const v of xTicks) { ctx.moveTo(px(v), Tp); ctx.lineTo(px(v), H - B + 8); }
+    for (const v of yTicks) { ctx.moveTo(L - 8, py(v)); ctx.lineTo(W - R, py(v)); }
+    ctx.stroke();
+    ctx.textAlign = "center";
+    for (const v of xTicks) {
+      const text = fmt(v, 3), half = ctx.measureText(text).width / 2 + 2;
+      ctx.fillText(text, Math.min(W - half, Math.max(half, px(v))), H - B + 36);
+    }
+    ctx.textAlign = "right";
+    for (const v of yTicks) ctx.fillText(yText(v), L - 12, py(v) + 9);
+    ctx.strokeStyle = "#9a9a96";
+    ctx.strokeRect(L, Tp, W - L - R, H - Tp - B);
+    ctx.textAlign = "center";
+    ctx.fillStyle = "#3a3a3f";
+    ctx.fillText(fitted(ctx, xLabel + (zeros ? ` · ${zeros} exact 0s not drawn` : ""), W - 12), W / 2, H - 12);
+    ctx.save();
+    ctx.beginPath(); ctx.rect(L, Tp, W - L - R, H - Tp - B); ctx.clip();
+    ctx.lineWidth = 3;
+    for (const sr of series) {
+      ctx.strokeStyle = sr.color;
+      ctx.beginPath();
+      let pen = false;
+      for (const q of sr.points) {
+        if (!finite(q)) { pen = false; continue; }
+        const X = px(q[0]), Y = py(log ? Math.log10(Math.abs(q[1])) : q[1]);
+        if (pen) ctx.lineTo(X, Y); else ctx.moveTo(X, Y);
+        pen = true;
+      }
+      ctx.stroke();
+      // The newest point, marked: where the motion is now.
+      const last = sr.points.filter(finite).pop();
+      if (last) {
+        ctx.fillStyle = sr.color;
+        ctx.beginPath(); ctx.arc(px(last[0]), py(log ? Math.log10(Math.abs(last[1])) : last[1]), 6, 0, 2 * Math.PI); ctx.fill();
+      }
+    }
+    ctx.restore();
+    return {
+      points: all.length, x: [x0, x1], y: [y0, y1], plot: { x0: L, x1: W - R, y0: Tp, y1: H - B },
+      data: { x: [Math.min(...all.map((q) => q[0])), Math.max(...all.map((q) => q[0]))], y: [Math.min(...all.map((q) => q[1])), Math.max(...all.map((q) => q[1]))] },
+      last: series.map((sr) => sr.points.filter(finite).pop() || null),
+    };
+  }
+  // Decades from lo to hi (log10 values), at most 6 labels.
+  function logTicks(lo, hi) {
+    const step = Math.max(1, Math.ceil((hi - lo) / 5)), out = [];
+    for (let d = Math.ceil(lo); d <= hi; d += step) out.push(d);
+    return out;
+  }
+  // For the tests: a panel's plot choice, and the overlay's.
+  state.setPlot = (id, choice) => {
+    const p = state.panels.get(id);
+    p.plot = Object.assign(p.plot || {}, choice);
+    fillPlotChoices(p);
+    p.chartsDirty = true; p.dirty = true;
+    keepUrl();
+  };
+  state.setOverlayPlot = (choice) => {
+    state.overlay.plot = Object.assign(state.overlay.plot || {}, choice);
+    fillOverlayChoices();
+    state.overlay.dirty = true;
+  };
+
   // ---------- export: the panel's trace (CSV) and picture (PNG) ----------
   // The CSV holds one row per frame the page received in the panel's epoch (at most
   // RECORD_ROWS), each number as JSON wrote it (the server's bits); velocities for scenes
   // small enough to send them. The PNG is the panel's canvas as drawn.
   const RECORD_ROWS = 200000;
   function panelCsv(p) {
-    const scene = state.scene, dim = scene.dim, axes = ["x", "y", "z"].slice(0, dim);
+    const scene = state.scene;
     const rows = p.record ? p.record.rows : [];
-    const n = scene.particles.length;
-    const withV = rows.length > 0 && rows[0].length === 1 + 2 * n * dim + 6;
-    const header = ["t"];
-    for (const part of scene.particles) for (const a of axes) header.push(`${part.name}.${a}`);
-    if (withV) for (const part of scene.particles) for (const a of axes) header.push(`${part.name}.v${a}`);
-    header.push("kinetic", "potential", "energy", "work", "energy_error", "constraint_error");
+    const header = p.record ? p.record.columns.map((c) => c.key) : ["t"];
     const lines = [`# ${scene.title} (${scene.name}); panel #${p.info.id} ${p.info.method} ${p.info.integrator} dt ${p.info.dt}; ` +
       scene.params.map((prm) => `${prm.name} = ${prm.value}`).join(", "), header.join(",")];
     for (const row of rows) lines.push(row.map(String).join(","));
@@ -1374,35 +1673,44 @@
   // ---------- the clock and readouts on the canvas ----------
   // Large, at the plot's top right, readable from the back of a room: t, then the error of
   // what the panel conserves and |C|. Returns the text's box (canvas pixels) for the tests.
-  function drawClock(ctx, T, f) {
+  function clockLayout(ctx, T, f) {
     const r = T.r;
     const lines = [
       { text: `t = ${f.t.toFixed(2)} s`, font: "600 44px system-ui, sans-serif", height: 46 },
-      { text: (f.energy_conserved ? "|ΔE|/E_scale " : "|Δ(E−W)|/E_scale ") + (f.energy_error === 0 ? "0" : fmt(f.energy_error, 2)), font: "26px system-ui, sans-serif", height: 30 },
+      { text: (f.energy_conserved ? "energy error " : "error of E − W ") + (f.energy_error === 0 ? "0" : fmt(f.energy_error, 2)), font: "26px system-ui, sans-serif", height: 30 },
     ];
     if (f.constraint_error > 0 || state.scene.constraints.length) {
       lines.push({ text: `|C| ${f.constraint_error === 0 ? "0 (exact)" : fmt(f.constraint_error, 2)}`, font: "26px system-ui, sans-serif", height: 30 });
     }
     ctx.save();
-    ctx.textAlign = "right";
-    ctx.textBaseline = "top";
-    let y = r.y0 + 8, width = 0;
+    let width = 0;
     for (const line of lines) {
       ctx.font = line.font;
       width = Math.max(width, ctx.measureText(line.text).width);
     }
-    ctx.fillStyle = "rgba(255, 255, 255, 0.8)";
+    ctx.restore();
     const height = lines.reduce((h, l) => h + l.height, 0);
-    ctx.fillRect(r.x1 - 12 - width - 8, y - 4, width + 16, height + 8);
+    const box = { x0: r.x1 - 12 - width - 8, y0: r.y0 + 4, x1: r.x1 - 4, y1: r.y0 + 12 + height };
+    return { lines, width, height, box, right: r.x1 - 12, top: r.y0 + 8 };
+  }
+  function drawClock(ctx, clock) {
+    const { lines, width, height, right, top } = clock;
+    ctx.save();
+    ctx.textAlign = "right";
+    ctx.textBaseline = "top";
+    ctx.fillStyle = "rgba(255, 255, 255, 0.8)";
+    ctx.fillRect(right - width - 8, top - 4, width + 16, height + 8);
     ctx.fillStyle = "#1d1d1f";
+    let y = top;
     for (const line of lines) {
       ctx.font = line.font;
-      ctx.fillText(line.text, r.x1 - 12, y);
+      ctx.fillText(line.text, right, y);
       y += line.height;
     }
     ctx.restore();
-    return { x0: r.x1 - 12 - width, y0: r.y0 + 8, x1: r.x1 - 12, y1: r.y0 + 8 + height, text: lines.map((l) => l.text) };
+    return { x0: right - width, y0: top, x1: right, y1: top + height, text: lines.map((l) => l.text) };
   }
+
 
   // ---------- arrows: velocity and forces ----------
   // At each particle, from the frame's state (the server's numbers): the velocity v, the
@@ -1427,7 +1735,8 @@
       force: ARROW_FRACTION.force * extent / a.force_ref,
     };
   }
-  function drawArrows(ctx, p, T, f, x, n, dim) {
+  // `avoid`: boxes the labels must stay clear of (the clock).
+  function drawArrows(ctx, p, T, f, x, n, dim, avoid) {
     const a = f.arrows;
     if (!a || !ARROW_KINDS.some((k) => arrowOn(k.key))) return [];
     const scales = arrowScales(p, a);
@@ -1460,6 +1769,29 @@
     ctx.lineWidth = 4;
     ctx.lineCap = "round";
     ctx.font = "24px system-ui, sans-serif";
+    // Labels (a few particles only) go next to the tip, on the first side where they stay
+    // inside the plot and clear of the clock and the labels already placed; else none.
+    const taken = avoid.slice();
+    const r = T.r;
+    const place = (ar, angle) => {
+      const m = ctx.measureText(ar.label), gap = 8;
+      const w = m.width, up = m.actualBoundingBoxAscent + 1, down = m.actualBoundingBoxDescent + 1;
+      const ux = Math.cos(angle), uy = Math.sin(angle);
+      const candidates = [
+        [ar.x1 + gap * ux + (ux < 0 ? -w : 0), ar.y1 + gap * uy + (uy < 0 ? 0 : up)],
+        [ar.x1 + gap, ar.y1 - gap], [ar.x1 + gap, ar.y1 + gap + up],
+        [ar.x1 - gap - w, ar.y1 - gap], [ar.x1 - gap - w, ar.y1 + gap + up],
+      ];
+      for (const [lx, ly] of candidates) {
+        const box = { x0: lx, y0: ly - up, x1: lx + w, y1: ly + down };
+        const inside = box.x0 >= r.x0 && box.x1 <= r.x1 && box.y0 >= r.y0 && box.y1 <= r.y1;
+        if (inside && !taken.some((b) => b.x0 < box.x1 && box.x0 < b.x1 && b.y0 < box.y1 && box.y0 < b.y1)) {
+          taken.push(box);
+          return [lx, ly];
+        }
+      }
+      return null;
+    };
     for (const ar of list) {
       const angle = Math.atan2(ar.y1 - ar.y0, ar.x1 - ar.x0), head = Math.min(16, 0.45 * Math.hypot(ar.x1 - ar.x0, ar.y1 - ar.y0));
       ctx.strokeStyle = ar.color;
@@ -1474,7 +1806,9 @@
       ctx.lineTo(ar.x1 - head * Math.cos(angle + 0.45), ar.y1 - head * Math.sin(angle + 0.45));
       ctx.closePath();
       ctx.fill();
-      if (n <= 4) ctx.fillText(ar.label, ar.x1 + 8 * Math.cos(angle) + 4, ar.y1 + 8 * Math.sin(angle) + 8);
+      const at = n <= 4 ? place(ar, angle) : null;
+      ar.labelled = !!at;
+      if (at) { ctx.textAlign = "left"; ctx.fillText(ar.label, at[0], at[1]); }
     }
     ctx.restore();
     return list;
@@ -1525,27 +1859,28 @@
     ctx.font = CHART_FONT;
     ctx.fillStyle = "#3a3a3f";
     ctx.textAlign = "left";
-    let text = title;
-    const room = W - 12;
-    if (ctx.measureText(text).width > room) {
-      while (text.length > 1 && ctx.measureText(text + "…").width > room) text = text.slice(0, -1);
-      text += "…";
-    }
-    ctx.fillText(text, 6, 26);
+    ctx.fillText(fitted(ctx, title, W - 12), 6, 26);
+  }
+  // `text` cut to `room` canvas pixels in the context's font, with "…" where it was cut.
+  function fitted(ctx, text, room) {
+    if (ctx.measureText(text).width <= room) return text;
+    while (text.length > 1 && ctx.measureText(text + "…").width > room) text = text.slice(0, -1);
+    return text + "…";
   }
 
   // history: [t, value] pairs; `log`: plot log10 |value|.
   function drawSeries(canvas, history, options) {
-    const { title, color, log, unit } = options;
+    const { title, color, log } = options;
     const ctx = canvas.getContext("2d");
     const W = canvas.width, H = canvas.height;
     chartFrame(ctx, W, H, title);
     const pts = history.filter((h) => Number.isFinite(h[1]));
     const zeros = pts.filter((h) => h[1] === 0).length;
     // A log chart with some exact zeros says so on a line of its own under the plot.
-    const L = 120, R = 10, Tp = 40, B = log && zeros && zeros < pts.length ? 72 : 40;
+    const R = 10, Tp = 50, B = log && zeros && zeros < pts.length ? 80 : 48;
     const t0 = pts.length ? pts[0][0] : 0, t1 = pts.length ? pts[pts.length - 1][0] : 1;
     const span = t1 > t0 ? t1 - t0 : 1;
+    let L = 120;
     const px = (t) => L + ((t - t0) / span) * (W - L - R);
     const exactZeros = pts.filter((h) => h[1] === 0).length;
     let lo, hi, value, ticks, label;
@@ -1567,6 +1902,8 @@
       label = (v) => (v === 0 ? (m === 0 ? "0 (exact)" : "0") : fmt(v, 2));
     }
     const py = (v) => Tp + (1 - (v - lo) / (hi - lo)) * (H - Tp - B);
+    // The left margin fits the widest value label.
+    L = Math.max(L, 18 + Math.max(...ticks.map((d) => ctx.measureText(label(d)).width)));
     ctx.strokeStyle = "#e6e6e2";
     ctx.fillStyle = "#55555a";
     ctx.textAlign = "right";
@@ -1575,8 +1912,15 @@
       ctx.beginPath(); ctx.moveTo(L, py(d)); ctx.lineTo(W - R, py(d)); ctx.stroke();
       ctx.fillText(label(d), L - 6, py(d) + 9);
     }
-    ctx.textAlign = "right";
-    ctx.fillText(`t (s): ${fmt(t0, 3)} – ${fmt(t1, 3)}`, W - R, H - 8);
+    // The time axis: ticks and their labels under the plot, its name in the corner.
+    const tTicks = pts.length > 1 ? niceTicks(t0, t1, Math.max(2, Math.floor((W - L - R) / 150))) : [];
+    ctx.beginPath();
+    for (const t of tTicks) { ctx.moveTo(px(t), Tp); ctx.lineTo(px(t), H - B + 8); }
+    ctx.stroke();
+    ctx.textAlign = "center";
+    for (const t of tTicks) ctx.fillText(fmt(t, 3), Math.min(W - R - 30, Math.max(L + 30, px(t))), H - 8);
+    ctx.textAlign = "left";
+    ctx.fillText("t (s)", 6, H - 8);
     if (log && exactZeros === pts.length && pts.length) {
       // Nothing to draw on a log axis: said in the middle of the plot.
       ctx.textAlign = "center";
@@ -1584,9 +1928,8 @@
     } else if (log && exactZeros) {
       // Under the plot, on its own line above the time axis (a log axis has no 0).
       ctx.textAlign = "left";
-      ctx.fillText(`${exactZeros} exact 0s not drawn`, 6, H - 40);
+      ctx.fillText(`${exactZeros} exact 0s not drawn`, 6, H - 44);
     }
-    if (unit) { ctx.textAlign = "left"; ctx.fillText(unit, 6, H - 8); }
     ctx.strokeStyle = color;
     ctx.lineWidth = 3;
     ctx.beginPath();
@@ -1654,8 +1997,8 @@
     const conserved = !f || f.energy_conserved;
     const why = f && !conserved ? f.not_conserved_by.join("; ") : "";
     const log = p.dom.logEnergy.checked;
-    const quantity = conserved ? "(E − E0)/E_scale" : "(E − W − E0)/E_scale";
-    const title = log ? `log10 |${quantity}|` : quantity;
+    const quantity = conserved ? "energy change, relative" : "change of E − W, relative";
+    const title = log ? `log |${quantity}|` : quantity;
     p.dom.chartE.title = conserved ?
       "relative energy change (E − E0)/E_scale, E_scale = max(|E0|, T0 + |V0|, T0 + M g L): 0 for exact conservation; its sign says gain or loss" :
       `E changes because ${why}: that is physics, not error. E − W (W the work done on the system) is conserved; the chart shows its relative change (E − W − E0)/E_scale`;
@@ -1670,6 +2013,8 @@
     if (p.dom.chartE.width !== width) p.dom.chartE.width = width;
     if (hasC) drawSeries(p.dom.chartC, p.history.map((h) => [h[0], h[2]]), { title: "constraint error max |C|", color: "#b42318", log: true });
     p.lastBars = drawBars(p);
+    if (p.plot) p.dom.plotLog.checked = !!p.plot.log;
+    p.lastPlot = drawPanelPlot(p);
   }
 
   // Draw panel `p` and time it; `flush` reads a pixel back so that the time includes the
@@ -1990,42 +2335,27 @@
     return ov.lastDraw;
   }
 
+  // The distance between the formulations: every other panel's particles to the first
+  // panel's at the same t, over time (the server computes it).
   function drawDistance() {
-    const canvas = $("distance-chart"), ctx = canvas.getContext("2d");
-    const W = canvas.width, H = canvas.height;
+    const canvas = $("distance-chart");
     const panels = [...state.panels.values()];
-    chartFrame(ctx, W, H, panels.length > 1 ? `distance to panel #${panels[0].info.id}: max over particles |x − x₁| (scene units)` : "distance between formulations: add a second panel");
     const series = [];
     panels.forEach((p, k) => {
       const h = state.overlay.history.get(p.info.id);
       if (k > 0 && h && h.epoch === p.info.epoch && h.points.length) series.push({ color: PANEL_COLORS[k % PANEL_COLORS.length], points: h.points });
     });
-    const L = 120, R = 10, Tp = 40, B = 40;
-    const all = series.flatMap((s) => s.points);
-    if (!all.length) return null;
-    const t0 = Math.min(...all.map((q) => q[0])), t1 = Math.max(...all.map((q) => q[0]));
-    const span = t1 > t0 ? t1 - t0 : 1;
-    const m = Math.max(...all.map((q) => q[1]));
-    const top = m > 0 ? m * 1.1 : 1;
-    const px = (t) => L + ((t - t0) / span) * (W - L - R);
-    const py = (v) => Tp + (1 - v / top) * (H - Tp - B);
-    ctx.strokeStyle = "#e6e6e2";
-    ctx.fillStyle = "#55555a";
-    ctx.textAlign = "right";
-    ctx.lineWidth = 1;
-    for (const v of m > 0 ? niceTicks(0, top, 4) : [0]) {
-      ctx.beginPath(); ctx.moveTo(L, py(v)); ctx.lineTo(W - R, py(v)); ctx.stroke();
-      ctx.fillText(v === 0 ? (m === 0 ? "0 (exact)" : "0") : fmt(v, 2), L - 6, py(v) + 9);
+    if (panels.length < 2) {
+      const ctx = canvas.getContext("2d");
+      chartFrame(ctx, canvas.width, canvas.height, "distance between formulations: add a second panel");
+      return null;
     }
-    ctx.fillText(`t (s): ${fmt(t0, 3)} – ${fmt(t1, 3)}`, W - R, H - 8);
-    ctx.lineWidth = 3;
-    for (const sr of series) {
-      ctx.strokeStyle = sr.color;
-      ctx.beginPath();
-      sr.points.forEach((q, i) => (i ? ctx.lineTo(px(q[0]), py(q[1])) : ctx.moveTo(px(q[0]), py(q[1]))));
-      ctx.stroke();
-    }
-    return { series: series.length, max: m };
+    const L = state.scene && state.scene.length_unit;
+    const drawn = drawXY(canvas, {
+      xLabel: "time t (s)", series,
+      yLabel: `distance to panel #${panels[0].info.id}, largest over particles` + (L ? ` (${L})` : ""),
+    });
+    return { series: series.length, max: drawn.points ? drawn.data.y[1] : 0 };
   }
 
   function updateOverlay() {
@@ -2034,6 +2364,8 @@
     ov.dirty = false;
     drawOverlay();
     drawDistance();
+    fillOverlayChoices();
+    drawOverlayPlot();
     const panels = [...state.panels.values()];
     const legend = $("overlay-legend");
     legend.innerHTML = "";
@@ -2124,6 +2456,12 @@
 
   // ---------- toolbar ----------
   $("overlay").onchange = () => setOverlay($("overlay").checked);
+  for (const id of ["overlay-canvas", "distance-chart", "overlay-plot"]) countCalls($(id));
+  const overlayPlotChanged = () => {
+    state.overlay.plot = { x: $("overlay-plot-x").value, y: $("overlay-plot-y").value, log: $("overlay-plot-log").checked };
+    state.overlay.dirty = true;
+  };
+  for (const id of ["overlay-plot-x", "overlay-plot-y", "overlay-plot-log"]) $(id).onchange = overlayPlotChanged;
   $("present").onclick = () => setPresenting(!state.presenting);
   $("share").onclick = () => {
     const url = shareUrl();

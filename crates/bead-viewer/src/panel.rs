@@ -22,7 +22,7 @@ use bead::simulate::{
 use crate::geometry::{Curves, Resolution};
 use crate::protocol::{
     Applies, Arrows, DragInfo, PanelFrame, PanelInfo, RowForce, ARROW_MAX_PARTICLES,
-    ARROW_MAX_ROWS, PATH_MAX_NUMBERS, PATH_MAX_SAMPLES,
+    ARROW_MAX_ROWS, GENERALIZED_MAX, PATH_MAX_NUMBERS, PATH_MAX_SAMPLES,
 };
 
 /// What a panel runs.
@@ -768,6 +768,7 @@ impl Panel {
             curve_region: self.curve_region,
             curve_note: self.curve_note.clone(),
             applies: self.applies(),
+            coordinates: self.coordinate_names(),
         }
     }
 
@@ -836,6 +837,26 @@ impl Panel {
             curves,
             curve_region: self.curve_region,
             arrows,
+            generalized: self.generalized(),
         }
+    }
+
+    /// The generalized coordinates' names of a parametric panel (none for an implicit one).
+    fn coordinate_names(&self) -> Vec<String> {
+        match (self.settings.method, self.scene.system.parametric()) {
+            (Method::Parametric, Some(map)) => map.coordinates().to_vec(),
+            _ => Vec::new(),
+        }
+    }
+
+    /// A parametric panel's q then q' (see [`PanelFrame::generalized`]).
+    fn generalized(&self) -> Option<Vec<f64>> {
+        let s = &self.simulation;
+        let n = s.q().len();
+        if self.settings.method != Method::Parametric || n > GENERALIZED_MAX {
+            return None;
+        }
+        let finite = |v: &f64| if v.is_finite() { *v } else { 0.0 };
+        Some(s.q().iter().chain(s.qdot()).map(finite).collect())
     }
 }

@@ -70,6 +70,9 @@
 //! got; panels and frames say the region the curves cover (`curve_region`). Frames of small
 //! scenes carry the velocities and forces for arrows ([`Arrows`]); parameters say their
 //! unit, description, whether they are whole or derived, and `set_param` takes `expr`.
+//! Within version 7 (a page that does not know them ignores them), a parametric panel names
+//! its generalized coordinates ([`PanelInfo::coordinates`]) and its frames carry q and q'
+//! ([`PanelFrame::generalized`]), for the live plot.
 //!
 //! Version 6 ends runs where the scene ends: the clock stops every panel at the
 //! scene's `[run]` duration ([`Clock::end`]; `play` then starts again from the start), or
@@ -341,11 +344,14 @@ pub enum ServerMessage {
         position_moved: f64,
         velocity_moved: f64,
     },
-    /// The equations panel `panel`'s formulation derived, as `bead check` prints them.
+    /// The equations panel `panel`'s formulation derived: as `bead check` prints them
+    /// (`text`), and the equations of motion typeset (`mathml`: HTML paragraphs with MathML
+    /// blocks, [`bead::describe::equations_mathml`]; within version 7).
     Equations {
         panel: u32,
         method: String,
         text: String,
+        mathml: String,
     },
     /// A `load_scene` failed: the rendered scene error (`file:line:column: message` and a
     /// caret snippet) and its position (0 when unknown).
@@ -539,6 +545,10 @@ pub struct SceneInfo {
     /// absent when the scene does not say.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub energy_unit: Option<String>,
+    /// The unit of lengths, from `[world] units` (`"m"` for SI, else the scene's word, e.g.
+    /// `"px"`); absent when the scene does not say.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub length_unit: Option<String>,
     /// 2 or 3.
     pub dim: usize,
     /// The scene's gravity, `dim` numbers (m/s^2): the page draws "up" against it.
@@ -690,6 +700,9 @@ pub struct PanelInfo {
     pub curve_note: Option<String>,
     /// Which settings apply to this panel (the others do nothing or are refused).
     pub applies: Applies,
+    /// The names of the generalized coordinates q of a parametric panel (the scene's
+    /// `coordinates`); empty for an implicit panel, whose coordinates are the particles'.
+    pub coordinates: Vec<String>,
 }
 
 /// One panel's state in a [`ServerMessage::Frame`].
@@ -767,7 +780,15 @@ pub struct PanelFrame {
     /// [`ARROW_MAX_PARTICLES`] particles and [`ARROW_MAX_ROWS`] constraint rows.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub arrows: Option<Arrows>,
+    /// A parametric panel's generalized coordinates q then their rates q' (the names are
+    /// [`PanelInfo::coordinates`]), for scenes of at most [`GENERALIZED_MAX`] coordinates.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub generalized: Option<Vec<f64>>,
 }
+
+/// Parametric panels of more generalized coordinates than this send no
+/// [`PanelFrame::generalized`].
+pub const GENERALIZED_MAX: usize = 32;
 
 /// Scenes with more particles than this send no [`Arrows`].
 pub const ARROW_MAX_PARTICLES: usize = 16;

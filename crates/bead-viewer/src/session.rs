@@ -690,6 +690,7 @@ impl Session {
                     panel,
                     method: p.method().name().into(),
                     text: bead::describe::equations(&p.scene().system, p.method(), 200),
+                    mathml: bead::describe::equations_mathml(&p.scene().system, p.method(), 12),
                 }])
             }
         }
@@ -1181,6 +1182,13 @@ pub fn scene_info(name: &str, scene: &Scene) -> SceneInfo {
                 "J".to_string()
             } else {
                 format!("kg {u}^2/s^2")
+            }
+        }),
+        length_unit: scene.units.as_deref().map(|u| {
+            if u.eq_ignore_ascii_case("SI") {
+                "m".to_string()
+            } else {
+                u.to_string()
             }
         }),
         dim: system.dim(),

@@ -874,7 +874,7 @@ async fn export_checks(client: &Client, addr: SocketAddr) {
     );
     assert_eq!(
         lines[1],
-        "t,bead.x,bead.y,bead.vx,bead.vy,kinetic,potential,energy,work,energy_error,constraint_error"
+        "t,bead.x,bead.y,bead.vx,bead.vy,kinetic,potential,energy,work,energy_error,constraint_error,lambda0"
     );
     let rows: Vec<Vec<f64>> = lines[2..]
         .iter()
@@ -936,6 +936,348 @@ async fn export_checks(client: &Client, addr: SocketAddr) {
         Duration::from_secs(30),
     )
     .await;
+    let errors = js(client, "return window.__errors;").await;
+    assert_eq!(errors, json!([]), "errors in the page");
+}
+
+/// No text is clipped or overlaps other text, at a laptop's 1366x768 and a projector's
+/// 1920x1080, for every shipped scene, with the page as it opens, in overlay mode and
+/// presenting: every text a canvas drew lies inside the canvas and clear of the others;
+/// every text of the page lies inside its panel, clear of the others, and the page does not
+/// scroll sideways.
+#[test]
+fn no_text_is_clipped_or_overlaps_at_laptop_and_projector_sizes() {
+    in_browser(ServerConfig::default(), |client, addr| {
+        layout_checks(client, addr).boxed_local()
+    });
+}
+
+/// Two boxes [x0, y0, x1, y1] overlap by more than `slack` in both directions.
+fn overlap(a: &[f64], b: &[f64], slack: f64) -> bool {
+    a[0].max(b[0]) + slack < a[2].min(b[2]) && a[1].max(b[1]) + slack < a[3].min(b[3])
+}
+
+/// What is wrong with a page's text layout (`window.__viewer.textLayout()`), in words.
+fn layout_faults(layout: &Value) -> Vec<String> {
+    let mut faults = Vec::new();
+    let number = |v: &Value| v.as_f64().unwrap();
+    for canvas in layout["canvases"].as_array().unwrap() {
+        let (w, h) = (number(&canvas["width"]), number(&canvas["height"]));
+        let name = canvas["name"].as_str().unwrap();
+        let texts: Vec<(String, Vec<f64>)> = canvas["texts"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|t| {
+                (
+                    t["text"].as_str().unwrap().to_string(),
+                    ["x0", "y0", "x1", "y1"].map(|k| number(&t[k])).to_vec(),
+                )
+            })
+            .collect();
+        for (text, b) in &texts {
+            if b[0] < -0.5 || b[1] < -0.5 || b[2] > w + 0.5 || b[3] > h + 0.5 {
+                faults.push(format!(
+                    "{name}: {text:?} at {b:?} leaves the {w}x{h} canvas"
+                ));
+            }
+        }
+        for (i, (ta, a)) in texts.iter().enumerate() {
+            for (tb, b) in &texts[i + 1..] {
+                if overlap(a, b, 1.0) {
+                    faults.push(format!("{name}: {ta:?} {a:?} overlaps {tb:?} {b:?}"));
+                }
+            }
+        }
+    }
+    let nodes = layout["nodes"].as_array().unwrap();
+    let width = number(&layout["width"]);
+    if number(&layout["scrollWidth"]) > width + 0.5 {
+        faults.push(format!(
+            "the page scrolls sideways: {} > {width}",
+            layout["scrollWidth"]
+        ));
+    }
+    let rects = |n: &Value| -> Vec<Vec<f64>> {
+        n["rects"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|r| r.as_array().unwrap().iter().map(number).collect())
+            .collect()
+    };
+    for n in nodes {
+        let text = n["text"].as_str().unwrap();
+        for r in rects(n) {
+            if r[2] > width + 0.5 {
+                faults.push(format!(
+                    "page: {text:?} at {r:?} past the window's {width} px"
+                ));
+            }
+            if let Some(panel) = n["panel"].as_array() {
+                let p: Vec<f64> = panel.iter().map(number).collect();
+                if r[0] < p[0] - 0.5 || r[2] > p[2] + 0.5 || r[1] < p[1] - 0.5 || r[3] > p[3] + 0.5
+                {
+                    faults.push(format!("page: {text:?} at {r:?} leaves its panel {p:?}"));
+                }
+            }
+        }
+    }
+    for (i, a) in nodes.iter().enumerate() {
+        for b in &nodes[i + 1..] {
+            for ra in rects(a) {
+                for rb in rects(b) {
+                    if overlap(&ra, &rb, 1.0) {
+                        faults.push(format!(
+                            "page: {:?} {ra:?} overlaps {:?} {rb:?}",
+                            a["text"], b["text"]
+                        ));
+                    }
+                }
+            }
+        }
+    }
+    faults
+}
+
+async fn layout_checks(client: &Client, addr: SocketAddr) {
+    client.goto(&format!("http://{addr}/")).await.unwrap();
+    wait_until(
+        client,
+        "window.__viewer && window.__viewer.scene",
+        "the page",
+    )
+    .await;
+    let names: Vec<&str> = bead_viewer::scenes::SHIPPED
+        .iter()
+        .map(|(n, _)| *n)
+        .collect();
+    let mut faults = Vec::new();
+    for (w, h) in [(1366u32, 768u32), (1920, 1080)] {
+        client.set_window_size(w, h).await.unwrap();
+        wait_within(
+            client,
+            &format!("window.outerWidth === {w}"),
+            "the window size",
+            Duration::from_secs(30),
+        )
+        .await;
+        for name in &names {
+            js(
+                client,
+                &format!(
+                    "const s = document.getElementById('scene-select'); s.value = '{name}';
+                     s.dispatchEvent(new Event('change')); return null;"
+                ),
+            )
+            .await;
+            wait_within(
+                client,
+                &format!(
+                    "window.__viewer.scene.name === '{name}' && window.__viewer.panels.size > 0 && \
+                     [...window.__viewer.panels.values()].every(p => p.frame && \
+                     p.frame.epoch === p.info.epoch && p.lastDraw && p.history.length > 3 && \
+                     (p.frame.steps > 0 || p.frame.status === 'failed'))"
+                ),
+                &format!("{name} loaded and drawn"),
+                Duration::from_secs(60),
+            )
+            .await;
+            let modes: &[&str] = if ["parabola", "circle", "spinning-hoop", "helix"].contains(name)
+            {
+                &["as it opens", "overlay", "presenting"]
+            } else {
+                &["as it opens"]
+            };
+            for mode in modes {
+                let setup = match *mode {
+                    "overlay" => "window.__viewer.setOverlay(true);",
+                    "presenting" => {
+                        "window.__viewer.setOverlay(false); window.__viewer.setPresenting(true);"
+                    }
+                    _ => "",
+                };
+                let layout = js(
+                    client,
+                    &format!(
+                        "{setup} await new Promise(r => requestAnimationFrame(() => requestAnimationFrame(r)));
+                         return window.__viewer.textLayout();"
+                    ),
+                )
+                .await;
+                assert!(
+                    layout["canvases"].as_array().unwrap().len() >= 4,
+                    "{name}: {layout}"
+                );
+                for fault in layout_faults(&layout) {
+                    faults.push(format!("{w}x{h} {name} ({mode}): {fault}"));
+                }
+            }
+            js(client, "window.__viewer.setPresenting(false); return null;").await;
+        }
+    }
+    assert!(
+        faults.is_empty(),
+        "{} faults:\n{}",
+        faults.len(),
+        faults.join("\n")
+    );
+    // The check sees what it should: a text put over the toolbar's, and one past a chart's
+    // edge, are found.
+    let planted = js(
+        client,
+        "const d = document.createElement('div'); d.textContent = 'planted text';
+         d.style.cssText = 'position: absolute; left: 4px; top: 6px; font-size: 20px';
+         document.body.appendChild(d);
+         const layout = window.__viewer.textLayout();
+         d.remove();
+         const c = layout.canvases.find(c => c.name.includes('chart-energy'));
+         c.texts.push({ text: 'past the edge', x0: c.width - 10, y0: 10, x1: c.width + 40, y1: 30 });
+         return layout;",
+    )
+    .await;
+    let found = layout_faults(&planted).join("\n");
+    assert!(
+        found.contains("\"planted text\"") && found.contains("\"past the edge\""),
+        "{found}"
+    );
+    let errors = js(client, "return window.__errors;").await;
+    assert_eq!(errors, json!([]), "errors in the page");
+}
+
+/// The live plot: a panel's x against vx (chosen in its selects), the parametric panel's
+/// q' against q, a log axis with nothing to draw, and the overlay's plot of every panel: the
+/// newest point of each is the last frame's numbers, drawn where the axes say.
+#[test]
+fn a_live_plot_of_any_quantity_against_any_other() {
+    let text = shipped("circle");
+    in_browser(serving("circle", text), |client, addr| {
+        live_plot_checks(client, addr).boxed_local()
+    });
+}
+
+async fn live_plot_checks(client: &Client, addr: SocketAddr) {
+    client.goto(&format!("http://{addr}/")).await.unwrap();
+    wait_within(
+        client,
+        "window.__viewer && window.__viewer.panels.size === 2 && \
+         [...window.__viewer.panels.values()].every(p => p.frame && p.frame.t > 0.5)",
+        "the pendulum swinging",
+        Duration::from_secs(30),
+    )
+    .await;
+    // Chosen as a user does: the panel's selects.
+    let options = js(
+        client,
+        "const [a, b] = [...window.__viewer.panels.values()];
+         const choose = (p, cls, v) => { const s = p.dom.root.querySelector(cls); s.value = v; s.dispatchEvent(new Event('change')); };
+         choose(a, '.plot-x', 'bead.x'); choose(a, '.plot-y', 'bead.vx');
+         choose(b, '.plot-x', 'theta'); choose(b, '.plot-y', \"theta'\");
+         return [[...a.dom.plotY.options].map(o => o.value), [...b.dom.plotY.options].map(o => o.textContent), b.plot];",
+    )
+    .await;
+    let implicit: Vec<&str> = options[0]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_str().unwrap())
+        .collect();
+    for key in [
+        "t",
+        "bead.x",
+        "bead.vy",
+        "energy",
+        "constraint_error",
+        "lambda0",
+    ] {
+        assert!(implicit.contains(&key), "{key} in {implicit:?}");
+    }
+    let labels = options[1].to_string();
+    assert!(
+        labels.contains("bead velocity vx (m/s)") && labels.contains("coordinate theta"),
+        "{labels}"
+    );
+    assert_eq!(
+        options[2],
+        json!({"x": "theta", "y": "theta'", "log": false})
+    );
+    pause_all(client).await;
+    // The newest point of each plot is the last frame's, exactly, and is drawn at its pixel.
+    wait_within(
+        client,
+        "(() => { const [a, b] = [...window.__viewer.panels.values()];
+           return !!(a.lastPlot && b.lastPlot && a.lastPlot.points > 20 && b.lastPlot.points > 20 &&
+             a.lastPlot.last[0][0] === a.frame.x[0] && a.lastPlot.last[0][1] === a.frame.arrows.velocity[0] &&
+             b.lastPlot.last[0][0] === b.frame.generalized[0] && b.lastPlot.last[0][1] === b.frame.generalized[1]); })()",
+        "each plot's newest point at the last frame",
+        Duration::from_secs(30),
+    )
+    .await;
+    let got = js(
+        client,
+        "const out = [];
+         for (const p of window.__viewer.panels.values()) {
+           const d = p.lastPlot, c = p.dom.plot, [x, y] = d.last[0];
+           const X = d.plot.x0 + (x - d.x[0]) / (d.x[1] - d.x[0]) * (d.plot.x1 - d.plot.x0);
+           const Y = d.plot.y0 + (1 - (y - d.y[0]) / (d.y[1] - d.y[0])) * (d.plot.y1 - d.plot.y0);
+           out.push([Array.from(c.getContext('2d').getImageData(Math.round(X), Math.round(Y), 1, 1).data), d.data]);
+         }
+         return out;",
+    )
+    .await;
+    for panel in got.as_array().unwrap() {
+        assert_eq!(
+            panel[0],
+            json!([31, 111, 235, 255]),
+            "the newest point's marker: {got}"
+        );
+    }
+    // On the unit circle |x| <= 1 and the speed is at most sqrt(2 g (1 + 1)) (g = 9.81).
+    let data = &got[0][1];
+    let (xs, vs) = (data["x"].as_array().unwrap(), data["y"].as_array().unwrap());
+    assert!(
+        xs.iter().all(|v| v.as_f64().unwrap().abs() <= 1.0 + 1e-9),
+        "{data}"
+    );
+    assert!(
+        vs.iter()
+            .all(|v| v.as_f64().unwrap().abs() <= (4.0f64 * 9.81).sqrt()),
+        "{data}"
+    );
+    assert!(
+        xs[1].as_f64().unwrap() > xs[0].as_f64().unwrap() + 0.1,
+        "{data}"
+    );
+    // A log axis with nothing on it (nothing does work on the pendulum: W is exactly 0): said.
+    let log = js(
+        client,
+        "const b = [...window.__viewer.panels.values()][1];
+         window.__viewer.setPlot(b.info.id, { x: 't', y: 'work', log: true });
+         await new Promise(r => requestAnimationFrame(() => requestAnimationFrame(r)));
+         return [b.lastPlot, b.dom.plotLog.checked, b.dom.plotY.value];",
+    )
+    .await;
+    assert_eq!(log, json!([{"points": 0}, true, "work"]));
+    // Overlay: one plot, every panel in its colour, chosen in the overlay's selects.
+    js(
+        client,
+        "window.__viewer.setOverlay(true);
+         for (const [id, v] of [['overlay-plot-x', 'bead.x'], ['overlay-plot-y', 'bead.vx']]) {
+           const s = document.getElementById(id); s.value = v; s.dispatchEvent(new Event('change'));
+         }
+         return null;",
+    )
+    .await;
+    wait_within(
+        client,
+        "(() => { const o = window.__viewer.overlay.lastPlot, [a, b] = [...window.__viewer.panels.values()];
+           return o && o.last.length === 2 && o.last[0][0] === a.frame.x[0] && o.last[0][1] === a.frame.arrows.velocity[0] &&
+             o.last[1][0] === b.frame.x[0] && o.last[1][1] === b.frame.arrows.velocity[0]; })()",
+        "the overlay's plot of both panels",
+        Duration::from_secs(30),
+    )
+    .await;
+    screenshot(client, "live-plot").await;
     let errors = js(client, "return window.__errors;").await;
     assert_eq!(errors, json!([]), "errors in the page");
 }
@@ -1611,6 +1953,7 @@ async fn cloth_at_scale(client: &Client, addr: SocketAddr) {
                 feedback: true,
                 project: true,
             },
+            coordinates: Vec::new(),
         }],
     });
 
@@ -1676,6 +2019,7 @@ async fn cloth_at_scale(client: &Client, addr: SocketAddr) {
             curves: None,
             curve_region: scene_view,
             arrows: None,
+            generalized: None,
         };
         let bytes = encode_frame(1.0, &[panel]).unwrap();
         bytes_per_frame = bytes.len();
@@ -2165,7 +2509,12 @@ async fn teaching_checks(client: &Client, addr: SocketAddr) {
         "return document.querySelector('.panel .r-sps').textContent;",
     )
     .await;
-    assert!(sps.as_str().unwrap().starts_with("compute rate"), "{sps}");
+    assert!(
+        sps.as_str()
+            .unwrap()
+            .ends_with("steps per second of computing"),
+        "{sps}"
+    );
     // Settings that do nothing are hidden: feedback and projection on the parametric panel.
     let hidden = js(
         client,
@@ -2508,10 +2857,25 @@ async fn teaching_checks(client: &Client, addr: SocketAddr) {
     js(client, "document.querySelector('.panel[data-panel=\"2\"] button.show-equations').click(); return null;").await;
     wait_until(
         client,
-        "(() => { const e = document.querySelector('.panel[data-panel=\"2\"] pre.equations'); return !e.hidden && e.textContent.includes('acceleration = J q\\'\\' + h'); })()",
+        "(() => { const e = document.querySelector('.panel[data-panel=\"2\"] .equations'); return !e.hidden && e.textContent.includes('acceleration = J q\\'\\' + h'); })()",
         "the parametric equations",
     )
     .await;
+    // Typeset: the browser lays the MathML out as math (a fraction is taller than a line of
+    // text), and the written-out equation of motion is there.
+    let math = js(
+        client,
+        "const e = document.querySelector('.panel[data-panel=\"2\"] .equations');
+         const blocks = [...e.querySelectorAll('math')];
+         const frac = e.querySelector('mfrac'), line = parseFloat(getComputedStyle(e.querySelector('p')).fontSize);
+         return [blocks.length, frac.getBoundingClientRect().height > 1.8 * line, e.textContent.includes('M(q)'),
+                 blocks.every(b => b.getBoundingClientRect().width > 0)];",
+    )
+    .await;
+    assert_eq!(math[1], json!(true), "{math}");
+    assert!(math[0].as_u64().unwrap() >= 3, "{math}");
+    assert_eq!(math[2], json!(true), "{math}");
+    assert_eq!(math[3], json!(true), "{math}");
 
     let errors = js(client, "return window.__errors;").await;
     assert_eq!(errors, json!([]), "errors in the page");

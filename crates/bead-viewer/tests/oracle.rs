@@ -262,6 +262,7 @@ fn decode_frame_reads_header_numbers_exactly() {
             curves: None,
             curve_region: [-v, -v, v, v],
             arrows: None,
+            generalized: None,
         };
         let decoded = decode_frame(&encode_frame(1.0, &[frame]).unwrap()).unwrap();
         let panel = &decoded["panels"][0];

@@ -227,10 +227,18 @@ fn the_equations_of_each_formulation() {
             &mut s,
             &format!(r#"{{"type":"equations","panel":{panel}}}"#),
         );
-        let Some(ServerMessage::Equations { text, .. }) = replies.first() else {
+        let Some(ServerMessage::Equations { text, mathml, .. }) = replies.first() else {
             panic!("{replies:?}");
         };
         assert!(text.contains(words), "{text}");
+        // The equation of motion typeset: lambda for the circle's one row, M(q) theta''
+        // for its one coordinate.
+        let written_out = if panel == 1 {
+            "<mi>λ</mi><mo>=</mo>"
+        } else {
+            "<mover><mi>θ</mi><mo>¨</mo></mover><mo>=</mo>"
+        };
+        assert!(mathml.contains(written_out), "{mathml}");
     }
 }
 

@@ -33,6 +33,7 @@ mod ast;
 mod diff;
 mod display;
 mod jit;
+mod mathml;
 mod parse;
 mod tape;
 
@@ -44,6 +45,7 @@ pub use jit::{
     jit_enabled, set_jit_enabled, with_forced_jit_failure, with_jit, NativeStatus, NativeSummary,
     MAX_NATIVE_INSTRUCTIONS,
 };
+pub use mathml::escape as mathml_escape;
 pub use parse::{is_identifier, name_spans, parse, ExprError, Resolved, Span, MAX_DEPTH};
 pub use tape::Tape;
 pub(crate) use tape::{Sym, TapeBuilder};
