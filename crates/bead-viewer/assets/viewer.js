@@ -151,7 +151,10 @@
     switch (msg.type) {
       case "welcome": onWelcome(msg); break;
       case "scene": onScene(msg); restoreStep(msg); break;
-      case "panels": onPanels(msg.panels); restoreStep(msg); break;
+      case "panels":
+        // The panels a new start state started: it lasts while they run from it.
+        if (state.customStart && !state.customStart.epochs) state.customStart.epochs = msg.panels.map((p) => p.epoch);
+        onPanels(msg.panels); restoreStep(msg); break;
       case "frame": onFrame(msg); break;
       case "error":
         // msg.code is the machine-readable reason (protocol.rs, ErrorCode).
@@ -172,8 +175,10 @@
         break;
       case "curve_error": onCurveError(msg); break;
       case "equations": onEquations(msg); break;
-      case "start_placed": onStartPlaced(msg); break;
-      case "state_set": onStateSet(msg); break;
+      case "start_placed":
+        if (msg.positions) noteStart(msg.positions, msg.positions.map(() => 0));
+        onStartPlaced(msg); break;
+      case "state_set": noteStart(msg.positions, msg.velocities); onStateSet(msg); break;
       default: break;
     }
   }
@@ -253,8 +258,38 @@
       if (i.ks || i.kd || i.project) spec += `:${i.ks}:${i.kd}` + (i.project ? ":project" : "");
       q.append("panel", spec);
     }
+    for (const [i, expr] of curveEdits()) q.append(`curve.${i}`, expr);
+    const start = sharedStart();
+    if (start) {
+      q.set("start.x", start.positions.map(String).join(","));
+      q.set("start.v", start.velocities.map(String).join(","));
+    }
     q.set("ts", String(state.timeScale));
     return `${location.origin}${location.pathname}?${q.toString()}`;
+  }
+
+  // The curves edited in the implicit panels: [constraint index, expression] where the
+  // first implicit panel's expression is not the scene's.
+  function curveEdits() {
+    const out = [];
+    const first = [...state.panels.values()].find((p) => p.info.method === "implicit");
+    if (!first || !state.scene) return out;
+    state.scene.constraints.forEach((c, i) => {
+      const now = first.info.exprs[i];
+      if (c.expr != null && now != null && now !== c.expr) out.push([i, now]);
+    });
+    return out;
+  }
+  // A start state set by typing or dragging (state_set, start_placed), while every panel
+  // still runs from it (the epochs it started); a reset, a new panel or a new scene ends it.
+  function noteStart(positions, velocities) {
+    state.customStart = { positions: positions.slice(), velocities: velocities.slice(), epochs: null };
+  }
+  function sharedStart() {
+    const c = state.customStart;
+    if (!c || !c.epochs) return null;
+    for (const p of state.panels.values()) if (!c.epochs.includes(p.info.epoch)) return null;
+    return c;
   }
 
   // The address bar follows the page's state (a share URL without the click), so that a
@@ -300,6 +335,24 @@
       }
       out.panels.push(panel);
     }
+    out.curves = [];
+    for (const [key, value] of q) {
+      if (!key.startsWith("curve.")) continue;
+      const i = Number(key.slice(6));
+      if (!Number.isInteger(i) || i < 0) { bad(`\`${key}\`: the constraint's number must be a whole number >= 0`); continue; }
+      out.curves.push([i, value]);
+    }
+    const numbers = (key) => {
+      const text = q.get(key);
+      if (text == null) return null;
+      const v = text.split(",").map(Number);
+      if (!text.trim() || !v.every(Number.isFinite)) { bad(`\`${key}\`: \`${text}\` is not a list of numbers`); return undefined; }
+      return v;
+    };
+    const positions = numbers("start.x"), velocities = numbers("start.v");
+    if (positions !== undefined && velocities !== undefined && (positions || velocities)) {
+      out.start = { positions, velocities };
+    }
     const ts = q.get("ts");
     if (ts != null) {
       const v = Number(ts);
@@ -340,9 +393,19 @@
       }
     } else if (msg.type === "panels" && r.stage === "panels") {
       state.restore = null;
-      if (!r.panels.length) return;
-      for (const p of msg.panels) send({ type: "remove_panel", panel: p.id });
-      for (const panel of r.panels) send({ type: "add_panel", ...panel });
+      // The server takes requests in order: the panels, then the curve edits (for the
+      // implicit panels), then the start state (placed by the first panel).
+      if (r.panels.length) {
+        for (const p of msg.panels) send({ type: "remove_panel", panel: p.id });
+        for (const panel of r.panels) send({ type: "add_panel", ...panel });
+      }
+      for (const [constraint, expr] of r.curves || []) send({ type: "set_curve", constraint, expr });
+      if (r.start) {
+        const start = { type: "set_start_state" };
+        if (r.start.positions) start.positions = r.start.positions;
+        if (r.start.velocities) start.velocities = r.start.velocities;
+        send(start);
+      }
     }
   }
   const sameNumber = (a, b) => a === b || Math.abs(a - b) <= 1e-12 * Math.max(Math.abs(a), Math.abs(b));

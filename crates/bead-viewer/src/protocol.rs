@@ -232,9 +232,12 @@ pub enum ClientMessage {
     /// to the closest point, velocities projected onto the constraints' tangent, see
     /// `bead::simulate::Simulation::set_state`); every panel restarts at t = 0 from that
     /// placed state. The reply is [`ServerMessage::StateSet`] and the new
-    /// [`ServerMessage::Panels`]; if a panel cannot start, nothing changes.
+    /// [`ServerMessage::Panels`]; if a panel cannot start, nothing changes. Without `panel`
+    /// (within version 7), the first panel places them (a share URL being restored does
+    /// not know the ids its panels will get).
     SetStartState {
-        panel: u32,
+        #[serde(default)]
+        panel: Option<u32>,
         #[serde(default)]
         positions: Option<Vec<f64>>,
         #[serde(default)]
@@ -332,6 +335,8 @@ pub enum ServerMessage {
         dropped: Vec<f64>,
         placed: Vec<f64>,
         moved: f64,
+        /// Every particle's start position (`n_coords`; at rest), for a share URL.
+        positions: Vec<f64>,
     },
     /// A `set_start_state` was carried out: every panel starts from `positions` and
     /// `velocities` (on the constraints), which are `position_moved` and `velocity_moved`

@@ -31,6 +31,22 @@ struct CurrentScene {
     /// The `[params]` as first loaded, with their ranges: a parameter change keeps them, so
     /// that a slider's range does not move under it.
     params: Vec<ParamInfo>,
+    /// Where the scene's run ends (`[run]` duration), resolved once at load.
+    end: Option<f64>,
+}
+
+impl CurrentScene {
+    fn new(scene: Arc<Scene>, info: SceneInfo, params: Vec<ParamInfo>) -> CurrentScene {
+        let end = bead::plan::Plan::resolve(&scene, &bead::plan::PlanRequest::default())
+            .ok()
+            .map(|plan| plan.t_end());
+        CurrentScene {
+            scene,
+            info,
+            params,
+            end,
+        }
+    }
 }
 
 /// Why a request was rejected. Each has an [`ErrorCode`] for the reply.
@@ -40,6 +56,8 @@ pub enum SessionError {
     NoScene,
     #[error("no panel {0}")]
     NoPanel(u32),
+    #[error("no panel to start: add one first")]
+    NoPanels,
     #[error("too many panels (limit {0})")]
     TooManyPanels(usize),
     /// A number outside its range.
@@ -110,7 +128,7 @@ impl SessionError {
     pub fn code(&self) -> ErrorCode {
         match self {
             SessionError::NoScene => ErrorCode::NoScene,
-            SessionError::NoPanel(_) => ErrorCode::NoPanel,
+            SessionError::NoPanel(_) | SessionError::NoPanels => ErrorCode::NoPanel,
             SessionError::TooManyPanels(_) => ErrorCode::TooManyPanels,
             SessionError::OutOfRange { .. } | SessionError::UnknownName(_) => ErrorCode::BadValue,
             SessionError::Illegal(_) => ErrorCode::IllegalCombination,
@@ -355,9 +373,7 @@ impl Session {
 
     /// The scene's end ([`Clock::end`]): the time at which `bead run` ends its run.
     pub fn end(&self) -> Option<f64> {
-        let scene = &self.scene.as_ref()?.scene;
-        let plan = bead::plan::Plan::resolve(scene, &bead::plan::PlanRequest::default()).ok()?;
-        Some(plan.t_end())
+        self.scene.as_ref()?.end
     }
 
     /// Restart every panel but those at `except` (rebuilt already) from the scene's initial
@@ -668,7 +684,17 @@ impl Session {
                 panel,
                 positions,
                 velocities,
-            } => self.set_start_state(panel, positions, velocities),
+            } => {
+                let panel = match panel {
+                    Some(id) => id,
+                    None => self
+                        .panels
+                        .first()
+                        .map(|p| p.id)
+                        .ok_or((SessionError::NoPanels, None))?,
+                };
+                self.set_start_state(panel, positions, velocities)
+            }
             ClientMessage::SetView { panel, view } => {
                 // A hint about what a page shows: one for a panel replaced meanwhile (a scene
                 // load crossed it) is dropped without an error.
@@ -773,11 +799,7 @@ impl Session {
         self.panels = rebuilt;
         // Widened ranges stay widened.
         let params = info.params.clone();
-        self.scene = Some(CurrentScene {
-            scene,
-            info,
-            params,
-        });
+        self.scene = Some(CurrentScene::new(scene, info, params));
         self.restarted();
         Ok(self.scene_messages())
     }
@@ -866,6 +888,7 @@ impl Session {
                 dropped: target,
                 placed,
                 moved,
+                positions: start,
             },
             self.panels_message(),
         ])
@@ -1006,11 +1029,7 @@ impl Session {
         self.next_epoch += panels.len() as u64;
         self.panels = panels;
         let params = info.params.clone();
-        self.scene = Some(CurrentScene {
-            scene,
-            info,
-            params,
-        });
+        self.scene = Some(CurrentScene::new(scene, info, params));
         self.restarted();
         Ok(())
     }
@@ -1254,13 +1273,12 @@ fn constant_value(name: &str, expr: &str) -> Result<f64, SessionError> {
             "the expression is longer than 200 characters".into(),
         ));
     }
-    let resolve = |word: &str| match word {
-        "pi" => Ok(bead::expr::Resolved::Value(std::f64::consts::PI)),
-        "e" => Ok(bead::expr::Resolved::Value(std::f64::consts::E)),
-        other => Err(format!(
+    // The parser knows pi and e itself; any other name is not a constant.
+    let resolve = |word: &str| -> Result<bead::expr::Resolved, String> {
+        Err(format!(
             "unknown name `{}`; a typed value may use numbers, pi and e",
-            truncate(other, 40)
-        )),
+            truncate(word, 40)
+        ))
     };
     let parsed = bead::expr::parse(expr, &resolve).map_err(|e| failed(e.to_string()))?;
     let value = parsed.eval(&[]);

@@ -940,6 +940,111 @@ async fn export_checks(client: &Client, addr: SocketAddr) {
     assert_eq!(errors, json!([]), "errors in the page");
 }
 
+/// A curve edit and a typed start state go into the address bar, and a refresh (or the
+/// share URL opened elsewhere) comes back to them: the implicit panel's edited curve and
+/// every panel starting from the placed state, bit for bit.
+#[test]
+fn the_share_url_keeps_curve_edits_and_the_start_state() {
+    let text = shipped("circle");
+    in_browser(serving("circle", text), |client, addr| {
+        share_checks(client, addr).boxed_local()
+    });
+}
+
+async fn share_checks(client: &Client, addr: SocketAddr) {
+    client.goto(&format!("http://{addr}/")).await.unwrap();
+    wait_within(
+        client,
+        "window.__viewer && window.__viewer.panels.size === 2 && \
+         [...window.__viewer.panels.values()].every(p => p.frame)",
+        "the panels",
+        Duration::from_secs(30),
+    )
+    .await;
+    pause_all(client).await;
+    // The curve, as a user edits it: a circle of radius 1.5 for the implicit panel.
+    js(
+        client,
+        "const row = document.querySelector('#curves .curve-edit'); row.querySelector('.curve-expr').value = 'bead.x^2 + bead.y^2 - 2.25';
+         row.querySelector('.curve-apply').click(); return null;",
+    )
+    .await;
+    wait_within(
+        client,
+        "[...window.__viewer.panels.values()][0].info.exprs[0] === 'bead.x^2 + bead.y^2 - 2.25' && location.search.includes('curve.0=')",
+        "the edited curve in the address bar",
+        Duration::from_secs(30),
+    )
+    .await;
+    pause_all_if_running(client).await;
+    // A typed start: on the new circle, at 3 o'clock, moving down.
+    js(
+        client,
+        "const inputs = [...document.querySelectorAll('#start-state .start-value')];
+         const values = ['1.5', '0', '0', '2'];
+         inputs.forEach((input, i) => { input.value = values[i]; input.dispatchEvent(new Event('input')); });
+         document.querySelector('#start-state .start-set').click(); return null;",
+    )
+    .await;
+    wait_within(
+        client,
+        "location.search.includes('start.x=') && location.search.includes('curve.0=')",
+        "the start in the address bar",
+        Duration::from_secs(30),
+    )
+    .await;
+    let before = js(
+        client,
+        "const p = [...window.__viewer.panels.values()][0];
+         return [location.search, window.__viewer.customStart.positions, window.__viewer.customStart.velocities];",
+    )
+    .await;
+    let search = before[0].as_str().unwrap().to_string();
+    assert!(
+        search.contains("curve.0=bead.x%5E2+%2B+bead.y%5E2+-+2.25"),
+        "{search}"
+    );
+    client.refresh().await.unwrap();
+    wait_within(
+        client,
+        "window.__viewer && window.__viewer.scene && window.__viewer.restore === null && \
+         window.__viewer.panels.size === 2 && window.__viewer.customStart && window.__viewer.customStart.epochs && \
+         [...window.__viewer.panels.values()].every(p => p.frame && p.frame.epoch === p.info.epoch)",
+        "the page restored",
+        Duration::from_secs(30),
+    )
+    .await;
+    let after = js(
+        client,
+        "const [a, b] = [...window.__viewer.panels.values()];
+         return [location.search, a.info.exprs[0], window.__viewer.customStart.positions, window.__viewer.customStart.velocities];",
+    )
+    .await;
+    assert_eq!(after[1], json!("bead.x^2 + bead.y^2 - 2.25"), "{after}");
+    // Placed again from the URL's numbers: already on the curve, so the same state.
+    assert_eq!(after[2], before[1], "{after} {before}");
+    assert_eq!(after[3], before[2], "{after} {before}");
+    assert_eq!(after[0].as_str().unwrap(), search);
+    // On the edited circle of radius 1.5: the start is there, not on the scene's circle.
+    let x = before[1].as_array().unwrap();
+    let r = x[0].as_f64().unwrap().hypot(x[1].as_f64().unwrap());
+    assert!((r - 1.5).abs() < 1e-12, "{r}");
+    let errors = js(client, "return window.__errors;").await;
+    assert_eq!(errors, json!([]), "errors in the page");
+}
+
+/// Pause every panel if any runs.
+async fn pause_all_if_running(client: &Client) {
+    let running = js(
+        client,
+        "return [...window.__viewer.panels.values()].some(p => p.frame && p.frame.status === 'running');",
+    )
+    .await;
+    if running == json!(true) {
+        pause_all(client).await;
+    }
+}
+
 /// No text is clipped or overlaps other text, at a laptop's 1366x768 and a projector's
 /// 1920x1080, for every shipped scene, with the page as it opens, in overlay mode and
 /// presenting: every text a canvas drew lies inside the canvas and clear of the others;

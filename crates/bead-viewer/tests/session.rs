@@ -1194,11 +1194,14 @@ fn drag_start_puts_both_panels_at_the_closest_point_and_says_how_far_it_moved() 
         dropped,
         placed,
         moved,
+        positions,
     }) = replies.first()
     else {
         panic!("{replies:?}");
     };
     assert_eq!((*panel, *particle), (1, 0));
+    // Every particle's start (one here): the placed point.
+    assert_eq!(positions, placed);
     assert_eq!(dropped, &[-100.0, -200.0]);
     assert!(
         (placed[0] - exact[0]).abs() < 1e-9 && (placed[1] - exact[1]).abs() < 1e-9,

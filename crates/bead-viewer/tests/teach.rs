@@ -231,12 +231,12 @@ fn the_equations_of_each_formulation() {
             panic!("{replies:?}");
         };
         assert!(text.contains(words), "{text}");
-        // The equation of motion typeset: lambda for the circle's one row, M(q) theta''
-        // for its one coordinate.
+        // The equation of motion typeset, written out: lambda for the parabola's one row,
+        // M(q) q'' = Q for its one coordinate.
         let written_out = if panel == 1 {
-            "<mi>λ</mi><mo>=</mo>"
+            "λ written out:</p>\n<math display=\"block\"><mi>λ</mi><mo>=</mo>"
         } else {
-            "<mover><mi>θ</mi><mo>¨</mo></mover><mo>=</mo>"
+            "<p>With one coordinate, written out:</p>"
         };
         assert!(mathml.contains(written_out), "{mathml}");
     }
@@ -599,4 +599,31 @@ fn a_typed_start_state_is_placed_on_the_constraints_for_every_panel() {
         &Limits::default()
     )
     .is_err());
+    // Without a panel (a share URL being restored), the first panel places the start.
+    let replies = send(
+        &mut s,
+        r#"{"type":"set_start_state","velocities":[1.5,0.0]}"#,
+    );
+    assert!(
+        matches!(replies.first(), Some(ServerMessage::StateSet { panel, .. }) if *panel == ids[0]),
+        "{replies:?}"
+    );
+    let (_, panels) = frame(&mut s);
+    assert!(panels
+        .iter()
+        .all(|f| (f.arrows.as_ref().unwrap().velocity[0] - 1.5).abs() < 1e-9));
+    // And with no panel at all, a clear refusal.
+    for id in &ids {
+        send(
+            &mut s,
+            &format!(r#"{{"type":"remove_panel","panel":{id}}}"#),
+        );
+    }
+    let replies = send(
+        &mut s,
+        r#"{"type":"set_start_state","velocities":[1.5,0.0]}"#,
+    );
+    let (code, message) = error_of(&replies).unwrap();
+    assert_eq!(code, ErrorCode::NoPanel);
+    assert_eq!(message, "no panel to start: add one first");
 }
