@@ -1425,7 +1425,7 @@
       ctx.stroke();
     }
     ctx.restore();
-    const clock = clockLayout(ctx, T, f);
+    const clock = clockLayout(ctx, T, f, n <= 64 ? Array.from({ length: n }, (_, k) => [T.px(x, k * dim), T.py(x, k * dim)]) : []);
     p.lastArrows = drawArrows(ctx, p, T, f, x, n, dim, [clock.box]);
     p.lastClock = drawClock(ctx, clock);
     ctx.restore(); // the clip
@@ -1736,7 +1736,8 @@
   // ---------- the clock and readouts on the canvas ----------
   // Large, at the plot's top right, readable from the back of a room: t, then the error of
   // what the panel conserves and |C|. Returns the text's box (canvas pixels) for the tests.
-  function clockLayout(ctx, T, f) {
+  // At the plot's top right, or its top left when a particle is under the right corner.
+  function clockLayout(ctx, T, f, points) {
     const r = T.r;
     const lines = [
       { text: `t = ${f.t.toFixed(2)} s`, font: "600 44px system-ui, sans-serif", height: 46 },
@@ -1753,8 +1754,14 @@
     }
     ctx.restore();
     const height = lines.reduce((h, l) => h + l.height, 0);
-    const box = { x0: r.x1 - 12 - width - 8, y0: r.y0 + 4, x1: r.x1 - 4, y1: r.y0 + 12 + height };
-    return { lines, width, height, box, right: r.x1 - 12, top: r.y0 + 8 };
+    const under = (b) => points.some(([px, py]) => px > b.x0 - 16 && px < b.x1 + 16 && py > b.y0 - 16 && py < b.y1 + 16);
+    let right = r.x1 - 12;
+    let box = { x0: right - width - 8, y0: r.y0 + 4, x1: right + 8, y1: r.y0 + 12 + height };
+    if (under(box)) {
+      const left = { x0: r.x0 + 4, y0: box.y0, x1: r.x0 + 20 + width, y1: box.y1 };
+      if (!under(left)) { box = left; right = r.x0 + 12 + width; }
+    }
+    return { lines, width, height, box, right, top: r.y0 + 8 };
   }
   function drawClock(ctx, clock) {
     const { lines, width, height, right, top } = clock;
@@ -1991,7 +1998,7 @@
     } else if (log && exactZeros) {
       // Under the plot, on its own line above the time axis (a log axis has no 0).
       ctx.textAlign = "left";
-      ctx.fillText(`${exactZeros} exact 0s not drawn`, 6, H - 44);
+      ctx.fillText(`${exactZeros} exact ${exactZeros === 1 ? "0" : "0s"} not drawn`, 6, H - 44);
     }
     ctx.strokeStyle = color;
     ctx.lineWidth = 3;
