@@ -1250,6 +1250,8 @@
     send({ type: "set_view", panel: p.info.id, view });
   }
 
+  const STOPPED = "stopped: see the message below";
+  const NOTE_FONT = "22px system-ui, sans-serif";
   function drawPanel(p) {
     const c = p.dom.canvas, ctx = c.getContext("2d");
     const scene = state.scene;
@@ -1426,9 +1428,6 @@
     }
     ctx.restore();
     const clock = clockLayout(ctx, T, f, n <= 64 ? Array.from({ length: n }, (_, k) => [T.px(x, k * dim), T.py(x, k * dim)]) : []);
-    p.lastArrows = drawArrows(ctx, p, T, f, x, n, dim, [clock.box]);
-    p.lastClock = drawClock(ctx, clock);
-    ctx.restore(); // the clip
     // Particles outside the plot: a triangle at the edge pointing at each (the first 50).
     const markers = [];
     let offView = 0;
@@ -1442,6 +1441,23 @@
       const scale = Math.min((r.x1 - r.x0 - 24) / 2 / Math.abs(dx || 1e-9), (r.y1 - r.y0 - 24) / 2 / Math.abs(dy || 1e-9));
       markers.push({ particle: k, x: cx + dx * scale, y: cy + dy * scale, angle: Math.atan2(dy, dx) });
     }
+    // Notes on the plot, stacked up from its bottom left on white: clear of the clock (at
+    // the top) and of the arrow labels, which avoid them.
+    const notes = [];
+    if (failed) notes.push({ text: STOPPED, color: "rgba(180, 35, 24, 0.95)" });
+    if (markers.length) notes.push({ text: `${offView} off view — press fit`, color: "#b42318" });
+    ctx.save();
+    ctx.font = NOTE_FONT;
+    let bottom = r.y1 - 4;
+    for (const note of notes) {
+      const w = ctx.measureText(note.text).width;
+      note.box = { x0: r.x0 + 4, y0: bottom - 32, x1: r.x0 + 16 + w, y1: bottom };
+      bottom -= 34;
+    }
+    ctx.restore();
+    p.lastArrows = drawArrows(ctx, p, T, f, x, n, dim, [clock.box, ...notes.map((note) => note.box)]);
+    p.lastClock = drawClock(ctx, clock);
+    ctx.restore(); // the clip
     if (markers.length) {
       ctx.save();
       ctx.fillStyle = "#b42318";
@@ -1454,17 +1470,18 @@
         ctx.closePath();
       }
       ctx.fill();
-      ctx.font = "26px system-ui, sans-serif";
-      ctx.textAlign = "left";
-      ctx.fillText(`${offView} off view — press fit`, r.x0 + 8, r.y0 + 28);
       ctx.restore();
     }
-    if (failed) {
-      ctx.fillStyle = "rgba(180, 35, 24, 0.9)";
-      ctx.font = "22px system-ui, sans-serif";
-      ctx.textAlign = "left";
-      ctx.fillText("stopped: see the message below", 80, 44);
+    ctx.save();
+    ctx.font = NOTE_FONT;
+    ctx.textAlign = "left";
+    for (const { text, color, box: b } of notes) {
+      ctx.fillStyle = "rgba(255, 255, 255, 0.85)";
+      ctx.fillRect(b.x0, b.y0, b.x1 - b.x0, b.y1 - b.y0);
+      ctx.fillStyle = color;
+      ctx.fillText(text, b.x0 + 6, b.y1 - 9);
     }
+    ctx.restore();
     return { rods, particles: n, pins: pins.length, frame: f, x, markers, offView, t: p.displayT };
   }
 
@@ -1811,7 +1828,9 @@
     if (!a || !ARROW_KINDS.some((k) => arrowOn(k.key))) return [];
     const scales = arrowScales(p, a);
     const list = [];
-    const add = (kind, k, vec, o, scale, label, row) => {
+    // `faint`: a row's share of a particle that several rows act on (drawn thin, no label;
+    // their sum, the particle's constraint force, is drawn in full).
+    const add = (kind, k, vec, o, scale, label, row, faint) => {
       if (!vec || vec.length < o + dim) return;
       const tip = new Array(dim);
       for (let c = 0; c < dim; c++) tip[c] = x[k * dim + c] + scale * vec[o + c];
@@ -1819,17 +1838,28 @@
       let mag = 0;
       for (let c = 0; c < dim; c++) mag += vec[o + c] * vec[o + c];
       if (!(Math.hypot(x1 - x0, y1 - y0) >= 2)) return;
-      list.push({ kind: kind.key, color: kind.color, label, particle: k, row, x0, y0, x1, y1, magnitude: Math.sqrt(mag) });
+      list.push({ kind: kind.key, color: kind.color, label, particle: k, row, x0, y0, x1, y1, magnitude: Math.sqrt(mag), faint: !!faint });
     };
     for (const kind of ARROW_KINDS) {
       if (!arrowOn(kind.key)) continue;
       const scale = kind.key === "velocity" ? scales.velocity : scales.force;
       if (kind.key === "constraint" && a.rows.length) {
         const several = a.rows.length > 1;
+        // Rows acting on each particle: where several do (a bead on two surfaces, the middle
+        // of a double pendulum) their forces can nearly cancel, so the sum is what to read.
+        const acting = new Array(n).fill(0);
+        for (const r of a.rows) {
+          for (let k = 0; k < n; k++) {
+            let m = 0;
+            for (let c = 0; c < dim; c++) m += r.force[k * dim + c] ** 2;
+            if (m > 0) acting[k]++;
+          }
+        }
         for (const r of a.rows) {
           const label = several ? `λ${subscript(r.row + 1)}∇C${subscript(r.row + 1)}` : "λ∇C";
-          for (let k = 0; k < n; k++) add(kind, k, r.force, k * dim, scale, label, r.row);
+          for (let k = 0; k < n; k++) add(kind, k, r.force, k * dim, scale, label, r.row, acting[k] > 1);
         }
+        for (let k = 0; k < n; k++) if (acting[k] > 1) add(kind, k, a.constraint, k * dim, scale, "Σλ∇C", null, false);
       } else {
         const label = kind.key === "constraint" ? "F_c" : kind.label;
         for (let k = 0; k < n; k++) add(kind, k, a[kind.key], k * dim, scale, label, null);
@@ -1863,7 +1893,9 @@
       return null;
     };
     for (const ar of list) {
-      const angle = Math.atan2(ar.y1 - ar.y0, ar.x1 - ar.x0), head = Math.min(16, 0.45 * Math.hypot(ar.x1 - ar.x0, ar.y1 - ar.y0));
+      const angle = Math.atan2(ar.y1 - ar.y0, ar.x1 - ar.x0), head = Math.min(ar.faint ? 10 : 16, 0.45 * Math.hypot(ar.x1 - ar.x0, ar.y1 - ar.y0));
+      ctx.globalAlpha = ar.faint ? 0.45 : 1;
+      ctx.lineWidth = ar.faint ? 2 : 4;
       ctx.strokeStyle = ar.color;
       ctx.fillStyle = ar.color;
       ctx.beginPath();
@@ -1876,7 +1908,7 @@
       ctx.lineTo(ar.x1 - head * Math.cos(angle + 0.45), ar.y1 - head * Math.sin(angle + 0.45));
       ctx.closePath();
       ctx.fill();
-      const at = n <= 4 ? place(ar, angle) : null;
+      const at = n <= 4 && !ar.faint ? place(ar, angle) : null;
       ar.labelled = !!at;
       if (at) { ctx.textAlign = "left"; ctx.fillText(ar.label, at[0], at[1]); }
     }

@@ -762,6 +762,67 @@ async fn arrow_checks(client: &Client, addr: SocketAddr) {
     )
     .await;
     assert_eq!(none, json!(0));
+    // The helix: two rows act on the bead, their forces drawn faint and their sum (the
+    // particle's constraint force) in full, equal to the faint ones added tip to tail; the
+    // sum is the parametric panel's reaction F_c at the same t (the same physics).
+    js(
+        client,
+        "const s = document.getElementById('scene-select'); s.value = 'helix'; s.dispatchEvent(new Event('change'));
+         const b = document.getElementById('arrow-constraint'); b.checked = true; b.dispatchEvent(new Event('change'));
+         return null;",
+    )
+    .await;
+    wait_within(
+        client,
+        "window.__viewer.scene.name === 'helix' && window.__viewer.panels.size === 2 && \
+         [...window.__viewer.panels.values()].every(p => p.frame && p.frame.epoch === p.info.epoch && p.frame.t > 0.5 && p.frame.arrows)",
+        "the helix running",
+        Duration::from_secs(30),
+    )
+    .await;
+    pause_all(client).await;
+    let got = js(
+        client,
+        "const [a, b] = [...window.__viewer.panels.values()];
+         const arrows = (p) => { window.__viewer.drawTimes(p.info.id, 1); return window.__viewer.arrowsOf(p.info.id).arrows.filter(x => x.kind === 'constraint'); };
+         return [arrows(a), [...a.frame.arrows.constraint, ...b.frame.arrows.constraint], a.frame.t, b.frame.t];",
+    )
+    .await;
+    assert_eq!(got[2], got[3], "one clock: {got}");
+    let implicit = got[0].as_array().unwrap();
+    let faint: Vec<&Value> = implicit
+        .iter()
+        .filter(|a| a["faint"] == json!(true))
+        .collect();
+    let total: Vec<&Value> = implicit
+        .iter()
+        .filter(|a| a["label"] == json!("Σλ∇C"))
+        .collect();
+    assert_eq!((faint.len(), total.len()), (2, 1), "{implicit:?}");
+    let vector = |a: &Value| {
+        [
+            a["x1"].as_f64().unwrap() - a["x0"].as_f64().unwrap(),
+            a["y1"].as_f64().unwrap() - a["y0"].as_f64().unwrap(),
+        ]
+    };
+    let sum = [0, 1].map(|i| vector(faint[0])[i] + vector(faint[1])[i]);
+    let whole = vector(total[0]);
+    assert!(
+        (sum[0] - whole[0]).hypot(sum[1] - whole[1]) < 1.0,
+        "{sum:?} {whole:?}"
+    );
+    let f: Vec<f64> = got[1]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_f64().unwrap())
+        .collect();
+    let size = f[..3].iter().map(|v| v * v).sum::<f64>().sqrt();
+    let apart = (0..3)
+        .map(|i| (f[i] - f[3 + i]).powi(2))
+        .sum::<f64>()
+        .sqrt();
+    assert!(size > 1.0 && apart < 1e-4 * size, "{f:?}");
     let errors = js(client, "return window.__errors;").await;
     assert_eq!(errors, json!([]), "errors in the page");
 }
