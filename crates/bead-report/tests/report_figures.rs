@@ -53,6 +53,7 @@ fn parabola_report() -> Report {
         system: Arc::clone(&scene.system),
         runs,
         skipped: vec![],
+        scene: None,
     }
 }
 
@@ -65,7 +66,8 @@ fn every_run_has_its_own_look_and_the_figures_tell_the_physics() {
             assert_ne!(a, b, "two runs look alike");
         }
     }
-    // Colour by integrator, dash by dt (largest first), marker by method.
+    // Colour by run (integrator and dt), shared by the formulations of that run, which the
+    // line style tells apart: implicit solid, parametric dashed; marker by integrator.
     let look = |integrator, dt: f64, method| {
         let run = report
             .runs
@@ -75,24 +77,23 @@ fn every_run_has_its_own_look_and_the_figures_tell_the_physics() {
         report.look(run)
     };
     let rk4 = look(IntegratorKind::Rk4, 1.0 / 60.0, Method::Implicit);
-    assert_eq!(
-        look(IntegratorKind::Rk4, 1.0 / 120.0, Method::Parametric).color,
-        rk4.color
-    );
+    let rk4_parametric = look(IntegratorKind::Rk4, 1.0 / 60.0, Method::Parametric);
+    assert_eq!(rk4_parametric.color, rk4.color);
+    assert_eq!((rk4.dash, rk4_parametric.dash), (Dash::Solid, Dash::Dashed));
+    for other in [
+        look(IntegratorKind::Rk4, 1.0 / 120.0, Method::Implicit),
+        look(IntegratorKind::Verlet, 1.0 / 60.0, Method::Implicit),
+    ] {
+        assert_ne!(other.color, rk4.color);
+    }
+    assert_eq!(rk4.marker, rk4_parametric.marker);
     assert_ne!(
-        look(IntegratorKind::Verlet, 1.0 / 60.0, Method::Implicit).color,
-        rk4.color
+        look(IntegratorKind::Verlet, 1.0 / 60.0, Method::Implicit).marker,
+        rk4.marker
     );
-    assert_eq!(rk4.dash, Dash::Solid);
-    assert_eq!(
-        look(IntegratorKind::Rk4, 1.0 / 120.0, Method::Implicit).dash,
-        Dash::Dashed
-    );
-    assert_eq!(rk4.marker, Some(Marker::Circle));
-    assert_eq!(
-        look(IntegratorKind::Rk4, 1.0 / 60.0, Method::Parametric).marker,
-        Some(Marker::Triangle)
-    );
+    // The legend says what colour and line stand for.
+    let note = report.energy_figure().panels[0].legend_note.join("\n");
+    assert!(note.contains("solid: implicit") && note.contains("dashed: parametric"), "{note}");
 
     // The energy figure: a signed panel, where the parametric rk4 run at 1/60 ends below
     // zero (it loses energy, the article's observation), then the log panel.
@@ -106,13 +107,17 @@ fn every_run_has_its_own_look_and_the_figures_tell_the_physics() {
         .unwrap();
     let last = parametric.points.last().unwrap().1;
     assert!(last < -1e-6, "parametric rk4 loses energy: {last:e}");
-    // The log panel holds the sizes of the same changes.
+    // The log panel holds the envelope of the sizes of the same changes: the running
+    // maximum, never decreasing, ending at the largest size reached.
     let sizes = energy.panels[1]
         .series
         .iter()
         .find(|s| s.label == "parametric rk4 dt=1/60")
         .unwrap();
-    assert!((sizes.points.last().unwrap().1 - last.abs()).abs() <= 1e-15);
+    assert!(sizes.points.windows(2).all(|w| w[1].1 >= w[0].1 && w[1].0 >= w[0].0));
+    let largest = parametric.points.iter().map(|p| p.1.abs()).fold(0.0, f64::max);
+    assert!((sizes.points.last().unwrap().1 - largest).abs() <= 1e-15);
+    assert!(largest >= last.abs());
 
     // Trajectories: gravity along +y, so y points down, at equal scales.
     let trajectories = report.trajectory_figure();
