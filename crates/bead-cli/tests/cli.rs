@@ -2161,7 +2161,12 @@ fn compare_grid_writes_a_self_contained_report_with_png_and_svg_plots() {
         }
     }
     let html = std::fs::read_to_string(report.join("report.html")).expect("report.html");
-    assert_eq!(html.matches("<tr>").count(), 9, "header + 8 rows");
+    let runs_table = html
+        .split("<h2>Runs</h2>")
+        .nth(1)
+        .and_then(|rest| rest.split("</table>").next())
+        .expect("the runs table");
+    assert_eq!(runs_table.matches("<tr>").count(), 9, "header + 8 rows");
     let refs = html_references(&html);
     assert!(!refs.is_empty());
     for r in &refs {
@@ -2193,6 +2198,110 @@ fn compare_grid_writes_a_self_contained_report_with_png_and_svg_plots() {
             "{name}.png not linked"
         );
     }
+}
+
+/// The points of every series line of an SVG the report wrote, by panel and series: the
+/// `data-panel` and `data-series` attributes of its polylines, pieces of one series
+/// concatenated.
+fn svg_series(svg: &str) -> Vec<(String, String, Vec<(i32, i32)>)> {
+    let doc = roxmltree::Document::parse(svg).expect("SVG parses");
+    let mut series: Vec<(String, String, Vec<(i32, i32)>)> = Vec::new();
+    for node in doc.descendants().filter(|n| n.has_tag_name("polyline")) {
+        let (Some(panel), Some(label)) =
+            (node.attribute("data-panel"), node.attribute("data-series"))
+        else {
+            continue;
+        };
+        let points: Vec<(i32, i32)> = node
+            .attribute("points")
+            .unwrap_or("")
+            .split_whitespace()
+            .map(|p| {
+                let (x, y) = p.split_once(',').unwrap();
+                (x.parse().unwrap(), y.parse().unwrap())
+            })
+            .collect();
+        match series.iter_mut().find(|s| s.0 == panel && s.1 == label) {
+            Some(s) => s.2.extend(points),
+            None => series.push((panel.to_string(), label.to_string(), points)),
+        }
+    }
+    series
+}
+
+/// A reviewer's grid: 3 integrators x 3 dts, the implicit form with and without projection
+/// and the parametric form (17 runs), 10 s each. The whole report directory stays under
+/// 2 MB; the log panels draw envelopes (running maxima: each line only rises on the page);
+/// no drawn series has more than 1000 points; the HTML states the scene (its file text,
+/// escaped, the parameter set by --set) and the command that reproduces it.
+#[test]
+fn a_three_by_three_grid_report_is_small_draws_envelopes_and_states_its_scene() {
+    let dir = TempDir::new("grid-report");
+    let report = dir.path("r");
+    let scene = parabola();
+    let args = [
+        "compare",
+        p(&scene),
+        "--integrators",
+        "rk4,rattle,verlet",
+        "--dts",
+        "1/60,1/120,1/240",
+        "--project",
+        "--set",
+        "g=400",
+        "--report",
+        p(&report),
+    ];
+    let out = ok(bead_in(&dir.0, &args));
+    assert!(grid_rows(&out).len() >= 15, "{out}");
+    let total: u64 = std::fs::read_dir(&report)
+        .unwrap()
+        .map(|e| e.unwrap().metadata().unwrap().len())
+        .sum();
+    assert!(
+        total < 2_000_000,
+        "the report directory holds {total} bytes"
+    );
+    for name in ["constraint_error", "energy_error", "trajectories"] {
+        let svg = std::fs::read_to_string(report.join(format!("{name}.svg"))).unwrap();
+        let series = svg_series(&svg);
+        assert!(series.len() >= 15, "{name}: {} series", series.len());
+        for (panel, label, points) in &series {
+            assert!(
+                points.len() <= 1000,
+                "{name} panel {panel} {label}: {} points",
+                points.len()
+            );
+            // The log panels (the lower panel of the two time-series figures): envelopes,
+            // drawn left to right and never down the page (image y grows downwards).
+            if name != "trajectories" && panel == "1" {
+                assert!(
+                    points
+                        .windows(2)
+                        .all(|w| w[1].0 >= w[0].0 && w[1].1 <= w[0].1),
+                    "{name} {label} is not a running max: {points:?}"
+                );
+            }
+        }
+    }
+    let html = std::fs::read_to_string(report.join("report.html")).unwrap();
+    assert!(
+        html.contains("expr = &quot;bead.x^2 + 100*bead.y&quot;"),
+        "the scene's constraint line, escaped"
+    );
+    assert!(html.contains("<pre class=\"scene\">"));
+    let command = html
+        .split("<pre class=\"command\">")
+        .nth(1)
+        .and_then(|rest| rest.split("</pre>").next())
+        .expect("the command line");
+    assert_eq!(command, format!("bead {}", args.join(" ")));
+    assert!(
+        html.contains("<td>g</td><td>400 (--set)</td><td>px/s^2</td>"),
+        "the parameter as set"
+    );
+    assert!(html.contains("bead: mass 1, position (150, -225), velocity (0, 0)"));
+    assert!(html.contains("distance to the constraint set (closest point)"));
 }
 
 #[test]

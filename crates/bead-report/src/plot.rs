@@ -1485,6 +1485,10 @@ fn draw_panel<DB: DrawingBackend>(
     let inside = |p: &(f64, f64)| {
         p.0 >= x_range.0 && p.0 <= x_range.1 && p.1 >= y_range.0 && p.1 <= y_range.1
     };
+    // Pixels per kept point: 2 columns per min/max pair along a time series; 4 px chords
+    // along a path (its sagitta stays below 0.1 px where the path bends less than a 20 px
+    // radius), which a path retracing itself over many cycles needs to stay small.
+    let thinning = if panel.equal_aspect { 4 } else { 2 };
     for &i in &order {
         let series = &panel.series[i];
         let color = colors[i];
@@ -1500,7 +1504,7 @@ fn draw_panel<DB: DrawingBackend>(
                 let pixels: Vec<(i32, i32)> =
                     piece.iter().map(|p| chart.backend_coord(p)).collect();
                 lines.push(PixelLine {
-                    points: thin(&pixels, 2),
+                    points: thin(&pixels, thinning),
                     color,
                     width,
                     dash: series.look.dash,

@@ -1309,7 +1309,7 @@ pub fn write_report(report: &Report, dir: &Path) -> Result<ReportFiles, ReportEr
     }
     let _ = writeln!(
         html,
-        "<p>Each series is recorded in a bounded number of points (the minimum and maximum of each bucket of consecutive samples, so spikes survive), and each drawn line keeps per two pixel columns its lowest and highest point (a trajectory a point every two pixels); periods use every sample. Colour: one per integrator and dt; line: solid implicit, dashed parametric, dotted implicit+project.</p>\n</body>\n</html>"
+        "<p>Each series is recorded in a bounded number of points (the minimum and maximum of each bucket of consecutive samples, so spikes survive), and each drawn line keeps per two pixel columns its lowest and highest point (a trajectory a point every four pixels); periods use every sample. Colour: one per integrator and dt; line: solid implicit, dashed parametric, dotted implicit+project.</p>\n</body>\n</html>"
     );
     let path = dir.join("report.html");
     std::fs::write(&path, html).map_err(io(&path))?;
