@@ -2203,9 +2203,12 @@ fn compare_grid_writes_a_self_contained_report_with_png_and_svg_plots() {
 /// The points of every series line of an SVG the report wrote, by panel and series: the
 /// `data-panel` and `data-series` attributes of its polylines, pieces of one series
 /// concatenated.
-fn svg_series(svg: &str) -> Vec<(String, String, Vec<(i32, i32)>)> {
+/// (panel, series label, pixel points) of one drawn series.
+type DrawnSeries = (String, String, Vec<(i32, i32)>);
+
+fn svg_series(svg: &str) -> Vec<DrawnSeries> {
     let doc = roxmltree::Document::parse(svg).expect("SVG parses");
-    let mut series: Vec<(String, String, Vec<(i32, i32)>)> = Vec::new();
+    let mut series: Vec<DrawnSeries> = Vec::new();
     for node in doc.descendants().filter(|n| n.has_tag_name("polyline")) {
         let (Some(panel), Some(label)) =
             (node.attribute("data-panel"), node.attribute("data-series"))
