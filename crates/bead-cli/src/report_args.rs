@@ -66,9 +66,16 @@ pub struct PlotArgs {
     pub output: Option<PathBuf>,
 
     /// Logarithmic y axis (values at or below zero, e.g. exact zeros, are left out and
-    /// counted in a note under the plot)
+    /// counted in a note under the plot; a column with no value above zero is an error, or
+    /// an empty panel that says so when other columns have some)
     #[arg(long)]
     pub log: bool,
+
+    /// The scene the trace was run from: axis labels in its units (`[world] units`), and a
+    /// particle's x against its y (`--x bead.x --columns bead.y`) drawn with the scene's
+    /// gravity pointing down the page (such a plot is always at equal scales)
+    #[arg(long, value_name = "SCENE")]
+    pub scene: Option<PathBuf>,
 }
 
 /// `--integrators`: the kinds, in the order given, without repeats.

@@ -25,6 +25,7 @@ use std::sync::Once;
 use plotters::coord::Shift;
 use plotters::element::DashedPathElement;
 use plotters::prelude::*;
+use plotters::style::text_anchor::{HPos, Pos, VPos};
 use plotters::style::{register_font, FontStyle};
 
 /// DejaVu Sans (see `assets/DejaVuSans.LICENSE`): the only font the plots use.
@@ -433,7 +434,169 @@ pub struct Panel {
     pub y_down: bool,
     /// One unit of x and one of y take the same length on the page (trajectories).
     pub equal_aspect: bool,
+    /// Robust axis ranges on the linear axes: a series whose largest distance from the
+    /// series' common centre is more than this factor times the median of the others' is an
+    /// outlier. The axes are then scaled to the other series, and the outlier is drawn
+    /// clipped at the frame with a note saying so and giving its extreme value (see
+    /// [`Panel::off_scale`]); it is never left out silently. `None`: every series sets the
+    /// range.
+    pub outlier_factor: Option<f64>,
+    /// Lines written above the legend's entries (e.g. what colour and dash stand for).
+    pub legend_note: Vec<String>,
     pub series: Vec<Series>,
+}
+
+/// A series drawn clipped at the frame of its panel's robust range (see
+/// [`Panel::outlier_factor`]).
+#[derive(Clone, Debug, PartialEq)]
+pub struct OffScale {
+    /// The series' index in [`Panel::series`].
+    pub series: usize,
+    /// `x` or `y`: the axis it leaves.
+    pub axis: &'static str,
+    /// Its value farthest from the others on that axis.
+    pub extreme: f64,
+}
+
+impl Panel {
+    /// The series drawn off scale (clipped at the frame), each once with the axis it leaves
+    /// most, in series order. A series is an outlier on a linear axis when its largest
+    /// distance m_i from the centre c (the median of the series' midranges) exceeds
+    /// [`Panel::outlier_factor`] times the median of m_j over the other drawn series (at
+    /// least three series, reference lines not counted, and the median above zero).
+    pub fn off_scale(&self) -> Vec<OffScale> {
+        let Some(factor) = self.outlier_factor else {
+            return Vec::new();
+        };
+        let runs: Vec<usize> = (0..self.series.len())
+            .filter(|&i| self.series[i].style != Style::Reference)
+            .collect();
+        if runs.len() < 3 {
+            return Vec::new();
+        }
+        let mut found: Vec<OffScale> = Vec::new();
+        for (axis, log) in [("x", self.x_log), ("y", self.y_log)] {
+            if log {
+                continue;
+            }
+            let value = |p: &(f64, f64)| if axis == "x" { p.0 } else { p.1 };
+            let finite = |i: usize| {
+                self.series[i]
+                    .points
+                    .iter()
+                    .filter(|p| p.0.is_finite() && p.1.is_finite())
+                    .map(value)
+                    .collect::<Vec<f64>>()
+            };
+            let values: Vec<Vec<f64>> = runs.iter().map(|&i| finite(i)).collect();
+            let midranges: Vec<f64> = values
+                .iter()
+                .filter(|v| !v.is_empty())
+                .map(|v| {
+                    let lo = v.iter().copied().fold(f64::INFINITY, f64::min);
+                    let hi = v.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+                    0.5 * (lo + hi)
+                })
+                .collect();
+            let Some(centre) = median(midranges) else {
+                continue;
+            };
+            // (largest |v - c|, the v that reaches it) per series with data.
+            let reach: Vec<Option<(f64, f64)>> = values
+                .iter()
+                .map(|v| {
+                    v.iter()
+                        .map(|&x| ((x - centre).abs(), x))
+                        .max_by(|a, b| a.0.total_cmp(&b.0))
+                })
+                .collect();
+            for (k, &i) in runs.iter().enumerate() {
+                let Some((m, extreme)) = reach[k] else {
+                    continue;
+                };
+                let others: Vec<f64> = reach
+                    .iter()
+                    .enumerate()
+                    .filter(|&(j, r)| j != k && r.is_some())
+                    .filter_map(|(_, r)| r.map(|r| r.0))
+                    .collect();
+                if others.len() < 2 {
+                    continue;
+                }
+                let typical = median(others).unwrap_or(0.0);
+                if typical > 0.0 && m > factor * typical && !found.iter().any(|o| o.series == i) {
+                    found.push(OffScale {
+                        series: i,
+                        axis,
+                        extreme,
+                    });
+                }
+            }
+        }
+        found.sort_by_key(|o| o.series);
+        found
+    }
+
+    /// The sentences that say which series are off scale: `off scale: LABEL, y max = V`.
+    pub fn off_scale_notes(&self) -> Vec<String> {
+        self.off_scale()
+            .iter()
+            .map(|o| {
+                format!(
+                    "off scale: {}, {} {} = {}",
+                    self.series[o.series].label,
+                    o.axis,
+                    if o.extreme < 0.0 { "min" } else { "max" },
+                    bead::significant(o.extreme, 4)
+                )
+            })
+            .collect()
+    }
+}
+
+/// The median of `values` (the mean of the middle two for an even count); `None` when empty.
+fn median(mut values: Vec<f64>) -> Option<f64> {
+    values.retain(|v| v.is_finite());
+    if values.is_empty() {
+        return None;
+    }
+    values.sort_by(f64::total_cmp);
+    let n = values.len();
+    Some(if n % 2 == 1 {
+        values[n / 2]
+    } else {
+        0.5 * (values[n / 2 - 1] + values[n / 2])
+    })
+}
+
+/// The running maximum of a time series, its envelope from t = 0: m(t) = max over s <= t of
+/// y(s), drawn as steps (a new maximum is reached from the old one at the same t, so the
+/// line never slopes between maxima). Non-finite points are skipped. An oscillating error
+/// |E - E0| drawn on a log axis dips to -infinity at every zero crossing; its envelope does
+/// not, and reads as the error reached so far.
+pub fn running_max(points: &[(f64, f64)]) -> Vec<(f64, f64)> {
+    let mut out: Vec<(f64, f64)> = Vec::new();
+    let mut best = f64::NEG_INFINITY;
+    let mut last_t = f64::NAN;
+    for &(t, y) in points {
+        if !(t.is_finite() && y.is_finite()) {
+            continue;
+        }
+        last_t = t;
+        if y > best {
+            if best.is_finite() {
+                out.push((t, best));
+            }
+            out.push((t, y));
+            best = y;
+        }
+    }
+    if let Some(&(t, y)) = out.last() {
+        if last_t > t {
+            out.push((last_t, y));
+        }
+    }
+    out
 }
 
 /// A figure: a title over one or more panels, `columns` to a row.
@@ -465,6 +628,14 @@ impl Figure {
             .sum()
     }
 
+    /// Every panel's [`Panel::off_scale_notes`], in panel order.
+    pub fn off_scale_notes(&self) -> Vec<String> {
+        self.panels
+            .iter()
+            .flat_map(Panel::off_scale_notes)
+            .collect()
+    }
+
     /// The note printed under the figure: what log axes leave out, when they leave out
     /// anything.
     pub fn note(&self) -> Option<String> {
@@ -493,7 +664,11 @@ pub fn write_figure(figure: &Figure, path: &Path) -> Result<(), PlotError> {
             let mut rgb = vec![0u8; width as usize * height as usize * 3];
             {
                 let root = BitMapBackend::with_buffer(&mut rgb, figure.size).into_drawing_area();
-                draw(figure, &root).map_err(draw_error)?;
+                let lines = draw(figure, &root).map_err(draw_error)?;
+                for line in &lines {
+                    draw_line(&root, line.points.clone(), line.dash, line.style())
+                        .map_err(draw_error)?;
+                }
                 root.present().map_err(|e| draw_error(e.to_string()))?;
             }
             let io = |error: std::io::Error| PlotError::Io {
@@ -574,12 +749,202 @@ fn indexed(rgb: &[u8]) -> Option<(Vec<u8>, Vec<u8>)> {
 pub fn svg_string(figure: &Figure) -> Result<String, String> {
     register_fonts();
     let mut text = String::new();
+    let lines;
     {
         let root = SVGBackend::with_string(&mut text, figure.size).into_drawing_area();
-        draw(figure, &root)?;
+        lines = draw(figure, &root)?;
         root.present().map_err(|e| e.to_string())?;
     }
+    // The series' lines, one polyline each (a dash pattern as a stroke-dasharray, not one
+    // element per dash), before the closing tag.
+    let mut polylines = String::new();
+    for line in &lines {
+        polylines.push_str(&line.svg());
+    }
+    match text.rfind("</svg>") {
+        Some(end) => text.insert_str(end, &polylines),
+        None => return Err("the SVG backend wrote no closing tag".into()),
+    }
     Ok(text)
+}
+
+/// A series' line in pixels of the whole figure, drawn after the axes (plotters' dashed
+/// paths write one SVG element per dash; this writes one per line).
+#[derive(Clone, Debug)]
+struct PixelLine {
+    points: Vec<(i32, i32)>,
+    color: RGBColor,
+    width: u32,
+    dash: Dash,
+    /// The series' label and its panel, as `data-` attributes of the SVG element (so that
+    /// a reader or a test can tell the lines apart).
+    label: String,
+    panel: usize,
+}
+
+impl PixelLine {
+    fn style(&self) -> ShapeStyle {
+        ShapeStyle::from(&self.color).stroke_width(self.width)
+    }
+
+    /// `<polyline .../>` with the points as integers.
+    fn svg(&self) -> String {
+        let RGBColor(r, g, b) = self.color;
+        let mut text = format!(
+            "<polyline fill=\"none\" stroke=\"#{r:02X}{g:02X}{b:02X}\" stroke-width=\"{}\"",
+            self.width
+        );
+        if let Some((on, off)) = self.dash.pattern() {
+            text.push_str(&format!(" stroke-dasharray=\"{on} {off}\""));
+        }
+        text.push_str(&format!(
+            " data-panel=\"{}\" data-series=\"{}\" points=\"",
+            self.panel,
+            xml_escape(&self.label)
+        ));
+        for (k, (x, y)) in self.points.iter().enumerate() {
+            if k > 0 {
+                text.push(' ');
+            }
+            text.push_str(&format!("{x},{y}"));
+        }
+        text.push_str("\"/>\n");
+        text
+    }
+}
+
+fn xml_escape(s: &str) -> String {
+    s.replace('&', "&amp;")
+        .replace('<', "&lt;")
+        .replace('>', "&gt;")
+        .replace('"', "&quot;")
+}
+
+/// A line in pixels with at most about one point per `bucket` pixels of its length: a line
+/// whose x never decreases (a time series) keeps per bucket of `bucket` pixel columns the
+/// lowest and the highest point, in their order (so every extreme survives, to within the
+/// bucket's width); any other line (a trajectory) keeps a point when it is at least
+/// `bucket` pixels from the last one kept. The first and the last points are kept.
+fn thin(points: &[(i32, i32)], bucket: i32) -> Vec<(i32, i32)> {
+    if points.len() <= 2 || bucket < 1 {
+        return points.to_vec();
+    }
+    let monotone = points.windows(2).all(|w| w[1].0 >= w[0].0);
+    let mut out: Vec<(i32, i32)> = vec![points[0]];
+    if monotone {
+        let column = |p: (i32, i32)| p.0.div_euclid(bucket);
+        let mut k = 1;
+        while k < points.len() - 1 {
+            let c = column(points[k]);
+            let start = k;
+            while k < points.len() - 1 && column(points[k]) == c {
+                k += 1;
+            }
+            let group = &points[start..k];
+            // Image y grows downwards: the lowest value has the largest y.
+            let (mut lo, mut hi) = (0, 0);
+            for (j, p) in group.iter().enumerate() {
+                if p.1 > group[lo].1 {
+                    lo = j;
+                }
+                if p.1 < group[hi].1 {
+                    hi = j;
+                }
+            }
+            for j in [lo.min(hi), lo.max(hi)] {
+                if out.last() != Some(&group[j]) {
+                    out.push(group[j]);
+                }
+            }
+        }
+    } else {
+        let far = |a: (i32, i32), b: (i32, i32)| {
+            let (dx, dy) = ((a.0 - b.0) as i64, (a.1 - b.1) as i64);
+            dx * dx + dy * dy >= (bucket as i64) * (bucket as i64)
+        };
+        for &p in &points[1..points.len() - 1] {
+            if far(p, *out.last().unwrap_or(&p)) {
+                out.push(p);
+            }
+        }
+    }
+    let last = points[points.len() - 1];
+    if out.last() != Some(&last) {
+        out.push(last);
+    }
+    out
+}
+
+/// The part of the segment a-b inside the rectangle [x0, x1] x [y0, y1] (Liang-Barsky), if
+/// any.
+fn clip_segment(
+    a: (f64, f64),
+    b: (f64, f64),
+    x: (f64, f64),
+    y: (f64, f64),
+) -> Option<((f64, f64), (f64, f64))> {
+    let (dx, dy) = (b.0 - a.0, b.1 - a.1);
+    let (mut t0, mut t1) = (0.0_f64, 1.0_f64);
+    for (p, q) in [
+        (-dx, a.0 - x.0),
+        (dx, x.1 - a.0),
+        (-dy, a.1 - y.0),
+        (dy, y.1 - a.1),
+    ] {
+        if p == 0.0 {
+            if q < 0.0 {
+                return None;
+            }
+        } else {
+            let r = q / p;
+            if p < 0.0 {
+                t0 = t0.max(r);
+            } else {
+                t1 = t1.min(r);
+            }
+        }
+    }
+    (t0 <= t1).then_some({
+        (
+            (a.0 + t0 * dx, a.1 + t0 * dy),
+            (a.0 + t1 * dx, a.1 + t1 * dy),
+        )
+    })
+}
+
+/// A polyline cut to the rectangle: the pieces inside it, each a list of points.
+fn clip_polyline(points: &[(f64, f64)], x: (f64, f64), y: (f64, f64)) -> Vec<Vec<(f64, f64)>> {
+    let inside = |p: (f64, f64)| p.0 >= x.0 && p.0 <= x.1 && p.1 >= y.0 && p.1 <= y.1;
+    let mut pieces: Vec<Vec<(f64, f64)>> = Vec::new();
+    let mut current: Vec<(f64, f64)> = Vec::new();
+    if points.len() == 1 && inside(points[0]) {
+        return vec![points.to_vec()];
+    }
+    for w in points.windows(2) {
+        match clip_segment(w[0], w[1], x, y) {
+            Some((a, b)) => {
+                if current.last() != Some(&a) {
+                    if !current.is_empty() {
+                        pieces.push(std::mem::take(&mut current));
+                    }
+                    current.push(a);
+                }
+                current.push(b);
+                if b != w[1] {
+                    pieces.push(std::mem::take(&mut current));
+                }
+            }
+            None => {
+                if !current.is_empty() {
+                    pieces.push(std::mem::take(&mut current));
+                }
+            }
+        }
+    }
+    if !current.is_empty() {
+        pieces.push(current);
+    }
+    pieces
 }
 
 /// Axis value -> drawn value (log10 on log axes); None when it cannot be drawn (not finite,
@@ -639,7 +1004,10 @@ fn tick_step(width: f64) -> f64 {
 }
 
 /// How tick labels of one axis are written: with the digits their spacing needs, so that
-/// neighbouring ticks never read alike.
+/// neighbouring ticks never read alike. When the values are large against their spread (a
+/// near-constant column: 112500.0001 to 112500.0003, or -4.905 +- 1e-12), the labels would
+/// need more than [`TickFormat::MAX_DIGITS`] significant digits; they then show the value
+/// minus a round offset, and the axis label says `value = tick + OFFSET`.
 #[derive(Clone, Copy, Debug)]
 struct TickFormat {
     log: bool,
@@ -648,22 +1016,63 @@ struct TickFormat {
     step: f64,
     /// Exponent notation, when the values are very large or very small.
     exponent: bool,
+    /// Subtracted from every shown value (0: none).
+    offset: f64,
+    /// Decimals that write the offset exactly.
+    offset_decimals: usize,
 }
 
 impl TickFormat {
+    /// Most significant digits of a tick label before an offset is taken out.
+    const MAX_DIGITS: i32 = 6;
+
     fn new(range: (f64, f64), log: bool, negate: bool) -> Self {
-        let step = tick_step(range.1 - range.0);
-        let largest = range.0.abs().max(range.1.abs());
+        let span = range.1 - range.0;
+        let step = tick_step(span);
+        let shown = |v: f64| if negate { -v } else { v };
+        let (a, b) = (shown(range.0), shown(range.1));
+        let largest = a.abs().max(b.abs());
+        let mut offset = 0.0;
+        let mut offset_decimals = 0;
+        if !log && largest > 0.0 && span > 0.0 && span.is_finite() {
+            let digits = largest.log10().floor() - step.log10().floor() + 1.0;
+            if digits > Self::MAX_DIGITS as f64 {
+                // A round number at the decade above the spread, near the middle.
+                let power = span.log10().floor() + 1.0;
+                let unit = 10f64.powf(power);
+                offset = (0.5 * (a + b) / unit).round() * unit;
+                offset_decimals = (-power).max(0.0) as usize;
+            }
+        }
+        let largest = (a - offset).abs().max((b - offset).abs());
         TickFormat {
             log,
             negate,
             step,
             exponent: !log && largest > 0.0 && !(1e-3..1e5).contains(&largest),
+            offset,
+            offset_decimals,
         }
     }
 
+    /// `value = tick + 112500`, `value = tick - 4.905`, when the labels are offset.
+    fn offset_text(&self) -> Option<String> {
+        if self.offset == 0.0 {
+            return None;
+        }
+        let mut number = format!("{:.*}", self.offset_decimals.min(17), self.offset.abs());
+        if number.contains('.') {
+            number = number
+                .trim_end_matches('0')
+                .trim_end_matches('.')
+                .to_string();
+        }
+        let sign = if self.offset < 0.0 { '-' } else { '+' };
+        Some(format!("value = tick {sign} {number}"))
+    }
+
     fn label(&self, drawn: f64) -> String {
-        let v = if self.negate { -drawn } else { drawn };
+        let v = if self.negate { -drawn } else { drawn } - self.offset;
         if self.log {
             if (v - v.round()).abs() < 1e-9 {
                 return format!("1e{}", v.round() as i64);
@@ -692,9 +1101,20 @@ impl TickFormat {
         }
         format!("{:.*}", decimals.min(15), v)
     }
+
+    /// The axis label with the offset, when there is one.
+    fn describe(&self, label: &str) -> String {
+        match self.offset_text() {
+            Some(offset) => format!("{label}   [{offset}]"),
+            None => label.to_string(),
+        }
+    }
 }
 
-fn draw<DB: DrawingBackend>(figure: &Figure, root: &DrawingArea<DB, Shift>) -> Result<(), String> {
+fn draw<DB: DrawingBackend>(
+    figure: &Figure,
+    root: &DrawingArea<DB, Shift>,
+) -> Result<Vec<PixelLine>, String> {
     let err = |e: DrawingAreaErrorKind<DB::ErrorType>| e.to_string();
     root.fill(&WHITE).map_err(err)?;
     let note = figure.note();
@@ -722,10 +1142,127 @@ fn draw<DB: DrawingBackend>(figure: &Figure, root: &DrawingArea<DB, Shift>) -> R
         figure.columns.min(n)
     };
     let areas = body.split_evenly((n.div_ceil(columns), columns));
-    for (panel, area) in figure.panels.iter().zip(&areas) {
-        draw_panel(panel, area)?;
+    // Panels stacked in one column share their x axis: the same range and the same plotting
+    // width (one legend width for all), so that their time axes line up.
+    let stacked = columns == 1 && figure.panels.len() > 1;
+    let width = body.dim_in_pixel().0;
+    let shared = Shared {
+        legend_width: if stacked {
+            figure
+                .panels
+                .iter()
+                .filter_map(|p| legend_width(p, width))
+                .max()
+        } else {
+            None
+        },
+        x_range: if stacked
+            && figure.panels.iter().all(|p| !p.equal_aspect)
+            && figure.panels.windows(2).all(|w| w[0].x_log == w[1].x_log)
+        {
+            let (lo, hi) = figure
+                .panels
+                .iter()
+                .map(|p| extent(p, &drawn_points(p)).0)
+                .fold((f64::INFINITY, f64::NEG_INFINITY), |a, b| {
+                    (a.0.min(b.0), a.1.max(b.1))
+                });
+            (lo <= hi).then(|| range([lo, hi].into_iter(), figure.panels[0].x_log))
+        } else {
+            None
+        },
+    };
+    let mut lines = Vec::new();
+    for (index, (panel, area)) in figure.panels.iter().zip(&areas).enumerate() {
+        draw_panel(panel, index, area, &shared, &mut lines)?;
     }
-    Ok(())
+    Ok(lines)
+}
+
+/// What the panels of a figure share.
+struct Shared {
+    /// The legend's width in every panel (stacked panels), else each its own.
+    legend_width: Option<u32>,
+    /// The x range of every panel (stacked panels), else each its own.
+    x_range: Option<(f64, f64)>,
+}
+
+/// The drawn points of each series of `panel` (log10 on log axes, y negated on an axis
+/// pointing down), NaN where a point cannot be drawn: the line breaks there.
+fn drawn_points(panel: &Panel) -> Vec<Vec<(f64, f64)>> {
+    panel
+        .series
+        .iter()
+        .map(|s| {
+            s.points
+                .iter()
+                .map(
+                    |&(x, y)| match (transform(x, panel.x_log), transform(y, panel.y_log)) {
+                        (Some(x), Some(y)) => (x, if panel.y_down { -y } else { y }),
+                        _ => (f64::NAN, f64::NAN),
+                    },
+                )
+                .collect()
+        })
+        .collect()
+}
+
+/// The smallest and largest drawn x and y of the series that set the panel's scale (all
+/// but those off scale); infinite when there are none.
+fn extent(panel: &Panel, drawn: &[Vec<(f64, f64)>]) -> ((f64, f64), (f64, f64)) {
+    let off: Vec<usize> = panel.off_scale().iter().map(|o| o.series).collect();
+    let mut x = (f64::INFINITY, f64::NEG_INFINITY);
+    let mut y = x;
+    for (i, points) in drawn.iter().enumerate() {
+        if off.contains(&i) {
+            continue;
+        }
+        for p in points.iter().filter(|p| p.0.is_finite() && p.1.is_finite()) {
+            x = (x.0.min(p.0), x.1.max(p.0));
+            y = (y.0.min(p.1), y.1.max(p.1));
+        }
+    }
+    (x, y)
+}
+
+/// The legend's width in a panel `width` pixels wide: at least 110 px, at most 2/5 of the
+/// panel (never a panic on a narrow one); `None` when no series is named.
+fn legend_width(panel: &Panel, width: u32) -> Option<u32> {
+    let longest = panel
+        .series
+        .iter()
+        .filter(|s| !s.label.is_empty())
+        .map(|s| s.label.chars().count())
+        .max()? as u32;
+    // Note lines are in a smaller font, without the line sample.
+    let note = panel
+        .legend_note
+        .iter()
+        .map(|l| l.chars().count() as u32 * 6 + 12)
+        .max()
+        .unwrap_or(0);
+    Some((longest * 7 + 48).max(note).max(110).min(width * 2 / 5))
+}
+
+/// Why a panel has nothing to draw, in words.
+fn empty_message(panel: &Panel) -> String {
+    let finite = panel
+        .series
+        .iter()
+        .flat_map(|s| &s.points)
+        .any(|p| p.0.is_finite() && p.1.is_finite());
+    if finite && (panel.x_log || panel.y_log) {
+        format!(
+            "no data: no value above zero for the log {}",
+            match (panel.x_log, panel.y_log) {
+                (true, true) => "axes",
+                (false, true) => "y axis",
+                _ => "x axis",
+            }
+        )
+    } else {
+        "no data: no finite value".to_string()
+    }
 }
 
 /// The runs of drawable points between non-finite ones.
@@ -838,34 +1375,21 @@ where
 
 fn draw_panel<DB: DrawingBackend>(
     panel: &Panel,
+    index: usize,
     area: &DrawingArea<DB, Shift>,
+    shared: &Shared,
+    lines: &mut Vec<PixelLine>,
 ) -> Result<(), String> {
     let err = |e: DrawingAreaErrorKind<DB::ErrorType>| e.to_string();
-    // Drawn points, with NaN where a point cannot be drawn: the line breaks there.
-    let drawn: Vec<Vec<(f64, f64)>> = panel
-        .series
-        .iter()
-        .map(|s| {
-            s.points
-                .iter()
-                .map(
-                    |&(x, y)| match (transform(x, panel.x_log), transform(y, panel.y_log)) {
-                        (Some(x), Some(y)) => (x, if panel.y_down { -y } else { y }),
-                        _ => (f64::NAN, f64::NAN),
-                    },
-                )
-                .collect()
-        })
-        .collect();
-    let finite = |p: &&(f64, f64)| p.0.is_finite() && p.1.is_finite();
-    let mut x_range = range(
-        drawn.iter().flatten().filter(finite).map(|p| p.0),
-        panel.x_log,
-    );
-    let mut y_range = range(
-        drawn.iter().flatten().filter(finite).map(|p| p.1),
-        panel.y_log,
-    );
+    let drawn = drawn_points(panel);
+    let off_scale = panel.off_scale();
+    let off: Vec<usize> = off_scale.iter().map(|o| o.series).collect();
+    let (x_extent, y_extent) = extent(panel, &drawn);
+    let has_data = x_extent.0 <= x_extent.1;
+    let mut x_range = shared
+        .x_range
+        .unwrap_or_else(|| range([x_extent.0, x_extent.1].into_iter(), panel.x_log));
+    let mut y_range = range([y_extent.0, y_extent.1].into_iter(), panel.y_log);
     // Colours: the series' own, or the next free one of the panel.
     let mut next_color = 0;
     let colors: Vec<RGBColor> = panel
@@ -885,20 +1409,38 @@ fn draw_panel<DB: DrawingBackend>(
         .filter(|&i| !panel.series[i].label.is_empty())
         .collect();
     let (width, _) = area.dim_in_pixel();
-    let (plot_area, legend_area) = if labelled.is_empty() {
-        (area.clone(), None)
-    } else {
-        let longest = labelled
-            .iter()
-            .map(|&i| panel.series[i].label.chars().count())
-            .max()
-            .unwrap_or(0) as u32;
-        // At least 110 px, at most 2/5 of the panel (never a panic on a narrow one).
-        let legend_width = (longest * 7 + 48).max(110).min(width * 2 / 5);
-        let (left, right) = area.split_horizontally(width.saturating_sub(legend_width));
-        (left, Some(right))
+    let (plot_area, legend_area) = match shared.legend_width.or(legend_width(panel, width)) {
+        Some(legend) if !labelled.is_empty() || shared.legend_width.is_some() => {
+            let (left, right) = area.split_horizontally(width.saturating_sub(legend));
+            (left, Some(right))
+        }
+        _ => (area.clone(), None),
     };
     let plot_area = plot_area.titled(&panel.title, (FAMILY, 15)).map_err(err)?;
+    if !has_data {
+        // An honest empty panel: no invented axes, the reason in words.
+        let (w, h) = plot_area.dim_in_pixel();
+        plot_area
+            .draw(&Text::new(
+                empty_message(panel),
+                ((w / 2) as i32, (h / 2) as i32),
+                (FAMILY, 15)
+                    .into_font()
+                    .color(&BLACK.mix(0.75))
+                    .pos(Pos::new(HPos::Center, VPos::Center)),
+            ))
+            .map_err(err)?;
+        plot_area
+            .draw(&Rectangle::new(
+                [
+                    (MARGIN as i32, 0),
+                    ((w - MARGIN) as i32, (h - MARGIN) as i32),
+                ],
+                BLACK.mix(0.15),
+            ))
+            .map_err(err)?;
+        return Ok(());
+    }
     if panel.equal_aspect {
         let (w, h) = plot_area.dim_in_pixel();
         (x_range, y_range) = equalize(
@@ -916,12 +1458,14 @@ fn draw_panel<DB: DrawingBackend>(
         .map_err(err)?;
     let x_format = TickFormat::new(x_range, panel.x_log, false);
     let y_format = TickFormat::new(y_range, panel.y_log, panel.y_down);
+    let x_desc = x_format.describe(&panel.x_label);
+    let y_desc = y_format.describe(&panel.y_label);
     let x_fmt = move |v: &f64| x_format.label(*v);
     let y_fmt = move |v: &f64| y_format.label(*v);
     chart
         .configure_mesh()
-        .x_desc(panel.x_label.as_str())
-        .y_desc(panel.y_label.as_str())
+        .x_desc(x_desc.as_str())
+        .y_desc(y_desc.as_str())
         .x_labels(LABELS)
         .y_labels(LABELS)
         .x_label_formatter(&x_fmt)
@@ -938,19 +1482,36 @@ fn draw_panel<DB: DrawingBackend>(
         .filter(|&i| panel.series[i].style == Style::Reference)
         .chain((0..panel.series.len()).filter(|&i| panel.series[i].style != Style::Reference))
         .collect();
+    let inside = |p: &(f64, f64)| {
+        p.0 >= x_range.0 && p.0 <= x_range.1 && p.1 >= y_range.0 && p.1 <= y_range.1
+    };
+    // Pixels per kept point: 2 columns per min/max pair along a time series; 4 px chords
+    // along a path (its sagitta stays below 0.1 px where the path bends less than a 20 px
+    // radius), which a path retracing itself over many cycles needs to stay small.
+    let thinning = if panel.equal_aspect { 4 } else { 2 };
     for &i in &order {
         let series = &panel.series[i];
         let color = colors[i];
-        let style = match series.style {
-            Style::Reference => ShapeStyle::from(&color).stroke_width(6),
-            _ => ShapeStyle::from(&color).stroke_width(if series.look.dash == Dash::Solid {
-                1
-            } else {
-                2
-            }),
+        let width = match series.style {
+            Style::Reference => 6,
+            _ if series.look.dash == Dash::Solid => 1,
+            _ => 2,
         };
+        // Cut at the frame (a series off scale leaves it), then at most a point or two per
+        // two pixels: what an SVG needs to show the line, extremes included.
         for segment in segments(&drawn[i]) {
-            draw_line(data, segment, series.look.dash, style)?;
+            for piece in clip_polyline(&segment, x_range, y_range) {
+                let pixels: Vec<(i32, i32)> =
+                    piece.iter().map(|p| chart.backend_coord(p)).collect();
+                lines.push(PixelLine {
+                    points: thin(&pixels, thinning),
+                    color,
+                    width,
+                    dash: series.look.dash,
+                    label: series.label.clone(),
+                    panel: index,
+                });
+            }
         }
         let marker = match (series.style, series.look.marker) {
             (Style::Reference, _) => None,
@@ -976,13 +1537,33 @@ fn draw_panel<DB: DrawingBackend>(
             } else {
                 0
             };
-            for &p in points.iter().skip(offset).step_by(every) {
-                draw_marker(data, p, shape, color)?;
+            for p in points
+                .iter()
+                .skip(offset)
+                .step_by(every)
+                .filter(|p| inside(p))
+            {
+                draw_marker(data, *p, shape, color)?;
             }
         }
     }
+    // Series off scale: said inside the frame, at its top left, in their colour.
+    let base = plot_area.get_base_pixel();
+    let corner = chart.backend_coord(&(x_range.0, y_range.1));
+    for (row, (o, note)) in off_scale.iter().zip(panel.off_scale_notes()).enumerate() {
+        plot_area
+            .draw(&Text::new(
+                format!("{note} (drawn clipped at the frame)"),
+                (
+                    corner.0 - base.0 + 6,
+                    corner.1 - base.1 + 4 + 15 * row as i32,
+                ),
+                (FAMILY, 12).into_font().color(&colors[o.series]),
+            ))
+            .map_err(err)?;
+    }
     if let Some(legend) = legend_area {
-        draw_legend(panel, &labelled, &colors, &legend)?;
+        draw_legend(panel, &labelled, &colors, &off, &legend)?;
     }
     Ok(())
 }
@@ -993,10 +1574,19 @@ fn draw_legend<DB: DrawingBackend>(
     panel: &Panel,
     labelled: &[usize],
     colors: &[RGBColor],
+    off_scale: &[usize],
     area: &DrawingArea<DB, Shift>,
 ) -> Result<(), String> {
     let (_, height) = area.dim_in_pixel();
-    let top = 34i32;
+    for (row, line) in panel.legend_note.iter().enumerate() {
+        area.draw(&Text::new(
+            line.clone(),
+            (6, 30 + 14 * row as i32),
+            (FAMILY, 11).into_font().color(&BLACK.mix(0.75)),
+        ))
+        .map_err(|e| e.to_string())?;
+    }
+    let top = 34i32 + 14 * panel.legend_note.len() as i32;
     let available = height.saturating_sub(top as u32 + 8) as usize;
     let (font, spacing) = if labelled.len() * 17 <= available {
         (12, 17)
@@ -1026,8 +1616,13 @@ fn draw_legend<DB: DrawingBackend>(
         if let Some(shape) = marker {
             draw_marker(area, (20, y), shape, color)?;
         }
+        let label = if off_scale.contains(&i) {
+            format!("{} (off scale)", series.label)
+        } else {
+            series.label.clone()
+        };
         area.draw(&Text::new(
-            series.label.clone(),
+            label,
             (40, y - font / 2 - 1),
             (FAMILY, font).into_font(),
         ))

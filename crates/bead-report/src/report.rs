@@ -110,10 +110,16 @@ impl PeriodDetector {
 pub struct Recorder {
     system: Arc<System>,
     constraint: MinMaxDecimator,
-    /// max_i |C_i| / |grad C_i|: the distance off the constraint set, to first order
+    /// The distance off the constraint set: the true distance to the closest point when
+    /// the constraint is one scalar row on one particle's coordinates (see
+    /// [`ClosestPoint`]), else the first-order estimate max_i |C_i| / |grad C_i|
     deviation: MinMaxDecimator,
     /// C and its gradient rows at a sample (for `deviation`)
     eval: ConstraintEval,
+    /// The closest-point search, when the constraint set is one row on one particle.
+    closest: Option<ClosestPoint>,
+    /// Samples where the closest-point search did not converge (left out of `deviation`).
+    closest_failures: u64,
     energy: MinMaxDecimator,
     /// (E - W - E0) / E_scale with its sign
     energy_signed: MinMaxDecimator,
@@ -135,6 +141,8 @@ impl Recorder {
             constraint: MinMaxDecimator::new(buckets),
             deviation: MinMaxDecimator::new(buckets),
             eval: system.constraints().workspace(),
+            closest: ClosestPoint::of(&system),
+            closest_failures: 0,
             energy: MinMaxDecimator::new(buckets),
             energy_signed: MinMaxDecimator::new(buckets),
             trajectory: HeadTail::new(n + 1, buckets),
@@ -169,6 +177,8 @@ impl Recorder {
         Recording {
             constraint_error: self.constraint.points(),
             deviation: self.deviation.points(),
+            deviation_is_distance: self.closest.is_some(),
+            closest_failures: self.closest_failures,
             energy_error: self.energy.points(),
             energy_change: self.energy_signed.points(),
             trajectory: self.trajectory.rows(),
@@ -203,6 +213,202 @@ impl Recorder {
     }
 }
 
+/// The true distance from a particle to the constraint set C(y, t) = 0 of a single scalar
+/// constraint row on that particle's coordinates (a curve in 2D, a surface in 3D): the
+/// closest point y* solves
+///
+/// ```text
+/// min |y - x|^2  subject to  C(y) = 0,
+/// ```
+///
+/// whose Lagrange conditions are F(y, lambda) = (y - x + lambda grad C(y), C(y)) = 0. Newton's
+/// method on F solves, per iteration,
+///
+/// ```text
+/// [ I + lambda H   grad C ] [ dy      ]     [ y - x + lambda grad C ]
+/// [ grad C^T       0      ] [ dlambda ] = - [ C                     ]
+/// ```
+///
+/// with H the Hessian of C by central differences of the exact gradient (an approximate
+/// Jacobian slows Newton's convergence but does not move its solution: F itself is exact).
+/// It starts at (x, 0), where the first step is the first-order projection x - C grad C /
+/// |grad C|^2, so it finds the closest point the first-order estimate |C| / |grad C| points
+/// at, and it stops when the step is below 1e-13 of the coordinates' scale. Other
+/// coordinates (other particles, if any) are held at their values.
+#[derive(Clone, Debug)]
+struct ClosestPoint {
+    /// The particle's coordinates in x (dim of them).
+    coords: Vec<usize>,
+    /// Scratch: the whole state with the particle at the trial point.
+    trial: Vec<f64>,
+}
+
+impl ClosestPoint {
+    const MAX_ITERATIONS: usize = 60;
+    const STEP_TOLERANCE: f64 = 1e-13;
+
+    /// The search for `system`, when its constraint set is one row on the coordinates of
+    /// one particle; `None` otherwise (several rows, or a row coupling particles, where the
+    /// closest point is not the simple question this answers).
+    fn of(system: &System) -> Option<ClosestPoint> {
+        let set = system.constraints();
+        if set.n_rows() != 1 {
+            return None;
+        }
+        let dim = system.dim();
+        let columns = set.row_columns(0);
+        let particle = columns.first()? / dim;
+        if columns.iter().any(|&k| k / dim != particle) {
+            return None;
+        }
+        Some(ClosestPoint {
+            coords: (particle * dim..(particle + 1) * dim).collect(),
+            trial: vec![0.0; system.n_coords()],
+        })
+    }
+
+    /// C and its gradient with respect to the particle's coordinates at the trial point.
+    fn evaluate(
+        &mut self,
+        system: &System,
+        t: f64,
+        y: &[f64],
+        eval: &mut ConstraintEval,
+        gradient: &mut [f64],
+    ) -> f64 {
+        let set = system.constraints();
+        for (k, &c) in self.coords.iter().enumerate() {
+            self.trial[c] = y[k];
+        }
+        set.gradient(t, &self.trial, eval);
+        gradient.iter_mut().for_each(|g| *g = 0.0);
+        for (entry, &column) in eval.jacobian[set.row_entries(0)]
+            .iter()
+            .zip(set.row_columns(0))
+        {
+            if let Some(k) = self.coords.iter().position(|&c| c == column) {
+                gradient[k] = *entry;
+            }
+        }
+        eval.value[0]
+    }
+
+    /// The distance from the state x at time t to the closest point of the constraint
+    /// set; `None` when Newton's method does not converge (or a gradient vanishes).
+    fn distance(
+        &mut self,
+        system: &System,
+        t: f64,
+        x: &[f64],
+        eval: &mut ConstraintEval,
+    ) -> Option<f64> {
+        let d = self.coords.len();
+        if x.len() != self.trial.len() {
+            return None;
+        }
+        self.trial.copy_from_slice(x);
+        let start: Vec<f64> = self.coords.iter().map(|&c| x[c]).collect();
+        let scale = start.iter().fold(1.0_f64, |m, v| m.max(v.abs()));
+        let mut y = start.clone();
+        let mut lambda = 0.0;
+        let mut g = vec![0.0; d];
+        let mut plus = vec![0.0; d];
+        let mut minus = vec![0.0; d];
+        // The (d + 1) x (d + 1) system, row-major, and its right-hand side.
+        let n = d + 1;
+        let mut a = vec![0.0; n * n];
+        let mut b = vec![0.0; n];
+        for _ in 0..Self::MAX_ITERATIONS {
+            let c = self.evaluate(system, t, &y, eval, &mut g);
+            if !c.is_finite() || g.iter().all(|&v| v == 0.0) || g.iter().any(|v| !v.is_finite()) {
+                return None;
+            }
+            a.iter_mut().for_each(|v| *v = 0.0);
+            // I + lambda H by central differences of the gradient.
+            let h = 1e-5 * scale;
+            let mut probe = y.clone();
+            for j in 0..d {
+                probe[j] = y[j] + h;
+                self.evaluate(system, t, &probe, eval, &mut plus);
+                probe[j] = y[j] - h;
+                self.evaluate(system, t, &probe, eval, &mut minus);
+                probe[j] = y[j];
+                for i in 0..d {
+                    a[i * n + j] += lambda * (plus[i] - minus[i]) / (2.0 * h);
+                }
+            }
+            for i in 0..d {
+                for j in 0..i {
+                    let mean = 0.5 * (a[i * n + j] + a[j * n + i]);
+                    a[i * n + j] = mean;
+                    a[j * n + i] = mean;
+                }
+                a[i * n + i] += 1.0;
+                a[i * n + d] = g[i];
+                a[d * n + i] = g[i];
+                b[i] = -(y[i] - start[i] + lambda * g[i]);
+            }
+            b[d] = -c;
+            let step = solve(&mut a, &mut b, n)?;
+            for i in 0..d {
+                y[i] += step[i];
+            }
+            lambda += step[d];
+            let moved = step[..d].iter().fold(0.0_f64, |m, v| m.max(v.abs()));
+            if moved <= Self::STEP_TOLERANCE * scale {
+                let c = self.evaluate(system, t, &y, eval, &mut g);
+                let norm = g.iter().map(|v| v * v).sum::<f64>().sqrt();
+                // On the set, to the accuracy of the coordinates.
+                if c.abs() / norm <= 1e-10 * scale {
+                    let distance = y
+                        .iter()
+                        .zip(&start)
+                        .map(|(a, b)| (a - b) * (a - b))
+                        .sum::<f64>()
+                        .sqrt();
+                    return Some(distance);
+                }
+                return None;
+            }
+        }
+        None
+    }
+}
+
+/// Solve the n x n system a z = b (row-major) by Gaussian elimination with partial
+/// pivoting; `None` when it is singular.
+fn solve(a: &mut [f64], b: &mut [f64], n: usize) -> Option<Vec<f64>> {
+    for col in 0..n {
+        let pivot =
+            (col..n).max_by(|&i, &j| a[i * n + col].abs().total_cmp(&a[j * n + col].abs()))?;
+        if a[pivot * n + col] == 0.0 || !a[pivot * n + col].is_finite() {
+            return None;
+        }
+        if pivot != col {
+            for k in 0..n {
+                a.swap(col * n + k, pivot * n + k);
+            }
+            b.swap(col, pivot);
+        }
+        for row in col + 1..n {
+            let f = a[row * n + col] / a[col * n + col];
+            for k in col..n {
+                a[row * n + k] -= f * a[col * n + k];
+            }
+            b[row] -= f * b[col];
+        }
+    }
+    let mut z = vec![0.0; n];
+    for row in (0..n).rev() {
+        let mut v = b[row];
+        for k in row + 1..n {
+            v -= a[row * n + k] * z[k];
+        }
+        z[row] = v / a[row * n + row];
+    }
+    z.iter().all(|v| v.is_finite()).then_some(z)
+}
+
 /// `bead.vx` for particle coordinate k.
 fn velocity_name(system: &System, k: usize) -> String {
     let name = system.coordinate_name(k);
@@ -217,7 +423,17 @@ impl Sink for Recorder {
         self.samples += 1;
         self.balance = sample.work.is_some();
         self.constraint.push(sample.t, sample.constraint_error);
-        if let Some(distance) = self.deviation_of(sample.t, sample.x) {
+        let distance = match &mut self.closest {
+            Some(search) => {
+                let found = search.distance(&self.system, sample.t, sample.x, &mut self.eval);
+                if found.is_none() {
+                    self.closest_failures += 1;
+                }
+                found
+            }
+            None => self.deviation_of(sample.t, sample.x),
+        };
+        if let Some(distance) = distance {
             self.deviation.push(sample.t, distance);
         }
         self.energy.push(sample.t, sample.conserved_energy_error());
@@ -252,9 +468,17 @@ pub struct Period {
 pub struct Recording {
     /// (t, max_i |C_i|)
     pub constraint_error: Vec<(f64, f64)>,
-    /// (t, max_i |C_i| / |grad C_i|): the distance off the constraint set to first order,
-    /// in length units (left out where a gradient vanishes)
+    /// (t, distance off the constraint set) in length units: the true distance to the
+    /// closest point of the constraint set when `deviation_is_distance`, else the
+    /// first-order estimate max_i |C_i| / |grad C_i| (left out where a gradient vanishes or
+    /// the closest-point search did not converge)
     pub deviation: Vec<(f64, f64)>,
+    /// Whether `deviation` is the true distance (one scalar constraint on one particle's
+    /// coordinates: a curve in 2D, a surface in 3D) rather than the first-order estimate.
+    pub deviation_is_distance: bool,
+    /// Samples where the closest-point search did not converge (none in practice; left
+    /// out of `deviation`).
+    pub closest_failures: u64,
     /// (t, |E - E0| / E_scale), or (t, |E - W - E0| / E_scale) when `energy_balance`
     pub energy_error: Vec<(f64, f64)>,
     /// The same with its sign: (t, (E - E0) / E_scale) or (t, (E - W - E0) / E_scale); above
@@ -344,12 +568,102 @@ pub struct Report {
     pub runs: Vec<ReportRun>,
     /// Combinations that were not run, with the reason: `parametric x rattle: ...`.
     pub skipped: Vec<String>,
+    /// The scene as the report states it (file text, parameters, command line); `None`
+    /// for a report of runs without a scene file.
+    pub scene: Option<SceneStatement>,
+}
+
+/// What a report says about its scene, so that it can be checked and reproduced from the
+/// report alone: the file's text, every parameter's value (after `--set`), the units and the
+/// command line that wrote the report. The initial state is read from the report's system.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct SceneStatement {
+    /// The scene file as given.
+    pub file: String,
+    /// The file's text as loaded.
+    pub text: String,
+    /// `[world] units`, if the scene says.
+    pub units: Option<String>,
+    /// Every parameter, in file order.
+    pub params: Vec<ParamValue>,
+    /// The command line that reproduces the report (shell-quoted).
+    pub command: String,
+}
+
+/// One parameter of a scene as a report states it.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ParamValue {
+    pub name: String,
+    pub value: f64,
+    pub unit: Option<String>,
+    pub description: Option<String>,
+    /// Whether `--set` gave the value (else the file did).
+    pub overridden: bool,
+}
+
+impl SceneStatement {
+    /// The statement of `scene` (loaded with its overrides) written by `command`.
+    pub fn of(scene: &bead::scene::Scene, command: impl Into<String>) -> Self {
+        let params = scene
+            .params
+            .iter()
+            .map(|(name, value)| {
+                let spec = scene.param_specs.iter().find(|p| &p.name == name);
+                ParamValue {
+                    name: name.clone(),
+                    value: *value,
+                    unit: spec.and_then(|p| p.unit.clone()),
+                    description: spec.and_then(|p| p.description.clone()),
+                    overridden: scene.overrides().iter().any(|(n, _)| n == name),
+                }
+            })
+            .collect();
+        SceneStatement {
+            file: scene.file.clone(),
+            text: scene.text().to_string(),
+            units: scene.units.clone(),
+            params,
+            command: command.into(),
+        }
+    }
+}
+
+/// `args` as one shell command line: each argument quoted with single quotes when it holds
+/// anything but letters, digits and `-_./=,:+@%`.
+pub fn shell_command<I, S>(args: I) -> String
+where
+    I: IntoIterator<Item = S>,
+    S: AsRef<str>,
+{
+    args.into_iter()
+        .map(|a| {
+            let a = a.as_ref();
+            let plain = !a.is_empty()
+                && a.chars()
+                    .all(|c| c.is_ascii_alphanumeric() || "-_./=,:+@%".contains(c));
+            if plain {
+                a.to_string()
+            } else {
+                format!("'{}'", a.replace('\'', "'\\''"))
+            }
+        })
+        .collect::<Vec<_>>()
+        .join(" ")
 }
 
 /// `x` with `sig` significant digits in the shorter of fixed and exponent notation: the
 /// library's [`bead::significant`], so that reports, the CLI and the library's messages print
 /// numbers alike.
 pub use bead::significant as sig;
+
+/// A run whose largest relative energy change is this many times the median of the
+/// others' is drawn off scale on the signed energy panel (see [`Panel::outlier_factor`]).
+pub const OUTLIER_FACTOR: f64 = 100.0;
+
+/// A trajectory that reaches this many times farther from the common centre than the median
+/// of the others is drawn off scale, so that one run leaving the curve does not shrink the
+/// others to a smudge.
+pub const TRAJECTORY_OUTLIER_FACTOR: f64 = 10.0;
 
 /// Significant digits of every figure in the comparison table (errors, period, rates).
 pub const TABLE_DIGITS: usize = 4;
@@ -359,35 +673,66 @@ pub const TABLE_DIGITS: usize = 4;
 pub const PERIOD_DIGITS: usize = 6;
 
 impl Report {
-    /// The look of `run` in every figure: colour by integrator (its place in
-    /// [`IntegratorKind::ALL`]), dash by dt (the report's dts from the largest; an adaptive
-    /// run's by its tolerance, the loosest first), marker by method (implicit: circle,
-    /// implicit+project: square, parametric: triangle).
+    /// The look of `run` in every figure: a colour per run of the grid (per integrator and
+    /// dt, or tolerance for an adaptive run, in the order the runs come), shared by the
+    /// formulations of that run, which the line style tells apart (implicit: solid,
+    /// parametric: dashed, implicit+project: dotted); the marker by integrator (its place
+    /// in [`IntegratorKind::ALL`]).
     pub fn look(&self, run: &ReportRun) -> Look {
-        let color = IntegratorKind::ALL
+        let key = |r: &ReportRun| {
+            (
+                r.integrator,
+                r.rtol.is_some(),
+                r.rtol.unwrap_or(r.dt).to_bits(),
+            )
+        };
+        let mut keys = Vec::new();
+        for r in &self.runs {
+            if !keys.contains(&key(r)) {
+                keys.push(key(r));
+            }
+        }
+        let color = keys.iter().position(|k| *k == key(run)).unwrap_or(0);
+        let dash = match (run.method, run.projected) {
+            (Method::Parametric, _) => Dash::Dashed,
+            (_, true) => Dash::Dotted,
+            _ => Dash::Solid,
+        };
+        let integrator = IntegratorKind::ALL
             .iter()
             .position(|&k| k == run.integrator)
             .unwrap_or(0);
-        // Fixed-step runs are dashed by dt, adaptive ones by rtol: each from the largest.
-        let key = |r: &ReportRun| r.rtol.unwrap_or(r.dt);
-        let mut keys: Vec<f64> = self
-            .runs
-            .iter()
-            .filter(|r| r.rtol.is_some() == run.rtol.is_some())
-            .map(key)
-            .collect();
-        keys.sort_by(|a, b| b.total_cmp(a));
-        keys.dedup();
-        let dash = keys.iter().position(|&k| k == key(run)).unwrap_or(0);
-        let marker = match (run.method, run.projected) {
-            (Method::Parametric, _) => Marker::Triangle,
-            (_, true) => Marker::Square,
-            _ => Marker::Circle,
-        };
         Look {
             color: Some(color),
-            dash: Dash::ALL[dash % Dash::ALL.len()],
-            marker: Some(marker),
+            dash,
+            marker: Some(Marker::ALL[integrator % Marker::ALL.len()]),
+        }
+    }
+
+    /// What colour, line and marker stand for, above every legend.
+    fn legend_note(&self) -> Vec<String> {
+        let mut styles = Vec::new();
+        for (label, dash) in [
+            ("implicit", "solid"),
+            ("implicit+project", "dotted"),
+            ("parametric", "dashed"),
+        ] {
+            if self.runs.iter().any(|r| r.method_label() == label) {
+                styles.push(format!("{dash}: {label}"));
+            }
+        }
+        vec![
+            "colour: one per integrator and dt".to_string(),
+            format!("line: {}", styles.join(", ")),
+        ]
+    }
+
+    /// The length unit of the scene, for axis labels: `px`, `m` (SI), else `length units`.
+    fn length_unit(&self) -> String {
+        match self.scene.as_ref().and_then(|s| s.units.as_deref()) {
+            Some("SI") => "m".into(),
+            Some(unit) => unit.to_string(),
+            None => "scene length units".into(),
         }
     }
 
@@ -469,38 +814,62 @@ impl Report {
         rows
     }
 
-    /// Constraint error vs time, and the deviation from the curve (the distance off the
-    /// constraint set) vs time.
+    /// The running maximum ([`plot::running_max`]) of each run's `series`: the envelope
+    /// drawn on the log panels, so that an error oscillating through zero reads as the
+    /// error reached so far rather than as zigzags down to its zero crossings.
+    fn envelopes(&self, series: fn(&Recording) -> &[(f64, f64)]) -> Vec<Series> {
+        self.runs
+            .iter()
+            .map(|r| self.series(r, &plot::running_max(series(&r.recording))))
+            .collect()
+    }
+
+    /// Whether every run's deviation is the true distance to the constraint set (see
+    /// [`Recording::deviation_is_distance`]).
+    pub fn deviation_is_distance(&self) -> bool {
+        !self.runs.is_empty() && self.runs.iter().all(|r| r.recording.deviation_is_distance)
+    }
+
+    /// Constraint error vs time, and the distance off the constraint set vs time (the true
+    /// distance to the closest point where it is one scalar constraint on one particle, else
+    /// the first-order estimate, labelled so); both as running maxima on log axes.
     pub fn constraint_figure(&self) -> Figure {
+        let unit = self.length_unit();
+        let (title, y_label) = if self.deviation_is_distance() {
+            (
+                "distance to the constraint set (closest point), running max (log scale)"
+                    .to_string(),
+                format!("distance ({unit})"),
+            )
+        } else {
+            (
+                "first-order estimate |C|/|grad C| of the distance, max over rows, running max (log scale)".to_string(),
+                format!("first-order estimate |C|/|grad C| ({unit})"),
+            )
+        };
         Figure {
             columns: 1,
             title: format!(
-                "{}: constraint error and deviation from the curve",
+                "{}: constraint error and distance off the constraints",
                 self.title
             ),
             panels: vec![
                 Panel {
-                    title: "max_i |C_i| vs time (log scale)".into(),
+                    title: "max_i |C_i|, running max (log scale)".into(),
                     x_label: "t (s)".into(),
                     y_label: "max |C_i| (constraint units)".into(),
                     y_log: true,
-                    series: self
-                        .runs
-                        .iter()
-                        .map(|r| self.series(r, &r.recording.constraint_error))
-                        .collect(),
+                    legend_note: self.legend_note(),
+                    series: self.envelopes(|r| &r.constraint_error),
                     ..Panel::default()
                 },
                 Panel {
-                    title: "deviation from the curve, max_i |C_i| / |grad C_i| (log scale)".into(),
+                    title,
                     x_label: "t (s)".into(),
-                    y_label: "distance off the constraints (length units)".into(),
+                    y_label,
                     y_log: true,
-                    series: self
-                        .runs
-                        .iter()
-                        .map(|r| self.series(r, &r.recording.deviation))
-                        .collect(),
+                    legend_note: self.legend_note(),
+                    series: self.envelopes(|r| &r.deviation),
                     ..Panel::default()
                 },
             ],
@@ -509,7 +878,8 @@ impl Report {
     }
 
     /// Energy error vs time: signed, so that gain and loss read apart (the article's
-    /// point: the parametric form loses energy), and its size on a log scale.
+    /// point: the parametric form loses energy), on robust axes (a run 100 times off the
+    /// others is drawn clipped and named); and its running maximum on a log scale.
     pub fn energy_figure(&self) -> Figure {
         let balance = self.runs.iter().any(|r| r.recording.energy_balance);
         let (quantity, title) = if balance {
@@ -531,6 +901,8 @@ impl Report {
                     title: format!("({quantity}) / E_scale vs time: above 0 gained, below 0 lost"),
                     x_label: "t (s)".into(),
                     y_label: "relative energy change (1)".into(),
+                    outlier_factor: Some(OUTLIER_FACTOR),
+                    legend_note: self.legend_note(),
                     series: self
                         .runs
                         .iter()
@@ -539,15 +911,12 @@ impl Report {
                     ..Panel::default()
                 },
                 Panel {
-                    title: format!("|{quantity}| / E_scale vs time (log scale)"),
+                    title: format!("|{quantity}| / E_scale, running max (log scale)"),
                     x_label: "t (s)".into(),
                     y_label: "relative energy error (1)".into(),
                     y_log: true,
-                    series: self
-                        .runs
-                        .iter()
-                        .map(|r| self.series(r, &r.recording.energy_error))
-                        .collect(),
+                    legend_note: self.legend_note(),
+                    series: self.envelopes(|r| &r.energy_error),
                     ..Panel::default()
                 },
             ],
@@ -575,6 +944,7 @@ impl Report {
             });
         let particles = self.system.particles();
         let gravity = self.system.gravity();
+        let unit = self.length_unit();
         let panels = planes
             .iter()
             .map(|&(axis, axis_name)| {
@@ -635,14 +1005,16 @@ impl Report {
                 let down = gravity.get(axis).is_some_and(|&g| g > 0.0);
                 Panel {
                     title: format!("x-{axis_name} plane (equal scales)"),
-                    x_label: "x (scene length units)".into(),
+                    x_label: format!("x ({unit})"),
                     y_label: if down {
-                        format!("{axis_name}, pointing down (scene length units)")
+                        format!("{axis_name}, pointing down ({unit})")
                     } else {
-                        format!("{axis_name} (scene length units)")
+                        format!("{axis_name} ({unit})")
                     },
                     y_down: down,
                     equal_aspect: true,
+                    outlier_factor: Some(TRAJECTORY_OUTLIER_FACTOR),
+                    legend_note: self.legend_note(),
                     series,
                     ..Panel::default()
                 }
@@ -683,8 +1055,7 @@ impl Report {
                         .map(|r| (r.stats.steps as f64, error(&r.stats)))
                         .collect();
                     points.sort_by(|a, b| a.0.total_cmp(&b.0));
-                    let mut look = self.look(key);
-                    look.dash = Dash::Solid;
+                    let look = self.look(key);
                     Series {
                         label: format!("{} {}", key.method_label(), key.integrator.name()),
                         points,
@@ -707,6 +1078,7 @@ impl Report {
                     y_label: "max |C_i| (constraint units)".into(),
                     x_log: true,
                     y_log: true,
+                    legend_note: self.legend_note(),
                     series: series(|s| s.constraint_error_max),
                     ..Panel::default()
                 },
@@ -716,6 +1088,7 @@ impl Report {
                     y_label: "max |E - E0| / E_scale, or of E - W (1)".into(),
                     x_log: true,
                     y_log: true,
+                    legend_note: self.legend_note(),
                     series: series(|s| s.conserved_energy_error_max()),
                     ..Panel::default()
                 },
@@ -754,7 +1127,8 @@ const CSS: &str = "body{font-family:sans-serif;max-width:1250px;margin:1.5em aut
 table{border-collapse:collapse;font-size:14px}th,td{border:1px solid #ccc;padding:3px 8px}\
 td{text-align:right;font-variant-numeric:tabular-nums}td:first-child,td:nth-child(2){text-align:left}\
 th{background:#f0f0f0}figure{margin:1.5em 0}figcaption{font-size:14px;color:#444;margin-top:.3em}\
-svg{max-width:100%;height:auto}.skipped{color:#844}";
+svg{max-width:100%;height:auto}.skipped{color:#844}\
+pre{background:#f6f6f6;border:1px solid #ddd;padding:.6em;overflow-x:auto;font-size:13px}";
 
 /// The figures of a report by file stem; each is written as `STEM.png` and `STEM.svg`.
 pub const FIGURES: [&str; 4] = [
@@ -809,16 +1183,20 @@ pub fn write_report(report: &Report, dir: &Path) -> Result<ReportFiles, ReportEr
             FIGURES[0],
             "Constraint error",
             report.constraint_figure(),
-            "Constraint error max_i |C_i| against time, per run (top), and the deviation from the curve it means: the distance off the constraint set to first order, max_i |C_i| / |grad C_i|, in the scene's length units (bottom).".to_string(),
+            if report.deviation_is_distance() {
+                "Constraint error max_i |C_i| against time, per run (top), and the distance of the particle to the constraint set, found by a closest-point search (Newton's method on the Lagrange conditions of min |y - x|^2 subject to C(y) = 0), in the scene's length units (bottom); both as their running maximum from t = 0 (the envelope: the largest value reached so far).".to_string()
+            } else {
+                "Constraint error max_i |C_i| against time, per run (top), and a first-order estimate of the distance off the constraint set, max_i |C_i| / |grad C_i| (the Newton step onto each row's level set; not the true distance, which is not simply defined for several rows or particles), in the scene's length units (bottom); both as their running maximum from t = 0 (the envelope: the largest value reached so far).".to_string()
+            },
         ),
         (
             FIGURES[1],
             "Energy",
             report.energy_figure(),
             if balance {
-                "Energy is not conserved here (something does work on the system): the change of the conserved balance E - W, (E - W - E0) / E_scale, with its sign (top: above zero the balance gained, below it lost) and its size on a log scale (bottom), against time, per run (W: the work done on the system, integrated by the run's integrator; E_scale = max(|E0|, T0 + |V0|, T0 + M |g| L)).".to_string()
+                "Energy is not conserved here (something does work on the system): the change of the conserved balance E - W, (E - W - E0) / E_scale, with its sign (top: above zero the balance gained, below it lost) and the running maximum of its size on a log scale (bottom), against time, per run (W: the work done on the system, integrated by the run's integrator; E_scale = max(|E0|, T0 + |V0|, T0 + M |g| L)).".to_string()
             } else {
-                "Relative energy change (E - E0) / E_scale with its sign (top: above zero the run gained energy, below it lost some) and its size on a log scale (bottom), against time, per run (E_scale = max(|E0|, T0 + |V0|, T0 + M |g| L): M the total mass, L the largest initial coordinate magnitude).".to_string()
+                "Relative energy change (E - E0) / E_scale with its sign (top: above zero the run gained energy, below it lost some) and the running maximum of its size on a log scale (bottom), against time, per run (E_scale = max(|E0|, T0 + |V0|, T0 + M |g| L): M the total mass, L the largest initial coordinate magnitude).".to_string()
             },
         ),
         (FIGURES[2], "Trajectories", report.trajectory_figure(), trajectory_caption),
@@ -857,6 +1235,7 @@ pub fn write_report(report: &Report, dir: &Path) -> Result<ReportFiles, ReportEr
                 .join("; ")
         )
     );
+    scene_html(&mut html, report);
     html.push_str("<h2>Runs</h2>\n<table>\n");
     for (i, row) in report.rows().iter().enumerate() {
         let cell = if i == 0 { "th" } else { "td" };
@@ -914,6 +1293,13 @@ pub fn write_report(report: &Report, dir: &Path) -> Result<ReportFiles, ReportEr
         if let Some(note) = figure.note() {
             let _ = write!(caption, " Log axes: {note}; NaN points are skipped.");
         }
+        for note in figure.off_scale_notes() {
+            let _ = write!(
+                caption,
+                " {note}: more than {} times the others' reach, so the axes are scaled to the others and this run is drawn clipped at the frame.",
+                if name == &FIGURES[2] { TRAJECTORY_OUTLIER_FACTOR } else { OUTLIER_FACTOR }
+            );
+        }
         let _ = write!(
             html,
             "<h2>{heading}</h2>\n<figure>\n{}\n<figcaption>{} Files: <a href=\"{name}.png\">{name}.png</a>, <a href=\"{name}.svg\">{name}.svg</a>.</figcaption>\n</figure>\n",
@@ -923,11 +1309,81 @@ pub fn write_report(report: &Report, dir: &Path) -> Result<ReportFiles, ReportEr
     }
     let _ = writeln!(
         html,
-        "<p>Each series is decimated to a bounded number of points (the minimum and maximum of each bucket of consecutive samples, so spikes survive); periods use every sample.</p>\n</body>\n</html>"
+        "<p>Each series is recorded in a bounded number of points (the minimum and maximum of each bucket of consecutive samples, so spikes survive), and each drawn line keeps per two pixel columns its lowest and highest point (a trajectory a point every four pixels); periods use every sample. Colour: one per integrator and dt; line: solid implicit, dashed parametric, dotted implicit+project.</p>\n</body>\n</html>"
     );
     let path = dir.join("report.html");
     std::fs::write(&path, html).map_err(io(&path))?;
     Ok(ReportFiles { html: path, plots })
+}
+
+/// The report's scene section: the command line that reproduces it, the parameters, the
+/// initial state and the scene file's text.
+fn scene_html(html: &mut String, report: &Report) {
+    let system = &report.system;
+    let exact = |v: f64| bead::readable(v);
+    let vector = |v: &[f64]| {
+        let parts: Vec<String> = v.iter().map(|x| exact(*x)).collect();
+        format!("({})", parts.join(", "))
+    };
+    html.push_str("<h2>Scene</h2>\n");
+    if let Some(scene) = &report.scene {
+        let _ = write!(
+            html,
+            "<p>Reproduce this report with:</p>\n<pre class=\"command\">{}</pre>\n",
+            escape(&scene.command)
+        );
+        if let Some(units) = &scene.units {
+            let _ = writeln!(html, "<p>Units: {}</p>", escape(units));
+        }
+        if !scene.params.is_empty() {
+            html.push_str("<h3>Parameters</h3>\n<table>\n<tr><th>name</th><th>value</th><th>unit</th><th>description</th></tr>\n");
+            for p in &scene.params {
+                let _ = writeln!(
+                    html,
+                    "<tr><td>{}</td><td>{}{}</td><td>{}</td><td>{}</td></tr>",
+                    escape(&p.name),
+                    exact(p.value),
+                    if p.overridden { " (--set)" } else { "" },
+                    escape(p.unit.as_deref().unwrap_or("")),
+                    escape(p.description.as_deref().unwrap_or(""))
+                );
+            }
+            html.push_str("</table>\n");
+        }
+    }
+    html.push_str("<h3>Initial state</h3>\n<ul>\n");
+    for particle in system.particles() {
+        let _ = writeln!(
+            html,
+            "<li>{}: mass {}, position {}, velocity {}</li>",
+            escape(&particle.name),
+            exact(particle.mass),
+            vector(&particle.position),
+            vector(&particle.velocity)
+        );
+    }
+    if let Some(map) = system.parametric() {
+        let described: Vec<String> = map
+            .coordinates()
+            .iter()
+            .zip(map.initial().iter().zip(map.rates()))
+            .map(|(c, (q, r))| format!("{c} = {}, {c}' = {}", exact(*q), exact(*r)))
+            .collect();
+        let _ = writeln!(
+            html,
+            "<li>parametric form: {}</li>",
+            escape(&described.join("; "))
+        );
+    }
+    html.push_str("</ul>\n");
+    if let Some(scene) = &report.scene {
+        let _ = write!(
+            html,
+            "<h3>Scene file <code>{}</code></h3>\n<pre class=\"scene\">{}</pre>\n",
+            escape(&scene.file),
+            escape(&scene.text)
+        );
+    }
 }
 
 /// `1 particle`, `2 particles`.

@@ -74,6 +74,7 @@ fn a_report_over_100_000_steps_keeps_at_most_the_bounded_points_per_series() {
         system: Arc::clone(&scene.system),
         runs,
         skipped: vec![],
+        scene: None,
     };
     let dir = std::env::temp_dir().join(format!("bead-report-bounded-{}", std::process::id()));
     let files = write_report(&report, &dir).unwrap();

@@ -10,7 +10,7 @@ use bead::formulation::Method;
 use bead::integrate::IntegratorKind;
 use bead::scene::Scene;
 use bead::simulate::{run, RunOptions, Simulation, SimulationConfig, Sink};
-use bead_report::plot::{Dash, Marker, DEFAULT_BUCKETS};
+use bead_report::plot::{Dash, DEFAULT_BUCKETS};
 use bead_report::report::{Recorder, Report, ReportRun};
 
 fn parabola_report() -> Report {
@@ -53,6 +53,7 @@ fn parabola_report() -> Report {
         system: Arc::clone(&scene.system),
         runs,
         skipped: vec![],
+        scene: None,
     }
 }
 
@@ -65,7 +66,8 @@ fn every_run_has_its_own_look_and_the_figures_tell_the_physics() {
             assert_ne!(a, b, "two runs look alike");
         }
     }
-    // Colour by integrator, dash by dt (largest first), marker by method.
+    // Colour by run (integrator and dt), shared by the formulations of that run, which the
+    // line style tells apart: implicit solid, parametric dashed; marker by integrator.
     let look = |integrator, dt: f64, method| {
         let run = report
             .runs
@@ -75,23 +77,25 @@ fn every_run_has_its_own_look_and_the_figures_tell_the_physics() {
         report.look(run)
     };
     let rk4 = look(IntegratorKind::Rk4, 1.0 / 60.0, Method::Implicit);
-    assert_eq!(
-        look(IntegratorKind::Rk4, 1.0 / 120.0, Method::Parametric).color,
-        rk4.color
-    );
+    let rk4_parametric = look(IntegratorKind::Rk4, 1.0 / 60.0, Method::Parametric);
+    assert_eq!(rk4_parametric.color, rk4.color);
+    assert_eq!((rk4.dash, rk4_parametric.dash), (Dash::Solid, Dash::Dashed));
+    for other in [
+        look(IntegratorKind::Rk4, 1.0 / 120.0, Method::Implicit),
+        look(IntegratorKind::Verlet, 1.0 / 60.0, Method::Implicit),
+    ] {
+        assert_ne!(other.color, rk4.color);
+    }
+    assert_eq!(rk4.marker, rk4_parametric.marker);
     assert_ne!(
-        look(IntegratorKind::Verlet, 1.0 / 60.0, Method::Implicit).color,
-        rk4.color
+        look(IntegratorKind::Verlet, 1.0 / 60.0, Method::Implicit).marker,
+        rk4.marker
     );
-    assert_eq!(rk4.dash, Dash::Solid);
-    assert_eq!(
-        look(IntegratorKind::Rk4, 1.0 / 120.0, Method::Implicit).dash,
-        Dash::Dashed
-    );
-    assert_eq!(rk4.marker, Some(Marker::Circle));
-    assert_eq!(
-        look(IntegratorKind::Rk4, 1.0 / 60.0, Method::Parametric).marker,
-        Some(Marker::Triangle)
+    // The legend says what colour and line stand for.
+    let note = report.energy_figure().panels[0].legend_note.join("\n");
+    assert!(
+        note.contains("solid: implicit") && note.contains("dashed: parametric"),
+        "{note}"
     );
 
     // The energy figure: a signed panel, where the parametric rk4 run at 1/60 ends below
@@ -106,13 +110,24 @@ fn every_run_has_its_own_look_and_the_figures_tell_the_physics() {
         .unwrap();
     let last = parametric.points.last().unwrap().1;
     assert!(last < -1e-6, "parametric rk4 loses energy: {last:e}");
-    // The log panel holds the sizes of the same changes.
+    // The log panel holds the envelope of the sizes of the same changes: the running
+    // maximum, never decreasing, ending at the largest size reached.
     let sizes = energy.panels[1]
         .series
         .iter()
         .find(|s| s.label == "parametric rk4 dt=1/60")
         .unwrap();
-    assert!((sizes.points.last().unwrap().1 - last.abs()).abs() <= 1e-15);
+    assert!(sizes
+        .points
+        .windows(2)
+        .all(|w| w[1].1 >= w[0].1 && w[1].0 >= w[0].0));
+    let largest = parametric
+        .points
+        .iter()
+        .map(|p| p.1.abs())
+        .fold(0.0, f64::max);
+    assert!((sizes.points.last().unwrap().1 - largest).abs() <= 1e-15);
+    assert!(largest >= last.abs());
 
     // Trajectories: gravity along +y, so y points down, at equal scales.
     let trajectories = report.trajectory_figure();
@@ -251,4 +266,191 @@ fn a_motion_that_is_not_periodic_gets_no_period() {
     assert_eq!(recorder.recording().period, None);
     let report = parabola_report();
     assert!(report.runs.iter().all(|r| r.recording.period.is_some()));
+}
+
+/// The distance from (px, py) to the parabola x^2 + 100 y = 0, found independently of bead:
+/// the curve parameter u minimizing (u - px)^2 + (-u^2/100 - py)^2, by a scan over
+/// [-2000, 2000] at 0.05 for the global minimum, golden-section search on the bracket around
+/// it, then Newton's method on the derivative to round-off.
+fn distance_to_parabola(px: f64, py: f64) -> f64 {
+    let squared = |u: f64| (u - px).powi(2) + (-u * u / 100.0 - py).powi(2);
+    let mut best = (-40_000..=40_000)
+        .map(|k| k as f64 * 0.05)
+        .min_by(|a, b| squared(*a).total_cmp(&squared(*b)))
+        .unwrap();
+    let (mut a, mut b) = (best - 0.05, best + 0.05);
+    let ratio = (5f64.sqrt() - 1.0) / 2.0;
+    for _ in 0..200 {
+        let (c, d) = (b - ratio * (b - a), a + ratio * (b - a));
+        if squared(c) < squared(d) {
+            b = d;
+        } else {
+            a = c;
+        }
+    }
+    best = 0.5 * (a + b);
+    // f = (1/2) d/du squared, f' its derivative.
+    let f = |u: f64| (u - px) + (-u * u / 100.0 - py) * (-u / 50.0);
+    let df = |u: f64| 1.0 + (u / 50.0).powi(2) + (-u * u / 100.0 - py) * (-1.0 / 50.0);
+    for _ in 0..20 {
+        let next = best - f(best) / df(best);
+        if squared(next) <= squared(best) {
+            best = next;
+        }
+    }
+    squared(best).sqrt()
+}
+
+fn sample_at(recorder: &mut Recorder, t: f64, point: [f64; 2]) {
+    recorder
+        .record(&bead::simulate::Sample {
+            step: t as u64,
+            t,
+            x: &point,
+            xdot: &[0.0, 0.0],
+            energy: 0.0,
+            constraint_error: (point[0] * point[0] + 100.0 * point[1]).abs(),
+            q: &point,
+            qdot: &[0.0, 0.0],
+            work: None,
+            energy_initial: 0.0,
+            energy_scale: 1.0,
+        })
+        .unwrap();
+}
+
+/// Where the report says "distance" it is the true distance to the parabola of
+/// scenes/parabola.toml: equal to an independent closest-point search to 1e-6 px, at points
+/// up to 150 px off the curve on either side (where the first-order |C|/|grad C| is off by
+/// tens of per cent), and along a real run that leaves the curve (implicit verlet).
+#[test]
+fn the_distance_panel_is_the_distance_to_the_closest_point_of_the_parabola() {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes/parabola.toml");
+    let scene = Scene::load(&path, &[]).unwrap_or_else(|e| panic!("{e}"));
+    let mut recorder = Recorder::new(Arc::clone(&scene.system), DEFAULT_BUCKETS);
+    // Points off the curve: below it (outside the bowl, +y down), above it (inside),
+    // ~100 px off near the bottom and on the sides, and one on it.
+    let points = [
+        [150.0, -225.0],
+        [0.0, 100.0],
+        [0.0, -30.0],
+        [120.0, -44.0],
+        [-80.0, 36.0],
+        [60.0, -136.0],
+        [-150.0, -125.0],
+        [30.0, -49.0],
+        [200.0, -300.0],
+    ];
+    for (k, p) in points.iter().enumerate() {
+        sample_at(&mut recorder, k as f64, *p);
+    }
+    let recording = recorder.recording();
+    assert!(recording.deviation_is_distance);
+    assert_eq!(recording.closest_failures, 0);
+    let mut largest_gap: f64 = 0.0;
+    for (k, p) in points.iter().enumerate() {
+        let reported = recording
+            .deviation
+            .iter()
+            .find(|d| d.0 == k as f64)
+            .unwrap_or_else(|| panic!("no distance at {p:?}"))
+            .1;
+        let truth = distance_to_parabola(p[0], p[1]);
+        assert!(
+            (reported - truth).abs() <= 1e-6,
+            "at {p:?}: the report says {reported}, the closest point is {truth} away"
+        );
+        let first_order = (p[0] * p[0] + 100.0 * p[1]).abs() / (4.0 * p[0] * p[0] + 1e4).sqrt();
+        if truth > 50.0 {
+            largest_gap = largest_gap.max((first_order - truth).abs() / truth);
+        }
+    }
+    // What the panel showed before: the first-order estimate, tens of per cent off there.
+    assert!(
+        largest_gap > 0.2,
+        "first-order within {largest_gap} of the distance"
+    );
+
+    // A real run that leaves the curve: every recorded distance against the search at the
+    // recorded position at the same time (all 600 samples are kept).
+    let config = SimulationConfig {
+        method: Method::Implicit,
+        integrator: IntegratorKind::Verlet,
+        dt: 1.0 / 60.0,
+        ..Default::default()
+    };
+    let mut simulation = Simulation::new(Arc::clone(&scene.system), config).unwrap();
+    let mut recorder = Recorder::new(Arc::clone(&scene.system), DEFAULT_BUCKETS);
+    let stats = run(&mut simulation, RunOptions::steps(600), &mut recorder)
+        .unwrap_or_else(|e| panic!("{e}"));
+    let recording = recorder.recording();
+    let mut checked = 0;
+    let mut farthest: f64 = 0.0;
+    for &(t, distance) in &recording.deviation {
+        let row = recording
+            .trajectory
+            .iter()
+            .find(|r| r[0] == t)
+            .unwrap_or_else(|| panic!("no position at t = {t}"));
+        let truth = distance_to_parabola(row[1], row[2]);
+        assert!(
+            (distance - truth).abs() <= 1e-6,
+            "t = {t}: {distance} vs {truth}"
+        );
+        farthest = farthest.max(truth);
+        checked += 1;
+    }
+    assert!(
+        checked > 500 && farthest > 10.0,
+        "{checked} points, {farthest} px"
+    );
+    // The figure's panel says "distance" and draws the running maximum of these.
+    let report = Report {
+        title: "parabola".into(),
+        description: "test".into(),
+        system: Arc::clone(&scene.system),
+        runs: vec![ReportRun {
+            method: Method::Implicit,
+            projected: false,
+            integrator: IntegratorKind::Verlet,
+            dt: 1.0 / 60.0,
+            dt_label: "1/60".into(),
+            rtol: None,
+            stats,
+            error: None,
+            recording: recording.clone(),
+        }],
+        skipped: vec![],
+        scene: None,
+    };
+    let panel = &report.constraint_figure().panels[1];
+    assert!(panel
+        .title
+        .starts_with("distance to the constraint set (closest point)"));
+    let drawn = panel.series[0].points.last().unwrap().1;
+    assert!((drawn - farthest).abs() <= 1e-6, "{drawn} vs {farthest}");
+}
+
+/// With several constraint rows the panel keeps the first-order estimate and says so.
+#[test]
+fn several_rows_keep_the_first_order_estimate_labelled_as_such() {
+    let text = "[world]\ngravity = [0.0, -9.81, 0.0]\n[[particle]]\nname = \"b\"\nmass = 1.0\nposition = [1.0, 0.0, 0.0]\n[[constraint]]\nexpr = \"b.x^2 + b.y^2 - 1\"\n[[constraint]]\nexpr = \"b.z\"\n";
+    let scene = Scene::parse(text, "ring.toml", &[]).unwrap_or_else(|e| panic!("{e}"));
+    let recorder = Recorder::new(Arc::clone(&scene.system), DEFAULT_BUCKETS);
+    assert!(!recorder.recording().deviation_is_distance);
+    let report = Report {
+        title: "ring".into(),
+        description: "test".into(),
+        system: Arc::clone(&scene.system),
+        runs: vec![],
+        skipped: vec![],
+        scene: None,
+    };
+    let panel = &report.constraint_figure().panels[1];
+    assert!(
+        panel.title.starts_with("first-order estimate |C|/|grad C|"),
+        "{}",
+        panel.title
+    );
+    assert!(!panel.y_label.starts_with("distance"));
 }

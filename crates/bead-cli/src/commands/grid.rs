@@ -9,7 +9,9 @@ use anyhow::{bail, Result};
 use bead::formulation::{Feedback, Method};
 use bead::integrate::IntegratorKind;
 use bead::simulate::{Sample, Sink};
-use bead_report::report::{report_files, write_report, Recorder, Report, ReportRun};
+use bead_report::report::{
+    report_files, shell_command, write_report, Recorder, Report, ReportRun, SceneStatement,
+};
 
 use super::{
     json, load_scene, print, report_error, run_method_with, stop_when, warn_implicit_only,
@@ -220,6 +222,11 @@ pub fn compare_grid(args: &CompareArgs) -> Result<()> {
         system: Arc::clone(&scene.system),
         runs,
         skipped,
+        // The command as typed (the program as `bead`), so that the report reproduces itself.
+        scene: Some(SceneStatement::of(
+            &scene,
+            shell_command(std::iter::once("bead".to_string()).chain(std::env::args().skip(1))),
+        )),
     };
     let summary_json = json(&summaries)?;
     if let Some(path) = &args.output.summary {

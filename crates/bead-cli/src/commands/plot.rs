@@ -33,7 +33,15 @@ pub fn plot(args: &PlotArgs) -> Result<()> {
         },
         &output,
     );
+    if let Some(scene) = &args.scene {
+        files.input("--scene", scene);
+    }
     files.check()?;
+    let scene = match &args.scene {
+        Some(path) => Some(super::load_scene(path, &[])?),
+        None => None,
+    };
+    let units = Units::of(scene.as_ref());
     let name = args.trace.display().to_string();
     let file = File::open(&args.trace).with_context(|| format!("cannot open `{name}`"))?;
     let mut lines = BufReader::new(file).lines();
@@ -74,6 +82,8 @@ pub fn plot(args: &PlotArgs) -> Result<()> {
     let mut rows = 0u64;
     // Whether each chosen column has a finite value (NaN and infinities are not drawn).
     let mut finite = vec![false; chosen.len()];
+    // Whether each chosen column has a value above zero (what a log axis can draw).
+    let mut positive = vec![false; chosen.len()];
     let mut t_finite = false;
     for (index, line) in lines.enumerate() {
         let number = index + 2;
@@ -101,14 +111,16 @@ pub fn plot(args: &PlotArgs) -> Result<()> {
         let t = value(x_column)?;
         t_finite |= t.is_finite();
         row[0] = t;
-        for (((decimator, &k), finite), cell) in decimators
+        for ((((decimator, &k), finite), positive), cell) in decimators
             .iter_mut()
             .zip(&chosen)
             .zip(&mut finite)
+            .zip(&mut positive)
             .zip(&mut row[1..])
         {
             let y = value(k)?;
             *finite |= y.is_finite() && t.is_finite();
+            *positive |= y.is_finite() && y > 0.0 && t.is_finite();
             *cell = y;
             if phase.is_none() {
                 decimator.push(t, y);
@@ -162,11 +174,62 @@ pub fn plot(args: &PlotArgs) -> Result<()> {
             }
         ));
     }
+    if args.log {
+        // A log axis shows values above zero only: a column without any has nothing to
+        // draw, which is said, never drawn as an invented frame.
+        let none: Vec<&str> = chosen
+            .iter()
+            .zip(finite.iter().zip(&positive))
+            .filter(|(_, (&f, &p))| f && !p)
+            .map(|(&k, _)| columns[k].as_str())
+            .collect();
+        let drawable = chosen.iter().zip(&positive).filter(|(_, &p)| p).count();
+        let which = match none.as_slice() {
+            [one] => format!("column `{one}` has"),
+            many => format!("columns {} have", quoted(many)),
+        };
+        if drawable == 0 && !none.is_empty() {
+            bail!(
+                "{name}: --log: {which} no value above zero {in_rows}, and a log axis shows only those; plot without --log"
+            );
+        }
+        if !none.is_empty() {
+            super::warn(&format!(
+                "{name}: --log: {which} no value above zero; {} says so",
+                if none.len() == 1 {
+                    "its panel"
+                } else {
+                    "each of their panels"
+                }
+            ));
+        }
+    }
     let x_label = if x_column == 0 {
         "t (s)".to_string()
     } else {
-        unit_label(&columns[x_column])
+        units.label(&columns[x_column])
     };
+    // A particle's x against its y: a path in the plane, at equal scales, with the scene's
+    // gravity pointing down the page when it points along +y.
+    let path_of = |column: &str| -> Option<(String, char)> {
+        let (particle, axis) = column.rsplit_once('.')?;
+        let axis = match axis {
+            "x" => 'x',
+            "y" => 'y',
+            _ => return None,
+        };
+        Some((particle.to_string(), axis))
+    };
+    let path_plot = x_column != 0
+        && chosen.len() == 1
+        && match (path_of(&columns[x_column]), path_of(&columns[chosen[0]])) {
+            (Some((a, 'x')), Some((b, 'y'))) => a == b,
+            _ => false,
+        };
+    let y_down = path_plot
+        && scene
+            .as_ref()
+            .is_some_and(|s| s.system.gravity().get(1).is_some_and(|&g| g > 0.0));
     // The points of chosen column j.
     let phase_rows = phase.as_ref().map(StrideDecimator::rows);
     let points = |j: usize| -> Vec<(f64, f64)> {
@@ -195,11 +258,13 @@ pub fn plot(args: &PlotArgs) -> Result<()> {
                 .join(", "),
             x_label: x_label.clone(),
             y_label: if chosen.len() == 1 {
-                unit_label(&columns[chosen[0]])
+                units.label(&columns[chosen[0]])
             } else {
-                "value (scene units)".into()
+                "value".into()
             },
             y_log: args.log,
+            equal_aspect: path_plot,
+            y_down,
             series,
             ..Panel::default()
         }]
@@ -214,8 +279,14 @@ pub fn plot(args: &PlotArgs) -> Result<()> {
                     format!("{} against {}", columns[k], columns[x_column])
                 },
                 x_label: x_label.clone(),
-                y_label: unit_label(&columns[k]),
+                y_label: if y_down {
+                    format!("{}, pointing down", units.label(&columns[k]))
+                } else {
+                    units.label(&columns[k])
+                },
                 y_log: args.log,
+                equal_aspect: path_plot,
+                y_down,
                 series: vec![Series::line(columns[k].clone(), points(j))],
                 ..Panel::default()
             })
@@ -279,14 +350,59 @@ fn choose_columns(
     }
 }
 
-/// The y-axis label of a trace column, with its unit where bead knows it.
-fn unit_label(column: &str) -> String {
-    match column {
-        "energy" => "energy T + V (scene energy units)".into(),
-        "constraint_error" => "max |C_i| (constraint units)".into(),
-        c if c.starts_with("qdot.") => format!("{c} (per s)"),
-        c if c.contains(".v") => format!("{c} (length/s)"),
-        c => format!("{c} (scene units)"),
+/// The units of a trace's columns, from the scene when `--scene` gives it.
+struct Units {
+    /// The length unit (`px`, `m`), if the scene says.
+    length: Option<String>,
+    /// The energy unit (`J`, `kg px^2/s^2`), if the scene says.
+    energy: Option<String>,
+}
+
+impl Units {
+    fn of(scene: Option<&bead::scene::Scene>) -> Units {
+        match scene.and_then(|s| s.units.as_deref()) {
+            Some("SI") => Units {
+                length: Some("m".into()),
+                energy: Some("J".into()),
+            },
+            Some(unit) => Units {
+                length: Some(unit.to_string()),
+                energy: Some(format!("kg {unit}^2/s^2")),
+            },
+            None => Units {
+                length: None,
+                energy: None,
+            },
+        }
+    }
+
+    /// The axis label of a trace column, with its unit where it is known: a particle
+    /// coordinate in the scene's length unit, its velocity per second, the energy in the
+    /// scene's energy unit. A parametric coordinate (`q.NAME`) may be an angle or a length,
+    /// so it gets no unit rather than a wrong one.
+    fn label(&self, column: &str) -> String {
+        let with = |unit: &Option<String>, per_second: bool| match unit {
+            Some(u) if per_second => format!("{column} ({u}/s)"),
+            Some(u) => format!("{column} ({u})"),
+            None => column.to_string(),
+        };
+        match column {
+            "energy" => match &self.energy {
+                Some(u) => format!("energy T + V ({u})"),
+                None => "energy T + V".into(),
+            },
+            "constraint_error" => "max |C_i| (constraint units)".into(),
+            c if c.starts_with("qdot.") => format!("{c} (per s)"),
+            c if c.starts_with("q.") => c.to_string(),
+            c if c.contains(".v") => with(&self.length, true),
+            c if c
+                .rsplit_once('.')
+                .is_some_and(|(_, a)| matches!(a, "x" | "y" | "z")) =>
+            {
+                with(&self.length, false)
+            }
+            c => c.to_string(),
+        }
     }
 }
 
