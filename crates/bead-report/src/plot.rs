@@ -391,6 +391,9 @@ impl Marker {
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct Look {
     pub color: Option<usize>,
+    /// A lighter shade of the colour (the report's parametric runs: the same hue as the
+    /// implicit run of the same integrator and dt, so related but not alike).
+    pub light: bool,
     pub dash: Dash,
     pub marker: Option<Marker>,
 }
@@ -1321,6 +1324,12 @@ fn palette(index: usize) -> RGBColor {
     COLORS[index % COLORS.len()]
 }
 
+/// `c` 45% of the way to white: a lighter shade of the same hue.
+fn lighter(c: RGBColor) -> RGBColor {
+    let mix = |v: u8| (f64::from(v) + 0.45 * (255.0 - f64::from(v))).round() as u8;
+    RGBColor(mix(c.0), mix(c.1), mix(c.2))
+}
+
 /// Draw `points` (already split at breaks) as a line with `dash`.
 fn draw_line<DB: DrawingBackend, CT: CoordTranslate>(
     area: &DrawingArea<DB, CT>,
@@ -1397,6 +1406,7 @@ fn draw_panel<DB: DrawingBackend>(
         .iter()
         .map(|s| match (s.style, s.look.color) {
             (Style::Reference, _) => RGBColor(190, 190, 190),
+            (_, Some(c)) if s.look.light => lighter(palette(c)),
             (_, Some(c)) => palette(c),
             (_, None) => {
                 next_color += 1;

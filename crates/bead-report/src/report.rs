@@ -673,11 +673,11 @@ pub const TABLE_DIGITS: usize = 4;
 pub const PERIOD_DIGITS: usize = 6;
 
 impl Report {
-    /// The look of `run` in every figure: a colour per run of the grid (per integrator and
+    /// The look of `run` in every figure: a hue per run of the grid (per integrator and
     /// dt, or tolerance for an adaptive run, in the order the runs come), shared by the
-    /// formulations of that run, which the line style tells apart (implicit: solid,
-    /// parametric: dashed, implicit+project: dotted); the marker by integrator (its place
-    /// in [`IntegratorKind::ALL`]).
+    /// formulations of that run, the parametric one in a lighter shade, and the line style
+    /// (implicit: solid, parametric: dashed, implicit+project: dotted); the marker by
+    /// integrator (its place in [`IntegratorKind::ALL`]).
     pub fn look(&self, run: &ReportRun) -> Look {
         let key = |r: &ReportRun| {
             (
@@ -704,6 +704,7 @@ impl Report {
             .unwrap_or(0);
         Look {
             color: Some(color),
+            light: run.method == Method::Parametric,
             dash,
             marker: Some(Marker::ALL[integrator % Marker::ALL.len()]),
         }
@@ -722,7 +723,7 @@ impl Report {
             }
         }
         vec![
-            "colour: one per integrator and dt".to_string(),
+            "colour: one per integrator and dt, lighter for parametric".to_string(),
             format!("line: {}", styles.join(", ")),
         ]
     }

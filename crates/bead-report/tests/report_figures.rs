@@ -67,7 +67,8 @@ fn every_run_has_its_own_look_and_the_figures_tell_the_physics() {
         }
     }
     // Colour by run (integrator and dt), shared by the formulations of that run, which the
-    // line style tells apart: implicit solid, parametric dashed; marker by integrator.
+    // shade and the line style tell apart: implicit solid, parametric lighter and dashed;
+    // marker by integrator.
     let look = |integrator, dt: f64, method| {
         let run = report
             .runs
@@ -79,6 +80,7 @@ fn every_run_has_its_own_look_and_the_figures_tell_the_physics() {
     let rk4 = look(IntegratorKind::Rk4, 1.0 / 60.0, Method::Implicit);
     let rk4_parametric = look(IntegratorKind::Rk4, 1.0 / 60.0, Method::Parametric);
     assert_eq!(rk4_parametric.color, rk4.color);
+    assert!(rk4_parametric.light && !rk4.light);
     assert_eq!((rk4.dash, rk4_parametric.dash), (Dash::Solid, Dash::Dashed));
     for other in [
         look(IntegratorKind::Rk4, 1.0 / 120.0, Method::Implicit),

@@ -245,6 +245,7 @@ pub fn plot(args: &PlotArgs) -> Result<()> {
             .map(|(j, &k)| {
                 Series::line(columns[k].clone(), points(j)).with_look(Look {
                     color: Some(j),
+                    light: false,
                     dash: Dash::ALL[j % Dash::ALL.len()],
                     marker: None,
                 })
