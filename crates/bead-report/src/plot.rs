@@ -339,6 +339,11 @@ pub enum Style {
     LineAndMarkers,
     /// A wide, light line drawn under the others (e.g. a reference curve).
     Reference,
+    /// An oscillating time series as the band between its lowest and highest value in each
+    /// column of pixels, filled light with its edges in the series' dash: a signal that
+    /// oscillates many times across the panel reads as a band, not as hatching, and one that
+    /// does not is a line.
+    Band,
 }
 
 /// The dash pattern of a line.
@@ -669,8 +674,18 @@ pub fn write_figure(figure: &Figure, path: &Path) -> Result<(), PlotError> {
                 let root = BitMapBackend::with_buffer(&mut rgb, figure.size).into_drawing_area();
                 let lines = draw(figure, &root).map_err(draw_error)?;
                 for line in &lines {
-                    draw_line(&root, line.points.clone(), line.dash, line.style())
-                        .map_err(draw_error)?;
+                    let mut points = line.points.clone();
+                    if line.fill {
+                        root.draw(&Polygon::new(
+                            points.clone(),
+                            line.color.mix(BAND_OPACITY).filled(),
+                        ))
+                        .map_err(|e| draw_error(e.to_string()))?;
+                        if let Some(&first) = points.first() {
+                            points.push(first);
+                        }
+                    }
+                    draw_line(&root, points, line.dash, line.style()).map_err(draw_error)?;
                 }
                 root.present().map_err(|e| draw_error(e.to_string()))?;
             }
@@ -783,20 +798,34 @@ struct PixelLine {
     /// a reader or a test can tell the lines apart).
     label: String,
     panel: usize,
+    /// A closed outline to fill lightly ([`Style::Band`]) rather than a line.
+    fill: bool,
 }
+
+/// How much of a band's colour its fill takes (the rest is the white behind).
+const BAND_OPACITY: f64 = 0.3;
+/// Columns on each side whose range a band's column takes in (see [`band`]).
+const BAND_WINDOW: usize = 3;
 
 impl PixelLine {
     fn style(&self) -> ShapeStyle {
         ShapeStyle::from(&self.color).stroke_width(self.width)
     }
 
-    /// `<polyline .../>` with the points as integers.
+    /// `<polyline .../>` (a band: `<polygon .../>`, filled) with the points as integers.
     fn svg(&self) -> String {
         let RGBColor(r, g, b) = self.color;
-        let mut text = format!(
-            "<polyline fill=\"none\" stroke=\"#{r:02X}{g:02X}{b:02X}\" stroke-width=\"{}\"",
-            self.width
-        );
+        let mut text = if self.fill {
+            format!(
+                "<polygon fill=\"#{r:02X}{g:02X}{b:02X}\" fill-opacity=\"{BAND_OPACITY}\" stroke=\"#{r:02X}{g:02X}{b:02X}\" stroke-width=\"{}\"",
+                self.width
+            )
+        } else {
+            format!(
+                "<polyline fill=\"none\" stroke=\"#{r:02X}{g:02X}{b:02X}\" stroke-width=\"{}\"",
+                self.width
+            )
+        };
         if let Some((on, off)) = self.dash.pattern() {
             text.push_str(&format!(" stroke-dasharray=\"{on} {off}\""));
         }
@@ -814,6 +843,39 @@ impl PixelLine {
         text.push_str("\"/>\n");
         text
     }
+}
+
+/// The band of a time series in pixels: per column of `bucket` pixels its highest and
+/// lowest point (over the columns within [`BAND_WINDOW`]), as a closed outline (the top
+/// edge left to right, then the bottom edge back).
+fn band(points: &[(i32, i32)], bucket: i32) -> Vec<(i32, i32)> {
+    let bucket = bucket.max(1);
+    let mut columns: Vec<(i32, i32, i32)> = Vec::new(); // (x, top y, bottom y)
+    for &(x, y) in points {
+        let c = x.div_euclid(bucket) * bucket;
+        match columns.last_mut() {
+            Some(last) if last.0 == c => {
+                last.1 = last.1.min(y);
+                last.2 = last.2.max(y);
+            }
+            _ => columns.push((c, y, y)),
+        }
+    }
+    // Each column spans the range of the columns within BAND_WINDOW of it: an oscillation
+    // whose extremes fall in every few columns (not in every one: a short dip per period)
+    // is a solid band rather than teeth, and a steep stretch stays continuous.
+    let spread: Vec<(i32, i32, i32)> = (0..columns.len())
+        .map(|k| {
+            let window =
+                &columns[k.saturating_sub(BAND_WINDOW)..(k + BAND_WINDOW + 1).min(columns.len())];
+            let top = window.iter().map(|c| c.1).min().unwrap_or(columns[k].1);
+            let bottom = window.iter().map(|c| c.2).max().unwrap_or(columns[k].2);
+            (columns[k].0, top, bottom)
+        })
+        .collect();
+    let mut outline: Vec<(i32, i32)> = spread.iter().map(|c| (c.0, c.1)).collect();
+    outline.extend(spread.iter().rev().map(|c| (c.0, c.2)));
+    outline
 }
 
 fn xml_escape(s: &str) -> String {
@@ -1510,16 +1572,43 @@ fn draw_panel<DB: DrawingBackend>(
         // Cut at the frame (a series off scale leaves it), then at most a point or two per
         // two pixels: what an SVG needs to show the line, extremes included.
         for segment in segments(&drawn[i]) {
-            for piece in clip_polyline(&segment, x_range, y_range) {
+            // A band is clamped to the frame (its extremes at the edge), not cut there: cut,
+            // an oscillation reaching the edge would be a row of separate teeth.
+            let pieces = if series.style == Style::Band {
+                let clamped: Vec<(f64, f64)> = segment
+                    .iter()
+                    .filter(|p| p.0 >= x_range.0 && p.0 <= x_range.1)
+                    .map(|p| {
+                        (
+                            p.0,
+                            p.1.max(y_range.0.min(y_range.1))
+                                .min(y_range.0.max(y_range.1)),
+                        )
+                    })
+                    .collect();
+                vec![clamped]
+            } else {
+                clip_polyline(&segment, x_range, y_range)
+            };
+            for piece in pieces {
+                if piece.is_empty() {
+                    continue;
+                }
                 let pixels: Vec<(i32, i32)> =
                     piece.iter().map(|p| chart.backend_coord(p)).collect();
+                let fill = series.style == Style::Band;
                 lines.push(PixelLine {
-                    points: thin(&pixels, thinning),
+                    points: if fill {
+                        band(&pixels, thinning)
+                    } else {
+                        thin(&pixels, thinning)
+                    },
                     color,
                     width,
                     dash: series.look.dash,
                     label: series.label.clone(),
                     panel: index,
+                    fill,
                 });
             }
         }
@@ -1708,6 +1797,33 @@ mod tests {
         }
         let t: Vec<f64> = short.rows().iter().map(|r| r[0]).collect();
         assert_eq!(t, vec![0.0, 1.0, 2.0, 3.0, 4.0]);
+    }
+
+    #[test]
+    fn a_fast_oscillation_is_a_solid_band_and_a_slow_signal_a_thin_one() {
+        // Short dips to y = 100 px every 5 columns of 2 px (an energy error's dips), the rest
+        // at y = 10: every column of the band spans 10..100, no teeth.
+        let dips: Vec<(i32, i32)> = (0..200)
+            .map(|x| (x, if x % 10 == 0 { 100 } else { 10 }))
+            .collect();
+        // (The last columns' windows are cut short by the edge: they see the dip at x = 190
+        // only up to column 196.)
+        let outline = band(&dips, 2);
+        let (top, bottom) = outline.split_at(outline.len() / 2);
+        assert!(top.iter().all(|p| p.1 == 10), "{top:?}");
+        assert!(
+            bottom.iter().filter(|p| p.0 <= 196).all(|p| p.1 == 100),
+            "{bottom:?}"
+        );
+        // A slow ramp (1 px per 10 columns) stays a line a few pixels thick.
+        let ramp: Vec<(i32, i32)> = (0..200).map(|x| (x, x / 20)).collect();
+        let outline = band(&ramp, 2);
+        let n = outline.len() / 2;
+        for k in 0..n {
+            let (t, b) = (outline[k], outline[2 * n - 1 - k]);
+            assert_eq!(t.0, b.0);
+            assert!(b.1 - t.1 <= 1, "{t:?} {b:?}");
+        }
     }
 
     #[test]

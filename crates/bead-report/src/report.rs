@@ -899,15 +899,20 @@ impl Report {
             title,
             panels: vec![
                 Panel {
-                    title: format!("({quantity}) / E_scale vs time: above 0 gained, below 0 lost"),
+                    title: format!("({quantity}) / E_scale vs time, its range per pixel column: above 0 gained, below 0 lost"),
                     x_label: "t (s)".into(),
                     y_label: "relative energy change (1)".into(),
                     outlier_factor: Some(OUTLIER_FACTOR),
                     legend_note: self.legend_note(),
+                    // Bands: the change oscillates with the motion, hundreds of times in
+                    // a long run, and lines down to every extreme would be hatching.
                     series: self
                         .runs
                         .iter()
-                        .map(|r| self.series(r, &r.recording.energy_change))
+                        .map(|r| Series {
+                            style: Style::Band,
+                            ..self.series(r, &r.recording.energy_change)
+                        })
                         .collect(),
                     ..Panel::default()
                 },
