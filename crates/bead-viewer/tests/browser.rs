@@ -1106,8 +1106,8 @@ async fn pause_all_if_running(client: &Client) {
     }
 }
 
-/// No text is clipped or overlaps other text, at a laptop's 1366x768 and a projector's
-/// 1920x1080, for every shipped scene, with the page as it opens, in overlay mode and
+/// No text is clipped or overlaps other text, at a laptop's 1366x768, a projector's
+/// 1920x1080 and a large screen's 2560x1440, for every shipped scene, with the page as it opens, in overlay mode and
 /// presenting: every text a canvas drew lies inside the canvas and clear of the others;
 /// every text of the page lies inside its panel, clear of the others, and the page does not
 /// scroll sideways.
@@ -1219,7 +1219,7 @@ async fn layout_checks(client: &Client, addr: SocketAddr) {
         .map(|(n, _)| *n)
         .collect();
     let mut faults = Vec::new();
-    for (w, h) in [(1366u32, 768u32), (1920, 1080)] {
+    for (w, h) in [(1366u32, 768u32), (1920, 1080), (2560, 1440)] {
         client.set_window_size(w, h).await.unwrap();
         wait_within(
             client,
