@@ -318,6 +318,7 @@ impl ClosestPoint {
         let n = d + 1;
         let mut a = vec![0.0; n * n];
         let mut b = vec![0.0; n];
+        let mut pivots = vec![0.0; n];
         for _ in 0..Self::MAX_ITERATIONS {
             let c = self.evaluate(system, t, &y, eval, &mut g);
             if !c.is_finite() || g.iter().all(|&v| v == 0.0) || g.iter().any(|v| !v.is_finite()) {
@@ -349,7 +350,9 @@ impl ClosestPoint {
                 b[i] = -(y[i] - start[i] + lambda * g[i]);
             }
             b[d] = -c;
-            let step = solve(&mut a, &mut b, n)?;
+            // The library's pivoted elimination (the matrix is symmetric indefinite).
+            bead::linalg::solve_general(n, &mut a, &mut b, &mut pivots).ok()?;
+            let step = &b;
             for i in 0..d {
                 y[i] += step[i];
             }
@@ -373,40 +376,6 @@ impl ClosestPoint {
         }
         None
     }
-}
-
-/// Solve the n x n system a z = b (row-major) by Gaussian elimination with partial
-/// pivoting; `None` when it is singular.
-fn solve(a: &mut [f64], b: &mut [f64], n: usize) -> Option<Vec<f64>> {
-    for col in 0..n {
-        let pivot =
-            (col..n).max_by(|&i, &j| a[i * n + col].abs().total_cmp(&a[j * n + col].abs()))?;
-        if a[pivot * n + col] == 0.0 || !a[pivot * n + col].is_finite() {
-            return None;
-        }
-        if pivot != col {
-            for k in 0..n {
-                a.swap(col * n + k, pivot * n + k);
-            }
-            b.swap(col, pivot);
-        }
-        for row in col + 1..n {
-            let f = a[row * n + col] / a[col * n + col];
-            for k in col..n {
-                a[row * n + k] -= f * a[col * n + k];
-            }
-            b[row] -= f * b[col];
-        }
-    }
-    let mut z = vec![0.0; n];
-    for row in (0..n).rev() {
-        let mut v = b[row];
-        for k in row + 1..n {
-            v -= a[row * n + k] * z[k];
-        }
-        z[row] = v / a[row * n + row];
-    }
-    z.iter().all(|v| v.is_finite()).then_some(z)
 }
 
 /// `bead.vx` for particle coordinate k.
