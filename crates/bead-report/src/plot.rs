@@ -340,9 +340,9 @@ pub enum Style {
     /// A wide, light line drawn under the others (e.g. a reference curve).
     Reference,
     /// An oscillating time series as the band between its lowest and highest value in each
-    /// column of pixels, filled light with its edges in the series' dash: a signal that
-    /// oscillates many times across the panel reads as a band, not as hatching, and one that
-    /// does not is a line.
+    /// column of pixels, filled light with its edges in the series' dash, where it turns more
+    /// often than every few pixel columns (see `dense`): a signal that oscillates hundreds of
+    /// times across the panel reads as a band, not as hatching; a slower one is a line.
     Band,
 }
 
@@ -877,6 +877,31 @@ fn band(points: &[(i32, i32)], bucket: i32) -> Vec<(i32, i32)> {
     outline.extend(spread.iter().rev().map(|c| (c.0, c.2)));
     outline
 }
+
+/// Whether a time series in pixels turns (up to down or back) more than once per
+/// [`DENSE_COLUMNS`] pixel columns: an oscillation too fast to follow as a line, which a band
+/// shows better. A slower one (a few periods across the panel) stays a line.
+fn dense(points: &[(i32, i32)]) -> bool {
+    let (Some(first), Some(last)) = (points.first(), points.last()) else {
+        return false;
+    };
+    let columns = (last.0 - first.0).max(1);
+    let mut turns = 0;
+    let mut direction = 0;
+    for w in points.windows(2) {
+        let dy = (w[1].1 - w[0].1).signum();
+        if dy != 0 {
+            if direction != 0 && dy != direction {
+                turns += 1;
+            }
+            direction = dy;
+        }
+    }
+    turns * DENSE_COLUMNS > columns
+}
+
+/// Pixel columns per turn below which a [`Style::Band`] series is drawn as a band.
+const DENSE_COLUMNS: i32 = 8;
 
 fn xml_escape(s: &str) -> String {
     s.replace('&', "&amp;")
@@ -1596,7 +1621,7 @@ fn draw_panel<DB: DrawingBackend>(
                 }
                 let pixels: Vec<(i32, i32)> =
                     piece.iter().map(|p| chart.backend_coord(p)).collect();
-                let fill = series.style == Style::Band;
+                let fill = series.style == Style::Band && dense(&pixels);
                 lines.push(PixelLine {
                     points: if fill {
                         band(&pixels, thinning)
@@ -1800,12 +1825,23 @@ mod tests {
     }
 
     #[test]
-    fn a_fast_oscillation_is_a_solid_band_and_a_slow_signal_a_thin_one() {
+    fn a_fast_oscillation_is_a_solid_band_and_a_slow_one_a_line() {
         // Short dips to y = 100 px every 5 columns of 2 px (an energy error's dips), the rest
         // at y = 10: every column of the band spans 10..100, no teeth.
         let dips: Vec<(i32, i32)> = (0..200)
             .map(|x| (x, if x % 10 == 0 { 100 } else { 10 }))
             .collect();
+        assert!(dense(&dips));
+        // Four periods across 600 columns: a line, not a band.
+        let slow: Vec<(i32, i32)> = (0..600)
+            .map(|x| {
+                (
+                    x,
+                    (100.0 + 50.0 * (x as f64 * 4.0 * std::f64::consts::TAU / 600.0).sin()) as i32,
+                )
+            })
+            .collect();
+        assert!(!dense(&slow));
         // (The last columns' windows are cut short by the edge: they see the dip at x = 190
         // only up to column 196.)
         let outline = band(&dips, 2);
