@@ -256,6 +256,9 @@ impl ClosestPoint {
             return None;
         }
         let dim = system.dim();
+        if dim > 3 {
+            return None;
+        }
         let columns = set.row_columns(0);
         let particle = columns.first()? / dim;
         if columns.iter().any(|&k| k / dim != particle) {
@@ -307,32 +310,40 @@ impl ClosestPoint {
             return None;
         }
         self.trial.copy_from_slice(x);
-        let start: Vec<f64> = self.coords.iter().map(|&c| x[c]).collect();
+        // A particle has at most 3 coordinates: every buffer lives on the stack (the recorder
+        // runs at every step, which allocates nothing).
+        let mut start = [0.0; 3];
+        for (s, &c) in start.iter_mut().zip(&self.coords) {
+            *s = x[c];
+        }
+        let start = &start[..d];
         let scale = start.iter().fold(1.0_f64, |m, v| m.max(v.abs()));
-        let mut y = start.clone();
+        let mut y_buffer = [0.0; 3];
+        let y = &mut y_buffer[..d];
+        y.copy_from_slice(start);
         let mut lambda = 0.0;
-        let mut g = vec![0.0; d];
-        let mut plus = vec![0.0; d];
-        let mut minus = vec![0.0; d];
+        let (mut g, mut plus, mut minus) = ([0.0; 3], [0.0; 3], [0.0; 3]);
+        let (g, plus, minus) = (&mut g[..d], &mut plus[..d], &mut minus[..d]);
         // The (d + 1) x (d + 1) system, row-major, and its right-hand side.
         let n = d + 1;
-        let mut a = vec![0.0; n * n];
-        let mut b = vec![0.0; n];
-        let mut pivots = vec![0.0; n];
+        let (mut a, mut b, mut pivots) = ([0.0; 16], [0.0; 4], [0.0; 4]);
+        let (a, b, pivots) = (&mut a[..n * n], &mut b[..n], &mut pivots[..n]);
         for _ in 0..Self::MAX_ITERATIONS {
-            let c = self.evaluate(system, t, &y, eval, &mut g);
+            let c = self.evaluate(system, t, y, eval, g);
             if !c.is_finite() || g.iter().all(|&v| v == 0.0) || g.iter().any(|v| !v.is_finite()) {
                 return None;
             }
             a.iter_mut().for_each(|v| *v = 0.0);
             // I + lambda H by central differences of the gradient.
             let h = 1e-5 * scale;
-            let mut probe = y.clone();
+            let mut probe_buffer = [0.0; 3];
+            let probe = &mut probe_buffer[..d];
+            probe.copy_from_slice(y);
             for j in 0..d {
                 probe[j] = y[j] + h;
-                self.evaluate(system, t, &probe, eval, &mut plus);
+                self.evaluate(system, t, probe, eval, plus);
                 probe[j] = y[j] - h;
-                self.evaluate(system, t, &probe, eval, &mut minus);
+                self.evaluate(system, t, probe, eval, minus);
                 probe[j] = y[j];
                 for i in 0..d {
                     a[i * n + j] += lambda * (plus[i] - minus[i]) / (2.0 * h);
@@ -351,21 +362,21 @@ impl ClosestPoint {
             }
             b[d] = -c;
             // The library's pivoted elimination (the matrix is symmetric indefinite).
-            bead::linalg::solve_general(n, &mut a, &mut b, &mut pivots).ok()?;
-            let step = &b;
+            bead::linalg::solve_general(n, a, b, pivots).ok()?;
+            let step = &*b;
             for i in 0..d {
                 y[i] += step[i];
             }
             lambda += step[d];
             let moved = step[..d].iter().fold(0.0_f64, |m, v| m.max(v.abs()));
             if moved <= Self::STEP_TOLERANCE * scale {
-                let c = self.evaluate(system, t, &y, eval, &mut g);
+                let c = self.evaluate(system, t, y, eval, g);
                 let norm = g.iter().map(|v| v * v).sum::<f64>().sqrt();
                 // On the set, to the accuracy of the coordinates.
                 if c.abs() / norm <= 1e-10 * scale {
                     let distance = y
                         .iter()
-                        .zip(&start)
+                        .zip(start)
                         .map(|(a, b)| (a - b) * (a - b))
                         .sum::<f64>()
                         .sqrt();
