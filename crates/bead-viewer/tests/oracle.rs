@@ -104,9 +104,17 @@ fn frames_are_the_library_run_and_meet_the_oracle() {
         // its tangent by 1e-16): then the panel's run is `bead run`'s to round-off only.
         let moved = !start.same_bits(&run.rows[0]);
         let mut expected = vec![start];
+        // What the live plot reads besides the positions: the velocities, and a parametric
+        // panel's q then q'.
+        let state = |l: &bead::simulate::Simulation| {
+            let generalized: Vec<f64> = l.q().iter().chain(l.qdot()).copied().collect();
+            (l.velocities().to_vec(), generalized)
+        };
+        let mut expected_state = vec![state(&library)];
         for k in 1..=steps {
             library.advance_to(k as f64 * spec.dt).expect("advances");
             expected.push(Row::of_sample(&library.sample(k), parametric));
+            expected_state.push(state(&library));
         }
         if !spec.integrator.is_adaptive() {
             // Fixed steps: the panel's states are the run's (`bead run`), bit for bit.
@@ -164,6 +172,23 @@ fn frames_are_the_library_run_and_meet_the_oracle() {
                 "{what}: frame x {x:?} at t = {t}, the library's {:?}",
                 row.x
             );
+            let (velocities, generalized) = &expected_state[k as usize];
+            if let Some(arrows) = f.get("arrows") {
+                let v = numbers(&arrows["velocity"]);
+                assert!(
+                    v.iter().zip(velocities).all(|(a, b)| same(*a, *b))
+                        && v.len() == velocities.len(),
+                    "{what}: frame velocities {v:?} at t = {t}, the library's {velocities:?}"
+                );
+            }
+            if parametric {
+                let q = numbers(&f["generalized"]);
+                assert!(
+                    q.len() == generalized.len()
+                        && q.iter().zip(generalized).all(|(a, b)| same(*a, *b)),
+                    "{what}: frame q, q' {q:?} at t = {t}, the library's {generalized:?}"
+                );
+            }
             let figure = |key: &str| f[key].as_f64().unwrap_or_else(|| panic!("{key}"));
             assert!(
                 same(figure("energy"), row.energy),
