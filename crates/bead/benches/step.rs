@@ -355,7 +355,7 @@ fn print_compile_times() {
     }
 }
 
-/// `BEAD_STEP_ONLY=VARIANT BEAD_STEP_COUNT=N`: N steps of one variant and nothing else, for
+/// `BEAD_STEP_RATIOS=1`: the ratio table alone. `BEAD_STEP_ONLY=VARIANT BEAD_STEP_COUNT=N`: N steps of one variant and nothing else, for
 /// instruction counts (`scripts/step-instructions` runs it under callgrind at two N and
 /// divides the difference: instructions per step, free of setup and of the machine's load).
 fn only(variant: &str, count: u64) {
@@ -381,6 +381,11 @@ fn main() {
     if let Ok(variant) = std::env::var("BEAD_STEP_ONLY") {
         let count = std::env::var("BEAD_STEP_COUNT").map_or(1000, |c| c.parse().unwrap());
         only(&variant, count);
+        return;
+    }
+    if std::env::var_os("BEAD_STEP_RATIOS").is_some() {
+        // The ratio table alone (the README's figures), without criterion's groups.
+        print_ratios(false);
         return;
     }
     print_compile_times();

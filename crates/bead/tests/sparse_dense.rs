@@ -2,7 +2,7 @@
 //!
 //! Law: J W J^T solved by faer's sparse LDL^T (any ordering), by the tridiagonal LDL^T of
 //! chains (rows in their own or in path order; other structures fall back to faer) and by the
-//! dense Cholesky give the same accelerations and multipliers to 1e-12 (relative to the
+//! dense LDL^T give the same accelerations and multipliers to 1e-12 (relative to the
 //! largest), the same projections and the same RATTLE steps, on random states of a chain (also
 //! declared out of order), a tree, a closed ring, a cloth patch and every shipped scene.
 //! Dependent rows are named on every path.
@@ -119,7 +119,7 @@ fn relative_difference(a: &[f64], b: &[f64]) -> f64 {
         / scale
 }
 
-/// The solvers compared with the dense Cholesky.
+/// The solvers compared with the dense LDL^T.
 const SPARSE_SOLVERS: [LinearSolver; 2] = [LinearSolver::Sparse, LinearSolver::Tridiagonal];
 const SOLVERS: [LinearSolver; 3] = [
     LinearSolver::Dense,

@@ -186,7 +186,8 @@ impl Instr {
 }
 
 /// Fuse each product used only once, by an addition or subtraction, into that instruction
-/// (`a*b + c`, `a*b - c`, `c - a*b`: the same two roundings as before), then renumber.
+/// (`a*b + c`, `a*b - c`, `c - a*b`: the same two roundings as before), drop what no output
+/// reads, then renumber.
 fn fuse(code: Vec<Instr>, outputs: &mut [u32]) -> Vec<Instr> {
     let mut uses = vec![0u32; code.len()];
     for ins in &code {
@@ -221,6 +222,20 @@ fn fuse(code: Vec<Instr>, outputs: &mut [u32]) -> Vec<Instr> {
             code[i] = ins;
             dead[gone as usize] = true;
         }
+    }
+    // Dead code: what no output reaches (e.g. a fused tape's positions that only its
+    // derivatives were built from).
+    let mut live = vec![false; code.len()];
+    for &o in outputs.iter() {
+        live[o as usize] = true;
+    }
+    for i in (0..code.len()).rev() {
+        if live[i] && !dead[i] {
+            for s in code[i].operands().into_iter().flatten() {
+                live[s as usize] = true;
+            }
+        }
+        dead[i] |= !live[i];
     }
     let mut new_index = vec![u32::MAX; code.len()];
     let mut out = Vec::with_capacity(code.len());
@@ -441,7 +456,7 @@ impl Tape {
     /// # Panics
     /// As [`Tape::eval`].
     pub fn eval_interpreted(&self, vars: &[f64], scratch: &mut [f64], out: &mut [f64]) {
-        self.eval_lanes_with::<1>(vars, scratch, out, false);
+        self.interpret::<1>(vars, scratch, out);
     }
 
     /// [`Tape::eval_lanes`] by the interpreter, whether or not the tape has machine code.
@@ -454,7 +469,7 @@ impl Tape {
         scratch: &mut [f64],
         out: &mut [f64],
     ) {
-        self.eval_lanes_with::<L>(vars, scratch, out, false);
+        self.interpret::<L>(vars, scratch, out);
     }
 
     /// Length of the scratch buffer [`Tape::eval`] needs.
@@ -485,8 +500,9 @@ impl Tape {
     ///
     /// # Panics
     /// If one of the length requirements above is violated.
+    #[inline]
     pub fn eval(&self, vars: &[f64], scratch: &mut [f64], out: &mut [f64]) {
-        self.eval_lanes_with::<1>(vars, scratch, out, true);
+        self.eval_lanes::<1>(vars, scratch, out);
     }
 
     /// Evaluate all outputs for `L` independent sets of variables at once (an ensemble's
@@ -515,18 +531,35 @@ impl Tape {
     ///
     /// # Panics
     /// If a length requirement is violated.
+    #[inline]
     pub fn eval_lanes<const L: usize>(&self, vars: &[f64], scratch: &mut [f64], out: &mut [f64]) {
-        self.eval_lanes_with::<L>(vars, scratch, out, true);
+        match &self.native {
+            Some(code) => {
+                // The same requirements as the interpreter's, the scratch the code does
+                // not use included.
+                self.check_lengths::<L>(vars, scratch, out);
+                code.run(vars, &self.consts, out, L);
+            }
+            None => self.interpret::<L>(vars, scratch, out),
+        }
     }
 
+    /// The interpreter (the reference the machine code is tested against).
+    fn interpret<const L: usize>(&self, vars: &[f64], scratch: &mut [f64], out: &mut [f64]) {
+        self.check_lengths::<L>(vars, scratch, out);
+        let scratch = &mut scratch[..self.code.len() * L];
+        if L == 0 {
+            return;
+        }
+        run_lanes::<L>(&self.code, vars, scratch);
+        for (o, &slot) in out.chunks_exact_mut(L).zip(&self.outputs) {
+            o.copy_from_slice(&scratch[slot as usize * L..][..L]);
+        }
+    }
+
+    /// Panics unless `vars`, `scratch` and `out` have the lengths [`Tape::eval_lanes`] needs.
     #[inline]
-    fn eval_lanes_with<const L: usize>(
-        &self,
-        vars: &[f64],
-        scratch: &mut [f64],
-        out: &mut [f64],
-        native: bool,
-    ) {
+    fn check_lengths<const L: usize>(&self, vars: &[f64], scratch: &[f64], out: &[f64]) {
         if L == 1 {
             assert!(
                 vars.len() >= self.n_vars,
@@ -543,18 +576,7 @@ impl Tape {
             );
         }
         assert_eq!(out.len(), self.outputs.len() * L, "wrong number of outputs");
-        let scratch = &mut scratch[..self.code.len() * L];
-        if L == 0 {
-            return;
-        }
-        if let (true, Some(code)) = (native, &self.native) {
-            code.run(vars, &self.consts, out, L);
-            return;
-        }
-        run_lanes::<L>(&self.code, vars, scratch);
-        for (o, &slot) in out.chunks_exact_mut(L).zip(&self.outputs) {
-            o.copy_from_slice(&scratch[slot as usize * L..][..L]);
-        }
+        assert!(scratch.len() >= self.code.len() * L, "scratch too short");
     }
 }
 
@@ -690,13 +712,6 @@ impl TapeBuilder {
             Val::Const(c) => Val::Const(-c),
             Val::Slot(s) => self.b.emit(Instr::Neg(s)),
         })
-    }
-    /// `a.sqrt()`
-    pub(crate) fn sqrt(&mut self, a: Sym) -> Sym {
-        match a.0 {
-            Val::Const(c) => Sym(Val::Const(c.sqrt())),
-            Val::Slot(_) => Sym(self.b.unary(Func::Sqrt, a.0)),
-        }
     }
 
     /// The tape computing `outputs`, its variables the slots read by [`Self::var`] and the

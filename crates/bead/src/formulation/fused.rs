@@ -9,15 +9,15 @@
 //!
 //! ```text
 //! implicit:   C, Cdot, bias, J (the constraint tape); A = J W J^T;
-//!             A lambda = -bias - J W F - ks C - kd Cdot (dense Cholesky); a = W (F + J^T lambda)
+//!             A lambda = -bias - J W F - ks C - kd Cdot (dense LDL^T); a = W (F + J^T lambda)
 //! parametric: x, xdot, h, J (the map's tape); M = sum_k m_k J_k^T J_k;
-//!             M qddot = sum_k J_k^T (F_k - m_k h_k) (dense Cholesky)
+//!             M qddot = sum_k J_k^T (F_k - m_k h_k) (dense LDL^T)
 //! ```
 //!
 //! Every operation is the one the general path does, in its order (the same sums from the
-//! same first term, the zeros outside the pattern multiplied as there, the Cholesky's square
-//! roots), so a fused acceleration equals the general one **bit for bit**; tests compare them
-//! on every shipped scene. The Cholesky's pivots come out with the accelerations: when one
+//! same first term, the zeros outside the pattern multiplied as there, the LDL^T's
+//! divisions), so a fused acceleration equals the general one **bit for bit**; tests compare
+//! them on every shipped scene. The LDL^T's pivots come out with the accelerations: when one
 //! fails the relative pivot test, the caller runs the general path, which reports the
 //! singular matrix (or the non-finite input) exactly as before.
 use super::State;
@@ -26,12 +26,12 @@ use crate::integrate::rk4::{self, AccelerationTape};
 use crate::linalg::{ConstraintMatrix, LinearSolver, SymmetricPattern};
 use crate::model::{ConstraintEval, ConstraintSet, Force, FusedTapes, ParametricMap, System};
 
-/// The most rows (implicit) or generalized coordinates (parametric) fused: the Cholesky's
+/// The most rows (implicit) or generalized coordinates (parametric) fused: the factorization's
 /// code grows as m^3 / 6 and the general path's overhead stops dominating.
 pub(crate) const FUSE_MAX_ROWS: usize = 8;
 
-/// Outputs of the dense Cholesky in a tape: the factor's pivots before their square roots
-/// and the diagonals they are tested against.
+/// Outputs of the dense LDL^T in a tape: the factor's pivots D_j and the diagonals they are
+/// tested against.
 struct Pivots {
     diagonal: Vec<Sym>,
     pivot: Vec<Sym>,
@@ -50,53 +50,60 @@ fn sum(b: &mut TapeBuilder, terms: impl IntoIterator<Item = Sym>) -> Sym {
     total.unwrap_or_else(|| b.constant(-0.0))
 }
 
-/// [`crate::linalg::cholesky_in_place`] on the dense m x m lower triangle `a` (row-major),
-/// then [`crate::linalg::cholesky_substitute`] of `rhs`, as tape operations in the same
-/// order. Returns the pivots for the caller's test.
-fn cholesky_solve(b: &mut TapeBuilder, m: usize, a: &mut [Sym], rhs: &mut [Sym]) -> Pivots {
+/// [`crate::linalg::ldlt_in_place`] on the dense m x m lower triangle `a` (row-major),
+/// then [`crate::linalg::ldlt_substitute`] of `rhs`, as tape operations in the same order.
+/// Returns the pivots for the caller's test.
+fn ldlt_solve(b: &mut TapeBuilder, m: usize, a: &mut [Sym], rhs: &mut [Sym]) -> Pivots {
     let at = |r: usize, c: usize| r * m + c;
     let mut pivots = Pivots {
         diagonal: Vec::with_capacity(m),
         pivot: Vec::with_capacity(m),
     };
     for j in 0..m {
+        // w_i = L_ji D_i in the upper triangle, L_ji below.
         for i in 0..j {
-            let mut s = a[at(j, i)];
+            let mut w = a[at(j, i)];
             for k in 0..i {
-                let p = b.mul(a[at(j, k)], a[at(i, k)]);
-                s = b.sub(s, p);
+                let p = b.mul(a[at(k, j)], a[at(i, k)]);
+                w = b.sub(w, p);
             }
-            a[at(j, i)] = b.div(s, a[at(i, i)]);
+            a[at(i, j)] = w;
+            a[at(j, i)] = b.div(w, a[at(i, i)]);
         }
         let diagonal = a[at(j, j)];
-        let squares: Vec<Sym> = (0..j).map(|k| b.mul(a[at(j, k)], a[at(j, k)])).collect();
-        let squares = sum(b, squares);
-        let pivot = b.sub(diagonal, squares);
+        let mut pivot = diagonal;
+        for k in 0..j {
+            let p = b.mul(a[at(k, j)], a[at(j, k)]);
+            pivot = b.sub(pivot, p);
+        }
         pivots.diagonal.push(diagonal);
         pivots.pivot.push(pivot);
-        a[at(j, j)] = b.sqrt(pivot);
+        a[at(j, j)] = pivot;
     }
     for i in 0..m {
-        let mut s = rhs[i];
+        let mut y = rhs[i];
         for k in 0..i {
             let p = b.mul(a[at(i, k)], rhs[k]);
-            s = b.sub(s, p);
+            y = b.sub(y, p);
         }
-        rhs[i] = b.div(s, a[at(i, i)]);
+        rhs[i] = y;
+    }
+    for i in 0..m {
+        rhs[i] = b.div(rhs[i], a[at(i, i)]);
     }
     for i in (0..m).rev() {
-        let mut s = rhs[i];
+        let mut z = rhs[i];
         for k in i + 1..m {
             let p = b.mul(a[at(k, i)], rhs[k]);
-            s = b.sub(s, p);
+            z = b.sub(z, p);
         }
-        rhs[i] = b.div(s, a[at(i, i)]);
+        rhs[i] = z;
     }
     pivots
 }
 
 /// The dense lower triangle (row-major m x m, zero elsewhere) of a matrix whose pattern
-/// `pattern` holds `values` by slot, as [`crate::linalg::DenseCholesky`] scatters it.
+/// `pattern` holds `values` by slot, as [`crate::linalg::DenseLdlt`] scatters it.
 fn scatter(b: &TapeBuilder, pattern: &SymmetricPattern, values: &[Sym]) -> Vec<Sym> {
     let m = pattern.dim();
     let mut dense = vec![b.constant(0.0); m * m];
@@ -108,8 +115,8 @@ fn scatter(b: &TapeBuilder, pattern: &SymmetricPattern, values: &[Sym]) -> Vec<S
     dense
 }
 
-/// Whether the Cholesky's pivots pass the relative test of
-/// [`crate::linalg::cholesky_in_place`] (else the matrix counts as singular).
+/// Whether the LDL^T's pivots pass the relative test of
+/// [`crate::linalg::ldlt_in_place`] (else the matrix counts as singular).
 fn pivots_pass(diagonal: &[f64], pivot: &[f64], tolerance: f64) -> bool {
     diagonal
         .iter()
@@ -120,7 +127,7 @@ fn pivots_pass(diagonal: &[f64], pivot: &[f64], tolerance: f64) -> bool {
 /// The implicit form's fused acceleration. Variables: x (n), v (n), t, F (n), the applied
 /// forces computed before (so that every force, the viewer's drag included, enters).
 /// Outputs: C, Cdot, bias (m each), J (nnz), lambda (m), F + J^T lambda (n), a (n), then the
-/// Cholesky's diagonals and pivots (m each).
+/// LDL^T's diagonals and pivots (m each).
 #[derive(Clone, Debug)]
 pub(crate) struct FusedImplicit {
     tape: Tape,
@@ -226,7 +233,7 @@ fn implicit_tape(set: &ConstraintSet, n: usize) -> Option<Tape> {
         })
         .collect();
     let mut dense = scatter(&b, matrix.pattern(), &values);
-    let pivots = cholesky_solve(&mut b, m, &mut dense, &mut lambda);
+    let pivots = ldlt_solve(&mut b, m, &mut dense, &mut lambda);
     // F + J^T lambda, row by row, then a = W F.
     for (i, &li) in lambda.iter().enumerate() {
         for (&k, e) in set.row_columns(i).iter().zip(set.row_entries(i)) {
@@ -246,7 +253,7 @@ fn implicit_tape(set: &ConstraintSet, n: usize) -> Option<Tape> {
 
 impl FusedImplicit {
     /// The fused acceleration of `system`'s implicit form with `feedback`, when it applies
-    /// (see [`implicit_tape`]) and J W J^T is factored by the dense Cholesky, whose relative
+    /// (see [`implicit_tape`]) and J W J^T is factored by the dense LDL^T, whose relative
     /// pivot tolerance `tolerance` is. The tape is built once per constraint set.
     pub(crate) fn new(
         system: &System,
@@ -454,49 +461,66 @@ impl FusedStep {
         self.tape
             .eval_lanes::<L>(&self.vars, &mut self.scratch, &mut self.out);
         let mut pass = [true; L];
-        for stage in 0..STAGES {
-            let at = 2 * n + 2 * rows * stage;
-            for j in 0..rows {
-                let diagonal = &self.out[(at + j) * L..(at + j + 1) * L];
-                let pivot = &self.out[(at + rows + j) * L..(at + rows + j + 1) * L];
-                for l in 0..L {
-                    pass[l] &= (diagonal[l] > 0.0) & (pivot[l] > self.tolerance * diagonal[l]);
-                }
+        let tests = &self.out[2 * n * L..(2 * n + 2 * rows * STAGES) * L];
+        let (diagonals, pivots) = tests.split_at(rows * STAGES * L);
+        for (diagonal, pivot) in diagonals.chunks_exact(L).zip(pivots.chunks_exact(L)) {
+            for l in 0..L {
+                pass[l] &= (diagonal[l] > 0.0) & (pivot[l] > self.tolerance * diagonal[l]);
             }
         }
         pass
     }
 
-    /// One step of one state from time t by h under `constants`: (q, qdot) advanced in
-    /// place. False, (q, qdot) untouched, when a stage's matrix fails the pivot test.
-    pub(crate) fn step_one(
+    /// Size the buffers for one lane and load `constants` (fixed for the step's life: a
+    /// formulation's F, W and gains or F and masses), before [`Self::step_one`].
+    fn load_one(&mut self, constants: &[f64]) {
+        self.size_for::<1>();
+        self.load_constants::<1>(constants);
+    }
+
+    /// One step of one state from time t by h under the constants of [`Self::load_one`]:
+    /// (q, qdot) advanced in place. False, (q, qdot) untouched, when a stage's matrix fails
+    /// the pivot test. Only what changes from step to step is written (q, qdot, t and the
+    /// step's variables).
+    #[inline]
+    pub(crate) fn step_one(&mut self, t: f64, h: f64, q: &mut [f64], qdot: &mut [f64]) -> bool {
+        // Small states by fixed-length moves (a copy of unknown length is a `memcpy` call,
+        // which costs more than the copy) and no bounds check per value.
+        match self.n {
+            1 => self.step_sized::<1>(t, h, q, qdot),
+            2 => self.step_sized::<2>(t, h, q, qdot),
+            3 => self.step_sized::<3>(t, h, q, qdot),
+            4 => self.step_sized::<4>(t, h, q, qdot),
+            6 => self.step_sized::<6>(t, h, q, qdot),
+            _ => self.step_sized::<0>(t, h, q, qdot),
+        }
+    }
+
+    /// [`Self::step_one`] for n = N (N = 0: any n).
+    #[inline(always)]
+    fn step_sized<const N: usize>(
         &mut self,
         t: f64,
         h: f64,
         q: &mut [f64],
         qdot: &mut [f64],
-        constants: &[f64],
     ) -> bool {
-        self.size_for::<1>();
-        // One lane: the variables are contiguous runs (copied, not filled lane by lane).
-        let (n, rows) = (self.n, self.rows);
+        debug_assert_eq!(self.lanes, 1, "load_one first");
+        let n = if N == 0 { self.n } else { N };
         let after = 2 * n + 1 + self.constants;
-        let vars = &mut self.vars;
-        vars[..n].copy_from_slice(q);
-        vars[n..2 * n].copy_from_slice(qdot);
+        let vars = &mut self.vars[..after + 5];
+        vars[..n].copy_from_slice(&q[..n]);
+        vars[n..2 * n].copy_from_slice(&qdot[..n]);
         vars[2 * n] = t;
-        vars[2 * n + 1..after].copy_from_slice(constants);
-        vars[after..after + 5].copy_from_slice(&rk4::step_variables(t, h));
+        vars[after..].copy_from_slice(&rk4::step_variables(t, h));
         self.tape.eval(&self.vars, &mut self.scratch, &mut self.out);
-        let tests = &self.out[2 * n..2 * n + 2 * rows * STAGES];
-        if !tests
-            .chunks_exact(2 * rows)
-            .all(|stage| pivots_pass(&stage[..rows], &stage[rows..], self.tolerance))
-        {
+        let (state, tests) = self.out.split_at(2 * n);
+        let (diagonals, pivots) = tests[..2 * self.rows * STAGES].split_at(self.rows * STAGES);
+        if !pivots_pass(diagonals, pivots, self.tolerance) {
             return false;
         }
-        q.copy_from_slice(&self.out[..n]);
-        qdot.copy_from_slice(&self.out[n..2 * n]);
+        q[..n].copy_from_slice(&state[..n]);
+        qdot[..n].copy_from_slice(&state[n..]);
         true
     }
 
@@ -566,15 +590,10 @@ impl CompiledAcceleration for FusedImplicit {
         let (n, m) = (self.n, self.m);
         AccelerationTape::new(&self.tape, n, 2 * n + 2, 3 * m + self.nnz + m + n, m)
     }
-    fn parts(&mut self) -> (&mut CompiledSteps, &[f64]) {
-        let n = self.n;
-        if self.vars_force_given {
-            // An external force was given before: the constant F back in place.
-            let force = self.constant_force.as_ref().expect("checked by `Implicit`");
-            self.vars[2 * n + 1..3 * n + 1].copy_from_slice(force);
-            self.vars_force_given = false;
-        }
-        (&mut self.steps, &self.vars[2 * n + 1..])
+    /// The constant F (not a force given to [`Self::accelerate`] since), W, ks, kd.
+    fn constants(&self) -> Vec<f64> {
+        let force = self.constant_force.as_ref().expect("checked by `Implicit`");
+        self.step_constants(force)
     }
 }
 
@@ -582,13 +601,15 @@ impl CompiledAcceleration for FusedImplicit {
 pub(crate) trait CompiledAcceleration {
     fn steps(&mut self) -> &mut CompiledSteps;
     fn layout(&self) -> AccelerationTape<'_>;
-    /// The step, and the constants after (q, qdot, t) as the step reads them.
-    fn parts(&mut self) -> (&mut CompiledSteps, &[f64]);
+    /// The constants after (q, qdot, t) as the step reads them: fixed for the
+    /// acceleration's life.
+    fn constants(&self) -> Vec<f64>;
 }
 
 /// One RK4 step of a simulation (see `SecondOrderSystem::compiled_rk4_step`): `state`'s q
 /// and qdot advanced by dt, the step's tape built on first use, once per constraint set or
 /// map into `tapes`. False, `state` untouched, when a pivot test failed.
+#[inline]
 pub(crate) fn compiled_rk4_step(
     fused: &mut impl CompiledAcceleration,
     tapes: &FusedTapes,
@@ -597,12 +618,12 @@ pub(crate) fn compiled_rk4_step(
 ) -> bool {
     if fused.steps().step.is_none() {
         let tolerance = fused.steps().tolerance;
-        let step = FusedStep::new(fused.layout(), tapes, None, tolerance);
+        let mut step = FusedStep::new(fused.layout(), tapes, None, tolerance);
+        step.load_one(&fused.constants());
         fused.steps().step = Some(Box::new(step));
     }
-    let (steps, constants) = fused.parts();
-    let step = steps.step.as_deref_mut().expect("built above");
-    step.step_one(state.t, dt, &mut state.q, &mut state.qdot, constants)
+    let step = fused.steps().step.as_deref_mut().expect("built above");
+    step.step_one(state.t, dt, &mut state.q, &mut state.qdot)
 }
 
 /// The RK4 step a formulation compiles from its fused acceleration (see
@@ -610,13 +631,13 @@ pub(crate) fn compiled_rk4_step(
 #[derive(Clone, Debug, Default)]
 pub(crate) struct CompiledSteps {
     step: Option<Box<FusedStep>>,
-    /// The Cholesky's relative pivot tolerance
+    /// The LDL^T's relative pivot tolerance
     tolerance: f64,
 }
 
 /// The parametric form's fused acceleration, for maps whose applied forces are constant
 /// (gravity and constant forces: F is folded in). Variables: q, qdot (n_q each), t.
-/// Outputs: x, xdot, h (n each), J (nnz), qddot (n_q), the Cholesky's diagonals and pivots.
+/// Outputs: x, xdot, h (n each), J (nnz), qddot (n_q), the LDL^T's diagonals and pivots.
 #[derive(Clone, Debug)]
 pub(crate) struct FusedParametric {
     tape: Tape,
@@ -682,7 +703,7 @@ fn parametric_tape(map: &ParametricMap) -> Option<Tape> {
     }
     let pattern = SymmetricPattern::dense(n_q);
     let mut dense = scatter(&b, &pattern, &matrix);
-    let pivots = cholesky_solve(&mut b, n_q, &mut dense, &mut rhs);
+    let pivots = ldlt_solve(&mut b, n_q, &mut dense, &mut rhs);
     let mut outputs = evaluation;
     outputs.extend(&rhs);
     outputs.extend(&pivots.diagonal);
@@ -694,7 +715,7 @@ impl FusedParametric {
     /// The fused acceleration of `system`'s parametric form when it applies (see
     /// [`parametric_tape`]) and every applied force is constant. `force` is F (any x, v: it
     /// does not depend on them), `mass` each coordinate's mass, `tolerance` the dense
-    /// Cholesky's relative pivot tolerance. The tape is built once per map.
+    /// LDL^T's relative pivot tolerance. The tape is built once per map.
     pub(crate) fn new(
         system: &System,
         force: &[f64],
@@ -812,8 +833,8 @@ impl CompiledAcceleration for FusedParametric {
         let (n, n_q) = (self.n, self.n_q);
         AccelerationTape::new(&self.tape, n_q, 2 * n, 3 * n + self.nnz, n_q)
     }
-    fn parts(&mut self) -> (&mut CompiledSteps, &[f64]) {
-        (&mut self.steps, &self.vars[2 * self.n_q + 1..])
+    fn constants(&self) -> Vec<f64> {
+        self.step_constants().to_vec()
     }
 }
 
@@ -830,7 +851,7 @@ mod tests {
 
     /// Two particles of unlike masses in 3D under gravity and a constant force, held by
     /// three expression rows (one moving), with a two-coordinate map: products by the
-    /// inverse masses, off-diagonal Cholesky entries and every buffer are exercised.
+    /// inverse masses, off-diagonal LDL^T entries and every buffer are exercised.
     const MIXED: &str = r#"
 [world]
 gravity = [0.3, 9.81, -1.7]

@@ -15,7 +15,7 @@
 //! row k. Cost per evaluation: the compiled map tape (the nonzeros of J, x, xdot and h), the
 //! sum over rows of (row length)^2 / 2 for M (n n_q^2 / 2 when every x_k depends on every q,
 //! about N^3 / 3 for a chain of N links in angles, against n n_q^2 / 2 = N^3 dense), and
-//! n_q^3 / 6 for the dense Cholesky solve.
+//! n_q^3 / 6 for the dense LDL^T solve.
 
 use std::sync::Arc;
 
@@ -25,7 +25,7 @@ use super::{
     Formulation, FormulationError, Gradients, Method, Nonconservation, Observation,
     SecondOrderSystem, SingularSearch, State, StepError, Subject,
 };
-use crate::linalg::{DenseCholesky, SymmetricPattern, SymmetricSolver};
+use crate::linalg::{DenseLdlt, SymmetricPattern, SymmetricSolver};
 use crate::model::{ConstraintEval, Force, ParametricEval, ParametricMap, System};
 
 /// Buffers of [`Parametric::accelerate_across_lanes`], sized on first use.
@@ -39,8 +39,8 @@ pub(crate) struct LaneScratch {
 /// The parametric (generalized-coordinate) formulation.
 pub struct Parametric {
     pub(crate) system: Arc<System>,
-    /// Dense Cholesky of M (n_q x n_q)
-    solver: DenseCholesky,
+    /// Dense LDL^T of M (n_q x n_q)
+    solver: DenseLdlt,
     pub(super) map: ParametricEval,
     /// F (n_coords)
     pub(super) force: Vec<f64>,
@@ -80,7 +80,7 @@ impl Parametric {
         // superset of the true one, so this errs on the safe side.
         let velocity_dependent =
             system.has_velocity_dependent_forces() || map.bias_depends_on_rates();
-        let solver = DenseCholesky::new(&SymmetricPattern::dense(n_q));
+        let solver = DenseLdlt::new(&SymmetricPattern::dense(n_q));
         let coordinate_mass: Vec<f64> = system
             .particles()
             .iter()
@@ -345,13 +345,13 @@ impl Parametric {
             }
         }
         self.solver.scatter_lanes::<L>(matrix, &mut scratch.dense);
-        crate::linalg::cholesky_lanes::<L>(
+        crate::linalg::ldlt_lanes::<L>(
             n_q,
             &mut scratch.dense,
             self.solver.relative_pivot_tolerance,
             failed,
         );
-        crate::linalg::cholesky_substitute_lanes::<L>(n_q, &scratch.dense, rhs);
+        crate::linalg::ldlt_substitute_lanes::<L>(n_q, &scratch.dense, rhs);
     }
 
     /// The map's evaluation (x, xdot, h, J at (t, q, qdot)) that

@@ -38,8 +38,11 @@ impl Rk4 {
     }
 }
 
-impl Integrator for Rk4 {
-    fn step(
+impl Rk4 {
+    /// The classic step stage by stage, through the system's acceleration (kept out of
+    /// [`Integrator::step`] so that a compiled step's call stays short).
+    #[inline(never)]
+    fn step_by_stages(
         &mut self,
         system: &mut dyn SecondOrderSystem,
         s: &mut State,
@@ -54,11 +57,6 @@ impl Integrator for Rk4 {
             let (q, qdot) = self.primed_state.split_at(n);
             t.to_bits() == s.t.to_bits() && same_bits(q, &s.q) && same_bits(qdot, &s.qdot)
         });
-        // The whole step as one compiled tape, where the system has one (the same bits).
-        if system.compiled_rk4_step(s, dt) {
-            s.t += dt;
-            return Ok(());
-        }
         v1.copy_from_slice(&s.qdot);
         if !primed {
             system.acceleration(s.t, &s.q, v1, a1)?;
@@ -79,6 +77,23 @@ impl Integrator for Rk4 {
         }
         s.t += dt;
         Ok(())
+    }
+}
+
+impl Integrator for Rk4 {
+    fn step(
+        &mut self,
+        system: &mut dyn SecondOrderSystem,
+        s: &mut State,
+        dt: f64,
+    ) -> Result<(), StepError> {
+        // The whole step as one compiled tape, where the system has one (the same bits).
+        if system.compiled_rk4_step(s, dt) {
+            self.primed = None;
+            s.t += dt;
+            return Ok(());
+        }
+        self.step_by_stages(system, s, dt)
     }
 
     fn prime(
@@ -110,7 +125,7 @@ impl Integrator for Rk4 {
 /// Where a system's acceleration tape keeps what a compiled step needs (see
 /// [`step_tape`]). The tape's variables are x (n), v (n), t, then `constants` values the
 /// system holds fixed over a step; its outputs include a (n) from `acceleration`, then the
-/// `rows` diagonals and the `rows` pivots of its Cholesky factorization.
+/// `rows` diagonals and the `rows` pivots of its LDL^T factorization.
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct AccelerationTape<'a> {
     pub(crate) tape: &'a Tape,
@@ -162,7 +177,8 @@ pub(crate) fn step_variables(t: f64, h: f64) -> [f64; 5] {
 /// ```
 ///
 /// Variables: q, qdot (n each), t, the constants, then [`step_variables`]. Outputs: q',
-/// qdot' (n each), then each stage's diagonals and pivots (2 rows each), then, with
+/// qdot' (n each), then the factorization's diagonals of the four stages (`rows` each),
+/// then their pivots in the same order (so that the test is one pass over two runs), then, with
 /// `observe` (a tape of variables q, qdot, t: what a run's monitors evaluate at a step's
 /// end), its outputs at (q', qdot', t + h).
 pub(crate) fn step_tape(accel: &AccelerationTape<'_>, observe: Option<&Tape>) -> Tape {
@@ -174,7 +190,8 @@ pub(crate) fn step_tape(accel: &AccelerationTape<'_>, observe: Option<&Tape>) ->
     let constants: Vec<Sym> = (0..accel.constants).map(|k| b.var(2 * n + 1 + k)).collect();
     let after = 2 * n + 1 + accel.constants;
     let [t_half, t_full, half, h, sixth] = std::array::from_fn(|i| b.var(after + i));
-    let mut pivots = Vec::with_capacity(8 * accel.rows);
+    let mut diagonals = Vec::with_capacity(4 * accel.rows);
+    let mut pivots = Vec::with_capacity(4 * accel.rows);
     let mut stage = |b: &mut TapeBuilder, x: &[Sym], v: &[Sym], t: Sym| -> Vec<Sym> {
         let vars: Vec<Sym> = x
             .iter()
@@ -185,7 +202,8 @@ pub(crate) fn step_tape(accel: &AccelerationTape<'_>, observe: Option<&Tape>) ->
             .collect();
         let out = b.append_with(accel.tape, &vars);
         let at = accel.pivots();
-        pivots.extend_from_slice(&out[at..at + 2 * accel.rows]);
+        diagonals.extend_from_slice(&out[at..at + accel.rows]);
+        pivots.extend_from_slice(&out[at + accel.rows..at + 2 * accel.rows]);
         out[accel.acceleration..accel.acceleration + n].to_vec()
     };
     // y = x + c z (`axpy_into`).
@@ -223,6 +241,7 @@ pub(crate) fn step_tape(accel: &AccelerationTape<'_>, observe: Option<&Tape>) ->
     };
     let mut outputs = update(&mut b, &q, [&v1, &v2, &v3, &v4]);
     outputs.extend(update(&mut b, &qdot, [&a1, &a2, &a3, &a4]));
+    outputs.extend(diagonals);
     outputs.extend(pivots);
     if let Some(observe) = observe {
         let end: Vec<Sym> = outputs[..2 * n].iter().chain([&t_full]).copied().collect();

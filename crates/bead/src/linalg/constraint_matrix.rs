@@ -240,7 +240,7 @@ impl ConstraintMatrix {
     /// [`ConstraintMatrix::assemble`] for L members at once (structure of arrays: entry e of
     /// member l at `jacobian[e * L + l]`), then A scattered into dense m x m matrices
     /// (`dense[(i * m + j) * L + l]`, lower triangle, zero elsewhere) as
-    /// [`super::DenseCholesky`] does before factoring: the same arithmetic per member.
+    /// [`super::DenseLdlt`] does before factoring: the same arithmetic per member.
     pub(crate) fn assemble_dense_lanes<const L: usize>(
         &self,
         jacobian: &[f64],

@@ -4,7 +4,7 @@
 //! - [`SymmetricPattern`]: the nonzero pattern of a symmetric matrix (upper triangle by
 //!   columns), fixed when a formulation is built; values live in a flat array in its order.
 //! - [`SymmetricSolver`]: factor a matrix given by those values, then solve with the factor
-//!   as many right-hand sides as needed. [`DenseCholesky`] for small systems, [`SparseLdlt`]
+//!   as many right-hand sides as needed. [`DenseLdlt`] for small systems, [`SparseLdlt`]
 //!   (faer's sparse LDL^T, symbolic analysis once, numeric factorization allocation-free) for
 //!   large ones, [`PathLdlt`] (the Thomas algorithm) for large ones whose rows couple in
 //!   paths (chains, ropes); [`symmetric_solver`] picks one ([`LinearSolver`]).
@@ -18,8 +18,8 @@ mod pattern;
 mod sparse;
 
 pub use constraint_matrix::{ConstraintMatrix, RowStructure};
-pub use dense::{cholesky_in_place, cholesky_substitute, dense_solve, DenseCholesky};
-pub(crate) use dense::{cholesky_lanes, cholesky_substitute_lanes};
+pub use dense::{dense_solve, ldlt_in_place, ldlt_substitute, DenseLdlt};
+pub(crate) use dense::{ldlt_lanes, ldlt_substitute_lanes};
 pub use path::{PathLdlt, PathOrder};
 pub use pattern::SymmetricPattern;
 pub use sparse::{Ordering, SparseLdlt, SparseOptions};
@@ -53,7 +53,7 @@ pub struct Singular {
 }
 
 /// Pivots of a symmetric positive-definite factorization below this fraction of the original
-/// diagonal count as zero (see [`cholesky_in_place`]).
+/// diagonal count as zero (see [`ldlt_in_place`]).
 pub const RELATIVE_PIVOT_TOLERANCE: f64 = 1e-10;
 
 /// Factor a symmetric positive-definite matrix A given by its values in the order of a
@@ -73,7 +73,7 @@ pub trait SymmetricSolver: Send {
     fn path(&self) -> Option<&PathOrder> {
         None
     }
-    /// The pivot tolerance of a dense Cholesky factorization ([`DenseCholesky`]), which an
+    /// The pivot tolerance of a dense LDL^T factorization ([`DenseLdlt`]), which an
     /// ensemble can then run for many members at once with the same arithmetic; `None` for
     /// the other solvers.
     fn dense_pivot_tolerance(&self) -> Option<f64> {
@@ -88,7 +88,7 @@ pub enum LinearSolver {
     /// paths, else [`SparseLdlt`].
     #[default]
     Auto,
-    /// [`DenseCholesky`] whatever the size: O(m^2) memory, O(m^3) time.
+    /// [`DenseLdlt`] whatever the size: O(m^2) memory, O(m^3) time.
     Dense,
     /// [`SparseLdlt`] with its automatic ordering, whatever the size.
     Sparse,
@@ -107,8 +107,8 @@ pub fn symmetric_solver(
 ) -> Box<dyn SymmetricSolver> {
     let small = pattern.dim() <= DENSE_MAX_ROWS;
     match kind {
-        LinearSolver::Dense => return Box::new(DenseCholesky::new(pattern)),
-        LinearSolver::Auto if small => return Box::new(DenseCholesky::new(pattern)),
+        LinearSolver::Dense => return Box::new(DenseLdlt::new(pattern)),
+        LinearSolver::Auto if small => return Box::new(DenseLdlt::new(pattern)),
         LinearSolver::Auto | LinearSolver::Tridiagonal => {
             if let Some(path) = PathLdlt::new(pattern) {
                 return Box::new(path);
@@ -226,10 +226,10 @@ pub fn gauss_newton_zero(
         for a in 0..k {
             normal[a * k + a] += 1e-12 * trace;
         }
-        if cholesky_in_place(k, &mut normal, 0.0).is_err() {
+        if ldlt_in_place(k, &mut normal, 0.0).is_err() {
             break;
         }
-        cholesky_substitute(k, &normal, &mut rhs);
+        ldlt_substitute(k, &normal, &mut rhs);
         for ((t, y), step) in trial.iter_mut().zip(y.iter()).zip(&rhs) {
             *t = y - step;
         }

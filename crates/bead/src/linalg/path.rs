@@ -180,7 +180,7 @@ impl PathOrder {
 /// P A P^T = L D L^T with L unit lower bidiagonal (see the module documentation). O(m)
 /// memory and time; neither `factor` nor `solve_in_place` allocates.
 ///
-/// Pivot test as [`super::DenseCholesky`]'s: d_p not above [`RELATIVE_PIVOT_TOLERANCE`] times
+/// Pivot test as [`super::DenseLdlt`]'s: d_p not above [`RELATIVE_PIVOT_TOLERANCE`] times
 /// A's diagonal entry of the same row (or not finite) is [`Singular`] for that row.
 ///
 /// ```

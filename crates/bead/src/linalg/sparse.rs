@@ -42,11 +42,10 @@ pub struct SparseOptions {
 /// sized then and [`SymmetricSolver::solve_in_place`] solves with them, neither allocating.
 /// O(nnz(L)) memory and, for a chain or a tree in parent-first order, O(m) time.
 ///
-/// Pivot test as [`super::DenseCholesky`]'s: pivot k of the elimination, d_k = D_kk, fails when
+/// Pivot test as [`super::DenseLdlt`]'s: pivot k of the elimination, d_k = D_kk, fails when
 /// it is not above [`RELATIVE_PIVOT_TOLERANCE`] times A's diagonal entry of the same row; the
-/// first failing pivot in elimination order names its row of A through the permutation. (LDL^T
-/// computes the same d_k as Cholesky's squared pivot, but does not stop at a small or
-/// negative one; faer stops only at an exactly zero or non-finite one. Exact zeros are turned
+/// first failing pivot in elimination order names its row of A through the permutation. (faer
+/// does not stop at a small or negative pivot; it stops only at an exactly zero or non-finite one. Exact zeros are turned
 /// into the smallest positive number by faer's regularization, so that they fail the relative
 /// test here and count as a dependent row; a non-finite pivot is reported as not finite.)
 pub struct SparseLdlt {
@@ -239,7 +238,7 @@ impl SymmetricSolver for SparseLdlt {
 
 #[cfg(test)]
 mod tests {
-    use super::super::{DenseCholesky, SymmetricPattern, SymmetricSolver};
+    use super::super::{DenseLdlt, SymmetricPattern, SymmetricSolver};
     use super::*;
 
     /// Every ordering and layout the options allow.
@@ -296,11 +295,11 @@ mod tests {
     }
 
     #[test]
-    fn agrees_with_the_dense_cholesky_in_every_ordering_and_layout() {
+    fn agrees_with_the_dense_ldlt_in_every_ordering_and_layout() {
         let m = 40;
         let (pattern, values) = random_spd(m, 7);
         let rhs: Vec<f64> = (0..m).map(|i| (i as f64).sin()).collect();
-        let mut dense = DenseCholesky::new(&pattern);
+        let mut dense = DenseLdlt::new(&pattern);
         dense.factor(&values).unwrap();
         let mut expected = rhs.clone();
         dense.solve_in_place(&mut expected);

@@ -642,8 +642,8 @@ fn implicit_across_lanes(
                     -bias[at] - jwf - feedback.ks * value[at] - feedback.kd * velocity[at];
             }
         }
-        crate::linalg::cholesky_lanes::<LANES>(m, &mut lanes.dense, tolerance, failed);
-        crate::linalg::cholesky_substitute_lanes::<LANES>(m, &lanes.dense, &mut lanes.lambda);
+        crate::linalg::ldlt_lanes::<LANES>(m, &mut lanes.dense, tolerance, failed);
+        crate::linalg::ldlt_substitute_lanes::<LANES>(m, &lanes.dense, &mut lanes.lambda);
         // F += J^T lambda.
         for i in 0..m {
             let columns = set.row_columns(i);
