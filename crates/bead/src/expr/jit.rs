@@ -4,14 +4,16 @@
 //! functions per tape, of one signature:
 //!
 //! ```text
-//! extern "C" fn(vars: *const f64, consts: *const f64, out: *mut f64, lanes: usize)
+//! extern "C" fn(vars: *const f64, consts: *const f64, out: *mut f64)
 //! ```
 //!
-//! The first loops over `lanes` members laid out as [`super::Tape::eval_lanes`] lays them out
-//! (slot k of lane l at `k * lanes + l`); the scalar evaluation is the one-lane call. The
-//! second takes two lanes per iteration in `f64x2` vectors (for an even lane count: an
-//! ensemble's 16 lanes), each packed IEEE operation rounding each lane as the scalar one does,
-//! function calls made lane by lane. Each SSA instruction becomes one Cranelift value (kept in
+//! The first evaluates one set of variables (the scalar evaluation, a single run's step); the
+//! second [`VECTOR_LANES`] members laid out as [`super::Tape::eval_lanes`] lays them out (slot
+//! k of lane l at `k * VECTOR_LANES + l`: a sweep's blocks), two lanes per iteration in
+//! `f64x2` vectors, each packed IEEE operation rounding each lane as the scalar one does,
+//! function calls made lane by lane. Both lane counts are fixed when compiling, so that every
+//! variable and output is addressed by an immediate offset (no address arithmetic per slot);
+//! other lane counts are interpreted (the same bits). Each SSA instruction becomes one Cranelift value (kept in
 //! registers, spilled by the register allocator when needed): no scratch array. The constants
 //! are not baked into the code but read from `consts` (the tape's constants in instruction
 //! order, exact bits), so that tapes that differ only by their constants — a sweep's members,
@@ -226,11 +228,14 @@ pub fn with_forced_jit_failure<R>(f: impl FnOnce() -> R) -> R {
 // ---------------------------------------------------------------------------------------------
 // Compiled code
 
-type TapeFn = unsafe extern "C" fn(*const f64, *const f64, *mut f64, usize);
+type TapeFn = unsafe extern "C" fn(*const f64, *const f64, *mut f64);
+
+/// The lane count of the vector machine code (the sweep's blocks: `simulate::lanes::LANES`).
+pub const VECTOR_LANES: usize = 16;
 
 /// One tape's machine code, freed when the last tape holding it is dropped.
 pub(super) struct Native {
-    /// The lane loop one lane at a time, and two at a time (`f64x2`; for an even count)
+    /// One lane, and [`VECTOR_LANES`] lanes two at a time (`f64x2`)
     func: TapeFn,
     func_x2: TapeFn,
     /// What the code reads and writes: one more than the largest variable slot, the number
@@ -251,36 +256,35 @@ impl std::fmt::Debug for Native {
 }
 
 impl Native {
-    /// Run the code over `lanes` lanes: `vars` holds at least `n_vars * lanes` values (slot k
-    /// of lane l at `k * lanes + l`), `out` exactly `n_outputs * lanes`, `consts` the
-    /// constants ([`constants`]) of a tape of the shape this code was compiled for.
+    /// Whether the code evaluates `lanes` lanes at once (1 or [`VECTOR_LANES`]).
+    #[inline]
+    pub(super) fn runs(lanes: usize) -> bool {
+        lanes == 1 || lanes == VECTOR_LANES
+    }
+
+    /// Run the code over `lanes` lanes (see [`Self::runs`]): `vars` holds at least `n_vars *
+    /// lanes` values (slot k of lane l at `k * lanes + l`), `out` exactly `n_outputs *
+    /// lanes`, `consts` the constants ([`constants`]) of a tape of the shape this code was
+    /// compiled for.
     ///
     /// # Panics
     /// If a length does not match what the code was compiled for.
     #[inline]
     pub(super) fn run(&self, vars: &[f64], consts: &[f64], out: &mut [f64], lanes: usize) {
         assert!(
-            vars.len() >= self.n_vars * lanes
+            Self::runs(lanes)
+                && vars.len() >= self.n_vars * lanes
                 && out.len() == self.n_outputs * lanes
                 && consts.len() == self.n_consts,
             "machine code called with the wrong lengths"
         );
-        if lanes == 0 {
-            return;
-        }
-        // Two lanes per iteration when they pair up.
-        let func = if lanes.is_multiple_of(2) {
-            self.func_x2
-        } else {
-            self.func
-        };
+        let func = if lanes == 1 { self.func } else { self.func_x2 };
         // SAFETY: the code reads variable slots `< n_vars` of `lanes` lanes, constants
         // `< n_consts`, and writes `n_outputs` outputs of `lanes` lanes (all checked above),
-        // and runs its lane loop at least once, which `lanes >= 1` makes right (`func_x2`
-        // steps by two lanes and is called for an even count only).
+        // for the lane count it was compiled for (`func`: 1, `func_x2`: VECTOR_LANES).
         #[allow(unsafe_code)]
         unsafe {
-            func(vars.as_ptr(), consts.as_ptr(), out.as_mut_ptr(), lanes)
+            func(vars.as_ptr(), consts.as_ptr(), out.as_mut_ptr())
         }
     }
 }
@@ -525,7 +529,7 @@ mod codegen {
         ));
         let ptr = module.target_config().pointer_type();
         let mut sig = module.make_signature();
-        for _ in 0..4 {
+        for _ in 0..3 {
             sig.params.push(AbiParam::new(ptr));
         }
         let mut ids = Vec::new();
@@ -555,7 +559,7 @@ mod codegen {
         module
             .finalize_definitions()
             .map_err(|e| format!("Cranelift: {e}"))?;
-        // SAFETY: both functions were declared with this signature (four pointer-sized
+        // SAFETY: both functions were declared with this signature (three pointer-sized
         // integer parameters, no result) in the host's default calling convention, which is
         // the C one on every host Cranelift supports.
         #[allow(unsafe_code)]
@@ -574,10 +578,11 @@ mod codegen {
         })
     }
 
-    /// The function's body: a loop over the lanes, `width` lanes per iteration (1: scalar
-    /// `f64`; 2: `f64x2`, each IEEE operation on both lanes at once, which rounds each lane as
-    /// the scalar operation does; calls are made lane by lane). Returns the number of
-    /// constants read.
+    /// The function's body: for `width` 1 one lane in scalar `f64`; for `width` 2 a loop over
+    /// [`VECTOR_LANES`] lanes, two per iteration in `f64x2` (each IEEE operation on both lanes
+    /// at once, which rounds each lane as the scalar operation does; calls are made lane by
+    /// lane). Slot k of the lane is at byte `8 k lanes` from the lane's first: an immediate
+    /// offset. Returns the number of constants read.
     fn body(
         mut b: FunctionBuilder,
         code: &[Instr],
@@ -605,17 +610,28 @@ mod codegen {
         let exit = b.create_block();
 
         b.switch_to_block(entry);
-        let &[vars, consts, out, lanes] = b.block_params(entry) else {
+        let &[vars, consts, out] = b.block_params(entry) else {
             return Err("Cranelift: unexpected parameters".into());
         };
-        // Bytes between consecutive slots of one lane.
-        let stride = b.ins().ishl_imm_u(lanes, 3);
+        let lanes: i64 = if width == 1 {
+            1
+        } else {
+            super::VECTOR_LANES as i64
+        };
+        // Bytes between consecutive slots of one lane, and the offset of slot k.
+        let stride = 8 * lanes;
+        let offset_of = |k: i64| {
+            i32::try_from(k * stride).map_err(|_| "too many slots for one function".to_string())
+        };
         let zero = b.ins().iconst(ptr, 0);
         b.ins().jump(body, &[zero.into()]);
 
         b.switch_to_block(body);
-        let vars_l = b.ins().iadd(vars, lane);
-        let out_l = b.ins().iadd(out, lane);
+        let (vars_l, out_l) = if width == 1 {
+            (vars, out)
+        } else {
+            (b.ins().iadd(vars, lane), b.ins().iadd(out, lane))
+        };
         // Lanes are 8-byte aligned only: no alignment promised for f64x2.
         let flags = if width == 1 {
             MemFlagsData::trusted()
@@ -645,28 +661,16 @@ mod codegen {
                 b.ins().splat(ty, c)
             }
         };
-        let load_deferred = |b: &mut FunctionBuilder, what: Deferred| -> Value {
-            match what {
-                Deferred::Var(k) => {
-                    let addr = if k == 0 {
-                        vars_l
-                    } else {
-                        let off = b.ins().imul_imm_u(stride, i64::from(k));
-                        b.ins().iadd(vars_l, off)
-                    };
-                    b.ins().load(ty, flags, addr, 0)
-                }
+        let load_deferred = |b: &mut FunctionBuilder, what: Deferred| -> Result<Value, String> {
+            Ok(match what {
+                Deferred::Var(k) => b.ins().load(ty, flags, vars_l, offset_of(i64::from(k))?),
                 Deferred::Const(offset) => load_const(b, offset, true),
-            }
+            })
         };
-        let store = |b: &mut FunctionBuilder, value: Value, j: usize| {
-            let addr = if j == 0 {
-                out_l
-            } else {
-                let off = b.ins().imul_imm_u(stride, j as i64);
-                b.ins().iadd(out_l, off)
-            };
-            b.ins().store(flags, value, addr, 0);
+        let store = |b: &mut FunctionBuilder, value: Value, j: usize| -> Result<(), String> {
+            let offset = offset_of(i64::try_from(j).map_err(|e| e.to_string())?)?;
+            b.ins().store(flags, value, out_l, offset);
+            Ok(())
         };
         // f(args) of every lane: one call per lane, the results put back together.
         let call = |b: &mut FunctionBuilder, sig: SigRef, f: usize, args: &[Value]| {
@@ -717,7 +721,7 @@ mod codegen {
                 let s = s as usize;
                 if v[s].is_none() {
                     let what = deferred[s].expect("a slot is computed before it is read");
-                    v[s] = Some(load_deferred(&mut b, what));
+                    v[s] = Some(load_deferred(&mut b, what)?);
                 }
             }
             let get = |s: u32| v[s as usize].expect("loaded above");
@@ -812,19 +816,23 @@ mod codegen {
             };
             v.push(Some(val));
             for &j in &stored_as[index] {
-                store(&mut b, val, j);
+                store(&mut b, val, j)?;
             }
         }
         // Outputs that are a variable or a constant slot themselves.
         for (j, &s) in outputs.iter().enumerate() {
             if let Some(what) = deferred[s as usize] {
-                let value = load_deferred(&mut b, what);
-                store(&mut b, value, j);
+                let value = load_deferred(&mut b, what)?;
+                store(&mut b, value, j)?;
             }
         }
-        let next = b.ins().iadd_imm_u(lane, 8 * width);
-        let more = b.ins().icmp(IntCC::UnsignedLessThan, next, stride);
-        b.ins().brif(more, body, &[next.into()], exit, &[]);
+        if width == 1 {
+            b.ins().jump(exit, &[]);
+        } else {
+            let next = b.ins().iadd_imm_u(lane, 8 * width);
+            let more = b.ins().icmp_imm_u(IntCC::UnsignedLessThan, next, stride);
+            b.ins().brif(more, body, &[next.into()], exit, &[]);
+        }
         b.switch_to_block(exit);
         b.ins().return_(&[]);
         b.seal_all_blocks();

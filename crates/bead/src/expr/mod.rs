@@ -43,7 +43,7 @@ pub use ast::{Expr, Func};
 pub(crate) use diff::gradients;
 pub use jit::{
     jit_enabled, set_jit_enabled, with_forced_jit_failure, with_jit, NativeStatus, NativeSummary,
-    MAX_NATIVE_INSTRUCTIONS,
+    MAX_NATIVE_INSTRUCTIONS, VECTOR_LANES,
 };
 pub use mathml::escape as mathml_escape;
 pub use parse::{is_identifier, name_spans, parse, ExprError, Resolved, Span, MAX_DEPTH};

@@ -534,13 +534,14 @@ impl Tape {
     #[inline]
     pub fn eval_lanes<const L: usize>(&self, vars: &[f64], scratch: &mut [f64], out: &mut [f64]) {
         match &self.native {
-            Some(code) => {
+            // Machine code for one lane and for the sweep's blocks; other counts interpreted.
+            Some(code) if jit::Native::runs(L) => {
                 // The same requirements as the interpreter's, the scratch the code does
                 // not use included.
                 self.check_lengths::<L>(vars, scratch, out);
                 code.run(vars, &self.consts, out, L);
             }
-            None => self.interpret::<L>(vars, scratch, out),
+            _ => self.interpret::<L>(vars, scratch, out),
         }
     }
 

@@ -41,8 +41,8 @@ use crate::integrate::IntegratorKind;
 use crate::model::System;
 
 /// Members stepped together: the tapes' instructions are interpreted once per this many
-/// evaluations.
-pub(crate) const LANES: usize = 16;
+/// evaluations, and their machine code is compiled for this many lanes.
+pub(crate) const LANES: usize = crate::expr::VECTOR_LANES;
 
 /// What became of a member given to [`run_lanes`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
