@@ -1,7 +1,7 @@
 //! Machine code for tapes, with Cranelift.
 //!
-//! [`super::Tape::compile`] hands its instructions to [`compile`], which emits two native
-//! functions per tape, of one signature:
+//! [`super::Tape::compile`] hands its instructions to [`compile`], which emits up to two
+//! native functions per tape, of one signature:
 //!
 //! ```text
 //! extern "C" fn(vars: *const f64, consts: *const f64, out: *mut f64)
@@ -13,7 +13,9 @@
 //! `f64x2` vectors, each packed IEEE operation rounding each lane as the scalar one does,
 //! function calls made lane by lane. Both lane counts are fixed when compiling, so that every
 //! variable and output is addressed by an immediate offset (no address arithmetic per slot);
-//! other lane counts are interpreted (the same bits). Each SSA instruction becomes one Cranelift value (kept in
+//! other lane counts are interpreted (the same bits). The first is compiled with the tape
+//! (its time is the tape's compile time); the second on its first use (a sweep's first
+//! block), so that a single run, which never evaluates lanes, does not pay for it. Each SSA instruction becomes one Cranelift value (kept in
 //! registers, spilled by the register allocator when needed): no scratch array. The constants
 //! are not baked into the code but read from `consts` (the tape's constants in instruction
 //! order, exact bits), so that tapes that differ only by their constants — a sweep's members,
@@ -233,63 +235,16 @@ type TapeFn = unsafe extern "C" fn(*const f64, *const f64, *mut f64);
 /// The lane count of the vector machine code (the sweep's blocks: `simulate::lanes::LANES`).
 pub const VECTOR_LANES: usize = 16;
 
-/// One tape's machine code, freed when the last tape holding it is dropped.
-pub(super) struct Native {
-    /// One lane, and [`VECTOR_LANES`] lanes two at a time (`f64x2`)
+/// One compiled function and the module that owns its memory, freed with it.
+pub(super) struct Code {
     func: TapeFn,
-    func_x2: TapeFn,
-    /// What the code reads and writes: one more than the largest variable slot, the number
-    /// of constants and outputs.
-    n_vars: usize,
-    n_consts: usize,
-    n_outputs: usize,
     /// Owns the code's memory. Behind a mutex only to be `Sync`: it is never used after
     /// compiling except to free the memory.
     #[cfg(not(target_arch = "wasm32"))]
     module: Mutex<Option<cranelift_jit::JITModule>>,
 }
 
-impl std::fmt::Debug for Native {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str("Native")
-    }
-}
-
-impl Native {
-    /// Whether the code evaluates `lanes` lanes at once (1 or [`VECTOR_LANES`]).
-    #[inline]
-    pub(super) fn runs(lanes: usize) -> bool {
-        lanes == 1 || lanes == VECTOR_LANES
-    }
-
-    /// Run the code over `lanes` lanes (see [`Self::runs`]): `vars` holds at least `n_vars *
-    /// lanes` values (slot k of lane l at `k * lanes + l`), `out` exactly `n_outputs *
-    /// lanes`, `consts` the constants ([`constants`]) of a tape of the shape this code was
-    /// compiled for.
-    ///
-    /// # Panics
-    /// If a length does not match what the code was compiled for.
-    #[inline]
-    pub(super) fn run(&self, vars: &[f64], consts: &[f64], out: &mut [f64], lanes: usize) {
-        assert!(
-            Self::runs(lanes)
-                && vars.len() >= self.n_vars * lanes
-                && out.len() == self.n_outputs * lanes
-                && consts.len() == self.n_consts,
-            "machine code called with the wrong lengths"
-        );
-        let func = if lanes == 1 { self.func } else { self.func_x2 };
-        // SAFETY: the code reads variable slots `< n_vars` of `lanes` lanes, constants
-        // `< n_consts`, and writes `n_outputs` outputs of `lanes` lanes (all checked above),
-        // for the lane count it was compiled for (`func`: 1, `func_x2`: VECTOR_LANES).
-        #[allow(unsafe_code)]
-        unsafe {
-            func(vars.as_ptr(), consts.as_ptr(), out.as_mut_ptr())
-        }
-    }
-}
-
-impl Drop for Native {
+impl Drop for Code {
     fn drop(&mut self) {
         #[cfg(not(target_arch = "wasm32"))]
         if let Some(module) = self
@@ -305,6 +260,93 @@ impl Drop for Native {
                 module.free_memory()
             };
         }
+    }
+}
+
+/// One tape's machine code, freed when the last tape holding it is dropped.
+pub(super) struct Native {
+    /// One lane
+    scalar: Code,
+    /// [`VECTOR_LANES`] lanes two at a time (`f64x2`), compiled on first use (a sweep's
+    /// first block), so that a single run never pays for it; `None` if that compile failed
+    /// (the lanes are then interpreted, with the same bits).
+    vector: OnceLock<Option<Code>>,
+    /// What the vector function is compiled from.
+    code: Box<[Instr]>,
+    outputs: Box<[u32]>,
+    /// What the code reads and writes: one more than the largest variable slot, the number
+    /// of constants and outputs.
+    n_vars: usize,
+    n_consts: usize,
+    n_outputs: usize,
+}
+
+impl std::fmt::Debug for Native {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("Native")
+    }
+}
+
+impl Native {
+    /// Whether the code can evaluate `lanes` lanes at once (1 or [`VECTOR_LANES`]).
+    #[inline]
+    pub(super) fn runs(lanes: usize) -> bool {
+        lanes == 1 || lanes == VECTOR_LANES
+    }
+
+    /// Run the code over `lanes` lanes (see [`Self::runs`]): `vars` holds at least `n_vars *
+    /// lanes` values (slot k of lane l at `k * lanes + l`), `out` exactly `n_outputs *
+    /// lanes`, `consts` the constants ([`constants`]) of a tape of the shape this code was
+    /// compiled for. False, nothing written, when there is no code for that many lanes
+    /// (the vector function failed to compile): the caller interprets.
+    ///
+    /// # Panics
+    /// If a length does not match what the code was compiled for.
+    #[inline]
+    pub(super) fn run(&self, vars: &[f64], consts: &[f64], out: &mut [f64], lanes: usize) -> bool {
+        assert!(
+            Self::runs(lanes)
+                && vars.len() >= self.n_vars * lanes
+                && out.len() == self.n_outputs * lanes
+                && consts.len() == self.n_consts,
+            "machine code called with the wrong lengths"
+        );
+        let func = if lanes == 1 {
+            self.scalar.func
+        } else {
+            match self.vector() {
+                Some(code) => code.func,
+                None => return false,
+            }
+        };
+        // SAFETY: the code reads variable slots `< n_vars` of `lanes` lanes, constants
+        // `< n_consts`, and writes `n_outputs` outputs of `lanes` lanes (all checked above),
+        // for the lane count it was compiled for (`scalar`: 1, `vector`: VECTOR_LANES).
+        #[allow(unsafe_code)]
+        unsafe {
+            func(vars.as_ptr(), consts.as_ptr(), out.as_mut_ptr())
+        };
+        true
+    }
+
+    /// The vector function, compiled the first time it is asked for.
+    #[cold]
+    #[inline(never)]
+    fn compile_vector(&self) -> Option<Code> {
+        codegen::build(&self.code, &self.outputs, 2).ok()
+    }
+
+    /// Whether the vector function has been asked for (compiled or failed).
+    #[cfg(test)]
+    pub(super) fn vector_asked_for(&self) -> bool {
+        self.vector.get().is_some()
+    }
+
+    #[inline]
+    fn vector(&self) -> Option<&Code> {
+        self.vector
+            .get_or_init(|| self.compile_vector())
+            .as_ref()
     }
 }
 
@@ -389,9 +431,17 @@ pub(super) fn compile(code: &[Instr], outputs: &[u32]) -> (Option<Arc<Native>>, 
             },
         );
     }
-    match codegen::build(code, outputs) {
-        Ok(native) => {
-            let native = Arc::new(native);
+    match codegen::build(code, outputs, 1) {
+        Ok(scalar) => {
+            let native = Arc::new(Native {
+                scalar,
+                vector: OnceLock::new(),
+                code: code.into(),
+                outputs: outputs.into(),
+                n_vars: super::tape::n_vars(code),
+                n_consts: constants(code).len(),
+                n_outputs: outputs.len(),
+            });
             keep_recent(&native);
             let mut map = cache().lock().unwrap_or_else(PoisonError::into_inner);
             if map.len() >= 256 && map.len().is_power_of_two() {
@@ -412,8 +462,8 @@ pub(super) fn compile(code: &[Instr], outputs: &[u32]) -> (Option<Arc<Native>>, 
 
 #[cfg(target_arch = "wasm32")]
 mod codegen {
-    use super::{Instr, Native};
-    pub(super) fn build(_: &[Instr], _: &[u32]) -> Result<Native, String> {
+    use super::{Code, Instr};
+    pub(super) fn build(_: &[Instr], _: &[u32], _: i64) -> Result<Code, String> {
         Err("no machine code on wasm32 (the interpreter evaluates the tapes)".into())
     }
 }
@@ -432,7 +482,7 @@ mod codegen {
     use cranelift_jit::{JITBuilder, JITModule};
     use cranelift_module::{Linkage, Module};
 
-    use super::{Instr, Native, TapeFn};
+    use super::{Code, Instr, TapeFn};
     use crate::expr::ast::sign_f64;
 
     /// A slot loaded where it is first used: variable k, or the constant at this byte offset.
@@ -521,7 +571,9 @@ mod codegen {
         .clone()
     }
 
-    pub(super) fn build(code: &[Instr], outputs: &[u32]) -> Result<Native, String> {
+    /// The function of `code` for `width` lanes per iteration (1: one lane; 2: the
+    /// [`super::VECTOR_LANES`] lanes in pairs, see [`body`]).
+    pub(super) fn build(code: &[Instr], outputs: &[u32], width: i64) -> Result<Code, String> {
         let isa = host_isa()?;
         let mut module = JITModule::new(JITBuilder::with_isa(
             isa,
@@ -532,48 +584,39 @@ mod codegen {
         for _ in 0..3 {
             sig.params.push(AbiParam::new(ptr));
         }
-        let mut ids = Vec::new();
-        let mut n_consts = 0;
-        for (width, name) in [(1, "tape"), (2, "tape_x2")] {
-            let id = module
-                .declare_function(name, Linkage::Local, &sig)
-                .map_err(|e| format!("Cranelift: {e}"))?;
-            let mut ctx = module.make_context();
-            ctx.func.signature = sig.clone();
-            ctx.func.name = UserFuncName::user(0, id.as_u32());
-            let mut fctx = FunctionBuilderContext::new();
-            n_consts = body(
-                FunctionBuilder::new(&mut ctx.func, &mut fctx),
-                code,
-                outputs,
-                width,
-                ptr,
-                module.target_config(),
-            )?;
-            module
-                .define_function(id, &mut ctx)
-                .map_err(|e| format!("Cranelift: {e:?}"))?;
-            module.clear_context(&mut ctx);
-            ids.push(id);
-        }
+        let name = if width == 1 { "tape" } else { "tape_x2" };
+        let id = module
+            .declare_function(name, Linkage::Local, &sig)
+            .map_err(|e| format!("Cranelift: {e}"))?;
+        let mut ctx = module.make_context();
+        ctx.func.signature = sig;
+        ctx.func.name = UserFuncName::user(0, id.as_u32());
+        let mut fctx = FunctionBuilderContext::new();
+        let n_consts = body(
+            FunctionBuilder::new(&mut ctx.func, &mut fctx),
+            code,
+            outputs,
+            width,
+            ptr,
+            module.target_config(),
+        )?;
+        debug_assert_eq!(n_consts, super::constants(code).len());
+        module
+            .define_function(id, &mut ctx)
+            .map_err(|e| format!("Cranelift: {e:?}"))?;
+        module.clear_context(&mut ctx);
         module
             .finalize_definitions()
             .map_err(|e| format!("Cranelift: {e}"))?;
-        // SAFETY: both functions were declared with this signature (three pointer-sized
-        // integer parameters, no result) in the host's default calling convention, which is
-        // the C one on every host Cranelift supports.
+        // SAFETY: the function was declared with this signature (three pointer-sized integer
+        // parameters, no result) in the host's default calling convention, which is the C
+        // one on every host Cranelift supports.
         #[allow(unsafe_code)]
-        let function = |id| unsafe {
+        let func = unsafe {
             std::mem::transmute::<*const u8, TapeFn>(module.get_finalized_function(id))
         };
-        let (func, func_x2) = (function(ids[0]), function(ids[1]));
-        let n_vars = crate::expr::tape::n_vars(code);
-        Ok(Native {
+        Ok(Code {
             func,
-            func_x2,
-            n_vars,
-            n_consts,
-            n_outputs: outputs.len(),
             module: Mutex::new(Some(module)),
         })
     }

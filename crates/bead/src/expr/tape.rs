@@ -539,7 +539,9 @@ impl Tape {
                 // The same requirements as the interpreter's, the scratch the code does
                 // not use included.
                 self.check_lengths::<L>(vars, scratch, out);
-                code.run(vars, &self.consts, out, L);
+                if !code.run(vars, &self.consts, out, L) {
+                    self.interpret::<L>(vars, scratch, out);
+                }
             }
             _ => self.interpret::<L>(vars, scratch, out),
         }
@@ -1105,6 +1107,25 @@ mod tests {
     fn too_few_variables_panics() {
         let t = Tape::compile(&[Expr::var(2)]);
         run(&t, &[0.0, 0.0]);
+    }
+
+    #[test]
+    fn vector_machine_code_is_compiled_on_first_use() {
+        let t = Tape::compile(&[p("x * y + 1")]);
+        let Some(native) = &t.native else {
+            return; // no machine code on this host or with BEAD_JIT=0
+        };
+        // A single evaluation does not compile the vector function.
+        let mut scratch = vec![0.0; t.n_slots() * 16];
+        t.eval(&[2.0, 3.0], &mut scratch, &mut [0.0]);
+        assert!(!native.vector_asked_for());
+        let vars: Vec<f64> = (0..32).map(f64::from).collect();
+        let mut out = [0.0; 16];
+        t.eval_lanes::<16>(&vars, &mut scratch, &mut out);
+        assert!(native.vector_asked_for());
+        for (l, o) in out.iter().enumerate() {
+            assert_eq!(*o, vars[l] * vars[16 + l] + 1.0);
+        }
     }
 
     #[test]
