@@ -344,9 +344,7 @@ impl Native {
 
     #[inline]
     fn vector(&self) -> Option<&Code> {
-        self.vector
-            .get_or_init(|| self.compile_vector())
-            .as_ref()
+        self.vector.get_or_init(|| self.compile_vector()).as_ref()
     }
 }
 
@@ -612,9 +610,8 @@ mod codegen {
         // parameters, no result) in the host's default calling convention, which is the C
         // one on every host Cranelift supports.
         #[allow(unsafe_code)]
-        let func = unsafe {
-            std::mem::transmute::<*const u8, TapeFn>(module.get_finalized_function(id))
-        };
+        let func =
+            unsafe { std::mem::transmute::<*const u8, TapeFn>(module.get_finalized_function(id)) };
         Ok(Code {
             func,
             module: Mutex::new(Some(module)),

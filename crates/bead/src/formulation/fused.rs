@@ -164,7 +164,8 @@ pub fn prepare(system: &System) {
     // The layouts alone matter here: any tolerance, gains, forces and masses.
     if let Some(fused) = FusedImplicit::new(system, Some(0.0), 0.0, 0.0) {
         if fused.has_constant_force() {
-            FusedStep::new(fused.layout(), set.fused(), None, 0.0);
+            // With the monitors' observation, as single runs and the lanes build it.
+            FusedStep::new(fused.layout(), set.fused(), Some(set.gradient_tape()), 0.0);
         }
     }
     if let Some(map) = system.parametric() {
@@ -346,6 +347,19 @@ impl FusedImplicit {
         true
     }
 
+    /// C (m) and J's entries (nnz) at the end of the last compiled RK4 step, if it ended at
+    /// exactly (t, x, v) (see [`FusedStep::observation_at`]): what the monitors observe
+    /// there, evaluated inside the step's tape.
+    pub(crate) fn step_observation(
+        &self,
+        t: f64,
+        x: &[f64],
+        v: &[f64],
+    ) -> Option<(&[f64], &[f64])> {
+        let out = self.steps.observation_at(t, x, v)?;
+        Some((&out[..self.m], &out[self.m..self.m + self.nnz]))
+    }
+
     /// lambda (m) of the last [`Self::accelerate`] that returned true.
     pub(crate) fn multipliers(&self) -> &[f64] {
         let start = 3 * self.m + self.nnz;
@@ -396,6 +410,10 @@ pub(crate) struct FusedStep {
     out: Vec<f64>,
     /// The lanes the buffers are sized for (0: none yet)
     lanes: usize,
+    /// Whether the tape ends with an observation, and whether the last [`Self::step_one`]
+    /// passed (its outputs hold the step end and the observation there)
+    observed: bool,
+    stepped: bool,
 }
 
 impl FusedStep {
@@ -425,6 +443,8 @@ impl FusedStep {
             scratch: Vec::new(),
             out: Vec::new(),
             lanes: 0,
+            observed: observe.is_some(),
+            stepped: false,
         }
     }
 
@@ -516,12 +536,30 @@ impl FusedStep {
         self.tape.eval(&self.vars, &mut self.scratch, &mut self.out);
         let (state, tests) = self.out.split_at(2 * n);
         let (diagonals, pivots) = tests[..2 * self.rows * STAGES].split_at(self.rows * STAGES);
-        if !pivots_pass(diagonals, pivots, self.tolerance) {
+        self.stepped = pivots_pass(diagonals, pivots, self.tolerance);
+        if !self.stepped {
             return false;
         }
         q[..n].copy_from_slice(&state[..n]);
         qdot[..n].copy_from_slice(&state[n..]);
         true
+    }
+
+    /// The observation tape's outputs at the end of the last [`Self::step_one`], if the step
+    /// was built with one, passed, and ended at exactly (t, q, qdot) (bit for bit: not
+    /// moved since by a projection, a restore, or a time set to the step grid that the
+    /// step's own t + h misses by a rounding).
+    pub(crate) fn observation_at(&self, t: f64, q: &[f64], qdot: &[f64]) -> Option<&[f64]> {
+        if !(self.observed && self.stepped && self.lanes == 1) {
+            return None;
+        }
+        let n = self.n;
+        let t_end = self.vars[2 * n + 1 + self.constants + 1];
+        let same = |a: &[f64], b: &[f64]| a.iter().zip(b).all(|(x, y)| x.to_bits() == y.to_bits());
+        (t_end.to_bits() == t.to_bits()
+            && same(&self.out[..n], q)
+            && same(&self.out[n..2 * n], qdot))
+        .then(|| &self.out[2 * n + 2 * self.rows * STAGES..])
     }
 
     /// The observation tape's outputs at the end of the last [`Self::step_lanes`] (lanes
@@ -608,17 +646,20 @@ pub(crate) trait CompiledAcceleration {
 
 /// One RK4 step of a simulation (see `SecondOrderSystem::compiled_rk4_step`): `state`'s q
 /// and qdot advanced by dt, the step's tape built on first use, once per constraint set or
-/// map into `tapes`. False, `state` untouched, when a pivot test failed.
+/// map into `tapes`, with `observe` (what the monitors evaluate at a step's end) at its end
+/// when given (see [`CompiledSteps::observation_at`]). False, `state` untouched, when a
+/// pivot test failed.
 #[inline]
 pub(crate) fn compiled_rk4_step(
     fused: &mut impl CompiledAcceleration,
     tapes: &FusedTapes,
+    observe: Option<&Tape>,
     state: &mut State,
     dt: f64,
 ) -> bool {
     if fused.steps().step.is_none() {
         let tolerance = fused.steps().tolerance;
-        let mut step = FusedStep::new(fused.layout(), tapes, None, tolerance);
+        let mut step = FusedStep::new(fused.layout(), tapes, observe, tolerance);
         step.load_one(&fused.constants());
         fused.steps().step = Some(Box::new(step));
     }
@@ -633,6 +674,14 @@ pub(crate) struct CompiledSteps {
     step: Option<Box<FusedStep>>,
     /// The LDL^T's relative pivot tolerance
     tolerance: f64,
+}
+
+impl CompiledSteps {
+    /// The observation at the end of the last compiled step, if it ended at exactly (t, q,
+    /// qdot) (see [`FusedStep::observation_at`]).
+    pub(crate) fn observation_at(&self, t: f64, q: &[f64], qdot: &[f64]) -> Option<&[f64]> {
+        self.step.as_deref()?.observation_at(t, q, qdot)
+    }
 }
 
 /// The parametric form's fused acceleration, for maps whose applied forces are constant

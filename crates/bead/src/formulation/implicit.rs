@@ -273,9 +273,10 @@ impl SecondOrderSystem for Implicit {
         if !self.compiles_rk4_step() {
             return false;
         }
-        let tapes = self.system.constraints().fused();
+        let set = self.system.constraints();
         let fused = self.fused.as_mut().expect("checked above");
-        compiled_rk4_step(fused, tapes, state, dt)
+        // With C and J at the step's end, which the monitors read there (`observe`).
+        compiled_rk4_step(fused, set.fused(), Some(set.gradient_tape()), state, dt)
     }
 
     fn compiles_rk4_step(&self) -> bool {
@@ -407,6 +408,28 @@ impl Formulation for Implicit {
 
     fn observe(&mut self, t: f64, q: &[f64], qdot: &[f64], out: &mut Observation) {
         let set = self.system.constraints();
+        // At the end of a compiled step, C and J were evaluated inside it.
+        if let Some((value, jacobian)) = self
+            .fused
+            .as_ref()
+            .and_then(|f| f.step_observation(t, q, qdot))
+        {
+            #[cfg(debug_assertions)]
+            {
+                // The same bits as the gradient tape's (allocation-free).
+                set.gradient(t, q, &mut self.projection.eval);
+                let eval = &self.projection.eval;
+                let same = |a: &[f64], b: &[f64]| {
+                    a.len() == b.len() && a.iter().zip(b).all(|(x, y)| x.to_bits() == y.to_bits())
+                };
+                assert!(
+                    same(value, &eval.value) && same(jacobian, &eval.jacobian),
+                    "the step's observation differs from the gradient tape's"
+                );
+            }
+            observe_from_parts(set, value, jacobian, q, qdot, out);
+            return;
+        }
         if set.n_rows() > 0 {
             set.gradient(t, q, &mut self.projection.eval);
         }

@@ -196,7 +196,7 @@ impl SecondOrderSystem for Parametric {
             .parametric()
             .expect("checked in Parametric::new");
         let fused = self.fused.as_mut().expect("checked above");
-        compiled_rk4_step(fused, map.fused(), state, dt)
+        compiled_rk4_step(fused, map.fused(), None, state, dt)
     }
 
     fn compiles_rk4_step(&self) -> bool {
