@@ -526,6 +526,7 @@ impl FusedStep {
         qdot: &mut [f64],
     ) -> bool {
         debug_assert_eq!(self.lanes, 1, "load_one first");
+        debug_assert!(q.len() == self.n && qdot.len() == self.n);
         let n = if N == 0 { self.n } else { N };
         let after = 2 * n + 1 + self.constants;
         let vars = &mut self.vars[..after + 5];
