@@ -15,12 +15,13 @@
 //! variable and output is addressed by an immediate offset (no address arithmetic per slot);
 //! other lane counts are interpreted (the same bits). The first is compiled with the tape
 //! (its time is the tape's compile time); the second on its first use (a sweep's first
-//! block), so that a single run, which never evaluates lanes, does not pay for it. Each SSA instruction becomes one Cranelift value (kept in
-//! registers, spilled by the register allocator when needed): no scratch array. The constants
-//! are not baked into the code but read from `consts` (the tape's constants in instruction
-//! order, exact bits), so that tapes that differ only by their constants — a sweep's members,
-//! whose parameters are constants of the expressions — share their compiled functions (a
-//! process-wide cache of weak references keyed by the tape's shape).
+//! block), so that a single run, which never evaluates lanes, does not pay for it. Each SSA
+//! instruction becomes one Cranelift value (kept in registers, spilled by the register
+//! allocator when needed): no scratch array. The constants are not baked into the code but read
+//! from `consts` (the tape's constants in instruction order, exact bits), so that tapes that
+//! differ only by their constants — a sweep's members, whose parameters are constants of the
+//! expressions — share their compiled functions (a process-wide cache of weak references keyed
+//! by the tape's shape).
 //!
 //! **Same bits as the interpreter**: every IEEE basic operation is one Cranelift instruction
 //! (`fadd`, `fsub`, `fmul`, `fdiv`, `fneg`, `fabs`, `sqrt`) with the interpreter's operand
