@@ -19,6 +19,13 @@ pub mod sweep;
 pub trait Scalar: num_dual::DualNum<Primitive = f64> + Copy {}
 impl<T: num_dual::DualNum<Primitive = f64> + Copy> Scalar for T {}
 
+/// Whether two slices hold the same values bit for bit (the same length, `to_bits` equal:
+/// -0.0 differs from 0.0, a NaN equals only a NaN with its payload), the test of every
+/// "same bits" claim and cache in the crate.
+pub(crate) fn same_bits(a: &[f64], b: &[f64]) -> bool {
+    a.len() == b.len() && a.iter().zip(b).all(|(x, y)| x.to_bits() == y.to_bits())
+}
+
 /// `value` for messages: plain notation, or exponent notation when it is very large or very
 /// small, so that no message prints a 300-digit number.
 ///

@@ -410,9 +410,8 @@ pub(crate) struct FusedStep {
     out: Vec<f64>,
     /// The lanes the buffers are sized for (0: none yet)
     lanes: usize,
-    /// Whether the tape ends with an observation, and whether the last [`Self::step_one`]
-    /// passed (its outputs hold the step end and the observation there)
-    observed: bool,
+    /// Whether the last [`Self::step_one`] passed (its outputs hold the step end and, for a
+    /// step built with one, the observation there)
     stepped: bool,
 }
 
@@ -443,7 +442,6 @@ impl FusedStep {
             scratch: Vec::new(),
             out: Vec::new(),
             lanes: 0,
-            observed: observe.is_some(),
             stepped: false,
         }
     }
@@ -551,16 +549,17 @@ impl FusedStep {
     /// moved since by a projection, a restore, or a time set to the step grid that the
     /// step's own t + h misses by a rounding).
     pub(crate) fn observation_at(&self, t: f64, q: &[f64], qdot: &[f64]) -> Option<&[f64]> {
-        if !(self.observed && self.stepped && self.lanes == 1) {
+        let n = self.n;
+        // The outputs after the step end and the pivot tests: the observation, if any.
+        let observation = &self.out[(2 * n + 2 * self.rows * STAGES).min(self.out.len())..];
+        if !(self.stepped && self.lanes == 1) || observation.is_empty() {
             return None;
         }
-        let n = self.n;
         let t_end = self.vars[2 * n + 1 + self.constants + 1];
-        let same = |a: &[f64], b: &[f64]| a.iter().zip(b).all(|(x, y)| x.to_bits() == y.to_bits());
         (t_end.to_bits() == t.to_bits()
-            && same(&self.out[..n], q)
-            && same(&self.out[n..2 * n], qdot))
-        .then(|| &self.out[2 * n + 2 * self.rows * STAGES..])
+            && crate::same_bits(&self.out[..n], q)
+            && crate::same_bits(&self.out[n..2 * n], qdot))
+        .then_some(observation)
     }
 
     /// The observation tape's outputs at the end of the last [`Self::step_lanes`] (lanes

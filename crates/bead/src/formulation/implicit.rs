@@ -419,11 +419,9 @@ impl Formulation for Implicit {
                 // The same bits as the gradient tape's (allocation-free).
                 set.gradient(t, q, &mut self.projection.eval);
                 let eval = &self.projection.eval;
-                let same = |a: &[f64], b: &[f64]| {
-                    a.len() == b.len() && a.iter().zip(b).all(|(x, y)| x.to_bits() == y.to_bits())
-                };
                 assert!(
-                    same(value, &eval.value) && same(jacobian, &eval.jacobian),
+                    crate::same_bits(value, &eval.value)
+                        && crate::same_bits(jacobian, &eval.jacobian),
                     "the step's observation differs from the gradient tape's"
                 );
             }

@@ -55,7 +55,9 @@ impl Rk4 {
         let primed = self.primed.take().is_some_and(|t| {
             let n = s.q.len();
             let (q, qdot) = self.primed_state.split_at(n);
-            t.to_bits() == s.t.to_bits() && same_bits(q, &s.q) && same_bits(qdot, &s.qdot)
+            t.to_bits() == s.t.to_bits()
+                && crate::same_bits(q, &s.q)
+                && crate::same_bits(qdot, &s.qdot)
         });
         v1.copy_from_slice(&s.qdot);
         if !primed {
@@ -249,9 +251,4 @@ pub(crate) fn step_tape(accel: &AccelerationTape<'_>, observe: Option<&Tape>) ->
         outputs.extend(observed);
     }
     b.finish(&outputs)
-}
-
-/// Whether two slices hold the same bits.
-fn same_bits(a: &[f64], b: &[f64]) -> bool {
-    a.len() == b.len() && a.iter().zip(b).all(|(x, y)| x.to_bits() == y.to_bits())
 }

@@ -492,9 +492,7 @@ impl SystemBuilder {
     /// initial values and parameter values may differ (parameters act through the numbers
     /// and expressions they gave, which are compared).
     pub(crate) fn same_dynamics(&self, other: &SystemBuilder) -> bool {
-        let bits = |a: &[f64], b: &[f64]| {
-            a.len() == b.len() && a.iter().zip(b).all(|(x, y)| x.to_bits() == y.to_bits())
-        };
+        let bits = crate::same_bits;
         let endpoints = |a: &Endpoint, b: &Endpoint| match (a, b) {
             (Endpoint::Particle(p), Endpoint::Particle(q)) => p == q,
             (Endpoint::Fixed(p), Endpoint::Fixed(q)) => bits(p, q),

@@ -327,13 +327,8 @@ impl Monitor {
                 (&o.gradients.values, &check.gradients.values),
                 (&o.gradients.offset, &check.gradients.offset),
             ] {
-                let same = got.len() == want.len()
-                    && got
-                        .iter()
-                        .zip(want.iter())
-                        .all(|(a, b)| a.to_bits() == b.to_bits());
                 assert!(
-                    same,
+                    crate::same_bits(got, want),
                     "observation from the acceleration differs: {got:?} {want:?}"
                 );
             }
