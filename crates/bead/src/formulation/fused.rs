@@ -347,6 +347,12 @@ impl FusedImplicit {
         true
     }
 
+    /// The observation tape's outputs at the end of the last compiled RK4 step, if it ended
+    /// at exactly (t, x, v) (see [`FusedStep::observation_at`]).
+    pub(crate) fn observation_at(&self, t: f64, x: &[f64], v: &[f64]) -> Option<&[f64]> {
+        self.steps.observation_at(t, x, v)
+    }
+
     /// C (m) and J's entries (nnz) at the end of the last compiled RK4 step, if it ended at
     /// exactly (t, x, v) (see [`FusedStep::observation_at`]): what the monitors observe
     /// there, evaluated inside the step's tape.
@@ -812,6 +818,12 @@ impl FusedParametric {
             Some(map.observation_tape()),
             self.tolerance,
         )
+    }
+
+    /// The observation tape's outputs at the end of the last compiled RK4 step, if it was
+    /// built with them and ended at exactly (t, q, qdot) (see [`FusedStep::observation_at`]).
+    pub(crate) fn observation_at(&self, t: f64, q: &[f64], qdot: &[f64]) -> Option<&[f64]> {
+        self.steps.observation_at(t, q, qdot)
     }
 
     /// The step's constants: F and the masses.

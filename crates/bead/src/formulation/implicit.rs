@@ -279,6 +279,10 @@ impl SecondOrderSystem for Implicit {
         compiled_rk4_step(fused, set.fused(), Some(set.gradient_tape()), state, dt)
     }
 
+    fn compiled_step_observation(&self, t: f64, q: &[f64], qdot: &[f64]) -> Option<&[f64]> {
+        self.fused.as_ref()?.observation_at(t, q, qdot)
+    }
+
     fn compiles_rk4_step(&self) -> bool {
         self.external.is_empty()
             && self

@@ -75,6 +75,16 @@ pub trait SecondOrderSystem {
     fn compiles_rk4_step(&self) -> bool {
         false
     }
+
+    /// The monitors' observation at the end of the last [`Self::compiled_rk4_step`], when
+    /// that step evaluated it and ended at exactly (t, q, qdot), bit for bit: the outputs of
+    /// the form's observation tape there (the implicit form's C and J entries, the
+    /// parametric form's x, xdot and map Jacobian entries). For a single run's express
+    /// steps (`simulate::express`); the layout is internal.
+    #[doc(hidden)]
+    fn compiled_step_observation(&self, _t: f64, _q: &[f64], _qdot: &[f64]) -> Option<&[f64]> {
+        None
+    }
 }
 
 /// Why an acceleration could not be computed.

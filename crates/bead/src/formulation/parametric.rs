@@ -202,6 +202,10 @@ impl SecondOrderSystem for Parametric {
     fn compiles_rk4_step(&self) -> bool {
         self.external.is_empty() && self.fused.is_some()
     }
+
+    fn compiled_step_observation(&self, t: f64, q: &[f64], qdot: &[f64]) -> Option<&[f64]> {
+        self.fused.as_ref()?.observation_at(t, q, qdot)
+    }
 }
 
 impl Parametric {

@@ -23,17 +23,19 @@
 // Loops run over the lanes innermost and index several arrays by lane.
 #![allow(clippy::needless_range_loop)]
 
-use super::lanes::LANES;
 use super::monitor::Monitor;
 use super::monitor::{off_branch_candidate, AHEAD_FRACTION, AHEAD_STEPS, VANISHED};
-use super::Simulation;
 use crate::expr::Tape;
 use crate::formulation::Method;
 use crate::linalg::max_nan;
 use crate::model::{ConstraintEval, System};
 
+/// One lane's last and before gradient values, longest lengths, lengths at the last
+/// fruitless search and maxima (see [`LaneMonitor::lane`]).
+pub(super) type LaneState = (Vec<f64>, Vec<f64>, Vec<f64>, Vec<f64>, [f64; 4]);
+
 /// One value per lane.
-pub(super) type PerLane = [f64; LANES];
+pub(super) type PerLane<const L: usize> = [f64; L];
 
 /// Where a form's observation comes from in the observation tape's outputs.
 enum Source {
@@ -51,9 +53,9 @@ enum Source {
     },
 }
 
-/// The monitors' state and scratch for [`LANES`] members (value k of lane l at
-/// `k * LANES + l`).
-pub(super) struct LaneMonitor {
+/// The monitors' state and scratch for L members (value k of lane l at `k * L + l`): the
+/// sweep lanes' 16, or one for a single run's express steps (`super::express`).
+pub(super) struct LaneMonitor<const L: usize> {
     source: Source,
     n: usize,
     m: usize,
@@ -64,12 +66,15 @@ pub(super) struct LaneMonitor {
     pub(super) last: Vec<f64>,
     pub(super) before: Vec<f64>,
     pub(super) longest: Vec<f64>,
+    /// Each row's length when a search for a singular point last found none (infinite when
+    /// none did: a lane member's start), as the regularity monitor keeps it
+    pub(super) searched: Vec<f64>,
     /// max |E - E0| / E_scale, max |E - W - E0| / E_scale, max |C|, max offset
-    pub(super) maxima: [PerLane; 4],
-    energy_initial: PerLane,
-    energy_scale: PerLane,
+    pub(super) maxima: [PerLane<L>; 4],
+    energy_initial: PerLane<L>,
+    energy_scale: PerLane<L>,
     /// Each member's divergence limits at t = 0: position, speed (see [`Monitor::floor`])
-    floor: [PerLane; 2],
+    floor: [PerLane<L>; 2],
     /// This step end's gradient values, offsets, constraint values and energies
     values: Vec<f64>,
     offset: Vec<f64>,
@@ -77,8 +82,8 @@ pub(super) struct LaneMonitor {
     squared: Vec<f64>,
     lengths: Vec<f64>,
     constraints: Vec<f64>,
-    energy: PerLane,
-    constraint_error: PerLane,
+    energy: PerLane<L>,
+    constraint_error: PerLane<L>,
     /// The value tape's variables (x, 0, t) and scratch (parametric form)
     vars: Vec<f64>,
     scratch: Vec<f64>,
@@ -88,26 +93,27 @@ pub(super) struct LaneMonitor {
     residuals: ConstraintEval,
 }
 
-/// A structure-of-arrays buffer as its values' rows of [`LANES`] (fixed-size arrays, so that
+/// A structure-of-arrays buffer as its values' rows of L (fixed-size arrays, so that
 /// the lane loops over them compile to vector instructions without bounds checks).
-fn rows(soa: &[f64]) -> &[PerLane] {
-    let (rows, rest) = soa.as_chunks::<LANES>();
+fn rows<const L: usize>(soa: &[f64]) -> &[PerLane<L>] {
+    let (rows, rest) = soa.as_chunks::<L>();
     debug_assert!(rest.is_empty(), "a buffer of whole rows of lanes");
     rows
 }
 
 /// Lane l's part of a structure-of-arrays buffer into `one`.
-pub(super) fn gather(soa: &[f64], l: usize, one: &mut [f64]) {
+pub(super) fn gather<const L: usize>(soa: &[f64], l: usize, one: &mut [f64]) {
     for (k, value) in one.iter_mut().enumerate() {
-        *value = soa[k * LANES + l];
+        *value = soa[k * L + l];
     }
 }
 
-impl LaneMonitor {
-    /// The monitors of `members` (at most [`LANES`]; lanes beyond them repeat the first), as
-    /// each member's own monitor stands before its first step.
-    pub(super) fn new(system: &System, method: Method, members: &[Simulation]) -> LaneMonitor {
-        let template = &members[0].monitor.observation;
+impl<const L: usize> LaneMonitor<L> {
+    /// The monitors of `members` (at most L; lanes beyond them repeat the first), as each
+    /// member's own monitor stands after its last accepted step end (or before its first
+    /// step), its observation that step end's.
+    pub(super) fn new(system: &System, method: Method, members: &[&Monitor]) -> LaneMonitor<L> {
+        let template = &members[0].observation;
         let start = template.gradients.start.clone();
         let n_values = template.gradients.values.len();
         let rows = start.len() - 1;
@@ -126,63 +132,84 @@ impl LaneMonitor {
                 }
             }
         };
-        let monitor = |l: usize| &members[l.min(members.len() - 1)].monitor;
-        let soa = |width: usize, of: &dyn Fn(&Monitor) -> &[f64]| {
-            let mut buffer = vec![0.0; width * LANES];
-            for l in 0..LANES {
-                for (k, v) in of(monitor(l)).iter().enumerate() {
-                    buffer[k * LANES + l] = *v;
-                }
-            }
-            buffer
-        };
-        let per_lane = |of: &dyn Fn(&Monitor) -> f64| std::array::from_fn(|l| of(monitor(l)));
-        let last = soa(n_values, &|m| &m.observation.gradients.values);
         let n = system.n_coords();
         let m = set.n_rows();
-        LaneMonitor {
+        let mut monitor = LaneMonitor::<L> {
             source,
             n,
             m,
             start,
-            before: last.clone(),
-            last,
-            longest: soa(rows, &|m| m.longest()),
-            maxima: [
-                per_lane(&|m| m.energy_rel_error_max),
-                per_lane(&|m| m.balance_error_max),
-                per_lane(&|m| m.constraint_error_max),
-                per_lane(&|m| m.constraint_distance_max),
-            ],
-            energy_initial: per_lane(&|m| m.energy_initial),
-            floor: [per_lane(&|m| m.floor().0), per_lane(&|m| m.floor().1)],
-            energy_scale: per_lane(&|m| m.energy_scale),
-            values: vec![0.0; n_values * LANES],
-            offset: vec![0.0; rows * LANES],
-            squared: vec![0.0; rows * LANES],
-            lengths: vec![0.0; rows * LANES],
-            constraints: vec![0.0; m * LANES],
-            energy: [0.0; LANES],
-            constraint_error: [0.0; LANES],
-            vars: vec![0.0; (2 * n + 1) * LANES],
+            before: vec![0.0; n_values * L],
+            last: vec![0.0; n_values * L],
+            longest: vec![0.0; rows * L],
+            searched: vec![0.0; rows * L],
+            maxima: [[0.0; L]; 4],
+            energy_initial: [0.0; L],
+            floor: [[0.0; L]; 2],
+            energy_scale: [0.0; L],
+            values: vec![0.0; n_values * L],
+            offset: vec![0.0; rows * L],
+            squared: vec![0.0; rows * L],
+            lengths: vec![0.0; rows * L],
+            constraints: vec![0.0; m * L],
+            energy: [0.0; L],
+            constraint_error: [0.0; L],
+            vars: vec![0.0; (2 * n + 1) * L],
             scratch: Vec::new(),
             x_one: vec![0.0; n],
             xdot_one: vec![0.0; n],
             residuals: set.workspace(),
-        }
+        };
+        monitor.load(members);
+        monitor
     }
 
-    /// Lane l's last and before gradient values, longest lengths and maxima (for a handover).
-    pub(super) fn lane(&self, l: usize) -> (Vec<f64>, Vec<f64>, Vec<f64>, [f64; 4]) {
+    /// Take the state of `members`' monitors (at most L, of this monitor's system and form;
+    /// lanes beyond them repeat the first), as each stands after its last accepted step end
+    /// (or before its first step): the regularity monitor's last two step ends, the longest
+    /// gradient lengths, the maxima, the energy reference and the divergence limits.
+    pub(super) fn load(&mut self, members: &[&Monitor]) {
+        let monitor = |l: usize| members[l.min(members.len() - 1)];
+        let soa = |buffer: &mut [f64], of: &dyn Fn(&Monitor) -> &[f64]| {
+            for l in 0..L {
+                let values = of(monitor(l));
+                debug_assert_eq!(values.len() * L, buffer.len());
+                for (k, v) in values.iter().enumerate() {
+                    buffer[k * L + l] = *v;
+                }
+            }
+        };
+        let per_lane = |of: &dyn Fn(&Monitor) -> f64| std::array::from_fn(|l| of(monitor(l)));
+        // The regularity monitor's reference: the last accepted step end (the initial state
+        // before the first step), and the one before it (the reference itself if none).
+        soa(&mut self.last, &|m| end_gradients(m, true));
+        soa(&mut self.before, &|m| end_gradients(m, false));
+        soa(&mut self.longest, &|m| m.longest());
+        soa(&mut self.searched, &|m| m.searched());
+        self.maxima = [
+            per_lane(&|m| m.energy_rel_error_max),
+            per_lane(&|m| m.balance_error_max),
+            per_lane(&|m| m.constraint_error_max),
+            per_lane(&|m| m.constraint_distance_max),
+        ];
+        self.energy_initial = per_lane(&|m| m.energy_initial);
+        self.energy_scale = per_lane(&|m| m.energy_scale);
+        self.floor = [per_lane(&|m| m.floor().0), per_lane(&|m| m.floor().1)];
+    }
+
+    /// Lane l's last and before gradient values, longest lengths, lengths at the last
+    /// fruitless search and maxima (for a handover).
+    pub(super) fn lane(&self, l: usize) -> LaneState {
         let one = |soa: &[f64]| {
-            let mut v = vec![0.0; soa.len() / LANES];
-            gather(soa, l, &mut v);
+            let mut v = vec![0.0; soa.len() / L];
+            gather::<L>(soa, l, &mut v);
             v
         };
         (
             one(&self.last),
             one(&self.before),
             one(&self.longest),
+            one(&self.searched),
             self.maxima.map(|m| m[l]),
         )
     }
@@ -198,7 +225,7 @@ impl LaneMonitor {
         let n = self.n;
         match self.source {
             Source::Implicit { .. } => (q, qdot),
-            Source::Parametric { .. } => (&out[..n * LANES], &out[n * LANES..2 * n * LANES]),
+            Source::Parametric { .. } => (&out[..n * L], &out[n * L..2 * n * L]),
         }
     }
 
@@ -211,61 +238,63 @@ impl LaneMonitor {
         l: usize,
     ) -> (&[f64], &[f64]) {
         let (x, xdot) = self.particle_state(out, q, qdot);
-        gather(x, l, &mut self.x_one);
-        gather(xdot, l, &mut self.xdot_one);
+        gather::<L>(x, l, &mut self.x_one);
+        gather::<L>(xdot, l, &mut self.xdot_one);
         (&self.x_one, &self.xdot_one)
     }
 
     /// The checks at the end of a step to time t, for every lane: `out` is the observation
-    /// tape's outputs, (q, qdot) the state and `q_back` the step's start; `members` are the
-    /// lanes' simulations (for their reach). Returns which lanes fail one and must leave;
-    /// the others' observation stays for [`LaneMonitor::accept`].
+    /// tape's outputs, (q, qdot) the state and `q_back` the step's start; the first `count`
+    /// lanes are members, and `limits(l, t)` is member l's reach at t
+    /// ([`Monitor::limits`]). Returns which lanes fail one and must leave; the others'
+    /// observation stays for [`LaneMonitor::accept`].
     #[allow(clippy::too_many_arguments)]
     #[inline(always)]
     pub(super) fn check(
         &mut self,
         system: &System,
-        members: &[Simulation],
+        count: usize,
+        limits: impl Fn(usize, f64) -> (f64, f64),
         t: f64,
         out: &[f64],
         q: &[f64],
         qdot: &[f64],
         q_back: &[f64],
-    ) -> [bool; LANES] {
-        let mut failed = [false; LANES];
+    ) -> [bool; L] {
+        let mut failed = [false; L];
         // The state is finite.
-        for (q, qdot) in rows(q).iter().zip(rows(qdot)) {
-            for l in 0..LANES {
+        for (q, qdot) in rows::<L>(q).iter().zip(rows::<L>(qdot)) {
+            for l in 0..L {
                 failed[l] |= !q[l].is_finite() | !qdot[l].is_finite();
             }
         }
-        self.observe(system, members.len(), t, out);
+        self.observe(system, count, t, out);
         let (x, xdot) = self.particle_state(out, q, qdot);
         // E = T + V, as `System::energy`.
         if system.forces().is_empty() {
-            energy_across_lanes(system, x, xdot, &mut self.energy);
+            energy_across_lanes::<L>(system, x, xdot, &mut self.energy);
         } else {
-            for l in 0..members.len() {
-                gather(x, l, &mut self.x_one);
-                gather(xdot, l, &mut self.xdot_one);
+            for l in 0..count {
+                gather::<L>(x, l, &mut self.x_one);
+                gather::<L>(xdot, l, &mut self.xdot_one);
                 self.energy[l] = system.energy(&self.x_one, &self.xdot_one);
             }
         }
         // Divergence: E and max |C| finite, every coordinate within the member's reach.
-        let mut constraint_error = [0.0; LANES];
-        for c in rows(&self.constraints) {
-            for l in 0..LANES {
+        let mut constraint_error = [0.0; L];
+        for c in rows::<L>(&self.constraints) {
+            for l in 0..L {
                 constraint_error[l] = max_nan(constraint_error[l], c[l].abs());
             }
         }
         // Within the limits at t = 0, the least at any time (`Monitor::check_divergence`): a
         // lane whose every coordinate is within them needs no limits of its own time (a NaN
         // fails the comparison and takes the full test).
-        let beyond = |limits: &[PerLane; 2]| {
+        let beyond = |limits: &[PerLane<L>; 2]| {
             let [position, speed] = limits;
-            let mut beyond = [false; LANES];
-            for (x, xdot) in rows(x).iter().zip(rows(xdot)) {
-                for l in 0..LANES {
+            let mut beyond = [false; L];
+            for (x, xdot) in rows::<L>(x).iter().zip(rows::<L>(xdot)) {
+                for l in 0..L {
                     beyond[l] |= x[l].is_nan()
                         | (x[l].abs() > position[l])
                         | xdot[l].is_nan()
@@ -275,44 +304,45 @@ impl LaneMonitor {
             beyond
         };
         let beyond_floor = beyond(&self.floor);
-        if beyond_floor[..members.len()].iter().any(|&b| b) {
-            let mut limits = [[f64::INFINITY; LANES]; 2];
-            for (l, member) in members.iter().enumerate() {
+        if beyond_floor[..count].iter().any(|&b| b) {
+            let mut reach = [[f64::INFINITY; L]; 2];
+            for l in 0..count {
                 if beyond_floor[l] {
-                    (limits[0][l], limits[1][l]) = member.monitor.limits(t);
+                    (reach[0][l], reach[1][l]) = limits(l, t);
                 }
             }
-            for (failed, beyond) in failed.iter_mut().zip(beyond(&limits)) {
+            for (failed, beyond) in failed.iter_mut().zip(beyond(&reach)) {
                 *failed |= beyond;
             }
         }
-        for l in 0..LANES {
+        for l in 0..L {
             failed[l] |= !self.energy[l].is_finite() | !constraint_error[l].is_finite();
         }
         self.constraint_error = constraint_error;
         // Regularity candidates, row by row: the first-order tests of `Monitor::regularity`,
         // without its memory of earlier fruitless searches (so erring towards leaving). They
         // only compare, so |g|^2 summed from -0.0 serves for `sum` from 0.0.
-        let (values, last) = (rows(&self.values), rows(&self.last));
-        let (q, q_back) = (rows(q), rows(q_back));
-        let (squared, lengths, offset, longest) = (
-            rows(&self.squared),
-            rows(&self.lengths),
-            rows(&self.offset),
-            rows(&self.longest),
+        let (values, last) = (rows::<L>(&self.values), rows::<L>(&self.last));
+        let (q, q_back) = (rows::<L>(q), rows::<L>(q_back));
+        let (squared, lengths, offset, longest, searched) = (
+            rows::<L>(&self.squared),
+            rows::<L>(&self.lengths),
+            rows::<L>(&self.offset),
+            rows::<L>(&self.longest),
+            rows::<L>(&self.searched),
         );
         for r in 0..self.start.len() - 1 {
             // g . p and |p|^2 against the last step end's row p. (The lane loops build new
             // arrays from old ones rather than update them in place: values, not memory that
             // might alias the inputs, so that they compile to vector instructions.)
-            let (mut gp, mut pp) = ([0.0; LANES], [0.0; LANES]);
+            let (mut gp, mut pp) = ([0.0; L], [0.0; L]);
             for e in self.start[r]..self.start[r + 1] {
                 let (g, p) = (&values[e], &last[e]);
                 gp = std::array::from_fn(|l| gp[l] + g[l] * p[l]);
                 pp = std::array::from_fn(|l| pp[l] + p[l] * p[l]);
             }
             // The step's length in the row's variables (`row_step_length`; for a drift).
-            let add_step = |step: PerLane, k: usize| -> PerLane {
+            let add_step = |step: PerLane<L>, k: usize| -> PerLane<L> {
                 let (q, before) = (&q[k], &q_back[k]);
                 std::array::from_fn(|l| {
                     let d = q[l] - before[l];
@@ -322,11 +352,12 @@ impl LaneMonitor {
             let step = match &self.source {
                 Source::Implicit { row_columns } => row_columns[r]
                     .iter()
-                    .fold([empty_sum(); LANES], |step, &k| add_step(step, k)),
-                Source::Parametric { .. } => (0..q.len()).fold([empty_sum(); LANES], add_step),
+                    .fold([empty_sum(); L], |step, &k| add_step(step, k)),
+                Source::Parametric { .. } => (0..q.len()).fold([empty_sum(); L], add_step),
             };
-            let (gg, length, offset, longest) = (&squared[r], &lengths[r], &offset[r], &longest[r]);
-            for l in 0..LANES {
+            let (gg, length, offset) = (&squared[r], &lengths[r], &offset[r]);
+            let (longest, searched) = (&longest[r], &searched[r]);
+            for l in 0..L {
                 let (gg, gp, pp, length) = (gg[l], gp[l], pp[l], length[l]);
                 // `lookahead` without its branch (a lane whose d vanishes or is NaN is not
                 // shrinking), so that the lanes run in vector registers.
@@ -341,10 +372,11 @@ impl LaneMonitor {
                 let drifted = shrinking
                     & (offset[l] > 0.0)
                     & off_branch_candidate(offset[l], length, change, step[l].sqrt());
+                // A candidate other than a reversal is searched only once the gradient has
+                // halved since a search found nothing.
+                let remembered = length > 0.5 * searched[l];
                 failed[l] |= (gp < 0.0)
-                    | ahead
-                    | (length < VANISHED * longest[l])
-                    | drifted
+                    | (!remembered & (ahead | (length < VANISHED * longest[l]) | drifted))
                     | length.is_nan();
             }
         }
@@ -360,12 +392,11 @@ impl LaneMonitor {
                 if m == 0 {
                     return;
                 }
-                self.constraints.copy_from_slice(&out[..m * LANES]);
+                self.constraints.copy_from_slice(&out[..m * L]);
                 let nnz = self.values.len();
-                self.values
-                    .copy_from_slice(&out[m * LANES..m * LANES + nnz]);
+                self.values.copy_from_slice(&out[m * L..m * L + nnz]);
                 // |C_r| / |g_r| (as `observe_from`).
-                row_lengths(
+                row_lengths::<L>(
                     &self.start,
                     &self.values,
                     &mut self.squared,
@@ -384,12 +415,11 @@ impl LaneMonitor {
                 gather: entries,
                 values,
             } => {
-                let jacobian = &out[2 * n * LANES..];
+                let jacobian = &out[2 * n * L..];
                 for (i, &e) in entries.iter().enumerate() {
-                    self.values[i * LANES..(i + 1) * LANES]
-                        .copy_from_slice(&jacobian[e * LANES..(e + 1) * LANES]);
+                    self.values[i * L..(i + 1) * L].copy_from_slice(&jacobian[e * L..(e + 1) * L]);
                 }
-                row_lengths(
+                row_lengths::<L>(
                     &self.start,
                     &self.values,
                     &mut self.squared,
@@ -398,25 +428,21 @@ impl LaneMonitor {
                 if m == 0 {
                     return;
                 }
-                let x = &out[..n * LANES];
+                let x = &out[..n * L];
                 match values {
                     Some(tape) => {
-                        self.vars[..n * LANES].copy_from_slice(x);
-                        self.vars[2 * n * LANES..].fill(t);
-                        self.scratch.resize(tape.n_slots() * LANES, 0.0);
-                        tape.eval_lanes::<LANES>(
-                            &self.vars,
-                            &mut self.scratch,
-                            &mut self.constraints,
-                        );
+                        self.vars[..n * L].copy_from_slice(x);
+                        self.vars[2 * n * L..].fill(t);
+                        self.scratch.resize(tape.n_slots() * L, 0.0);
+                        tape.eval_lanes::<L>(&self.vars, &mut self.scratch, &mut self.constraints);
                     }
                     None => {
                         let set = system.constraints();
                         for l in 0..count {
-                            gather(x, l, &mut self.x_one);
+                            gather::<L>(x, l, &mut self.x_one);
                             let c = set.residuals(t, &self.x_one, &mut self.residuals);
                             for (r, v) in c.iter().enumerate() {
-                                self.constraints[r * LANES + l] = *v;
+                                self.constraints[r * L + l] = *v;
                             }
                         }
                     }
@@ -432,20 +458,32 @@ impl LaneMonitor {
     pub(super) fn accept(&mut self) {
         std::mem::swap(&mut self.before, &mut self.last);
         self.last.copy_from_slice(&self.values);
-        let mut distance = [0.0; LANES];
+        let mut distance = [0.0; L];
         for ((longest, length), offset) in self
             .longest
-            .chunks_exact_mut(LANES)
-            .zip(rows(&self.lengths))
-            .zip(rows(&self.offset))
+            .chunks_exact_mut(L)
+            .zip(rows::<L>(&self.lengths))
+            .zip(rows::<L>(&self.offset))
         {
-            for l in 0..LANES {
+            for l in 0..L {
                 longest[l] = longest[l].max(length[l]);
                 distance[l] = max_nan(distance[l], offset[l].abs());
             }
         }
+        // Away from where the last search found nothing: search again next time.
+        for (searched, length) in self
+            .searched
+            .chunks_exact_mut(L)
+            .zip(rows::<L>(&self.lengths))
+        {
+            for l in 0..L {
+                if length[l] > 2.0 * searched[l] {
+                    searched[l] = f64::INFINITY;
+                }
+            }
+        }
         let [energy_max, balance_max, constraint_max, distance_max] = &mut self.maxima;
-        for l in 0..LANES {
+        for l in 0..L {
             let energy = self.energy[l];
             let error = (energy - self.energy_initial[l]).abs() / self.energy_scale[l];
             let balance = (energy - 0.0 - self.energy_initial[l]).abs() / self.energy_scale[l];
@@ -457,6 +495,13 @@ impl LaneMonitor {
     }
 }
 
+/// The gradient values of `monitor`'s last accepted step end (`newest`) or of the one
+/// before it (the last one's when there is none yet).
+fn end_gradients(monitor: &Monitor, newest: bool) -> &[f64] {
+    let end = monitor.step_end(newest).or(monitor.step_end(true));
+    end.expect("a monitor holds its last step end").1
+}
+
 /// What `Iterator::sum` of no f64 is (-0.0 in current Rust): every sum here starts from it,
 /// as the scalar code's `sum()` does.
 fn empty_sum() -> f64 {
@@ -465,12 +510,17 @@ fn empty_sum() -> f64 {
 
 /// |g_r|^2 and |g_r| of every row r (entries start[r]..start[r + 1] of `values`) and lane,
 /// summed from [`empty_sum`] as `sum()` (then the root: `norm`'s bits).
-fn row_lengths(start: &[usize], values: &[f64], squared: &mut [f64], lengths: &mut [f64]) {
-    let values = rows(values);
-    let squared = squared.as_chunks_mut::<LANES>().0;
-    let lengths = lengths.as_chunks_mut::<LANES>().0;
+fn row_lengths<const L: usize>(
+    start: &[usize],
+    values: &[f64],
+    squared: &mut [f64],
+    lengths: &mut [f64],
+) {
+    let values = rows::<L>(values);
+    let squared = squared.as_chunks_mut::<L>().0;
+    let lengths = lengths.as_chunks_mut::<L>().0;
     for (r, (gg, length)) in squared.iter_mut().zip(lengths).enumerate() {
-        let mut sum = [empty_sum(); LANES];
+        let mut sum = [empty_sum(); L];
         for g in &values[start[r]..start[r + 1]] {
             sum = std::array::from_fn(|l| sum[l] + g[l] * g[l]);
         }
@@ -485,29 +535,34 @@ fn row_lengths(start: &[usize], values: &[f64], squared: &mut [f64], lengths: &m
 /// ```text
 /// T = sum_p m_p/2 sum_a v_pa^2,   V = sum_p -m_p sum_a g_a x_pa
 /// ```
-fn energy_across_lanes(system: &System, x: &[f64], xdot: &[f64], energy: &mut PerLane) {
+fn energy_across_lanes<const L: usize>(
+    system: &System,
+    x: &[f64],
+    xdot: &[f64],
+    energy: &mut PerLane<L>,
+) {
     let dim = system.dim();
     let gravity = system.gravity();
     let zero = empty_sum();
-    let mut kinetic = [zero; LANES];
-    let mut potential = [zero; LANES];
+    let mut kinetic = [zero; L];
+    let mut potential = [zero; L];
     for (p, particle) in system.particles().iter().enumerate() {
-        let mut s = [zero; LANES];
-        let mut gx = [zero; LANES];
+        let mut s = [zero; L];
+        let mut gx = [zero; L];
         for a in 0..dim {
             let k = p * dim + a;
-            for l in 0..LANES {
-                let v = xdot[k * LANES + l];
+            for l in 0..L {
+                let v = xdot[k * L + l];
                 s[l] += v * v;
-                gx[l] += gravity[a] * x[k * LANES + l];
+                gx[l] += gravity[a] * x[k * L + l];
             }
         }
-        for l in 0..LANES {
+        for l in 0..L {
             kinetic[l] += 0.5 * particle.mass * s[l];
             potential[l] += -particle.mass * gx[l];
         }
     }
-    for l in 0..LANES {
+    for l in 0..L {
         // The forces' potentials: an empty sum.
         energy[l] = kinetic[l] + (potential[l] + zero);
     }

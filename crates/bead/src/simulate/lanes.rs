@@ -228,7 +228,9 @@ pub(crate) fn run_lanes(
     let mut outcome = vec![LaneOutcome::Done; count];
     let mut active = [false; LANES];
     active[..count].fill(true);
-    let mut monitor = LaneMonitor::new(&system, method, members);
+    let monitors: Vec<&super::monitor::Monitor> = members.iter().map(|m| &m.monitor).collect();
+    let mut monitor = LaneMonitor::<LANES>::new(&system, method, &monitors);
+    drop(monitors);
     let t0 = members[0].state.t;
     let dt = config.dt;
     let mut t = t0;
@@ -281,7 +283,8 @@ pub(crate) fn run_lanes(
         };
         let failed = monitor.check(
             &system,
-            &members[..count],
+            count,
+            |l, t| members[l].monitor.limits(t),
             t,
             out,
             &lanes.q,
@@ -297,8 +300,8 @@ pub(crate) fn run_lanes(
             // needs a look); a look is the member's own to take.
             let leaves = failed[l]
                 || (!member.watches.is_empty() && {
-                    gather(&lanes.q, l, &mut lanes.q_one);
-                    gather(&lanes.qdot, l, &mut lanes.qdot_one);
+                    gather::<LANES>(&lanes.q, l, &mut lanes.q_one);
+                    gather::<LANES>(&lanes.qdot, l, &mut lanes.qdot_one);
                     let (q, qdot) = (&lanes.q_one[..], &lanes.qdot_one[..]);
                     let (x, xdot) = monitor.lane_state(out, &lanes.q, &lanes.qdot, l);
                     super::watching::screen_all(
@@ -363,7 +366,7 @@ pub(crate) fn run_lanes(
 fn handover(
     member: &mut Simulation,
     lanes: &Lanes,
-    monitor: &LaneMonitor,
+    monitor: &LaneMonitor<LANES>,
     l: usize,
     k: u64,
     t: f64,
@@ -371,9 +374,9 @@ fn handover(
     let n = lanes.n;
     let done = k - 1;
     let mut q_before = vec![0.0; n];
-    gather(&lanes.q_back, l, &mut member.state.q[..n]);
-    gather(&lanes.qdot_back, l, &mut member.state.qdot[..n]);
-    gather(&lanes.q_back2, l, &mut q_before);
+    gather::<LANES>(&lanes.q_back, l, &mut member.state.q[..n]);
+    gather::<LANES>(&lanes.qdot_back, l, &mut member.state.qdot[..n]);
+    gather::<LANES>(&lanes.q_back2, l, &mut q_before);
     member.state.t = t;
     member.previous.clone_from(&member.state);
     member.steps = done;
@@ -385,10 +388,12 @@ fn handover(
     member
         .monitor
         .observe(&mut *member.formulation, t, q, qdot, work);
-    let (last, before, longest, maxima) = monitor.lane(l);
+    let (last, before, longest, searched, maxima) = monitor.lane(l);
     let before = (done > 0).then_some((q_before.as_slice(), before.as_slice()));
     let q = member.state.q[..n].to_vec();
-    member.monitor.adopt(&q, &last, before, &longest, maxima);
+    member
+        .monitor
+        .adopt(&q, &last, before, &longest, &searched, maxima);
 }
 
 /// F = m g per coordinate, gravity the only force (as `System::accumulate_forces`).
@@ -544,19 +549,19 @@ fn accelerate(
         if !active[l] {
             continue;
         }
-        gather(q, l, &mut lanes.q_one);
-        gather(qdot, l, &mut lanes.qdot_one);
+        gather::<LANES>(q, l, &mut lanes.q_one);
+        gather::<LANES>(qdot, l, &mut lanes.qdot_one);
         let outputs = &lanes.out[..width * LANES];
         let result = match kernel {
             Kernel::Implicit(implicit) => {
                 let ws = implicit.evaluation_mut();
-                gather(outputs, l, &mut ws.tape_out_mut()[..width]);
+                gather::<LANES>(outputs, l, &mut ws.tape_out_mut()[..width]);
                 system.constraints().unpack_full(ws);
                 implicit.accelerate_evaluated(t, &lanes.q_one, &lanes.qdot_one, &mut lanes.a_one)
             }
             Kernel::Parametric(parametric) => {
                 let ws = parametric.evaluation_mut();
-                gather(outputs, l, &mut ws.out_mut()[..width]);
+                gather::<LANES>(outputs, l, &mut ws.out_mut()[..width]);
                 system
                     .parametric()
                     .expect("checked by lanes_can_run")

@@ -56,6 +56,7 @@
 
 mod config;
 mod event;
+mod express;
 mod lane_monitor;
 pub(crate) mod lanes;
 mod ledger;
@@ -190,6 +191,9 @@ pub struct Simulation {
     /// monitors read that evaluation (see [`Simulation::observe_step_end`]); off only in the
     /// test that shows it changes no number
     prime_first_stage: bool,
+    /// Whether `run` may take plain steps as express steps (see `express.rs`); off only to
+    /// compare both paths
+    express: bool,
 }
 
 /// Steps without a retry after which a step tries half of the substeps its predecessors
@@ -289,6 +293,7 @@ impl Simulation {
             fired_event: None,
             stopped_at_event: false,
             prime_first_stage: true,
+            express: true,
             config,
             formulation,
         };

@@ -338,16 +338,18 @@ impl Monitor {
     }
 
     /// The monitor as it stands after a run accepted step ends up to one at state `last_q`
-    /// with gradient values `last_gradients` (the ensemble lanes took those steps, see
-    /// `lanes`): `before` is the step end before it (none if `last` is the initial state),
-    /// `longest` each row's longest length so far, `maxima` the energy, balance and
-    /// constraint error maxima. The observation is [`Monitor::observe`]d again by the caller.
+    /// with gradient values `last_gradients` (the ensemble lanes or a run's express steps
+    /// took those steps, see `lanes` and `express`): `before` is the step end before it
+    /// (none if `last` is the initial state), `longest` each row's longest length so far,
+    /// `searched` each row's length at the last fruitless search, `maxima` the energy,
+    /// balance and constraint error maxima. The observation is [`Monitor::observe`]d again by the caller.
     pub(super) fn adopt(
         &mut self,
         last_q: &[f64],
         last_gradients: &[f64],
         before: Option<(&[f64], &[f64])>,
         longest: &[f64],
+        searched: &[f64],
         maxima: [f64; 4],
     ) {
         let newest = self.newest;
@@ -362,6 +364,7 @@ impl Monitor {
             before.valid = true;
         }
         self.longest.copy_from_slice(longest);
+        self.searched.copy_from_slice(searched);
         [
             self.energy_rel_error_max,
             self.balance_error_max,
@@ -384,6 +387,20 @@ impl Monitor {
     /// The longest each gradient row has been in the run so far.
     pub(super) fn longest(&self) -> &[f64] {
         &self.longest
+    }
+
+    /// The last accepted step end (`newest`) or the one before it: its q and gradient
+    /// values, if it holds a step end yet.
+    pub(super) fn step_end(&self, newest: bool) -> Option<(&[f64], &[f64])> {
+        let end = &self.ends[if newest { self.newest } else { 1 - self.newest }];
+        end.valid
+            .then_some((end.q.as_slice(), end.gradients.values.as_slice()))
+    }
+
+    /// Per row, the gradient's length when a search for a singular point last found none
+    /// (infinite when none failed).
+    pub(super) fn searched(&self) -> &[f64] {
+        &self.searched
     }
 
     /// Fold the last observation into the maxima.

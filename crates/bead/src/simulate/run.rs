@@ -3,6 +3,7 @@
 
 use std::time::Instant;
 
+use super::express::{Express, EXPRESS_CHUNK, EXPRESS_COOLDOWN};
 use super::{Quantity, Simulation};
 use crate::formulation::{Method, Nonconservation, StepError};
 use crate::integrate::IntegratorKind;
@@ -426,14 +427,37 @@ pub fn run_with_progress(
         failure = Some(RunError::Io(e));
     }
     let mut interval = 0;
+    // Plain steps between the intervals that record, report or end, as express steps where
+    // the run allows (the same bits and figures, see `express.rs`).
+    let mut express = simulation
+        .express
+        .then(|| Express::new(simulation))
+        .flatten();
+    let mut cooldown = 0;
     while failure.is_none() && interval < options.steps {
-        let next = interval + 1;
-        let target = options.output_time(t0, next, dt);
-        if let Err(e) = simulation.advance_to_with(target, &mut || progress.interrupted()) {
-            failure = Some(e);
-            break;
+        if let Some(express) = express.as_mut().filter(|_| cooldown == 0) {
+            let mut boundary = (interval / every + 1) * every;
+            boundary = boundary.min((interval / progress_every + 1) * progress_every);
+            boundary = boundary.min(options.steps).min(interval + EXPRESS_CHUNK);
+            let reached = simulation.express(express, t0, interval, boundary, &options);
+            if reached < boundary {
+                // The next interval needs the simulation's own path.
+                cooldown = EXPRESS_COOLDOWN;
+                if reached == interval {
+                    continue;
+                }
+            }
+            interval = reached;
+        } else {
+            let next = interval + 1;
+            let target = options.output_time(t0, next, dt);
+            if let Err(e) = simulation.advance_to_with(target, &mut || progress.interrupted()) {
+                failure = Some(e);
+                break;
+            }
+            interval = next;
+            cooldown = cooldown.saturating_sub(1);
         }
-        interval = next;
         if interval % progress_every == 0 {
             progress.advance(interval, options.steps);
         }

@@ -1,0 +1,335 @@
+//! Express steps: a single run's plain fixed steps taken through its compiled RK4 step and
+//! the lane monitor for one lane, with the bits and the figures of [`Simulation`]'s own
+//! steps.
+//!
+//! A step of `run` goes through `advance_to`, the fixed step's retry loop, the integrator,
+//! the formulation's compiled step, then `accept`: the observation copied into the monitor,
+//! the energy, the divergence and regularity checks, the shift of the step ends, the maxima.
+//! That machinery serves events, substeps, projections, the ledger and every integrator, and
+//! cost three times the compiled step itself on the article's scene. Where a run needs none
+//! of it — RK4 at a fixed step without substeps, projection, ledger, external forces or
+//! events, on a formulation with a compiled step (a small system under constant forces) —
+//! [`Simulation::express`] takes the steps itself: the formulation's own compiled step
+//! ([`crate::formulation::SecondOrderSystem::compiled_rk4_step`]), then the sweep lanes'
+//! monitor for one lane ([`LaneMonitor`]`<1>`, the same operations in the same order as
+//! [`super::monitor::Monitor`]) on the observation the step evaluated at its end.
+//!
+//! Anything more than a plain step goes back to the simulation's own path, as it does for a
+//! sweep lane: a step whose pivot test fails, a non-finite or diverging state, a candidate
+//! singular point (the lane monitor flags every first-order candidate, so it errs towards
+//! leaving), a step off the time grid. The simulation then stands after the last express
+//! step exactly as if it had taken every step itself (state, step counts, the monitor's step
+//! ends, longest gradients and maxima, its observation taken again), and takes the next step
+//! alone. Rows, progress and interruptions happen between express runs, at the output
+//! intervals `run` asks for, so the sink sees the same samples.
+
+use super::lane_monitor::LaneMonitor;
+use super::{RunOptions, Simulation, Stepper};
+use crate::expr::Tape;
+use crate::formulation::Method;
+use crate::integrate::IntegratorKind;
+
+/// At most this many output intervals per express run, so that an interruption is seen
+/// within a fraction of a millisecond.
+pub(super) const EXPRESS_CHUNK: u64 = 1024;
+
+/// Output intervals the simulation's own path takes after an express run stopped short,
+/// before the next express run is tried (a step the lane monitor flags, e.g. near a sharp
+/// bend the regularity monitor accepts, would otherwise be taken twice at every step).
+pub(super) const EXPRESS_COOLDOWN: u64 = 16;
+
+/// An express stepper for one simulation's run (see the module).
+pub(super) struct Express {
+    monitor: LaneMonitor<1>,
+    /// The form's observation tape, evaluated where the compiled step did not evaluate it
+    /// at the step's end; its variables (q, qdot, t), scratch and outputs
+    observe_tape: Tape,
+    vars: Vec<f64>,
+    scratch: Vec<f64>,
+    out: Vec<f64>,
+    /// The state at the start of the step in progress, and at the start of the last
+    /// accepted one (t, q, qdot)
+    start: (f64, Vec<f64>, Vec<f64>),
+    before: (f64, Vec<f64>, Vec<f64>),
+}
+
+impl Express {
+    /// An express stepper for `simulation`'s run, when its run can take express steps
+    /// (see the module); built before the run's first step, at the state it starts from.
+    pub(super) fn new(simulation: &Simulation) -> Option<Express> {
+        let config = &simulation.config;
+        let formulation = &simulation.formulation;
+        let system = formulation.system();
+        let method = formulation.method();
+        let plain = matches!(simulation.stepper, Stepper::Fixed(_))
+            && config.integrator == IntegratorKind::Rk4
+            && !config.project
+            && config.substeps <= 1
+            && simulation.ledger.is_none()
+            && formulation.external_forces().is_empty()
+            && simulation.watches.is_empty()
+            && formulation.compiles_rk4_step()
+            && match method {
+                Method::Implicit => system.constraints().only_taped(),
+                Method::Parametric => system.parametric().is_some(),
+            };
+        if !plain || !simulation.express_ready() {
+            return None;
+        }
+        let observe_tape = match method {
+            Method::Implicit => system.constraints().gradient_tape().clone(),
+            Method::Parametric => system.parametric()?.observation_tape().clone(),
+        };
+        let n = simulation.n;
+        let state = (0.0, vec![0.0; n], vec![0.0; n]);
+        Some(Express {
+            monitor: LaneMonitor::new(system, method, &[&simulation.monitor]),
+            vars: vec![0.0; 2 * n + 1],
+            scratch: vec![0.0; observe_tape.n_slots()],
+            out: vec![0.0; observe_tape.n_outputs()],
+            observe_tape,
+            start: state.clone(),
+            before: state,
+        })
+    }
+}
+
+impl Simulation {
+    /// Whether the simulation stands where an express run can start: at its last accepted
+    /// step end (the regularity monitor's reference, bit for bit), with no retried substeps
+    /// in force.
+    fn express_ready(&self) -> bool {
+        self.sticky_substeps <= 1
+            && self.state.q.len() == self.n
+            && self
+                .monitor
+                .step_end(true)
+                .is_some_and(|(q, _)| crate::same_bits(q, &self.state.q))
+    }
+
+    /// Take the output intervals `from + 1 ..= to` of a run of `options` from t0 (one step
+    /// of dt each, as [`Simulation::advance_to`] would take them) as express steps (see the
+    /// module), stopping before the first one that needs the simulation's own path. Returns
+    /// the last interval reached (`from` when none was). `express` must have been built
+    /// for this simulation at the start of this run, and the simulation must stand after
+    /// interval `from`.
+    pub(super) fn express(
+        &mut self,
+        express: &mut Express,
+        t0: f64,
+        from: u64,
+        to: u64,
+        options: &RunOptions,
+    ) -> u64 {
+        if !self.express_ready() {
+            return from;
+        }
+        // The lane monitor takes up where the simulation's own stands (it may have taken
+        // steps since the last express run).
+        express.monitor.load(&[&self.monitor]);
+        let n = self.n;
+        let dt = self.config.dt;
+        let tolerance = 1e-9 * dt;
+        let mut reached = from;
+        for interval in from + 1..=to {
+            // As `advance_to` steps to the interval's end: one step onto the grid point it
+            // lands on (else, e.g. a duration that ends between grid points, its own path).
+            let target = options.output_time(t0, interval, dt);
+            let next = self.grid_origin + (self.grid_steps + 1) as f64 * dt;
+            let off_grid = (next - target).abs();
+            if off_grid.is_nan() || off_grid > tolerance {
+                break;
+            }
+            let t = self.state.t;
+            let h = (target - t) / 1.0;
+            let (t_start, q_start, qdot_start) = &mut express.start;
+            *t_start = t;
+            q_start.copy_from_slice(&self.state.q);
+            qdot_start.copy_from_slice(&self.state.qdot);
+            if !self.formulation.compiled_rk4_step(&mut self.state, h) {
+                break;
+            }
+            self.state.t = target;
+            let (q, qdot) = (&self.state.q[..], &self.state.qdot[..]);
+            let out = match self.formulation.compiled_step_observation(target, q, qdot) {
+                Some(out) => out,
+                None => {
+                    let vars = &mut express.vars;
+                    vars[..n].copy_from_slice(q);
+                    vars[n..2 * n].copy_from_slice(qdot);
+                    vars[2 * n] = target;
+                    express
+                        .observe_tape
+                        .eval(vars, &mut express.scratch, &mut express.out);
+                    &express.out
+                }
+            };
+            let monitor = &self.monitor;
+            let [failed] = express.monitor.check(
+                self.formulation.system(),
+                1,
+                |_, t| monitor.limits(t),
+                target,
+                out,
+                q,
+                qdot,
+                &express.start.1,
+            );
+            if failed {
+                let (t, q, qdot) = &express.start;
+                self.state.t = *t;
+                self.state.q.copy_from_slice(q);
+                self.state.qdot.copy_from_slice(qdot);
+                break;
+            }
+            express.monitor.accept();
+            std::mem::swap(&mut express.start, &mut express.before);
+            self.steps += 1;
+            self.grid_steps += 1;
+            reached = interval;
+        }
+        if reached > from {
+            self.express_done(express);
+        }
+        reached
+    }
+
+    /// After express steps: the simulation as its own steps would have left it (see
+    /// [`super::lanes`]'s handover, which does the same for a sweep lane).
+    fn express_done(&mut self, express: &Express) {
+        let n = self.n;
+        let (t_before, q_before, qdot_before) = &express.before;
+        self.previous.t = *t_before;
+        self.previous.q.copy_from_slice(q_before);
+        self.previous.qdot.copy_from_slice(qdot_before);
+        self.substeps_max = self.substeps_max.max(1);
+        self.last_substeps = 1;
+        self.stopped_at_event = false;
+        self.output_behind = false;
+        if let Stepper::Fixed(integrator) = &mut self.stepper {
+            integrator.unprime();
+        }
+        // One lane: the lane monitor's buffers are that lane's values.
+        let lanes = &express.monitor;
+        self.monitor.adopt(
+            &self.state.q[..n],
+            &lanes.last,
+            Some((q_before, &lanes.before)),
+            &lanes.longest,
+            &lanes.searched,
+            lanes.maxima.map(|[m]| m),
+        );
+        let (q, qdot, work) = super::split(&self.state, n);
+        self.monitor
+            .observe(&mut *self.formulation, self.state.t, q, qdot, work);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::plan::{methods, Plan, PlanRequest};
+    use crate::scene::Scene;
+    use crate::simulate::{run, RunOptions, RunStats, Sample, SimulationConfig, Sink};
+
+    /// Every recorded sample's numbers, as bits.
+    #[derive(Default)]
+    struct Bits(Vec<u64>);
+    impl Sink for Bits {
+        fn record(&mut self, s: &Sample) -> std::io::Result<()> {
+            let head = [s.step as f64, s.t, s.energy, s.constraint_error];
+            let values = head
+                .iter()
+                .chain(s.x)
+                .chain(s.xdot)
+                .chain(s.q)
+                .chain(s.qdot);
+            self.0.extend(values.map(|v| v.to_bits()));
+            Ok(())
+        }
+    }
+
+    /// `run` with express steps gives every shipped scene's samples, final state, outcome
+    /// and statistics bit for bit as the simulation's own steps do: both forms, rk4 at the
+    /// scene's dt, run for twice its duration (the article's implicit bead drifts off its
+    /// curve and trips the regularity monitor's candidates on the way, which hands steps
+    /// back), rows every 7 intervals; and it takes the express path where it applies.
+    #[test]
+    fn express_steps_change_no_number() {
+        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes");
+        let mut paths: Vec<_> = std::fs::read_dir(&dir)
+            .expect("the scenes")
+            .map(|e| e.expect("an entry").path())
+            .filter(|p| p.extension().is_some_and(|e| e == "toml"))
+            .collect();
+        paths.sort();
+        let (mut compared, mut express_runs) = (0, 0);
+        for path in paths {
+            let scene = Scene::load(&path, &[]).unwrap_or_else(|e| panic!("{e}"));
+            let plan = Plan::resolve(&scene, &PlanRequest::default()).expect("a plan");
+            if scene.system.n_coords() > 60 {
+                continue; // chains and cloth: no compiled step, and slow in a debug build
+            }
+            for method in methods(&scene) {
+                let config = SimulationConfig {
+                    integrator: IntegratorKind::Rk4,
+                    ..plan.config(method)
+                };
+                let new = || Simulation::new(scene.system.clone(), config);
+                let (Ok(mut fast), Ok(mut own)) = (new(), new()) else {
+                    continue;
+                };
+                own.express = false;
+                express_runs += usize::from(Express::new(&fast).is_some());
+                let options = RunOptions {
+                    steps: (2 * plan.steps).min(20_000),
+                    every: 7,
+                    duration: None,
+                };
+                let (mut a, mut b) = (Bits::default(), Bits::default());
+                // The outcomes, but for the wall time.
+                let outcome = |r: Result<_, crate::simulate::RunFailure>| match r {
+                    Ok(stats) => format!(
+                        "{:?}",
+                        RunStats {
+                            wall_seconds: 0.0,
+                            ..stats
+                        }
+                    ),
+                    Err(mut failure) => {
+                        failure.stats.wall_seconds = 0.0;
+                        format!("{failure:?}")
+                    }
+                };
+                let ra = outcome(run(&mut fast, options, &mut a));
+                let rb = outcome(run(&mut own, options, &mut b));
+                let what = format!("{} {}", path.display(), method.name());
+                assert_eq!(ra, rb, "{what}");
+                assert!(a.0 == b.0, "{what}: the samples differ");
+                let stats = |s: &Simulation| format!("{:?}", s.stats(0.0));
+                assert_eq!(stats(&fast), stats(&own), "{what}");
+                let end = |s: &Simulation| {
+                    let v = [s.t(), s.energy(), s.constraint_error()];
+                    v.iter()
+                        .chain(s.q())
+                        .chain(s.qdot())
+                        .map(|v| v.to_bits())
+                        .collect::<Vec<_>>()
+                };
+                assert_eq!(end(&fast), end(&own), "{what}");
+                // And on from there by the simulation's own steps: the same again.
+                for _ in 0..50 {
+                    let (x, y) = (fast.step(), own.step());
+                    assert_eq!(format!("{x:?}"), format!("{y:?}"), "{what}");
+                }
+                assert_eq!(end(&fast), end(&own), "{what}");
+                compared += 1;
+            }
+        }
+        assert!(compared >= 10, "only {compared} runs compared");
+        assert!(
+            express_runs >= 6,
+            "only {express_runs} runs took express steps"
+        );
+    }
+}
