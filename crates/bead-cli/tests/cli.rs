@@ -548,6 +548,7 @@ fn help_describes_every_integrator_and_flag() {
         "gauss-legendre:   order 4, symplectic, implicit stages",
         "dopri5:           order 5, not symplectic, adaptive",
         "verlet:           order 2, symplectic",
+        "fast-projection:  order 1, not symplectic, implicit form only",
         "rattle:           order 2, symplectic, implicit form only",
     ] {
         assert!(out.contains(line), "{line} in\n{out}");

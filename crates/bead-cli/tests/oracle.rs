@@ -174,7 +174,8 @@ fn compare_prints_the_runs_of_both_forms() {
                 .filter(|s| s.system.name == system.name && s.integrator == integrator)
                 .collect();
             if specs.is_empty() {
-                // rattle: the parametric form refuses it, and compare says so.
+                // rattle, fast-projection: the parametric form refuses them, and compare says
+                // so.
                 let scene = bead_oracle::root().join(system.scene);
                 let out = bead_in(
                     &std::env::temp_dir(),
@@ -188,7 +189,8 @@ fn compare_prints_the_runs_of_both_forms() {
                     ],
                 );
                 let err = String::from_utf8_lossy(&out.stderr);
-                assert!(err.contains("rattle needs the implicit form"), "{err}");
+                let refusal = format!("{} needs the implicit form", integrator.name());
+                assert!(err.contains(&refusal), "{err}");
                 return;
             }
             let spec = &specs[0];

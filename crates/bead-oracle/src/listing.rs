@@ -141,7 +141,8 @@ pub const HARD: [Hard; 6] = [
 
 /// The cases `front` checks: every accepted system, method and integrator, at the
 /// calibrated step ([`matrix::cases`]); `bead compare` runs both forms with one integrator,
-/// so it refuses rattle (the parametric form does) and has no rattle case.
+/// so it refuses rattle and fast-projection (the parametric form does) and has no case of
+/// them.
 pub fn cases_for(front: &str) -> Vec<Spec> {
     assert!(
         FRONTS.iter().any(|f| f.key == front),
@@ -188,10 +189,10 @@ pub fn markdown() -> String {
         );
     }
     out += "\n## Systems x methods x integrators x output paths\n\n\
-            Every accepted combination: the implicit form with all 8 integrators, the \
-            parametric form with 7 (it refuses rattle). Steps (dt of the coarse run; the fine \
-            run halves it; dopri5's output interval at rtol 1e-9):\n\n\
-            | system | euler, symplectic-euler | midpoint, verlet, rattle | rk4, gauss-legendre | dopri5 |\n\
+            Every accepted combination: the implicit form with all 9 integrators, the \
+            parametric form with 7 (it refuses rattle and fast-projection). Steps (dt of the \
+            coarse run; the fine run halves it; dopri5's output interval at rtol 1e-9):\n\n\
+            | system | euler, symplectic-euler, fast-projection | midpoint, verlet, rattle | rk4, gauss-legendre | dopri5 |\n\
             |---|---|---|---|---|\n";
     for system in System::all() {
         use bead::formulation::Method::Implicit;

@@ -43,7 +43,9 @@ pub fn dt(system: &System, method: Method, integrator: IntegratorKind) -> f64 {
         _ => 1.0,
     };
     base * match integrator {
-        IntegratorKind::Euler | IntegratorKind::SymplecticEuler => 1e-3,
+        IntegratorKind::Euler
+        | IntegratorKind::SymplecticEuler
+        | IntegratorKind::FastProjection => 1e-3,
         IntegratorKind::Midpoint | IntegratorKind::Verlet | IntegratorKind::Rattle => 1e-2,
         // The double pendulum's error is asymptotic (within 20% of 2^4 at every row) from
         // about here.

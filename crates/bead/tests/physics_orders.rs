@@ -343,6 +343,19 @@ fn rattle_is_second_order_when_the_applied_forces_depend_on_velocity() {
     assert_order(IntegratorKind::Rattle, 2.0, 0.1, [100, 200, 400, 800]);
 }
 
+/// Law: step and project (fast projection) is of order 1 (observed 1.0 +- 0.1) on the curved
+/// constraints of the circle and the sphere and with drag: its velocity is the positions'
+/// change over the step, projected onto J v + C_t = 0.
+#[test]
+fn fast_projection_is_first_order_when_the_applied_forces_depend_on_velocity() {
+    assert_order(
+        IntegratorKind::FastProjection,
+        1.0,
+        0.1,
+        [400, 800, 1600, 3200],
+    );
+}
+
 /// Law: RK4 is of order 4 (observed 4.0 +- 0.1) on velocity-dependent systems.
 #[test]
 fn rk4_is_fourth_order_when_the_acceleration_depends_on_velocity() {
@@ -367,6 +380,7 @@ fn declared_orders_match_the_measured_ones() {
         (IntegratorKind::Rattle, 2),
         (IntegratorKind::Rk4, 4),
         (IntegratorKind::GaussLegendre, 4),
+        (IntegratorKind::FastProjection, 1),
     ] {
         assert_eq!(kind.order(), order, "{}", kind.name());
         assert!(kind.describe().contains(&format!("order {order}")));

@@ -43,7 +43,7 @@ impl Sink for Times {
 }
 
 fn accepts(method: Method, integrator: IntegratorKind) -> bool {
-    !(method == Method::Parametric && integrator == IntegratorKind::Rattle)
+    !(method == Method::Parametric && integrator.needs_constraints())
 }
 
 #[test]

@@ -11,6 +11,7 @@
 //! | `rattle` | 2 | yes (constrained; implicit form only) | 2 + 1 per Newton iteration; with drag + 1 force evaluation and velocity projection per kick sweep |
 //! | `gauss-legendre` | 4 | yes (implicit; fixed-point stage iteration) | 1 + 2 per iteration |
 //! | `dopri5` | 5 (adaptive, error estimate of order 4) | no | 6 per step (FSAL) |
+//! | `fast-projection` | 1 | no (damps what the step cannot resolve; implicit form only) | 1 + a factorization per projection iteration + a velocity projection |
 //!
 //! The orders hold whether or not f depends on qdot; `tests/physics_orders.rs` measures every
 //! fixed-step method on systems where it does (the implicit form's constraint bias, a
@@ -21,6 +22,7 @@
 
 mod dopri5;
 mod euler;
+mod fast_projection;
 mod fixed_point;
 mod gauss_legendre;
 mod midpoint;
@@ -31,6 +33,7 @@ mod verlet;
 
 pub use dopri5::Dopri5;
 pub use euler::Euler;
+pub use fast_projection::FastProjection;
 pub use gauss_legendre::GaussLegendre;
 pub use midpoint::Midpoint;
 pub use rattle::{NewtonMatrix, Rattle};
@@ -135,10 +138,11 @@ pub enum IntegratorKind {
     Rattle,
     GaussLegendre,
     Dopri5,
+    FastProjection,
 }
 
 impl IntegratorKind {
-    pub const ALL: [IntegratorKind; 8] = [
+    pub const ALL: [IntegratorKind; 9] = [
         IntegratorKind::Euler,
         IntegratorKind::SymplecticEuler,
         IntegratorKind::Midpoint,
@@ -147,6 +151,7 @@ impl IntegratorKind {
         IntegratorKind::Rattle,
         IntegratorKind::GaussLegendre,
         IntegratorKind::Dopri5,
+        IntegratorKind::FastProjection,
     ];
 
     /// Name in scene files and on the command line.
@@ -160,12 +165,15 @@ impl IntegratorKind {
             IntegratorKind::Rattle => "rattle",
             IntegratorKind::GaussLegendre => "gauss-legendre",
             IntegratorKind::Dopri5 => "dopri5",
+            IntegratorKind::FastProjection => "fast-projection",
         }
     }
     /// Global order of accuracy.
     pub fn order(self) -> u32 {
         match self {
-            IntegratorKind::Euler | IntegratorKind::SymplecticEuler => 1,
+            IntegratorKind::Euler
+            | IntegratorKind::SymplecticEuler
+            | IntegratorKind::FastProjection => 1,
             IntegratorKind::Midpoint | IntegratorKind::Verlet | IntegratorKind::Rattle => 2,
             IntegratorKind::Rk4 | IntegratorKind::GaussLegendre => 4,
             IntegratorKind::Dopri5 => 5,
@@ -185,7 +193,10 @@ impl IntegratorKind {
     /// Whether the method works on the constraints directly (through
     /// [`SecondOrderSystem::as_constrained`]) and so needs the implicit form.
     pub fn needs_constraints(self) -> bool {
-        matches!(self, IntegratorKind::Rattle)
+        matches!(
+            self,
+            IntegratorKind::Rattle | IntegratorKind::FastProjection
+        )
     }
     /// Whether the method chooses its own steps (dopri5): the run loop then treats dt as the
     /// output interval and drives it through [`Dopri5::advance`] and its dense output.
@@ -207,6 +218,10 @@ impl IntegratorKind {
             IntegratorKind::GaussLegendre => ", implicit stages",
             IntegratorKind::Rattle => ", implicit form only: constraints solved each step",
             IntegratorKind::Dopri5 => ", adaptive: dt is the output interval, see --rtol, --atol",
+            IntegratorKind::FastProjection => {
+                ", implicit form only: step, then project onto the constraints; damps what dt \
+                 cannot resolve (stiff cloth at frame-size steps)"
+            }
             _ => "",
         }
     }
@@ -225,6 +240,7 @@ impl IntegratorKind {
             IntegratorKind::Rattle => Box::new(Rattle::with_settings(n, settings)),
             IntegratorKind::GaussLegendre => Box::new(GaussLegendre::new(n, settings)),
             IntegratorKind::Dopri5 => Box::new(Dopri5::new(n, settings)),
+            IntegratorKind::FastProjection => Box::new(FastProjection::with_settings(n, settings)),
         }
     }
 }

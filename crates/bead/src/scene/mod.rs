@@ -45,8 +45,9 @@
 //!   initial distance); `"pin"` has `particle` and `anchor` (default its initial position).
 //! - `[parametric.positions]` gives every particle's position as expressions of the
 //!   coordinates, `t` and parameters.
-//! - `[run]`: `method` (implicit, parametric), `integrator` (euler, symplectic-euler, midpoint,
-//!   rk4), `dt`, `duration` or `steps`, and `stabilize = [ks, kd]` or
+//! - `[run]`: `method` (implicit, parametric), `integrator` (any of
+//!   [`crate::integrate::IntegratorKind::ALL`] by name: euler, symplectic-euler, midpoint, rk4,
+//!   verlet, rattle, gauss-legendre, dopri5, fast-projection), `dt`, `duration` or `steps`, and `stabilize = [ks, kd]` or
 //!   `stabilize = { frequency = f, damping = zeta }` (damping default 1), and
 //!   `stop_when = "EXPR"`: end the run where EXPR, an expression of the particles'
 //!   coordinates and velocities (`bead.y`, `bead.vx`), the generalized coordinates (`q` or
@@ -266,7 +267,8 @@ pub enum SceneEditError {
 pub struct RunDefaults {
     /// `method = "implicit" | "parametric"`.
     pub method: Option<Method>,
-    /// `integrator = "euler" | "symplectic-euler" | "midpoint" | "rk4"`.
+    /// `integrator = "euler" | "symplectic-euler" | "midpoint" | "rk4" | ...` (every
+    /// [`IntegratorKind`] by name).
     pub integrator: Option<IntegratorKind>,
     /// `dt`: step size, > 0.
     pub dt: Option<f64>,
