@@ -1509,7 +1509,7 @@ mod tests {
 
     /// The parameters whose sweeps are expected to restart members: those that reach only
     /// initial values in the shipped scenes.
-    const RESTARTED: [(&str, &str); 16] = [
+    const RESTARTED: [(&str, &str); 18] = [
         ("circle.toml", "theta0"),
         ("cusp.toml", "s0"),
         ("cycloid.toml", "phi0"),
@@ -1522,8 +1522,10 @@ mod tests {
         ("infinity.toml", "v0"),
         ("lemniscate.toml", "v0"),
         ("loop.toml", "v0"),
+        ("net.toml", "F"),
         ("node.toml", "s0"),
         ("parabola-x0.toml", "x0"),
+        ("rope.toml", "F"),
         ("spinning-hoop.toml", "th0"),
         ("spiral.toml", "w0"),
     ];

@@ -608,11 +608,11 @@ fn chain_and_cloth_run_with_rattle() {
     }
 }
 
-/// At full size (1000 links; 50 x 50 masses, 4906 rows) each scene takes steps with its own
-/// settings: RATTLE at the dt that shrinks with its size.
+/// At full size (1000 links; 50 x 50 masses, 4906 rows; 100 rope links; a 20 x 20 net) each
+/// scene takes steps with its own settings: RATTLE at the dt that shrinks with its size.
 #[test]
 fn chain_and_cloth_run_at_full_size_with_their_own_settings() {
-    for name in ["chain.toml", "cloth.toml"] {
+    for name in ["chain.toml", "cloth.toml", "net.toml", "rope.toml"] {
         let scene = Scene::load(&scenes_dir().join(name), &[]).unwrap();
         assert_eq!(scene.run.integrator, Some(IntegratorKind::Rattle));
         let config = SimulationConfig {

@@ -585,6 +585,9 @@ fn mutated_scenes_never_panic() {
         let mut text = text;
         for (from, to) in [
             ("N = { value = 1000,", "N = { value = 5,"),
+            ("N = { value = 100,", "N = { value = 5,"),
+            ("W = { value = 20,", "W = { value = 4,"),
+            ("R = { value = 10,", "R = { value = 2,"),
             ("W = { value = 50,", "W = { value = 4,"),
             ("H = { value = 50,", "H = { value = 4,"),
         ] {

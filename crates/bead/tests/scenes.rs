@@ -76,8 +76,9 @@ fn small(path: &Path) -> Vec<(String, f64)> {
     let name = path.file_name().and_then(|n| n.to_str()).unwrap_or("");
     let set = |pairs: &[(&str, f64)]| pairs.iter().map(|(k, v)| (k.to_string(), *v)).collect();
     match name {
-        "chain.toml" => set(&[("N", 5.0)]),
+        "chain.toml" | "rope.toml" => set(&[("N", 5.0)]),
         "cloth.toml" => set(&[("W", 4.0), ("H", 4.0)]),
+        "net.toml" => set(&[("W", 4.0), ("R", 2.0)]),
         _ => Vec::new(),
     }
 }
