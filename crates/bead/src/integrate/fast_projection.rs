@@ -36,7 +36,7 @@
 //! converge within the iteration limit is [`StepError::ProjectionFailed`], never a silent
 //! continuation.
 
-use super::{Integrator, IntegratorSettings};
+use super::{constraints_of, Integrator, IntegratorKind, IntegratorSettings};
 use crate::formulation::{SecondOrderSystem, State, StepError};
 
 /// Step and project (see the module).
@@ -83,11 +83,7 @@ impl Integrator for FastProjection {
         s: &mut State,
         dt: f64,
     ) -> Result<(), StepError> {
-        let cs = system
-            .as_constrained()
-            .ok_or_else(|| StepError::NeedsConstraints {
-                what: "fast-projection".into(),
-            })?;
+        let cs = constraints_of(system, IntegratorKind::FastProjection)?;
         let (t0, t1) = (s.t, s.t + dt);
         cs.unconstrained_acceleration(t0, &s.q, &s.qdot, &mut self.acceleration)?;
         self.q_start.copy_from_slice(&s.q);

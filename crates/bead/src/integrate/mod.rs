@@ -258,6 +258,20 @@ impl std::str::FromStr for IntegratorKind {
     }
 }
 
+/// The constraints of `system` for a method that works on them (`kind`, which
+/// [`IntegratorKind::needs_constraints`]); [`StepError::NeedsConstraints`] naming the method
+/// where the system has none to offer (the parametric form).
+fn constraints_of(
+    system: &mut dyn SecondOrderSystem,
+    kind: IntegratorKind,
+) -> Result<&mut dyn crate::formulation::ConstrainedSystem, StepError> {
+    system
+        .as_constrained()
+        .ok_or_else(|| StepError::NeedsConstraints {
+            what: kind.name().into(),
+        })
+}
+
 /// y = x + h z, elementwise.
 fn axpy_into(y: &mut [f64], x: &[f64], h: f64, z: &[f64]) {
     for ((y, x), z) in y.iter_mut().zip(x).zip(z) {

@@ -88,7 +88,7 @@
 //! steps allocate nothing. On the sparse path nothing is of size m x n or m x m.
 
 use super::fixed_point::{increment_and_scale, FixedPoint};
-use super::{Integrator, IntegratorSettings};
+use super::{constraints_of, Integrator, IntegratorKind, IntegratorSettings};
 use crate::formulation::{ConstrainedSystem, SecondOrderSystem, State, StepError};
 use crate::linalg::{max_abs, solve_general, ConstraintMatrix, LinearSolver, DENSE_MAX_ROWS};
 
@@ -439,11 +439,7 @@ impl Integrator for Rattle {
         s: &mut State,
         dt: f64,
     ) -> Result<(), StepError> {
-        let cs = system
-            .as_constrained()
-            .ok_or_else(|| StepError::NeedsConstraints {
-                what: "rattle".into(),
-            })?;
+        let cs = constraints_of(system, IntegratorKind::Rattle)?;
         let n = s.q.len();
         let m = cs.n_constraints();
         self.reserve(cs);
