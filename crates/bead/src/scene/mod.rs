@@ -47,8 +47,9 @@
 //!   coordinates, `t` and parameters.
 //! - `[run]`: `method` (implicit, parametric), `integrator` (any of
 //!   [`crate::integrate::IntegratorKind::ALL`] by name: euler, symplectic-euler, midpoint, rk4,
-//!   verlet, rattle, gauss-legendre, dopri5, fast-projection), `dt`, `duration` or `steps`, and `stabilize = [ks, kd]` or
-//!   `stabilize = { frequency = f, damping = zeta }` (damping default 1), and
+//!   verlet, rattle, gauss-legendre, dopri5, fast-projection), `dt`, `duration` or `steps`,
+//!   and `stabilize = [ks, kd]` or `stabilize = { frequency = f, damping = zeta }` (damping
+//!   default 1), and
 //!   `stop_when = "EXPR"`: end the run where EXPR, an expression of the particles'
 //!   coordinates and velocities (`bead.y`, `bead.vx`), the generalized coordinates (`q` or
 //!   `q.q`, rates `qdot.q`), `t` and parameters, crosses zero upward
