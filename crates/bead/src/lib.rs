@@ -26,6 +26,20 @@ pub(crate) fn same_bits(a: &[f64], b: &[f64]) -> bool {
     a.len() == b.len() && a.iter().zip(b).all(|(x, y)| x.to_bits() == y.to_bits())
 }
 
+/// The shipped scene files (`scenes/*.toml`), sorted: what the unit tests that walk every
+/// scene load.
+#[cfg(test)]
+pub(crate) fn shipped_scene_paths() -> Vec<std::path::PathBuf> {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes");
+    let mut paths: Vec<_> = std::fs::read_dir(&dir)
+        .expect("the scenes")
+        .map(|e| e.expect("an entry").path())
+        .filter(|p| p.extension().is_some_and(|e| e == "toml"))
+        .collect();
+    paths.sort();
+    paths
+}
+
 /// `value` for messages: plain notation, or exponent notation when it is very large or very
 /// small, so that no message prints a 300-digit number.
 ///

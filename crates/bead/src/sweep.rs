@@ -1468,14 +1468,7 @@ mod tests {
     use crate::formulation::Method;
 
     fn shipped_scenes() -> Vec<(String, Scene)> {
-        let dir = concat!(env!("CARGO_MANIFEST_DIR"), "/../../scenes");
-        let mut paths: Vec<_> = std::fs::read_dir(dir)
-            .unwrap()
-            .map(|e| e.unwrap().path())
-            .filter(|p| p.extension().is_some_and(|e| e == "toml"))
-            .collect();
-        paths.sort();
-        paths
+        crate::shipped_scene_paths()
             .into_iter()
             .map(|p| {
                 let name = p.file_name().unwrap().to_string_lossy().into_owned();

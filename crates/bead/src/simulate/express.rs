@@ -256,15 +256,8 @@ mod tests {
     /// back), rows every 7 intervals; and it takes the express path where it applies.
     #[test]
     fn express_steps_change_no_number() {
-        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes");
-        let mut paths: Vec<_> = std::fs::read_dir(&dir)
-            .expect("the scenes")
-            .map(|e| e.expect("an entry").path())
-            .filter(|p| p.extension().is_some_and(|e| e == "toml"))
-            .collect();
-        paths.sort();
         let (mut compared, mut express_runs) = (0, 0);
-        for path in paths {
+        for path in crate::shipped_scene_paths() {
             let scene = Scene::load(&path, &[]).unwrap_or_else(|e| panic!("{e}"));
             let plan = Plan::resolve(&scene, &PlanRequest::default()).expect("a plan");
             if scene.system.n_coords() > 60 {

@@ -1427,15 +1427,8 @@ mod tests {
     fn priming_the_first_stage_changes_no_number() {
         use crate::plan::{methods, Plan, PlanRequest};
         use crate::scene::Scene;
-        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes");
-        let mut paths: Vec<_> = std::fs::read_dir(&dir)
-            .expect("the scenes")
-            .map(|e| e.expect("an entry").path())
-            .filter(|p| p.extension().is_some_and(|e| e == "toml"))
-            .collect();
-        paths.sort();
         let mut compared = 0;
-        for path in paths {
+        for path in crate::shipped_scene_paths() {
             let scene = Scene::load(&path, &[]).unwrap_or_else(|e| panic!("{e}"));
             let plan = Plan::resolve(&scene, &PlanRequest::default()).expect("a plan");
             for method in methods(&scene) {
