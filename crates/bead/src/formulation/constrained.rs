@@ -28,7 +28,7 @@ use std::cmp::Ordering;
 
 use super::{Implicit, SecondOrderSystem, StepError};
 use crate::linalg::{max_abs, ConstraintMatrix, LinearSolver, RowStructure, Singular};
-use crate::model::{ConstraintEval, ConstraintSet, System};
+use crate::model::{ConstraintEval, ConstraintSet, DistanceRow, System};
 
 /// A second-order system with holonomic constraints C(q, t) = 0 (m rows) on its coordinates.
 pub trait ConstrainedSystem: SecondOrderSystem {
@@ -44,6 +44,12 @@ pub trait ConstrainedSystem: SecondOrderSystem {
     }
     /// The diagonal inverse mass matrix W (n).
     fn inverse_mass(&self) -> &[f64];
+    /// Constraint row `row` as a built-in distance, whose constant Hessian a projection's
+    /// Newton iteration uses ([`DistanceRow`]); `None` for every other row (the default).
+    fn distance_row(&self, row: usize) -> Option<DistanceRow> {
+        let _ = row;
+        None
+    }
     /// a = W F(t, q, qdot): the applied forces only, without any constraint force.
     fn unconstrained_acceleration(
         &mut self,
@@ -269,6 +275,10 @@ impl ConstrainedSystem for Implicit {
 
     fn inverse_mass(&self) -> &[f64] {
         &self.system.inverse_mass
+    }
+
+    fn distance_row(&self, row: usize) -> Option<DistanceRow> {
+        self.system.constraints().distance_row(row)
     }
 
     fn unconstrained_acceleration(

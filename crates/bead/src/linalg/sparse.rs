@@ -62,6 +62,9 @@ pub struct SparseLdlt {
     diagonal_slot: Vec<usize>,
     ordering_used: Ordering,
     supernodal: bool,
+    /// +1 / -1 per row of A for a quasi-definite matrix (see [`SparseLdlt::quasi_definite`]),
+    /// empty for a positive-definite one
+    signs: Vec<i8>,
     mem: MemBuffer,
 }
 
@@ -134,7 +137,26 @@ impl SparseLdlt {
             pivot_at,
             ordering_used,
             supernodal,
+            signs: Vec::new(),
             mem: MemBuffer::new(scratch),
+        }
+    }
+
+    /// The symbolic analysis of a symmetric quasi-definite matrix [A, B^T; B, -C] with A and
+    /// C positive definite (`signs[i] > 0` for A's rows, `< 0` for C's): e.g. the Newton
+    /// matrix of a constrained minimization with its multipliers' block regularized. Such a
+    /// matrix has an LDL^T factorization in every symmetric order, D_ii of the sign of row
+    /// i (Vanderbei 1995), so `options.ordering` is free to minimize fill. Factor with
+    /// [`SparseLdlt::factor_signed`].
+    pub fn quasi_definite(
+        pattern: &SymmetricPattern,
+        options: SparseOptions,
+        signs: Vec<i8>,
+    ) -> Self {
+        assert_eq!(signs.len(), pattern.dim(), "one sign per row");
+        SparseLdlt {
+            signs,
+            ..SparseLdlt::new(pattern, options)
         }
     }
 
@@ -151,28 +173,55 @@ impl SparseLdlt {
         self.l_values.len()
     }
 
-    /// The first pivot among elimination steps `0..end` that fails the relative test.
-    fn first_failing_pivot(&self, values: &[f64], end: usize) -> Option<Singular> {
+    /// The first pivot among elimination steps `0..end` that fails the relative test:
+    /// sign * D_kk must be above the tolerance times the row's scale, itself positive.
+    fn first_failing_pivot(
+        &self,
+        end: usize,
+        sign_and_scale: &impl Fn(&Self, usize) -> (f64, f64),
+    ) -> Option<Singular> {
         (0..end).find_map(|k| {
             let row = self.order[k];
-            let diagonal = values[self.diagonal_slot[row]];
-            let pivot = self.l_values[self.pivot_at[k]];
-            (!(diagonal > 0.0 && pivot > self.relative_pivot_tolerance * diagonal)).then_some(
-                Singular {
-                    row,
-                    finite: diagonal.is_finite() && pivot.is_finite(),
-                },
-            )
+            let (sign, scale) = sign_and_scale(self, row);
+            let pivot = sign * self.l_values[self.pivot_at[k]];
+            (!(scale > 0.0 && pivot > self.relative_pivot_tolerance * scale)).then_some(Singular {
+                row,
+                finite: scale.is_finite() && pivot.is_finite(),
+            })
         })
     }
 }
 
-impl SymmetricSolver for SparseLdlt {
-    fn factor(&mut self, values: &[f64]) -> Result<(), Singular> {
+impl SparseLdlt {
+    /// Factor a quasi-definite matrix (built by [`SparseLdlt::quasi_definite`]): `values` as
+    /// for [`SymmetricSolver::factor`], `pivot_scales` (m, positive) the size each pivot is
+    /// measured against. Pivot k of row i fails when sign_i D_kk is not above
+    /// [`RELATIVE_PIVOT_TOLERANCE`] times `pivot_scales[i]` (a positive row's diagonal
+    /// entry; for a multiplier's row, e.g. J_i W J_i^T, the pivot it would have with H
+    /// diagonal): a dependent row, reported as for a positive-definite matrix.
+    pub fn factor_signed(&mut self, values: &[f64], pivot_scales: &[f64]) -> Result<(), Singular> {
+        assert!(
+            !self.signs.is_empty(),
+            "factor_signed needs SparseLdlt::quasi_definite"
+        );
+        self.factor_with(values, |this, row| {
+            (f64::from(this.signs[row]), pivot_scales[row])
+        })
+    }
+
+    /// The numeric factorization, then the pivot test: `sign_and_scale(row)` gives the sign
+    /// the row's pivot must have and the scale it must exceed (see [`Self::factor_signed`]).
+    fn factor_with(
+        &mut self,
+        values: &[f64],
+        sign_and_scale: impl Fn(&Self, usize) -> (f64, f64),
+    ) -> Result<(), Singular> {
         let m = self.order.len();
         let a = SparseColMatRef::new(self.pattern.rb(), values);
+        // Pivots of the wrong sign or exactly zero become the smallest normal number of the
+        // right sign, so that they fail the relative test below rather than stop faer.
         let regularization = LdltRegularization {
-            dynamic_regularization_signs: None,
+            dynamic_regularization_signs: (!self.signs.is_empty()).then_some(&self.signs[..]),
             dynamic_regularization_delta: f64::MIN_POSITIVE,
             dynamic_regularization_epsilon: f64::MIN_POSITIVE,
         };
@@ -186,7 +235,7 @@ impl SymmetricSolver for SparseLdlt {
             Default::default(),
         );
         match result {
-            Ok(_) => match self.first_failing_pivot(values, m) {
+            Ok(_) => match self.first_failing_pivot(m, &sign_and_scale) {
                 Some(singular) => Err(singular),
                 None => Ok(()),
             },
@@ -199,12 +248,24 @@ impl SymmetricSolver for SparseLdlt {
                     index.saturating_sub(1)
                 }
                 .min(m.saturating_sub(1));
-                Err(self.first_failing_pivot(values, k).unwrap_or(Singular {
-                    row: self.order[k],
-                    finite: false,
-                }))
+                Err(self
+                    .first_failing_pivot(k, &sign_and_scale)
+                    .unwrap_or(Singular {
+                        row: self.order[k],
+                        finite: false,
+                    }))
             }
         }
+    }
+}
+
+impl SymmetricSolver for SparseLdlt {
+    fn factor(&mut self, values: &[f64]) -> Result<(), Singular> {
+        assert!(
+            self.signs.is_empty(),
+            "a quasi-definite matrix needs factor_signed"
+        );
+        self.factor_with(values, |this, row| (1.0, values[this.diagonal_slot[row]]))
     }
 
     fn solve_in_place(&mut self, rhs: &mut [f64]) {
@@ -314,6 +375,81 @@ mod tests {
                 .fold(0.0f64, |e, (a, b)| e.max((a - b).abs()));
             assert!(error < 1e-12, "{options:?}: {error:e}");
         }
+    }
+
+    /// K = [A, B^T; B, -C]: A the 30 x 30 SPD matrix of `random_spd`, B 12 x 30 (row r
+    /// reads columns 2r and 2r + 5), C = `c` I. Values in the pattern's order, and K dense.
+    fn random_quasi_definite(c: f64) -> (SymmetricPattern, Vec<f64>, Vec<f64>) {
+        let (na, nb) = (30, 12);
+        let m = na + nb;
+        let (a_pattern, a_values) = random_spd(na, 11);
+        let mut dense = vec![0.0; m * m];
+        for j in 0..na {
+            for (s, &i) in a_pattern.column(j) {
+                dense[i * m + j] = a_values[s];
+                dense[j * m + i] = a_values[s];
+            }
+        }
+        for r in 0..nb {
+            for (k, column) in [2 * r, 2 * r + 5].into_iter().enumerate() {
+                let value = 0.5 + 0.1 * (r + k) as f64;
+                dense[(na + r) * m + column] = value;
+                dense[column * m + na + r] = value;
+            }
+            dense[(na + r) * m + na + r] = -c;
+        }
+        let pairs = (0..m)
+            .flat_map(|i| (0..m).map(move |j| (i, j)))
+            .filter(|&(i, j)| dense[i * m + j] != 0.0);
+        let pattern = SymmetricPattern::new(m, pairs);
+        let mut values = vec![0.0; pattern.nnz()];
+        for j in 0..m {
+            for (s, &i) in pattern.column(j) {
+                values[s] = dense[i * m + j];
+            }
+        }
+        (pattern, values, dense)
+    }
+
+    /// A quasi-definite matrix solves as Gaussian elimination with partial pivoting does,
+    /// in every ordering and layout; with C = 0 the same pattern still factors in every
+    /// ordering that eliminates no multiplier first, and AMD's does (a zero pivot, named).
+    #[test]
+    fn a_quasi_definite_matrix_factors_in_every_ordering_with_its_signs() {
+        let (pattern, values, dense) = random_quasi_definite(1e-3);
+        let m = pattern.dim();
+        let signs: Vec<i8> = (0..m).map(|i| if i < 30 { 1 } else { -1 }).collect();
+        let rhs: Vec<f64> = (0..m).map(|i| (0.7 * i as f64).cos()).collect();
+        let mut expected = rhs.clone();
+        let mut a = dense.clone();
+        super::super::solve_general(m, &mut a, &mut expected, &mut vec![0.0; m]).unwrap();
+        let mut scales = vec![1.0; m];
+        for (i, scale) in scales.iter_mut().enumerate().take(30) {
+            *scale = dense[i * m + i];
+        }
+        for options in all_options() {
+            let mut sparse = SparseLdlt::quasi_definite(&pattern, options, signs.clone());
+            sparse.factor_signed(&values, &scales).unwrap();
+            let mut z = rhs.clone();
+            sparse.solve_in_place(&mut z);
+            let error = z
+                .iter()
+                .zip(&expected)
+                .fold(0.0f64, |e, (a, b)| e.max((a - b).abs()));
+            assert!(error < 1e-10, "{options:?}: {error:e}");
+        }
+        // C = 0: a multiplier whose row AMD eliminates before its unknowns has a zero pivot.
+        let (_, values, _) = random_quasi_definite(0.0);
+        let mut amd = SparseLdlt::quasi_definite(
+            &pattern,
+            SparseOptions {
+                ordering: Ordering::Amd,
+                supernodal: None,
+            },
+            signs,
+        );
+        let singular = amd.factor_signed(&values, &scales).unwrap_err();
+        assert!(singular.row >= 30 && singular.finite, "{singular:?}");
     }
 
     /// Row 5 repeats row 2 (a duplicated constraint): whichever the elimination meets second

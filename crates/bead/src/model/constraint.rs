@@ -34,6 +34,21 @@ pub struct ConstraintInfo {
     pub length: Option<f64>,
 }
 
+/// A built-in distance row, C = (|x_a - x_b|^2 - L^2) / (2L) (x_b a fixed point when `b` is
+/// `None`): its Hessian is constant, (1/L) [I, -I; -I, I] over (x_a, x_b) ((1/L) I over x_a
+/// alone for a fixed point), which a Newton iteration on a projection can use exactly.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DistanceRow {
+    /// First coordinate of particle a (its `dim` coordinates follow)
+    pub a: usize,
+    /// First coordinate of particle b, `None` for a fixed point
+    pub b: Option<usize>,
+    /// Spatial dimension
+    pub dim: usize,
+    /// L
+    pub length: f64,
+}
+
 /// One scalar constraint row written as an expression over slots [x (n), v (n), t], with
 /// its exact derivatives.
 #[derive(Clone, Debug)]
@@ -249,7 +264,6 @@ impl ConstraintSet {
     pub fn is_time_dependent(&self, row: usize) -> bool {
         self.time_dependent[row]
     }
-    /// Coordinates of the nonzero entries of J in `row`.
     /// Whether `row` is a built-in distance (length > 0) or pin row, evaluated natively:
     /// rows whose gradient vanishes nowhere on their constraint.
     pub fn is_native_row(&self, row: usize) -> bool {
@@ -258,6 +272,20 @@ impl ConstraintSet {
             .binary_search_by_key(&row, |(r, _)| *r)
             .is_ok()
     }
+    /// `row` as a built-in distance ([`DistanceRow`]), if it is one.
+    pub fn distance_row(&self, row: usize) -> Option<DistanceRow> {
+        let at = self
+            .native_rows
+            .binary_search_by_key(&row, |(r, _)| *r)
+            .ok()?;
+        match self.native_rows[at].1 {
+            NativeRow::Distance {
+                dim, a, b, length, ..
+            } => Some(DistanceRow { a, b, dim, length }),
+            NativeRow::Pin { .. } => None,
+        }
+    }
+    /// Coordinates of the nonzero entries of J in `row`.
     pub fn row_columns(&self, row: usize) -> &[usize] {
         &self.columns[self.row_start[row]..self.row_start[row + 1]]
     }

@@ -24,7 +24,7 @@ mod parametric;
 pub(crate) use builder::compile_reusing;
 pub(crate) use builder::MASS_RANGE;
 pub use builder::{ModelError, SystemBuilder};
-pub use constraint::{ConstraintEval, ConstraintInfo, ConstraintSet, ExprRow};
+pub use constraint::{ConstraintEval, ConstraintInfo, ConstraintSet, DistanceRow, ExprRow};
 pub use edit::{DeclaredConstraint, EditError};
 pub use force::{Endpoint, Force};
 pub use holonomic::Holonomic;
