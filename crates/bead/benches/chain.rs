@@ -415,6 +415,173 @@ fn main() {
             Some(FRAME),
             duration.max(FRAME),
         );
+        run_cloth_projection_counts(duration.max(FRAME));
+        run_xpbd_cloth(duration.max(FRAME), benchmarking);
+    }
+}
+
+/// The shipped cloth, loaded.
+fn cloth_scene() -> bead::scene::Scene {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes/cloth.toml");
+    bead::scene::Scene::load(&path, &[]).unwrap_or_else(|e| panic!("{e}"))
+}
+
+/// The fast projection's work on the cloth at dt = 1/60, by its integrator alone (no
+/// monitors): Newton iterations and factorizations per step, time per step.
+fn run_cloth_projection_counts(duration: f64) {
+    use bead::formulation::{ConstraintScales, Feedback, Formulation, Implicit};
+    use bead::integrate::{FastProjection, Integrator, IntegratorSettings};
+    let system = Arc::clone(&cloth_scene().system);
+    let mut formulation = Implicit::new(Arc::clone(&system), Feedback::default());
+    formulation.set_constraint_scales(Some(ConstraintScales::of(&system)));
+    let mut state = formulation.initial_state();
+    let settings = IntegratorSettings {
+        constraint_tolerance: 1e-12,
+        ..Default::default()
+    };
+    let mut integrator = FastProjection::with_settings(state.q.len(), &settings);
+    let steps = (duration / FRAME).round() as u64;
+    let start = Instant::now();
+    for _ in 0..steps {
+        integrator
+            .step(&mut formulation, &mut state, FRAME)
+            .unwrap_or_else(|e| panic!("cloth: {e}"));
+    }
+    let wall = start.elapsed().as_secs_f64();
+    println!(
+        "  fast-projection's step alone: {:.2} ms per step, {:.2} Newton iterations and {:.2} \
+         factorizations of the {} x {} Newton matrix per step (at most {} iterations)",
+        wall * 1e3 / steps as f64,
+        integrator.projection_iterations_total() as f64 / steps as f64,
+        integrator.factorizations_total() as f64 / steps as f64,
+        state.q.len() + system.constraints().n_rows(),
+        state.q.len() + system.constraints().n_rows(),
+        integrator.newton_iterations_max().unwrap_or(0),
+    );
+}
+
+/// The game engines' answer on the same cloth (positions, masses, rods and pins of the
+/// scene): a hand-written XPBD (Macklin, Mueller & Chentanez 2016) with zero compliance, one
+/// step per frame of 1/60 s: v += h g, p = x + h v, then `iterations` Gauss-Seidel sweeps
+/// over the rods (p_a -= w_a / (w_a + w_b) C n, p_b += w_b / (w_a + w_b) C n with C = |d| - L,
+/// n = d / |d|), v = (p - x) / h; or the frame in substeps of one sweep each. Each row its
+/// frames/s and the largest stretch over the run; the game-engine target is 1e-3.
+fn run_xpbd_cloth(duration: f64, benchmarking: bool) {
+    let scene = cloth_scene();
+    let system = Arc::clone(&scene.system);
+    let set = system.constraints();
+    let dim = system.dim();
+    let x0: Vec<f64> = Simulation::new(Arc::clone(&system), SimulationConfig::default())
+        .unwrap()
+        .positions()
+        .to_vec();
+    let n = x0.len() / dim;
+    let mut w: Vec<f64> = (0..n).map(|p| system.inverse_mass()[p * dim]).collect();
+    let mut rods = Vec::new();
+    for row in 0..set.n_rows() {
+        match set.distance_row(row) {
+            Some(rod) => rods.push((
+                rod.a / dim,
+                rod.b.expect("rods join particles") / dim,
+                rod.length,
+            )),
+            // A pin holds its particle: infinite mass.
+            None => w[set.row_columns(row)[0] / dim] = 0.0,
+        }
+    }
+    let g = system.gravity().to_vec();
+    let steps = (duration / FRAME).round() as u64;
+    let cloth = XpbdCloth { dim, w, rods, g };
+    println!();
+    println!(
+        "hand-written XPBD of the same cloth (zero compliance, Gauss-Seidel), frames of 1/60 s, \
+         {duration:.3} s simulated:"
+    );
+    println!(
+        "  {:>10} {:>10} {:>12} {:>10}",
+        "substeps", "sweeps", "frames/s", "stretch"
+    );
+    // One step per frame with more and more sweeps, then more and more substeps of one
+    // sweep each (Macklin et al. 2019, "Small steps in physics simulation"), until the
+    // stretch is 1e-3 or the frame rate falls below 2 per second.
+    for vary_substeps in [false, true] {
+        let mut count = if vary_substeps { 20 } else { 10 };
+        loop {
+            let (substeps, sweeps) = if vary_substeps {
+                (count, 1)
+            } else {
+                (1, count)
+            };
+            let start = Instant::now();
+            let (x, stretch) = cloth.run(&x0, steps, substeps, sweeps);
+            let wall = start.elapsed().as_secs_f64();
+            black_box(&x);
+            let frames_per_second = steps as f64 / wall;
+            println!("  {substeps:>10} {sweeps:>10} {frames_per_second:>12.1} {stretch:>10.1e}");
+            if stretch <= 1e-3 || frames_per_second < 2.0 || !benchmarking {
+                break;
+            }
+            count *= 2;
+        }
+    }
+}
+
+/// The cloth for the hand-written XPBD: inverse masses per particle (0 where pinned), the
+/// rods (a, b, L), gravity.
+struct XpbdCloth {
+    dim: usize,
+    w: Vec<f64>,
+    rods: Vec<(usize, usize, f64)>,
+    g: Vec<f64>,
+}
+
+impl XpbdCloth {
+    /// `frames` frames of 1/60 s from rest at `x0`, each `substeps` steps of `sweeps`
+    /// sweeps: the final positions and the largest stretch |d - L| / L after any frame.
+    fn run(&self, x0: &[f64], frames: u64, substeps: usize, sweeps: usize) -> (Vec<f64>, f64) {
+        let (dim, w) = (self.dim, &self.w);
+        let h = FRAME / substeps as f64;
+        let (mut x, mut v, mut p) = (x0.to_vec(), vec![0.0; x0.len()], x0.to_vec());
+        let mut stretch = 0.0_f64;
+        for _ in 0..frames {
+            for _ in 0..substeps {
+                for k in 0..x.len() {
+                    if w[k / dim] > 0.0 {
+                        v[k] += h * self.g[k % dim];
+                    }
+                    p[k] = x[k] + h * v[k];
+                }
+                for _ in 0..sweeps {
+                    for &(a, b, length) in &self.rods {
+                        let (wa, wb) = (w[a], w[b]);
+                        let mut d = [0.0; 3];
+                        let mut norm = 0.0;
+                        for axis in 0..dim {
+                            d[axis] = p[a * dim + axis] - p[b * dim + axis];
+                            norm += d[axis] * d[axis];
+                        }
+                        let norm = norm.sqrt();
+                        let s = (norm - length) / ((wa + wb) * norm);
+                        for axis in 0..dim {
+                            p[a * dim + axis] -= wa * s * d[axis];
+                            p[b * dim + axis] += wb * s * d[axis];
+                        }
+                    }
+                }
+                for k in 0..x.len() {
+                    v[k] = (p[k] - x[k]) / h;
+                    x[k] = p[k];
+                }
+            }
+            for &(a, b, length) in &self.rods {
+                let d: f64 = (0..dim)
+                    .map(|axis| (x[a * dim + axis] - x[b * dim + axis]).powi(2))
+                    .sum::<f64>()
+                    .sqrt();
+                stretch = stretch.max((d - length).abs() / length);
+            }
+        }
+        (x, stretch)
     }
 }
 
@@ -423,8 +590,7 @@ fn main() {
 /// second, the largest rod stretch |d - L| / L after any step, the most Newton (projection)
 /// iterations a step took and the energy's relative change over `duration` simulated seconds.
 fn run_cloth(integrator: IntegratorKind, dt: Option<f64>, duration: f64) {
-    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes/cloth.toml");
-    let scene = bead::scene::Scene::load(&path, &[]).unwrap_or_else(|e| panic!("{e}"));
+    let scene = cloth_scene();
     let dt = dt.or(scene.run.dt).unwrap_or(FRAME / 2.0);
     let config = SimulationConfig {
         method: Method::Implicit,

@@ -150,9 +150,8 @@ impl ProjectionNewton {
     }
 
     /// Project `q` (q* on entry, kept as `q_free`) onto C(q, t) = 0 by Newton's method
-    /// (see the module) to
-    /// `limits` (the constraint tolerance, the iteration limit), counting factorizations
-    /// into `factorizations`; the number of iterations taken.
+    /// (see the module) to `limits` (the constraint tolerance, the iteration limit),
+    /// counting factorizations into `factorizations`; the number of iterations taken.
     fn project(
         &mut self,
         cs: &mut dyn ConstrainedSystem,
