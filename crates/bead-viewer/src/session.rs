@@ -405,7 +405,13 @@ impl Session {
     /// to the same simulated time. When one cannot get there, the clock stops at the
     /// earliest time a running panel reached (all panels slow together; the others wait
     /// there) and the frame names that panel ([`Clock::limited_by`]).
+    ///
+    /// A frame advances the clock by at most 0.1 s of wall time (a server that was held up
+    /// does not make up for it); the simulation rate is measured against the whole
+    /// `elapsed`, so that it tells how the simulation kept up with real time, however
+    /// loaded the machine.
     pub fn advance(&mut self, elapsed: f64) {
+        let wall = elapsed.max(0.0);
         let elapsed = elapsed.clamp(0.0, 0.1);
         let active = |p: &&Panel| p.running && !p.failed();
         let running = self.panels.iter().filter(active).count() as u64;
@@ -465,8 +471,8 @@ impl Session {
                 AtEnd::Continue => {}
             }
         }
-        if elapsed > 0.0 {
-            let rate = ((self.clock - start) / elapsed).max(0.0);
+        if wall > 0.0 {
+            let rate = ((self.clock - start) / wall).max(0.0);
             self.sim_rate = if self.sim_rate > 0.0 {
                 0.9 * self.sim_rate + 0.1 * rate
             } else {

@@ -113,6 +113,21 @@ fn a_slow_panel_slows_every_panel_and_is_named() {
     assert!(clock.sim_rate <= 0.6 + 1e-6, "{clock:?}");
 }
 
+/// A server held up for half a second (a loaded machine) advances the simulation by at
+/// most 0.1 s, and says so: the rate is measured against the wall time that passed, 0.2,
+/// not against what the clock was allowed to take.
+#[test]
+fn the_rate_tells_a_held_up_server() {
+    let mut s = session();
+    s.advance(0.5);
+    let (clock, panels) = frame(&mut s);
+    assert!((panels[0].t - 0.1).abs() < 1e-9, "{panels:?}");
+    assert!(
+        (clock.sim_rate - panels[0].t / 0.5).abs() < 1e-9,
+        "{clock:?}"
+    );
+}
+
 /// A slider change reloads the scene with the new value and restarts every panel: a new
 /// generation, the parameter's new value, and physics that follows it (the potential of the
 /// same start state scales with g).
