@@ -1403,11 +1403,10 @@ fn check_accepts_every_shipped_scene() {
         assert_eq!(stderr(&out), "", "{}", scene.display());
         let text = ok(out);
         assert!(text.contains("\ndegrees of freedom: "), "{text}");
-        let integrator = if text.contains("integrator rattle") {
-            "rattle"
-        } else {
-            "rk4"
-        };
+        let integrator = ["rattle", "fast-projection"]
+            .into_iter()
+            .find(|name| text.contains(&format!("integrator {name}")))
+            .unwrap_or("rk4");
         assert!(
             text.contains(&format!("\nstart at t = 0 ({integrator}, dt ")),
             "{text}"

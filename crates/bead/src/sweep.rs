@@ -1502,8 +1502,9 @@ mod tests {
 
     /// The parameters whose sweeps are expected to restart members: those that reach only
     /// initial values in the shipped scenes.
-    const RESTARTED: [(&str, &str); 18] = [
+    const RESTARTED: [(&str, &str); 19] = [
         ("circle.toml", "theta0"),
+        ("cloth.toml", "F"),
         ("cusp.toml", "s0"),
         ("cycloid.toml", "phi0"),
         ("double-pendulum.toml", "th1"),

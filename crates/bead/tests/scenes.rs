@@ -107,6 +107,16 @@ fn every_scene_loads_without_warnings_and_runs_every_method_and_integrator() {
                 if method == Method::Parametric && integrator.needs_constraints() {
                     continue;
                 }
+                // A scene that steps at a frame with fast-projection (the cloth) takes a
+                // step no other method is meant to take: they run at an eighth of it.
+                let dt = match scene.run.integrator {
+                    Some(IntegratorKind::FastProjection)
+                        if integrator != IntegratorKind::FastProjection =>
+                    {
+                        dt / 8.0
+                    }
+                    _ => dt,
+                };
                 let stats = simulate(&scene, method, integrator, dt, 200);
                 assert_eq!(stats.t_final, 200.0 * dt);
                 assert!(stats.x.iter().all(|c| c.is_finite()));

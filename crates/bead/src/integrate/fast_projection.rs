@@ -50,7 +50,7 @@
 
 use super::{constraints_of, Integrator, IntegratorKind, IntegratorSettings};
 use crate::formulation::{ConstrainedSystem, SecondOrderSystem, State, StepError};
-use crate::linalg::{max_abs, ProjectionNewtonMatrix, RowCurvature};
+use crate::linalg::{max_abs, Curvature, NewtonMatrixError, ProjectionNewtonMatrix, RowCurvature};
 
 /// A later iteration of a step reuses the factorization while the last one shrank the
 /// residual at least this much (else it factors the Newton matrix at its own iterate).
@@ -224,15 +224,27 @@ impl ProjectionNewton {
             let reuse = iterations > 0 && progress <= REUSE_CONTRACTION * previous;
             previous = progress;
             if !reuse {
-                if let Err(singular) = self.matrix.factor(&self.jacobian, &self.lambda) {
-                    break Err(if singular.finite {
-                        cs.singular_constraint(t, singular.row)
-                    } else {
-                        StepError::ProjectionFailed {
+                // Newton's own matrix; with only the pulling rows' curvature where
+                // compressed rods make it indefinite.
+                let factored = self
+                    .matrix
+                    .factor(&self.jacobian, &self.lambda, Curvature::Signed)
+                    .or_else(|error| match error {
+                        NewtonMatrixError::NotPositive => {
+                            *factorizations += 1;
+                            self.matrix
+                                .factor(&self.jacobian, &self.lambda, Curvature::TensionOnly)
+                        }
+                        other => Err(other),
+                    });
+                if let Err(error) = factored {
+                    break Err(match error {
+                        NewtonMatrixError::Dependent { row } => cs.singular_constraint(t, row),
+                        _ => StepError::ProjectionFailed {
                             t,
                             iterations,
                             residual: f64::NAN,
-                        }
+                        },
                     });
                 }
                 *factorizations += 1;

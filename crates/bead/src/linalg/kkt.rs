@@ -16,10 +16,12 @@
 //!
 //! with H_i = d2C_i/dq2. This matrix is assembled here for rows whose Hessian is a constant
 //! multiple of a graph Laplacian ([`RowCurvature`]: bead's distance rows, H = (1/L) [I, -I;
-//! -I, I]); the other rows' Hessians are left out (Gauss-Newton in those rows). Only
-//! lambda_i > 0 is taken (a taut rod pulled back), so that the top-left block stays
-//! positive definite and the matrix quasi-definite ([`SparseLdlt::quasi_definite`]): its
-//! pattern and symbolic analysis are fixed once, every factorization reuses them.
+//! -I, I]); the other rows' Hessians are left out (Gauss-Newton in those rows). While the
+//! top-left block is positive definite the matrix is quasi-definite
+//! ([`SparseLdlt::quasi_definite`]); compressed rods (lambda_i < 0) can make it indefinite,
+//! which the factorization reports ([`NewtonMatrixError::NotPositive`]), and
+//! [`Curvature::TensionOnly`] then keeps it definite. The pattern and its symbolic analysis
+//! are fixed once; every factorization reuses them.
 
 use super::{
     Ordering, RowStructure, Singular, SparseLdlt, SparseOptions, SymmetricPattern, SymmetricSolver,
@@ -31,6 +33,30 @@ use super::{
 /// price of a Newton step that is exact only to about delta relative, which the iteration
 /// (its residual exact) corrects.
 pub const MULTIPLIER_REGULARIZATION: f64 = 1e-8;
+
+/// Which multipliers' curvature the matrix takes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Curvature {
+    /// Every row's, lambda_i H_i as it is: Newton's method itself, while
+    /// M + sum_i lambda_i H_i stays positive definite (compressed rods, lambda_i < 0,
+    /// subtract from it).
+    Signed,
+    /// Only rows pulling (lambda_i > 0): positive definite always.
+    TensionOnly,
+}
+
+/// Why the projection's Newton matrix did not factor.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum NewtonMatrixError {
+    /// Constraint row `row` depends on the others at this q: its multiplier's pivot
+    /// vanished (relative to J_i W J_i^T).
+    Dependent { row: usize },
+    /// M + sum_i lambda_i H_i is not positive definite: a coordinate's pivot vanished or
+    /// turned negative (relative to its mass and curvature), as compressed rods can make it.
+    NotPositive,
+    /// A value was not finite.
+    NonFinite,
+}
 
 /// A constraint row whose Hessian is `scale` [I, -I; -I, I] over the `dim` coordinates
 /// starting at `a` and those starting at `b` (`scale` I over a's alone when `b` is `None`).
@@ -44,9 +70,11 @@ pub struct RowCurvature {
 }
 
 /// Where one axis of a [`RowCurvature`] adds its terms: (a, a), (b, b), (a, b); `None`
-/// where a coordinate does not move.
+/// where a coordinate does not move. `a` and `b` are the axis's coordinates.
 #[derive(Clone, Copy, Debug)]
 struct CurvatureSlots {
+    a: usize,
+    b: Option<usize>,
     aa: Option<usize>,
     bb: Option<usize>,
     ab: Option<usize>,
@@ -115,6 +143,8 @@ impl ProjectionNewtonMatrix {
                 (0..c.dim).map(move |axis| {
                     let (a, b) = (c.a + axis, c.b.map(|b| b + axis));
                     CurvatureSlots {
+                        a,
+                        b,
                         aa: movable(a).then(|| slot(a, a)),
                         bb: b.filter(|&b| movable(b)).map(|b| slot(b, b)),
                         ab: b.filter(|&b| movable(a) && movable(b)).map(|b| slot(a, b)),
@@ -153,14 +183,18 @@ impl ProjectionNewtonMatrix {
     }
 
     /// Assemble the matrix at J's entries `jacobian` (in the row structure's order) and the
-    /// multipliers `lambda` (m), and factor it. Err names the constraint row whose pivot
-    /// vanished (a row dependent on others at this q); a non-finite number is reported with
-    /// `finite: false`.
-    pub fn factor(&mut self, jacobian: &[f64], lambda: &[f64]) -> Result<(), Singular> {
+    /// multipliers `lambda` (m), with `curvature`, and factor it.
+    pub fn factor(
+        &mut self,
+        jacobian: &[f64],
+        lambda: &[f64],
+        curvature: Curvature,
+    ) -> Result<(), NewtonMatrixError> {
         let n = self.n;
         self.values.fill(0.0);
         for (k, &slot) in self.diagonal_slots[..n].iter().enumerate() {
             self.values[slot] = self.mass[k];
+            self.pivot_scales[k] = self.mass[k];
         }
         // A multiplier's pivot is measured against J_i W J_i^T: its pivot if H were M and
         // only its own unknowns were eliminated before it.
@@ -176,26 +210,35 @@ impl ProjectionNewtonMatrix {
         }
         let mut slots = self.curvature_slots.iter();
         for c in &self.curvature {
-            let weight = lambda[c.row].max(0.0) * c.scale;
+            let weight = match curvature {
+                Curvature::Signed => lambda[c.row],
+                Curvature::TensionOnly => lambda[c.row].max(0.0),
+            } * c.scale;
             for slots in slots.by_ref().take(c.dim) {
                 for (slot, sign) in [(slots.aa, 1.0), (slots.bb, 1.0), (slots.ab, -1.0)] {
                     if let Some(slot) = slot {
                         self.values[slot] += sign * weight;
                     }
                 }
+                // A coordinate's pivot is measured against its mass and the size of the
+                // curvature on it.
+                if slots.aa.is_some() {
+                    self.pivot_scales[slots.a] += weight.abs();
+                }
+                if let (Some(b), Some(_)) = (slots.b, slots.bb) {
+                    self.pivot_scales[b] += weight.abs();
+                }
             }
-        }
-        for (k, &slot) in self.diagonal_slots[..n].iter().enumerate() {
-            self.pivot_scales[k] = self.values[slot];
         }
         for (&slot, scale) in self.diagonal_slots[n..].iter().zip(&self.pivot_scales[n..]) {
             self.values[slot] = -MULTIPLIER_REGULARIZATION * scale;
         }
         self.solver
             .factor_signed(&self.values, &self.pivot_scales)
-            .map_err(|singular| Singular {
-                row: singular.row.saturating_sub(n),
-                finite: singular.finite && singular.row >= n,
+            .map_err(|singular| match singular {
+                Singular { finite: false, .. } => NewtonMatrixError::NonFinite,
+                Singular { row, .. } if row < n => NewtonMatrixError::NotPositive,
+                Singular { row, .. } => NewtonMatrixError::Dependent { row: row - n },
             })
     }
 
@@ -231,8 +274,8 @@ mod tests {
     /// In 2D: particle 0 (mass 2) on a circle of radius 1 about the origin, particle 1
     /// (mass 3) at distance 1.5 from it, and particle 1's x held by a row without curvature.
     /// The Newton step agrees with Gaussian elimination on the matrix written out by hand
-    /// (the Hessians of C = (|d|^2 - L^2) / (2L) taken by hand), the negative multiplier's
-    /// curvature left out.
+    /// (the Hessians of C = (|d|^2 - L^2) / (2L) taken by hand), with the compressed rod's
+    /// curvature and without it.
     #[test]
     fn the_newton_step_agrees_with_the_matrix_written_out() {
         let (x0, x1) = ([0.6, 0.9], [1.7, 1.6]);
@@ -269,46 +312,66 @@ mod tests {
         ];
         let rows = RowStructure::new(&row_start, &columns);
         let mut matrix = ProjectionNewtonMatrix::new(rows, &w, curvature);
-        matrix.factor(&jacobian, &lambda).unwrap();
         let residual_q = [0.1, -0.2, 0.05, 0.3];
         let residual_c = [0.01, -0.02, 0.03];
-        let (mut dq, mut dlambda) = ([0.0; 4], [0.0; 3]);
-        matrix.solve(&residual_q, &residual_c, &mut dq, &mut dlambda);
-
-        // By hand: M + 0.3 (1/l0) I on particle 0 (row 1's lambda < 0 adds nothing), J^T,
-        // J, and the regularization -delta J_i W J_i^T.
-        let k = 7;
-        let mut dense = vec![0.0; k * k];
-        for c in 0..4 {
-            dense[c * k + c] = 1.0 / w[c];
-        }
-        for c in 0..2 {
-            dense[c * k + c] += 0.3 / l0;
-        }
         let j_rows: [[f64; 4]; 3] = [
             [x0[0] / l0, x0[1] / l0, 0.0, 0.0],
             [d[0] / l1, d[1] / l1, -d[0] / l1, -d[1] / l1],
             [0.0, 0.0, 1.0, 0.0],
         ];
-        for (i, row) in j_rows.iter().enumerate() {
+        for mode in [Curvature::Signed, Curvature::TensionOnly] {
+            matrix.factor(&jacobian, &lambda, mode).unwrap();
+            let (mut dq, mut dlambda) = ([0.0; 4], [0.0; 3]);
+            matrix.solve(&residual_q, &residual_c, &mut dq, &mut dlambda);
+
+            // By hand: M, lambda_0 (1/l0) I on particle 0, lambda_1 (1/l1) [I, -I; -I, I]
+            // on both (Signed only: lambda_1 < 0), J^T, J, and the regularization
+            // -delta J_i W J_i^T.
+            let k = 7;
+            let mut dense = vec![0.0; k * k];
             for c in 0..4 {
-                dense[(4 + i) * k + c] = row[c];
-                dense[c * k + 4 + i] = row[c];
+                dense[c * k + c] = 1.0 / w[c];
             }
-            let jwj: f64 = (0..4).map(|c| row[c] * row[c] * w[c]).sum();
-            dense[(4 + i) * k + 4 + i] = -MULTIPLIER_REGULARIZATION * jwj;
+            for c in 0..2 {
+                dense[c * k + c] += lambda[0] / l0;
+                if mode == Curvature::Signed {
+                    let h = lambda[1] / l1;
+                    dense[c * k + c] += h;
+                    dense[(c + 2) * k + c + 2] += h;
+                    dense[c * k + c + 2] -= h;
+                    dense[(c + 2) * k + c] -= h;
+                }
+            }
+            for (i, row) in j_rows.iter().enumerate() {
+                for c in 0..4 {
+                    dense[(4 + i) * k + c] = row[c];
+                    dense[c * k + 4 + i] = row[c];
+                }
+                let jwj: f64 = (0..4).map(|c| row[c] * row[c] * w[c]).sum();
+                dense[(4 + i) * k + 4 + i] = -MULTIPLIER_REGULARIZATION * jwj;
+            }
+            let mut expected: Vec<f64> = residual_q.iter().chain(&residual_c).map(|r| -r).collect();
+            super::super::solve_general(k, &mut dense, &mut expected, &mut [0.0; 7]).unwrap();
+            // To about delta relative: AMD eliminates the pin's multiplier first, whose
+            // pivot is -delta J W J^T, and its unknown's pivot then carries 1/delta beside
+            // its mass (the iteration's exact residual corrects what the step misses).
+            let got: Vec<f64> = dq.iter().chain(&dlambda).copied().collect();
+            for (g, e) in got.iter().zip(&expected) {
+                assert!(
+                    (g - e).abs() < 10.0 * MULTIPLIER_REGULARIZATION * (1.0 + e.abs()),
+                    "{mode:?}: {got:?} vs {expected:?}"
+                );
+            }
         }
-        let mut expected: Vec<f64> = residual_q.iter().chain(&residual_c).map(|r| -r).collect();
-        super::super::solve_general(k, &mut dense, &mut expected, &mut [0.0; 7]).unwrap();
-        // To about delta relative: AMD eliminates the pin's multiplier first, whose pivot is
-        // -delta J W J^T, and its unknown's pivot then carries 1/delta beside its mass (the
-        // iteration's exact residual corrects what the step misses).
-        let got: Vec<f64> = dq.iter().chain(&dlambda).copied().collect();
-        for (g, e) in got.iter().zip(&expected) {
-            assert!(
-                (g - e).abs() < 10.0 * MULTIPLIER_REGULARIZATION * (1.0 + e.abs()),
-                "{got:?} vs {expected:?}"
-            );
-        }
+        // A rod compressed hard enough makes M + lambda H indefinite: said, and the tension
+        // alone still factors.
+        let crushed = [0.3, -40.0, 0.7];
+        assert_eq!(
+            matrix.factor(&jacobian, &crushed, Curvature::Signed),
+            Err(NewtonMatrixError::NotPositive)
+        );
+        matrix
+            .factor(&jacobian, &crushed, Curvature::TensionOnly)
+            .unwrap();
     }
 }

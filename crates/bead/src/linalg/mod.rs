@@ -21,7 +21,7 @@ mod sparse;
 pub use constraint_matrix::{ConstraintMatrix, RowStructure};
 pub use dense::{dense_solve, ldlt_in_place, ldlt_substitute, DenseLdlt};
 pub(crate) use dense::{ldlt_lanes, ldlt_substitute_lanes};
-pub use kkt::{ProjectionNewtonMatrix, RowCurvature};
+pub use kkt::{Curvature, NewtonMatrixError, ProjectionNewtonMatrix, RowCurvature};
 pub use path::{PathLdlt, PathOrder};
 pub use pattern::SymmetricPattern;
 pub use sparse::{Ordering, SparseLdlt, SparseOptions};
