@@ -424,12 +424,29 @@ fn main() {
         );
         run_cloth_projection_counts(duration.max(FRAME));
         run_xpbd_cloth(duration.max(FRAME), benchmarking);
+        // The rope and the net with their own settings (RATTLE), and the net at a frame.
+        let duration = if benchmarking { 10.0 } else { 0.02 };
+        run_scene("rope.toml", IntegratorKind::Rattle, None, duration);
+        run_scene("net.toml", IntegratorKind::Rattle, None, duration);
+        run_scene(
+            "net.toml",
+            IntegratorKind::FastProjection,
+            Some(FRAME),
+            duration.max(FRAME),
+        );
     }
 }
 
 /// The shipped cloth, loaded.
 fn cloth_scene() -> bead::scene::Scene {
-    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes/cloth.toml");
+    shipped_scene("cloth.toml")
+}
+
+/// Shipped scene `name` (in `scenes/`), loaded.
+fn shipped_scene(name: &str) -> bead::scene::Scene {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../scenes")
+        .join(name);
     bead::scene::Scene::load(&path, &[]).unwrap_or_else(|e| panic!("{e}"))
 }
 
@@ -597,7 +614,12 @@ impl XpbdCloth {
 /// second, the largest rod stretch |d - L| / L after any step, the most Newton (projection)
 /// iterations a step took and the energy's relative change over `duration` simulated seconds.
 fn run_cloth(integrator: IntegratorKind, dt: Option<f64>, duration: f64) {
-    let scene = cloth_scene();
+    run_scene("cloth.toml", integrator, dt, duration);
+}
+
+/// Shipped scene `name` as [`run_cloth`] runs the cloth.
+fn run_scene(name: &str, integrator: IntegratorKind, dt: Option<f64>, duration: f64) {
+    let scene = shipped_scene(name);
     let dt = dt.or(scene.run.dt).unwrap_or(FRAME / 2.0);
     let config = SimulationConfig {
         method: Method::Implicit,
@@ -614,7 +636,7 @@ fn run_cloth(integrator: IntegratorKind, dt: Option<f64>, duration: f64) {
     let energy_initial = sim.energy();
     let start = Instant::now();
     for _ in 0..steps {
-        sim.step().unwrap_or_else(|e| panic!("cloth: {e}"));
+        sim.step().unwrap_or_else(|e| panic!("{name}: {e}"));
         // C = (|d|^2 - L^2) / (2 L), so |d| = sqrt(L^2 + 2 L C).
         let c = set.residuals(sim.t(), sim.positions(), &mut ws);
         for info in set.infos() {
@@ -628,7 +650,7 @@ fn run_cloth(integrator: IntegratorKind, dt: Option<f64>, duration: f64) {
     let wall = start.elapsed().as_secs_f64();
     println!();
     println!(
-        "scenes/cloth.toml ({} particles, {} rows), {} at dt = {dt:.5}, {duration:.3} s simulated:",
+        "scenes/{name} ({} particles, {} rows), {} at dt = {dt:.5}, {duration:.3} s simulated:",
         system.particles().len(),
         set.n_rows(),
         integrator.name()
