@@ -16,6 +16,23 @@ fn cloth(w: f64, h: f64) -> Scene {
     Scene::load(&path, &[("W".into(), w), ("H".into(), h)]).unwrap_or_else(|e| panic!("{e}"))
 }
 
+/// A simulation of `system` in the implicit form with `integrator` at `dt`, no step retried
+/// in substeps.
+fn stepped_alone(
+    system: &Arc<bead::model::System>,
+    integrator: IntegratorKind,
+    dt: f64,
+) -> Simulation {
+    let config = SimulationConfig {
+        method: Method::Implicit,
+        integrator,
+        dt,
+        max_substeps: 1,
+        ..Default::default()
+    };
+    Simulation::new(Arc::clone(system), config).unwrap()
+}
+
 /// The largest rod stretch |d - L| / L at the simulation's state.
 fn stretch(sim: &Simulation, ws: &mut bead::model::ConstraintEval) -> f64 {
     let set = sim.system().constraints();
@@ -43,18 +60,7 @@ fn fast_projection_steps_a_stiff_cloth_at_frame_size_steps_where_rattle_cannot()
     let dt = 1.0 / 60.0;
     assert!(dt * f > 4.0, "dt F = {}", dt * f);
     let system = Arc::clone(&scene.system);
-    let config = |integrator, dt| SimulationConfig {
-        method: Method::Implicit,
-        integrator,
-        dt,
-        max_substeps: 1,
-        ..Default::default()
-    };
-    let mut sim = Simulation::new(
-        Arc::clone(&system),
-        config(IntegratorKind::FastProjection, dt),
-    )
-    .unwrap();
+    let mut sim = stepped_alone(&system, IntegratorKind::FastProjection, dt);
     let mut ws = system.constraints().workspace();
     let e0 = sim.energy();
     let mut worst = (0.0_f64, f64::NEG_INFINITY);
@@ -75,12 +81,10 @@ fn fast_projection_steps_a_stiff_cloth_at_frame_size_steps_where_rattle_cannot()
     // The energy goes: the stiff modes it cannot resolve are damped.
     assert!(sim.energy() < e0);
 
-    let mut rattle =
-        Simulation::new(Arc::clone(&system), config(IntegratorKind::Rattle, dt)).unwrap();
+    let mut rattle = stepped_alone(&system, IntegratorKind::Rattle, dt);
     let failed = (0..60).any(|_| rattle.step().is_err());
     assert!(failed, "rattle at dt F = {:.1} ran a second", dt * f);
-    let mut rattle =
-        Simulation::new(Arc::clone(&system), config(IntegratorKind::Rattle, 1.5 / f)).unwrap();
+    let mut rattle = stepped_alone(&system, IntegratorKind::Rattle, 1.5 / f);
     for step in 0..200 {
         rattle
             .step()
@@ -115,17 +119,7 @@ fn each_step_is_the_closest_point_on_a_circle() {
     "#;
     let scene = Scene::parse(text, "pendulum.toml", &[]).unwrap_or_else(|e| panic!("{e}"));
     let dt = 1.0 / 30.0;
-    let mut sim = Simulation::new(
-        Arc::clone(&scene.system),
-        SimulationConfig {
-            method: Method::Implicit,
-            integrator: IntegratorKind::FastProjection,
-            dt,
-            max_substeps: 1,
-            ..Default::default()
-        },
-    )
-    .unwrap();
+    let mut sim = stepped_alone(&scene.system, IntegratorKind::FastProjection, dt);
     let (length, g) = (1.3, 9.81);
     let mut worst = 0.0_f64;
     for step in 0..600 {
@@ -162,17 +156,7 @@ fn the_projection_is_the_closest_point_on_a_cloth() {
     let scene = cloth(6.0, 6.0);
     let system = Arc::clone(&scene.system);
     let dt = 1.0 / 60.0;
-    let mut sim = Simulation::new(
-        Arc::clone(&system),
-        SimulationConfig {
-            method: Method::Implicit,
-            integrator: IntegratorKind::FastProjection,
-            dt,
-            max_substeps: 1,
-            ..Default::default()
-        },
-    )
-    .unwrap();
+    let mut sim = stepped_alone(&system, IntegratorKind::FastProjection, dt);
     let w = system.inverse_mass().to_vec();
     let gravity: Vec<f64> = system.gravity().to_vec();
     let dim = gravity.len();
