@@ -316,11 +316,11 @@ fn warnings_report_inconsistent_initial_states() {
 
 /// Every shipped scene, run as `bead run` runs it (its own `[run]` table) for twice its
 /// duration with each of its forms: it completes, within 1% of its size of its constraints
-/// (the article's implicit rk4 drifts by design, 0.3% in 30 s) and of its energy, or it
+/// (the article's implicit rk4 drifts by design, 0.3% in 30 s) and of its energy (never
+/// above its start by more for a scene that damps, the cloth at a frame), or it
 /// stops where it was written to stop (a singular point: the cusp in both forms, the node and
 /// the lemniscate in the implicit form). A scene that fails at 14 s must not pass because it
-/// stops at 10. The cloth runs at 20 x 20 (at 50 x 50 its 6 s take minutes; the chain runs
-/// a minute in `singular_watch`). Release mode: `cargo test -p bead --release -- --ignored`.
+/// stops at 10. The chain runs a minute in `singular_watch`. Release mode: `cargo test -p bead --release -- --ignored`.
 #[test]
 #[ignore]
 fn acceptance_every_shipped_scene_runs_twice_its_duration() {
@@ -367,11 +367,20 @@ fn acceptance_every_shipped_scene_runs_twice_its_duration() {
                             "{context}: {distance} off its constraints"
                         );
                     }
-                    assert!(
-                        stats.conserved_energy_error_max() <= 1e-2,
-                        "{context}: energy error {}",
-                        stats.conserved_energy_error_max()
-                    );
+                    if plan.config(method).integrator == IntegratorKind::FastProjection {
+                        // A step that damps what it cannot resolve (the cloth at a frame):
+                        // its energy goes, and never rises above its start.
+                        assert!(
+                            stats.energy_final <= stats.energy_initial + 1e-2 * stats.energy_scale,
+                            "{context}: energy rose: {stats:?}"
+                        );
+                    } else {
+                        assert!(
+                            stats.conserved_energy_error_max() <= 1e-2,
+                            "{context}: energy error {}",
+                            stats.conserved_energy_error_max()
+                        );
+                    }
                 }
                 Err(failure) => {
                     assert!(expected_to_stop, "{context}: {}", failure.error);
