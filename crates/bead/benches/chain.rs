@@ -484,8 +484,8 @@ fn run_cloth_projection_counts(duration: f64) {
     );
 }
 
-/// The game engines' answer on the same cloth (positions, masses, rods and pins of the
-/// scene): a hand-written XPBD (Macklin, Mueller & Chentanez 2016) with zero compliance, one
+/// The game engines' answer on the same cloth (positions, gust, masses, rods and pins of
+/// the scene): a hand-written XPBD (Macklin, Mueller & Chentanez 2016) with zero compliance, one
 /// step per frame of 1/60 s: v += h g, p = x + h v, then `iterations` Gauss-Seidel sweeps
 /// over the rods (p_a -= w_a / (w_a + w_b) C n, p_b += w_b / (w_a + w_b) C n with C = |d| - L,
 /// n = d / |d|), v = (p - x) / h; or the frame in substeps of one sweep each. Each row its
@@ -495,10 +495,9 @@ fn run_xpbd_cloth(duration: f64, benchmarking: bool) {
     let system = Arc::clone(&scene.system);
     let set = system.constraints();
     let dim = system.dim();
-    let x0: Vec<f64> = Simulation::new(Arc::clone(&system), SimulationConfig::default())
-        .unwrap()
-        .positions()
-        .to_vec();
+    // The scene's start: its positions and the gust's velocities.
+    let start = Simulation::new(Arc::clone(&system), SimulationConfig::default()).unwrap();
+    let (x0, v0) = (start.positions().to_vec(), start.velocities().to_vec());
     let n = x0.len() / dim;
     let mut w: Vec<f64> = (0..n).map(|p| system.inverse_mass()[p * dim]).collect();
     let mut rods = Vec::new();
@@ -537,7 +536,7 @@ fn run_xpbd_cloth(duration: f64, benchmarking: bool) {
                 (1, count)
             };
             let start = Instant::now();
-            let (x, stretch) = cloth.run(&x0, steps, substeps, sweeps);
+            let (x, stretch) = cloth.run(&x0, &v0, steps, substeps, sweeps);
             let wall = start.elapsed().as_secs_f64();
             black_box(&x);
             let frames_per_second = steps as f64 / wall;
@@ -560,12 +559,20 @@ struct XpbdCloth {
 }
 
 impl XpbdCloth {
-    /// `frames` frames of 1/60 s from rest at `x0`, each `substeps` steps of `sweeps`
-    /// sweeps: the final positions and the largest stretch |d - L| / L after any frame.
-    fn run(&self, x0: &[f64], frames: u64, substeps: usize, sweeps: usize) -> (Vec<f64>, f64) {
+    /// `frames` frames of 1/60 s from `x0` moving at `v0`, each `substeps` steps of
+    /// `sweeps` sweeps: the final positions and the largest stretch |d - L| / L after any
+    /// frame.
+    fn run(
+        &self,
+        x0: &[f64],
+        v0: &[f64],
+        frames: u64,
+        substeps: usize,
+        sweeps: usize,
+    ) -> (Vec<f64>, f64) {
         let (dim, w) = (self.dim, &self.w);
         let h = FRAME / substeps as f64;
-        let (mut x, mut v, mut p) = (x0.to_vec(), vec![0.0; x0.len()], x0.to_vec());
+        let (mut x, mut v, mut p) = (x0.to_vec(), v0.to_vec(), x0.to_vec());
         let mut stretch = 0.0_f64;
         for _ in 0..frames {
             for _ in 0..substeps {

@@ -14,7 +14,7 @@
 //! Order 1, implicit form only. Every constraint force comes from the projection at the
 //! step's end (the constraint direction is implicit), so the step is stable however stiff
 //! the constraints make the motion: a cloth's taut threads oscillate across themselves at
-//! up to 2 sqrt(T / (m L)) (2,300 rad/s for the shipped 50 x 50 cloth), and RATTLE, explicit
+//! up to 2 sqrt(T / (m L)) (2,190 rad/s for the shipped 50 x 50 cloth), and RATTLE, explicit
 //! in those directions like every Verlet method, needs h omega < 2 (h = 1/2,300 s) where
 //! this step takes a frame (1/60 s) and holds every rod to the tolerance
 //! (`tests/fast_projection.rs`: a 12 x 12 cloth at dt F = 4.2, where RATTLE fails within a
@@ -42,15 +42,19 @@
 //! while the residual keeps shrinking at least 4x per iteration, and factor again when it
 //! does not. On the 50 x 50 cloth at dt = 1/60 that is about one factorization and four
 //! solves per step (the chain bench; `tests/fast_projection.rs`). Rows without a known
-//! Hessian (expressions, pins, Rust rows) are taken in Gauss-Newton form: their
-//! convergence is linear instead of quadratic, never wrong, since the iteration stops only
-//! when C is within the tolerance. The velocity projection is
+//! Hessian (expressions, pins, Rust rows) are taken in Gauss-Newton form: where their
+//! multipliers' curvature matters (a taut expression row at dt omega >> 1) the iteration
+//! converges slowly or not at all, and the step fails with `ProjectionFailed` (which a
+//! simulation retries in substeps) rather than stop anywhere but at C within the tolerance
+//! and the closest point. The velocity projection is
 //! [`ConstrainedSystem::project_velocities`]. A projection that does not converge within
 //! the iteration limit is [`StepError::ProjectionFailed`], never a silent continuation.
 
 use super::{constraints_of, Integrator, IntegratorKind, IntegratorSettings};
 use crate::formulation::{ConstrainedSystem, SecondOrderSystem, State, StepError};
-use crate::linalg::{max_abs, Curvature, NewtonMatrixError, ProjectionNewtonMatrix, RowCurvature};
+use crate::linalg::{
+    max_abs, max_nan, Curvature, NewtonMatrixError, ProjectionNewtonMatrix, RowCurvature,
+};
 
 /// A later iteration of a step reuses the factorization while the last one shrank the
 /// residual at least this much (else it factors the Newton matrix at its own iterate).
@@ -100,6 +104,8 @@ struct ProjectionNewton {
     dq: Vec<f64>,
     /// q* = q_n + h v*, where the projection starts (n)
     q_free: Vec<f64>,
+    /// Per coordinate, the sizes of the terms W r_q sums (n)
+    term_sizes: Vec<f64>,
 }
 
 impl ProjectionNewton {
@@ -134,6 +140,7 @@ impl ProjectionNewton {
             residual_q: vec![0.0; n],
             dq: vec![0.0; n],
             q_free: vec![0.0; n],
+            term_sizes: vec![0.0; n],
         }
     }
 
@@ -174,7 +181,7 @@ impl ProjectionNewton {
         }
         self.lambda_dt = dt;
         let mut iterations = 0;
-        let (mut previous, mut previous_stationarity) = (f64::INFINITY, f64::INFINITY);
+        let mut previous = f64::INFINITY;
         let outcome = loop {
             cs.constraint_values_and_jacobian(t, q, &mut self.c, &mut self.jacobian);
             let residual = cs.constraint_residual(q, &self.c);
@@ -188,26 +195,45 @@ impl ProjectionNewton {
                 .zip(&self.inverse_mass)
             {
                 *r = if *w > 0.0 { (q - q_free) / w } else { 0.0 };
-                displacement = displacement.max((q - q_free).abs());
+                displacement = max_nan(displacement, (q - q_free).abs());
             }
-            cs.constraint_structure().add_transpose(
-                &self.jacobian,
-                &self.lambda,
-                &mut self.residual_q,
-            );
-            let off = self
+            let rows = cs.constraint_structure();
+            rows.add_transpose(&self.jacobian, &self.lambda, &mut self.residual_q);
+            // What rounding leaves of W r_q: a few eps times the terms it sums, q and q*
+            // (whose difference is far smaller than each on a short step) and
+            // W J_ik lambda_i (the forces of taut threads cancel to a net far smaller than
+            // each).
+            let mut off = 0.0_f64;
+            let mut terms = 0.0_f64;
+            for (k, ((r, q), q_free)) in self
                 .residual_q
                 .iter()
-                .zip(&self.inverse_mass)
-                .fold(0.0_f64, |m, (r, w)| m.max((w * r).abs()));
+                .zip(q.iter())
+                .zip(&self.q_free)
+                .enumerate()
+            {
+                let w = self.inverse_mass[k];
+                off = max_nan(off, (w * r).abs());
+                self.term_sizes[k] = q.abs().max(q_free.abs());
+            }
+            for i in 0..rows.n_rows() {
+                for (s, &k) in rows.row_entries(i).zip(rows.row_columns(i)) {
+                    self.term_sizes[k] +=
+                        (self.inverse_mass[k] * self.jacobian[s] * self.lambda[i]).abs();
+                }
+            }
+            for size in &self.term_sizes {
+                terms = max_nan(terms, *size);
+            }
             let stationarity = if off == 0.0 { 0.0 } else { off / displacement };
-            // Done when C is within the tolerance and q at the closest point: to
-            // STATIONARITY_TOLERANCE, or as near as rounding lets it come (the stationarity stopped
-            // halving: the forces J^T lambda of taut threads cancel to a net far smaller
-            // than each).
-            let stalled = stationarity > 0.5 * previous_stationarity;
-            previous_stationarity = stationarity;
-            if residual <= tolerance && (stationarity <= STATIONARITY_TOLERANCE || stalled) {
+            let rounding = if terms == 0.0 {
+                0.0
+            } else {
+                64.0 * f64::EPSILON * terms / displacement
+            };
+            // Done when C is within the tolerance and q is at the closest point: to
+            // STATIONARITY_TOLERANCE, or to what rounding allows.
+            if residual <= tolerance && stationarity <= STATIONARITY_TOLERANCE.max(rounding) {
                 break Ok(iterations);
             }
             if iterations >= max_iterations || residual.is_nan() || stationarity.is_nan() {
@@ -220,7 +246,7 @@ impl ProjectionNewton {
             // Each step's first iterate is factored; later ones reuse it while it still
             // shrinks the residuals fast (a chord step: one solve instead of a
             // factorization).
-            let progress = residual.max(stationarity);
+            let progress = (residual / tolerance).max(stationarity / STATIONARITY_TOLERANCE);
             let reuse = iterations > 0 && progress <= REUSE_CONTRACTION * previous;
             previous = progress;
             if !reuse {

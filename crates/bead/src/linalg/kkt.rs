@@ -48,8 +48,9 @@ pub enum Curvature {
 /// Why the projection's Newton matrix did not factor.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum NewtonMatrixError {
-    /// Constraint row `row` depends on the others at this q: its multiplier's pivot
-    /// vanished (relative to J_i W J_i^T).
+    /// Constraint row `row` reads no coordinate that moves (J_i W J_i^T = 0). A row that
+    /// depends on others is not caught here: the regularization keeps its pivot at least
+    /// delta J_i W J_i^T; the velocity projection's J W J^T (`project_velocities`) names it.
     Dependent { row: usize },
     /// M + sum_i lambda_i H_i is not positive definite: a coordinate's pivot vanished or
     /// turned negative (relative to its mass and curvature), as compressed rods can make it.

@@ -412,8 +412,9 @@ mod tests {
     }
 
     /// A quasi-definite matrix solves as Gaussian elimination with partial pivoting does,
-    /// in every ordering and layout; with C = 0 the same pattern still factors in every
-    /// ordering that eliminates no multiplier first, and AMD's does (a zero pivot, named).
+    /// in every ordering and layout; with C = 0 it is not quasi-definite, and AMD's order,
+    /// which eliminates a multiplier before its unknowns, meets a zero pivot and names its
+    /// row.
     #[test]
     fn a_quasi_definite_matrix_factors_in_every_ordering_with_its_signs() {
         let (pattern, values, dense) = random_quasi_definite(1e-3);

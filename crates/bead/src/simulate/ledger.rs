@@ -132,6 +132,12 @@ impl ConstrainedSystem for WithWork<'_> {
         &self.scratch.inverse_mass
     }
 
+    /// The formulation's distance rows (their coordinates are the formulation's, which come
+    /// first).
+    fn distance_row(&self, row: usize) -> Option<crate::model::DistanceRow> {
+        self.formulation.system().constraints().distance_row(row)
+    }
+
     /// Whether the applied accelerations depend on v, the work coordinate's (the power
     /// F_nc . v) included: see [`WithWork::new`].
     fn applied_forces_velocity_dependent(&self) -> bool {
