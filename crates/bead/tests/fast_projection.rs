@@ -340,10 +340,10 @@ fn a_repeated_rod_is_named() {
         length = 1.0
     "#;
     let scene = Scene::parse(text, "twice.toml", &[]).unwrap_or_else(|e| panic!("{e}"));
-    let refused = Simulation::new(Arc::clone(&scene.system), SimulationConfig::default())
-        .err()
-        .expect("a start on a repeated rod")
-        .to_string();
+    let refused = match Simulation::new(Arc::clone(&scene.system), SimulationConfig::default()) {
+        Err(refused) => refused.to_string(),
+        Ok(_) => panic!("a start on a repeated rod"),
+    };
     assert!(refused.contains("the same rod again"), "{refused}");
     let mut formulation = Implicit::new(Arc::clone(&scene.system), Feedback::default());
     let mut state = formulation.initial_state();
