@@ -214,7 +214,12 @@ impl ProjectionNewton {
             {
                 let w = self.inverse_mass[k];
                 off = max_nan(off, (w * r).abs());
-                self.term_sizes[k] = q.abs().max(q_free.abs());
+                // A coordinate that does not move (the ledger's work) sums nothing.
+                self.term_sizes[k] = if w > 0.0 {
+                    q.abs().max(q_free.abs())
+                } else {
+                    0.0
+                };
             }
             for i in 0..rows.n_rows() {
                 for (s, &k) in rows.row_entries(i).zip(rows.row_columns(i)) {
@@ -316,8 +321,9 @@ impl FastProjection {
         self.iterations_total
     }
 
-    /// Factorizations of the projection's Newton matrix summed over every step so far (at
-    /// most one per iteration; see the module).
+    /// Factorizations of the projection's Newton matrix summed over every step so far (one
+    /// for each iteration that does not reuse the last, two where the signed curvature made
+    /// it indefinite; see the module).
     pub fn factorizations_total(&self) -> u64 {
         self.factorizations_total
     }
