@@ -8,7 +8,7 @@
 //! ```text
 //! cargo run --release -p bead --example chain -- [N ...] [--integrator rk4|rattle ...]
 //!     [--seconds S] [--max-steps K] [--solver auto|dense|sparse|tridiagonal]
-//!     [--newton exact|simplified ...]
+//!     [--newton auto|exact|simplified ...]
 //! ```
 //! Defaults: N = 10 100 1000 10000, both integrators, S = 2 (wall time per case, after one
 //! warm-up step), at most K = 100000 steps per case, the solver chosen by size. `--newton`
@@ -76,6 +76,7 @@ fn main() {
             "--newton" => newtons.push(match args.next().as_deref() {
                 Some("exact") => NewtonMatrix::Exact,
                 Some("simplified") => NewtonMatrix::Simplified,
+                Some("auto") => NewtonMatrix::Auto,
                 other => panic!("unknown Newton matrix {other:?}"),
             }),
             n => sizes.push(n.parse::<usize>().expect("N")),

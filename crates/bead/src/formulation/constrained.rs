@@ -27,7 +27,9 @@
 use std::cmp::Ordering;
 
 use super::{Implicit, SecondOrderSystem, StepError};
-use crate::linalg::{max_abs, ConstraintMatrix, LinearSolver, RowStructure, Singular};
+use crate::linalg::{
+    max_abs, ConstraintMatrix, LinearSolver, PathOrder, RodPath, RowStructure, Singular,
+};
 use crate::model::{ConstraintEval, ConstraintSet, DistanceRow, System};
 
 /// A second-order system with holonomic constraints C(q, t) = 0 (m rows) on its coordinates.
@@ -209,16 +211,29 @@ pub(crate) struct ProjectionWorkspace {
     force: Vec<f64>,
     /// rhs, then the multipliers (m)
     rhs: Vec<f64>,
+    /// The velocity projection fused along the path, when every row is a rod and the rods
+    /// couple in paths and the solver is not forced ([`LinearSolver::Auto`] or
+    /// [`LinearSolver::Tridiagonal`])
+    rods: Option<RodPath>,
 }
 
 impl ProjectionWorkspace {
-    pub(crate) fn new(system: &System) -> Self {
+    pub(crate) fn new(system: &System, matrix: &ConstraintMatrix, solver: LinearSolver) -> Self {
         let n = system.n_coords();
-        let m = system.constraints().n_rows();
+        let set = system.constraints();
+        let m = set.n_rows();
+        let rods = match solver {
+            LinearSolver::Auto | LinearSolver::Tridiagonal if m > 0 => {
+                PathOrder::of(matrix.pattern())
+                    .and_then(|order| RodPath::new(&order, |row| set.distance_row(row)))
+            }
+            _ => None,
+        };
         ProjectionWorkspace {
-            eval: system.constraints().workspace(),
+            eval: set.workspace(),
             force: vec![0.0; n],
             rhs: vec![0.0; m],
+            rods,
         }
     }
 
@@ -384,6 +399,11 @@ impl ConstrainedSystem for Implicit {
         let ws = &mut self.projection;
         if set.n_rows() == 0 {
             return Ok(());
+        }
+        if let Some(rods) = &mut ws.rods {
+            return rods
+                .project_velocities(q, w, qdot)
+                .map_err(|singular| singular_error(set, t, singular));
         }
         // Cdot = J qdot + C_t: the residual of the velocity constraint J qdot = -C_t.
         set.evaluate(t, q, qdot, &mut ws.eval);

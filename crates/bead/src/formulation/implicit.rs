@@ -91,6 +91,7 @@ impl Implicit {
             feedback.ks,
             feedback.kd,
         );
+        let projection = super::constrained::ProjectionWorkspace::new(&system, &matrix, solver);
         Implicit {
             fused,
             fused_pending: false,
@@ -100,7 +101,7 @@ impl Implicit {
             constraints: system.constraints().workspace(),
             matrix,
             lambda: vec![0.0; m],
-            projection: super::constrained::ProjectionWorkspace::new(&system),
+            projection,
             external: Vec::new(),
             scales: None,
             system,

@@ -90,7 +90,9 @@
 use super::fixed_point::{increment_and_scale, FixedPoint};
 use super::{constraints_of, Integrator, IntegratorKind, IntegratorSettings};
 use crate::formulation::{ConstrainedSystem, SecondOrderSystem, State, StepError};
-use crate::linalg::{max_abs, solve_general, ConstraintMatrix, LinearSolver, DENSE_MAX_ROWS};
+use crate::linalg::{
+    max_abs, solve_general, ConstraintMatrix, LinearSolver, PathOrder, RodPath, DENSE_MAX_ROWS,
+};
 
 /// Buffers of the exact Newton iteration: J(q^k) (nnz), J(q^k) W J(q_n)^T's upper and lower
 /// triangles on the pattern of J W J^T, and how it is solved.
@@ -168,6 +170,9 @@ pub struct Rattle {
     /// Exact Newton: J(q^k) (nnz), J(q^k) W J(q_n)^T's upper and lower triangles on the
     /// pattern of J W J^T (nnz of it each), the dense matrix (m x m) and column scales (m)
     exact: Option<ExactNewton>,
+    /// Exact Newton fused along the path when every row is a rod and the rods couple in
+    /// paths (chains, ropes; [`NewtonMatrix::Auto`] only): O(m)
+    rods: Option<RodPath>,
     /// C(q^k), then the Newton increment (m)
     residual: Vec<f64>,
     /// Accumulated nu (m)
@@ -218,6 +223,7 @@ impl Rattle {
             jacobian_start: Vec::new(),
             matrix: None,
             exact: None,
+            rods: None,
             residual: Vec::new(),
             nu: Vec::new(),
             jv: Vec::new(),
@@ -227,6 +233,13 @@ impl Rattle {
     /// Newton iterations of the position step summed over every step so far.
     pub fn newton_iterations_total(&self) -> u64 {
         self.iterations_total
+    }
+
+    /// Whether the position step runs fused along a path of rods ([`RodPath`]: every row a
+    /// distance, the rows coupled in paths, [`NewtonMatrix::Auto`]); known after the first
+    /// step.
+    pub fn fused_rods(&self) -> bool {
+        self.rods.is_some()
     }
 
     /// The same with another Newton matrix for the position step.
@@ -264,10 +277,15 @@ impl Rattle {
             self.structure = (starts.collect(), rows.columns().to_vec(), solver);
             let matrix = ConstraintMatrix::new(rows, solver);
             let path = matrix.path().is_some();
+            self.rods = match self.newton {
+                NewtonMatrix::Auto if m > 0 => PathOrder::of(matrix.pattern())
+                    .and_then(|order| RodPath::new(&order, |row| cs.distance_row(row))),
+                _ => None,
+            };
             let exact = match self.newton {
                 NewtonMatrix::Exact => true,
                 NewtonMatrix::Simplified => false,
-                NewtonMatrix::Auto => m <= DENSE_MAX_ROWS,
+                NewtonMatrix::Auto => m <= DENSE_MAX_ROWS && self.rods.is_none(),
             };
             self.exact = exact.then(|| ExactNewton {
                 jacobian: vec![0.0; rows.n_nonzeros()],
@@ -297,16 +315,50 @@ impl Rattle {
     /// first iteration that needs it) and reused; exact: M = J(q^k) W J(q_n)^T. An exact
     /// matrix whose tridiagonal elimination meets a vanishing pivot (the step turned a rod
     /// by about a right angle) hands the rest of the step to the simplified matrix. Returns
-    /// the number of iterations. `jacobian_start` holds J(q_n).
+    /// the number of iterations. `jacobian_start` holds J(q_n), or, with the fused rods,
+    /// their vectors hold q_n's and `jacobian_start` is evaluated at `t0` if the rods hand
+    /// over.
+    ///
+    /// Fused rods: the exact Newton iteration along the path ([`RodPath::newton_step`]);
+    /// a pivot that fails there hands the rest of the step to the simplified matrix, as the
+    /// general exact matrix does.
     fn solve_positions(
         &mut self,
         cs: &mut dyn ConstrainedSystem,
+        t0: f64,
         t: f64,
         q: &mut [f64],
     ) -> Result<usize, StepError> {
-        let matrix = self.matrix.as_mut().expect("sized in reserve");
         self.nu.fill(0.0);
         let mut iterations = 0;
+        if let Some(rods) = &mut self.rods {
+            loop {
+                rods.values(q, &mut self.residual);
+                let residual = cs.constraint_residual(q, &self.residual);
+                if residual <= self.tolerance {
+                    return Ok(iterations);
+                }
+                if iterations >= self.max_iterations || residual.is_nan() {
+                    return Err(StepError::ProjectionFailed {
+                        t,
+                        iterations,
+                        residual: max_abs(&self.residual),
+                    });
+                }
+                if rods
+                    .newton_step(&self.inverse_mass, &mut self.residual, q)
+                    .is_err()
+                {
+                    cs.constraint_jacobian(t0, &self.q_start, &mut self.jacobian_start);
+                    break;
+                }
+                for (nu, d) in self.nu.iter_mut().zip(&self.residual) {
+                    *nu += d;
+                }
+                iterations += 1;
+            }
+        }
+        let matrix = self.matrix.as_mut().expect("sized in reserve");
         let mut exact = self.exact.as_mut();
         let mut factored = false;
         loop {
@@ -460,25 +512,36 @@ impl Integrator for Rattle {
             *q += dt * *v;
         }
         if m > 0 {
-            cs.constraint_jacobian(t0, &self.q_start, &mut self.jacobian_start);
-            let iterations = self.solve_positions(cs, t1, &mut s.q)?;
+            match &mut self.rods {
+                Some(rods) => rods.set_start(&self.q_start),
+                None => cs.constraint_jacobian(t0, &self.q_start, &mut self.jacobian_start),
+            }
+            let iterations = self.solve_positions(cs, t0, t1, &mut s.q)?;
             self.iterations_max = self.iterations_max.max(iterations);
             self.iterations_total += iterations as u64;
             // v_half += h/2 W J(q_n)^T lambda = -(1/h) W J(q_n)^T nu. The impulse
             // -J(q_n)^T nu / h does the work (h/2) lambda . J(q_n) v_n on the velocity it
             // acts at: the first half of the trapezoidal rule for the constraint force's
             // power (zero for fixed constraints, where J v_n = 0).
-            let rows = cs.constraint_structure();
             for (d, nu) in self.residual.iter_mut().zip(&self.nu) {
                 *d = nu / dt;
             }
-            rows.subtract_weighted_transpose(
-                &self.jacobian_start,
-                &self.inverse_mass,
-                &self.residual,
-                &mut s.qdot,
-            );
-            rows.multiply(&self.jacobian_start, &self.velocity_start, &mut self.jv);
+            match &self.rods {
+                Some(rods) => {
+                    rods.subtract_start_transpose(&self.inverse_mass, &self.residual, &mut s.qdot);
+                    rods.start_multiply(&self.velocity_start, &mut self.jv);
+                }
+                None => {
+                    let rows = cs.constraint_structure();
+                    rows.subtract_weighted_transpose(
+                        &self.jacobian_start,
+                        &self.inverse_mass,
+                        &self.residual,
+                        &mut s.qdot,
+                    );
+                    rows.multiply(&self.jacobian_start, &self.velocity_start, &mut self.jv);
+                }
+            }
             self.constraint_work -= self
                 .residual
                 .iter()

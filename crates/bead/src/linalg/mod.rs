@@ -16,6 +16,7 @@ mod dense;
 mod kkt;
 mod path;
 mod pattern;
+mod rod_path;
 mod sparse;
 
 pub use constraint_matrix::{ConstraintMatrix, RowStructure};
@@ -24,6 +25,7 @@ pub(crate) use dense::{ldlt_lanes, ldlt_substitute_lanes};
 pub use kkt::{Curvature, NewtonMatrixError, ProjectionNewtonMatrix, RowCurvature};
 pub use path::{PathLdlt, PathOrder};
 pub use pattern::SymmetricPattern;
+pub use rod_path::RodPath;
 pub use sparse::{Ordering, SparseLdlt, SparseOptions};
 
 /// max_i |v_i|, NaN when any entry is NaN (a non-finite value must not hide behind max);

@@ -111,6 +111,11 @@ impl PathOrder {
     pub fn row(&self, p: usize) -> usize {
         self.order[p]
     }
+    /// Whether the row at position p is coupled to the one before it (false where a path
+    /// starts).
+    pub fn linked(&self, p: usize) -> bool {
+        self.coupling[p].is_some()
+    }
 
     /// Solve B z = rhs in place for the unsymmetric B given on the mirrored pattern
     /// (`upper[s]` = B_ij, `lower[s]` = B_ji for the slot s of (i, j), i <= j; see

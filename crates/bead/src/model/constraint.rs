@@ -43,6 +43,8 @@ pub struct DistanceRow {
     pub a: usize,
     /// First coordinate of particle b, `None` for a fixed point
     pub b: Option<usize>,
+    /// The fixed point when `b` is `None` (its first `dim` entries; zeros otherwise)
+    pub anchor: [f64; 3],
     /// Spatial dimension
     pub dim: usize,
     /// L
@@ -280,8 +282,19 @@ impl ConstraintSet {
             .ok()?;
         match self.native_rows[at].1 {
             NativeRow::Distance {
-                dim, a, b, length, ..
-            } => Some(DistanceRow { a, b, dim, length }),
+                dim,
+                a,
+                b,
+                anchor,
+                length,
+                ..
+            } => Some(DistanceRow {
+                a,
+                b,
+                anchor,
+                dim,
+                length,
+            }),
             NativeRow::Pin { .. } => None,
         }
     }

@@ -1,0 +1,660 @@
+//! Chains of rods solved in one pass: the rows' values, the Newton matrix's entries, the
+//! tridiagonal elimination and the correction W J^T z, fused along the path.
+//!
+//! When every row is a rod, C_p = (|e_p|^2 - L_p^2) / (2 L_p) with e_p = x_a - x_b (x_b a
+//! fixed point or a particle), and the rows couple in paths ([`PathOrder`]), the matrices of
+//! a constrained step are tridiagonal in path order and their entries are dot products of
+//! rod vectors. With J_p(x) = +-e_p(x)^T / L_p on a's and b's coordinates and x, y two
+//! configurations:
+//!
+//! ```text
+//! A_pp     = J_p(x) W J_p(y)^T     = sum_k e_p,k(x) e_p,k(y) (w_a,k + w_b,k) / L_p^2
+//! A_p,p-1  = J_p(x) W J_p-1(y)^T   = s_p sum_k e_p,k(x) w_s,k e_p-1,k(y) / (L_p L_p-1)
+//! A_p-1,p  = J_p-1(x) W J_p(y)^T   = s_p sum_k e_p-1,k(x) w_s,k e_p,k(y) / (L_p L_p-1)
+//! ```
+//!
+//! where s is the particle rods p - 1 and p share and s_p = +1 when it has the same role (a
+//! or b) in both, -1 otherwise. RATTLE's exact Newton matrix is x = q^k, y = q_n (the
+//! unsymmetric J(q^k) W J(q_n)^T); the velocity projection's is x = y = q_{n+1} (symmetric
+//! positive definite). One forward sweep computes the entries and eliminates
+//! (u_p = A_pp - m_p A_p-1,p, m_p = A_p,p-1 / u_p-1); one backward sweep substitutes and
+//! applies z_p's correction -W J_p(y)^T z_p to the two particles of rod p. No Jacobian, no
+//! assembled matrix, no permutation array is written: the work of the hand-written chain.
+
+use super::{PathOrder, Singular, RELATIVE_PIVOT_TOLERANCE};
+use crate::model::DistanceRow;
+
+/// One rod at its place in the path.
+#[derive(Clone, Debug, PartialEq)]
+struct Rod {
+    /// Its row of C
+    row: usize,
+    /// First coordinate of particle a
+    a: usize,
+    /// First coordinate of particle b, `None` for the fixed point `anchor`
+    b: Option<usize>,
+    anchor: [f64; 3],
+    length: f64,
+    inverse_length: f64,
+    /// The coupling to the rod before it in the path: the shared particle's first coordinate
+    /// and s_p / (L_p L_p-1); `None` at the start of a path.
+    link: Option<(usize, f64)>,
+}
+
+/// The rods of a constraint set whose rows are all distances coupled in paths, with the
+/// scratch space of their fused solves (O(m), allocated once). See the module documentation.
+///
+/// ```
+/// use bead::linalg::{RodPath, PathOrder, SymmetricPattern};
+/// use bead::model::DistanceRow;
+/// // Two unit rods in 2D: the origin to particle 0 (x[0..2]), particle 0 to 1 (x[2..4]).
+/// let rows = [
+///     DistanceRow { a: 0, b: None, anchor: [0.0; 3], dim: 2, length: 1.0 },
+///     DistanceRow { a: 2, b: Some(0), anchor: [0.0; 3], dim: 2, length: 1.0 },
+/// ];
+/// let order = PathOrder::of(&SymmetricPattern::new(2, [(0, 1)])).unwrap();
+/// let mut rods = RodPath::new(&order, |r| Some(rows[r])).unwrap();
+/// // Project a velocity onto J v = 0 at x = ((1, 0), (2, 0)): only the y components stay.
+/// let (x, w) = ([1.0, 0.0, 2.0, 0.0], [1.0; 4]);
+/// let mut v = [1.0, 1.0, 3.0, 2.0];
+/// rods.project_velocities(&x, &w, &mut v).unwrap();
+/// for (v, expected) in v.iter().zip([0.0, 1.0, 0.0, 2.0]) {
+///     assert!((v - expected).abs() < 1e-15);
+/// }
+/// ```
+#[derive(Clone, Debug)]
+pub struct RodPath {
+    dim: usize,
+    /// In path order (m)
+    rods: Vec<Rod>,
+    /// e_p at the configuration the Newton matrix is linearized at (q_n): `set_start` (m)
+    start: Vec<[f64; 3]>,
+    /// e_p at the last configuration `values` or `project_velocities` saw (m)
+    current: Vec<[f64; 3]>,
+    /// The elimination's inverse pivots 1 / u_p (m)
+    inverse_pivots: Vec<f64>,
+    /// A_p-1,p / u_p-1: the scaled super-diagonal the backward sweep needs (m)
+    upper: Vec<f64>,
+    /// The eliminated right-hand side, then z (m)
+    eliminated: Vec<f64>,
+    /// The velocity projection's right-hand side J v (m)
+    rhs: Vec<f64>,
+}
+
+impl RodPath {
+    /// The rods of the rows in `order` (`row(r)`: row r as a distance, `None` when it is
+    /// not one), or `None` when some row is not a distance, the rows differ in dimension, or
+    /// two rods linked in the path do not share exactly one particle (two rods between the
+    /// same pair of particles, say).
+    pub fn new(order: &PathOrder, row: impl Fn(usize) -> Option<DistanceRow>) -> Option<RodPath> {
+        let m = order.len();
+        let mut rods: Vec<Rod> = Vec::with_capacity(m);
+        let mut dim = None;
+        for p in 0..m {
+            let r = order.row(p);
+            let distance = row(r)?;
+            if *dim.get_or_insert(distance.dim) != distance.dim
+                || !(1..=3).contains(&distance.dim)
+                || !(distance.length > 0.0 && distance.length.is_finite())
+                || distance.b == Some(distance.a)
+            {
+                return None;
+            }
+            let particles = |rod: &Rod| [Some(rod.a), rod.b];
+            let mut rod = Rod {
+                row: r,
+                a: distance.a,
+                b: distance.b,
+                anchor: distance.anchor,
+                length: distance.length,
+                inverse_length: 1.0 / distance.length,
+                link: None,
+            };
+            if p > 0 {
+                let before = &rods[p - 1];
+                let shared: Vec<usize> = particles(&rod)
+                    .into_iter()
+                    .flatten()
+                    .filter(|s| particles(before).contains(&Some(*s)))
+                    .collect();
+                match (order.linked(p), shared.as_slice()) {
+                    (true, &[s]) => {
+                        let role = |rod: &Rod| if rod.a == s { 1.0 } else { -1.0 };
+                        let sign = role(&rod) * role(before);
+                        rod.link = Some((s, sign * rod.inverse_length * before.inverse_length));
+                    }
+                    (false, []) => {}
+                    _ => return None,
+                }
+            }
+            rods.push(rod);
+        }
+        Some(RodPath {
+            dim: dim.unwrap_or(2),
+            rods,
+            start: vec![[0.0; 3]; m],
+            current: vec![[0.0; 3]; m],
+            inverse_pivots: vec![0.0; m],
+            upper: vec![0.0; m],
+            eliminated: vec![0.0; m],
+            rhs: vec![0.0; m],
+        })
+    }
+
+    /// m
+    pub fn len(&self) -> usize {
+        self.rods.len()
+    }
+
+    /// Whether there are no rods.
+    pub fn is_empty(&self) -> bool {
+        self.rods.is_empty()
+    }
+
+    /// e = x_a - x_b (x_b the anchor for a fixed point) in `D` dimensions.
+    #[inline(always)]
+    fn rod_vector<const D: usize>(rod: &Rod, x: &[f64]) -> [f64; 3] {
+        let mut e = [0.0; 3];
+        for k in 0..D {
+            let b = match rod.b {
+                Some(b) => x[b + k],
+                None => rod.anchor[k],
+            };
+            e[k] = x[rod.a + k] - b;
+        }
+        e
+    }
+
+    /// Remember the rod vectors at `q` (q_n): the configuration J(y) is taken at by
+    /// [`RodPath::newton_step`], [`RodPath::subtract_start_transpose`] and
+    /// [`RodPath::start_multiply`].
+    pub fn set_start(&mut self, q: &[f64]) {
+        for (e, rod) in self.start.iter_mut().zip(&self.rods) {
+            *e = match self.dim {
+                1 => Self::rod_vector::<1>(rod, q),
+                2 => Self::rod_vector::<2>(rod, q),
+                _ => Self::rod_vector::<3>(rod, q),
+            };
+        }
+    }
+
+    /// C(q) into `c` (by row: c[row] = (|e|^2 - L^2) / (2L), the native rows' own
+    /// arithmetic), remembering the rod vectors at q for the next [`RodPath::newton_step`].
+    pub fn values(&mut self, q: &[f64], c: &mut [f64]) {
+        match self.dim {
+            1 => self.values_in::<1>(q, c),
+            2 => self.values_in::<2>(q, c),
+            _ => self.values_in::<3>(q, c),
+        }
+    }
+
+    fn values_in<const D: usize>(&mut self, q: &[f64], c: &mut [f64]) {
+        for (e, rod) in self.current.iter_mut().zip(&self.rods) {
+            *e = Self::rod_vector::<D>(rod, q);
+            let squared: f64 = (0..D).map(|k| e[k] * e[k]).sum();
+            c[rod.row] = (squared - rod.length * rod.length) * (0.5 * rod.inverse_length);
+        }
+    }
+
+    /// One Newton step of RATTLE's position solve: with `c` = C(q^k) from the last
+    /// [`RodPath::values`] (by row), solve J(q^k) W J(q_n)^T z = c, leave z in `c` and
+    /// subtract W J(q_n)^T z from `q`. A pivot of the elimination not above
+    /// [`RELATIVE_PIVOT_TOLERANCE`] times its diagonal entry (or not finite) is [`Singular`]
+    /// (a rod turned by about a right angle in one step, or a dependent rod), with `c` and
+    /// `q` untouched.
+    pub fn newton_step(&mut self, w: &[f64], c: &mut [f64], q: &mut [f64]) -> Result<(), Singular> {
+        match self.dim {
+            1 => self.solve::<1>(w, c, q),
+            2 => self.solve::<2>(w, c, q),
+            _ => self.solve::<3>(w, c, q),
+        }
+    }
+
+    /// The mass-weighted projection of `v` onto J(q) v = 0 (the rods' lengths are constant,
+    /// so C_t = 0): v -= W J^T z with J W J^T z = J v, J W J^T factored as it is eliminated. A
+    /// pivot not above [`RELATIVE_PIVOT_TOLERANCE`] times its diagonal entry (or not positive,
+    /// or not finite: a dependent or vanishing rod) is [`Singular`], with `v` untouched.
+    pub fn project_velocities(
+        &mut self,
+        q: &[f64],
+        w: &[f64],
+        v: &mut [f64],
+    ) -> Result<(), Singular> {
+        match self.dim {
+            1 => self.project_in::<1>(q, w, v),
+            2 => self.project_in::<2>(q, w, v),
+            _ => self.project_in::<3>(q, w, v),
+        }
+    }
+
+    fn project_in<const D: usize>(
+        &mut self,
+        q: &[f64],
+        w: &[f64],
+        v: &mut [f64],
+    ) -> Result<(), Singular> {
+        // J_p v = e_p . (v_a - v_b) / L_p, into `rhs` in path order.
+        for ((e, rhs), rod) in self.current.iter_mut().zip(&mut self.rhs).zip(&self.rods) {
+            *e = Self::rod_vector::<D>(rod, q);
+            let mut dot = 0.0;
+            for k in 0..D {
+                let relative = match rod.b {
+                    Some(b) => v[rod.a + k] - v[b + k],
+                    None => v[rod.a + k],
+                };
+                dot += e[k] * relative;
+            }
+            *rhs = dot * rod.inverse_length;
+        }
+        let rhs = &self.rhs;
+        forward::<D, true>(
+            &self.rods,
+            &self.current,
+            &self.current,
+            w,
+            &mut self.inverse_pivots,
+            &mut self.upper,
+            &mut self.eliminated,
+            |p| rhs[p],
+        )?;
+        backward::<D>(
+            &self.rods,
+            &self.current,
+            w,
+            &self.upper,
+            &mut self.eliminated,
+            v,
+            |_, _| {},
+        );
+        Ok(())
+    }
+
+    fn solve<const D: usize>(
+        &mut self,
+        w: &[f64],
+        c: &mut [f64],
+        q: &mut [f64],
+    ) -> Result<(), Singular> {
+        let rods = &self.rods;
+        forward::<D, false>(
+            rods,
+            &self.current,
+            &self.start,
+            w,
+            &mut self.inverse_pivots,
+            &mut self.upper,
+            &mut self.eliminated,
+            |p| c[rods[p].row],
+        )?;
+        backward::<D>(
+            rods,
+            &self.start,
+            w,
+            &self.upper,
+            &mut self.eliminated,
+            q,
+            |p, z| c[rods[p].row] = z,
+        );
+        Ok(())
+    }
+
+    /// y -= W J(q_n)^T z for z by row (q_n the configuration of [`RodPath::set_start`]).
+    pub fn subtract_start_transpose(&self, w: &[f64], z: &[f64], y: &mut [f64]) {
+        match self.dim {
+            1 => self.subtract_in::<1>(w, z, y),
+            2 => self.subtract_in::<2>(w, z, y),
+            _ => self.subtract_in::<3>(w, z, y),
+        }
+    }
+
+    fn subtract_in<const D: usize>(&self, w: &[f64], z: &[f64], y: &mut [f64]) {
+        for (rod, e) in self.rods.iter().zip(&self.start) {
+            correct::<D>(rod, e, w, z[rod.row], y);
+        }
+    }
+
+    /// out[row] = J_row(q_n) v (q_n the configuration of [`RodPath::set_start`]).
+    pub fn start_multiply(&self, v: &[f64], out: &mut [f64]) {
+        let d = self.dim;
+        for (rod, e) in self.rods.iter().zip(&self.start) {
+            let mut dot = 0.0;
+            for k in 0..d {
+                let relative = match rod.b {
+                    Some(b) => v[rod.a + k] - v[b + k],
+                    None => v[rod.a + k],
+                };
+                dot += e[k] * relative;
+            }
+            out[rod.row] = dot * rod.inverse_length;
+        }
+    }
+}
+
+/// y -= W J_p(e)^T z for one rod: J_p = e^T / L on a's coordinates, -e^T / L on b's.
+#[inline(always)]
+fn correct<const D: usize>(rod: &Rod, e: &[f64; 3], w: &[f64], z: f64, y: &mut [f64]) {
+    let scaled = z * rod.inverse_length;
+    for k in 0..D {
+        let g = e[k] * scaled;
+        y[rod.a + k] -= w[rod.a + k] * g;
+        if let Some(b) = rod.b {
+            y[b + k] += w[b + k] * g;
+        }
+    }
+}
+
+/// sum_k x_k w_{s+k} y_k over D coordinates starting at s.
+#[inline(always)]
+fn weighted_dot<const D: usize>(x: &[f64; 3], w: &[f64], s: usize, y: &[f64; 3]) -> f64 {
+    let mut sum = 0.0;
+    for k in 0..D {
+        sum += x[k] * w[s + k] * y[k];
+    }
+    sum
+}
+
+/// The forward sweep of A z = r with A = J(left) W J(right)^T (module documentation), in
+/// the Thomas algorithm's form: the inverse pivots 1 / u_p, the scaled super-diagonal
+/// A_p-1,p / u_p-1 (at p) and the eliminated right-hand side y'_p = (r_p - A_p,p-1 y'_p-1) /
+/// u_p, r_p = `source(p)` in path order. The pivots are a serial chain (one division each);
+/// the backward sweep then needs none. SYMMETRIC (left = right, A positive definite): a
+/// pivot must be positive and above the tolerance times its diagonal entry; otherwise its
+/// magnitude must.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn forward<const D: usize, const SYMMETRIC: bool>(
+    rods: &[Rod],
+    left: &[[f64; 3]],
+    right: &[[f64; 3]],
+    w: &[f64],
+    inverse_pivots: &mut [f64],
+    upper: &mut [f64],
+    eliminated: &mut [f64],
+    source: impl Fn(usize) -> f64,
+) -> Result<(), Singular> {
+    for (p, rod) in rods.iter().enumerate() {
+        let (x, y) = (&left[p], &right[p]);
+        let mut diagonal = weighted_dot::<D>(x, w, rod.a, y);
+        if let Some(b) = rod.b {
+            diagonal += weighted_dot::<D>(x, w, b, y);
+        }
+        diagonal *= rod.inverse_length * rod.inverse_length;
+        let mut pivot = diagonal;
+        let mut value = source(p);
+        if let Some((s, factor)) = rod.link {
+            let below = factor * weighted_dot::<D>(x, w, s, &right[p - 1]);
+            let above = factor * weighted_dot::<D>(&left[p - 1], w, s, y);
+            let scaled_above = above * inverse_pivots[p - 1];
+            pivot -= below * scaled_above;
+            value -= below * eliminated[p - 1];
+            upper[p] = scaled_above;
+        } else {
+            upper[p] = 0.0;
+        }
+        // Written so that NaN counts as singular.
+        let usable = if SYMMETRIC {
+            diagonal > 0.0 && pivot > RELATIVE_PIVOT_TOLERANCE * diagonal
+        } else {
+            pivot.abs() > RELATIVE_PIVOT_TOLERANCE * diagonal.abs()
+        };
+        if !usable {
+            return Err(Singular {
+                row: rod.row,
+                finite: diagonal.is_finite() && pivot.is_finite(),
+            });
+        }
+        let inverse = 1.0 / pivot;
+        inverse_pivots[p] = inverse;
+        eliminated[p] = value * inverse;
+    }
+    Ok(())
+}
+
+/// The backward sweep after [`forward`]: z_p = y'_p - (A_p,p+1 / u_p) z_p+1, left in
+/// `eliminated` and handed to `sink(p, z_p)`, and y -= W J_p(right)^T z_p as each is found.
+#[inline(always)]
+fn backward<const D: usize>(
+    rods: &[Rod],
+    right: &[[f64; 3]],
+    w: &[f64],
+    upper: &[f64],
+    eliminated: &mut [f64],
+    y: &mut [f64],
+    mut sink: impl FnMut(usize, f64),
+) {
+    let mut next = 0.0;
+    for p in (0..rods.len()).rev() {
+        let coupling = upper.get(p + 1).copied().unwrap_or(0.0);
+        let z = eliminated[p] - coupling * next;
+        eliminated[p] = z;
+        next = z;
+        sink(p, z);
+        correct::<D>(&rods[p], &right[p], w, z, y);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::linalg::{solve_general, SymmetricPattern};
+
+    fn random(seed: &mut u64) -> f64 {
+        *seed = seed
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (*seed >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+    }
+
+    /// Rods in scrambled row order, with a and b in both roles, an anchored rod, two
+    /// separate paths, unequal masses and lengths: particles 0..6 in `dim` dimensions.
+    /// Path 1: anchor - p0 - p1 - p2 - p3 (rows 3, 0, 4, 1); path 2: p4 - p5 - p6 (rows 2, 5).
+    fn rods(dim: usize) -> Vec<DistanceRow> {
+        let rod = |a: usize, b: Option<usize>, length: f64| DistanceRow {
+            a: a * dim,
+            b: b.map(|b| b * dim),
+            anchor: [0.3, -0.2, 0.1],
+            dim,
+            length,
+        };
+        vec![
+            rod(0, Some(1), 1.3),
+            rod(3, Some(2), 0.7),
+            rod(5, Some(4), 1.1),
+            rod(0, None, 0.9),
+            rod(1, Some(2), 1.6),
+            rod(5, Some(6), 0.8),
+        ]
+    }
+
+    /// The dense rows of J at x (m x n) for `rods`.
+    fn jacobian(rods: &[DistanceRow], x: &[f64]) -> Vec<Vec<f64>> {
+        rods.iter()
+            .map(|r| {
+                let mut row = vec![0.0; x.len()];
+                for k in 0..r.dim {
+                    let b = r.b.map_or(r.anchor[k], |b| x[b + k]);
+                    let g = (x[r.a + k] - b) / r.length;
+                    row[r.a + k] += g;
+                    if let Some(b) = r.b {
+                        row[b + k] -= g;
+                    }
+                }
+                row
+            })
+            .collect()
+    }
+
+    /// A = J(x) W J(y)^T, dense, row-major.
+    fn product(jx: &[Vec<f64>], w: &[f64], jy: &[Vec<f64>]) -> Vec<f64> {
+        let m = jx.len();
+        let mut a = vec![0.0; m * m];
+        for i in 0..m {
+            for j in 0..m {
+                a[i * m + j] = (0..w.len()).map(|k| jx[i][k] * w[k] * jy[j][k]).sum();
+            }
+        }
+        a
+    }
+
+    fn path_of(rows: &[DistanceRow]) -> RodPath {
+        let couplings = [(3, 0), (0, 4), (4, 1), (2, 5)];
+        let order = PathOrder::of(&SymmetricPattern::new(rows.len(), couplings)).unwrap();
+        RodPath::new(&order, |r| Some(rows[r])).expect("rods in paths")
+    }
+
+    /// The fused Newton step and velocity projection against dense linear algebra on the
+    /// same J(x) W J(y)^T, in 1, 2 and 3 dimensions.
+    #[test]
+    fn fused_solves_match_dense_ones() {
+        for dim in 1..=3 {
+            let rows = rods(dim);
+            let mut path = path_of(&rows);
+            let n = 7 * dim;
+            let mut seed = 11 + dim as u64;
+            let w: Vec<f64> = (0..7)
+                .flat_map(|_| {
+                    let w = 0.5 + random(&mut seed).abs();
+                    std::iter::repeat_n(w, dim)
+                })
+                .collect();
+            let y: Vec<f64> = (0..n)
+                .map(|k| k as f64 * 0.37 + random(&mut seed))
+                .collect();
+            let x: Vec<f64> = y.iter().map(|y| y + 0.05 * random(&mut seed)).collect();
+            let (jx, jy) = (jacobian(&rows, &x), jacobian(&rows, &y));
+
+            // C(x) by row, as the native rows compute it.
+            path.set_start(&y);
+            let mut c = vec![0.0; rows.len()];
+            path.values(&x, &mut c);
+            for (r, row) in rows.iter().enumerate() {
+                let d2: f64 = (0..dim)
+                    .map(|k| (x[row.a + k] - row.b.map_or(row.anchor[k], |b| x[b + k])).powi(2))
+                    .sum();
+                let expected = (d2 - row.length * row.length) * (0.5 / row.length);
+                assert!((c[r] - expected).abs() < 1e-15, "C of row {r}");
+            }
+            // Newton step: z = (J(x) W J(y)^T)^-1 C, q -= W J(y)^T z.
+            let m = rows.len();
+            let mut expected = c.clone();
+            let mut a = product(&jx, &w, &jy);
+            solve_general(m, &mut a, &mut expected, &mut vec![0.0; m]).unwrap();
+            let mut q = x.clone();
+            path.newton_step(&w, &mut c, &mut q).unwrap();
+            for (z, e) in c.iter().zip(&expected) {
+                assert!(
+                    (z - e).abs() < 1e-12 * (1.0 + e.abs()),
+                    "dim {dim}: {z} vs {e}"
+                );
+            }
+            for k in 0..n {
+                let correction: f64 = (0..m).map(|i| w[k] * jy[i][k] * expected[i]).sum();
+                assert!((q[k] - (x[k] - correction)).abs() < 1e-12, "q[{k}]");
+            }
+
+            // Velocity projection: v -= W J^T (J W J^T)^-1 J v at x, then J v = 0.
+            let v0: Vec<f64> = (0..n).map(|_| random(&mut seed)).collect();
+            let mut v = v0.clone();
+            path.project_velocities(&x, &w, &mut v).unwrap();
+            let mut jv: Vec<f64> = jx
+                .iter()
+                .map(|r| (0..n).map(|k| r[k] * v0[k]).sum())
+                .collect();
+            let mut a = product(&jx, &w, &jx);
+            crate::linalg::dense_solve(m, &mut a, &mut jv).unwrap();
+            for k in 0..n {
+                let expected = v0[k] - (0..m).map(|i| w[k] * jx[i][k] * jv[i]).sum::<f64>();
+                assert!(
+                    (v[k] - expected).abs() < 1e-12,
+                    "v[{k}]: {} vs {expected}",
+                    v[k]
+                );
+            }
+            let mut out = vec![0.0; m];
+            path.set_start(&x);
+            path.start_multiply(&v, &mut out);
+            assert!(out.iter().all(|r| r.abs() < 1e-12), "J v = {out:?}");
+        }
+    }
+
+    /// y -= W J(y0)^T z and J(y0) v by row, against the dense J.
+    #[test]
+    fn transpose_and_product_match_dense() {
+        let rows = rods(2);
+        let mut path = path_of(&rows);
+        let mut seed = 5;
+        let x: Vec<f64> = (0..14).map(|k| k as f64 + random(&mut seed)).collect();
+        let w: Vec<f64> = (0..14).map(|k| 1.0 + (k / 2) as f64).collect();
+        let j = jacobian(&rows, &x);
+        path.set_start(&x);
+        let z: Vec<f64> = (0..6).map(|_| random(&mut seed)).collect();
+        let mut y = vec![0.0; 14];
+        path.subtract_start_transpose(&w, &z, &mut y);
+        for k in 0..14 {
+            let expected = -(0..6).map(|i| w[k] * j[i][k] * z[i]).sum::<f64>();
+            assert!((y[k] - expected).abs() < 1e-14);
+        }
+        let mut out = vec![0.0; 6];
+        path.start_multiply(&x, &mut out);
+        for i in 0..6 {
+            let expected: f64 = (0..14).map(|k| j[i][k] * x[k]).sum();
+            assert!((out[i] - expected).abs() < 1e-12);
+        }
+    }
+
+    /// Not a set of rods in paths: a row that is not a rod, two rods on the same pair of
+    /// particles, rows of different dimensions.
+    #[test]
+    fn refuses_what_is_not_a_rod_path() {
+        let rows = rods(2);
+        let couplings = [(3, 0), (0, 4), (4, 1), (2, 5)];
+        let order = PathOrder::of(&SymmetricPattern::new(6, couplings)).unwrap();
+        assert!(RodPath::new(&order, |r| (r != 4).then_some(rows[r])).is_none());
+        let mut twice = rows.clone();
+        twice[4] = DistanceRow {
+            a: 2,
+            b: Some(0),
+            ..rows[0]
+        };
+        assert!(RodPath::new(&order, |r| Some(twice[r])).is_none());
+        let mut mixed = rows.clone();
+        mixed[5].dim = 3;
+        assert!(RodPath::new(&order, |r| Some(mixed[r])).is_none());
+    }
+
+    /// A rod turned by a right angle between y and x: its diagonal entry e(x).e(y) vanishes
+    /// and the Newton step reports that row, leaving q and c untouched; a rod of zero
+    /// length at x is singular for the velocity projection.
+    #[test]
+    fn names_the_singular_rod() {
+        let rows = [DistanceRow {
+            a: 0,
+            b: None,
+            anchor: [0.0; 3],
+            dim: 2,
+            length: 1.0,
+        }];
+        let order = PathOrder::of(&SymmetricPattern::new(1, [])).unwrap();
+        let mut path = RodPath::new(&order, |r| Some(rows[r])).unwrap();
+        path.set_start(&[1.0, 0.0]);
+        let mut c = [0.0];
+        let x = [0.0, 1.5];
+        path.values(&x, &mut c);
+        let (mut q, before) = (x, c);
+        let singular = path.newton_step(&[1.0, 1.0], &mut c, &mut q).unwrap_err();
+        assert_eq!(
+            singular,
+            Singular {
+                row: 0,
+                finite: true
+            }
+        );
+        assert_eq!((q, c), (x, before));
+        let mut v = [1.0, 2.0];
+        let singular = path
+            .project_velocities(&[0.0, 0.0], &[1.0, 1.0], &mut v)
+            .unwrap_err();
+        assert_eq!(singular.row, 0);
+        assert_eq!(v, [1.0, 2.0]);
+    }
+}
