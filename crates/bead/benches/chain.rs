@@ -3,16 +3,24 @@
 //! The chain: N particles of unit mass, p_k at ((k + 1) L, 0), joined by rods of length L = 1,
 //! the first to a fixed anchor at the origin; gravity g = 9.81 along +y; released at rest
 //! (the setup of the peer figures in issue 8). Each variant simulates 10 s with RATTLE at
-//! dt = 1/120 (two steps per frame of 1/60 s; 1/240 for more than 1000 links, where a longer
-//! chain whips faster than one Newton solve per 1/120 s can follow) and reports frames of
-//! 1/60 s per second of wall time, the time per step per link, the stretch max |d - L| / L
-//! over the run and the energy drift |E - E0| / (m g L N (N + 1) / 2) at the end.
+//! dt = 1/120 (two steps per frame of 1/60 s) and reports frames of 1/60 s per second of wall
+//! time, the time per step per link, the stretch max |d - L| / L over the run, the energy
+//! drift |E - E0| / (m g L N (N + 1) / 2) at the end and the substeps per step. A long
+//! chain's tip whips faster than one Newton solve per 1/120 s can follow; the variants:
+//!
+//! - `engine`: `Simulation` (monitors included, what `bead run` does) with its own retries:
+//!   a step whose Newton solve fails is taken again in 2, 4, ... substeps, and the next steps
+//!   start from what it needed (the most any step took is printed);
+//! - `engine, fixed`, `step alone` (the engine's RATTLE stepped directly, no monitors) and
+//!   `hand-written` (the floor): the whole run with 1, 2, 4, ... substeps per step, the
+//!   fewest at which every step converges.
 //!
 //! The floor is a hand-written RATTLE of this chain alone: the SHAKE step by exact Newton
 //! with the tridiagonal matrix J(x^k) W J(x_n)^T solved by the Thomas algorithm, the velocity
 //! step by the tridiagonal J W J^T, single-threaded, allocation-free; its tolerance on max |C|
 //! is the engine's per-rod one at the chain's far end (1e-12 L, or 16 eps |x| L where
-//! rounding allows no less).
+//! rounding allows no less). The peak memory (the process's high-water mark) is printed after
+//! each size, the sizes in increasing order.
 
 use std::hint::black_box;
 use std::sync::Arc;
@@ -27,14 +35,8 @@ const G: f64 = 9.81;
 const L: f64 = 1.0;
 const FRAME: f64 = 1.0 / 60.0;
 
-/// The step for a chain of n links: 2 substeps per frame, 4 beyond 1000 links.
-fn dt_for(n: usize) -> f64 {
-    if n > 1000 {
-        FRAME / 4.0
-    } else {
-        FRAME / 2.0
-    }
-}
+/// The step: two per frame.
+const DT: f64 = FRAME / 2.0;
 
 /// max |C_i| the solves must reach, in the units of C = (|d|^2 - L^2) / (2 L) (a length):
 /// 1e-12 of a rod's length, but not below what rounding allows at the chain's far end
@@ -51,6 +53,8 @@ struct Figures {
     stretch: f64,
     drift: f64,
     steps: u64,
+    /// Substeps per step: the most any step took (engine), or every step's (floor)
+    substeps: u32,
 }
 
 /// The hand-written RATTLE of the chain. Particle k is at `x[k]`, its rod joins it to k - 1
@@ -106,8 +110,9 @@ impl HandChain {
         }
     }
 
-    /// One RATTLE step of h; returns the Newton iterations it took.
-    fn step(&mut self, h: f64) -> usize {
+    /// One RATTLE step of h; returns the Newton iterations it took, or `None` when the
+    /// Newton iteration did not converge in 50 (the state is then spoilt).
+    fn step(&mut self, h: f64) -> Option<usize> {
         let n = self.n;
         self.x0.copy_from_slice(&self.x);
         Self::rods(&self.x0, &mut self.d);
@@ -131,7 +136,9 @@ impl HandChain {
             if worst <= self.tolerance {
                 break;
             }
-            assert!(iterations < 50, "the hand-written SHAKE did not converge");
+            if iterations >= 50 || worst.is_nan() {
+                return None;
+            }
             // A = J(x^k) W J(x_n)^T, tridiagonal.
             for i in 0..n {
                 let (e, d) = (self.e[i], self.d[i]);
@@ -214,7 +221,7 @@ impl HandChain {
                 self.v[j][1] += en[1] / L * self.rhs[j + 1];
             }
         }
-        iterations
+        Some(iterations)
     }
 
     fn energy(&self) -> f64 {
@@ -282,42 +289,141 @@ fn energy_scale(n: usize) -> f64 {
     G * L * (n * (n + 1)) as f64 / 2.0
 }
 
-fn run_hand(n: usize, duration: f64) -> Figures {
-    let mut chain = HandChain::new(n);
-    let e0 = chain.energy();
-    let dt = dt_for(n);
-    let steps = (duration / dt).round() as u64;
-    let mut stretch = 0.0_f64;
-    let start = Instant::now();
-    for _ in 0..steps {
-        black_box(chain.step(dt));
-        stretch = stretch.max(chain.stretch());
+/// The floor with the fewest substeps per step (1, 2, 4, ...) at which every step of the run
+/// converges, and its Newton iterations per step.
+fn run_hand(n: usize, duration: f64) -> (Figures, f64) {
+    let steps = (duration / DT).round() as u64;
+    let mut substeps = 1u32;
+    'substeps: loop {
+        let mut chain = HandChain::new(n);
+        let e0 = chain.energy();
+        let h = DT / substeps as f64;
+        let mut stretch = 0.0_f64;
+        let mut iterations = 0;
+        let start = Instant::now();
+        for _ in 0..steps {
+            for _ in 0..substeps {
+                match black_box(chain.step(h)) {
+                    Some(k) => iterations += k,
+                    None => {
+                        substeps *= 2;
+                        assert!(
+                            substeps <= 64,
+                            "the hand-written chain of {n}: > 64 substeps"
+                        );
+                        continue 'substeps;
+                    }
+                }
+            }
+            stretch = stretch.max(chain.stretch());
+        }
+        let wall = start.elapsed().as_secs_f64();
+        let drift = (chain.energy() - e0).abs();
+        return (
+            Figures {
+                substeps,
+                ..figures(n, steps, wall, stretch, drift)
+            },
+            iterations as f64 / steps as f64,
+        );
     }
-    let wall = start.elapsed().as_secs_f64();
-    figures(n, dt, steps, wall, stretch, (chain.energy() - e0).abs())
 }
 
 fn run_engine(n: usize, duration: f64) -> Figures {
+    engine_run(n, duration, None).expect("retries allowed")
+}
+
+/// The engine's run with `substeps` per step and no retry (`None` when a step fails), or,
+/// without, `Simulation`'s own retries in 2, 4, ... substeps as a step needs them.
+fn engine_run(n: usize, duration: f64, substeps: Option<u32>) -> Option<Figures> {
     // The engine's own tolerance: each rod to 1e-12 of its length plus rounding at its
     // coordinates (`ConstraintScales`).
-    let config = SimulationConfig {
+    let mut config = SimulationConfig {
         method: Method::Implicit,
         integrator: IntegratorKind::Rattle,
-        dt: dt_for(n),
+        dt: DT,
         ..Default::default()
     };
+    if let Some(substeps) = substeps {
+        (config.substeps, config.max_substeps) = (substeps, substeps);
+    }
     let mut sim = Simulation::new(chain_system(n), config).unwrap();
     let e0 = sim.energy();
-    let dt = dt_for(n);
-    let steps = (duration / dt).round() as u64;
+    let steps = (duration / DT).round() as u64;
     let mut stretch = 0.0_f64;
     let start = Instant::now();
     for _ in 0..steps {
-        sim.step().unwrap_or_else(|e| panic!("N = {n}: {e}"));
+        if let Err(e) = sim.step() {
+            assert!(substeps.is_some(), "N = {n}: {e}");
+            return None;
+        }
         stretch = stretch.max(chain_stretch(sim.positions()));
     }
     let wall = start.elapsed().as_secs_f64();
-    figures(n, dt, steps, wall, stretch, (sim.energy() - e0).abs())
+    let drift = (sim.energy() - e0).abs();
+    Some(Figures {
+        substeps: sim.stats(wall).substeps_max,
+        ..figures(n, steps, wall, stretch, drift)
+    })
+}
+
+/// `run(substeps)` with 1, 2, 4, ... substeps per step until a whole run converges (the
+/// floor's rule).
+fn fewest_substeps<T>(n: usize, mut run: impl FnMut(u32) -> Option<T>) -> T {
+    let mut substeps = 1;
+    loop {
+        if let Some(result) = run(substeps) {
+            return result;
+        }
+        substeps *= 2;
+        assert!(substeps <= 64, "N = {n}: more than 64 substeps");
+    }
+}
+
+/// The engine's RATTLE stepped directly (the implicit form with the per-rod tolerances
+/// `Simulation` sets, no monitors) with `substeps` per step (`None` when a step fails), and
+/// its Newton iterations per step.
+fn step_alone_run(n: usize, duration: f64, substeps: u32) -> Option<(Figures, f64)> {
+    use bead::formulation::{ConstraintScales, Feedback, Formulation, Implicit};
+    use bead::integrate::{Integrator, IntegratorSettings, Rattle};
+    let system = chain_system(n);
+    let mut formulation = Implicit::new(Arc::clone(&system), Feedback::default());
+    formulation.set_constraint_scales(Some(ConstraintScales::of(&system)));
+    let mut state = formulation.initial_state();
+    let settings = IntegratorSettings {
+        constraint_tolerance: 1e-12,
+        ..Default::default()
+    };
+    let mut rattle = Rattle::with_settings(state.q.len(), &settings);
+    let e0 = system.energy(&state.q, &state.qdot);
+    let steps = (duration / DT).round() as u64;
+    let h = DT / substeps as f64;
+    let mut stretch = 0.0_f64;
+    let start = Instant::now();
+    for _ in 0..steps {
+        for _ in 0..substeps {
+            rattle.step(&mut formulation, &mut state, h).ok()?;
+        }
+        stretch = stretch.max(chain_stretch(&state.q));
+    }
+    let wall = start.elapsed().as_secs_f64();
+    let drift = (system.energy(&state.q, &state.qdot) - e0).abs();
+    let iterations = rattle.newton_iterations_total() as f64 / steps as f64;
+    Some((
+        Figures {
+            substeps,
+            ..figures(n, steps, wall, stretch, drift)
+        },
+        iterations,
+    ))
+}
+
+/// The process's peak resident memory so far (VmHWM, Linux), in MB.
+fn peak_memory_mb() -> Option<f64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kb: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb / 1024.0)
 }
 
 fn chain_stretch(x: &[f64]) -> f64 {
@@ -331,13 +437,14 @@ fn chain_stretch(x: &[f64]) -> f64 {
     worst
 }
 
-fn figures(n: usize, dt: f64, steps: u64, wall: f64, stretch: f64, drift: f64) -> Figures {
+fn figures(n: usize, steps: u64, wall: f64, stretch: f64, drift: f64) -> Figures {
     Figures {
-        frames_per_second: steps as f64 * dt / FRAME / wall,
+        frames_per_second: steps as f64 * DT / FRAME / wall,
         ns_per_step_per_link: wall * 1e9 / steps as f64 / n as f64,
         stretch,
         drift: drift / energy_scale(n),
         steps,
+        substeps: 1,
     }
 }
 
@@ -355,54 +462,79 @@ fn main() {
                     .expect("BEAD_CHAIN_SIZES: a comma-separated list of N")
             })
             .collect(),
-        Err(_) if benchmarking => vec![10, 100, 1000, 10_000],
+        Err(_) if benchmarking => vec![10, 100, 1000, 10_000, 100_000],
         Err(_) => vec![10, 100],
     };
-    let variants = std::env::var("BEAD_CHAIN_VARIANTS").unwrap_or_else(|_| "engine,hand".into());
+    // BEAD_CHAIN_VARIANTS picks among engine, fixed (the engine at fixed substeps), alone (the
+    // step alone), hand and cloth.
+    let variants =
+        std::env::var("BEAD_CHAIN_VARIANTS").unwrap_or_else(|_| "engine,fixed,alone,hand".into());
     println!();
+    println!("A chain of N rods, rattle at dt = 1/120, {duration} s simulated:");
     println!(
-        "A chain of N rods, rattle at dt = 1/120 (1/240 above 1000 links), {duration} s simulated:"
+        "  {:>6}  {:<14} {:>12} {:>16} {:>10} {:>10} {:>9}",
+        "N", "variant", "frames/s", "ns/step/link", "stretch", "drift", "substeps"
     );
-    println!(
-        "  {:>6}  {:<12} {:>12} {:>16} {:>10} {:>10}",
-        "N", "variant", "frames/s", "ns/step/link", "stretch", "drift"
-    );
-    let mut per_step = Vec::new();
+    let mut per_frame = Vec::new();
     for &n in &sizes {
         let mut rows = Vec::new();
+        let mut iterations = Vec::new();
         if variants.contains("engine") {
             let figures = run_engine(n, duration);
-            per_step.push((n, figures.ns_per_step_per_link * n as f64));
+            per_frame.push((n, 1.0 / figures.frames_per_second));
             rows.push(("engine", figures));
         }
+        if variants.contains("fixed") {
+            let figures = fewest_substeps(n, |k| engine_run(n, duration, Some(k)));
+            rows.push(("engine, fixed", figures));
+        }
+        if variants.contains("alone") {
+            let (figures, per_step) = fewest_substeps(n, |k| step_alone_run(n, duration, k));
+            iterations.push(("the step alone", per_step));
+            rows.push(("step alone", figures));
+        }
         if variants.contains("hand") {
-            rows.push(("hand-written", run_hand(n, duration)));
+            let (figures, per_step) = run_hand(n, duration);
+            iterations.push(("the floor", per_step));
+            rows.push(("hand-written", figures));
         }
         for (name, figures) in &rows {
             println!(
-                "  {:>6}  {:<12} {:>12.1} {:>16.1} {:>10.1e} {:>10.1e}",
+                "  {:>6}  {:<14} {:>12.1} {:>16.1} {:>10.1e} {:>10.1e} {:>9}",
                 n,
                 name,
                 figures.frames_per_second,
                 figures.ns_per_step_per_link,
                 figures.stretch,
-                figures.drift
+                figures.drift,
+                figures.substeps,
             );
             black_box(figures.steps);
         }
-        if let [(_, engine), (_, hand)] = &rows[..] {
-            println!(
-                "  {:>6}  engine / hand-written: {:.2}x the time",
-                n,
-                hand.frames_per_second / engine.frames_per_second
-            );
+        let find = |variant: &str| rows.iter().find(|(name, _)| *name == variant).map(|r| r.1);
+        if let Some(hand) = find("hand-written") {
+            for variant in ["engine", "engine, fixed", "step alone"] {
+                if let Some(figures) = find(variant) {
+                    println!(
+                        "  {:>6}  {variant} / hand-written: {:.2}x the floor's frames/s",
+                        n,
+                        figures.frames_per_second / hand.frames_per_second
+                    );
+                }
+            }
+        }
+        for (variant, per_step) in iterations {
+            println!("  {n:>6}  {variant}: {per_step:.2} Newton iterations per step of 1/120 s");
+        }
+        if let Some(peak) = peak_memory_mb() {
+            println!("  {n:>6}  peak memory of the process so far: {peak:.0} MB");
         }
     }
-    // Growth of the engine's time per step with N (linear: x10 per x10 links).
-    for pair in per_step.windows(2) {
+    // Growth of the engine's time per frame with N (linear: x10 per x10 links).
+    for pair in per_frame.windows(2) {
         let ((n0, t0), (n1, t1)) = (pair[0], pair[1]);
         println!(
-            "  engine time per step, N = {n1} / N = {n0}: {:.1}",
+            "  engine time per frame, N = {n1} / N = {n0}: {:.1}",
             t1 / t0
         );
     }

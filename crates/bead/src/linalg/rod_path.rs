@@ -24,21 +24,24 @@
 use super::{PathOrder, Singular, RELATIVE_PIVOT_TOLERANCE};
 use crate::model::DistanceRow;
 
-/// One rod at its place in the path.
+/// `Rod::b` of a rod to a fixed point, `Rod::shared` at the start of a path.
+const FIXED: usize = usize::MAX;
+
+/// One rod at its place in the path (48 bytes: the sweeps stream through these).
 #[derive(Clone, Debug, PartialEq)]
 struct Rod {
     /// Its row of C
     row: usize,
     /// First coordinate of particle a
     a: usize,
-    /// First coordinate of particle b, `None` for the fixed point `anchor`
-    b: Option<usize>,
-    anchor: [f64; 3],
-    length: f64,
+    /// First coordinate of particle b, [`FIXED`] for the rod's anchor (`RodPath::anchors`)
+    b: usize,
+    /// The first coordinate of the particle it shares with the rod before it in the path,
+    /// [`FIXED`] at the start of a path
+    shared: usize,
     inverse_length: f64,
-    /// The coupling to the rod before it in the path: the shared particle's first coordinate
-    /// and s_p / (L_p L_p-1); `None` at the start of a path.
-    link: Option<(usize, f64)>,
+    /// s_p / (L_p L_p-1) (module documentation); 0 at the start of a path
+    link: f64,
 }
 
 /// The rods of a constraint set whose rows are all distances coupled in paths, with the
@@ -67,6 +70,10 @@ pub struct RodPath {
     dim: usize,
     /// In path order (m)
     rods: Vec<Rod>,
+    /// Each rod's fixed point, zeros for a rod between particles (m)
+    anchors: Vec<[f64; 3]>,
+    /// L_p (m)
+    lengths: Vec<f64>,
     /// e_p at the configuration the Newton matrix is linearized at (q_n): `set_start` (m)
     start: Vec<[f64; 3]>,
     /// e_p at the last configuration `values` or `project_velocities` saw (m)
@@ -89,6 +96,7 @@ impl RodPath {
     pub fn new(order: &PathOrder, row: impl Fn(usize) -> Option<DistanceRow>) -> Option<RodPath> {
         let m = order.len();
         let mut rods: Vec<Rod> = Vec::with_capacity(m);
+        let (mut anchors, mut lengths) = (Vec::with_capacity(m), Vec::with_capacity(m));
         let mut dim = None;
         for p in 0..m {
             let r = order.row(p);
@@ -100,38 +108,45 @@ impl RodPath {
             {
                 return None;
             }
-            let particles = |rod: &Rod| [Some(rod.a), rod.b];
+            let particles = |rod: &Rod| [rod.a, rod.b];
             let mut rod = Rod {
                 row: r,
                 a: distance.a,
-                b: distance.b,
-                anchor: distance.anchor,
-                length: distance.length,
+                b: distance.b.unwrap_or(FIXED),
+                shared: FIXED,
                 inverse_length: 1.0 / distance.length,
-                link: None,
+                link: 0.0,
             };
             if p > 0 {
                 let before = &rods[p - 1];
                 let shared: Vec<usize> = particles(&rod)
                     .into_iter()
-                    .flatten()
-                    .filter(|s| particles(before).contains(&Some(*s)))
+                    .filter(|&s| s != FIXED && particles(before).contains(&s))
                     .collect();
                 match (order.linked(p), shared.as_slice()) {
                     (true, &[s]) => {
                         let role = |rod: &Rod| if rod.a == s { 1.0 } else { -1.0 };
                         let sign = role(&rod) * role(before);
-                        rod.link = Some((s, sign * rod.inverse_length * before.inverse_length));
+                        rod.shared = s;
+                        rod.link = sign * rod.inverse_length * before.inverse_length;
                     }
                     (false, []) => {}
                     _ => return None,
                 }
             }
             rods.push(rod);
+            anchors.push(if distance.b.is_none() {
+                distance.anchor
+            } else {
+                [0.0; 3]
+            });
+            lengths.push(distance.length);
         }
         Some(RodPath {
             dim: dim.unwrap_or(2),
             rods,
+            anchors,
+            lengths,
             start: vec![[0.0; 3]; m],
             current: vec![[0.0; 3]; m],
             inverse_pivots: vec![0.0; m],
@@ -153,27 +168,44 @@ impl RodPath {
 
     /// e = x_a - x_b (x_b the anchor for a fixed point) in `D` dimensions.
     #[inline(always)]
-    fn rod_vector<const D: usize>(rod: &Rod, x: &[f64]) -> [f64; 3] {
+    fn rod_vector<const D: usize>(rod: &Rod, anchor: &[f64; 3], x: &[f64]) -> [f64; 3] {
         let mut e = [0.0; 3];
         for k in 0..D {
-            let b = match rod.b {
-                Some(b) => x[b + k],
-                None => rod.anchor[k],
+            let b = if rod.b == FIXED {
+                anchor[k]
+            } else {
+                x[rod.b + k]
             };
             e[k] = x[rod.a + k] - b;
         }
         e
     }
 
+    /// e . (v_a - v_b) / L (v_b = 0 for a fixed point): J_p v at the rod vector e.
+    #[inline(always)]
+    fn rate<const D: usize>(rod: &Rod, e: &[f64; 3], v: &[f64]) -> f64 {
+        let mut dot = 0.0;
+        for k in 0..D {
+            let relative = if rod.b == FIXED {
+                v[rod.a + k]
+            } else {
+                v[rod.a + k] - v[rod.b + k]
+            };
+            dot += e[k] * relative;
+        }
+        dot * rod.inverse_length
+    }
+
     /// Remember the rod vectors at `q` (q_n): the configuration J(y) is taken at by
     /// [`RodPath::newton_step`], [`RodPath::subtract_start_transpose`] and
     /// [`RodPath::start_multiply`].
     pub fn set_start(&mut self, q: &[f64]) {
-        for (e, rod) in self.start.iter_mut().zip(&self.rods) {
+        let rods = self.rods.iter().zip(&self.anchors);
+        for (e, (rod, anchor)) in self.start.iter_mut().zip(rods) {
             *e = match self.dim {
-                1 => Self::rod_vector::<1>(rod, q),
-                2 => Self::rod_vector::<2>(rod, q),
-                _ => Self::rod_vector::<3>(rod, q),
+                1 => Self::rod_vector::<1>(rod, anchor, q),
+                2 => Self::rod_vector::<2>(rod, anchor, q),
+                _ => Self::rod_vector::<3>(rod, anchor, q),
             };
         }
     }
@@ -189,10 +221,11 @@ impl RodPath {
     }
 
     fn values_in<const D: usize>(&mut self, q: &[f64], c: &mut [f64]) {
-        for (e, rod) in self.current.iter_mut().zip(&self.rods) {
-            *e = Self::rod_vector::<D>(rod, q);
+        let rods = self.rods.iter().zip(&self.anchors).zip(&self.lengths);
+        for (e, ((rod, anchor), length)) in self.current.iter_mut().zip(rods) {
+            *e = Self::rod_vector::<D>(rod, anchor, q);
             let squared: f64 = (0..D).map(|k| e[k] * e[k]).sum();
-            c[rod.row] = (squared - rod.length * rod.length) * (0.5 * rod.inverse_length);
+            c[rod.row] = (squared - length * length) * (0.5 * rod.inverse_length);
         }
     }
 
@@ -234,17 +267,10 @@ impl RodPath {
         v: &mut [f64],
     ) -> Result<(), Singular> {
         // J_p v = e_p . (v_a - v_b) / L_p, into `rhs` in path order.
-        for ((e, rhs), rod) in self.current.iter_mut().zip(&mut self.rhs).zip(&self.rods) {
-            *e = Self::rod_vector::<D>(rod, q);
-            let mut dot = 0.0;
-            for k in 0..D {
-                let relative = match rod.b {
-                    Some(b) => v[rod.a + k] - v[b + k],
-                    None => v[rod.a + k],
-                };
-                dot += e[k] * relative;
-            }
-            *rhs = dot * rod.inverse_length;
+        let rods = self.rods.iter().zip(&self.anchors);
+        for ((e, rhs), (rod, anchor)) in self.current.iter_mut().zip(&mut self.rhs).zip(rods) {
+            *e = Self::rod_vector::<D>(rod, anchor, q);
+            *rhs = Self::rate::<D>(rod, e, v);
         }
         let rhs = &self.rhs;
         forward::<D, true>(
@@ -315,17 +341,16 @@ impl RodPath {
 
     /// out[row] = J_row(q_n) v (q_n the configuration of [`RodPath::set_start`]).
     pub fn start_multiply(&self, v: &[f64], out: &mut [f64]) {
-        let d = self.dim;
+        match self.dim {
+            1 => self.start_multiply_in::<1>(v, out),
+            2 => self.start_multiply_in::<2>(v, out),
+            _ => self.start_multiply_in::<3>(v, out),
+        }
+    }
+
+    fn start_multiply_in<const D: usize>(&self, v: &[f64], out: &mut [f64]) {
         for (rod, e) in self.rods.iter().zip(&self.start) {
-            let mut dot = 0.0;
-            for k in 0..d {
-                let relative = match rod.b {
-                    Some(b) => v[rod.a + k] - v[b + k],
-                    None => v[rod.a + k],
-                };
-                dot += e[k] * relative;
-            }
-            out[rod.row] = dot * rod.inverse_length;
+            out[rod.row] = Self::rate::<D>(rod, e, v);
         }
     }
 }
@@ -337,8 +362,8 @@ fn correct<const D: usize>(rod: &Rod, e: &[f64; 3], w: &[f64], z: f64, y: &mut [
     for k in 0..D {
         let g = e[k] * scaled;
         y[rod.a + k] -= w[rod.a + k] * g;
-        if let Some(b) = rod.b {
-            y[b + k] += w[b + k] * g;
+        if rod.b != FIXED {
+            y[rod.b + k] += w[rod.b + k] * g;
         }
     }
 }
@@ -372,24 +397,32 @@ fn forward<const D: usize, const SYMMETRIC: bool>(
     eliminated: &mut [f64],
     source: impl Fn(usize) -> f64,
 ) -> Result<(), Singular> {
-    for (p, rod) in rods.iter().enumerate() {
-        let (x, y) = (&left[p], &right[p]);
+    // The previous rod's vectors, inverse pivot and eliminated value, carried in registers.
+    let (mut left_before, mut right_before) = (&[0.0; 3], &[0.0; 3]);
+    let (mut inverse_before, mut eliminated_before) = (0.0, 0.0);
+    let rows = rods.iter().zip(left.iter().zip(right)).zip(
+        inverse_pivots
+            .iter_mut()
+            .zip(upper)
+            .zip(eliminated.iter_mut()),
+    );
+    for (p, ((rod, (x, y)), ((inverse_pivot, upper), eliminated))) in rows.enumerate() {
         let mut diagonal = weighted_dot::<D>(x, w, rod.a, y);
-        if let Some(b) = rod.b {
-            diagonal += weighted_dot::<D>(x, w, b, y);
+        if rod.b != FIXED {
+            diagonal += weighted_dot::<D>(x, w, rod.b, y);
         }
         diagonal *= rod.inverse_length * rod.inverse_length;
         let mut pivot = diagonal;
         let mut value = source(p);
-        if let Some((s, factor)) = rod.link {
-            let below = factor * weighted_dot::<D>(x, w, s, &right[p - 1]);
-            let above = factor * weighted_dot::<D>(&left[p - 1], w, s, y);
-            let scaled_above = above * inverse_pivots[p - 1];
+        if rod.shared != FIXED {
+            let below = rod.link * weighted_dot::<D>(x, w, rod.shared, right_before);
+            let above = rod.link * weighted_dot::<D>(left_before, w, rod.shared, y);
+            let scaled_above = above * inverse_before;
             pivot -= below * scaled_above;
-            value -= below * eliminated[p - 1];
-            upper[p] = scaled_above;
+            value -= below * eliminated_before;
+            *upper = scaled_above;
         } else {
-            upper[p] = 0.0;
+            *upper = 0.0;
         }
         // Written so that NaN counts as singular.
         let usable = if SYMMETRIC {
@@ -403,9 +436,11 @@ fn forward<const D: usize, const SYMMETRIC: bool>(
                 finite: diagonal.is_finite() && pivot.is_finite(),
             });
         }
-        let inverse = 1.0 / pivot;
-        inverse_pivots[p] = inverse;
-        eliminated[p] = value * inverse;
+        inverse_before = 1.0 / pivot;
+        eliminated_before = value * inverse_before;
+        *inverse_pivot = inverse_before;
+        *eliminated = eliminated_before;
+        (left_before, right_before) = (x, y);
     }
     Ok(())
 }
@@ -422,14 +457,18 @@ fn backward<const D: usize>(
     y: &mut [f64],
     mut sink: impl FnMut(usize, f64),
 ) {
-    let mut next = 0.0;
-    for p in (0..rods.len()).rev() {
-        let coupling = upper.get(p + 1).copied().unwrap_or(0.0);
-        let z = eliminated[p] - coupling * next;
-        eliminated[p] = z;
-        next = z;
+    // (A_p,p+1 / u_p, z_p+1), zero past the end.
+    let (mut coupling, mut next) = (0.0, 0.0);
+    let rows = rods
+        .iter()
+        .zip(right)
+        .zip(upper.iter().zip(eliminated.iter_mut()));
+    for (p, ((rod, e), (upper, eliminated))) in rows.enumerate().rev() {
+        let z = *eliminated - coupling * next;
+        *eliminated = z;
+        (coupling, next) = (*upper, z);
         sink(p, z);
-        correct::<D>(&rods[p], &right[p], w, z, y);
+        correct::<D>(rod, e, w, z, y);
     }
 }
 
