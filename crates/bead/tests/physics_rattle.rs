@@ -532,6 +532,42 @@ fn projection_failure_is_reported() {
     );
 }
 
+/// A step whose SHAKE equation has no solution is given up in a few iterations, not after
+/// all of them: a unit rod from the origin to a unit mass at (1, 0) moving at (0, 1000),
+/// dt = 0.01. The predictor is (1, 10) and the correction runs along the rod's old direction
+/// (1, 0): q(nu) = (1 - nu, 10) is never at distance 1 from the origin (C(nu) >= 49.5), so
+/// the fused exact Newton iteration cannot halve its residual and stops after 6 iterations
+/// without progress.
+#[test]
+fn a_step_without_a_solution_is_given_up_early() {
+    let mut b = SystemBuilder::new(&[0.0, 0.0]);
+    let p = b.particle("bob", 1.0, &[1.0, 0.0], &[0.0, 1000.0]).unwrap();
+    b.distance("rod", p, Endpoint::Fixed(vec![0.0, 0.0]), 1.0)
+        .unwrap();
+    let system = Arc::new(b.build().unwrap());
+    let mut formulation = Implicit::new(system, Feedback::default());
+    let mut state = bead::formulation::Formulation::initial_state(&formulation);
+    let settings = IntegratorSettings {
+        constraint_tolerance: 1e-12,
+        constraint_max_iterations: 50,
+        ..IntegratorSettings::default()
+    };
+    let mut rattle = Rattle::with_settings(2, &settings);
+    let error = rattle.step(&mut formulation, &mut state, 0.01).unwrap_err();
+    assert!(rattle.fused_rods(), "a rod to a fixed point is a path of rods");
+    match error {
+        StepError::ProjectionFailed {
+            iterations,
+            residual,
+            ..
+        } => {
+            assert!(iterations <= 8, "{iterations} iterations");
+            assert!(residual >= 49.5 * (1.0 - 1e-12), "residual {residual}");
+        }
+        other => panic!("expected ProjectionFailed, got {other}"),
+    }
+}
+
 // ---------------------------------------------------------------------------------------
 // acceptance (release, `cargo test --release -- --ignored`)
 
