@@ -554,7 +554,10 @@ fn a_step_without_a_solution_is_given_up_early() {
     };
     let mut rattle = Rattle::with_settings(2, &settings);
     let error = rattle.step(&mut formulation, &mut state, 0.01).unwrap_err();
-    assert!(rattle.fused_rods(), "a rod to a fixed point is a path of rods");
+    assert!(
+        rattle.fused_rods(),
+        "a rod to a fixed point is a path of rods"
+    );
     match error {
         StepError::ProjectionFailed {
             iterations,

@@ -328,6 +328,58 @@ fn rattle_agrees() {
     }
 }
 
+/// The fused rods' residual (`RodPath::values_and_residual`) is the formulation's
+/// (`ConstraintScales::residual`), bit for bit, on the chains: near the constraints (where
+/// the rounding allowance decides), off them, and with a NaN coordinate.
+#[test]
+fn fused_residual_is_the_formulations() {
+    use bead::formulation::{ConstrainedSystem, ConstraintScales, Formulation};
+    use bead::linalg::{PathOrder, RodPath};
+    let mut compared: Vec<String> = Vec::new();
+    for (name, system) in systems() {
+        let mut f = Implicit::with_solver(system.clone(), Feedback::default(), LinearSolver::Auto);
+        f.set_constraint_scales(Some(ConstraintScales::of(&system)));
+        let Some(order) = PathOrder::of(f.constraint_matrix().pattern()) else {
+            continue;
+        };
+        let set = system.constraints();
+        let Some(mut rods) = RodPath::new(&order, |r| set.distance_row(r)) else {
+            continue;
+        };
+        let scales = f.constraint_scales().expect("set above").clone();
+        let mut random = Random(0x5ca1e + name.len() as u64);
+        let m = set.n_rows();
+        for spread in [1e-15, 1e-13, 1e-9, 1e-3] {
+            for trial in 0..4 {
+                let mut s = random_state(&system, &mut random, 0.0);
+                f.project_positions(s.t, &mut s.q, 1e-15, 50).unwrap();
+                for q in &mut s.q {
+                    *q *= 1.0 + spread * random.next();
+                }
+                if spread == 1e-3 && trial == 3 {
+                    s.q[3] = f64::NAN;
+                }
+                let (mut fused, mut general) = (vec![0.0; m], vec![0.0; m]);
+                let got =
+                    rods.values_and_residual(&s.q, &mut fused, &scales.scale, &scales.rounding);
+                f.constraint_values(s.t, &s.q, &mut general);
+                let expected = f.constraint_residual(&s.q, &general);
+                assert!(
+                    got.to_bits() == expected.to_bits(),
+                    "{name}, spread {spread:e}: {got:e} vs {expected:e}"
+                );
+                assert!(
+                    fused
+                        .iter()
+                        .zip(&general)
+                        .all(|(a, b)| a.to_bits() == b.to_bits()),
+                    "{name}: C differs"
+                );
+            }
+        }
+    }
+}
+
 /// A duplicated rod is named on both paths, whatever the sparse ordering: the row whose pivot
 /// fails first in the elimination, mapped back through the permutation.
 #[test]

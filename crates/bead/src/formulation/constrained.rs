@@ -75,6 +75,11 @@ pub trait ConstrainedSystem: SecondOrderSystem {
         let _ = q;
         max_abs(c)
     }
+    /// The per-row scales [`ConstrainedSystem::constraint_residual`] measures with, when it
+    /// has them (then it is [`ConstraintScales::residual`]); `None` otherwise (the default).
+    fn constraint_scales(&self) -> Option<&ConstraintScales> {
+        None
+    }
     /// J = dC/dq at (q, t): its nonzero entries (nnz), in the order of
     /// [`ConstrainedSystem::constraint_structure`], every one overwritten.
     fn constraint_jacobian(&mut self, t: f64, q: &[f64], jacobian: &mut [f64]);
@@ -330,6 +335,10 @@ impl ConstrainedSystem for Implicit {
             Some(scales) => scales.residual(self.system.constraints(), q, c),
             None => max_abs(c),
         }
+    }
+
+    fn constraint_scales(&self) -> Option<&ConstraintScales> {
+        self.scales.as_ref()
     }
 
     fn constraint_jacobian(&mut self, t: f64, q: &[f64], jacobian: &mut [f64]) {

@@ -342,8 +342,19 @@ impl Rattle {
             // The best residual so far and the iterations since it last halved.
             let (mut best, mut stalled) = (f64::INFINITY, 0);
             loop {
-                rods.values(q, &mut self.residual);
-                let residual = cs.constraint_residual(q, &self.residual);
+                // The system's residual, in the rods' own pass when it says how it scales.
+                let residual = match cs.constraint_scales() {
+                    Some(scales) => rods.values_and_residual(
+                        q,
+                        &mut self.residual,
+                        &scales.scale,
+                        &scales.rounding,
+                    ),
+                    None => {
+                        rods.values(q, &mut self.residual);
+                        cs.constraint_residual(q, &self.residual)
+                    }
+                };
                 if residual <= self.tolerance {
                     return Ok(iterations);
                 }

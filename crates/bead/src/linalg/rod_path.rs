@@ -229,6 +229,63 @@ impl RodPath {
         }
     }
 
+    /// [`RodPath::values`] and, in the same pass, the scaled residual of
+    /// `crate::formulation::ConstraintScales::residual` (by row: `scale` s_i, `rounding`
+    /// rho_i): max_i max(0, |C_i| - rho_i max_{k in rod i} |q_k|) / s_i, NaN when any C_i is
+    /// NaN. The same per-rod quantities and their maximum, so the same bits.
+    pub fn values_and_residual(
+        &mut self,
+        q: &[f64],
+        c: &mut [f64],
+        scale: &[f64],
+        rounding: &[f64],
+    ) -> f64 {
+        match self.dim {
+            1 => self.values_and_residual_in::<1>(q, c, scale, rounding),
+            2 => self.values_and_residual_in::<2>(q, c, scale, rounding),
+            _ => self.values_and_residual_in::<3>(q, c, scale, rounding),
+        }
+    }
+
+    fn values_and_residual_in<const D: usize>(
+        &mut self,
+        q: &[f64],
+        c: &mut [f64],
+        scale: &[f64],
+        rounding: &[f64],
+    ) -> f64 {
+        let mut worst: f64 = 0.0;
+        let mut nan = false;
+        let rods = self.rods.iter().zip(&self.anchors).zip(&self.lengths);
+        for (e, ((rod, anchor), length)) in self.current.iter_mut().zip(rods) {
+            *e = Self::rod_vector::<D>(rod, anchor, q);
+            let squared: f64 = (0..D).map(|k| e[k] * e[k]).sum();
+            let value = (squared - length * length) * (0.5 * rod.inverse_length);
+            c[rod.row] = value;
+            let (size, s) = (value.abs(), scale[rod.row]);
+            // Not `size <= worst * s`, NaN included.
+            if !(size <= worst * s) {
+                nan |= value.is_nan();
+                let mut coordinates: f64 = 0.0;
+                for k in 0..D {
+                    coordinates = coordinates.max(q[rod.a + k].abs());
+                    if rod.b != FIXED {
+                        coordinates = coordinates.max(q[rod.b + k].abs());
+                    }
+                }
+                let excess = size - rounding[rod.row] * coordinates;
+                if excess > 0.0 {
+                    worst = worst.max(excess / s);
+                }
+            }
+        }
+        if nan {
+            f64::NAN
+        } else {
+            worst
+        }
+    }
+
     /// One Newton step of RATTLE's position solve: with `c` = C(q^k) from the last
     /// [`RodPath::values`] (by row), solve J(q^k) W J(q_n)^T z = c, leave z in `c` and
     /// subtract W J(q_n)^T z from `q`. A pivot of the elimination not above
