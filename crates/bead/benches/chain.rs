@@ -289,44 +289,31 @@ fn energy_scale(n: usize) -> f64 {
     G * L * (n * (n + 1)) as f64 / 2.0
 }
 
-/// The floor with the fewest substeps per step (1, 2, 4, ...) at which every step of the run
-/// converges, and its Newton iterations per step.
-fn run_hand(n: usize, duration: f64) -> (Figures, f64) {
+/// The floor with `substeps` per step (`None` when a step does not converge), and its Newton
+/// iterations per step.
+fn hand_run(n: usize, duration: f64, substeps: u32) -> Option<(Figures, f64)> {
     let steps = (duration / DT).round() as u64;
-    let mut substeps = 1u32;
-    'substeps: loop {
-        let mut chain = HandChain::new(n);
-        let e0 = chain.energy();
-        let h = DT / substeps as f64;
-        let mut stretch = 0.0_f64;
-        let mut iterations = 0;
-        let start = Instant::now();
-        for _ in 0..steps {
-            for _ in 0..substeps {
-                match black_box(chain.step(h)) {
-                    Some(k) => iterations += k,
-                    None => {
-                        substeps *= 2;
-                        assert!(
-                            substeps <= 64,
-                            "the hand-written chain of {n}: > 64 substeps"
-                        );
-                        continue 'substeps;
-                    }
-                }
-            }
-            stretch = stretch.max(chain.stretch());
+    let mut chain = HandChain::new(n);
+    let e0 = chain.energy();
+    let h = DT / substeps as f64;
+    let mut stretch = 0.0_f64;
+    let mut iterations = 0;
+    let start = Instant::now();
+    for _ in 0..steps {
+        for _ in 0..substeps {
+            iterations += black_box(chain.step(h))?;
         }
-        let wall = start.elapsed().as_secs_f64();
-        let drift = (chain.energy() - e0).abs();
-        return (
-            Figures {
-                substeps,
-                ..figures(n, steps, wall, stretch, drift)
-            },
-            iterations as f64 / steps as f64,
-        );
+        stretch = stretch.max(chain.stretch());
     }
+    let wall = start.elapsed().as_secs_f64();
+    let drift = (chain.energy() - e0).abs();
+    Some((
+        Figures {
+            substeps,
+            ..figures(n, steps, wall, stretch, drift)
+        },
+        iterations as f64 / steps as f64,
+    ))
 }
 
 fn run_engine(n: usize, duration: f64) -> Figures {
@@ -494,7 +481,7 @@ fn main() {
             rows.push(("step alone", figures));
         }
         if variants.contains("hand") {
-            let (figures, per_step) = run_hand(n, duration);
+            let (figures, per_step) = fewest_substeps(n, |k| hand_run(n, duration, k));
             iterations.push(("the floor", per_step));
             rows.push(("hand-written", figures));
         }

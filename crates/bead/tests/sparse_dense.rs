@@ -377,7 +377,10 @@ fn fused_residual_is_the_formulations() {
                 );
             }
         }
+        compared.push(name);
     }
+    // The chains, the interleaved one, chain.toml, rope.toml and the double pendulum.
+    assert_eq!(compared.len(), 5, "{compared:?}");
 }
 
 /// A duplicated rod is named on both paths, whatever the sparse ordering: the row whose pivot

@@ -210,7 +210,7 @@ impl RodPath {
         }
     }
 
-    /// C(q) into `c` (by row: c[row] = (|e|^2 - L^2) / (2L), the native rows' own
+    /// C(q) into `c` (by row: c\[row\] = (|e|^2 - L^2) / (2L), the native rows' own
     /// arithmetic), remembering the rod vectors at q for the next [`RodPath::newton_step`].
     pub fn values(&mut self, q: &[f64], c: &mut [f64]) {
         match self.dim {
@@ -264,7 +264,10 @@ impl RodPath {
             c[rod.row] = value;
             let (size, s) = (value.abs(), scale[rod.row]);
             // Not `size <= worst * s`, NaN included.
-            if !(size <= worst * s) {
+            if matches!(
+                size.partial_cmp(&(worst * s)),
+                None | Some(std::cmp::Ordering::Greater)
+            ) {
                 nan |= value.is_nan();
                 let mut coordinates: f64 = 0.0;
                 for k in 0..D {
@@ -396,7 +399,7 @@ impl RodPath {
         }
     }
 
-    /// out[row] = J_row(q_n) v (q_n the configuration of [`RodPath::set_start`]).
+    /// out\[row\] = J_row(q_n) v (q_n the configuration of [`RodPath::set_start`]).
     pub fn start_multiply(&self, v: &[f64], out: &mut [f64]) {
         match self.dim {
             1 => self.start_multiply_in::<1>(v, out),
