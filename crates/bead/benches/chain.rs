@@ -371,16 +371,9 @@ fn fewest_substeps<T>(n: usize, mut run: impl FnMut(u32) -> Option<T>) -> T {
 /// `Simulation` sets, no monitors) with `substeps` per step (`None` when a step fails), and
 /// its Newton iterations per step.
 fn step_alone_run(n: usize, duration: f64, substeps: u32) -> Option<(Figures, f64)> {
-    use bead::formulation::{ConstraintScales, Feedback, Formulation, Implicit};
-    use bead::integrate::{Integrator, IntegratorSettings, Rattle};
+    use bead::integrate::{Integrator, Rattle};
     let system = chain_system(n);
-    let mut formulation = Implicit::new(Arc::clone(&system), Feedback::default());
-    formulation.set_constraint_scales(Some(ConstraintScales::of(&system)));
-    let mut state = formulation.initial_state();
-    let settings = IntegratorSettings {
-        constraint_tolerance: 1e-12,
-        ..Default::default()
-    };
+    let (mut formulation, mut state, settings) = stepped_alone(&system);
     let mut rattle = Rattle::with_settings(state.q.len(), &settings);
     let e0 = system.energy(&state.q, &state.qdot);
     let steps = (duration / DT).round() as u64;
@@ -403,6 +396,27 @@ fn step_alone_run(n: usize, duration: f64, substeps: u32) -> Option<(Figures, f6
         },
         iterations,
     ))
+}
+
+/// What an integrator stepped alone (no `Simulation`) needs to step `system` as `Simulation`
+/// would: the implicit form with the per-rod tolerance scales, its initial state, and the
+/// tolerance 1e-12 of each rod's length.
+fn stepped_alone(
+    system: &Arc<System>,
+) -> (
+    bead::formulation::Implicit,
+    bead::formulation::State,
+    bead::integrate::IntegratorSettings,
+) {
+    use bead::formulation::{ConstraintScales, Feedback, Formulation, Implicit};
+    let mut formulation = Implicit::new(Arc::clone(system), Feedback::default());
+    formulation.set_constraint_scales(Some(ConstraintScales::of(system)));
+    let state = formulation.initial_state();
+    let settings = bead::integrate::IntegratorSettings {
+        constraint_tolerance: 1e-12,
+        ..Default::default()
+    };
+    (formulation, state, settings)
 }
 
 /// The process's peak resident memory so far (VmHWM, Linux), in MB.
@@ -572,16 +586,9 @@ fn shipped_scene(name: &str) -> bead::scene::Scene {
 /// The fast projection's work on the cloth at dt = 1/60, by its integrator alone (no
 /// monitors): Newton iterations and factorizations per step, time per step.
 fn run_cloth_projection_counts(duration: f64) {
-    use bead::formulation::{ConstraintScales, Feedback, Formulation, Implicit};
-    use bead::integrate::{FastProjection, Integrator, IntegratorSettings};
+    use bead::integrate::{FastProjection, Integrator};
     let system = Arc::clone(&cloth_scene().system);
-    let mut formulation = Implicit::new(Arc::clone(&system), Feedback::default());
-    formulation.set_constraint_scales(Some(ConstraintScales::of(&system)));
-    let mut state = formulation.initial_state();
-    let settings = IntegratorSettings {
-        constraint_tolerance: 1e-12,
-        ..Default::default()
-    };
+    let (mut formulation, mut state, settings) = stepped_alone(&system);
     let mut integrator = FastProjection::with_settings(state.q.len(), &settings);
     let steps = (duration / FRAME).round() as u64;
     let start = Instant::now();
