@@ -2064,19 +2064,27 @@ async fn cloth_checks(client: &Client, addr: SocketAddr) {
 #[test]
 fn the_shipped_cloth_runs_in_real_time_and_says_how_fast() {
     in_browser(serving("cloth.toml", shipped("cloth")), |client, addr| {
-        cloth_rate_checks(client, addr).boxed_local()
+        rate_checks(client, addr, "shipped cloth").boxed_local()
     });
 }
 
-/// The shipped cloth as served (50 x 50 masses, 4,906 rows, fast-projection at dt = 1/60:
-/// about 12 ms a step, release) runs in its panel, and the rate the page shows is the rate
-/// it runs at: the page samples every 50 ms its own clock, the frame's t and the session's
-/// simulation rate while 2 simulated seconds pass (the scene's end set to go on), and the
-/// mean rate shown agrees within
-/// 35% with the rate it measures itself (simulated over wall time). Real time on an idle
-/// machine is a figure of the README measured with this test (printed), not asserted: a
-/// loaded machine runs slower and must say so.
-async fn cloth_rate_checks(client: &Client, addr: SocketAddr) {
+/// The same for the shipped chain (1000 rods, RATTLE at dt = 1/120 fused along the path:
+/// about 90 us a step through `Simulation`, release).
+#[test]
+fn the_shipped_chain_runs_in_real_time_and_says_how_fast() {
+    in_browser(serving("chain.toml", shipped("chain")), |client, addr| {
+        rate_checks(client, addr, "shipped chain").boxed_local()
+    });
+}
+
+/// A shipped scene as served (the cloth: 50 x 50 masses, 4,906 rows, fast-projection at
+/// dt = 1/60, about 12 ms a step, release) runs in its panel, and the rate the page shows is
+/// the rate it runs at: the page samples every 50 ms its own clock, the frame's t and the
+/// session's simulation rate while 2 simulated seconds pass (the scene's end set to go on),
+/// and the mean rate shown agrees within 35% with the rate it measures itself (simulated
+/// over wall time). Real time on an idle machine is a figure of the README measured with
+/// this test (printed), not asserted: a loaded machine runs slower and must say so.
+async fn rate_checks(client: &Client, addr: SocketAddr, name: &str) {
     client.goto(&format!("http://{addr}/")).await.unwrap();
     let patient = Duration::from_secs(120);
     // Past the scene's 3 s it goes on (a loaded machine may reach 3 s before the window).
@@ -2099,7 +2107,7 @@ async fn cloth_rate_checks(client: &Client, addr: SocketAddr) {
             "window.__viewer.clock.at_end === 'continue' && {}",
             current(1, "f.status === 'running' && f.t >= 0.3")
         ),
-        "the cloth running on past its end",
+        "the scene running on past its end",
         patient,
     )
     .await;
@@ -2140,13 +2148,13 @@ async fn cloth_rate_checks(client: &Client, addr: SocketAddr) {
     let measured = (last[1] - first[1]) / ((last[0] - first[0]) / 1e3);
     let shown = samples.iter().map(|s| s[2]).sum::<f64>() / samples.len() as f64;
     eprintln!(
-        "shipped cloth: {measured:.2}x real time measured by the page, {shown:.2}x shown \
+        "{name}: {measured:.2}x real time measured by the page, {shown:.2}x shown \
          ({} samples)",
         samples.len()
     );
     assert!(
         (shown - measured).abs() <= 0.35 * measured.max(shown),
-        "the page shows {shown:.2}x real time and measures {measured:.2}x"
+        "{name}: the page shows {shown:.2}x real time and measures {measured:.2}x"
     );
     let errors = js(client, "return window.__errors;").await;
     assert_eq!(errors, json!([]), "errors in the page");
