@@ -571,6 +571,48 @@ fn a_step_without_a_solution_is_given_up_early() {
     }
 }
 
+/// One `Rattle` handed two chains with the same rows but rods of other lengths keeps each
+/// chain's own: the fused path's geometry is rebuilt when the distance rows change
+/// (`distance_fingerprint`), not only when the row structure does.
+#[test]
+fn one_rattle_on_two_chains_keeps_each_ones_lengths() {
+    let chain = |length: f64| {
+        let mut b = SystemBuilder::new(&[0.0, 9.81]);
+        let mut previous = None;
+        for k in 0..5 {
+            let position = [(k + 1) as f64 * length, 0.0];
+            let p = b
+                .particle(&format!("p{k}"), 1.0, &position, &[0.0, 0.0])
+                .unwrap();
+            let end = previous.map_or(Endpoint::Fixed(vec![0.0, 0.0]), Endpoint::Particle);
+            b.distance(&format!("rod {k}"), p, end, length).unwrap();
+            previous = Some(p);
+        }
+        Arc::new(b.build().unwrap())
+    };
+    let settings = IntegratorSettings {
+        constraint_tolerance: 1e-13,
+        ..IntegratorSettings::default()
+    };
+    let mut rattle = Rattle::with_settings(10, &settings);
+    for length in [1.0, 1.5] {
+        let mut formulation = Implicit::new(chain(length), Feedback::default());
+        let mut state = bead::formulation::Formulation::initial_state(&formulation);
+        for _ in 0..20 {
+            rattle
+                .step(&mut formulation, &mut state, 1.0 / 120.0)
+                .unwrap();
+        }
+        assert!(rattle.fused_rods());
+        let mut before = [0.0, 0.0];
+        for p in state.q.chunks_exact(2) {
+            let d = ((p[0] - before[0]).powi(2) + (p[1] - before[1]).powi(2)).sqrt();
+            assert!((d - length).abs() < 1e-12, "a rod of {length} at {d}");
+            before = [p[0], p[1]];
+        }
+    }
+}
+
 // ---------------------------------------------------------------------------------------
 // acceptance (release, `cargo test --release -- --ignored`)
 

@@ -75,6 +75,13 @@ pub trait ConstrainedSystem: SecondOrderSystem {
         let _ = q;
         max_abs(c)
     }
+    /// A hash of the geometry of the rows [`ConstrainedSystem::distance_row`] describes
+    /// (see [`ConstraintSet::distance_fingerprint`]): an integrator that keeps that geometry
+    /// between steps rebuilds it when this changes. 0 (the default) for a system without
+    /// distance rows.
+    fn distance_fingerprint(&self) -> u64 {
+        0
+    }
     /// The per-row scales [`ConstrainedSystem::constraint_residual`] measures with, when it
     /// has them (then it is [`ConstraintScales::residual`]); `None` otherwise (the default).
     fn constraint_scales(&self) -> Option<&ConstraintScales> {
@@ -339,6 +346,10 @@ impl ConstrainedSystem for Implicit {
 
     fn constraint_scales(&self) -> Option<&ConstraintScales> {
         self.scales.as_ref()
+    }
+
+    fn distance_fingerprint(&self) -> u64 {
+        self.system.constraints().distance_fingerprint()
     }
 
     fn constraint_jacobian(&mut self, t: f64, q: &[f64], jacobian: &mut [f64]) {

@@ -170,6 +170,9 @@ pub struct Rattle {
     inverse_mass: Vec<f64>,
     /// The row structure the m-dependent buffers were sized for: row starts and columns
     structure: (Vec<usize>, Vec<usize>, LinearSolver),
+    /// The distance rows' geometry `rods` was built for
+    /// ([`ConstrainedSystem::distance_fingerprint`])
+    distance_fingerprint: u64,
     /// J(q_n): J's nonzero entries (nnz)
     jacobian_start: Vec<f64>,
     /// J(q_n) W J(q_n)^T and its factorization, built on the first step
@@ -227,6 +230,7 @@ impl Rattle {
             q_start: vec![0.0; n],
             inverse_mass: vec![0.0; n],
             structure: (Vec::new(), Vec::new(), LinearSolver::Auto),
+            distance_fingerprint: 0,
             jacobian_start: Vec::new(),
             matrix: None,
             exact: None,
@@ -275,13 +279,16 @@ impl Rattle {
                 rows.n_nonzeros()
             }
         });
+        let fingerprint = cs.distance_fingerprint();
         let same = self.matrix.is_some()
             && self.structure.2 == solver
             && self.structure.0.len() == m + 1
             && self.structure.0.iter().copied().eq(starts.clone())
-            && self.structure.1 == rows.columns();
+            && self.structure.1 == rows.columns()
+            && self.distance_fingerprint == fingerprint;
         if !same {
             self.structure = (starts.collect(), rows.columns().to_vec(), solver);
+            self.distance_fingerprint = fingerprint;
             let matrix = ConstraintMatrix::new(rows, solver);
             let path = matrix.path().is_some();
             self.rods = match self.newton {

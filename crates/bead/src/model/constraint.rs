@@ -138,6 +138,8 @@ pub struct ConstraintSet {
     columns: Vec<usize>,
     /// Whether row i depends on t (m).
     time_dependent: Vec<bool>,
+    /// A hash of the native rows' geometry (see [`ConstraintSet::distance_fingerprint`])
+    distance_fingerprint: u64,
 }
 
 impl std::fmt::Debug for ConstraintSet {
@@ -219,7 +221,29 @@ impl ConstraintSet {
             .map(|r| r.value.depends_on(time))
             .chain(custom_rows.iter().map(|r| r.constraint.time_dependent()))
             .collect();
+        // FNV-1a over each distance row's row, particles, anchor and length bits.
+        let mut distance_fingerprint: u64 = 0xcbf2_9ce4_8422_2325;
+        for (row, native) in &native_rows {
+            if let NativeRow::Distance {
+                a,
+                b,
+                anchor,
+                length,
+                ..
+            } = native
+            {
+                let words = [*row as u64, *a as u64, b.map_or(u64::MAX, |b| b as u64)];
+                let bits = anchor.iter().chain([length]).map(|x| x.to_bits());
+                for word in words.into_iter().chain(bits) {
+                    for byte in word.to_le_bytes() {
+                        distance_fingerprint =
+                            (distance_fingerprint ^ byte as u64).wrapping_mul(0x100_0000_01b3);
+                    }
+                }
+            }
+        }
         ConstraintSet {
+            distance_fingerprint,
             fused: super::FusedTapes::default(),
             time_dependent,
             n_coords,
@@ -273,6 +297,13 @@ impl ConstraintSet {
         self.native_rows
             .binary_search_by_key(&row, |(r, _)| *r)
             .is_ok()
+    }
+    /// A hash of every built-in distance row's geometry (row, particles, anchor, length): two
+    /// sets whose distance rows differ anywhere differ in it (up to hash collisions), so a
+    /// solver that keeps the rods' geometry (RATTLE's fused path) can tell, in O(1) per step,
+    /// that it was handed another system with the same row structure.
+    pub fn distance_fingerprint(&self) -> u64 {
+        self.distance_fingerprint
     }
     /// `row` as a built-in distance ([`DistanceRow`]), if it is one.
     pub fn distance_row(&self, row: usize) -> Option<DistanceRow> {

@@ -138,6 +138,13 @@ impl ConstrainedSystem for WithWork<'_> {
         self.formulation.system().constraints().distance_row(row)
     }
 
+    fn distance_fingerprint(&self) -> u64 {
+        self.formulation
+            .system()
+            .constraints()
+            .distance_fingerprint()
+    }
+
     /// Whether the applied accelerations depend on v, the work coordinate's (the power
     /// F_nc . v) included: see [`WithWork::new`].
     fn applied_forces_velocity_dependent(&self) -> bool {
