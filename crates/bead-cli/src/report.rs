@@ -749,7 +749,7 @@ pub fn check_text(scene: &Scene, start: &StartCheck) -> String {
         let _ = writeln!(s, "  {}: {} ({rows})", info.name, info.description);
         for row in info.rows.clone() {
             let initial = |v: &Vec<f64>| v.get(row).map(|x| g(*x, 6)).unwrap_or_else(|| "?".into());
-            match set.symbolic_row(row) {
+            match set.symbolic_row(row).as_deref() {
                 Some(symbolic) => {
                     let ExprRow {
                         value,

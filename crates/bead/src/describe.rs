@@ -79,7 +79,7 @@ pub fn equations(system: &System, method: Method, max_rows: usize) -> String {
                         break;
                     }
                     written += 1;
-                    match set.symbolic_row(row) {
+                    match set.symbolic_row(row).as_deref() {
                         Some(ExprRow {
                             value,
                             gradient,
@@ -347,12 +347,13 @@ pub fn equations_mathml(system: &System, method: Method, max_rows: usize) -> Str
                         crate::expr::mathml_escape(&info.name),
                         crate::expr::mathml_escape(&info.description)
                     );
+                    let symbolic = set.symbolic_row(row);
                     let Some(ExprRow {
                         value,
                         gradient,
                         bias,
                         ..
-                    }) = set.symbolic_row(row)
+                    }) = symbolic.as_deref()
                     else {
                         s.push_str("<p>a Rust constraint: derivatives by dual numbers, no expressions to show.</p>\n");
                         continue;

@@ -573,7 +573,7 @@ fn a_step_without_a_solution_is_given_up_early() {
 
 /// One `Rattle` handed two chains with the same rows but rods of other lengths keeps each
 /// chain's own: the fused path's geometry is rebuilt when the distance rows change
-/// (`distance_fingerprint`), not only when the row structure does.
+/// (`row_fingerprint`), not only when the row structure does.
 #[test]
 fn one_rattle_on_two_chains_keeps_each_ones_lengths() {
     let chain = |length: f64| {
@@ -673,4 +673,47 @@ fn acceptance_rattle_and_projection_1e6_steps() {
         "acceptance test total: {:.3} s",
         started.elapsed().as_secs_f64()
     );
+}
+
+/// A fused step whose rod turns by a right angle hands over to the simplified matrix, which
+/// RATTLE builds then (not on the first step): a unit rod from the origin to a unit mass at
+/// (1, 0) moving at (-100, 150), dt = 0.01, no gravity, so the predictor is (0, 1.5), where
+/// the fused Newton matrix e(q^k).e(q_n) = 0 fails the pivot test. The simplified iteration
+/// runs and fails (it moves along e(q_n) = (1, 0), and (-z, 1.5) is never on the rod: C
+/// grows until it overflows): a projection failure, no panic; the same `Rattle` then steps a
+/// state it can.
+#[test]
+fn a_fused_step_that_turns_a_rod_over_hands_over_to_the_simplified_matrix() {
+    let mut b = SystemBuilder::new(&[0.0, 0.0]);
+    let p = b
+        .particle("bob", 1.0, &[1.0, 0.0], &[-100.0, 150.0])
+        .unwrap();
+    b.distance("rod", p, Endpoint::Fixed(vec![0.0, 0.0]), 1.0)
+        .unwrap();
+    let system = Arc::new(b.build().unwrap());
+    let mut formulation = Implicit::new(system, Feedback::default());
+    let mut state = bead::formulation::Formulation::initial_state(&formulation);
+    let settings = IntegratorSettings {
+        constraint_tolerance: 1e-12,
+        constraint_max_iterations: 50,
+        ..IntegratorSettings::default()
+    };
+    let mut rattle = Rattle::with_settings(2, &settings);
+    let error = rattle.step(&mut formulation, &mut state, 0.01).unwrap_err();
+    assert!(rattle.fused_rods());
+    match error {
+        // The simplified iteration's (the fused one took none): not the pivot's
+        // `SingularConstraints`.
+        StepError::ProjectionFailed { iterations, .. } => assert!(iterations > 0),
+        other => panic!("expected ProjectionFailed, got {other}"),
+    }
+    // A slow turn: the fused path again, to the tolerance.
+    let mut state = State {
+        t: 0.0,
+        q: vec![1.0, 0.0],
+        qdot: vec![0.0, 1.0],
+    };
+    rattle.step(&mut formulation, &mut state, 0.01).unwrap();
+    let stretch = (state.q[0].hypot(state.q[1]) - 1.0).abs();
+    assert!(stretch < 1e-12, "stretch {stretch}");
 }

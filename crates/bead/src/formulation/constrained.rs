@@ -27,9 +27,7 @@
 use std::cmp::Ordering;
 
 use super::{Implicit, SecondOrderSystem, StepError};
-use crate::linalg::{
-    max_abs, ConstraintMatrix, LinearSolver, PathOrder, RodPath, RowStructure, Singular,
-};
+use crate::linalg::{max_abs, ConstraintMatrix, LinearSolver, RodPath, RowStructure, Singular};
 use crate::model::{ConstraintEval, ConstraintSet, DistanceRow, System};
 
 /// A second-order system with holonomic constraints C(q, t) = 0 (m rows) on its coordinates.
@@ -75,12 +73,13 @@ pub trait ConstrainedSystem: SecondOrderSystem {
         let _ = q;
         max_abs(c)
     }
-    /// A hash of the geometry of the rows [`ConstrainedSystem::distance_row`] describes
-    /// (see [`ConstraintSet::distance_fingerprint`]): an integrator that keeps that geometry
-    /// between steps rebuilds it when this changes. 0 (the default) for a system without
-    /// distance rows.
-    fn distance_fingerprint(&self) -> u64 {
-        0
+    /// A hash of the row structure and of the geometry of the rows
+    /// [`ConstrainedSystem::distance_row`] describes (see [`ConstraintSet::row_fingerprint`]):
+    /// an integrator that keeps per-row data between steps rebuilds it when this changes.
+    /// `None` (the default): not known, and such an integrator compares the row structure
+    /// itself (O(nnz) per step) and keeps no distance geometry.
+    fn row_fingerprint(&self) -> Option<u64> {
+        None
     }
     /// The per-row scales [`ConstrainedSystem::constraint_residual`] measures with, when it
     /// has them (then it is [`ConstraintScales::residual`]); `None` otherwise (the default).
@@ -230,14 +229,13 @@ pub(crate) struct ProjectionWorkspace {
 }
 
 impl ProjectionWorkspace {
-    pub(crate) fn new(system: &System, matrix: &ConstraintMatrix, solver: LinearSolver) -> Self {
+    pub(crate) fn new(system: &System, solver: LinearSolver) -> Self {
         let n = system.n_coords();
         let set = system.constraints();
         let m = set.n_rows();
         let rods = match solver {
             LinearSolver::Auto | LinearSolver::Tridiagonal if m > 0 => {
-                PathOrder::of(matrix.pattern())
-                    .and_then(|order| RodPath::new(&order, |row| set.distance_row(row)))
+                RodPath::of_rows(m, |row| set.distance_row(row))
             }
             _ => None,
         };
@@ -348,8 +346,8 @@ impl ConstrainedSystem for Implicit {
         self.scales.as_ref()
     }
 
-    fn distance_fingerprint(&self) -> u64 {
-        self.system.constraints().distance_fingerprint()
+    fn row_fingerprint(&self) -> Option<u64> {
+        Some(self.system.constraints().row_fingerprint())
     }
 
     fn constraint_jacobian(&mut self, t: f64, q: &[f64], jacobian: &mut [f64]) {
@@ -407,7 +405,7 @@ impl ConstrainedSystem for Implicit {
                 });
             }
             ws.rhs.copy_from_slice(&ws.eval.value);
-            ws.correct(set, w, &mut self.matrix, t, q)?;
+            ws.correct(set, w, self.matrix.get_mut(set.structure()), t, q)?;
             iterations += 1;
         }
     }
@@ -428,6 +426,6 @@ impl ConstrainedSystem for Implicit {
         // Cdot = J qdot + C_t: the residual of the velocity constraint J qdot = -C_t.
         set.evaluate(t, q, qdot, &mut ws.eval);
         ws.rhs.copy_from_slice(&ws.eval.velocity);
-        ws.correct(set, w, &mut self.matrix, t, qdot)
+        ws.correct(set, w, self.matrix.get_mut(set.structure()), t, qdot)
     }
 }

@@ -22,7 +22,7 @@ use super::{
     Formulation, Gradients, Method, Nonconservation, Observation, SecondOrderSystem,
     SingularSearch, State, StepError, Subject,
 };
-use crate::linalg::{ConstraintMatrix, LinearSolver};
+use crate::linalg::{ConstraintMatrix, LazyConstraintMatrix, LinearSolver};
 use crate::model::{ConstraintEval, Force, System};
 
 /// Constraint stabilization Cddot = -ks C - kd Cdot (units 1/s^2 and 1/s).
@@ -53,8 +53,9 @@ pub struct Implicit {
     /// F (n)
     pub(super) force: Vec<f64>,
     pub(super) constraints: ConstraintEval,
-    /// J W J^T and its factorization (shared by the acceleration and the projections)
-    pub(crate) matrix: ConstraintMatrix,
+    /// J W J^T and its factorization (shared by the acceleration and the projections),
+    /// built when first needed
+    pub(crate) matrix: LazyConstraintMatrix,
     /// rhs, then lambda (m)
     pub(super) lambda: Vec<f64>,
     /// Scratch space of the [`super::ConstrainedSystem`] methods (projections).
@@ -84,14 +85,10 @@ impl Implicit {
     pub fn with_solver(system: Arc<System>, feedback: Feedback, solver: LinearSolver) -> Self {
         let n = system.n_coords();
         let m = system.constraints().n_rows();
-        let matrix = ConstraintMatrix::new(system.constraints().structure(), solver);
-        let fused = FusedImplicit::new(
-            &system,
-            matrix.dense_pivot_tolerance(),
-            feedback.ks,
-            feedback.kd,
-        );
-        let projection = super::constrained::ProjectionWorkspace::new(&system, &matrix, solver);
+        let matrix = LazyConstraintMatrix::new(solver);
+        let dense_pivot_tolerance = matrix.dense_pivot_tolerance(system.constraints().structure());
+        let fused = FusedImplicit::new(&system, dense_pivot_tolerance, feedback.ks, feedback.kd);
+        let projection = super::constrained::ProjectionWorkspace::new(&system, solver);
         Implicit {
             fused,
             fused_pending: false,
@@ -185,7 +182,8 @@ impl Implicit {
         let m = set.n_rows();
         if m > 0 {
             let ce = &self.constraints;
-            self.matrix.assemble(&ce.jacobian, w);
+            let matrix = self.matrix.get_mut(set.structure());
+            matrix.assemble(&ce.jacobian, w);
             // rhs = -bias - J W F - ks C - kd Cdot.
             for i in 0..m {
                 let columns = set.row_columns(i);
@@ -200,14 +198,14 @@ impl Implicit {
                     - self.feedback.ks * ce.value[i]
                     - self.feedback.kd * ce.velocity[i];
             }
-            if let Err(singular) = self.matrix.factor() {
+            if let Err(singular) = matrix.factor() {
                 // Overflow or a non-finite input is not a singular constraint: say which.
                 if let Some(error) = non_finite_input(system, t, x, v, &self.force, ce) {
                     return Err(error);
                 }
                 return Err(super::constrained::singular_error(set, t, singular));
             }
-            self.matrix.solve_in_place(&mut self.lambda);
+            matrix.solve_in_place(&mut self.lambda);
             // F += J^T lambda.
             set.structure()
                 .add_transpose(&ce.jacobian, &self.lambda, &mut self.force);
@@ -221,7 +219,7 @@ impl Implicit {
     /// J W J^T's pattern and factorization, e.g. for diagnostics
     /// ([`ConstraintMatrix::describe`]).
     pub fn constraint_matrix(&self) -> &ConstraintMatrix {
-        &self.matrix
+        self.matrix.get(self.system.constraints().structure())
     }
 }
 

@@ -96,7 +96,7 @@ use super::fixed_point::{increment_and_scale, FixedPoint};
 use super::{constraints_of, Integrator, IntegratorKind, IntegratorSettings};
 use crate::formulation::{ConstrainedSystem, SecondOrderSystem, State, StepError};
 use crate::linalg::{
-    max_abs, solve_general, ConstraintMatrix, LinearSolver, PathOrder, RodPath, DENSE_MAX_ROWS,
+    max_abs, solve_general, ConstraintMatrix, LinearSolver, RodPath, DENSE_MAX_ROWS,
 };
 
 /// Iterations the fused exact Newton iteration may go without halving its best residual
@@ -174,14 +174,19 @@ pub struct Rattle {
     q_start: Vec<f64>,
     /// W (n)
     inverse_mass: Vec<f64>,
-    /// The row structure the m-dependent buffers were sized for: row starts and columns
-    structure: (Vec<usize>, Vec<usize>, LinearSolver),
-    /// The distance rows' geometry `rods` was built for
-    /// ([`ConstrainedSystem::distance_fingerprint`])
-    distance_fingerprint: u64,
-    /// J(q_n): J's nonzero entries (nnz)
+    /// Whether `reserve` has sized the buffers, for the system's `solver`, `m` and
+    /// `row_fingerprint` ([`ConstrainedSystem::row_fingerprint`]) or, when it has none, its
+    /// row `structure`
+    reserved: bool,
+    solver: LinearSolver,
+    m: usize,
+    row_fingerprint: Option<u64>,
+    /// Row starts and columns (empty with a fingerprint)
+    structure: (Vec<usize>, Vec<usize>),
+    /// J(q_n): J's nonzero entries (nnz; empty while fused rods need none)
     jacobian_start: Vec<f64>,
-    /// J(q_n) W J(q_n)^T and its factorization, built on the first step
+    /// J(q_n) W J(q_n)^T and its factorization, built on the first step, or with fused rods
+    /// on the first hand-over to the simplified matrix
     matrix: Option<ConstraintMatrix>,
     /// Exact Newton: J(q^k) (nnz), J(q^k) W J(q_n)^T's upper and lower triangles on the
     /// pattern of J W J^T (nnz of it each), the dense matrix (m x m) and column scales (m)
@@ -235,8 +240,11 @@ impl Rattle {
             constraint_work: 0.0,
             q_start: vec![0.0; n],
             inverse_mass: vec![0.0; n],
-            structure: (Vec::new(), Vec::new(), LinearSolver::Auto),
-            distance_fingerprint: 0,
+            reserved: false,
+            solver: LinearSolver::Auto,
+            m: 0,
+            row_fingerprint: None,
+            structure: (Vec::new(), Vec::new()),
             jacobian_start: Vec::new(),
             matrix: None,
             exact: None,
@@ -262,7 +270,7 @@ impl Rattle {
     /// The same with another Newton matrix for the position step.
     pub fn with_newton(mut self, newton: NewtonMatrix) -> Self {
         self.newton = newton;
-        self.matrix = None;
+        self.reserved = false;
         self
     }
 
@@ -273,7 +281,7 @@ impl Rattle {
     }
 
     /// Size the m-dependent buffers and analyse J W J^T for the system's row structure
-    /// (allocates only when the structure changes, i.e. on the first step).
+    /// (allocates only when the rows change, i.e. on the first step).
     fn reserve(&mut self, cs: &dyn ConstrainedSystem) {
         let rows = cs.constraint_structure();
         let m = rows.n_rows();
@@ -285,49 +293,79 @@ impl Rattle {
                 rows.n_nonzeros()
             }
         });
-        let fingerprint = cs.distance_fingerprint();
-        let same = self.matrix.is_some()
-            && self.structure.2 == solver
-            && self.structure.0.len() == m + 1
-            && self.structure.0.iter().copied().eq(starts.clone())
-            && self.structure.1 == rows.columns()
-            && self.distance_fingerprint == fingerprint;
+        let fingerprint = cs.row_fingerprint();
+        // O(1) with the system's fingerprint; O(nnz) comparing the structure without one.
+        let same = self.reserved
+            && self.solver == solver
+            && self.m == m
+            && match fingerprint {
+                Some(fingerprint) => self.row_fingerprint == Some(fingerprint),
+                None => {
+                    self.row_fingerprint.is_none()
+                        && self.structure.0.iter().copied().eq(starts.clone())
+                        && self.structure.1 == rows.columns()
+                }
+            };
         if !same {
-            self.structure = (starts.collect(), rows.columns().to_vec(), solver);
-            self.distance_fingerprint = fingerprint;
-            let matrix = ConstraintMatrix::new(rows, solver);
-            let path = matrix.path().is_some();
+            (self.reserved, self.solver, self.m) = (true, solver, m);
+            self.row_fingerprint = fingerprint;
+            self.structure = match fingerprint {
+                Some(_) => (Vec::new(), Vec::new()),
+                None => (starts.collect(), rows.columns().to_vec()),
+            };
+            // Fused rods keep the rods' geometry between steps: only with a fingerprint that
+            // says when it changes.
             self.rods = match self.newton {
-                NewtonMatrix::Auto if m > 0 => PathOrder::of(matrix.pattern())
-                    .and_then(|order| RodPath::new(&order, |row| cs.distance_row(row))),
+                NewtonMatrix::Auto if m > 0 && fingerprint.is_some() => {
+                    RodPath::of_rows(m, |row| cs.distance_row(row))
+                }
                 _ => None,
             };
-            let exact = match self.newton {
-                NewtonMatrix::Exact => true,
-                NewtonMatrix::Simplified => false,
-                NewtonMatrix::Auto => m <= DENSE_MAX_ROWS && self.rods.is_none(),
-            };
-            self.exact = exact.then(|| ExactNewton {
-                jacobian: vec![0.0; rows.n_nonzeros()],
-                upper: vec![0.0; matrix.pattern().nnz()],
-                lower: vec![0.0; matrix.pattern().nnz()],
-                solve: if path {
-                    ExactSolve::Path {
-                        scratch: vec![0.0; 2 * m],
-                    }
-                } else {
-                    ExactSolve::Dense {
-                        dense: vec![0.0; m * m],
-                        column_scale: vec![0.0; m],
-                    }
-                },
-            });
-            self.matrix = Some(matrix);
-            self.jacobian_start = vec![0.0; rows.n_nonzeros()];
+            self.matrix = None;
+            self.exact = None;
+            self.jacobian_start = Vec::new();
+            // Fused rods need neither J W J^T nor J(q_n) unless a step hands over to the
+            // simplified matrix (`general_matrix`).
+            if self.rods.is_none() {
+                let exact = match self.newton {
+                    NewtonMatrix::Exact => true,
+                    NewtonMatrix::Simplified => false,
+                    NewtonMatrix::Auto => m <= DENSE_MAX_ROWS,
+                };
+                let matrix = ConstraintMatrix::new(rows, solver);
+                self.exact = exact.then(|| ExactNewton {
+                    jacobian: vec![0.0; rows.n_nonzeros()],
+                    upper: vec![0.0; matrix.pattern().nnz()],
+                    lower: vec![0.0; matrix.pattern().nnz()],
+                    solve: if matrix.path().is_some() {
+                        ExactSolve::Path {
+                            scratch: vec![0.0; 2 * m],
+                        }
+                    } else {
+                        ExactSolve::Dense {
+                            dense: vec![0.0; m * m],
+                            column_scale: vec![0.0; m],
+                        }
+                    },
+                });
+                self.matrix = Some(matrix);
+                self.jacobian_start = vec![0.0; rows.n_nonzeros()];
+            }
             self.residual = vec![0.0; m];
             self.nu = vec![0.0; m];
             self.jv = vec![0.0; m];
         }
+    }
+
+    /// J W J^T for the simplified iteration, and room for J(q_n), built when a step first
+    /// needs them (on the first step unless the rods are fused).
+    fn general_matrix(&mut self, cs: &dyn ConstrainedSystem) -> &mut ConstraintMatrix {
+        let rows = cs.constraint_structure();
+        if self.jacobian_start.len() != rows.n_nonzeros() {
+            self.jacobian_start = vec![0.0; rows.n_nonzeros()];
+        }
+        self.matrix
+            .get_or_insert_with(|| ConstraintMatrix::new(rows, cs.linear_solver()))
     }
 
     /// Newton iterations for nu: q <- q - W J(q_n)^T dnu with M dnu = C(q, t) until
@@ -387,6 +425,7 @@ impl Rattle {
                     .newton_step(&self.inverse_mass, &mut self.residual, q)
                     .is_err()
                 {
+                    self.general_matrix(cs);
                     cs.constraint_jacobian(t0, &self.q_start, &mut self.jacobian_start);
                     break;
                 }
@@ -396,7 +435,10 @@ impl Rattle {
                 iterations += 1;
             }
         }
-        let matrix = self.matrix.as_mut().expect("sized in reserve");
+        let matrix = self
+            .matrix
+            .as_mut()
+            .expect("built in reserve or on the hand-over");
         let mut exact = self.exact.as_mut();
         let mut factored = false;
         loop {

@@ -322,6 +322,45 @@ impl ConstraintMatrix {
     }
 }
 
+/// A [`ConstraintMatrix`] built on first use: a system whose steps never solve with J W J^T
+/// (RATTLE fused along rods, [`super::RodPath`]) never pays for its pattern and analysis
+/// (about 400 bytes per rod of a chain).
+pub(crate) struct LazyConstraintMatrix {
+    matrix: std::sync::OnceLock<ConstraintMatrix>,
+    kind: LinearSolver,
+}
+
+impl LazyConstraintMatrix {
+    /// The matrix for `kind`, not built yet.
+    pub(crate) fn new(kind: LinearSolver) -> Self {
+        LazyConstraintMatrix {
+            matrix: std::sync::OnceLock::new(),
+            kind,
+        }
+    }
+
+    /// The matrix, built for `rows` if it was not: `rows` must be the same every call.
+    pub(crate) fn get(&self, rows: RowStructure<'_>) -> &ConstraintMatrix {
+        self.matrix
+            .get_or_init(|| ConstraintMatrix::new(rows, self.kind))
+    }
+
+    /// [`ConstraintMatrix::dense_pivot_tolerance`], built only when the matrix is dense
+    /// (`None` otherwise, as the built one says).
+    pub(crate) fn dense_pivot_tolerance(&self, rows: RowStructure<'_>) -> Option<f64> {
+        if !super::solves_densely(self.kind, rows.n_rows()) {
+            return None;
+        }
+        self.get(rows).dense_pivot_tolerance()
+    }
+
+    /// [`LazyConstraintMatrix::get`] for assembly and factorization.
+    pub(crate) fn get_mut(&mut self, rows: RowStructure<'_>) -> &mut ConstraintMatrix {
+        self.get(rows);
+        self.matrix.get_mut().expect("built just now")
+    }
+}
+
 impl std::fmt::Debug for ConstraintMatrix {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("ConstraintMatrix")

@@ -19,6 +19,7 @@ mod pattern;
 mod rod_path;
 mod sparse;
 
+pub(crate) use constraint_matrix::LazyConstraintMatrix;
 pub use constraint_matrix::{ConstraintMatrix, RowStructure};
 pub use dense::{dense_solve, ldlt_in_place, ldlt_substitute, DenseLdlt};
 pub(crate) use dense::{ldlt_lanes, ldlt_substitute_lanes};
@@ -104,21 +105,30 @@ pub enum LinearSolver {
 /// rk4 and of rattle, see DESIGN.md): the dense factorization is faster up to about this size.
 pub const DENSE_MAX_ROWS: usize = 8;
 
+/// Whether [`symmetric_solver`] factors an m x m matrix with `kind` densely.
+pub fn solves_densely(kind: LinearSolver, m: usize) -> bool {
+    match kind {
+        LinearSolver::Dense => true,
+        LinearSolver::Auto => m <= DENSE_MAX_ROWS,
+        LinearSolver::Tridiagonal | LinearSolver::Sparse => false,
+    }
+}
+
 /// The solver `kind` for matrices with `pattern`.
 pub fn symmetric_solver(
     pattern: &SymmetricPattern,
     kind: LinearSolver,
 ) -> Box<dyn SymmetricSolver> {
-    let small = pattern.dim() <= DENSE_MAX_ROWS;
+    if solves_densely(kind, pattern.dim()) {
+        return Box::new(DenseLdlt::new(pattern));
+    }
     match kind {
-        LinearSolver::Dense => return Box::new(DenseLdlt::new(pattern)),
-        LinearSolver::Auto if small => return Box::new(DenseLdlt::new(pattern)),
         LinearSolver::Auto | LinearSolver::Tridiagonal => {
             if let Some(path) = PathLdlt::new(pattern) {
                 return Box::new(path);
             }
         }
-        LinearSolver::Sparse => {}
+        LinearSolver::Dense | LinearSolver::Sparse => {}
     }
     Box::new(SparseLdlt::new(pattern, SparseOptions::default()))
 }

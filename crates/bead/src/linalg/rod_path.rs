@@ -95,11 +95,91 @@ impl RodPath {
     /// same pair of particles, say).
     pub fn new(order: &PathOrder, row: impl Fn(usize) -> Option<DistanceRow>) -> Option<RodPath> {
         let m = order.len();
+        Self::in_order((0..m).map(|p| (order.row(p), order.linked(p))), m, &row)
+    }
+
+    /// The rods of rows 0..m when every row is a distance (`row(r)`) and the rods couple in
+    /// paths (rows are coupled when they share a particle: no particle on more than two
+    /// rods, no ring), found from the rods themselves: the same as [`RodPath::new`] on the
+    /// [`PathOrder`] of J W J^T's pattern, without building the pattern. Each path runs from
+    /// its end with the smallest row; paths in the order of those rows.
+    pub fn of_rows(m: usize, row: impl Fn(usize) -> Option<DistanceRow>) -> Option<RodPath> {
+        const NONE: usize = usize::MAX;
+        // The (at most two) rows on each particle, by the particle's first coordinate.
+        let mut on_particle: Vec<[usize; 2]> = Vec::new();
+        for r in 0..m {
+            let distance = row(r)?;
+            let dim = distance.dim;
+            for particle in [Some(distance.a), distance.b].into_iter().flatten() {
+                if dim == 0 || particle % dim != 0 {
+                    return None;
+                }
+                let i = particle / dim;
+                if i >= on_particle.len() {
+                    on_particle.resize(i + 1, [NONE; 2]);
+                }
+                let slot = &mut on_particle[i];
+                match slot {
+                    [NONE, _] => slot[0] = r,
+                    [_, NONE] => slot[1] = r,
+                    _ => return None,
+                }
+            }
+        }
+        // Each row's neighbours: the other row on each of its particles.
+        let mut neighbours = vec![[NONE; 2]; m];
+        for &[i, j] in &on_particle {
+            if i == NONE || j == NONE {
+                continue;
+            }
+            for (r, other) in [(i, j), (j, i)] {
+                let slot = &mut neighbours[r];
+                match slot {
+                    // Two rods on the same pair of particles: not a path.
+                    _ if slot.contains(&other) => return None,
+                    [NONE, _] => slot[0] = other,
+                    _ => slot[1] = other,
+                }
+            }
+        }
+        drop(on_particle);
+        let mut order = Vec::with_capacity(m);
+        let mut visited = vec![false; m];
+        for start in 0..m {
+            if visited[start] || neighbours[start][1] != NONE {
+                continue;
+            }
+            // A path's end: walk to its other end.
+            let (mut previous, mut current) = (NONE, start);
+            loop {
+                visited[current] = true;
+                order.push((current, previous != NONE));
+                let next = neighbours[current]
+                    .into_iter()
+                    .find(|&r| r != NONE && r != previous);
+                match next {
+                    Some(next) => (previous, current) = (current, next),
+                    None => break,
+                }
+            }
+        }
+        // Rows left are on rings.
+        if order.len() != m {
+            return None;
+        }
+        Self::in_order(order.into_iter(), m, &row)
+    }
+
+    /// The rods of (row, linked to the one before) in path order.
+    fn in_order(
+        order: impl Iterator<Item = (usize, bool)>,
+        m: usize,
+        row: &impl Fn(usize) -> Option<DistanceRow>,
+    ) -> Option<RodPath> {
         let mut rods: Vec<Rod> = Vec::with_capacity(m);
         let (mut anchors, mut lengths) = (Vec::with_capacity(m), Vec::with_capacity(m));
         let mut dim = None;
-        for p in 0..m {
-            let r = order.row(p);
+        for (p, (r, linked)) in order.enumerate() {
             let distance = row(r)?;
             if *dim.get_or_insert(distance.dim) != distance.dim
                 || !(1..=3).contains(&distance.dim)
@@ -123,7 +203,7 @@ impl RodPath {
                     .into_iter()
                     .filter(|&s| s != FIXED && particles(before).contains(&s))
                     .collect();
-                match (order.linked(p), shared.as_slice()) {
+                match (linked, shared.as_slice()) {
                     (true, &[s]) => {
                         let role = |rod: &Rod| if rod.a == s { 1.0 } else { -1.0 };
                         let sign = role(&rod) * role(before);
@@ -600,13 +680,22 @@ mod tests {
         RodPath::new(&order, |r| Some(rows[r])).expect("rods in paths")
     }
 
+    /// The same rods, their paths found from the rods (no pattern).
+    fn found_path(rows: &[DistanceRow]) -> RodPath {
+        RodPath::of_rows(rows.len(), |r| Some(rows[r])).expect("rods in paths")
+    }
+
+    /// Both ways of finding the paths.
+    const BUILDERS: [fn(&[DistanceRow]) -> RodPath; 2] = [path_of, found_path];
+
     /// The fused Newton step and velocity projection against dense linear algebra on the
-    /// same J(x) W J(y)^T, in 1, 2 and 3 dimensions.
+    /// same J(x) W J(y)^T, in 1, 2 and 3 dimensions, with the paths from the pattern and
+    /// from the rods.
     #[test]
     fn fused_solves_match_dense_ones() {
-        for dim in 1..=3 {
+        for (dim, build) in (1..=3).flat_map(|dim| BUILDERS.map(|build| (dim, build))) {
             let rows = rods(dim);
-            let mut path = path_of(&rows);
+            let mut path = build(&rows);
             let n = 7 * dim;
             let mut seed = Rng::new(11 + dim as u64);
             let w: Vec<f64> = (0..7)
@@ -679,11 +768,16 @@ mod tests {
     #[test]
     fn transpose_and_product_match_dense() {
         let rows = rods(2);
-        let mut path = path_of(&rows);
+        for build in BUILDERS {
+            transpose_and_product_of(&rows, build(&rows));
+        }
+    }
+
+    fn transpose_and_product_of(rows: &[DistanceRow], mut path: RodPath) {
         let mut seed = Rng::new(5);
         let x: Vec<f64> = (0..14).map(|k| k as f64 + random(&mut seed)).collect();
         let w: Vec<f64> = (0..14).map(|k| 1.0 + (k / 2) as f64).collect();
-        let j = jacobian(&rows, &x);
+        let j = jacobian(rows, &x);
         path.set_start(&x);
         let z: Vec<f64> = (0..6).map(|_| random(&mut seed)).collect();
         let mut y = vec![0.0; 14];
@@ -718,6 +812,23 @@ mod tests {
         let mut mixed = rows.clone();
         mixed[5].dim = 3;
         assert!(RodPath::new(&order, |r| Some(mixed[r])).is_none());
+        // The same refusals when the paths are looked for from the rods.
+        let found = |rows: &[DistanceRow]| RodPath::of_rows(rows.len(), |r| Some(rows[r]));
+        assert!(RodPath::of_rows(6, |r| (r != 4).then_some(rows[r])).is_none());
+        assert!(found(&twice).is_none());
+        assert!(found(&mixed).is_none());
+        assert!(found(&rows).is_some());
+        let rod = |a: usize, b: Option<usize>| DistanceRow {
+            a: 2 * a,
+            b: b.map(|b| 2 * b),
+            ..rows[0]
+        };
+        // A ring of three rods, three rods on one particle, a rod from a particle to itself.
+        assert!(found(&[rod(0, Some(1)), rod(1, Some(2)), rod(2, Some(0))]).is_none());
+        assert!(found(&[rod(0, Some(1)), rod(0, Some(2)), rod(0, None)]).is_none());
+        assert!(found(&[rod(0, Some(0))]).is_none());
+        // A chain hung from both ends is a path.
+        assert!(found(&[rod(0, None), rod(0, Some(1)), rod(1, None)]).is_some());
     }
 
     /// A rod turned by a right angle between y and x: its diagonal entry e(x).e(y) vanishes

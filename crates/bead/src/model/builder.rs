@@ -3,9 +3,9 @@
 use std::collections::HashMap;
 use std::sync::Arc;
 
-use super::constraint::{ConstraintInfo, ConstraintSet, CustomRow, ExprRow};
+use super::constraint::{ConstraintInfo, ConstraintSet, CustomRow, ExprRow, RowForm};
 use super::holonomic::{Erased, SharedHolonomic};
-use super::native::NativeRow;
+use super::native::{distance_expression, NativeRow};
 use super::{Endpoint, Force, Holonomic, ParametricMap, Particle, ParticleId, System};
 use crate::expr::{parse, Expr, ExprError, Resolved};
 
@@ -763,33 +763,38 @@ pub(super) fn compile(declared: Arc<SystemBuilder>) -> Result<System, ModelError
         }
     };
     let mut infos = Vec::new();
-    let mut expr_rows = Vec::new();
-    // The native form of each expression row (distances and pins), if it has one.
-    let mut native: Vec<Option<NativeRow>> = Vec::new();
+    // Expression rows, each symbolic or native (distances and pins).
+    let mut rows: Vec<RowForm> = Vec::new();
     let mut custom = Vec::new();
     // Rust rows go after all expression rows; remember which info they belong to.
     let mut custom_infos = Vec::new();
     for (name, spec) in &b.constraints {
-        let start = expr_rows.len();
+        let start = rows.len();
         let description = match spec {
             ConstraintSpec::Expression(expr, source) => {
-                expr_rows.push(ExprRow::new(expr.substitute(&time), n));
-                native.push(None);
+                rows.push(RowForm::Symbolic(ExprRow::new(expr.substitute(&time), n)));
                 format!("{source} = 0")
             }
             ConstraintSpec::Distance { a, b: end, length } => {
-                // C = (|d|^2 - L^2) / (2 L): zero on the rod, |grad C| = |d|/L = 1 there,
-                // and smooth even where |d| = 0.
-                let squared = (0..dim)
-                    .map(|axis| {
-                        let d = Expr::var(a.0 * dim + axis) - endpoint_expr(end, dim, axis);
-                        &d * &d
-                    })
-                    .fold(Expr::constant(0.0), |acc, s| acc + s);
-                let c = (squared - length * length) / (2.0 * length);
-                let row = ExprRow::new(c, n);
-                native.push(native_distance(&row, dim, a.0, end, *length));
-                expr_rows.push(row);
+                let a_first = a.0 * dim;
+                rows.push(match end {
+                    // A particle's distance to itself is a constant row, left to the tape
+                    // (and to the checks that reject a row with no gradient).
+                    Endpoint::Particle(p) if p.0 == a.0 => RowForm::Symbolic(ExprRow::new(
+                        distance_expression(dim, a_first, Some(a_first), &[], *length),
+                        n,
+                    )),
+                    Endpoint::Particle(p) => RowForm::Native(NativeRow::distance_row(
+                        dim,
+                        a_first,
+                        Some(p.0 * dim),
+                        &[],
+                        *length,
+                    )),
+                    Endpoint::Fixed(point) => {
+                        RowForm::Native(NativeRow::distance_row(dim, a_first, None, point, *length))
+                    }
+                });
                 format!(
                     "distance({}, {}) = {length}",
                     b.particles[a.0].name,
@@ -798,14 +803,10 @@ pub(super) fn compile(declared: Arc<SystemBuilder>) -> Result<System, ModelError
             }
             ConstraintSpec::Pin { particle, anchor } => {
                 for (axis, value) in anchor.iter().enumerate() {
-                    let coordinate = particle.0 * dim + axis;
-                    let row = ExprRow::new(Expr::var(coordinate) - *value, n);
-                    let columns: Vec<usize> = row.gradient.iter().map(|(k, _)| *k).collect();
-                    native.push((columns == [coordinate]).then_some(NativeRow::Pin {
-                        coordinate,
+                    rows.push(RowForm::Native(NativeRow::Pin {
+                        coordinate: particle.0 * dim + axis,
                         anchor: *value,
                     }));
-                    expr_rows.push(row);
                 }
                 format!("pin({}) at {anchor:?}", b.particles[particle.0].name)
             }
@@ -831,19 +832,19 @@ pub(super) fn compile(declared: Arc<SystemBuilder>) -> Result<System, ModelError
         infos.push(ConstraintInfo {
             name: name.clone(),
             description,
-            rows: start..expr_rows.len(),
+            rows: start..rows.len(),
             length: match spec {
                 ConstraintSpec::Distance { length, .. } => Some(*length),
                 _ => None,
             },
         });
     }
-    let n_expr = expr_rows.len();
+    let n_expr = rows.len();
     for (i, mut info) in custom_infos.into_iter().enumerate() {
         info.rows = n_expr + i..n_expr + i + 1;
         infos.push(info);
     }
-    let constraints = ConstraintSet::new(n, infos, expr_rows, native, custom);
+    let constraints = ConstraintSet::new(n, infos, rows, custom);
 
     let parametric = match &b.parametric {
         None => None,
@@ -973,49 +974,6 @@ fn check_vector(dim: usize, what: &str, v: &[f64]) -> Result<(), ModelError> {
 /// The native form of a distance row between particle `a` and `end`, built from the
 /// symbolic row's columns (which fix where each coordinate's entry goes); `None` when the
 /// row is degenerate (a particle tied to itself) and stays on the tape.
-fn native_distance(
-    row: &ExprRow,
-    dim: usize,
-    a: usize,
-    end: &Endpoint,
-    length: f64,
-) -> Option<NativeRow> {
-    let columns: Vec<usize> = row.gradient.iter().map(|(k, _)| *k).collect();
-    let entry = |coordinate: usize| columns.iter().position(|&k| k == coordinate);
-    let (mut entries_a, mut entries_b, mut anchor) = ([0; 3], [0; 3], [0.0; 3]);
-    let b = match end {
-        Endpoint::Particle(p) if p.0 == a => return None,
-        Endpoint::Particle(p) => Some(p.0 * dim),
-        Endpoint::Fixed(point) => {
-            anchor[..dim].copy_from_slice(point);
-            None
-        }
-    };
-    for axis in 0..dim {
-        entries_a[axis] = entry(a * dim + axis)?;
-        if let Some(b) = b {
-            entries_b[axis] = entry(b + axis)?;
-        }
-    }
-    let expected = if b.is_some() { 2 * dim } else { dim };
-    (columns.len() == expected).then_some(NativeRow::Distance {
-        dim,
-        a: a * dim,
-        b,
-        anchor,
-        length,
-        entries_a,
-        entries_b,
-    })
-}
-
-fn endpoint_expr(e: &Endpoint, dim: usize, axis: usize) -> Expr {
-    match e {
-        Endpoint::Particle(p) => Expr::var(p.0 * dim + axis),
-        Endpoint::Fixed(point) => Expr::constant(point[axis]),
-    }
-}
-
 fn finite(what: &str, value: f64) -> Result<(), ModelError> {
     if value.is_finite() {
         Ok(())

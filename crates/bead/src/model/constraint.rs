@@ -106,6 +106,13 @@ impl ExprRow {
     }
 }
 
+/// An expression row as the builder hands it to [`ConstraintSet`]: symbolic (compiled to the
+/// tapes) or native (direct code; its symbolic form built only when asked for).
+pub(crate) enum RowForm {
+    Symbolic(ExprRow),
+    Native(NativeRow),
+}
+
 /// A Rust constraint row and the coordinates it reads.
 #[derive(Clone)]
 pub(crate) struct CustomRow {
@@ -119,9 +126,12 @@ pub(crate) struct CustomRow {
 pub struct ConstraintSet {
     n_coords: usize,
     infos: Vec<ConstraintInfo>,
+    /// Number of expression rows (symbolic and native), which come before the Rust rows.
+    n_expr_rows: usize,
+    /// The symbolic rows, which the tapes evaluate, in row order (rows `tape_rows`).
     expr_rows: Vec<ExprRow>,
     custom_rows: Vec<CustomRow>,
-    /// Expression rows that the tapes evaluate, in row order: those without a native form.
+    /// The rows of `expr_rows`: the expression rows without a native form.
     tape_rows: Vec<usize>,
     /// Expression rows evaluated by direct code (distances and pins), with their row index.
     native_rows: Vec<(usize, NativeRow)>,
@@ -138,8 +148,9 @@ pub struct ConstraintSet {
     columns: Vec<usize>,
     /// Whether row i depends on t (m).
     time_dependent: Vec<bool>,
-    /// A hash of the native rows' geometry (see [`ConstraintSet::distance_fingerprint`])
-    distance_fingerprint: u64,
+    /// A hash of the row structure and the distance rows' geometry (see
+    /// [`ConstraintSet::row_fingerprint`])
+    row_fingerprint: u64,
 }
 
 impl std::fmt::Debug for ConstraintSet {
@@ -179,50 +190,76 @@ impl ConstraintEval {
 }
 
 impl ConstraintSet {
-    /// The set of `expr_rows` (each with its native form, if any, in `native`) then
-    /// `custom_rows`. Rows with a native form are evaluated by it; the tapes are compiled
-    /// from the others only.
+    /// The set of expression `rows` (each symbolic or native) then `custom_rows`. Native rows
+    /// are evaluated by direct code and keep no expression; the tapes are compiled from the
+    /// symbolic rows only.
     pub(crate) fn new(
         n_coords: usize,
         infos: Vec<ConstraintInfo>,
-        expr_rows: Vec<ExprRow>,
-        native: Vec<Option<NativeRow>>,
+        rows: Vec<RowForm>,
         custom_rows: Vec<CustomRow>,
     ) -> Self {
-        let tape_rows: Vec<usize> = (0..expr_rows.len())
-            .filter(|&r| native.get(r).is_none_or(Option::is_none))
-            .collect();
-        let native_rows: Vec<(usize, NativeRow)> = native
-            .into_iter()
-            .enumerate()
-            .filter_map(|(r, n)| n.map(|n| (r, n)))
-            .collect();
-        let taped = || tape_rows.iter().map(|&r| &expr_rows[r]);
-        let values: Vec<Expr> = taped().map(|r| r.value.clone()).collect();
-        let mut gradient_outputs = values.clone();
-        gradient_outputs.extend(taped().flat_map(|r| r.gradient.iter().map(|(_, d)| d.clone())));
-        let mut outputs = values.clone();
-        outputs.extend(taped().map(|r| r.velocity.clone()));
-        outputs.extend(taped().map(|r| r.bias.clone()));
-        outputs.extend(taped().flat_map(|r| r.gradient.iter().map(|(_, d)| d.clone())));
+        let n_expr_rows = rows.len();
+        let mut tape_rows = Vec::new();
+        let mut expr_rows = Vec::new();
+        let mut native_rows = Vec::new();
         let mut row_start = vec![0];
         let mut columns = Vec::new();
-        for row in &expr_rows {
-            columns.extend(row.gradient.iter().map(|(k, _)| *k));
+        let mut time_dependent = Vec::with_capacity(n_expr_rows + custom_rows.len());
+        let time = 2 * n_coords;
+        for (r, row) in rows.into_iter().enumerate() {
+            match row {
+                RowForm::Symbolic(row) => {
+                    columns.extend(row.gradient.iter().map(|(k, _)| *k));
+                    time_dependent.push(row.value.depends_on(time));
+                    tape_rows.push(r);
+                    expr_rows.push(row);
+                }
+                RowForm::Native(row) => {
+                    columns.extend(row.columns());
+                    time_dependent.push(false);
+                    native_rows.push((r, row));
+                }
+            }
             row_start.push(columns.len());
         }
+        let values: Vec<Expr> = expr_rows.iter().map(|r| r.value.clone()).collect();
+        let mut gradient_outputs = values.clone();
+        gradient_outputs.extend(
+            expr_rows
+                .iter()
+                .flat_map(|r| r.gradient.iter().map(|(_, d)| d.clone())),
+        );
+        let mut outputs = values.clone();
+        outputs.extend(expr_rows.iter().map(|r| r.velocity.clone()));
+        outputs.extend(expr_rows.iter().map(|r| r.bias.clone()));
+        outputs.extend(
+            expr_rows
+                .iter()
+                .flat_map(|r| r.gradient.iter().map(|(_, d)| d.clone())),
+        );
         for row in &custom_rows {
             columns.extend(&row.coords);
             row_start.push(columns.len());
         }
-        let time = 2 * n_coords;
-        let time_dependent = expr_rows
-            .iter()
-            .map(|r| r.value.depends_on(time))
-            .chain(custom_rows.iter().map(|r| r.constraint.time_dependent()))
-            .collect();
-        // FNV-1a over each distance row's row, particles, anchor and length bits.
-        let mut distance_fingerprint: u64 = 0xcbf2_9ce4_8422_2325;
+        // Kept for the run: no slack from growing (a chain of 10^5 rods).
+        for v in [&mut row_start, &mut columns, &mut tape_rows] {
+            v.shrink_to_fit();
+        }
+        native_rows.shrink_to_fit();
+        expr_rows.shrink_to_fit();
+        time_dependent.extend(custom_rows.iter().map(|r| r.constraint.time_dependent()));
+        // FNV-1a over the row starts and columns, then each distance row's row, particles,
+        // anchor and length bits.
+        let mut row_fingerprint: u64 = 0xcbf2_9ce4_8422_2325;
+        let mut hash = |word: u64| {
+            for byte in word.to_le_bytes() {
+                row_fingerprint = (row_fingerprint ^ byte as u64).wrapping_mul(0x100_0000_01b3);
+            }
+        };
+        for &word in row_start.iter().chain(&columns) {
+            hash(word as u64);
+        }
         for (row, native) in &native_rows {
             if let NativeRow::Distance {
                 a,
@@ -234,16 +271,11 @@ impl ConstraintSet {
             {
                 let words = [*row as u64, *a as u64, b.map_or(u64::MAX, |b| b as u64)];
                 let bits = anchor.iter().chain([length]).map(|x| x.to_bits());
-                for word in words.into_iter().chain(bits) {
-                    for byte in word.to_le_bytes() {
-                        distance_fingerprint =
-                            (distance_fingerprint ^ byte as u64).wrapping_mul(0x100_0000_01b3);
-                    }
-                }
+                words.into_iter().chain(bits).for_each(&mut hash);
             }
         }
         ConstraintSet {
-            distance_fingerprint,
+            row_fingerprint,
             fused: super::FusedTapes::default(),
             time_dependent,
             n_coords,
@@ -251,6 +283,7 @@ impl ConstraintSet {
             value_tape: Tape::compile(&values),
             full_tape: Tape::compile(&outputs),
             gradient_tape: Tape::compile(&gradient_outputs),
+            n_expr_rows,
             expr_rows,
             custom_rows,
             tape_rows,
@@ -273,7 +306,7 @@ impl ConstraintSet {
 
     /// Number of scalar constraint rows m.
     pub fn n_rows(&self) -> usize {
-        self.expr_rows.len() + self.custom_rows.len()
+        self.n_expr_rows + self.custom_rows.len()
     }
     /// The declared constraints.
     pub fn infos(&self) -> &[ConstraintInfo] {
@@ -298,12 +331,13 @@ impl ConstraintSet {
             .binary_search_by_key(&row, |(r, _)| *r)
             .is_ok()
     }
-    /// A hash of every built-in distance row's geometry (row, particles, anchor, length): two
-    /// sets whose distance rows differ anywhere differ in it (up to hash collisions), so a
-    /// solver that keeps the rods' geometry (RATTLE's fused path) can tell, in O(1) per step,
-    /// that it was handed another system with the same row structure.
-    pub fn distance_fingerprint(&self) -> u64 {
-        self.distance_fingerprint
+    /// A hash of the row structure (each row's columns) and of every built-in distance
+    /// row's geometry (row, particles, anchor, length): two sets that differ in either differ
+    /// in it (up to hash collisions), so a solver that keeps per-row data between steps
+    /// (RATTLE's matrices and fused rods) can tell in O(1) per step that it was handed
+    /// another system.
+    pub fn row_fingerprint(&self) -> u64 {
+        self.row_fingerprint
     }
     /// `row` as a built-in distance ([`DistanceRow`]), if it is one.
     pub fn distance_row(&self, row: usize) -> Option<DistanceRow> {
@@ -350,9 +384,19 @@ impl ConstraintSet {
     pub fn n_instructions(&self) -> usize {
         self.full_tape.n_instructions()
     }
-    /// The symbolic form of expression row `row` (None for Rust rows).
-    pub fn symbolic_row(&self, row: usize) -> Option<&ExprRow> {
-        self.expr_rows.get(row)
+    /// The symbolic form of expression row `row` (None for Rust rows): borrowed for a row the
+    /// tapes evaluate, built now for a native row (distances and pins keep no expressions).
+    pub fn symbolic_row(&self, row: usize) -> Option<std::borrow::Cow<'_, ExprRow>> {
+        if let Ok(j) = self.tape_rows.binary_search(&row) {
+            return Some(std::borrow::Cow::Borrowed(&self.expr_rows[j]));
+        }
+        let j = self
+            .native_rows
+            .binary_search_by_key(&row, |(r, _)| *r)
+            .ok()?;
+        Some(std::borrow::Cow::Owned(
+            self.native_rows[j].1.symbolic(self.n_coords),
+        ))
     }
 
     /// A workspace sized for this set.
@@ -480,7 +524,7 @@ impl ConstraintSet {
             ws.velocity[*r] = cdot;
             ws.bias[*r] = bias;
         }
-        let n_expr = self.expr_rows.len();
+        let n_expr = self.n_expr_rows;
         for (i, row) in self.custom_rows.iter().enumerate() {
             let r = n_expr + i;
             let len = row.coords.len();
@@ -532,7 +576,7 @@ impl ConstraintSet {
             let entries = self.row_start[*r]..self.row_start[r + 1];
             ws.value[*r] = row.gradient(x, &mut ws.jacobian[entries]);
         }
-        let n_expr = self.expr_rows.len();
+        let n_expr = self.n_expr_rows;
         for (i, row) in self.custom_rows.iter().enumerate() {
             let r = n_expr + i;
             let len = row.coords.len();
@@ -571,7 +615,7 @@ impl ConstraintSet {
         for (r, row) in &self.native_rows {
             ws.value[*r] = row.value(x);
         }
-        let n_expr = self.expr_rows.len();
+        let n_expr = self.n_expr_rows;
         for (i, row) in self.custom_rows.iter().enumerate() {
             let len = row.coords.len();
             for (j, &k) in row.coords.iter().enumerate() {
@@ -597,7 +641,7 @@ impl ConstraintSet {
         let k = columns.len();
         let mut y: Vec<f64> = columns.iter().map(|&c| x[c]).collect();
         let n = self.n_coords;
-        match self.expr_rows.get(row) {
+        match self.symbolic_row(row) {
             Some(expr_row) => {
                 let gradient: Vec<&Expr> = expr_row.gradient.iter().map(|(_, e)| e).collect();
                 let hessian: Vec<Expr> = gradient
@@ -631,7 +675,7 @@ impl ConstraintSet {
                 }
             }
             None => {
-                let custom = &self.custom_rows[row - self.expr_rows.len()];
+                let custom = &self.custom_rows[row - self.n_expr_rows];
                 let (reduction, residual) =
                     crate::linalg::gauss_newton_zero(&mut y, k, 40, |y, g, d| {
                         custom.constraint.gradient_hessian(y, t, g, d);

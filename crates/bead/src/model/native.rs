@@ -1,8 +1,10 @@
 //! The built-in constraint kinds (distance, pin) evaluated by direct code: the rows of every
 //! chain and cloth, where the general tape's interpretation overhead is most of a step.
 //!
-//! Each row is also compiled symbolically (an [`super::constraint::ExprRow`], for `bead
-//! check`, the singular-point search and messages); this is the same function, written out:
+//! Each row also has a symbolic form (an [`super::constraint::ExprRow`], for `bead check`,
+//! the singular-point search and messages), built on demand from the same parameters by
+//! [`NativeRow::symbolic`] (a chain of 10^5 rods keeps no expression trees); this is the same
+//! function, written out:
 //!
 //! ```text
 //! distance(a, b) = L:  d = x_a - x_b,  u = v_a - v_b
@@ -12,6 +14,32 @@
 //! ```
 //!
 //! (b may be a fixed point: then u = v_a and only a's coordinates have entries.)
+
+use super::constraint::ExprRow;
+use crate::expr::Expr;
+
+/// C = (|x_a - x_b|^2 - L^2) / (2L) as an expression over the coordinates (x_b the fixed
+/// point `anchor` when `b` is `None`); `a` and `b` are first coordinates.
+pub(crate) fn distance_expression(
+    dim: usize,
+    a: usize,
+    b: Option<usize>,
+    anchor: &[f64],
+    length: f64,
+) -> Expr {
+    // Zero on the rod, |grad C| = |d|/L = 1 there, and smooth even where |d| = 0.
+    let squared = (0..dim)
+        .map(|axis| {
+            let end = match b {
+                Some(b) => Expr::var(b + axis),
+                None => Expr::constant(anchor[axis]),
+            };
+            let d = Expr::var(a + axis) - end;
+            &d * &d
+        })
+        .fold(Expr::constant(0.0), |acc, s| acc + s);
+    (squared - length * length) / (2.0 * length)
+}
 
 /// A row evaluated natively. Coordinates are indices into x; `entries_a[axis]` is the
 /// position of x_a's coordinate `axis` among the row's Jacobian entries (and likewise b).
@@ -36,6 +64,77 @@ pub(crate) enum NativeRow {
 }
 
 impl NativeRow {
+    /// The distance row between distinct particles with first coordinates `a` and `b` (or
+    /// `a` and the fixed point `anchor`): its Jacobian entries in coordinate order, as the
+    /// symbolic row's gradient lists them.
+    pub(crate) fn distance_row(
+        dim: usize,
+        a: usize,
+        b: Option<usize>,
+        anchor: &[f64],
+        length: f64,
+    ) -> NativeRow {
+        debug_assert!(b != Some(a), "a rod needs two particles");
+        let (mut entries_a, mut entries_b, mut fixed) = ([0; 3], [0; 3], [0.0; 3]);
+        // Columns are sorted coordinates: b's come first when its particle comes first.
+        let (offset_a, offset_b) = match b {
+            Some(b) if b < a => (dim, 0),
+            Some(_) => (0, dim),
+            None => (0, 0),
+        };
+        for axis in 0..dim {
+            entries_a[axis] = offset_a + axis;
+            entries_b[axis] = offset_b + axis;
+        }
+        if b.is_none() {
+            fixed[..dim].copy_from_slice(&anchor[..dim]);
+        }
+        NativeRow::Distance {
+            dim,
+            a,
+            b,
+            anchor: fixed,
+            length,
+            entries_a,
+            entries_b,
+        }
+    }
+
+    /// The row's expression C(x).
+    pub(crate) fn expression(&self) -> Expr {
+        match self {
+            NativeRow::Distance {
+                dim,
+                a,
+                b,
+                anchor,
+                length,
+                ..
+            } => distance_expression(*dim, *a, *b, anchor, *length),
+            NativeRow::Pin { coordinate, anchor } => Expr::var(*coordinate) - *anchor,
+        }
+    }
+
+    /// The row's symbolic form over slots [x (n_coords), v (n_coords), t], built now.
+    pub(crate) fn symbolic(&self, n_coords: usize) -> ExprRow {
+        ExprRow::new(self.expression(), n_coords)
+    }
+
+    /// The coordinates the row reads, in the order of its Jacobian entries.
+    pub(crate) fn columns(&self) -> Vec<usize> {
+        match self {
+            NativeRow::Distance { dim, a, b, .. } => {
+                let mut columns: Vec<usize> = (*a..*a + *dim).collect();
+                if let Some(b) = b {
+                    columns.extend(*b..*b + *dim);
+                }
+                columns.sort_unstable();
+                columns
+            }
+            NativeRow::Pin { coordinate, .. } => vec![*coordinate],
+        }
+    }
+
     /// d = x_a - x_b (or minus the anchor) and u = v_a - v_b (v_a) in `D` dimensions.
     #[inline(always)]
     fn separation<const D: usize>(

@@ -591,7 +591,9 @@ fn across_lanes(implicit: &Implicit) -> Option<f64> {
     if !system.forces().is_empty() || !implicit.external.is_empty() {
         return None;
     }
-    implicit.matrix.dense_pivot_tolerance()
+    implicit
+        .matrix
+        .dense_pivot_tolerance(system.constraints().structure())
 }
 
 /// [`Implicit::accelerate_evaluated`] for every lane at once from the full tape's outputs in
@@ -632,6 +634,7 @@ fn implicit_across_lanes(
         lanes.lambda.resize(m * LANES, 0.0);
         implicit
             .matrix
+            .get(set.structure())
             .assemble_dense_lanes::<LANES>(jacobian, w, &mut lanes.dense);
         for i in 0..m {
             let columns = set.row_columns(i);

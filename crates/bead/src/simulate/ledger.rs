@@ -138,11 +138,8 @@ impl ConstrainedSystem for WithWork<'_> {
         self.formulation.system().constraints().distance_row(row)
     }
 
-    fn distance_fingerprint(&self) -> u64 {
-        self.formulation
-            .system()
-            .constraints()
-            .distance_fingerprint()
+    fn row_fingerprint(&self) -> Option<u64> {
+        Some(self.formulation.system().constraints().row_fingerprint())
     }
 
     /// Whether the applied accelerations depend on v, the work coordinate's (the power

@@ -908,6 +908,8 @@ impl Simulation {
     /// ledger runs): as [`Simulation::reset`], with this as the initial state.
     fn start_from(&mut self, state: State) {
         let n = self.n;
+        // The old monitor goes first: two at once would raise a large system's peak memory.
+        self.monitor = Monitor::default();
         self.monitor = Monitor::new(
             &mut *self.formulation,
             state.t,

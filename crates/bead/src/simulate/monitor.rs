@@ -88,7 +88,7 @@ pub(super) enum Rejection {
 /// Legitimate motion stays within a small multiple of these, while an unstable integration
 /// grows geometrically and passes [`BLOW_UP_FACTOR`] times them within a few steps, long
 /// before f64 overflows.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, Default)]
 pub(super) struct Reach {
     position: f64,
     speed: f64,
@@ -116,7 +116,8 @@ impl Reach {
 }
 
 /// The monitors of one simulation: energy ledger, constraint error and regularity, with their
-/// maxima. Buffers are sized once.
+/// maxima. Buffers are sized once. (`Default`: an empty placeholder, observing nothing.)
+#[derive(Default)]
 pub(super) struct Monitor {
     /// The last observed state (particle state, constraint values, gradient rows).
     pub(super) observation: Observation,
@@ -797,6 +798,7 @@ impl Monitor {
 /// [`System::energy`] bit for bit, without its iterator chains: the particle masses gathered
 /// once, the same products and sums in the same order, each sum from the value `Sum` starts
 /// from. A system with applied forces (their potentials) takes the system's own path.
+#[derive(Default)]
 struct EnergyTerms {
     /// 0.5 m and -m per particle
     half_mass: Vec<f64>,
@@ -880,7 +882,7 @@ impl Monitor {
 }
 
 /// What the regularity monitor keeps of an accepted step's end.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, Default)]
 struct StepEnd {
     gradients: crate::formulation::Gradients,
     /// The formulation's q (n)
