@@ -1558,8 +1558,8 @@ mod tests {
                                 ready += 1;
                                 let (x, y) = (&a.system, &b.system);
                                 let label = format!("{file} {values:?} {method:?}");
-                                assert_eq!(x.particles.len(), y.particles.len(), "{label}");
-                                for (p, q) in x.particles.iter().zip(&y.particles) {
+                                assert_eq!(x.particles().len(), y.particles().len(), "{label}");
+                                for (p, q) in x.particles().iter().zip(y.particles()) {
                                     assert_eq!(bits(&p.position), bits(&q.position), "{label}");
                                     assert_eq!(bits(&p.velocity), bits(&q.velocity), "{label}");
                                     assert_eq!(p.mass.to_bits(), q.mass.to_bits(), "{label}");

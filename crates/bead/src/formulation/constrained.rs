@@ -222,10 +222,9 @@ pub(crate) struct ProjectionWorkspace {
     force: Vec<f64>,
     /// rhs, then the multipliers (m)
     rhs: Vec<f64>,
-    /// The velocity projection fused along the path, when every row is a rod and the rods
-    /// couple in paths and the solver is not forced ([`LinearSolver::Auto`] or
-    /// [`LinearSolver::Tridiagonal`])
-    rods: Option<RodPath>,
+    /// The projections and the implicit acceleration's multipliers fused along the path, when every row is a rod and the rods couple in paths and the solver is not
+    /// forced ([`LinearSolver::Auto`] or [`LinearSolver::Tridiagonal`])
+    pub(super) rods: Option<RodPath>,
 }
 
 impl ProjectionWorkspace {
@@ -405,7 +404,15 @@ impl ConstrainedSystem for Implicit {
                 });
             }
             ws.rhs.copy_from_slice(&ws.eval.value);
-            ws.correct(set, w, self.matrix.get_mut(set.structure()), t, q)?;
+            match &mut ws.rods {
+                // q -= W J(q)^T z, (J W J^T)(q) z = C along the rods: no matrix.
+                Some(rods) => {
+                    rods.solve_normal(q, w, &mut ws.rhs)
+                        .map_err(|singular| singular_error(set, t, singular))?;
+                    rods.subtract_current_transpose(w, &ws.rhs, q);
+                }
+                None => ws.correct(set, w, self.matrix.get_mut(set.structure()), t, q)?,
+            }
             iterations += 1;
         }
     }

@@ -182,8 +182,6 @@ impl Implicit {
         let m = set.n_rows();
         if m > 0 {
             let ce = &self.constraints;
-            let matrix = self.matrix.get_mut(set.structure());
-            matrix.assemble(&ce.jacobian, w);
             // rhs = -bias - J W F - ks C - kd Cdot.
             for i in 0..m {
                 let columns = set.row_columns(i);
@@ -198,14 +196,25 @@ impl Implicit {
                     - self.feedback.ks * ce.value[i]
                     - self.feedback.kd * ce.velocity[i];
             }
-            if let Err(singular) = matrix.factor() {
+            // (J W J^T) lambda = rhs: along the rods when they are in paths (no matrix),
+            // else by the assembled matrix's factorization.
+            let solved = match &mut self.projection.rods {
+                Some(rods) => rods.solve_normal(x, w, &mut self.lambda),
+                None => {
+                    let matrix = self.matrix.get_mut(set.structure());
+                    matrix.assemble(&ce.jacobian, w);
+                    matrix
+                        .factor()
+                        .map(|()| matrix.solve_in_place(&mut self.lambda))
+                }
+            };
+            if let Err(singular) = solved {
                 // Overflow or a non-finite input is not a singular constraint: say which.
                 if let Some(error) = non_finite_input(system, t, x, v, &self.force, ce) {
                     return Err(error);
                 }
                 return Err(super::constrained::singular_error(set, t, singular));
             }
-            matrix.solve_in_place(&mut self.lambda);
             // F += J^T lambda.
             set.structure()
                 .add_transpose(&ce.jacobian, &self.lambda, &mut self.force);
@@ -214,6 +223,14 @@ impl Implicit {
             *a = w * f;
         }
         Ok(())
+    }
+
+    /// Whether J W J^T is solved along the rods (every row a rod, the rods in paths, the
+    /// solver [`LinearSolver::Auto`] or [`LinearSolver::Tridiagonal`]): the acceleration's
+    /// multipliers and both projections, with no matrix assembled
+    /// ([`crate::linalg::RodPath`]).
+    pub fn fused_rods(&self) -> bool {
+        self.projection.rods.is_some()
     }
 
     /// J W J^T's pattern and factorization, e.g. for diagnostics

@@ -423,14 +423,54 @@ impl RodPath {
             &mut self.eliminated,
             |p| rhs[p],
         )?;
-        backward::<D>(
+        backward(
             &self.rods,
             &self.current,
-            w,
             &self.upper,
             &mut self.eliminated,
-            v,
-            |_, _| {},
+            |rod, e, z| correct::<D>(rod, e, w, z, v),
+        );
+        Ok(())
+    }
+
+    /// Solve J(q) W J(q)^T z = `rhs` (by row) in place, J W J^T factored as it is eliminated
+    /// (the implicit form's multipliers: no matrix is assembled). A pivot not above
+    /// [`RELATIVE_PIVOT_TOLERANCE`] times its diagonal entry (or not positive, or not finite)
+    /// is [`Singular`], with `rhs` untouched.
+    pub fn solve_normal(&mut self, q: &[f64], w: &[f64], rhs: &mut [f64]) -> Result<(), Singular> {
+        match self.dim {
+            1 => self.solve_normal_in::<1>(q, w, rhs),
+            2 => self.solve_normal_in::<2>(q, w, rhs),
+            _ => self.solve_normal_in::<3>(q, w, rhs),
+        }
+    }
+
+    fn solve_normal_in<const D: usize>(
+        &mut self,
+        q: &[f64],
+        w: &[f64],
+        rhs: &mut [f64],
+    ) -> Result<(), Singular> {
+        for ((e, rod), anchor) in self.current.iter_mut().zip(&self.rods).zip(&self.anchors) {
+            *e = Self::rod_vector::<D>(rod, anchor, q);
+        }
+        let rods = &self.rods;
+        forward::<D, true>(
+            rods,
+            &self.current,
+            &self.current,
+            w,
+            &mut self.inverse_pivots,
+            &mut self.upper,
+            &mut self.eliminated,
+            |p| rhs[rods[p].row],
+        )?;
+        backward(
+            rods,
+            &self.current,
+            &self.upper,
+            &mut self.eliminated,
+            |rod, _, z| rhs[rod.row] = z,
         );
         Ok(())
     }
@@ -452,14 +492,15 @@ impl RodPath {
             &mut self.eliminated,
             |p| c[rods[p].row],
         )?;
-        backward::<D>(
+        backward(
             rods,
             &self.start,
-            w,
             &self.upper,
             &mut self.eliminated,
-            q,
-            |p, z| c[rods[p].row] = z,
+            |rod, e, z| {
+                c[rod.row] = z;
+                correct::<D>(rod, e, w, z, q);
+            },
         );
         Ok(())
     }
@@ -475,6 +516,22 @@ impl RodPath {
 
     fn subtract_in<const D: usize>(&self, w: &[f64], z: &[f64], y: &mut [f64]) {
         for (rod, e) in self.rods.iter().zip(&self.start) {
+            correct::<D>(rod, e, w, z[rod.row], y);
+        }
+    }
+
+    /// y -= W J(q)^T z for z by row, q the configuration of the last
+    /// [`RodPath::solve_normal`] (a position projection's Newton step).
+    pub fn subtract_current_transpose(&self, w: &[f64], z: &[f64], y: &mut [f64]) {
+        match self.dim {
+            1 => self.subtract_current_in::<1>(w, z, y),
+            2 => self.subtract_current_in::<2>(w, z, y),
+            _ => self.subtract_current_in::<3>(w, z, y),
+        }
+    }
+
+    fn subtract_current_in<const D: usize>(&self, w: &[f64], z: &[f64], y: &mut [f64]) {
+        for (rod, e) in self.rods.iter().zip(&self.current) {
             correct::<D>(rod, e, w, z[rod.row], y);
         }
     }
@@ -586,16 +643,15 @@ fn forward<const D: usize, const SYMMETRIC: bool>(
 }
 
 /// The backward sweep after [`forward`]: z_p = y'_p - (A_p,p+1 / u_p) z_p+1, left in
-/// `eliminated` and handed to `sink(p, z_p)`, and y -= W J_p(right)^T z_p as each is found.
+/// `eliminated` and handed to `sink(rod_p, e_p(right), z_p)` as each is found (last rod
+/// first).
 #[inline(always)]
-fn backward<const D: usize>(
+fn backward(
     rods: &[Rod],
     right: &[[f64; 3]],
-    w: &[f64],
     upper: &[f64],
     eliminated: &mut [f64],
-    y: &mut [f64],
-    mut sink: impl FnMut(usize, f64),
+    mut sink: impl FnMut(&Rod, &[f64; 3], f64),
 ) {
     // (A_p,p+1 / u_p, z_p+1), zero past the end.
     let (mut coupling, mut next) = (0.0, 0.0);
@@ -603,12 +659,11 @@ fn backward<const D: usize>(
         .iter()
         .zip(right)
         .zip(upper.iter().zip(eliminated.iter_mut()));
-    for (p, ((rod, e), (upper, eliminated))) in rows.enumerate().rev() {
+    for ((rod, e), (upper, eliminated)) in rows.rev() {
         let z = *eliminated - coupling * next;
         *eliminated = z;
         (coupling, next) = (*upper, z);
-        sink(p, z);
-        correct::<D>(rod, e, w, z, y);
+        sink(rod, e, z);
     }
 }
 
@@ -761,6 +816,23 @@ mod tests {
             path.set_start(&x);
             path.start_multiply(&v, &mut out);
             assert!(out.iter().all(|r| r.abs() < 1e-12), "J v = {out:?}");
+
+            // Multipliers: (J W J^T) z = r at x, against the dense solve.
+            let r: Vec<f64> = (0..m).map(|_| random(&mut seed)).collect();
+            let mut z = r.clone();
+            path.solve_normal(&x, &w, &mut z).unwrap();
+            let mut expected = r.clone();
+            crate::linalg::dense_solve(m, &mut product(&jx, &w, &jx), &mut expected).unwrap();
+            for (z, e) in z.iter().zip(&expected) {
+                assert!((z - e).abs() < 1e-12 * (1.0 + e.abs()), "{z} vs {e}");
+            }
+            // ... and y -= W J(x)^T z with J at the point of that solve.
+            let mut y = vec![0.0; n];
+            path.subtract_current_transpose(&w, &z, &mut y);
+            for k in 0..n {
+                let expected = -(0..m).map(|i| w[k] * jx[i][k] * z[i]).sum::<f64>();
+                assert!((y[k] - expected).abs() < 1e-12, "y[{k}]");
+            }
         }
     }
 
@@ -833,7 +905,7 @@ mod tests {
 
     /// A rod turned by a right angle between y and x: its diagonal entry e(x).e(y) vanishes
     /// and the Newton step reports that row, leaving q and c untouched; a rod of zero
-    /// length at x is singular for the velocity projection.
+    /// length at x is singular for the velocity projection and the multipliers' solve.
     #[test]
     fn names_the_singular_rod() {
         let rows = [DistanceRow {
@@ -865,5 +937,10 @@ mod tests {
             .unwrap_err();
         assert_eq!(singular.row, 0);
         assert_eq!(v, [1.0, 2.0]);
+        let mut r = [3.0];
+        let singular = path
+            .solve_normal(&[0.0, 0.0], &[1.0, 1.0], &mut r)
+            .unwrap_err();
+        assert_eq!((singular.row, r), (0, [3.0]));
     }
 }

@@ -481,7 +481,10 @@ impl SystemBuilder {
     }
 
     /// Check everything and compile the constraints and the parametric map.
-    pub fn build(self) -> Result<System, ModelError> {
+    pub fn build(mut self) -> Result<System, ModelError> {
+        // Kept with the system (for edits, and its particles): no slack from growing.
+        self.particles.shrink_to_fit();
+        self.constraints.shrink_to_fit();
         compile(Arc::new(self))
     }
 
@@ -684,7 +687,6 @@ impl System {
         };
         System {
             params: b.params.clone(),
-            particles: b.particles.clone(),
             parametric,
             declared,
             ..self.clone()
@@ -704,7 +706,7 @@ impl System {
         parametric: Option<(Vec<f64>, Vec<f64>)>,
     ) -> System {
         let dim = self.dim();
-        let particles = (0..self.particles.len())
+        let particles = (0..self.particles().len())
             .map(|p| {
                 let range = p * dim..(p + 1) * dim;
                 (p, x[range.clone()].to_vec(), v[range].to_vec())
@@ -890,7 +892,6 @@ pub(super) fn compile(declared: Arc<SystemBuilder>) -> Result<System, ModelError
         weight,
         params: b.params.clone(),
         dim,
-        particles: b.particles.clone(),
         gravity: b.gravity.clone(),
         forces: b.forces.clone(),
         constraints: Arc::new(constraints),

@@ -195,7 +195,7 @@ impl ConstraintSet {
     /// symbolic rows only.
     pub(crate) fn new(
         n_coords: usize,
-        infos: Vec<ConstraintInfo>,
+        mut infos: Vec<ConstraintInfo>,
         rows: Vec<RowForm>,
         custom_rows: Vec<CustomRow>,
     ) -> Self {
@@ -248,6 +248,7 @@ impl ConstraintSet {
         }
         native_rows.shrink_to_fit();
         expr_rows.shrink_to_fit();
+        infos.shrink_to_fit();
         time_dependent.extend(custom_rows.iter().map(|r| r.constraint.time_dependent()));
         // FNV-1a over the row starts and columns, then each distance row's row, particles,
         // anchor and length bits.
@@ -357,7 +358,7 @@ impl ConstraintSet {
                 a,
                 b,
                 anchor,
-                dim,
+                dim: dim.into(),
                 length,
             }),
             NativeRow::Pin { .. } => None,
@@ -413,7 +414,15 @@ impl ConstraintSet {
             velocity: vec![0.0; m],
             bias: vec![0.0; m],
             jacobian: vec![0.0; self.columns.len()],
-            vars: vec![0.0; 2 * self.n_coords + 1],
+            // The tapes' inputs: none without tape rows (a chain's rods are all native).
+            vars: vec![
+                0.0;
+                if self.tape_rows.is_empty() {
+                    0
+                } else {
+                    2 * self.n_coords + 1
+                }
+            ],
             scratch: vec![
                 0.0;
                 self.full_tape

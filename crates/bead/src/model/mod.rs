@@ -49,7 +49,6 @@ pub struct Particle {
 #[derive(Clone, Debug)]
 pub struct System {
     pub(crate) dim: usize,
-    pub(crate) particles: Vec<Particle>,
     /// Gravitational acceleration (dim).
     pub(crate) gravity: Vec<f64>,
     pub(crate) forces: Vec<Force>,
@@ -61,7 +60,8 @@ pub struct System {
     pub(crate) weight: Vec<f64>,
     /// The parameters the expressions were parsed with, in declaration order.
     pub(crate) params: Vec<(String, f64)>,
-    /// What the system was declared from: edits change it and compile again.
+    /// What the system was declared from: edits change it and compile again. Its particles
+    /// are the system's (with their initial states).
     pub(crate) declared: std::sync::Arc<SystemBuilder>,
 }
 
@@ -78,11 +78,11 @@ impl System {
     }
     /// The particles with their initial states.
     pub fn particles(&self) -> &[Particle] {
-        &self.particles
+        &self.declared.particles
     }
     /// Number of particle coordinates, n_particles * dim.
     pub fn n_coords(&self) -> usize {
-        self.particles.len() * self.dim
+        self.declared.particles.len() * self.dim
     }
     /// Gravitational acceleration.
     pub fn gravity(&self) -> &[f64] {
@@ -110,7 +110,8 @@ impl System {
     }
     /// Look a particle up by name.
     pub fn particle_id(&self, name: &str) -> Option<ParticleId> {
-        self.particles
+        self.declared
+            .particles
             .iter()
             .position(|p| p.name == name)
             .map(ParticleId)
@@ -118,12 +119,12 @@ impl System {
     /// Initial particle positions and velocities as flat coordinate vectors (n_coords each).
     pub fn initial_particle_state(&self) -> (Vec<f64>, Vec<f64>) {
         let x = self
-            .particles
+            .particles()
             .iter()
             .flat_map(|p| p.position.iter().copied())
             .collect();
         let v = self
-            .particles
+            .particles()
             .iter()
             .flat_map(|p| p.velocity.iter().copied())
             .collect();
@@ -160,7 +161,8 @@ impl System {
     /// Kinetic energy T = 1/2 sum m_i |v_i|^2.
     pub fn kinetic_energy(&self, v: &[f64]) -> f64 {
         let dim = self.dim;
-        self.particles
+        self.declared
+            .particles
             .iter()
             .enumerate()
             .map(|(p, particle)| {
@@ -175,7 +177,7 @@ impl System {
     pub fn potential_energy(&self, x: &[f64]) -> f64 {
         let dim = self.dim;
         let gravity: f64 = self
-            .particles
+            .particles()
             .iter()
             .enumerate()
             .map(|(p, particle)| {
@@ -211,14 +213,14 @@ impl System {
         self.forces
             .iter()
             .filter(|f| !f.is_conservative())
-            .map(|f| f.describe(&self.particles))
+            .map(|f| f.describe(&self.declared.particles))
             .collect()
     }
 
     /// Check a force against this system (particles exist, vectors have its dimension, numbers
     /// are finite), as [`SystemBuilder::force`] does.
     pub fn check_force(&self, force: &Force) -> Result<(), ModelError> {
-        builder::check_force(self.dim, self.particles.len(), force)
+        builder::check_force(self.dim, self.declared.particles.len(), force)
     }
 
     /// Name of velocity component k, e.g. `bead.vy` (as in the CSV trace's header).
@@ -226,7 +228,7 @@ impl System {
         const AXES: [&str; 3] = ["vx", "vy", "vz"];
         format!(
             "{}.{}",
-            self.particles[k / self.dim].name,
+            self.declared.particles[k / self.dim].name,
             AXES[k % self.dim]
         )
     }
@@ -236,7 +238,7 @@ impl System {
         const AXES: [&str; 3] = ["x", "y", "z"];
         format!(
             "{}.{}",
-            self.particles[k / self.dim].name,
+            self.declared.particles[k / self.dim].name,
             AXES[k % self.dim]
         )
     }

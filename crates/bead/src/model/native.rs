@@ -41,12 +41,15 @@ pub(crate) fn distance_expression(
     (squared - length * length) / (2.0 * length)
 }
 
-/// A row evaluated natively. Coordinates are indices into x; `entries_a[axis]` is the
-/// position of x_a's coordinate `axis` among the row's Jacobian entries (and likewise b).
+/// A row evaluated natively. Coordinates are indices into x. A distance row's Jacobian
+/// entries are its coordinates in order: x_a's `dim` first, then x_b's, or x_b's first when
+/// `b_first` (b's particle comes first). Kept small: a chain holds one per rod.
 #[derive(Clone, Debug, PartialEq)]
 pub(crate) enum NativeRow {
     Distance {
-        dim: usize,
+        dim: u8,
+        /// Whether x_b's entries come before x_a's
+        b_first: bool,
         /// First coordinate of particle a
         a: usize,
         /// First coordinate of particle b, or `None` for a fixed point
@@ -54,8 +57,6 @@ pub(crate) enum NativeRow {
         /// The fixed point (when b is `None`)
         anchor: [f64; 3],
         length: f64,
-        entries_a: [usize; 3],
-        entries_b: [usize; 3],
     },
     Pin {
         coordinate: usize,
@@ -75,28 +76,19 @@ impl NativeRow {
         length: f64,
     ) -> NativeRow {
         debug_assert!(b != Some(a), "a rod needs two particles");
-        let (mut entries_a, mut entries_b, mut fixed) = ([0; 3], [0; 3], [0.0; 3]);
-        // Columns are sorted coordinates: b's come first when its particle comes first.
-        let (offset_a, offset_b) = match b {
-            Some(b) if b < a => (dim, 0),
-            Some(_) => (0, dim),
-            None => (0, 0),
-        };
-        for axis in 0..dim {
-            entries_a[axis] = offset_a + axis;
-            entries_b[axis] = offset_b + axis;
-        }
+        debug_assert!((1..=3).contains(&dim), "dimension {dim}");
+        let mut fixed = [0.0; 3];
         if b.is_none() {
             fixed[..dim].copy_from_slice(&anchor[..dim]);
         }
         NativeRow::Distance {
-            dim,
+            dim: dim as u8,
+            // Columns are sorted coordinates.
+            b_first: b.is_some_and(|b| b < a),
             a,
             b,
             anchor: fixed,
             length,
-            entries_a,
-            entries_b,
         }
     }
 
@@ -110,7 +102,7 @@ impl NativeRow {
                 anchor,
                 length,
                 ..
-            } => distance_expression(*dim, *a, *b, anchor, *length),
+            } => distance_expression((*dim).into(), *a, *b, anchor, *length),
             NativeRow::Pin { coordinate, anchor } => Expr::var(*coordinate) - *anchor,
         }
     }
@@ -124,9 +116,10 @@ impl NativeRow {
     pub(crate) fn columns(&self) -> Vec<usize> {
         match self {
             NativeRow::Distance { dim, a, b, .. } => {
-                let mut columns: Vec<usize> = (*a..*a + *dim).collect();
+                let dim = usize::from(*dim);
+                let mut columns: Vec<usize> = (*a..*a + dim).collect();
                 if let Some(b) = b {
-                    columns.extend(*b..*b + *dim);
+                    columns.extend(*b..*b + dim);
                 }
                 columns.sort_unstable();
                 columns
@@ -171,8 +164,7 @@ impl NativeRow {
             b,
             anchor,
             length,
-            entries_a,
-            entries_b,
+            b_first,
             ..
         } = self
         else {
@@ -181,11 +173,12 @@ impl NativeRow {
         let (d, u) = Self::separation::<D>(*a, *b, anchor, x, v);
         let inverse_length = 1.0 / length;
         if let Some(jacobian) = jacobian {
+            let (entries_a, entries_b) = if *b_first { (D, 0) } else { (0, D) };
             for axis in 0..D {
                 let g = d[axis] * inverse_length;
-                jacobian[entries_a[axis]] = g;
+                jacobian[entries_a + axis] = g;
                 if b.is_some() {
-                    jacobian[entries_b[axis]] = -g;
+                    jacobian[entries_b + axis] = -g;
                 }
             }
         }
@@ -206,7 +199,7 @@ impl NativeRow {
     #[inline(always)]
     fn distance_any(
         &self,
-        dim: usize,
+        dim: u8,
         x: &[f64],
         v: Option<&[f64]>,
         jacobian: Option<&mut [f64]>,

@@ -908,8 +908,10 @@ impl Simulation {
     /// ledger runs): as [`Simulation::reset`], with this as the initial state.
     fn start_from(&mut self, state: State) {
         let n = self.n;
-        // The old monitor goes first: two at once would raise a large system's peak memory.
+        // The old monitor and integrator go first: two of each at once would raise a large
+        // system's peak memory (an integrator for no coordinates holds nothing).
         self.monitor = Monitor::default();
+        self.stepper = Stepper::new(&self.config, 0);
         self.monitor = Monitor::new(
             &mut *self.formulation,
             state.t,
