@@ -572,8 +572,8 @@ fn a_step_without_a_solution_is_given_up_early() {
 }
 
 /// One `Rattle` handed two chains with the same rows but rods of other lengths keeps each
-/// chain's own: the fused path's geometry is rebuilt when the distance rows change
-/// (`row_fingerprint`), not only when the row structure does.
+/// chain's own: the fused path steps along each system's own rods, with buffers sized again
+/// when the rows change (`row_fingerprint`).
 #[test]
 fn one_rattle_on_two_chains_keeps_each_ones_lengths() {
     let chain = |length: f64| {

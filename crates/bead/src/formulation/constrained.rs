@@ -50,6 +50,14 @@ pub trait ConstrainedSystem: SecondOrderSystem {
         let _ = row;
         None
     }
+    /// The rods the system solves J W J^T along ([`RodPath`]: every row a rod, the rods
+    /// coupled in paths), with the scales its residual is measured with (see
+    /// [`ConstrainedSystem::constraint_scales`]): an integrator may take its own exact Newton
+    /// steps along them (RATTLE's position step), their geometry always the system's. `None`
+    /// (the default) when it does not.
+    fn rods_mut(&mut self) -> Option<(&mut RodPath, Option<&ConstraintScales>)> {
+        None
+    }
     /// a = W F(t, q, qdot): the applied forces only, without any constraint force.
     fn unconstrained_acceleration(
         &mut self,
@@ -77,7 +85,7 @@ pub trait ConstrainedSystem: SecondOrderSystem {
     /// [`ConstrainedSystem::distance_row`] describes (see [`ConstraintSet::row_fingerprint`]):
     /// an integrator that keeps per-row data between steps rebuilds it when this changes.
     /// `None` (the default): not known, and such an integrator compares the row structure
-    /// itself (O(nnz) per step) and keeps no distance geometry.
+    /// itself (O(nnz) per step).
     fn row_fingerprint(&self) -> Option<u64> {
         None
     }
@@ -303,6 +311,11 @@ impl ConstrainedSystem for Implicit {
 
     fn distance_row(&self, row: usize) -> Option<DistanceRow> {
         self.system.constraints().distance_row(row)
+    }
+
+    fn rods_mut(&mut self) -> Option<(&mut RodPath, Option<&ConstraintScales>)> {
+        let scales = self.scales.as_ref();
+        self.projection.rods.as_mut().map(|rods| (rods, scales))
     }
 
     fn unconstrained_acceleration(

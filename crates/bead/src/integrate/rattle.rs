@@ -95,9 +95,7 @@
 use super::fixed_point::{increment_and_scale, FixedPoint};
 use super::{constraints_of, Integrator, IntegratorKind, IntegratorSettings};
 use crate::formulation::{ConstrainedSystem, SecondOrderSystem, State, StepError};
-use crate::linalg::{
-    max_abs, solve_general, ConstraintMatrix, LinearSolver, RodPath, DENSE_MAX_ROWS,
-};
+use crate::linalg::{max_abs, solve_general, ConstraintMatrix, LinearSolver, DENSE_MAX_ROWS};
 
 /// Iterations the fused exact Newton iteration may go without halving its best residual
 /// before the step is given up as failed (and retried in substeps by `Simulation`): Newton's
@@ -191,9 +189,10 @@ pub struct Rattle {
     /// Exact Newton: J(q^k) (nnz), J(q^k) W J(q_n)^T's upper and lower triangles on the
     /// pattern of J W J^T (nnz of it each), the dense matrix (m x m) and column scales (m)
     exact: Option<ExactNewton>,
-    /// Exact Newton fused along the path when every row is a rod and the rods couple in
-    /// paths (chains, ropes; [`NewtonMatrix::Auto`] only): O(m)
-    rods: Option<RodPath>,
+    /// Whether the position step runs as exact Newton fused along the system's own rods
+    /// ([`ConstrainedSystem::rods_mut`]: every row a rod, the rods coupled in paths;
+    /// [`NewtonMatrix::Auto`] only): O(m)
+    fused: bool,
     /// C(q^k), then the Newton increment (m)
     residual: Vec<f64>,
     /// Accumulated nu (m)
@@ -248,7 +247,7 @@ impl Rattle {
             jacobian_start: Vec::new(),
             matrix: None,
             exact: None,
-            rods: None,
+            fused: false,
             residual: Vec::new(),
             nu: Vec::new(),
             jv: Vec::new(),
@@ -260,11 +259,13 @@ impl Rattle {
         self.iterations_total
     }
 
-    /// Whether the position step runs fused along a path of rods ([`RodPath`]: every row a
-    /// distance, the rows coupled in paths, [`NewtonMatrix::Auto`]); known after the first
-    /// step.
+    /// Whether the position step runs fused along a path of rods
+    /// ([`crate::linalg::RodPath`]: every row a
+    /// distance, the rows coupled in paths, the system solving along them, as
+    /// [`crate::formulation::Implicit`] does with [`LinearSolver::Auto`] or
+    /// [`LinearSolver::Tridiagonal`]; [`NewtonMatrix::Auto`]); known after the first step.
     pub fn fused_rods(&self) -> bool {
-        self.rods.is_some()
+        self.fused
     }
 
     /// The same with another Newton matrix for the position step.
@@ -282,7 +283,8 @@ impl Rattle {
 
     /// Size the m-dependent buffers and analyse J W J^T for the system's row structure
     /// (allocates only when the rows change, i.e. on the first step).
-    fn reserve(&mut self, cs: &dyn ConstrainedSystem) {
+    fn reserve(&mut self, cs: &mut dyn ConstrainedSystem) {
+        let has_rods = cs.rods_mut().is_some();
         let rows = cs.constraint_structure();
         let m = rows.n_rows();
         let solver = cs.linear_solver();
@@ -313,20 +315,14 @@ impl Rattle {
                 Some(_) => (Vec::new(), Vec::new()),
                 None => (starts.collect(), rows.columns().to_vec()),
             };
-            // Fused rods keep the rods' geometry between steps: only with a fingerprint that
-            // says when it changes.
-            self.rods = match self.newton {
-                NewtonMatrix::Auto if m > 0 && fingerprint.is_some() => {
-                    RodPath::of_rows(m, |row| cs.distance_row(row))
-                }
-                _ => None,
-            };
+            // The system's own rods (their geometry is its own, never stale).
+            self.fused = self.newton == NewtonMatrix::Auto && m > 0 && has_rods;
             self.matrix = None;
             self.exact = None;
             self.jacobian_start = Vec::new();
             // Fused rods need neither J W J^T nor J(q_n) unless a step hands over to the
             // simplified matrix (`general_matrix`).
-            if self.rods.is_none() {
+            if !self.fused {
                 let exact = match self.newton {
                     NewtonMatrix::Exact => true,
                     NewtonMatrix::Simplified => false,
@@ -389,12 +385,13 @@ impl Rattle {
     ) -> Result<usize, StepError> {
         self.nu.fill(0.0);
         let mut iterations = 0;
-        if let Some(rods) = &mut self.rods {
+        if self.fused {
             // The best residual so far and the iterations since it last halved.
             let (mut best, mut stalled) = (f64::INFINITY, 0);
             loop {
                 // The system's residual, in the rods' own pass when it says how it scales.
-                let residual = match cs.constraint_scales() {
+                let (rods, scales) = cs.rods_mut().expect("fused rods");
+                let residual = match scales {
                     Some(scales) => rods.values_and_residual(
                         q,
                         &mut self.residual,
@@ -421,6 +418,7 @@ impl Rattle {
                         residual: max_abs(&self.residual),
                     });
                 }
+                let (rods, _) = cs.rods_mut().expect("fused rods");
                 if rods
                     .newton_step(&self.inverse_mass, &mut self.residual, q)
                     .is_err()
@@ -592,8 +590,8 @@ impl Integrator for Rattle {
             *q += dt * *v;
         }
         if m > 0 {
-            match &mut self.rods {
-                Some(rods) => rods.set_start(&self.q_start),
+            match cs.rods_mut().filter(|_| self.fused) {
+                Some((rods, _)) => rods.set_start(&self.q_start),
                 None => cs.constraint_jacobian(t0, &self.q_start, &mut self.jacobian_start),
             }
             let iterations = self.solve_positions(cs, t0, t1, &mut s.q)?;
@@ -606,8 +604,8 @@ impl Integrator for Rattle {
             for (d, nu) in self.residual.iter_mut().zip(&self.nu) {
                 *d = nu / dt;
             }
-            match &self.rods {
-                Some(rods) => {
+            match cs.rods_mut().filter(|_| self.fused) {
+                Some((rods, _)) => {
                     rods.subtract_start_transpose(&self.inverse_mass, &self.residual, &mut s.qdot);
                     rods.start_multiply(&self.velocity_start, &mut self.jv);
                 }

@@ -138,6 +138,16 @@ impl ConstrainedSystem for WithWork<'_> {
         self.formulation.system().constraints().distance_row(row)
     }
 
+    /// The formulation's rods (they read only its coordinates, which come first) and scales.
+    fn rods_mut(
+        &mut self,
+    ) -> Option<(
+        &mut crate::linalg::RodPath,
+        Option<&crate::formulation::ConstraintScales>,
+    )> {
+        self.constrained().rods_mut()
+    }
+
     fn row_fingerprint(&self) -> Option<u64> {
         Some(self.formulation.system().constraints().row_fingerprint())
     }
