@@ -532,6 +532,23 @@ fn projection_failure_is_reported() {
     );
 }
 
+/// A unit mass at (1, 0) moving at `velocity` on a unit rod from the origin, no gravity, its
+/// initial state, and RATTLE to 1e-12 in at most 50 iterations.
+fn bob_on_a_rod(velocity: [f64; 2]) -> (Implicit, State, Rattle) {
+    let mut b = SystemBuilder::new(&[0.0, 0.0]);
+    let p = b.particle("bob", 1.0, &[1.0, 0.0], &velocity).unwrap();
+    b.distance("rod", p, Endpoint::Fixed(vec![0.0, 0.0]), 1.0)
+        .unwrap();
+    let formulation = Implicit::new(Arc::new(b.build().unwrap()), Feedback::default());
+    let state = bead::formulation::Formulation::initial_state(&formulation);
+    let settings = IntegratorSettings {
+        constraint_tolerance: 1e-12,
+        constraint_max_iterations: 50,
+        ..IntegratorSettings::default()
+    };
+    (formulation, state, Rattle::with_settings(2, &settings))
+}
+
 /// A step whose SHAKE equation has no solution is given up in a few iterations, not after
 /// all of them: a unit rod from the origin to a unit mass at (1, 0) moving at (0, 1000),
 /// dt = 0.01. The predictor is (1, 10) and the correction runs along the rod's old direction
@@ -540,19 +557,7 @@ fn projection_failure_is_reported() {
 /// without progress.
 #[test]
 fn a_step_without_a_solution_is_given_up_early() {
-    let mut b = SystemBuilder::new(&[0.0, 0.0]);
-    let p = b.particle("bob", 1.0, &[1.0, 0.0], &[0.0, 1000.0]).unwrap();
-    b.distance("rod", p, Endpoint::Fixed(vec![0.0, 0.0]), 1.0)
-        .unwrap();
-    let system = Arc::new(b.build().unwrap());
-    let mut formulation = Implicit::new(system, Feedback::default());
-    let mut state = bead::formulation::Formulation::initial_state(&formulation);
-    let settings = IntegratorSettings {
-        constraint_tolerance: 1e-12,
-        constraint_max_iterations: 50,
-        ..IntegratorSettings::default()
-    };
-    let mut rattle = Rattle::with_settings(2, &settings);
+    let (mut formulation, mut state, mut rattle) = bob_on_a_rod([0.0, 1000.0]);
     let error = rattle.step(&mut formulation, &mut state, 0.01).unwrap_err();
     assert!(
         rattle.fused_rods(),
@@ -684,21 +689,7 @@ fn acceptance_rattle_and_projection_1e6_steps() {
 /// state it can.
 #[test]
 fn a_fused_step_that_turns_a_rod_over_hands_over_to_the_simplified_matrix() {
-    let mut b = SystemBuilder::new(&[0.0, 0.0]);
-    let p = b
-        .particle("bob", 1.0, &[1.0, 0.0], &[-100.0, 150.0])
-        .unwrap();
-    b.distance("rod", p, Endpoint::Fixed(vec![0.0, 0.0]), 1.0)
-        .unwrap();
-    let system = Arc::new(b.build().unwrap());
-    let mut formulation = Implicit::new(system, Feedback::default());
-    let mut state = bead::formulation::Formulation::initial_state(&formulation);
-    let settings = IntegratorSettings {
-        constraint_tolerance: 1e-12,
-        constraint_max_iterations: 50,
-        ..IntegratorSettings::default()
-    };
-    let mut rattle = Rattle::with_settings(2, &settings);
+    let (mut formulation, mut state, mut rattle) = bob_on_a_rod([-100.0, 150.0]);
     let error = rattle.step(&mut formulation, &mut state, 0.01).unwrap_err();
     assert!(rattle.fused_rods());
     match error {
