@@ -32,8 +32,10 @@
 //!   to converge once that rate nears 1.
 //!
 //! The default ([`NewtonMatrix::Auto`]) is the exact matrix fused along the path when every
-//! row is a rod and the rods couple in paths ([`RodPath`], any size), otherwise the exact
-//! matrix for systems of at most [`DENSE_MAX_ROWS`] rows and the simplified one above.
+//! row is a rod and the rods couple in paths (the system's own
+//! [`RodPath`](crate::linalg::RodPath), [`ConstrainedSystem::rods_mut`], any size), otherwise
+//! the exact matrix for systems of at most [`DENSE_MAX_ROWS`] rows and the simplified one
+//! above.
 //! Measured before the fused path (hanging chain of unit
 //! masses and unit rods released horizontally, dt = 1/120, tolerance 1e-12 L max|J|, RATTLE
 //! stepped directly, 2-core machine shared with other work; iterations per step mean / max):
@@ -130,7 +132,7 @@ enum ExactSolve {
 /// documentation for the measurements behind the default).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum NewtonMatrix {
-    /// The exact matrix fused along the path ([`RodPath`]) when every row is a rod and the
+    /// The exact matrix fused along the path ([`RodPath`](crate::linalg::RodPath)) when every row is a rod and the
     /// rods couple in paths; otherwise [`NewtonMatrix::Exact`] for systems of at most
     /// [`DENSE_MAX_ROWS`] rows (solved densely), [`NewtonMatrix::Simplified`] above.
     #[default]
