@@ -1,8 +1,8 @@
 //! Distance and pin rows are evaluated by direct code (`model/native.rs`) and have a symbolic
 //! form built on demand (for `bead check`, messages and the singular-point search). Both come
-//! from the same parameters: here they agree to round-off at random states, in 2D and 3D, for rods between
-//! particles, rods to a fixed point, pins, and beside expression rows (which stay on the
-//! tape and must land in their own rows).
+//! from the same parameters: here they agree to round-off at random states, in 2D and 3D,
+//! for rods between particles, rods to a fixed point, pins, and beside expression rows
+//! (which stay on the tape and must land in their own rows).
 
 use bead::model::{Endpoint, System, SystemBuilder};
 

@@ -230,8 +230,9 @@ pub(crate) struct ProjectionWorkspace {
     force: Vec<f64>,
     /// rhs, then the multipliers (m)
     rhs: Vec<f64>,
-    /// The projections and the implicit acceleration's multipliers fused along the path, when every row is a rod and the rods couple in paths and the solver is not
-    /// forced ([`LinearSolver::Auto`] or [`LinearSolver::Tridiagonal`])
+    /// The projections and the implicit acceleration's multipliers fused along the path,
+    /// when every row is a rod and the rods couple in paths and the solver is not forced
+    /// ([`LinearSolver::Auto`] or [`LinearSolver::Tridiagonal`])
     pub(super) rods: Option<RodPath>,
 }
 

@@ -132,9 +132,10 @@ enum ExactSolve {
 /// documentation for the measurements behind the default).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum NewtonMatrix {
-    /// The exact matrix fused along the path ([`RodPath`](crate::linalg::RodPath)) when every row is a rod and the
-    /// rods couple in paths; otherwise [`NewtonMatrix::Exact`] for systems of at most
-    /// [`DENSE_MAX_ROWS`] rows (solved densely), [`NewtonMatrix::Simplified`] above.
+    /// The exact matrix fused along the path ([`RodPath`](crate::linalg::RodPath)) when
+    /// every row is a rod and the rods couple in paths; otherwise [`NewtonMatrix::Exact`]
+    /// for systems of at most [`DENSE_MAX_ROWS`] rows (solved densely),
+    /// [`NewtonMatrix::Simplified`] above.
     #[default]
     Auto,
     /// Newton's method: J(q^k) W J(q_n)^T, re-evaluated at every iterate and solved by dense
