@@ -84,8 +84,6 @@ pub struct RodPath {
     upper: Vec<f64>,
     /// The eliminated right-hand side, then z (m)
     eliminated: Vec<f64>,
-    /// The velocity projection's right-hand side J v (m)
-    rhs: Vec<f64>,
 }
 
 impl RodPath {
@@ -232,7 +230,6 @@ impl RodPath {
             inverse_pivots: vec![0.0; m],
             upper: vec![0.0; m],
             eliminated: vec![0.0; m],
-            rhs: vec![0.0; m],
         })
     }
 
@@ -406,31 +403,10 @@ impl RodPath {
         w: &[f64],
         v: &mut [f64],
     ) -> Result<(), Singular> {
-        // J_p v = e_p . (v_a - v_b) / L_p, into `rhs` in path order.
-        let rods = self.rods.iter().zip(&self.anchors);
-        for ((e, rhs), (rod, anchor)) in self.current.iter_mut().zip(&mut self.rhs).zip(rods) {
-            *e = Self::rod_vector::<D>(rod, anchor, q);
-            *rhs = Self::rate::<D>(rod, e, v);
-        }
-        let rhs = &self.rhs;
-        forward::<D, true>(
-            &self.rods,
-            &self.current,
-            &self.current,
-            w,
-            &mut self.inverse_pivots,
-            &mut self.upper,
-            &mut self.eliminated,
-            |p| rhs[p],
-        )?;
-        backward(
-            &self.rods,
-            &self.current,
-            &self.upper,
-            &mut self.eliminated,
-            |rod, e, z| correct::<D>(rod, e, w, z, v),
-        );
-        Ok(())
+        // r_p = J_p v = e_p . (v_a - v_b) / L_p; then v -= W J^T z.
+        self.solve_symmetric::<D>(q, w, v, Self::rate::<D>, |rod, e, z, v| {
+            correct::<D>(rod, e, w, z, v)
+        })
     }
 
     /// Solve J(q) W J(q)^T z = `rhs` (by row) in place, J W J^T factored as it is eliminated
@@ -451,26 +427,47 @@ impl RodPath {
         w: &[f64],
         rhs: &mut [f64],
     ) -> Result<(), Singular> {
+        self.solve_symmetric::<D>(
+            q,
+            w,
+            rhs,
+            |rod, _, rhs| rhs[rod.row],
+            |rod, _, z, rhs| rhs[rod.row] = z,
+        )
+    }
+
+    /// J(q) W J(q)^T z = r with e_p taken at `q`, r_p = `source(rod_p, e_p, data)` read
+    /// during the forward sweep and z_p handed to `sink(rod_p, e_p, z_p, data)` during the
+    /// backward one (`data` untouched when a pivot is [`Singular`]).
+    fn solve_symmetric<const D: usize>(
+        &mut self,
+        q: &[f64],
+        w: &[f64],
+        data: &mut [f64],
+        source: impl Fn(&Rod, &[f64; 3], &[f64]) -> f64,
+        mut sink: impl FnMut(&Rod, &[f64; 3], f64, &mut [f64]),
+    ) -> Result<(), Singular> {
         for ((e, rod), anchor) in self.current.iter_mut().zip(&self.rods).zip(&self.anchors) {
             *e = Self::rod_vector::<D>(rod, anchor, q);
         }
-        let rods = &self.rods;
+        let (rods, current) = (&self.rods, &self.current);
+        let readable: &[f64] = data;
         forward::<D, true>(
             rods,
-            &self.current,
-            &self.current,
+            current,
+            current,
             w,
             &mut self.inverse_pivots,
             &mut self.upper,
             &mut self.eliminated,
-            |p| rhs[rods[p].row],
+            |p| source(&rods[p], &current[p], readable),
         )?;
         backward(
             rods,
-            &self.current,
+            current,
             &self.upper,
             &mut self.eliminated,
-            |rod, _, z| rhs[rod.row] = z,
+            |rod, e, z| sink(rod, e, z, data),
         );
         Ok(())
     }
