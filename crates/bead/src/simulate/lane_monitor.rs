@@ -61,6 +61,8 @@ pub(super) struct LaneMonitor<const L: usize> {
     m: usize,
     /// Gradient row r owns values start[r]..start[r + 1]
     start: Vec<usize>,
+    /// Whether row r is watched for singular points (`Monitor` watches no rod or pin)
+    watched: Vec<bool>,
     /// The last accepted step end's gradient values, the one before, and the longest each
     /// row has been
     pub(super) last: Vec<f64>,
@@ -139,6 +141,7 @@ impl<const L: usize> LaneMonitor<L> {
             n,
             m,
             start,
+            watched: members[0].never_singular().iter().map(|&never| !never).collect(),
             before: vec![0.0; n_values * L],
             last: vec![0.0; n_values * L],
             longest: vec![0.0; rows * L],
@@ -332,6 +335,13 @@ impl<const L: usize> LaneMonitor<L> {
             rows::<L>(&self.searched),
         );
         for r in 0..self.start.len() - 1 {
+            if !self.watched[r] {
+                // A rod or a pin (`Monitor` does not watch it): only a NaN flags.
+                for l in 0..L {
+                    failed[l] |= lengths[r][l].is_nan();
+                }
+                continue;
+            }
             // g . p and |p|^2 against the last step end's row p. (The lane loops build new
             // arrays from old ones rather than update them in place: values, not memory that
             // might alias the inputs, so that they compile to vector instructions.)

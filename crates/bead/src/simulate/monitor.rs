@@ -145,6 +145,8 @@ pub(super) struct Monitor {
     /// Per row, whether it can have no singular point on its constraint (rods and pins):
     /// those rows are not watched
     never_singular: Vec<bool>,
+    /// Whether any row is watched (some row can be singular)
+    watched: bool,
     /// The scene's length scale: the largest initial coordinate magnitude (1 when all are 0)
     length_scale: f64,
     /// Searches for a singular point made after a step (each allocates)
@@ -239,9 +241,10 @@ impl Monitor {
             .collect();
         let searched = vec![f64::INFINITY; longest.len()];
         let initial = longest.clone();
-        let never_singular = (0..longest.len())
+        let never_singular: Vec<bool> = (0..longest.len())
             .map(|r| formulation.row_never_singular(r))
             .collect();
+        let watched = never_singular.contains(&false);
         let length_scale = if length > 0.0 && length.is_finite() {
             length
         } else {
@@ -257,6 +260,7 @@ impl Monitor {
             initial_q: q.to_vec(),
             searched,
             never_singular,
+            watched,
             length_scale,
             searches: 0,
             energy_initial: energy,
@@ -385,6 +389,11 @@ impl Monitor {
         self.floor
     }
 
+    /// Per row, whether it can have no singular point (not watched).
+    pub(super) fn never_singular(&self) -> &[bool] {
+        &self.never_singular
+    }
+
     /// The longest each gradient row has been in the run so far.
     pub(super) fn longest(&self) -> &[f64] {
         &self.longest
@@ -453,19 +462,26 @@ impl Monitor {
             None => {}
         }
         // Shift: the last step end becomes the one before, the new state the last (its
-        // gradient values and q: a step end's offsets are never read).
+        // gradient values and q: a step end's offsets are never read). With no row watched
+        // (a chain, a cloth) the gradient values are never read, nor are unwatched rows'
+        // lengths: not kept (nor do the lane monitors read them).
         self.newest = 1 - self.newest;
         let last = &mut self.ends[self.newest];
-        last.gradients
-            .values
-            .copy_from_slice(&self.observation.gradients.values);
+        if self.watched {
+            last.gradients
+                .values
+                .copy_from_slice(&self.observation.gradients.values);
+        }
         last.q.copy_from_slice(q);
         last.valid = true;
         for (r, (longest, searched)) in self.longest.iter_mut().zip(&mut self.searched).enumerate()
         {
+            if self.never_singular[r] {
+                continue;
+            }
             // The regularity monitor took the watched rows' lengths already (the same sum in
             // the same order, so the same bits as `norm`).
-            let length = if measured && !self.never_singular[r] {
+            let length = if measured {
                 self.lengths[r]
             } else {
                 norm(self.observation.gradients.row(r))
