@@ -53,6 +53,7 @@ pub fn dt(system: &System, method: Method, integrator: IntegratorKind) -> f64 {
             1.25e-2
         }
         IntegratorKind::Rk4 | IntegratorKind::GaussLegendre => 2.5e-2,
+        IntegratorKind::Rattle4 => 2.5e-2,
         IntegratorKind::Dopri5 => 5e-2,
     }
 }

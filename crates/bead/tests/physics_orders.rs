@@ -343,6 +343,14 @@ fn rattle_is_second_order_when_the_applied_forces_depend_on_velocity() {
     assert_order(IntegratorKind::Rattle, 2.0, 0.1, [100, 200, 400, 800]);
 }
 
+/// Law: RATTLE composed in Suzuki's five stages is of order 4 (observed 4.0 +- 0.1) on the
+/// same velocity-dependent systems as RATTLE: the composition of a symmetric second-order
+/// method with weights summing to 1 and their cubes to 0 (its middle stage runs backwards).
+#[test]
+fn rattle4_is_fourth_order_when_the_applied_forces_depend_on_velocity() {
+    assert_order(IntegratorKind::Rattle4, 4.0, 0.1, [10, 20, 40, 80]);
+}
+
 /// Law: step and project (fast projection) is of order 1 (observed 1.0 +- 0.1) on the curved
 /// constraints of the circle and the sphere and with drag: its velocity is the positions'
 /// change over the step, projected onto J v + C_t = 0.
@@ -378,6 +386,7 @@ fn declared_orders_match_the_measured_ones() {
         (IntegratorKind::Midpoint, 2),
         (IntegratorKind::Verlet, 2),
         (IntegratorKind::Rattle, 2),
+        (IntegratorKind::Rattle4, 4),
         (IntegratorKind::Rk4, 4),
         (IntegratorKind::GaussLegendre, 4),
         (IntegratorKind::FastProjection, 1),

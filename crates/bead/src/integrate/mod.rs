@@ -20,6 +20,7 @@
 //! to 1/400 s. Systems whose f ignores qdot ([`SecondOrderSystem::velocity_dependent`]) skip
 //! them.
 
+mod composition;
 mod dopri5;
 mod euler;
 mod fast_projection;
@@ -31,6 +32,7 @@ pub(crate) mod rk4;
 mod symplectic_euler;
 mod verlet;
 
+pub use composition::{suzuki_weights, Composition};
 pub use dopri5::Dopri5;
 pub use euler::Euler;
 pub use fast_projection::FastProjection;
@@ -136,19 +138,22 @@ pub enum IntegratorKind {
     Rk4,
     Verlet,
     Rattle,
+    /// RATTLE composed in Suzuki's five stages ([`Composition`]): order 4, symplectic
+    Rattle4,
     GaussLegendre,
     Dopri5,
     FastProjection,
 }
 
 impl IntegratorKind {
-    pub const ALL: [IntegratorKind; 9] = [
+    pub const ALL: [IntegratorKind; 10] = [
         IntegratorKind::Euler,
         IntegratorKind::SymplecticEuler,
         IntegratorKind::Midpoint,
         IntegratorKind::Rk4,
         IntegratorKind::Verlet,
         IntegratorKind::Rattle,
+        IntegratorKind::Rattle4,
         IntegratorKind::GaussLegendre,
         IntegratorKind::Dopri5,
         IntegratorKind::FastProjection,
@@ -163,6 +168,7 @@ impl IntegratorKind {
             IntegratorKind::Rk4 => "rk4",
             IntegratorKind::Verlet => "verlet",
             IntegratorKind::Rattle => "rattle",
+            IntegratorKind::Rattle4 => "rattle4",
             IntegratorKind::GaussLegendre => "gauss-legendre",
             IntegratorKind::Dopri5 => "dopri5",
             IntegratorKind::FastProjection => "fast-projection",
@@ -175,7 +181,7 @@ impl IntegratorKind {
             | IntegratorKind::SymplecticEuler
             | IntegratorKind::FastProjection => 1,
             IntegratorKind::Midpoint | IntegratorKind::Verlet | IntegratorKind::Rattle => 2,
-            IntegratorKind::Rk4 | IntegratorKind::GaussLegendre => 4,
+            IntegratorKind::Rk4 | IntegratorKind::Rattle4 | IntegratorKind::GaussLegendre => 4,
             IntegratorKind::Dopri5 => 5,
         }
     }
@@ -187,6 +193,7 @@ impl IntegratorKind {
             IntegratorKind::SymplecticEuler
                 | IntegratorKind::Verlet
                 | IntegratorKind::Rattle
+                | IntegratorKind::Rattle4
                 | IntegratorKind::GaussLegendre
         )
     }
@@ -195,7 +202,7 @@ impl IntegratorKind {
     pub fn needs_constraints(self) -> bool {
         matches!(
             self,
-            IntegratorKind::Rattle | IntegratorKind::FastProjection
+            IntegratorKind::Rattle | IntegratorKind::Rattle4 | IntegratorKind::FastProjection
         )
     }
     /// Whether the method chooses its own steps (dopri5): the run loop then treats dt as the
@@ -217,6 +224,10 @@ impl IntegratorKind {
         ) + match self {
             IntegratorKind::GaussLegendre => ", implicit stages",
             IntegratorKind::Rattle => ", implicit form only: constraints solved each step",
+            IntegratorKind::Rattle4 => {
+                ", implicit form only: rattle composed in Suzuki's 5 stages (5 rattle steps \
+                 per step), constraints solved at each"
+            }
             IntegratorKind::Dopri5 => ", adaptive: dt is the output interval, see --rtol, --atol",
             IntegratorKind::FastProjection => {
                 ", implicit form only: step, then project onto the constraints; damps what dt \
@@ -238,6 +249,9 @@ impl IntegratorKind {
             IntegratorKind::Rk4 => Box::new(Rk4::new(n)),
             IntegratorKind::Verlet => Box::new(Verlet::with_settings(n, settings)),
             IntegratorKind::Rattle => Box::new(Rattle::with_settings(n, settings)),
+            IntegratorKind::Rattle4 => Box::new(Composition::suzuki(
+                Rattle::with_settings(n, settings).staged_in(IntegratorKind::Rattle4),
+            )),
             IntegratorKind::GaussLegendre => Box::new(GaussLegendre::new(n, settings)),
             IntegratorKind::Dopri5 => Box::new(Dopri5::new(n, settings)),
             IntegratorKind::FastProjection => Box::new(FastProjection::with_settings(n, settings)),

@@ -149,6 +149,8 @@ pub enum NewtonMatrix {
 
 /// RATTLE with a Newton solve for the position multipliers.
 pub struct Rattle {
+    /// The method its errors name: rattle, or the composition it is a stage of
+    kind: IntegratorKind,
     /// Which Newton matrix the position step uses
     newton: NewtonMatrix,
     tolerance: f64,
@@ -223,6 +225,7 @@ impl Rattle {
     /// iteration limits of `settings`.
     pub fn with_settings(n: usize, settings: &IntegratorSettings) -> Self {
         Rattle {
+            kind: IntegratorKind::Rattle,
             newton: NewtonMatrix::Auto,
             tolerance: settings.constraint_tolerance,
             max_iterations: settings.constraint_max_iterations,
@@ -255,6 +258,13 @@ impl Rattle {
             nu: Vec::new(),
             jv: Vec::new(),
         }
+    }
+
+    /// This RATTLE as the stages of `kind` (rattle4): its errors name that method.
+    pub(super) fn staged_in(mut self, kind: IntegratorKind) -> Self {
+        self.kind = kind;
+        self.rule.method = kind.name();
+        self
     }
 
     /// Newton iterations of the position step summed over every step so far.
@@ -572,7 +582,7 @@ impl Integrator for Rattle {
         s: &mut State,
         dt: f64,
     ) -> Result<(), StepError> {
-        let cs = constraints_of(system, IntegratorKind::Rattle)?;
+        let cs = constraints_of(system, self.kind)?;
         let n = s.q.len();
         let m = cs.n_constraints();
         self.reserve(cs);

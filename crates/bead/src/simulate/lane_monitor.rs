@@ -141,7 +141,11 @@ impl<const L: usize> LaneMonitor<L> {
             n,
             m,
             start,
-            watched: members[0].never_singular().iter().map(|&never| !never).collect(),
+            watched: members[0]
+                .never_singular()
+                .iter()
+                .map(|&never| !never)
+                .collect(),
             before: vec![0.0; n_values * L],
             last: vec![0.0; n_values * L],
             longest: vec![0.0; rows * L],
