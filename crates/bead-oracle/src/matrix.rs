@@ -49,11 +49,12 @@ pub fn dt(system: &System, method: Method, integrator: IntegratorKind) -> f64 {
         IntegratorKind::Midpoint | IntegratorKind::Verlet | IntegratorKind::Rattle => 1e-2,
         // The double pendulum's error is asymptotic (within 20% of 2^4 at every row) from
         // about here.
-        IntegratorKind::Rk4 | IntegratorKind::GaussLegendre if system.name == "double-pendulum" => {
+        IntegratorKind::Rk4 | IntegratorKind::Rattle4 | IntegratorKind::GaussLegendre
+            if system.name == "double-pendulum" =>
+        {
             1.25e-2
         }
-        IntegratorKind::Rk4 | IntegratorKind::GaussLegendre => 2.5e-2,
-        IntegratorKind::Rattle4 => 2.5e-2,
+        IntegratorKind::Rk4 | IntegratorKind::Rattle4 | IntegratorKind::GaussLegendre => 2.5e-2,
         IntegratorKind::Dopri5 => 5e-2,
     }
 }
