@@ -673,7 +673,8 @@ fn one_rattle_on_two_chains_keeps_each_ones_lengths() {
 
 /// The issue's acceptance figures, 10^6 steps of the article's parabola at dt = 1/60:
 /// RATTLE keeps max |C| <= 1e-9 L^2 (L = 150) and its energy bounded (last tenth's max
-/// relative error within 2x of the first tenth's); rk4 + --project keeps max |C| <= 1e-9 L^2.
+/// relative error within 2x of the first tenth's); rattle4 keeps |C| at its tolerance and
+/// its energy bounded and within 1e-5 of E_scale; rk4 + --project keeps max |C| <= 1e-9 L^2.
 #[test]
 #[ignore = "10^6 steps: run in release with --ignored"]
 fn acceptance_rattle_and_projection_1e6_steps() {
@@ -700,6 +701,27 @@ fn acceptance_rattle_and_projection_1e6_steps() {
     );
     assert_eq!(stats.steps, STEPS);
     assert!(stats.constraint_error_max <= 1e-9 * scale);
+    assert!(
+        last <= 2.0 * first,
+        "energy drifts: {first:e} then {last:e}"
+    );
+
+    // rattle4 (issue 20): bounded too, at 1e-5 of E_scale.
+    let o = with_tolerance(
+        options(IntegratorKind::Rattle4, 1.0 / 60.0, STEPS),
+        1e-12 * scale,
+    );
+    let mut trace = Trace::new();
+    let stats = run_implicit(&system, &o, &mut trace);
+    let (first, last) = trace.energy_tenths();
+    println!(
+        "acceptance rattle4: {STEPS} steps, max |C| = {:.3e}, energy error max first tenth \
+         {first:.4e}, last tenth {last:.4e}, of E_scale {:.4e}, {:.3} s",
+        stats.constraint_error_max, stats.energy_rel_error_max, stats.wall_seconds
+    );
+    assert_eq!(stats.steps, STEPS);
+    assert!(stats.constraint_error_max <= 1e-12 * scale);
+    assert!(stats.energy_rel_error_max <= 1e-5);
     assert!(
         last <= 2.0 * first,
         "energy drifts: {first:e} then {last:e}"
