@@ -43,11 +43,69 @@ pub enum Command {
     Sweep(SweepArgs),
     /// Validate a scene and describe it, with the derivatives the engine will use.
     Check(CheckArgs),
+    /// A convergence study: each integrator at dt, dt/2, ... against a reference (dopri5 at a
+    /// tight tolerance), with the observed order of the position, energy and constraint
+    /// errors per halving, and a work-precision plot.
+    #[command(after_long_help = AFTER_ORDER)]
+    Order(OrderArgs),
     /// Plot columns of a trace CSV against t, as PNG or SVG.
     Plot(crate::report_args::PlotArgs),
     /// Start the live browser viewer: a local web server that runs the simulation and streams
     /// it to a page (panels per formulation, live charts, drag a particle, edit the curve).
     Serve(ServeArgs),
+}
+
+const AFTER_ORDER: &str = "\
+Each run records the particles at the output times of the coarsest step (t0 + j dt, which every
+halving hits exactly); its position error is the largest distance of a coordinate from the
+reference's at those times, its energy error the largest |E - E0| / E_scale (of E - W when the
+energy ledger runs), its error off the constraints the largest |C_i| / |grad C_i| (implicit form).
+An order log2(e(h) / e(h/2)) is printed only where both errors lie above the floor where they stop
+being the method's (the reference's error, round-off, a solver's tolerance): `-` otherwise. The
+work of a run is its evaluations of the acceleration and its wall time.
+
+Example: bead order scenes/parabola.toml --integrators rk4,rattle,rattle4,gauss-legendre \\
+             --plot order.png";
+
+/// `bead order`.
+#[derive(Debug, Args)]
+pub struct OrderArgs {
+    /// The scene file (TOML).
+    pub scene: PathBuf,
+
+    /// The integrators to study (comma-separated names, or `all`) [default: every
+    /// fixed-step integrator]; each runs with every formulation that accepts it.
+    #[arg(long, value_name = "LIST", value_parser = crate::report_args::parse_integrators)]
+    pub integrators: Option<crate::report_args::IntegratorList>,
+
+    /// The coarsest step (s) [default: the scene's dt]
+    #[arg(long, value_name = "SECONDS", value_parser = parse_positive)]
+    pub dt: Option<f64>,
+
+    /// Simulated time (s) [default: the scene's duration]
+    #[arg(long, value_name = "SECONDS", value_parser = parse_positive, conflicts_with = "steps")]
+    pub duration: Option<f64>,
+
+    /// Steps of the coarsest dt
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..))]
+    pub steps: Option<u64>,
+
+    /// How many times dt is halved (1 to 12)
+    #[arg(long, value_name = "K", default_value_t = 4, value_parser = clap::value_parser!(u32).range(1..=12))]
+    pub halvings: u32,
+
+    /// The reference's relative tolerance (dopri5)
+    #[arg(long, value_name = "RTOL", default_value_t = 1e-13, value_parser = parse_positive)]
+    pub reference_rtol: f64,
+
+    /// Override a scene parameter: NAME=VALUE (repeatable)
+    #[arg(long = "set", value_name = "NAME=VALUE", value_parser = parse_set)]
+    pub set: Vec<(String, f64)>,
+
+    /// Write the work-precision plot (errors against evaluations and against wall time) to
+    /// FILE (.png or .svg)
+    #[arg(long, value_name = "FILE")]
+    pub plot: Option<PathBuf>,
 }
 
 /// `bead serve`.

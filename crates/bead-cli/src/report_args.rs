@@ -86,7 +86,7 @@ pub struct IntegratorList(pub Vec<IntegratorKind>);
 #[derive(Clone, Debug, PartialEq)]
 pub struct DtList(pub Vec<(String, f64)>);
 
-fn parse_integrators(s: &str) -> Result<IntegratorList, String> {
+pub fn parse_integrators(s: &str) -> Result<IntegratorList, String> {
     let mut kinds = Vec::new();
     for part in s.split(',') {
         let part = part.trim();

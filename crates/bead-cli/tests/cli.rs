@@ -2959,3 +2959,55 @@ fn scene_event_tables_are_reported_in_the_summary_and_the_text() {
         "{error}"
     );
 }
+
+/// `bead order` on the article's scene prints the orders each method reaches (rk4 4 on the
+/// implicit form, rattle 2, rattle4 4, gauss-legendre 4 in q) at the last halving it can
+/// measure, writes the work-precision plot, and refuses what halving dt cannot study.
+#[test]
+fn order_prints_each_methods_order_and_writes_the_plot() {
+    let dir = TempDir::new("order");
+    let plot = dir.path("order.png");
+    let out = ok(bead(&[
+        "order",
+        p(&parabola()),
+        "--integrators",
+        "rk4,rattle,rattle4,gauss-legendre",
+        "--plot",
+        p(&plot),
+    ]));
+    let position_order = |label: &str| -> f64 {
+        let line = out
+            .lines()
+            .find(|l| l.trim_start().starts_with(&format!("{label}: position ")))
+            .unwrap_or_else(|| panic!("no orders of {label}:\n{out}"));
+        let value = line.split("position ").nth(1).unwrap();
+        value.split(',').next().unwrap().parse().unwrap()
+    };
+    for (label, order) in [
+        ("implicit rk4", 4.0),
+        ("implicit rattle", 2.0),
+        ("implicit rattle4", 4.0),
+        ("parametric gauss-legendre", 4.0),
+    ] {
+        let observed = position_order(label);
+        assert!((observed - order).abs() < 0.1, "{label}: {observed}\n{out}");
+    }
+    assert!(out.contains("skipped: parametric x rattle4"), "{out}");
+    assert!(out.contains("   1/960 "), "{out}");
+    let png = std::fs::read(&plot).unwrap();
+    assert!(
+        png.starts_with(b"\x89PNG") && png.len() > 10_000,
+        "{} bytes",
+        png.len()
+    );
+
+    let error = fails(
+        bead(&["order", p(&parabola()), "--integrators", "dopri5"]),
+        1,
+    );
+    assert!(error.contains("chooses its own steps"), "{error}");
+    let error = fails(bead(&["order", p(&parabola()), "--duration", "0.1001"]), 1);
+    assert!(error.contains("not a whole number of steps"), "{error}");
+    let error = fails(bead(&["order", p(&parabola()), "--halvings", "13"]), 2);
+    assert!(error.contains("--halvings"), "{error}");
+}

@@ -2,6 +2,7 @@
 // Unsafe code is denied everywhere but in `expr::jit`, which calls the machine code it
 // generates (each use allowed there, with its argument).
 #![deny(unsafe_code)]
+pub mod convergence;
 pub mod describe;
 pub mod expr;
 pub mod formulation;

@@ -4,6 +4,7 @@
 mod check;
 mod compare;
 mod grid;
+mod order;
 mod plot;
 mod progress;
 mod run;
@@ -32,6 +33,7 @@ pub fn dispatch(command: Command) -> Result<()> {
         Command::Compare(args) => compare::compare(&args),
         Command::Sweep(args) => sweep::sweep(&args),
         Command::Check(args) => check::check(&args),
+        Command::Order(args) => order::order(&args),
         Command::Plot(args) => plot::plot(&args),
         Command::Serve(args) => serve::serve(&args),
     }

@@ -326,6 +326,7 @@ impl ConstrainedSystem for Implicit {
         qdot: &[f64],
         a: &mut [f64],
     ) -> Result<(), StepError> {
+        self.evaluations += 1;
         let system = &*self.system;
         let ws = &mut self.projection;
         super::implicit::accumulate_all_forces(system, &self.external, q, qdot, &mut ws.force);

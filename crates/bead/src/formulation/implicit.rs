@@ -47,6 +47,8 @@ impl Feedback {
 /// The implicit (constraint-force) formulation; q = particle coordinates.
 pub struct Implicit {
     pub(crate) system: Arc<System>,
+    /// Evaluations of the acceleration (full or applied forces only) so far
+    pub(super) evaluations: u64,
     feedback: Feedback,
     /// Which factorization solves J W J^T
     pub(crate) solver: LinearSolver,
@@ -90,6 +92,7 @@ impl Implicit {
         let fused = FusedImplicit::new(&system, dense_pivot_tolerance, feedback.ks, feedback.kd);
         let projection = super::constrained::ProjectionWorkspace::new(&system, solver);
         Implicit {
+            evaluations: 0,
             fused,
             fused_pending: false,
             feedback,
@@ -252,6 +255,7 @@ impl SecondOrderSystem for Implicit {
         v: &[f64],
         a: &mut [f64],
     ) -> Result<(), StepError> {
+        self.evaluations += 1;
         if let Some(fused) = &mut self.fused {
             let force_given = !(fused.has_constant_force() && self.external.is_empty());
             if force_given {
@@ -292,7 +296,9 @@ impl SecondOrderSystem for Implicit {
         let set = self.system.constraints();
         let fused = self.fused.as_mut().expect("checked above");
         // With C and J at the step's end, which the monitors read there (`observe`).
-        compiled_rk4_step(fused, set.fused(), Some(set.gradient_tape()), state, dt)
+        let stepped = compiled_rk4_step(fused, set.fused(), Some(set.gradient_tape()), state, dt);
+        self.evaluations += if stepped { 4 } else { 0 };
+        stepped
     }
 
     fn compiled_step_observation(&self, t: f64, q: &[f64], qdot: &[f64]) -> Option<&[f64]> {
@@ -309,6 +315,10 @@ impl SecondOrderSystem for Implicit {
 }
 
 impl Formulation for Implicit {
+    fn evaluations(&self) -> u64 {
+        self.evaluations
+    }
+
     fn method(&self) -> Method {
         Method::Implicit
     }

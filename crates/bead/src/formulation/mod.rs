@@ -334,6 +334,12 @@ pub trait Formulation: SecondOrderSystem {
     /// Particle positions x and velocities xdot (n_coords each) of state (t, q, qdot).
     fn particle_state(&mut self, t: f64, q: &[f64], qdot: &[f64], x: &mut [f64], xdot: &mut [f64]);
 
+    /// Evaluations of the acceleration so far (full, or the applied forces alone for RATTLE's
+    /// kicks; a compiled RK4 step counts its four): the work measure of convergence studies.
+    fn evaluations(&self) -> u64 {
+        0
+    }
+
     /// Measure position tolerances (RATTLE, projections) row by row against `scales`, or
     /// absolutely with `None` (the default). Formulations without constraints ignore it.
     fn set_constraint_scales(&mut self, scales: Option<ConstraintScales>) {

@@ -39,6 +39,8 @@ pub(crate) struct LaneScratch {
 /// The parametric (generalized-coordinate) formulation.
 pub struct Parametric {
     pub(crate) system: Arc<System>,
+    /// Evaluations of the acceleration so far
+    evaluations: u64,
     /// Dense LDL^T of M (n_q x n_q)
     solver: DenseLdlt,
     pub(super) map: ParametricEval,
@@ -97,6 +99,7 @@ impl Parametric {
             solver.relative_pivot_tolerance,
         );
         Ok(Parametric {
+            evaluations: 0,
             fused,
             fused_pending: false,
             velocity_dependent,
@@ -166,6 +169,7 @@ impl SecondOrderSystem for Parametric {
         qdot: &[f64],
         qddot: &mut [f64],
     ) -> Result<(), StepError> {
+        self.evaluations += 1;
         let map = self
             .system
             .parametric()
@@ -196,7 +200,9 @@ impl SecondOrderSystem for Parametric {
             .parametric()
             .expect("checked in Parametric::new");
         let fused = self.fused.as_mut().expect("checked above");
-        compiled_rk4_step(fused, map.fused(), None, state, dt)
+        let stepped = compiled_rk4_step(fused, map.fused(), None, state, dt);
+        self.evaluations += if stepped { 4 } else { 0 };
+        stepped
     }
 
     fn compiles_rk4_step(&self) -> bool {
@@ -401,6 +407,10 @@ impl Parametric {
 }
 
 impl Formulation for Parametric {
+    fn evaluations(&self) -> u64 {
+        self.evaluations
+    }
+
     fn method(&self) -> Method {
         Method::Parametric
     }

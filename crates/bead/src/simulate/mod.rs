@@ -346,6 +346,12 @@ impl Simulation {
         self.config.integrator
     }
 
+    /// Evaluations of the acceleration since the formulation was built (see
+    /// [`Formulation::evaluations`]): the work of a run, in the unit of convergence studies.
+    pub fn evaluations(&self) -> u64 {
+        self.formulation.evaluations()
+    }
+
     /// The observable state: the integrator's, or for adaptive integrators the dense output at
     /// the last requested time.
     fn observed(&self) -> &State {
