@@ -218,3 +218,42 @@ fn a_small_energy_error_beside_a_large_constraint_error_is_flagged() {
     );
     assert!(reported > 0.1 * r, "{reported}");
 }
+
+/// The README's `bead order` example: every line it shows under the command is a line bead
+/// prints (the README abridges the table; errors and evaluations are deterministic), and the
+/// plot it names is what the command writes.
+#[test]
+fn the_readmes_convergence_study_is_what_bead_order_prints() {
+    let text = readme();
+    let start = text
+        .find("$ bead order ")
+        .expect("README: a `$ bead order` example");
+    let block = &text[start..];
+    let block = &block[..block.find("```").unwrap()];
+    let mut lines = block.lines();
+    let command = lines.next().unwrap().trim_start_matches("$ bead ");
+    let dir = std::env::temp_dir().join(format!("bead-claims-order-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let plot = dir.join("order.png");
+    let args: Vec<String> = command
+        .split_whitespace()
+        .map(|a| {
+            if a == "docs/order.png" {
+                plot.display().to_string()
+            } else {
+                a.to_string()
+            }
+        })
+        .collect();
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
+    let out = bead(&args);
+    let printed: Vec<&str> = out.lines().collect();
+    for line in lines.filter(|l| !l.trim().is_empty()) {
+        assert!(
+            printed.contains(&line),
+            "README line not printed: {line:?}\n{out}"
+        );
+    }
+    assert!(std::fs::metadata(&plot).unwrap().len() > 10_000);
+    let _ = std::fs::remove_dir_all(&dir);
+}

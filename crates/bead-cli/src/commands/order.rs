@@ -192,7 +192,10 @@ fn text(scene: &Scene, file: &str, study: &Study, skipped: &[String]) -> String 
     for skip in skipped {
         let _ = writeln!(out, "skipped: {skip} (needs the implicit form)");
     }
-    out
+    // The columns' padding leaves trailing blanks on rows with empty cells.
+    out.lines()
+        .map(|l| l.trim_end().to_string() + "\n")
+        .collect()
 }
 
 /// `implicit rk4: position 4.00, energy 4.01, off 3.98 (declared 4)`.
