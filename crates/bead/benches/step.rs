@@ -99,8 +99,11 @@ struct EngineStep<F: Formulation> {
 
 impl<F: Formulation> EngineStep<F> {
     fn new(formulation: F) -> Self {
+        Self::with(formulation, IntegratorKind::Rk4)
+    }
+    fn with(formulation: F, kind: IntegratorKind) -> Self {
         let start = formulation.initial_state();
-        let integrator = IntegratorKind::Rk4.build(start.q.len());
+        let integrator = kind.build(start.q.len());
         EngineStep {
             formulation,
             integrator,
@@ -312,6 +315,32 @@ fn print_ratios(quick: bool) {
     println!(
         "  parametric TOML / hand-written    = {:.1}x",
         parametric_toml / hand_parametric
+    );
+    // The constrained-symplectic methods on the same step of the implicit form (no
+    // hand-written floor: their position solves iterate): RATTLE, and rattle4 (five RATTLE
+    // steps per step, order 4), beside rk4.
+    let system = scene_system();
+    let mut rattle = EngineStep::with(
+        Implicit::new(system.clone(), Feedback::default()),
+        IntegratorKind::Rattle,
+    );
+    let mut rattle4 = EngineStep::with(
+        Implicit::new(system, Feedback::default()),
+        IntegratorKind::Rattle4,
+    );
+    let rattle_ns = mean_ns(n, || {
+        black_box(rattle.step());
+    });
+    let rattle4_ns = mean_ns(n, || {
+        black_box(rattle4.step());
+    });
+    println!();
+    println!("  implicit, engine from TOML, rattle   {rattle_ns:>10.1} ns/step");
+    println!("  implicit, engine from TOML, rattle4  {rattle4_ns:>10.1} ns/step");
+    println!(
+        "  rattle4 / rattle = {:.1}x (5 stages), rattle4 / rk4 = {:.1}x",
+        rattle4_ns / rattle_ns,
+        rattle4_ns / implicit_toml
     );
     println!(
         "  machine code: {}",
