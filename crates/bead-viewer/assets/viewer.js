@@ -255,7 +255,9 @@
     for (const p of state.panels.values()) {
       const i = p.info;
       let spec = `${i.method}:${i.integrator}:${i.dt}`;
-      if (i.ks || i.kd || i.project) spec += `:${i.ks}:${i.kd}` + (i.project ? ":project" : "");
+      if (i.ks || i.kd || i.project || i.reference) {
+        spec += `:${i.ks}:${i.kd}` + (i.project ? ":project" : "") + (i.reference ? ":reference" : "");
+      }
       q.append("panel", spec);
     }
     for (const [i, expr] of curveEdits()) q.append(`curve.${i}`, expr);
@@ -331,7 +333,8 @@
       if (parts.length >= 5) {
         panel.ks = Number(parts[3]); panel.kd = Number(parts[4]);
         if (!Number.isFinite(panel.ks) || !Number.isFinite(panel.kd)) { bad(`panel \`${spec}\`: ks and kd must be numbers`); continue; }
-        panel.project = parts[5] === "project";
+        panel.project = parts.slice(5).includes("project");
+        panel.reference = parts.slice(5).includes("reference");
       }
       out.panels.push(panel);
     }
@@ -745,7 +748,7 @@
     const note = el("div", "note muted");
     const readout = el("div", "readout");
     const fields = {};
-    for (const key of ["t", "energy", "erel", "cerr", "sps", "status"]) {
+    for (const key of ["t", "energy", "erel", "cerr", "ref", "sps", "status"]) {
       fields[key] = el("span", "r-" + key);
       readout.appendChild(fields[key]);
     }
@@ -798,6 +801,7 @@
     const ks = el("input", "ks"); ks.type = "text";
     const kd = el("input", "kd"); kd.type = "text";
     const project = el("input", "project"); project.type = "checkbox";
+    const reference = el("input", "reference"); reference.type = "checkbox";
     const apply = el("button", "apply", "Apply");
     const playOne = el("button", "play-one", "▶/❚❚");
     playOne.title = "play / pause this panel";
@@ -812,7 +816,9 @@
     const labelled = (text, input, cls) => { const l = el("label", cls, text + " "); l.appendChild(input); return l; };
     const ksLabel = labelled("ks", ks, "feedback"), kdLabel = labelled("kd", kd, "feedback");
     const projectLabel = labelled("project", project, "projection");
-    config.append(method, integrator, labelled("dt", dt), ksLabel, kdLabel, projectLabel, apply, playOne, showEquations);
+    const referenceLabel = labelled("reference", reference, "reference-toggle");
+    referenceLabel.title = "draw the reference solution as a ghost (dopri5 at rtol 1e-12 from the same start) and chart the distance to it on a log axis";
+    config.append(method, integrator, labelled("dt", dt), ksLabel, kdLabel, projectLabel, referenceLabel, apply, playOne, showEquations);
     const configError = el("div", "panel-error error");
     const failure = el("div", "panel-failure error");
     apply.onclick = () => {
@@ -820,7 +826,7 @@
       const msg = {
         type: "configure_panel", panel: info.id, method: method.value, integrator: integrator.value,
         dt: Number(dt.value), ks: isImplicit ? Number(ks.value) : 0, kd: isImplicit ? Number(kd.value) : 0,
-        project: isImplicit && project.checked,
+        project: isImplicit && project.checked, reference: reference.checked,
       };
       for (const k of ["dt", "ks", "kd"]) {
         if (!Number.isFinite(msg[k])) { configError.textContent = `${k} must be a number`; return; }
@@ -830,6 +836,12 @@
     // Switching the integrator applies at once.
     integrator.onchange = () => apply.onclick();
     method.onchange = () => apply.onclick();
+    // The ghost applies at once; turning it on charts the distance to it on a log axis.
+    reference.onchange = () => {
+      const p = state.panels.get(info.id);
+      if (p && reference.checked) p.plot = { x: "t", y: "reference_distance", log: true };
+      apply.onclick();
+    };
     playOne.onclick = () => {
       const p = state.panels.get(info.id);
       const running = p && p.frame && p.frame.status === "running";
@@ -837,7 +849,7 @@
     };
     for (const c of [bars, chartE, chartC, plot]) countCalls(c);
     root.append(title, canvas, tools, note, bars, energyWhy, readout, charts, logLabel, plotRow, plot, config, configError, failure, equations);
-    const dom = { root, name, canvas, note, curveNote, fields, bars, energyWhy, chartE, chartC, logEnergy, plotX, plotY, plotLog, plot, method, integrator, dt, ks, kd, project, configError, failure, equations, ksLabel, kdLabel, projectLabel };
+    const dom = { root, name, canvas, note, curveNote, fields, bars, energyWhy, chartE, chartC, logEnergy, plotX, plotY, plotLog, plot, method, integrator, dt, ks, kd, project, reference, configError, failure, equations, ksLabel, kdLabel, projectLabel };
     installDrag(info.id, canvas);
     return dom;
   }
@@ -907,13 +919,15 @@
   function fillConfig(p) {
     const { info, dom } = p;
     dom.name.textContent = `#${info.id} ${info.method} · ${info.integrator} · dt ${fmt(info.dt)}` +
-      (info.ks || info.kd ? ` · ks ${fmt(info.ks)}, kd ${fmt(info.kd)}` : "") + (info.project ? " · projected" : "");
+      (info.ks || info.kd ? ` · ks ${fmt(info.ks)}, kd ${fmt(info.kd)}` : "") + (info.project ? " · projected" : "") +
+      (info.reference ? " · with reference" : "");
     dom.method.value = info.method;
     dom.integrator.value = info.integrator;
     dom.dt.value = String(info.dt);
     dom.ks.value = String(info.ks);
     dom.kd.value = String(info.kd);
     dom.project.checked = info.project;
+    dom.reference.checked = !!info.reference;
     // Settings that do nothing for this method and integrator are hidden: the server says
     // which apply, from the library's own legality check.
     const applies = info.applies || { feedback: true, project: true };
@@ -992,6 +1006,15 @@
       r.erel.dataset.value = String(f.energy_error);
       r.cerr.textContent = `|C| = ${f.constraint_error === 0 ? "0 (exact)" : fmt(f.constraint_error)}`;
       r.cerr.dataset.value = String(f.constraint_error);
+      // The reference ghost: the panel's distance to the true motion, or why there is none.
+      if (f.reference) {
+        r.ref.textContent = `distance to the reference: ${f.reference.distance === 0 ? "0 (exact)" : fmt(f.reference.distance)}`;
+        r.ref.dataset.value = String(f.reference.distance);
+        r.ref.title = "the ghost is the reference solution: dopri5 at rtol 1e-12 from the same start, through the same drags; the distance is the largest over particles";
+      } else {
+        r.ref.textContent = f.reference_note || "";
+        delete r.ref.dataset.value;
+      }
       r.sps.textContent = `${fmt(f.steps_per_second, 3)} steps per second of computing`;
       r.sps.title = "how fast this panel computes: integrator steps per second of compute time";
       r.status.textContent = f.status + (f.behind ? " (cannot keep up: holds every panel back)" : "");
@@ -1405,6 +1428,27 @@
       ctx.stroke();
       ctx.restore();
     }
+    // The reference solution, when the panel runs one: a faint ghost of each particle under
+    // it (the frame's state: the reference stands at the frame's t).
+    p.lastGhost = null;
+    if (f.reference && f.reference.x.length === f.x.length) {
+      const g = f.reference.x, gr = size.radius + 4;
+      ctx.save();
+      ctx.fillStyle = "rgba(90, 90, 90, 0.25)";
+      ctx.strokeStyle = "rgba(60, 60, 60, 0.65)";
+      ctx.setLineDash([3, 3]);
+      ctx.lineWidth = 1.5;
+      ctx.beginPath();
+      for (let k = 0; k < n; k++) {
+        const px = T.px(g, k * dim), py = T.py(g, k * dim);
+        ctx.moveTo(px + gr, py);
+        ctx.arc(px, py, gr, 0, 2 * Math.PI);
+      }
+      ctx.fill();
+      ctx.stroke();
+      ctx.restore();
+      p.lastGhost = { particles: n, x0: T.px(g, 0), y0: T.py(g, 0) };
+    }
     // Particles: one path; circles with an outline when they are big enough to show one,
     // squares (far cheaper to fill) when they are a few pixels.
     ctx.save();
@@ -1482,7 +1526,7 @@
       ctx.fillText(text, b.x0 + 6, b.y1 - 9);
     }
     ctx.restore();
-    return { rods, particles: n, pins: pins.length, frame: f, x, markers, offView, t: p.displayT };
+    return { rods, particles: n, pins: pins.length, frame: f, x, markers, offView, t: p.displayT, ghost: p.lastGhost };
   }
 
   // ---------- quantities: what a panel records, exports and plots ----------
@@ -1510,6 +1554,12 @@
       { key: "work", label: "work W done on the system", unit: E, get: (g) => g.work },
       { key: "energy_error", label: "energy error (relative)", unit: "", get: (g) => g.energy_error },
       { key: "constraint_error", label: "constraint error max |C|", unit: "", get: (g) => g.constraint_error });
+    if (f.reference) {
+      columns.push({
+        key: "reference_distance", label: "distance to the reference", unit: L,
+        get: (g) => (g.reference ? g.reference.distance : NaN),
+      });
+    }
     const names = p.info.coordinates || [];
     if (names.length && f.generalized && f.generalized.length === 2 * names.length) {
       names.forEach((q, i) => columns.push({

@@ -21,8 +21,9 @@ use bead::simulate::{
 
 use crate::geometry::{Curves, Resolution};
 use crate::protocol::{
-    Applies, Arrows, DragInfo, PanelFrame, PanelInfo, RowForce, ARROW_MAX_PARTICLES,
-    ARROW_MAX_ROWS, GENERALIZED_MAX, PATH_MAX_NUMBERS, PATH_MAX_SAMPLES,
+    Applies, Arrows, DragInfo, PanelFrame, PanelInfo, ReferenceFrame, RowForce,
+    ARROW_MAX_PARTICLES, ARROW_MAX_ROWS, GENERALIZED_MAX, PATH_MAX_NUMBERS, PATH_MAX_SAMPLES,
+    REFERENCE_MAX_COORDS,
 };
 
 /// What a panel runs.
@@ -34,6 +35,8 @@ pub struct PanelSettings {
     pub ks: f64,
     pub kd: f64,
     pub project: bool,
+    /// Run the reference solution beside the panel (see [`Reference`]).
+    pub reference: bool,
 }
 
 impl PanelSettings {
@@ -50,6 +53,49 @@ impl PanelSettings {
             project: self.project,
             ..SimulationConfig::default()
         }
+    }
+}
+
+/// The reference solution beside a panel, drawn as a ghost: the panel's system and form
+/// integrated by dopri5 at rtol 1e-12 (atol 1e-12 of the scene's length scale), without the
+/// panel's feedback or projection (the true motion, not the stabilized one), from the panel's
+/// own start and advanced to each of its output times; a drag acts on it as on the panel.
+/// Its distance to the panel is the panel's error.
+struct Reference {
+    simulation: Simulation,
+    /// The drag's spring and damping in the reference, while dragging
+    drag: Option<(ForceId, ForceId)>,
+}
+
+/// rtol of the reference solution.
+pub const REFERENCE_RTOL: f64 = 1e-12;
+
+impl Reference {
+    /// The reference of a panel running `settings` on `system`: `None` with the reason when
+    /// the scene is too large for it.
+    fn new(system: &Arc<bead::model::System>, settings: &PanelSettings) -> Result<Self, String> {
+        let n = system.n_coords();
+        if n > REFERENCE_MAX_COORDS {
+            return Err(format!(
+                "no reference: the scene has {n} coordinates, the reference runs for at most {REFERENCE_MAX_COORDS}"
+            ));
+        }
+        let (x0, _) = system.initial_particle_state();
+        let length = x0.iter().fold(1e-300_f64, |m, c| m.max(c.abs()));
+        let mut config = SimulationConfig {
+            method: settings.method,
+            integrator: IntegratorKind::Dopri5,
+            dt: settings.dt,
+            ..SimulationConfig::default()
+        };
+        config.settings.rtol = REFERENCE_RTOL;
+        config.settings.atol = REFERENCE_RTOL * if length > 1e-300 { length } else { 1.0 };
+        let simulation = Simulation::new(Arc::clone(system), config)
+            .map_err(|e| format!("no reference: {e}"))?;
+        Ok(Reference {
+            simulation,
+            drag: None,
+        })
     }
 }
 
@@ -201,6 +247,10 @@ pub struct Panel {
     path: Vec<f64>,
     /// Record every `path_stride`-th interval into `path`.
     path_stride: u64,
+    /// The reference solution, when the settings ask for one and it runs
+    reference: Option<Reference>,
+    /// Why the settings ask for a reference and there is none
+    reference_note: Option<String>,
 }
 
 impl Panel {
@@ -247,6 +297,8 @@ impl Panel {
             curve_note: None,
             path: Vec::new(),
             path_stride: 1,
+            reference: None,
+            reference_note: None,
         };
         panel.start();
         Ok(panel)
@@ -259,6 +311,59 @@ impl Panel {
             self.running = false;
         }
         self.arrow_refs = self.arrow_references();
+        self.start_reference(|r| r.reset_onto_constraints().map_err(|e| e.to_string()));
+    }
+
+    /// Build the reference when the settings ask for one, started by `start` as the panel
+    /// was (so both begin at the same state).
+    fn start_reference(&mut self, start: impl FnOnce(&mut Simulation) -> Result<(), String>) {
+        self.reference = None;
+        self.reference_note = None;
+        if !self.settings.reference {
+            return;
+        }
+        match Reference::new(&self.scene.system, &self.settings).and_then(|mut reference| {
+            start(&mut reference.simulation)
+                .map(|()| reference)
+                .map_err(|e| format!("no reference: {e}"))
+        }) {
+            Ok(reference) => self.reference = Some(reference),
+            Err(note) => self.reference_note = Some(note),
+        }
+    }
+
+    /// The reference stopped (its step failed): say so, and run on without it.
+    fn drop_reference(&mut self, error: &str) {
+        if let Some(reference) = self.reference.take() {
+            self.reference_note = Some(format!(
+                "the reference stopped at t = {}: {error}",
+                bead::readable(reference.simulation.t())
+            ));
+        }
+    }
+
+    /// The reference at the panel's t, with the distance between the two.
+    fn reference_frame(&self) -> Option<ReferenceFrame> {
+        let reference = &self.reference.as_ref()?.simulation;
+        let dim = self.simulation.system().dim();
+        let (x, x_ref) = (self.simulation.positions(), reference.positions());
+        let distance = x
+            .chunks(dim)
+            .zip(x_ref.chunks(dim))
+            .map(|(a, b)| {
+                a.iter()
+                    .zip(b)
+                    .map(|(a, b)| (a - b) * (a - b))
+                    .sum::<f64>()
+                    .sqrt()
+            })
+            .fold(0.0_f64, f64::max);
+        let finite = |v: f64| if v.is_finite() { v } else { 0.0 };
+        Some(ReferenceFrame {
+            t: finite(reference.t()),
+            x: x_ref.iter().map(|&v| finite(v)).collect(),
+            distance: finite(distance),
+        })
     }
 
     pub fn epoch(&self) -> u64 {
@@ -369,6 +474,7 @@ impl Panel {
             .simulation
             .restart_at_rest(x)
             .map_err(|e| e.to_string())?;
+        panel.start_reference(|r| r.restart_at_rest(x).map_err(|e| e.to_string()));
         panel.failure = None;
         panel.arrow_refs = panel.arrow_references();
         panel.running = self.running;
@@ -528,6 +634,7 @@ impl Panel {
             .simulation
             .set_state(request)
             .map_err(|e| e.to_string())?;
+        panel.start_reference(|r| r.set_state(request).map(|_| ()).map_err(|e| e.to_string()));
         panel.failure = None;
         panel.arrow_refs = panel.arrow_references();
         panel.running = self.running;
@@ -588,6 +695,11 @@ impl Panel {
             while taken < count {
                 let target = (self.intervals + 1) as f64 * dt;
                 self.simulation.advance_to(target)?;
+                if let Some(reference) = &mut self.reference {
+                    if let Err(e) = reference.simulation.advance_to(target) {
+                        self.drop_reference(&e.to_string());
+                    }
+                }
                 self.intervals += 1;
                 taken += 1;
                 if self.intervals.is_multiple_of(self.path_stride) {
@@ -683,6 +795,30 @@ impl Panel {
                 return Err(e.into());
             }
         };
+        // The reference is dragged as the panel is: the same spring and damping, on its own
+        // particle (a reference that cannot take them is dropped, never the drag).
+        let forces = (
+            Force::Spring {
+                a: id,
+                b: Endpoint::Fixed(target.clone()),
+                stiffness,
+                rest_length: 0.0,
+            },
+            Force::Drag {
+                particle: Some(id),
+                coefficient,
+            },
+        );
+        if let Some(reference) = &mut self.reference {
+            let s = &mut reference.simulation;
+            match s
+                .add_force(forces.0)
+                .and_then(|spring| Ok((spring, s.add_force(forces.1)?)))
+            {
+                Ok(ids) => reference.drag = Some(ids),
+                Err(e) => self.drop_reference(&e.to_string()),
+            }
+        }
         self.drag = Some(Drag {
             particle,
             target,
@@ -703,16 +839,21 @@ impl Panel {
         let Some(drag) = &mut self.drag else {
             return Err(DragError::NoDrag);
         };
-        self.simulation.set_force(
-            drag.spring,
-            Force::Spring {
-                a: ParticleId(particle),
-                b: Endpoint::Fixed(target.clone()),
-                stiffness: drag.stiffness,
-                rest_length: 0.0,
-            },
-        )?;
+        let spring = Force::Spring {
+            a: ParticleId(particle),
+            b: Endpoint::Fixed(target.clone()),
+            stiffness: drag.stiffness,
+            rest_length: 0.0,
+        };
+        self.simulation.set_force(drag.spring, spring.clone())?;
         drag.target = target;
+        if let Some(reference) = &mut self.reference {
+            if let Some((id, _)) = reference.drag {
+                if let Err(e) = reference.simulation.set_force(id, spring) {
+                    self.drop_reference(&e.to_string());
+                }
+            }
+        }
         Ok(())
     }
 
@@ -722,6 +863,12 @@ impl Panel {
         if let Some(drag) = self.drag.take() {
             self.simulation.remove_force(drag.spring);
             self.simulation.remove_force(drag.damping);
+        }
+        if let Some(reference) = &mut self.reference {
+            if let Some((spring, damping)) = reference.drag.take() {
+                reference.simulation.remove_force(spring);
+                reference.simulation.remove_force(damping);
+            }
         }
     }
 
@@ -754,6 +901,7 @@ impl Panel {
             ks: self.settings.ks,
             kd: self.settings.kd,
             project: self.settings.project,
+            reference: self.settings.reference,
             exprs: self
                 .scene
                 .system
@@ -819,6 +967,8 @@ impl Panel {
             constraint_error: finite(s.constraint_error()),
             steps_per_second: finite(self.steps_per_second),
             distance: None,
+            reference: self.reference_frame(),
+            reference_note: self.reference_note.clone(),
             status: if self.failure.is_some() {
                 "failed"
             } else if self.running {

@@ -291,6 +291,10 @@ pub struct PanelSettingsPatch {
     pub kd: Option<f64>,
     #[serde(default)]
     pub project: Option<bool>,
+    /// Run the reference solution beside the panel and draw it as a ghost (see
+    /// [`PanelFrame::reference`]).
+    #[serde(default)]
+    pub reference: Option<bool>,
 }
 
 /// Messages from the server to the page.
@@ -679,6 +683,8 @@ pub struct PanelInfo {
     pub ks: f64,
     pub kd: f64,
     pub project: bool,
+    /// Whether the panel runs the reference solution beside it ([`PanelFrame::reference`]).
+    pub reference: bool,
     /// The constraint expressions this panel runs with (index as in
     /// [`SceneInfo::constraints`]; `None` for non-expression constraints).
     pub exprs: Vec<Option<String>>,
@@ -708,6 +714,17 @@ pub struct PanelInfo {
     /// The names of the generalized coordinates q of a parametric panel (the scene's
     /// `coordinates`); empty for an implicit panel, whose coordinates are the particles'.
     pub coordinates: Vec<String>,
+}
+
+/// The reference solution beside a panel (see [`PanelFrame::reference`]).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct ReferenceFrame {
+    /// Its time: the panel's (both stand at the same output time of dt).
+    pub t: f64,
+    /// Particle positions, `dim` numbers per particle.
+    pub x: Vec<f64>,
+    /// max over particles of |x - x_ref|: how far the panel is from the reference.
+    pub distance: f64,
 }
 
 /// One panel's state in a [`ServerMessage::Frame`].
@@ -755,6 +772,13 @@ pub struct PanelFrame {
     /// first panel's at the same t (`None` for the first panel, and when the two are not
     /// at the same t or have different particles).
     pub distance: Option<f64>,
+    /// The reference solution at the panel's t, when the panel runs one: the panel's system
+    /// and form integrated by dopri5 at rtol 1e-12 from the panel's start, drawn as a ghost.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub reference: Option<ReferenceFrame>,
+    /// Why a panel asked to run the reference has none (too many coordinates, or it failed).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub reference_note: Option<String>,
     /// `"running"`, `"paused"` or `"failed"`.
     pub status: String,
     /// Why the panel failed (divergence, singular constraints, ...), when it did.
@@ -794,6 +818,11 @@ pub struct PanelFrame {
 /// Parametric panels of more generalized coordinates than this send no
 /// [`PanelFrame::generalized`].
 pub const GENERALIZED_MAX: usize = 32;
+
+/// Panels of scenes with more coordinates than this run no reference solution
+/// ([`PanelFrame::reference`]): dopri5 at rtol 1e-12 beside a large scene would hold the
+/// panel back.
+pub const REFERENCE_MAX_COORDS: usize = 64;
 
 /// Scenes with more particles than this send no [`Arrows`].
 pub const ARROW_MAX_PARTICLES: usize = 16;

@@ -1404,6 +1404,7 @@ fn default_settings(scene: &Scene, method: Option<Method>) -> PanelSettings {
         ks: feedback.ks,
         kd: feedback.kd,
         project: false,
+        reference: false,
     }
 }
 
@@ -1458,6 +1459,9 @@ fn patch_settings(
     }
     if let Some(project) = patch.project {
         s.project = project;
+    }
+    if let Some(reference) = patch.reference {
+        s.reference = reference;
     }
     Ok(s)
 }

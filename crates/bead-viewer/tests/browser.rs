@@ -2207,6 +2207,7 @@ async fn cloth_at_scale(client: &Client, addr: SocketAddr) {
             ks: 0.0,
             kd: 0.0,
             project: false,
+            reference: false,
             exprs,
             curves: Vec::new(),
             curve_source: "none".into(),
@@ -2276,6 +2277,8 @@ async fn cloth_at_scale(client: &Client, addr: SocketAddr) {
             constraint_error: 0.0,
             steps_per_second: 0.0,
             distance: None,
+            reference: None,
+            reference_note: None,
             status: "running".into(),
             error: None,
             behind: false,
@@ -3206,4 +3209,83 @@ async fn take_docs_screenshots(client: &Client, addr: SocketAddr) {
         let png = client.screenshot().await.expect("screenshot");
         std::fs::write(docs.join(file), &png).unwrap();
     }
+}
+
+/// The reference ghost, turned on as a user does (the panel's `reference` box): the panel
+/// restarts with the reference beside it, the ghost is drawn where the frame's reference
+/// stands, the readout gives the distance the server computed, and the live plot charts
+/// that distance against t on a log axis; the share URL keeps the choice.
+#[test]
+fn the_reference_ghost_is_drawn_and_its_distance_charted_on_a_log_axis() {
+    let text = shipped("parabola");
+    in_browser(serving("parabola", text), |client, addr| {
+        ghost_checks(client, addr).boxed_local()
+    });
+}
+
+async fn ghost_checks(client: &Client, addr: SocketAddr) {
+    client.goto(&format!("http://{addr}/")).await.unwrap();
+    wait_within(
+        client,
+        "window.__viewer && window.__viewer.panels.size === 2 && \
+         [...window.__viewer.panels.values()].every(p => p.frame && p.frame.t > 0.2)",
+        "both panels running",
+        Duration::from_secs(30),
+    )
+    .await;
+    let first = js(
+        client,
+        "const p = [...window.__viewer.panels.values()][0];
+         const box = p.dom.root.querySelector('input.reference');
+         box.checked = true; box.dispatchEvent(new Event('change'));
+         return [p.info.id, p.info.epoch];",
+    )
+    .await;
+    let (id, epoch) = (first[0].as_u64().unwrap(), first[1].as_u64().unwrap());
+    // The panel restarted (a new epoch) with its reference, and ran on past 1 s.
+    wait_within(
+        client,
+        &format!(
+            "(() => {{ const p = window.__viewer.panels.get({id}); const f = p && p.frame; \
+             return !!(p.info.epoch > {epoch} && p.info.reference && f && f.epoch === p.info.epoch \
+               && f.reference && f.t > 1.0 && p.lastDraw && p.lastDraw.ghost && p.lastPlot); }})()"
+        ),
+        "the ghost drawn and the distance plotted",
+        Duration::from_secs(30),
+    )
+    .await;
+    pause_all(client).await;
+    let seen = js(
+        client,
+        &format!(
+            "const p = window.__viewer.panels.get({id}); const f = p.frame;
+             window.__viewer.drawTimes({id}, 1);
+             const T = p.lastDraw.ghost;
+             return {{ distance: f.reference.distance, gx: f.reference.x[0], x: f.x[0],
+               readout: p.dom.fields.ref.textContent, value: Number(p.dom.fields.ref.dataset.value),
+               plot: p.plot, y: p.dom.plotY.value, log: p.dom.plotLog.checked,
+               last: p.lastPlot.last, checked: p.dom.reference.checked,
+               share: window.__viewer.shareUrl() }};"
+        ),
+    )
+    .await;
+    let distance = seen["distance"].as_f64().unwrap();
+    assert!(distance > 0.0 && distance < 1.0, "{seen}");
+    assert_eq!(seen["value"].as_f64().unwrap(), distance, "{seen}");
+    assert!(
+        seen["readout"]
+            .as_str()
+            .unwrap()
+            .starts_with("distance to the reference"),
+        "{seen}"
+    );
+    assert_eq!(seen["y"], "reference_distance", "{seen}");
+    assert_eq!(seen["log"], true, "{seen}");
+    assert_eq!(seen["checked"], true, "{seen}");
+    // The plot's newest point is the last frame's (t, distance).
+    assert_eq!(seen["last"][0][1].as_f64().unwrap(), distance, "{seen}");
+    // The share URL keeps the reference with the panel.
+    let share = seen["share"].as_str().unwrap();
+    assert!(share.contains("reference"), "{share}");
+    screenshot(client, "reference-ghost").await;
 }

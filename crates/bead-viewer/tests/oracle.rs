@@ -279,6 +279,8 @@ fn decode_frame_reads_header_numbers_exactly() {
             constraint_error: v,
             steps_per_second: v,
             distance: Some(v),
+            reference: None,
+            reference_note: None,
             status: "running".into(),
             error: None,
             behind: false,

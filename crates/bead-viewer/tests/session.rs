@@ -1448,3 +1448,108 @@ fn set_view_makes_the_curves_again_over_the_region_shown() {
     }
     assert_eq!(frames(&mut s)[0].curve_region, view);
 }
+
+/// Law: a panel asked for its reference runs dopri5 at rtol 1e-12 on its own system and form
+/// from its own start, stands at the panel's t in every frame, and reports the distance
+/// between the two, largest over particles: the panel's error. Checked against the same
+/// reference run by the library alone (the same bits), against the parametric form's
+/// solution at rtol 1e-13 (an independent formulation: the ghost is the true motion), and
+/// against the distance recomputed from the frame's positions.
+#[test]
+fn the_reference_ghost_is_the_true_motion_and_its_distance_the_panels_error() {
+    use bead::formulation::Method;
+    use bead::simulate::{Simulation, SimulationConfig};
+    let mut s = session();
+    let replies = send(
+        &mut s,
+        r#"{"type":"configure_panel","panel":1,"reference":true}"#,
+    );
+    let panels = panels_of(&replies).expect("panels");
+    assert!(panels[0].reference && !panels[1].reference);
+    send(&mut s, r#"{"type":"play"}"#);
+    run(&mut s, 2.0);
+    let all = frames(&mut s);
+    let (f, other) = (&all[0], &all[1]);
+    assert!(other.reference.is_none() && other.reference_note.is_none());
+    let reference = f.reference.as_ref().expect("a reference");
+    assert!(f.t > 1.0, "{}", f.t);
+    assert_eq!(reference.t, f.t);
+    let distance =
+        f.x.iter()
+            .zip(&reference.x)
+            .map(|(a, b)| (a - b) * (a - b))
+            .sum::<f64>()
+            .sqrt();
+    assert_eq!(reference.distance, distance);
+    // rk4 at 1/60 on the parabola: a visible but small error.
+    assert!(distance > 1e-6 && distance < 1.0, "{distance}");
+
+    // The library alone, the same way: the same positions bit for bit.
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes/parabola.toml");
+    let scene = bead::scene::Scene::load(&path, &[]).unwrap();
+    let dt = 1.0 / 60.0;
+    let steps = (f.t / dt).round() as u64;
+    let alone = |method: Method, rtol: f64| {
+        let mut config = SimulationConfig {
+            method,
+            integrator: IntegratorKind::Dopri5,
+            dt,
+            ..SimulationConfig::default()
+        };
+        config.settings.rtol = rtol;
+        config.settings.atol = rtol * 225.0;
+        let mut sim = Simulation::new(scene.system.clone(), config).unwrap();
+        sim.reset_onto_constraints().unwrap();
+        for k in 1..=steps {
+            sim.advance_to(k as f64 * dt).unwrap();
+        }
+        sim.positions().to_vec()
+    };
+    assert_eq!(alone(Method::Implicit, 1e-12), reference.x);
+    let truth = alone(Method::Parametric, 1e-13);
+    for (a, b) in reference.x.iter().zip(&truth) {
+        assert!((a - b).abs() < 1e-6, "{:?} vs {truth:?}", reference.x);
+    }
+
+    // Off again: no reference, and none is sent.
+    send(
+        &mut s,
+        r#"{"type":"configure_panel","panel":1,"reference":false}"#,
+    );
+    assert!(frames(&mut s)[0].reference.is_none());
+}
+
+/// Law: the reference follows a drag as the panel does (the same spring and damping act on
+/// it), so a panel that is itself accurate stays within its tolerance of it; a scene too
+/// large for a reference says so instead of holding the panel back.
+#[test]
+fn the_reference_is_dragged_with_the_panel_and_large_scenes_say_why_they_have_none() {
+    let mut s = session();
+    send(
+        &mut s,
+        r#"{"type":"configure_panel","panel":1,"integrator":"dopri5","reference":true}"#,
+    );
+    send(&mut s, r#"{"type":"play"}"#);
+    drag(&mut s, 1, [-100.0, -100.0]);
+    run(&mut s, 1.0);
+    let f = &frames(&mut s)[0];
+    let reference = f.reference.as_ref().expect("a reference");
+    assert!(f.x[0] < -20.0, "the drag pulled the bead: {:?}", f.x);
+    assert!(reference.distance < 1e-3, "{reference:?}");
+    send(&mut s, r#"{"type":"drag_end","panel":1}"#);
+    run(&mut s, 0.5);
+    assert!(frames(&mut s)[0].reference.is_some());
+
+    let replies = send(&mut s, r#"{"type":"load_scene","name":"net"}"#);
+    assert!(error_of(&replies).is_none(), "{replies:?}");
+    let id = panels_of(&replies).expect("panels")[0].id;
+    let replies = send(
+        &mut s,
+        &format!(r#"{{"type":"configure_panel","panel":{id},"reference":true}}"#),
+    );
+    assert!(error_of(&replies).is_none(), "{replies:?}");
+    let f = &frames(&mut s)[0];
+    assert!(f.reference.is_none());
+    let note = f.reference_note.as_deref().expect("a note");
+    assert!(note.contains("coordinates"), "{note}");
+}
