@@ -689,6 +689,103 @@ impl PyScene {
         run_plan(py, &scene, &plan, events, times)
     }
 
+    /// A convergence study, as `bead order` runs it: each integrator (`integrators`, default
+    /// every fixed-step one) with every form of the scene that accepts it, at dt, dt/2, ...,
+    /// dt/2^halvings (dt, duration or steps: the scene's unless given), against dopri5 at
+    /// `reference_rtol` (on the parametric form when the scene has one). Returns a dict of
+    /// equal-length lists, one entry per run (`pandas.DataFrame(study["runs"])`): method,
+    /// integrator, dt, steps, evaluations (of the acceleration), wall_seconds,
+    /// position_error (max |x - x_ref| at the times of dt), energy_error (max |E - E0| /
+    /// E_scale, of E - W when work is done), constraint_error (max |C_i| / |grad C_i|; NaN for
+    /// the parametric form), and position_order, energy_order, constraint_order (log2 of the
+    /// previous step's error over this one's; NaN at the first step and where an error is at
+    /// its floor); with `floors` (the floors, a dict), `reference` (its form and steps) and
+    /// `failures` ("method integrator" to why a series ended early).
+    ///
+    /// Raises ValueError for a bad argument (an adaptive integrator, a duration that is not a
+    /// whole number of steps) and `bead.SetupError` when the reference cannot run. The GIL is
+    /// released while the runs step.
+    #[pyo3(signature = (*, integrators = None, dt = None, duration = None, steps = None, halvings = 4, reference_rtol = 1e-13))]
+    #[allow(clippy::too_many_arguments)]
+    fn order<'py>(
+        &self,
+        py: Python<'py>,
+        integrators: Option<Vec<String>>,
+        dt: Option<&Bound<'py, PyAny>>,
+        duration: Option<&Bound<'py, PyAny>>,
+        steps: Option<&Bound<'py, PyAny>>,
+        halvings: u32,
+        reference_rtol: f64,
+    ) -> PyResult<Bound<'py, PyDict>> {
+        let scene = self.started(py, None)?;
+        if !(1..=12).contains(&halvings) {
+            return Err(PyValueError::new_err(format!(
+                "halvings={halvings}: must be 1 to 12"
+            )));
+        }
+        if !(reference_rtol.is_finite() && reference_rtol > 0.0) {
+            return Err(PyValueError::new_err(format!(
+                "reference_rtol={reference_rtol}: must be a finite number > 0"
+            )));
+        }
+        let positive = "a finite number > 0";
+        let request = PlanRequest {
+            dt: args::real("dt", dt, positive)?,
+            duration: args::real("duration", duration, positive)?,
+            steps: args::integer("steps", steps, 1, args::MAX_STEPS, "")?,
+            ..PlanRequest::default()
+        };
+        let plan = resolve(py, &scene, &request)?;
+        if plan.last_step_shortened {
+            return Err(PyValueError::new_err(format!(
+                "the duration is not a whole number of steps of dt = {}: a convergence study compares the runs at the output times of dt; give steps, or a duration that is",
+                bead::readable(plan.dt)
+            )));
+        }
+        let kinds: Vec<IntegratorKind> = match integrators {
+            None => IntegratorKind::ALL
+                .into_iter()
+                .filter(|k| !k.is_adaptive())
+                .collect(),
+            Some(names) => names
+                .iter()
+                .map(|name| name.parse::<IntegratorKind>().map_err(PyValueError::new_err))
+                .collect::<PyResult<_>>()?,
+        };
+        let mut cases = Vec::new();
+        for method in bead::plan::methods(&scene) {
+            for &kind in &kinds {
+                if !(method == Method::Parametric && kind.needs_constraints()) {
+                    cases.push((method, kind));
+                }
+            }
+        }
+        if cases.is_empty() {
+            return Err(PyValueError::new_err(
+                "integrators: none of them runs on this scene's forms (they need the implicit form)",
+            ));
+        }
+        let settings = bead::convergence::StudySettings {
+            dt: plan.dt,
+            halvings,
+            steps: plan.steps,
+            reference_rtol,
+        };
+        let base = plan.config(Method::Implicit);
+        let system = Arc::clone(&scene.system);
+        let study = detached(py, move || {
+            bead::convergence::study(&system, &cases, &settings, &base)
+        })?
+        .map_err(|e| match e {
+            bead::convergence::StudyError::Reference { .. }
+            | bead::convergence::StudyError::Config(_) => {
+                python_error(py, "SetupError", (e.to_string(),))
+            }
+            other => PyValueError::new_err(other.to_string()),
+        })?;
+        study_dict(py, &study)
+    }
+
     /// A `bead.Simulation` to step by hand (`step()`, `advance_to(t)`), at the scene's
     /// initial state. The arguments are those of `run()` without the run's length.
     #[pyo3(signature = (*, method = None, integrator = None, dt = None, stabilize = None, rtol = None, atol = None, project = false, substeps = None, max_substeps = None, stop_when = None, event_samples = None, initial = None, events = None))]
@@ -2067,4 +2164,95 @@ pub(crate) fn run_error(py: Python<'_>, e: &RunError, run: Option<Py<PyAny>>) ->
         _ => "RunError",
     };
     python_error(py, class, (e.to_string(), run))
+}
+
+/// A convergence study as Python data (see `Scene.order`).
+fn study_dict<'py>(
+    py: Python<'py>,
+    study: &bead::convergence::Study,
+) -> PyResult<Bound<'py, PyDict>> {
+    let floors = &study.floors;
+    let mut columns: Vec<(&str, Vec<Py<PyAny>>)> = [
+        "method",
+        "integrator",
+        "dt",
+        "steps",
+        "evaluations",
+        "wall_seconds",
+        "position_error",
+        "energy_error",
+        "constraint_error",
+        "position_order",
+        "energy_order",
+        "constraint_order",
+    ]
+    .into_iter()
+    .map(|name| (name, Vec::new()))
+    .collect();
+    let failures = PyDict::new(py);
+    for series in &study.series {
+        let orders = [
+            series.position_orders(floors),
+            series.energy_orders(floors),
+            series.constraint_orders(floors),
+        ];
+        for (k, level) in series.levels.iter().enumerate() {
+            let order = |o: &Vec<Option<f64>>| {
+                k.checked_sub(1)
+                    .and_then(|i| o[i])
+                    .unwrap_or(f64::NAN)
+            };
+            let constraint_order = match level.constraint_error {
+                Some(_) => order(&orders[2]),
+                None => f64::NAN,
+            };
+            let row: [Py<PyAny>; 12] = [
+                series.method.name().into_pyobject(py)?.into_any().unbind(),
+                series.integrator.name().into_pyobject(py)?.into_any().unbind(),
+                level.dt.into_pyobject(py)?.into_any().unbind(),
+                level.steps.into_pyobject(py)?.into_any().unbind(),
+                level.evaluations.into_pyobject(py)?.into_any().unbind(),
+                level.wall_seconds.into_pyobject(py)?.into_any().unbind(),
+                level.position_error.into_pyobject(py)?.into_any().unbind(),
+                level.energy_error.into_pyobject(py)?.into_any().unbind(),
+                level
+                    .constraint_error
+                    .unwrap_or(f64::NAN)
+                    .into_pyobject(py)?
+                    .into_any()
+                    .unbind(),
+                order(&orders[0]).into_pyobject(py)?.into_any().unbind(),
+                order(&orders[1]).into_pyobject(py)?.into_any().unbind(),
+                constraint_order.into_pyobject(py)?.into_any().unbind(),
+            ];
+            for ((_, column), value) in columns.iter_mut().zip(row) {
+                column.push(value);
+            }
+        }
+        if let Some(failure) = &series.failure {
+            failures.set_item(
+                format!("{} {}", series.method.name(), series.integrator.name()),
+                failure,
+            )?;
+        }
+    }
+    let runs = PyDict::new(py);
+    for (name, column) in columns {
+        runs.set_item(name, column)?;
+    }
+    let floor_dict = PyDict::new(py);
+    floor_dict.set_item("position", floors.position)?;
+    floor_dict.set_item("energy", floors.energy)?;
+    floor_dict.set_item("constraint", floors.constraint)?;
+    let reference = PyDict::new(py);
+    reference.set_item("method", study.reference_method.name())?;
+    reference.set_item("rtol", study.settings.reference_rtol)?;
+    reference.set_item("steps", study.reference_steps)?;
+    let out = PyDict::new(py);
+    out.set_item("runs", runs)?;
+    out.set_item("floors", floor_dict)?;
+    out.set_item("reference", reference)?;
+    out.set_item("failures", failures)?;
+    out.set_item("length_scale", study.length_scale)?;
+    Ok(out)
 }

@@ -47,7 +47,7 @@ def test_summary_matches_the_cli_on_every_scene(cli_json, name, method):
     assert list(summary) == list(expected), "same keys in the same order"
 
 
-@pytest.mark.parametrize("integrator", ["rk4", "rattle", "dopri5", "gauss-legendre", "verlet"])
+@pytest.mark.parametrize("integrator", ["rk4", "rattle", "rattle4", "dopri5", "gauss-legendre", "verlet"])
 def test_full_default_run_matches_the_cli(cli_json, integrator):
     path = scene_path("parabola.toml")
     code, expected, _ = cli_json(path, "--integrator", integrator, "--set", "g=9.81")

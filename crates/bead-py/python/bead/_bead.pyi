@@ -94,6 +94,21 @@ class Scene:
         the expression (e.g. "bead.y - 100") crosses zero upward (summary["stop_time"]);
         events (bead.Event, scipy's) are recorded in run.t_events and run.y_events.
         Raises ValueError, bead.SetupError, bead.RunError (with .run, the partial run)."""
+    def order(
+        self,
+        *,
+        integrators: Optional[Sequence[str]] = None,
+        dt: Optional[float] = None,
+        duration: Optional[float] = None,
+        steps: Optional[int] = None,
+        halvings: int = 4,
+        reference_rtol: float = 1e-13,
+    ) -> Dict[str, Any]:
+        """A convergence study (as `bead order`): each integrator with every form at dt,
+        dt/2, ..., against dopri5 at reference_rtol. study["runs"] is a dict of columns
+        (method, integrator, dt, steps, evaluations, wall_seconds, position_error,
+        energy_error, constraint_error and their orders per halving) for pandas.DataFrame;
+        study["floors"], study["reference"], study["failures"]."""
     def simulation(
         self,
         *,
