@@ -67,6 +67,21 @@ struct Reference {
     drag: Option<(ForceId, ForceId)>,
 }
 
+/// max over particles p of |a_p - b_p| (`dim` coordinates each): how far apart two states of
+/// the same particles are.
+pub(crate) fn largest_distance(a: &[f64], b: &[f64], dim: usize) -> f64 {
+    a.chunks(dim)
+        .zip(b.chunks(dim))
+        .map(|(p, q)| {
+            p.iter()
+                .zip(q)
+                .map(|(u, v)| (u - v) * (u - v))
+                .sum::<f64>()
+                .sqrt()
+        })
+        .fold(0.0, f64::max)
+}
+
 /// rtol of the reference solution.
 pub const REFERENCE_RTOL: f64 = 1e-12;
 
@@ -347,17 +362,7 @@ impl Panel {
         let reference = &self.reference.as_ref()?.simulation;
         let dim = self.simulation.system().dim();
         let (x, x_ref) = (self.simulation.positions(), reference.positions());
-        let distance = x
-            .chunks(dim)
-            .zip(x_ref.chunks(dim))
-            .map(|(a, b)| {
-                a.iter()
-                    .zip(b)
-                    .map(|(a, b)| (a - b) * (a - b))
-                    .sum::<f64>()
-                    .sqrt()
-            })
-            .fold(0.0_f64, f64::max);
+        let distance = largest_distance(x, x_ref, dim);
         let finite = |v: f64| if v.is_finite() { v } else { 0.0 };
         Some(ReferenceFrame {
             t: finite(reference.t()),

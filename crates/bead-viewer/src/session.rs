@@ -1336,17 +1336,7 @@ fn distance(a: &Panel, b: &Panel) -> Option<f64> {
     if xa.len() != xb.len() || dim == 0 {
         return None;
     }
-    let d = xa
-        .chunks(dim)
-        .zip(xb.chunks(dim))
-        .map(|(p, q)| {
-            p.iter()
-                .zip(q)
-                .map(|(u, v)| (u - v) * (u - v))
-                .sum::<f64>()
-                .sqrt()
-        })
-        .fold(0.0, f64::max);
+    let d = crate::panel::largest_distance(xa, xb, dim);
     d.is_finite().then_some(d)
 }
 

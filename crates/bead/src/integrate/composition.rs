@@ -27,6 +27,13 @@ pub fn suzuki_weights() -> [f64; 5] {
     [g, g, 1.0 - 4.0 * g, g, g]
 }
 
+/// Yoshida's triple jump: g, 1 - 2g, g with g = 1 / (2 - 2^(1/3)) (order 4 too, with a
+/// middle stage of about -1.70: a larger error constant than Suzuki's five stages).
+pub fn triple_jump_weights() -> [f64; 3] {
+    let g = 1.0 / (2.0 - 2f64.powf(1.0 / 3.0));
+    [g, 1.0 - 2.0 * g, g]
+}
+
 /// A symmetric second-order integrator composed with itself in Suzuki's five stages (see
 /// the module): order 4, and symmetric (and symplectic) when the inner method is.
 ///
@@ -38,9 +45,9 @@ pub fn suzuki_weights() -> [f64; 5] {
 pub struct Composition<I> {
     inner: I,
     /// Stage h / dt
-    weights: [f64; 5],
+    weights: Vec<f64>,
     /// Stage start times as fractions of dt: the partial sums of the weights
-    offsets: [f64; 5],
+    offsets: Vec<f64>,
     /// The stages' constraint work, summed
     constraint_work: f64,
 }
@@ -49,14 +56,24 @@ impl<I: Integrator> Composition<I> {
     /// `inner` composed in Suzuki's five stages. `inner` must be symmetric and of order 2
     /// for the result to be of order 4.
     pub fn suzuki(inner: I) -> Self {
-        let weights = suzuki_weights();
-        let mut offsets = [0.0; 5];
-        for k in 1..5 {
-            offsets[k] = offsets[k - 1] + weights[k - 1];
-        }
+        Self::with_weights(inner, &suzuki_weights())
+    }
+
+    /// `inner` composed in stages of `weights` times the step (they must sum to 1; for order
+    /// 4 from a symmetric second-order method, their cubes to 0 as well, and the sequence
+    /// symmetric: [`suzuki_weights`], [`triple_jump_weights`]).
+    pub fn with_weights(inner: I, weights: &[f64]) -> Self {
+        let offsets = weights
+            .iter()
+            .scan(0.0, |start, w| {
+                let offset = *start;
+                *start += w;
+                Some(offset)
+            })
+            .collect();
         Composition {
             inner,
-            weights,
+            weights: weights.to_vec(),
             offsets,
             constraint_work: 0.0,
         }
@@ -111,9 +128,11 @@ mod tests {
     /// (consistency) and their cubes to 0 (the h^3 error term cancels).
     #[test]
     fn weights_satisfy_the_order_conditions() {
-        let w = suzuki_weights();
-        assert!((w.iter().sum::<f64>() - 1.0).abs() < 1e-15);
-        assert!(w.iter().map(|w| w.powi(3)).sum::<f64>().abs() < 1e-15);
-        assert!((w[0] - 0.414_490_771_794_375_7).abs() < 1e-15);
+        for w in [&suzuki_weights()[..], &triple_jump_weights()[..]] {
+            assert!((w.iter().sum::<f64>() - 1.0).abs() < 1e-15);
+            assert!(w.iter().map(|w| w.powi(3)).sum::<f64>().abs() < 1e-15);
+        }
+        assert!((suzuki_weights()[0] - 0.414_490_771_794_375_7).abs() < 1e-15);
+        assert!((triple_jump_weights()[1] + 1.702_414_383_919_315).abs() < 1e-14);
     }
 }

@@ -32,7 +32,7 @@ pub(crate) mod rk4;
 mod symplectic_euler;
 mod verlet;
 
-pub use composition::{suzuki_weights, Composition};
+pub use composition::{suzuki_weights, triple_jump_weights, Composition};
 pub use dopri5::Dopri5;
 pub use euler::Euler;
 pub use fast_projection::FastProjection;
