@@ -35,7 +35,8 @@ pub struct PanelSettings {
     pub ks: f64,
     pub kd: f64,
     pub project: bool,
-    /// Run the reference solution beside the panel (see [`Reference`]).
+    /// Run the reference solution beside the panel: dopri5 at rtol [`REFERENCE_RTOL`] from the
+    /// same start, drawn as a ghost (see [`PanelFrame::reference`]).
     pub reference: bool,
 }
 
@@ -164,7 +165,7 @@ impl fmt::Display for PanelFailure {
                 let kick = matches!(error, RunError::Step(StepError::ImplicitStageFailed { .. }))
                     && matches!(
                         drag.integrator,
-                        IntegratorKind::Verlet | IntegratorKind::Rattle
+                        IntegratorKind::Verlet | IntegratorKind::Rattle | IntegratorKind::Rattle4
                     );
                 if kick {
                     // The fixed-point iteration of the kick contracts by about dt c / (2 m)
