@@ -3255,12 +3255,22 @@ async fn ghost_checks(client: &Client, addr: SocketAddr) {
     )
     .await;
     pause_all(client).await;
+    // Paused: the plot and the readout catch up with the last frame.
+    wait_within(
+        client,
+        &format!(
+            "(() => {{ const p = window.__viewer.panels.get({id}); const f = p.frame; \
+             return !!(f.reference && p.lastPlot && p.lastPlot.last[0][1] === f.reference.distance \
+               && Number(p.dom.fields.ref.dataset.value) === f.reference.distance); }})()"
+        ),
+        "the plot's newest point and the readout at the last frame",
+        Duration::from_secs(30),
+    )
+    .await;
     let seen = js(
         client,
         &format!(
             "const p = window.__viewer.panels.get({id}); const f = p.frame;
-             window.__viewer.drawTimes({id}, 1);
-             const T = p.lastDraw.ghost;
              return {{ distance: f.reference.distance, gx: f.reference.x[0], x: f.x[0],
                readout: p.dom.fields.ref.textContent, value: Number(p.dom.fields.ref.dataset.value),
                plot: p.plot, y: p.dom.plotY.value, log: p.dom.plotLog.checked,
