@@ -749,7 +749,10 @@ impl PyScene {
                 .collect(),
             Some(names) => names
                 .iter()
-                .map(|name| name.parse::<IntegratorKind>().map_err(PyValueError::new_err))
+                .map(|name| {
+                    name.parse::<IntegratorKind>()
+                        .map_err(PyValueError::new_err)
+                })
                 .collect::<PyResult<_>>()?,
         };
         let mut cases = Vec::new();
@@ -2197,18 +2200,20 @@ fn study_dict<'py>(
             series.constraint_orders(floors),
         ];
         for (k, level) in series.levels.iter().enumerate() {
-            let order = |o: &Vec<Option<f64>>| {
-                k.checked_sub(1)
-                    .and_then(|i| o[i])
-                    .unwrap_or(f64::NAN)
-            };
+            let order =
+                |o: &Vec<Option<f64>>| k.checked_sub(1).and_then(|i| o[i]).unwrap_or(f64::NAN);
             let constraint_order = match level.constraint_error {
                 Some(_) => order(&orders[2]),
                 None => f64::NAN,
             };
             let row: [Py<PyAny>; 12] = [
                 series.method.name().into_pyobject(py)?.into_any().unbind(),
-                series.integrator.name().into_pyobject(py)?.into_any().unbind(),
+                series
+                    .integrator
+                    .name()
+                    .into_pyobject(py)?
+                    .into_any()
+                    .unbind(),
                 level.dt.into_pyobject(py)?.into_any().unbind(),
                 level.steps.into_pyobject(py)?.into_any().unbind(),
                 level.evaluations.into_pyobject(py)?.into_any().unbind(),
