@@ -780,8 +780,7 @@ impl PyScene {
             bead::convergence::study(&system, &cases, &settings, &base)
         })?
         .map_err(|e| match e {
-            bead::convergence::StudyError::Reference { .. }
-            | bead::convergence::StudyError::Config(_) => {
+            bead::convergence::StudyError::Reference { .. } => {
                 python_error(py, "SetupError", (e.to_string(),))
             }
             other => PyValueError::new_err(other.to_string()),

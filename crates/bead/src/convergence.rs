@@ -129,8 +129,6 @@ pub enum StudyError {
     Settings { dt: f64, steps: u64, halvings: u32 },
     #[error("{integrator} chooses its own steps: a convergence study halves a fixed step (study dopri5 by its tolerance with `bead compare --rtols`)")]
     Adaptive { integrator: &'static str },
-    #[error("{0}")]
-    Config(String),
     #[error("the reference run (dopri5 at rtol {rtol:e}, {method} form) failed: {error}")]
     Reference {
         rtol: f64,
