@@ -7,6 +7,7 @@ use super::constraint::{ConstraintInfo, ConstraintSet, CustomRow, ExprRow, RowFo
 use super::holonomic::{Erased, SharedHolonomic};
 use super::native::{distance_expression, NativeRow};
 use super::{Endpoint, Force, Holonomic, ParametricMap, Particle, ParticleId, System};
+use super::{Unilateral, UnilateralRow};
 use crate::expr::{parse, Expr, ExprError, Resolved};
 
 /// Slot that stands for time while a system is being built; replaced by the real time slot
@@ -48,6 +49,8 @@ pub enum ModelError {
     NoParticles,
     #[error("{0}")]
     Parametric(String),
+    #[error("{0}")]
+    Unilateral(String),
     #[error("in `{source_text}`: {error}")]
     Expression {
         source_text: String,
@@ -111,6 +114,8 @@ pub struct SystemBuilder {
     index: HashMap<String, usize>,
     pub(super) forces: Vec<Force>,
     pub(super) constraints: Vec<(String, ConstraintSpec)>,
+    /// The unilateral constraints: (declaration index, side and restitution).
+    pub(super) unilateral: Vec<(usize, Unilateral)>,
     pub(super) parametric: Option<ParametricSpec>,
 }
 
@@ -138,6 +143,7 @@ impl SystemBuilder {
             index: HashMap::new(),
             forces: Vec::new(),
             constraints: Vec::new(),
+            unilateral: Vec::new(),
             parametric: None,
         }
     }
@@ -615,6 +621,7 @@ impl SystemBuilder {
                 .iter()
                 .zip(&other.constraints)
                 .all(|(a, b)| constraints(a, b))
+            && self.unilateral == other.unilateral
             && parametric
     }
 
@@ -770,8 +777,17 @@ pub(super) fn compile(declared: Arc<SystemBuilder>) -> Result<System, ModelError
     let mut custom = Vec::new();
     // Rust rows go after all expression rows; remember which info they belong to.
     let mut custom_infos = Vec::new();
-    for (name, spec) in &b.constraints {
+    let mut unilateral = Vec::new();
+    for (index, (name, spec)) in b.constraints.iter().enumerate() {
         let start = rows.len();
+        if let Some((_, u)) = b.unilateral.iter().find(|(i, _)| *i == index) {
+            unilateral.push(UnilateralRow {
+                row: start,
+                constraint: index,
+                side: u.side,
+                restitution: u.restitution,
+            });
+        }
         let description = match spec {
             ConstraintSpec::Expression(expr, source) => {
                 rows.push(RowForm::Symbolic(ExprRow::new(expr.substitute(&time), n)));
@@ -895,6 +911,7 @@ pub(super) fn compile(declared: Arc<SystemBuilder>) -> Result<System, ModelError
         gravity: b.gravity.clone(),
         forces: b.forces.clone(),
         constraints: Arc::new(constraints),
+        unilateral,
         parametric,
         inverse_mass,
         declared,

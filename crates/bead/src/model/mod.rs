@@ -20,6 +20,7 @@ mod force;
 mod holonomic;
 mod native;
 mod parametric;
+mod unilateral;
 
 pub(crate) use builder::compile_reusing;
 pub(crate) use builder::MASS_RANGE;
@@ -29,6 +30,7 @@ pub use edit::{DeclaredConstraint, EditError};
 pub use force::{Endpoint, Force};
 pub use holonomic::Holonomic;
 pub use parametric::{ParametricEval, ParametricMap, SymbolicRow};
+pub use unilateral::{Side, Unilateral, UnilateralRow};
 
 /// Index of a particle in its system.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
@@ -53,6 +55,8 @@ pub struct System {
     pub(crate) gravity: Vec<f64>,
     pub(crate) forces: Vec<Force>,
     pub(crate) constraints: std::sync::Arc<ConstraintSet>,
+    /// The unilateral rows (see [`SystemBuilder::unilateral`]).
+    pub(crate) unilateral: Vec<UnilateralRow>,
     pub(crate) parametric: Option<ParametricMap>,
     /// Inverse masses per coordinate (n_coords): W = M^-1 as a diagonal.
     pub(crate) inverse_mass: Vec<f64>,

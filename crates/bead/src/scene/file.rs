@@ -78,6 +78,10 @@ pub(super) struct ConstraintDef {
     pub between: Option<Spanned<Names>>,
     pub anchor: Option<Spanned<NumVec>>,
     pub length: Option<Spanned<Num>>,
+    /// `above` (C >= 0) or `below` (C <= 0): a unilateral constraint.
+    pub side: Option<Spanned<String>>,
+    /// A unilateral constraint's restitution coefficient e in [0, 1] (default 0).
+    pub restitution: Option<Spanned<Num>>,
 }
 
 #[derive(Debug, Deserialize)]

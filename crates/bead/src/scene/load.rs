@@ -1702,6 +1702,14 @@ impl Builder<'_> {
                     Some(a) => self.vector(a, &ctx, "anchor")?,
                     None => self.position(p),
                 };
+                self.reject(
+                    &ctx,
+                    "a pin (only a scalar constraint, an expression or a distance, can be unilateral)",
+                    &[
+                        ("side", span_of(&d.side)),
+                        ("restitution", span_of(&d.restitution)),
+                    ],
+                )?;
                 self.b
                     .pin(&name, p, &anchor)
                     .map_err(|e| l.model(c.span(), &ctx, e))?;
@@ -1714,6 +1722,44 @@ impl Builder<'_> {
                 ));
             }
         }
+        self.unilateral(&ctx, c)
+    }
+
+    /// `side` and `restitution` of the constraint table just read: a unilateral constraint.
+    fn unilateral(&mut self, ctx: &str, c: &Spanned<ConstraintDef>) -> Result<()> {
+        let d = c.get_ref();
+        let l = &self.loader;
+        let Some(side) = &d.side else {
+            if let Some(e) = &d.restitution {
+                return Err(self.src().error(
+                    e.span(),
+                    format!("{ctx}: `restitution` applies to a unilateral constraint only; add `side = \"above\"` (C >= 0) or `side = \"below\"` (C <= 0)"),
+                ));
+            }
+            return Ok(());
+        };
+        let parsed: crate::model::Side = side.get_ref().parse().map_err(|message: String| {
+            self.src().error(side.span(), format!("{ctx}: {message}"))
+        })?;
+        let restitution = match &d.restitution {
+            Some(e) => {
+                let value = l.number(e, ctx, "`restitution`")?;
+                if !(0.0..=1.0).contains(&value) {
+                    return Err(self.src().error(
+                        e.span(),
+                        format!(
+                            "{ctx}: `restitution` must be between 0 (a plastic landing) and 1 (an elastic bounce), got {}",
+                            crate::readable(value)
+                        ),
+                    ));
+                }
+                value
+            }
+            None => 0.0,
+        };
+        self.b
+            .unilateral(parsed, restitution)
+            .map_err(|e| l.model(side.span(), ctx, e))?;
         Ok(())
     }
 

@@ -633,6 +633,11 @@ impl Scene {
                     })
                 };
                 let (c, cdot) = (worst(&ws.value), worst(&ws.velocity));
+                // A unilateral constraint may start anywhere on its allowed side (in flight).
+                let unilateral = system.unilateral().iter().find(|u| rows.contains(&u.row));
+                if unilateral.is_some_and(|u| u.side.sign() * c > 0.0) {
+                    continue;
+                }
                 if !c.is_finite() {
                     warnings.push(warn(format!(
                         "{name}: its value at the initial positions is not finite ({})",
