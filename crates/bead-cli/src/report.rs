@@ -96,6 +96,21 @@ pub fn run_text(scene: &Scene, plan: &Plan, summary: &Summary) -> String {
             ),
         );
     }
+    if let Some(c) = &summary.contacts {
+        let count =
+            |n: u64, one: &str, many: &str| format!("{n} {}", if n == 1 { one } else { many });
+        row(
+            &mut s,
+            "contacts",
+            format!(
+                "{}, {}, {} on the unilateral constraints; the impacts took {} of kinetic energy",
+                count(c.detaches, "detach", "detaches"),
+                count(c.landings, "landing", "landings"),
+                count(c.bounces, "bounce", "bounces"),
+                g(c.dissipated, 7)
+            ),
+        );
+    }
     if summary.substeps_max > 1 || summary.retried_steps > 0 {
         row(
             &mut s,
@@ -747,6 +762,19 @@ pub fn check_text(scene: &Scene, start: &StartCheck) -> String {
             )
         };
         let _ = writeln!(s, "  {}: {} ({rows})", info.name, info.description);
+        if let Some(u) = system
+            .unilateral()
+            .iter()
+            .find(|u| info.rows.contains(&u.row))
+        {
+            let _ = writeln!(
+                s,
+                "    unilateral: side {} (C {} 0 allowed; it pushes, never pulls), restitution {}",
+                u.side.name(),
+                if u.side.sign() > 0.0 { ">=" } else { "<=" },
+                g(u.restitution, 6)
+            );
+        }
         for row in info.rows.clone() {
             let initial = |v: &Vec<f64>| v.get(row).map(|x| g(*x, 6)).unwrap_or_else(|| "?".into());
             match set.symbolic_row(row).as_deref() {

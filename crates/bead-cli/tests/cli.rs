@@ -3011,3 +3011,32 @@ fn order_prints_each_methods_order_and_writes_the_plot() {
     let error = fails(bead(&["order", p(&parabola()), "--halvings", "13"]), 2);
     assert!(error.contains("--halvings"), "{error}");
 }
+
+/// `bead run scenes/bounce.toml` (the README's figures): the switches counted in the text and
+/// the JSON, and the impacts' energy equal to the ledger's work, -W (nothing else does work).
+#[test]
+fn run_counts_the_bounces_of_a_unilateral_scene() {
+    let scene = concat!(env!("CARGO_MANIFEST_DIR"), "/../../scenes/bounce.toml");
+    let out = ok(bead(&["run", scene]));
+    assert!(
+        out.contains(
+            "contacts     0 detaches, 1 landing, 17 bounces on the unilateral constraints; the impacts took 42863.3 of kinetic energy"
+        ),
+        "{out}"
+    );
+    let out = ok(bead(&["run", scene, "--json"]));
+    let value: serde_json::Value = serde_json::from_str(&out).expect("JSON");
+    let contacts = &value["contacts"];
+    assert_eq!(contacts["bounces"], 17);
+    let dissipated = contacts["dissipated"].as_f64().unwrap();
+    let work = value["work_final"].as_f64().unwrap();
+    assert!(
+        (dissipated + work).abs() < 1e-9 * dissipated,
+        "{dissipated} vs W {work}"
+    );
+    // The parametric form cannot run it yet, and says why.
+    let failed = bead(&["run", scene, "--method", "parametric"]);
+    assert!(!failed.status.success());
+    let err = String::from_utf8_lossy(&failed.stderr);
+    assert!(err.contains("only the implicit form"), "{err}");
+}

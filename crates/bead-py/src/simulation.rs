@@ -319,6 +319,34 @@ impl PySimulation {
         Ok(values.into_pyarray(py))
     }
 
+    /// The switches of unilateral constraints so far (`side` in the scene), in time order:
+    /// a list of dicts with `t`, `constraint` (its name), `kind` (`detach`, `land` or
+    /// `bounce`), `normal_velocity` (s Cdot before and after: < 0 approaching), `dissipated`
+    /// (the kinetic energy the impact took) and `positions` ((P, D) array).
+    #[getter]
+    fn contact_switches<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyList>> {
+        let switches = self.read(py, |s| s.contact_switches().to_vec())?;
+        let list = PyList::empty(py);
+        for switch in switches {
+            let item = pyo3::types::PyDict::new(py);
+            item.set_item("t", switch.t)?;
+            item.set_item("constraint", switch.constraint)?;
+            item.set_item("kind", switch.kind.name())?;
+            item.set_item("normal_velocity", switch.normal_velocity)?;
+            item.set_item("dissipated", switch.dissipated)?;
+            item.set_item("positions", self.matrix(py, switch.x)?)?;
+            list.append(item)?;
+        }
+        Ok(list)
+    }
+
+    /// Per unilateral constraint (in the scene's order), whether the particle is off it now
+    /// (in flight); empty without unilateral constraints.
+    #[getter]
+    fn detached(&self, py: Python<'_>) -> PyResult<Vec<bool>> {
+        self.with_held(py, |held| held.simulation.detached())
+    }
+
     /// Total mechanical energy T + V now.
     #[getter]
     fn energy(&self, py: Python<'_>) -> PyResult<f64> {

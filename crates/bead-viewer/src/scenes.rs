@@ -5,7 +5,7 @@
 /// folder), embedded at build time, in the picker's order: the article's parabola first, then
 /// the curves, the teaching tracks, the 3D and moving ones, the systems of several
 /// particles, the singular curves and the large ones.
-pub const SHIPPED: [(&str, &str); 18] = [
+pub const SHIPPED: [(&str, &str); 19] = [
     ("parabola", include_str!("../../../scenes/parabola.toml")),
     (
         "parabola-x0",
@@ -19,6 +19,7 @@ pub const SHIPPED: [(&str, &str); 18] = [
     ),
     ("hump", include_str!("../../../scenes/hump.toml")),
     ("loop", include_str!("../../../scenes/loop.toml")),
+    ("bounce", include_str!("../../../scenes/bounce.toml")),
     ("infinity", include_str!("../../../scenes/infinity.toml")),
     ("spiral", include_str!("../../../scenes/spiral.toml")),
     ("helix", include_str!("../../../scenes/helix.toml")),

@@ -272,7 +272,8 @@ async fn picker_checks(client: &Client, addr: SocketAddr) {
              return [...window.__viewer.panels.values()].map(p => [p.dom.chartC.hidden === (s.constraints.length === 0), s.energy_unit || null]);",
         )
         .await;
-        let unit = if name.starts_with("parabola") {
+        // The article's pixel scenes (the parabolas and the ball in its bowl).
+        let unit = if name.starts_with("parabola") || name == "bounce" {
             "kg px^2/s^2"
         } else {
             "J"

@@ -1553,3 +1553,46 @@ fn the_reference_is_dragged_with_the_panel_and_large_scenes_say_why_they_have_no
     let note = f.reference_note.as_deref().expect("a note");
     assert!(note.contains("coordinates"), "{note}");
 }
+
+/// The ball of `bounce` leaves the drawn bowl: its frames put it off the curve (C < 0, in
+/// flight, far more than the drift of a bead on a wire) and later back on it, one panel of
+/// the implicit form; the curve is the bowl's contour.
+#[test]
+fn the_bounce_scene_shows_the_ball_off_the_curve_and_back() {
+    let mut s = session();
+    let replies = send(&mut s, r#"{"type":"load_scene","name":"bounce"}"#);
+    let panels = panels_of(&replies).unwrap();
+    assert_eq!(panels.len(), 1);
+    assert_eq!(panels[0].curve_source, "contour");
+    // After its first touch of the bowl, how far it flies off again (a bounce), and whether
+    // it later stays on it (t > 1 s).
+    let (mut touched, mut highest_off, mut landed) = (false, 0.0_f64, false);
+    for _ in 0..(6 * 60) {
+        s.advance(1.0 / 60.0);
+        let f = &frames(&mut s)[0];
+        let (x, y) = (f.x[0], f.x[1]);
+        // Distance above the bowl (+y down): |C| / |grad C|, C = x^2 + 100 y <= 0.
+        let c = x * x + 100.0 * y;
+        assert!(
+            c <= 1e-6 * (x * x).max(1.0),
+            "below the bowl at t = {}: C = {c}",
+            f.t
+        );
+        let off = -c / (4.0 * x * x + 1e4).sqrt();
+        if touched {
+            highest_off = highest_off.max(off);
+        }
+        // Within a pixel: frames fall between impacts.
+        touched |= off < 1.0;
+        landed |= f.t > 1.0 && off < 1e-6;
+        assert!(
+            f.energy_error < 1e-4,
+            "E - W at t = {}: {}",
+            f.t,
+            f.energy_error
+        );
+    }
+    // Bounced off by several pixels (about 6.5 px at e = 0.7).
+    assert!(touched && highest_off > 3.0, "{highest_off}");
+    assert!(landed);
+}

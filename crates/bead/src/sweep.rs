@@ -1502,7 +1502,8 @@ mod tests {
 
     /// The parameters whose sweeps are expected to restart members: those that reach only
     /// initial values in the shipped scenes.
-    const RESTARTED: [(&str, &str); 19] = [
+    const RESTARTED: [(&str, &str); 20] = [
+        ("bounce.toml", "x0"),
         ("circle.toml", "theta0"),
         ("cloth.toml", "F"),
         ("cusp.toml", "s0"),

@@ -105,7 +105,9 @@ class Builder:
     ) -> "Builder":
         """A constraint of the implicit form: `expr` = 0 (an expression of the particles'
         coordinates, t and parameters), or kind="distance" (between, length) or kind="pin"
-        (particle, anchor)."""
+        (particle, anchor). side="above" (C >= 0) or "below" (C <= 0) makes a scalar
+        constraint unilateral (it only pushes; the particle may leave it), with
+        restitution=e in [0, 1] at its landings."""
         entries: List[Tuple[str, Any]] = []
         if name is not None:
             entries.append(("name", name))

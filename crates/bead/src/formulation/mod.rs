@@ -10,6 +10,7 @@
 //! run loop needs: the initial state and the map back to particles).
 
 mod constrained;
+mod contact;
 mod fused;
 mod gradients;
 mod implicit;
@@ -19,6 +20,7 @@ use std::fmt;
 use std::sync::Arc;
 
 pub use constrained::{ConstrainedSystem, ConstraintScales};
+pub use contact::Contact;
 pub use fused::prepare as prepare_fused_accelerations;
 pub use gradients::{Gradients, Observation, SingularSearch};
 pub use implicit::{Feedback, Implicit};
@@ -100,6 +102,8 @@ pub enum StepError {
     SingularMassMatrix { t: f64, coordinate: String },
     #[error("at t = {}: {quantity} is not finite", crate::readable(*t))]
     NonFinite { t: f64, quantity: String },
+    #[error("at t = {}: {message}", crate::readable(*t))]
+    Contact { t: f64, message: String },
     #[error("at t = {}: projection onto the constraints did not converge: max |C| = {residual:e} after {iterations} iterations (raise the tolerance or the iteration limit, or reduce dt)", crate::readable(*t))]
     ProjectionFailed {
         t: f64,
@@ -290,6 +294,8 @@ pub enum FormulationError {
     NoParametricForm,
     #[error("constraint feedback (ks, kd) applies to the implicit form only: the parametric form stays on its constraints by construction")]
     FeedbackOnParametric,
+    #[error("the scene has unilateral constraints (`side`), which only the implicit form simulates for now: in flight the parametric form would need Cartesian coordinates; use the implicit method")]
+    UnilateralParametric,
 }
 
 /// Why the mechanical energy T + V of a formulation is not conserved: something does work on
@@ -304,6 +310,9 @@ pub enum Nonconservation {
     MovingMap,
     /// Forces applied from outside the system while it runs (e.g. dragging in the viewer).
     External,
+    /// Impacts on a unilateral constraint, by name: a landing with restitution e < 1 (or a
+    /// soft one that stays attached) takes kinetic energy away.
+    Impacts(String),
 }
 
 impl fmt::Display for Nonconservation {
@@ -317,6 +326,7 @@ impl fmt::Display for Nonconservation {
                 write!(f, "moving map: the parametric positions depend on t")
             }
             Nonconservation::External => write!(f, "external forces"),
+            Nonconservation::Impacts(name) => write!(f, "impacts on {name} (unilateral)"),
         }
     }
 }
@@ -437,6 +447,17 @@ pub trait Formulation: SecondOrderSystem {
         let _ = row;
         false
     }
+    /// The implicit form with unilateral rows, whose rows switch between attached and
+    /// detached (`None`, the default, for every other formulation).
+    fn contact_mut(&mut self) -> Option<&mut Contact> {
+        None
+    }
+    /// The system whose constraint rows the equations hold now: [`Formulation::system`],
+    /// but for the implicit form with unilateral rows detached ([`Contact`]), the system
+    /// without them.
+    fn active_system(&self) -> &System {
+        self.system()
+    }
 }
 
 /// Build the formulation `method` of `system`.
@@ -446,7 +467,13 @@ pub fn formulate(
     feedback: Feedback,
 ) -> Result<Box<dyn Formulation + Send>, FormulationError> {
     match method {
+        Method::Implicit if !system.unilateral().is_empty() => {
+            Ok(Box::new(Contact::new(system, feedback)))
+        }
         Method::Implicit => Ok(Box::new(Implicit::new(system, feedback))),
+        Method::Parametric if !system.unilateral().is_empty() => {
+            Err(FormulationError::UnilateralParametric)
+        }
         Method::Parametric => {
             if feedback != Feedback::default() {
                 return Err(FormulationError::FeedbackOnParametric);

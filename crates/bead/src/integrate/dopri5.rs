@@ -144,6 +144,12 @@ impl Dopri5 {
     }
 
     /// The last accepted step's interval [t_old, t_new].
+    /// The equations changed (a force added, a constraint detached): the last step's final
+    /// stage is no longer the next step's first (no FSAL for the next step).
+    pub fn forget_last_stage(&mut self) {
+        self.fsal = false;
+    }
+
     pub fn last_step(&self) -> (f64, f64) {
         (self.t_old, self.t_new)
     }

@@ -39,6 +39,7 @@ use crate::simulate::{RunFailure, RunStats};
 /// | `retried_steps` | only when some were: steps retried with more substeps because an iteration did not converge |
 /// | `stop_when` | the stop condition as written (`null` when none) |
 /// | `stop_time` | the time the stop condition fired and the run ended (`null` when it did not) |
+/// | `contacts` | only with unilateral constraints: `{"detaches": n, "landings": n, "bounces": n, "dissipated": J}`, the switches and the kinetic energy the impacts took |
 /// | `events` | only when events were watched: `[{"when": EXPR, "direction": 1, -1 or 0, "terminal": bool, "times": [..]}]`, the times each crossed |
 /// | `particles` | `{NAME: {"position": [..], "velocity": [..]}}` at the end, in particle order |
 /// | `coordinates` | parametric runs only: `{NAME: [q, qdot]}` at the end, in coordinate order |
@@ -144,6 +145,9 @@ pub struct Summary {
     /// when some were).
     #[serde(skip_serializing_if = "is_zero")]
     pub retried_steps: u64,
+    /// With unilateral constraints: their switches, counted (written only then).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub contacts: Option<crate::simulate::ContactCounts>,
     /// The stop condition watched, as written (`null` when none).
     pub stop_when: Option<String>,
     /// The time the stop condition fired, which ended the run (`null` when it did not).
@@ -260,6 +264,7 @@ impl Summary {
             substeps: stats.substeps,
             substeps_max: stats.substeps_max,
             retried_steps: stats.retried_steps,
+            contacts: stats.contacts.clone(),
             stop_when: stats.stop_when.clone(),
             stop_time: stats.stop_time,
             events: stats
@@ -474,6 +479,7 @@ mod tests {
             retried_steps: 0,
             stop_when: None,
             stop_time: None,
+            contacts: None,
             events: Vec::new(),
         }
     }

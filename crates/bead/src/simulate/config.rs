@@ -98,6 +98,10 @@ pub enum ConfigError {
     ProjectionWithAdaptive(IntegratorKind),
     #[error("constraint feedback (ks, kd) applies to the implicit form only: the parametric form stays on its constraints by construction")]
     FeedbackOnParametric,
+    #[error("the scene has unilateral constraints (`side`), which only the implicit form simulates for now: in flight the parametric form would need Cartesian coordinates; use the implicit method")]
+    UnilateralParametric,
+    #[error("the system has unilateral constraints (`side`), and this implicit form would hold them on both sides: build it with `formulate` (a `Contact`), not `Implicit::new`")]
+    UnilateralWithoutContact,
     #[error("the step dt must be positive and finite, got {}", crate::readable(*.0))]
     BadStep(f64),
     #[error(
@@ -133,6 +137,7 @@ impl From<FormulationError> for ConfigError {
         match e {
             FormulationError::NoParametricForm => ConfigError::NoParametricForm,
             FormulationError::FeedbackOnParametric => ConfigError::FeedbackOnParametric,
+            FormulationError::UnilateralParametric => ConfigError::UnilateralParametric,
         }
     }
 }
@@ -226,6 +231,9 @@ impl SimulationConfig {
                 }
             }
             Method::Parametric => {
+                if !system.unilateral().is_empty() {
+                    return Err(ConfigError::UnilateralParametric);
+                }
                 if system.parametric().is_none() {
                     return Err(ConfigError::NoParametricForm);
                 }

@@ -67,6 +67,7 @@ pub(crate) fn lanes_can_run(simulation: &Simulation) -> bool {
         && config.substeps <= 1
         && simulation.ledger.is_none()
         && simulation.formulation.external_forces().is_empty()
+        && simulation.contact.is_none()
         && simulation.steps == 0
         && simulation.state.t == 0.0
         && match simulation.method() {

@@ -19,8 +19,6 @@ use crate::linalg::{LinearSolver, RowStructure};
 pub(super) struct LedgerScratch {
     /// W = M^-1 with a trailing 0 for the work coordinate (n + 1)
     inverse_mass: Vec<f64>,
-    /// The formulation's constraint rows m (0 without constraints)
-    rows: usize,
     /// The formulation's factorization of J W J^T
     solver: LinearSolver,
 }
@@ -28,18 +26,13 @@ pub(super) struct LedgerScratch {
 impl LedgerScratch {
     pub(super) fn new(formulation: &mut (dyn Formulation + Send)) -> Self {
         let n = formulation.n_coords();
-        let (mut inverse_mass, rows, solver) = match formulation.as_constrained() {
-            Some(cs) => (
-                cs.inverse_mass().to_vec(),
-                cs.n_constraints(),
-                cs.linear_solver(),
-            ),
-            None => (vec![0.0; n], 0, LinearSolver::Auto),
+        let (mut inverse_mass, solver) = match formulation.as_constrained() {
+            Some(cs) => (cs.inverse_mass().to_vec(), cs.linear_solver()),
+            None => (vec![0.0; n], LinearSolver::Auto),
         };
         inverse_mass.push(0.0);
         LedgerScratch {
             inverse_mass,
-            rows,
             solver,
         }
     }
@@ -116,12 +109,12 @@ impl SecondOrderSystem for WithWork<'_> {
 
 impl ConstrainedSystem for WithWork<'_> {
     fn n_constraints(&self) -> usize {
-        self.scratch.rows
+        self.formulation.active_system().constraints().n_rows()
     }
 
     /// The formulation's rows: none reads the work coordinate.
     fn constraint_structure(&self) -> RowStructure<'_> {
-        self.formulation.system().constraints().structure()
+        self.formulation.active_system().constraints().structure()
     }
 
     fn linear_solver(&self) -> LinearSolver {
@@ -135,7 +128,10 @@ impl ConstrainedSystem for WithWork<'_> {
     /// The formulation's distance rows (their coordinates are the formulation's, which come
     /// first).
     fn distance_row(&self, row: usize) -> Option<crate::model::DistanceRow> {
-        self.formulation.system().constraints().distance_row(row)
+        self.formulation
+            .active_system()
+            .constraints()
+            .distance_row(row)
     }
 
     /// The formulation's rods (they read only its coordinates, which come first) and scales.
@@ -149,7 +145,12 @@ impl ConstrainedSystem for WithWork<'_> {
     }
 
     fn row_fingerprint(&self) -> Option<u64> {
-        Some(self.formulation.system().constraints().row_fingerprint())
+        Some(
+            self.formulation
+                .active_system()
+                .constraints()
+                .row_fingerprint(),
+        )
     }
 
     /// Whether the applied accelerations depend on v, the work coordinate's (the power

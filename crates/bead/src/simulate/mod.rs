@@ -55,6 +55,7 @@
 //! vanish when a scene starts at the potential's zero.
 
 mod config;
+mod contact;
 mod event;
 mod express;
 mod lane_monitor;
@@ -70,6 +71,7 @@ use std::sync::Arc;
 
 pub use crate::readable;
 pub use config::{ConfigError, Requirement, SetupError, SimulationConfig};
+pub use contact::{ContactCounts, ContactSwitch, SwitchKind, MAX_SWITCHES_PER_STEP};
 pub use event::{Crossing, Direction, Event, EventError, EventSpec};
 pub use monitor::Quantity;
 pub(crate) use run::run_rest;
@@ -194,6 +196,10 @@ pub struct Simulation {
     /// Whether `run` may take plain steps as express steps (see `express.rs`); off only to
     /// compare both paths
     express: bool,
+    /// The switching of unilateral constraints, when the system has any (`contact.rs`).
+    contact: Option<contact::ContactState>,
+    /// The switches of unilateral constraints so far, in time order.
+    contact_switches: Vec<ContactSwitch>,
 }
 
 /// Steps without a retry after which a step tries half of the substeps its predecessors
@@ -253,8 +259,18 @@ impl Simulation {
             let scales = ConstraintScales::of(formulation.system());
             formulation.set_constraint_scales(Some(scales));
         }
+        if formulation.method() == Method::Implicit
+            && !formulation.system().unilateral().is_empty()
+            && formulation.contact_mut().is_none()
+        {
+            return Err(ConfigError::UnilateralWithoutContact.into());
+        }
         let state = formulation.initial_state();
         let n = state.q.len();
+        contact::initial_mode(&mut *formulation, &state, n).map_err(SetupError::Initial)?;
+        let contact = formulation
+            .contact_mut()
+            .map(|c| contact::ContactState::new(c.unilateral().len()));
         let monitor = Monitor::new(&mut *formulation, state.t, &state.q, &state.qdot);
         let mut simulation = Simulation {
             stepper: Stepper::new(&config, n),
@@ -294,6 +310,8 @@ impl Simulation {
             stopped_at_event: false,
             prime_first_stage: true,
             express: true,
+            contact,
+            contact_switches: Vec::new(),
             config,
             formulation,
         };
@@ -592,8 +610,21 @@ impl Simulation {
         }
     }
 
-    /// One fixed step from the current state to `t_end`, then the projection and the checks.
+    /// One fixed step from the current state to `t_end`, then the projection and the checks
+    /// (with unilateral constraints, the step ends at a switch and goes on from there:
+    /// `contact.rs`).
     fn fixed_step(&mut self, t_end: f64) -> Result<(), RunError> {
+        self.integrate_fixed(t_end)?;
+        if self.contact.is_some() {
+            return self.contact_step(t_end);
+        }
+        self.steps += 1;
+        self.accept()
+    }
+
+    /// The integrator's step from the current state (saved as `previous`) to `t_end`, in
+    /// substeps, retried with more when an iteration does not converge; not yet accepted.
+    fn integrate_fixed(&mut self, t_end: f64) -> Result<(), RunError> {
         self.save();
         let configured = self.config.substeps.max(1);
         // Start from what recent steps needed, so that a run of hard steps does not pay for
@@ -627,8 +658,7 @@ impl Simulation {
         }
         self.substeps_max = self.substeps_max.max(substeps);
         self.last_substeps = substeps;
-        self.steps += 1;
-        self.accept()
+        Ok(())
     }
 
     /// The step from the current state to `t_end` as `count` steps of equal length, each
@@ -670,6 +700,20 @@ impl Simulation {
 
     /// One accepted adaptive step towards `horizon`, then the checks.
     fn adaptive_step(&mut self, horizon: f64) -> Result<(), RunError> {
+        if self.contact.is_some() {
+            // At most dt a step: a free flight is a polynomial dopri5 would cross in one
+            // long step, bounces and all.
+            self.adaptive_advance(horizon.min(self.state.t + self.config.dt))?;
+            return self.adaptive_contact_step();
+        }
+        self.adaptive_advance(horizon)?;
+        self.steps += 1;
+        self.accept()
+    }
+
+    /// The adaptive integrator's next step from the current state (saved as `previous`)
+    /// towards `horizon`; not yet accepted.
+    fn adaptive_advance(&mut self, horizon: f64) -> Result<(), RunError> {
         self.save();
         let Simulation {
             formulation,
@@ -687,8 +731,7 @@ impl Simulation {
         if let Err(e) = result {
             return Err(self.fail(e));
         }
-        self.steps += 1;
-        self.accept()
+        Ok(())
     }
 
     /// Remember the state before a step.
@@ -918,6 +961,13 @@ impl Simulation {
         // system's peak memory (an integrator for no coordinates holds nothing).
         self.monitor = Monitor::default();
         self.stepper = Stepper::new(&self.config, 0);
+        // A start the contact modes cannot be found for keeps the rows as they were; the
+        // first step reports what fails there.
+        let _ = contact::initial_mode(&mut *self.formulation, &state, n);
+        self.contact_switches.clear();
+        if let Some(c) = self.formulation.contact_mut() {
+            self.contact = Some(contact::ContactState::new(c.unilateral().len()));
+        }
         self.monitor = Monitor::new(
             &mut *self.formulation,
             state.t,
@@ -1109,8 +1159,9 @@ impl Simulation {
     /// The system changes (its external forces): a first stage primed for the next step is
     /// no longer its acceleration.
     fn unprime(&mut self) {
-        if let Stepper::Fixed(integrator) = &mut self.stepper {
-            integrator.unprime();
+        match &mut self.stepper {
+            Stepper::Fixed(integrator) => integrator.unprime(),
+            Stepper::Adaptive(dopri) => dopri.forget_last_stage(),
         }
     }
 
@@ -1185,6 +1236,10 @@ impl Simulation {
                 .or(self.stop_when())
                 .map(|e| e.source().to_string()),
             stop_time: self.event_time,
+            contacts: self
+                .contact
+                .is_some()
+                .then(|| ContactCounts::of(self.contact_switches())),
             events: self
                 .watches
                 .iter()

@@ -163,6 +163,9 @@ pub struct RunStats {
     pub stop_when: Option<String>,
     /// The time it fired, when it did: the run ended there (`t_final`).
     pub stop_time: Option<f64>,
+    /// With unilateral constraints: how often they detached, landed and bounced, and the
+    /// kinetic energy the impacts took (`None` without unilateral constraints).
+    pub contacts: Option<super::ContactCounts>,
     /// Every watched event with the times it crossed, in the order they were set (empty when
     /// none).
     pub events: Vec<EventRecord>,

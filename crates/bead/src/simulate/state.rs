@@ -472,11 +472,34 @@ impl Simulation {
         };
         let system = self.formulation.shared_system();
         let config = self.config;
+        // Unilateral rows the asked positions are off are not projected onto.
+        let modes_before = match &request.positions {
+            Some(asked) if asked.len() == x.len() => {
+                let at = request.t.unwrap_or(t);
+                super::contact::mode_for_positions(&mut *self.formulation, at, asked)
+                    .map_err(SetStateError::Start)?
+            }
+            _ => Vec::new(),
+        };
         let implicit = match method {
             Method::Implicit => Some(&mut *self.formulation as &mut dyn Formulation),
             Method::Parametric => None,
         };
-        let placed = place(&system, &config, implicit, current, &request)?;
+        let restore_modes = |formulation: &mut dyn Formulation| {
+            if let Some(contact) = formulation.contact_mut() {
+                for (k, &d) in modes_before.iter().enumerate() {
+                    // Back to modes it had (each built before): cannot fail.
+                    let _ = contact.set_detached(k, d);
+                }
+            }
+        };
+        let placed = match place(&system, &config, implicit, current, &request) {
+            Ok(placed) => placed,
+            Err(e) => {
+                restore_modes(&mut *self.formulation);
+                return Err(e);
+            }
+        };
         let (q, qdot) = match (&placed.parametric, method) {
             (Some((q, qdot)), Method::Parametric) => (q.clone(), qdot.clone()),
             _ => (placed.positions.clone(), placed.velocities.clone()),
@@ -496,8 +519,10 @@ impl Simulation {
             &state.q[..n],
             &state.qdot[..n],
         );
-        check_start(&mut self.formulation, &mut self.ledger, n, &state, &monitor)
-            .map_err(SetStateError::Start)?;
+        if let Err(e) = check_start(&mut self.formulation, &mut self.ledger, n, &state, &monitor) {
+            restore_modes(&mut *self.formulation);
+            return Err(SetStateError::Start(e));
+        }
         self.had_external = !self.external_ids.is_empty();
         self.refresh_nonconservation();
         self.start_from(state);

@@ -361,7 +361,7 @@ impl Simulation {
     }
 
     /// The tolerance of an event's time: 1e-10 of dt, or a few ulps of t when that is less.
-    fn event_tolerance(&self, t: f64) -> f64 {
+    pub(super) fn event_tolerance(&self, t: f64) -> f64 {
         (EVENT_TOLERANCE * self.config.dt).max(4.0 * f64::EPSILON * t.abs())
     }
 
