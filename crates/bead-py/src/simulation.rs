@@ -344,7 +344,7 @@ impl PySimulation {
     /// (in flight); empty without unilateral constraints.
     #[getter]
     fn detached(&self, py: Python<'_>) -> PyResult<Vec<bool>> {
-        self.with_held(py, |held| held.simulation.detached())
+        self.read(py, Simulation::detached)
     }
 
     /// Total mechanical energy T + V now.

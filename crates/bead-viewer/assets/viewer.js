@@ -748,7 +748,7 @@
     const note = el("div", "note muted");
     const readout = el("div", "readout");
     const fields = {};
-    for (const key of ["t", "energy", "erel", "cerr", "ref", "sps", "status"]) {
+    for (const key of ["t", "energy", "erel", "cerr", "contact", "ref", "sps", "status"]) {
       fields[key] = el("span", "r-" + key);
       readout.appendChild(fields[key]);
     }
@@ -1006,6 +1006,18 @@
       r.erel.dataset.value = String(f.energy_error);
       r.cerr.textContent = `|C| = ${f.constraint_error === 0 ? "0 (exact)" : fmt(f.constraint_error)}`;
       r.cerr.dataset.value = String(f.constraint_error);
+      // Unilateral constraints: on the track or in flight, and the switches so far.
+      if (f.contact) {
+        const c = f.contact;
+        const count = (n, one, many) => `${n} ${n === 1 ? one : many}`;
+        r.contact.textContent = (c.detached.some((d) => d) ? "in flight" : "on the track") +
+          ` · ${count(c.bounces, "bounce", "bounces")}, ${count(c.landings, "landing", "landings")}, ${count(c.detaches, "detach", "detaches")}`;
+        r.contact.title = "unilateral constraints only push: the particle leaves one where it would have to pull, and lands (or bounces, with the restitution e) where it reaches it again";
+        r.contact.hidden = false;
+      } else {
+        r.contact.textContent = "";
+        r.contact.hidden = true;
+      }
       // The reference ghost: the panel's distance to the true motion, or why there is none.
       if (f.reference) {
         r.ref.textContent = `distance to the reference: ${f.reference.distance === 0 ? "0 (exact)" : fmt(f.reference.distance)}`;

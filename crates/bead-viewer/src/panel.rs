@@ -16,12 +16,13 @@ use bead::integrate::IntegratorKind;
 use bead::model::{Endpoint, Force, ModelError, ParticleId};
 use bead::scene::Scene;
 use bead::simulate::{
-    ForceId, PlacedState, RunError, SetupError, Simulation, SimulationConfig, StateRequest,
+    ContactCounts, ForceId, PlacedState, RunError, SetupError, Simulation, SimulationConfig,
+    StateRequest,
 };
 
 use crate::geometry::{Curves, Resolution};
 use crate::protocol::{
-    Applies, Arrows, DragInfo, PanelFrame, PanelInfo, ReferenceFrame, RowForce,
+    Applies, Arrows, ContactFrame, DragInfo, PanelFrame, PanelInfo, ReferenceFrame, RowForce,
     ARROW_MAX_PARTICLES, ARROW_MAX_ROWS, GENERALIZED_MAX, PATH_MAX_NUMBERS, PATH_MAX_SAMPLES,
     REFERENCE_MAX_COORDS,
 };
@@ -975,6 +976,15 @@ impl Panel {
             distance: None,
             reference: self.reference_frame(),
             reference_note: self.reference_note.clone(),
+            contact: (!s.system().unilateral().is_empty()).then(|| {
+                let counts = ContactCounts::of(s.contact_switches());
+                ContactFrame {
+                    detached: s.detached(),
+                    detaches: counts.detaches,
+                    landings: counts.landings,
+                    bounces: counts.bounces,
+                }
+            }),
             status: if self.failure.is_some() {
                 "failed"
             } else if self.running {

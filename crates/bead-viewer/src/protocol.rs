@@ -727,6 +727,19 @@ pub struct ReferenceFrame {
     pub distance: f64,
 }
 
+/// A panel's unilateral constraints (see [`PanelFrame::contact`]).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct ContactFrame {
+    /// Per unilateral constraint, in the scene's order: whether the particle is off it now
+    /// (in flight).
+    pub detached: Vec<bool>,
+    /// Since the panel's simulation started (a reset or a new start clears them): how often
+    /// a particle left one, landed on one (and stayed), and bounced off one.
+    pub detaches: u64,
+    pub landings: u64,
+    pub bounces: u64,
+}
+
 /// One panel's state in a [`ServerMessage::Frame`].
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct PanelFrame {
@@ -779,6 +792,10 @@ pub struct PanelFrame {
     /// Why a panel asked to run the reference has none (too many coordinates, or it failed).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub reference_note: Option<String>,
+    /// With unilateral constraints (`side` in the scene): which are left now and the switches
+    /// so far.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub contact: Option<ContactFrame>,
     /// `"running"`, `"paused"` or `"failed"`.
     pub status: String,
     /// Why the panel failed (divergence, singular constraints, ...), when it did.

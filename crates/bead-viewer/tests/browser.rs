@@ -2280,6 +2280,7 @@ async fn cloth_at_scale(client: &Client, addr: SocketAddr) {
             distance: None,
             reference: None,
             reference_note: None,
+            contact: None,
             status: "running".into(),
             error: None,
             behind: false,
@@ -3299,4 +3300,60 @@ async fn ghost_checks(client: &Client, addr: SocketAddr) {
     let share = seen["share"].as_str().unwrap();
     assert!(share.contains("reference"), "{share}");
     screenshot(client, "reference-ghost").await;
+}
+
+/// The ball of `bounce`: the readout says where it is (in flight or on the track) and counts
+/// the bounces, as the frame does; the ball is never drawn below the bowl (the session test
+/// checks that it flies off it by pixels).
+#[test]
+fn the_bounce_page_shows_the_ball_in_flight_and_counts_its_bounces() {
+    let text = shipped("bounce");
+    in_browser(serving("bounce", text), |client, addr| {
+        bounce_checks(client, addr).boxed_local()
+    });
+}
+
+async fn bounce_checks(client: &Client, addr: SocketAddr) {
+    client.goto(&format!("http://{addr}/")).await.unwrap();
+    // After its first bounce (whatever the load: the state, not a time).
+    wait_within(
+        client,
+        "(() => { const p = window.__viewer && [...window.__viewer.panels.values()][0]; \
+         const f = p && p.frame; \
+         return !!(f && f.contact && f.contact.bounces >= 1 && p.lastDraw); })()",
+        "the ball bounced",
+        Duration::from_secs(60),
+    )
+    .await;
+    pause_all(client).await;
+    // Paused: the readout says what the last frame says, in flight or on the track.
+    wait_within(
+        client,
+        "(() => { const p = [...window.__viewer.panels.values()][0]; const c = p.frame.contact; \
+         const where = c.detached[0] ? 'in flight' : 'on the track'; \
+         const text = p.dom.fields.contact.textContent; \
+         return text.startsWith(where) && text.includes(`${c.bounces} bounce`); })()",
+        "the readout at the last frame",
+        Duration::from_secs(30),
+    )
+    .await;
+    let seen = js(
+        client,
+        "const p = [...window.__viewer.panels.values()][0]; const f = p.frame;
+         return { x: f.x[0], y: f.x[1], text: p.dom.fields.contact.textContent,
+           hidden: p.dom.fields.contact.hidden, bounces: f.contact.bounces };",
+    )
+    .await;
+    let (x, y) = (seen["x"].as_f64().unwrap(), seen["y"].as_f64().unwrap());
+    let c = x * x + 100.0 * y;
+    let text = seen["text"].as_str().unwrap();
+    // Paused in flight or just after landing again: on the allowed side, never below.
+    assert!(c <= 1e-6 * (x * x).max(1.0), "below the bowl: {seen}");
+    assert!(!seen["hidden"].as_bool().unwrap(), "{seen}");
+    assert!(
+        text.contains(" bounce") && text.contains("landing"),
+        "{text}"
+    );
+    let errors = js(client, "return window.__errors;").await;
+    assert_eq!(errors, json!([]), "errors in the page");
 }

@@ -281,6 +281,7 @@ fn decode_frame_reads_header_numbers_exactly() {
             distance: Some(v),
             reference: None,
             reference_note: None,
+            contact: None,
             status: "running".into(),
             error: None,
             behind: false,

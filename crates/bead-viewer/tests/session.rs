@@ -1582,6 +1582,15 @@ fn the_bounce_scene_shows_the_ball_off_the_curve_and_back() {
         if touched {
             highest_off = highest_off.max(off);
         }
+        // In flight (off by more than a pixel) the bowl exerts no force; on it, it pushes.
+        let arrows = f.arrows.as_ref().expect("a one-particle scene has arrows");
+        let force = arrows.constraint[0].hypot(arrows.constraint[1]);
+        if off > 1.0 {
+            assert_eq!(force, 0.0, "a force in flight at t = {}", f.t);
+        }
+        if f.t > 4.0 {
+            assert!(force > 0.0, "no force on the bowl at t = {}", f.t);
+        }
         // Within a pixel: frames fall between impacts.
         touched |= off < 1.0;
         landed |= f.t > 1.0 && off < 1e-6;

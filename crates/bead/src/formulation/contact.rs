@@ -527,6 +527,10 @@ impl Formulation for Contact {
         Some(self)
     }
 
+    fn contact(&self) -> Option<&Contact> {
+        Some(self)
+    }
+
     fn active_system(&self) -> &System {
         match self.current {
             None => self.full.system(),

@@ -452,6 +452,10 @@ pub trait Formulation: SecondOrderSystem {
     fn contact_mut(&mut self) -> Option<&mut Contact> {
         None
     }
+    /// [`Formulation::contact_mut`], to read.
+    fn contact(&self) -> Option<&Contact> {
+        None
+    }
     /// The system whose constraint rows the equations hold now: [`Formulation::system`],
     /// but for the implicit form with unilateral rows detached ([`Contact`]), the system
     /// without them.

@@ -222,9 +222,9 @@ impl Simulation {
 
     /// Per unilateral row ([`crate::model::System::unilateral`]), whether it is detached now
     /// (empty without unilateral rows).
-    pub fn detached(&mut self) -> Vec<bool> {
+    pub fn detached(&self) -> Vec<bool> {
         self.formulation
-            .contact_mut()
+            .contact()
             .map(|c| c.detached().to_vec())
             .unwrap_or_default()
     }
