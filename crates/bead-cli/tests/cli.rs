@@ -3034,9 +3034,20 @@ fn run_counts_the_bounces_of_a_unilateral_scene() {
         (dissipated + work).abs() < 1e-9 * dissipated,
         "{dissipated} vs W {work}"
     );
-    // The parametric form cannot run it yet, and says why.
-    let failed = bead(&["run", scene, "--method", "parametric"]);
-    assert!(!failed.status.success());
-    let err = String::from_utf8_lossy(&failed.stderr);
-    assert!(err.contains("only the implicit form"), "{err}");
+    // Both forms: the same switches, the same energy taken.
+    let out = ok(bead(&["compare", scene, "--json"]));
+    let value: serde_json::Value = serde_json::from_str(&out).expect("JSON");
+    let forms = value.as_array().expect("one summary per form");
+    assert_eq!(forms.len(), 2);
+    for key in ["detaches", "landings", "bounces"] {
+        assert_eq!(
+            forms[0]["contacts"][key], forms[1]["contacts"][key],
+            "{key}"
+        );
+    }
+    let (a, b) = (
+        forms[0]["contacts"]["dissipated"].as_f64().unwrap(),
+        forms[1]["contacts"]["dissipated"].as_f64().unwrap(),
+    );
+    assert!((a - b).abs() < 1e-6 * a, "{a} vs {b}");
 }

@@ -1562,46 +1562,66 @@ fn the_bounce_scene_shows_the_ball_off_the_curve_and_back() {
     let mut s = session();
     let replies = send(&mut s, r#"{"type":"load_scene","name":"bounce"}"#);
     let panels = panels_of(&replies).unwrap();
-    assert_eq!(panels.len(), 1);
+    assert_eq!(panels.len(), 2);
     assert_eq!(panels[0].curve_source, "contour");
-    // After its first touch of the bowl, how far it flies off again (a bounce), and whether
-    // it later stays on it (t > 1 s).
-    let (mut touched, mut highest_off, mut landed) = (false, 0.0_f64, false);
+    assert_eq!(panels[1].curve_source, "parametric");
+    // Per panel: after its first touch of the bowl, how far it flies off again (a bounce),
+    // and whether it later stays on it (t > 1 s).
+    let mut seen = [(false, 0.0_f64, false); 2];
     for _ in 0..(6 * 60) {
         s.advance(1.0 / 60.0);
-        let f = &frames(&mut s)[0];
-        let (x, y) = (f.x[0], f.x[1]);
-        // Distance above the bowl (+y down): |C| / |grad C|, C = x^2 + 100 y <= 0.
-        let c = x * x + 100.0 * y;
-        assert!(
-            c <= 1e-6 * (x * x).max(1.0),
-            "below the bowl at t = {}: C = {c}",
-            f.t
-        );
-        let off = -c / (4.0 * x * x + 1e4).sqrt();
-        if touched {
-            highest_off = highest_off.max(off);
+        let frames = frames(&mut s);
+        for (f, (touched, highest_off, landed)) in frames.iter().zip(seen.iter_mut()) {
+            let (x, y) = (f.x[0], f.x[1]);
+            // Distance above the bowl (+y down): |C| / |grad C|, C = x^2 + 100 y <= 0.
+            let c = x * x + 100.0 * y;
+            assert!(
+                c <= 1e-6 * (x * x).max(1.0),
+                "panel {}: below the bowl at t = {}: C = {c}",
+                f.id,
+                f.t
+            );
+            let off = -c / (4.0 * x * x + 1e4).sqrt();
+            if *touched {
+                *highest_off = highest_off.max(off);
+            }
+            // In flight (off by more than a pixel) the bowl exerts no force; on it, it pushes.
+            let arrows = f.arrows.as_ref().expect("a one-particle scene has arrows");
+            let force = arrows.constraint[0].hypot(arrows.constraint[1]);
+            if off > 1.0 {
+                assert_eq!(
+                    force, 0.0,
+                    "panel {}: a force in flight at t = {}",
+                    f.id, f.t
+                );
+            }
+            if f.t > 4.0 {
+                assert!(
+                    force > 0.0,
+                    "panel {}: no force on the bowl at t = {}",
+                    f.id,
+                    f.t
+                );
+            }
+            // Within a pixel: frames fall between impacts.
+            *touched |= off < 1.0;
+            *landed |= f.t > 1.0 && off < 1e-6;
+            assert!(
+                f.energy_error < 1e-4,
+                "panel {}: E - W at t = {}: {}",
+                f.id,
+                f.t,
+                f.energy_error
+            );
+            let contact = f.contact.as_ref().expect("a unilateral scene");
+            assert_eq!(contact.detached.len(), 1);
         }
-        // In flight (off by more than a pixel) the bowl exerts no force; on it, it pushes.
-        let arrows = f.arrows.as_ref().expect("a one-particle scene has arrows");
-        let force = arrows.constraint[0].hypot(arrows.constraint[1]);
-        if off > 1.0 {
-            assert_eq!(force, 0.0, "a force in flight at t = {}", f.t);
-        }
-        if f.t > 4.0 {
-            assert!(force > 0.0, "no force on the bowl at t = {}", f.t);
-        }
-        // Within a pixel: frames fall between impacts.
-        touched |= off < 1.0;
-        landed |= f.t > 1.0 && off < 1e-6;
-        assert!(
-            f.energy_error < 1e-4,
-            "E - W at t = {}: {}",
-            f.t,
-            f.energy_error
-        );
+        // Both forms switch alike: the same counts in every frame.
+        assert_eq!(frames[0].contact, frames[1].contact, "t = {}", frames[0].t);
     }
-    // Bounced off by several pixels (about 6.5 px at e = 0.7).
-    assert!(touched && highest_off > 3.0, "{highest_off}");
-    assert!(landed);
+    for (touched, highest_off, landed) in seen {
+        // Bounced off by several pixels (about 6.5 px at e = 0.7).
+        assert!(touched && highest_off > 3.0, "{highest_off}");
+        assert!(landed);
+    }
 }

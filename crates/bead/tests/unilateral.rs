@@ -256,8 +256,44 @@ fn unilateral_scenes_say_what_they_cannot_do() {
     .err()
     .unwrap()
     .to_string();
-    assert!(err.contains("only the implicit form"), "{err}");
+    assert!(err.contains("no parametric form"), "{err}");
     drop(system);
+    // The parametric form takes one unilateral constraint (its map holds them all).
+    let two_rows = format!(
+        "{}[[constraint]]\nexpr = \"ball.x + 1000\"\nside = \"above\"\n[parametric]\ncoordinates = [\"q\"]\ninitial = [0.0]\n[parametric.positions]\nball = [\"q\", \"-q^2/100\"]\n",
+        bowl(0.5)
+    );
+    let scene = Scene::parse(&two_rows, "bowl.toml", &[]).unwrap();
+    let err = Simulation::new(
+        scene.system,
+        SimulationConfig {
+            method: Method::Parametric,
+            ..Default::default()
+        },
+    )
+    .err()
+    .unwrap()
+    .to_string();
+    assert!(
+        err.contains("the parametric form simulates one unilateral constraint"),
+        "{err}"
+    );
+    // A map that does not trace the constraint the ball lands on: an error at the landing,
+    // not a motion through the bowl.
+    let wrong_map = format!(
+        "{}[parametric]\ncoordinates = [\"q\"]\ninitial = [50.0]\n[parametric.positions]\nball = [\"q\", \"-q^2/50\"]\n",
+        bowl(0.0)
+    );
+    let scene = Scene::parse(&wrong_map, "bowl.toml", &[]).unwrap();
+    let mut parametric = config(IntegratorKind::Rk4, 1e-3);
+    parametric.method = Method::Parametric;
+    let mut sim = Simulation::new(scene.system, parametric).unwrap();
+    let err = sim.advance_to(2.0).unwrap_err().to_string();
+    assert!(
+        err.contains("the parametric map does not hold the unilateral constraint 1"),
+        "{err}"
+    );
+    assert!(sim.t() < 1.0, "stopped at the landing, t = {}", sim.t());
     for (from, to, says) in [
         ("restitution = 0.5", "restitution = 1.5", "between 0"),
         (
@@ -401,5 +437,130 @@ restitution = {e:?}
             assert!(sim.energy_error() < 1e-8, "{}", sim.energy_error());
         }
         assert!(sim.energy_balance_error() < 1e-8);
+    }
+}
+
+fn run_form(text: &str, method: Method, integrator: IntegratorKind, dt: f64, t: f64) -> Simulation {
+    let scene = Scene::parse(text, "contact.toml", &[]).unwrap();
+    let mut config = config(integrator, dt);
+    config.method = method;
+    let mut sim = Simulation::new(Arc::clone(&scene.system), config).unwrap();
+    sim.advance_to(t).unwrap();
+    sim
+}
+
+/// The parametric form leaves the track in Cartesian coordinates and comes back to q: on a
+/// circle (q the angle from the top), in a loop (from the bottom) and in the article's bowl
+/// (q = x), the two forms switch at the same times and places and move the same way between.
+#[test]
+fn both_forms_agree_on_leaving_flying_and_landing() {
+    let circle = r#"
+[world]
+gravity = [0.0, -9.81]
+[[particle]]
+name = "p"
+mass = 1.0
+position = [0.0, 1.0]
+velocity = [1e-7, 0.0]
+[[constraint]]
+expr = "p.x^2 + p.y^2 - 1"
+side = "above"
+[parametric]
+coordinates = ["th"]
+initial = [0.0]
+rates = [1e-7]
+[parametric.positions]
+p = ["sin(th)", "cos(th)"]
+"#;
+    let loop_track = loop_scene(2.0).replace(
+        "side = \"above\"\n",
+        "side = \"above\"\n[parametric]\ncoordinates = [\"phi\"]\ninitial = [0.0]\nrates = [\"sqrt(2*g*h)\"]\n[parametric.positions]\ncar = [\"sin(phi)\", \"1 - cos(phi)\"]\n",
+    );
+    let bowl_track = format!(
+        "{}[parametric]\ncoordinates = [\"q\"]\ninitial = [50.0]\n[parametric.positions]\nball = [\"q\", \"-q^2/100\"]\n",
+        bowl(0.5)
+    );
+    // A rod and a wall: in flight the parametric form is the rod's implicit form.
+    let pendulum = r#"
+[world]
+gravity = [0.0, -9.81]
+[[particle]]
+name = "bob"
+mass = 2.0
+position = [1.0, 0.0]
+[[constraint]]
+name = "rod"
+kind = "distance"
+particle = "bob"
+anchor = [0.0, 0.0]
+length = 1.0
+[[constraint]]
+name = "wall"
+expr = "bob.x + 0.5"
+side = "above"
+restitution = 0.5
+[parametric]
+coordinates = ["th"]
+initial = ["pi/2"]
+[parametric.positions]
+bob = ["sin(th)", "-cos(th)"]
+"#;
+    for (name, text, dt, t_end, tolerance) in [
+        ("pendulum", pendulum.to_string(), 1e-3, 6.0, 1e-6),
+        ("circle", circle.to_string(), 1e-3, 7.0, 1e-8),
+        ("loop", loop_track, 1e-3, 2.0, 1e-8),
+        ("bowl", bowl_track, 1e-4, 3.0, 1e-6),
+    ] {
+        let implicit = run_form(&text, Method::Implicit, IntegratorKind::Rk4, dt, t_end);
+        let parametric = run_form(&text, Method::Parametric, IntegratorKind::Rk4, dt, t_end);
+        let (a, b) = (implicit.contact_switches(), parametric.contact_switches());
+        println!("{name}: {} and {} switches", a.len(), b.len());
+        assert!(!a.is_empty() && a.len() == b.len(), "{name}: {a:?}\n{b:?}");
+        for (i, (s, r)) in a.iter().zip(b).enumerate() {
+            assert_eq!(s.kind, r.kind, "{name} switch {i}");
+            assert!(
+                (s.t - r.t).abs() < tolerance,
+                "{name} switch {i}: {} vs {}",
+                s.t,
+                r.t
+            );
+            for (x, y) in s.x.iter().zip(&r.x) {
+                assert!(
+                    (x - y).abs() < tolerance * 100.0,
+                    "{name} switch {i}: {:?} vs {:?}",
+                    s.x,
+                    r.x
+                );
+            }
+            assert!(
+                (s.dissipated - r.dissipated).abs() <= 1e-6 * s.dissipated.abs().max(1.0),
+                "{name} switch {i}: {} vs {}",
+                s.dissipated,
+                r.dissipated
+            );
+        }
+        let (x, y) = (implicit.positions(), parametric.positions());
+        let worst_t = a
+            .iter()
+            .zip(b)
+            .map(|(s, r)| (s.t - r.t).abs())
+            .fold(0.0, f64::max);
+        let end = x
+            .iter()
+            .zip(y)
+            .map(|(p, q)| (p - q).abs())
+            .fold(0.0, f64::max);
+        println!(
+            "{name}: switch times within {worst_t:.2e}, positions at t = {t_end} within {end:.2e}"
+        );
+        for (p, q) in x.iter().zip(y) {
+            assert!((p - q).abs() < 1e-4, "{name} at the end: {x:?} vs {y:?}");
+        }
+        assert_eq!(implicit.detached(), parametric.detached(), "{name}");
+        assert!(
+            parametric.energy_balance_error() < 1e-8,
+            "{name}: {}",
+            parametric.energy_balance_error()
+        );
     }
 }

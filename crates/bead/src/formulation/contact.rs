@@ -30,6 +30,59 @@ use super::{
 use crate::linalg::dense_solve;
 use crate::model::{ConstraintEval, Force, System, UnilateralRow};
 
+/// A formulation with unilateral rows, as the simulation switches them
+/// (`simulate/contact.rs`): the implicit form ([`Contact`]) and the parametric form with one
+/// unilateral constraint ([`super::ParametricContact`]). `q` and `v` are the formulation's
+/// state (for the parametric form [q; x], see there).
+pub trait Unilateral {
+    /// The unilateral rows, in the order of [`Unilateral::detached`].
+    fn unilateral(&self) -> &[UnilateralRow];
+    /// Per unilateral row, whether it is detached now.
+    fn detached(&self) -> &[bool];
+    /// Detach (`true`) or attach unilateral row `k`: the equations change; the state is the
+    /// caller's to move (the parametric form's, see [`Unilateral::parametric_layout`]).
+    fn set_detached(&mut self, k: usize, detached: bool) -> Result<(), StepError>;
+    /// The switching function of every unilateral row at (t, q, v) into `g`: s lambda for an
+    /// attached row, s C for a detached one.
+    fn switching_values(
+        &mut self,
+        t: f64,
+        q: &[f64],
+        v: &[f64],
+        g: &mut [f64],
+    ) -> Result<(), StepError>;
+    /// s Cdot of unilateral row `k` and s Cddot of it in the current mode at (t, q, v): how
+    /// fast the row separates, and how fast that grows without its force.
+    fn normal_motion(
+        &mut self,
+        k: usize,
+        t: f64,
+        q: &[f64],
+        v: &[f64],
+    ) -> Result<(f64, f64), StepError>;
+    /// An impact on unilateral row `k` at (t, q) with restitution `e`: the velocities in `v`
+    /// change so that the row's Cdot becomes -e times what it was, every other attached
+    /// row's unchanged, the change the smallest in the kinetic metric. Returns the row's s
+    /// Cdot before.
+    fn impact(
+        &mut self,
+        k: usize,
+        e: f64,
+        t: f64,
+        q: &[f64],
+        v: &mut [f64],
+    ) -> Result<f64, StepError>;
+    /// Per unilateral row at (t, q): s C (> 0 on the allowed side) and the offset |C| / |J|.
+    fn separations(&mut self, t: f64, q: &[f64]) -> Vec<(f64, f64)>;
+    /// The name of unilateral row `k`'s constraint, e.g. `constraint 1`.
+    fn row_name(&self, k: usize) -> String;
+    /// For the parametric form, the number n_q of generalized coordinates in its state
+    /// [q (n_q); x]; `None` for the implicit form (its state is x).
+    fn parametric_layout(&self) -> Option<usize> {
+        None
+    }
+}
+
 /// One set of detached rows: its system's implicit form, and where each of the whole
 /// system's rows is in it.
 struct Mode {
@@ -349,6 +402,52 @@ impl Contact {
     }
 }
 
+impl Unilateral for Contact {
+    fn unilateral(&self) -> &[UnilateralRow] {
+        Contact::unilateral(self)
+    }
+    fn detached(&self) -> &[bool] {
+        Contact::detached(self)
+    }
+    fn set_detached(&mut self, k: usize, detached: bool) -> Result<(), StepError> {
+        Contact::set_detached(self, k, detached)
+    }
+    fn switching_values(
+        &mut self,
+        t: f64,
+        q: &[f64],
+        v: &[f64],
+        g: &mut [f64],
+    ) -> Result<(), StepError> {
+        Contact::switching_values(self, t, q, v, g)
+    }
+    fn normal_motion(
+        &mut self,
+        k: usize,
+        t: f64,
+        q: &[f64],
+        v: &[f64],
+    ) -> Result<(f64, f64), StepError> {
+        Contact::normal_motion(self, k, t, q, v)
+    }
+    fn impact(
+        &mut self,
+        k: usize,
+        e: f64,
+        t: f64,
+        q: &[f64],
+        v: &mut [f64],
+    ) -> Result<f64, StepError> {
+        Contact::impact(self, k, e, t, q, v)
+    }
+    fn separations(&mut self, t: f64, q: &[f64]) -> Vec<(f64, f64)> {
+        Contact::separations(self, t, q)
+    }
+    fn row_name(&self, k: usize) -> String {
+        Contact::row_name(self, k)
+    }
+}
+
 impl SecondOrderSystem for Contact {
     fn n_coords(&self) -> usize {
         self.full.n_coords()
@@ -523,11 +622,11 @@ impl Formulation for Contact {
         self.full.row_never_singular(row) || self.unilateral.iter().any(|u| u.row == row)
     }
 
-    fn contact_mut(&mut self) -> Option<&mut Contact> {
+    fn contact_mut(&mut self) -> Option<&mut dyn Unilateral> {
         Some(self)
     }
 
-    fn contact(&self) -> Option<&Contact> {
+    fn contact(&self) -> Option<&dyn Unilateral> {
         Some(self)
     }
 

@@ -15,17 +15,19 @@ mod fused;
 mod gradients;
 mod implicit;
 mod parametric;
+mod parametric_contact;
 
 use std::fmt;
 use std::sync::Arc;
 
 pub use constrained::{ConstrainedSystem, ConstraintScales};
-pub use contact::Contact;
+pub use contact::{Contact, Unilateral};
 pub use fused::prepare as prepare_fused_accelerations;
 pub use gradients::{Gradients, Observation, SingularSearch};
 pub use implicit::{Feedback, Implicit};
 pub(crate) use parametric::LaneScratch;
 pub use parametric::Parametric;
+pub use parametric_contact::ParametricContact;
 
 use crate::model::{Force, System};
 
@@ -294,7 +296,7 @@ pub enum FormulationError {
     NoParametricForm,
     #[error("constraint feedback (ks, kd) applies to the implicit form only: the parametric form stays on its constraints by construction")]
     FeedbackOnParametric,
-    #[error("the scene has unilateral constraints (`side`), which only the implicit form simulates for now: in flight the parametric form would need Cartesian coordinates; use the implicit method")]
+    #[error("the parametric form simulates one unilateral constraint (`side`), and the scene has more: its map holds them all at once, and with some left it has no coordinates for the rest; use the implicit method")]
     UnilateralParametric,
 }
 
@@ -447,13 +449,14 @@ pub trait Formulation: SecondOrderSystem {
         let _ = row;
         false
     }
-    /// The implicit form with unilateral rows, whose rows switch between attached and
-    /// detached (`None`, the default, for every other formulation).
-    fn contact_mut(&mut self) -> Option<&mut Contact> {
+    /// A form with unilateral rows, whose rows switch between attached and detached
+    /// ([`Contact`], [`ParametricContact`]; `None`, the default, for every other
+    /// formulation).
+    fn contact_mut(&mut self) -> Option<&mut dyn Unilateral> {
         None
     }
     /// [`Formulation::contact_mut`], to read.
-    fn contact(&self) -> Option<&Contact> {
+    fn contact(&self) -> Option<&dyn Unilateral> {
         None
     }
     /// The system whose constraint rows the equations hold now: [`Formulation::system`],
@@ -476,7 +479,7 @@ pub fn formulate(
         }
         Method::Implicit => Ok(Box::new(Implicit::new(system, feedback))),
         Method::Parametric if !system.unilateral().is_empty() => {
-            Err(FormulationError::UnilateralParametric)
+            ParametricContact::new(system).map(|p| Box::new(p) as Box<dyn Formulation + Send>)
         }
         Method::Parametric => {
             if feedback != Feedback::default() {

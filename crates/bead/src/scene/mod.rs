@@ -564,7 +564,23 @@ impl Scene {
         let length_scale = max_abs(&x0).max(1.0);
         let mut warnings = Vec::new();
 
-        if let Some(map) = system.parametric() {
+        // A start off a unilateral constraint (in flight): the parametric form starts from
+        // the particles' own state, not from x(q0).
+        let in_flight = !system.unilateral().is_empty() && {
+            let set = system.constraints();
+            let mut ws = set.workspace();
+            set.gradient(0.0, &x0, &mut ws);
+            system.unilateral().iter().any(|u| {
+                let norm = ws.jacobian[set.row_entries(u.row)]
+                    .iter()
+                    .map(|g| g * g)
+                    .sum::<f64>()
+                    .sqrt();
+                let c = ws.value[u.row];
+                u.side.sign() * c > 0.0 && c.abs() > WARN_TOLERANCE * length_scale * norm
+            })
+        };
+        if let Some(map) = system.parametric().filter(|_| !in_flight) {
             let mut ws = map.workspace();
             map.evaluate(0.0, map.initial(), map.rates(), &mut ws);
             let speed_scale = length_scale.max(max_abs(&v0)).max(max_abs(&ws.velocity));

@@ -98,7 +98,7 @@ pub enum ConfigError {
     ProjectionWithAdaptive(IntegratorKind),
     #[error("constraint feedback (ks, kd) applies to the implicit form only: the parametric form stays on its constraints by construction")]
     FeedbackOnParametric,
-    #[error("the scene has unilateral constraints (`side`), which only the implicit form simulates for now: in flight the parametric form would need Cartesian coordinates; use the implicit method")]
+    #[error("the parametric form simulates one unilateral constraint (`side`), and the scene has more: its map holds them all at once, and with some left it has no coordinates for the rest; use the implicit method")]
     UnilateralParametric,
     #[error("the system has unilateral constraints (`side`), and this implicit form would hold them on both sides: build it with `formulate` (a `Contact`), not `Implicit::new`")]
     UnilateralWithoutContact,
@@ -231,7 +231,7 @@ impl SimulationConfig {
                 }
             }
             Method::Parametric => {
-                if !system.unilateral().is_empty() {
+                if system.unilateral().len() > 1 {
                     return Err(ConfigError::UnilateralParametric);
                 }
                 if system.parametric().is_none() {

@@ -1,7 +1,7 @@
 //! Unilateral constraints in a run: where a row detaches, where it lands, and the impact.
 //!
 //! After every fixed step the switching function of each unilateral row is evaluated at the
-//! step's end ([`crate::formulation::Contact::switching_values`]: s lambda while attached, s
+//! step's end ([`crate::formulation::Unilateral::switching_values`]: s lambda while attached, s
 //! C while detached). Where one turned negative, the switch is located on the integrator's
 //! own path (the step integrated again from its start over a part of its length, as events
 //! are) to 1e-10 of dt by the same root finder; the earliest switch ends that part of the
@@ -23,7 +23,7 @@
 
 use super::event::Bracket;
 use super::{split, RunError, Simulation, State, Stepper};
-use crate::formulation::{Formulation, StepError};
+use crate::formulation::{Formulation, StepError, Unilateral};
 
 /// The most switches of unilateral constraints one step may take.
 pub const MAX_SWITCHES_PER_STEP: u32 = 64;
@@ -115,9 +115,11 @@ impl ContactState {
 }
 
 /// The mode of the unilateral rows at a start (t, x, v): a row off its constraint on the
-/// allowed side (s C > 1e-12 of the scene's size, as an offset |C| / |J|) starts detached,
-/// one on it attached unless its force would pull there (s lambda < 0). A start on the
-/// wrong side of one is an error.
+/// allowed side (s C > 0 and more than 1e-12 of the scene's size off it, as an offset
+/// |C| / |J|) starts detached, one on it attached unless its force would pull there
+/// (s lambda < 0). A start on the wrong side of one by more than 1e-6 of the scene's size is
+/// an error (then every row is left attached); closer, it is on the constraint (a placed
+/// state's residual).
 pub(super) fn initial_mode(
     formulation: &mut dyn Formulation,
     state: &State,
@@ -128,26 +130,33 @@ pub(super) fn initial_mode(
     };
     let rows = contact.unilateral().len();
     let (t, x, v) = (state.t, &state.q[..n], &state.qdot[..n]);
+    // Detached, the parametric form reads the particles' own start (its state's x part).
     for k in 0..rows {
-        contact.set_detached(k, false)?;
+        contact.set_detached(k, true)?;
     }
     let size = x.iter().fold(1.0_f64, |m, c| m.max(c.abs()));
-    for (k, (separation, offset)) in contact.separations(t, x).into_iter().enumerate() {
-        let off = offset > 1e-12 * size;
-        if separation < 0.0 && off {
-            let u = contact.unilateral()[k];
-            return Err(StepError::Contact {
-                t,
-                message: format!(
-                    "the start is on the wrong side of the unilateral {}: C = {}, and its side is {} (C {} 0)",
-                    contact.row_name(k),
-                    crate::readable(separation * u.side.sign()),
-                    u.side.name(),
-                    if u.side.sign() > 0.0 { ">=" } else { "<=" }
-                ),
-            });
+    let separations = contact.separations(t, x);
+    if let Some(k) = separations
+        .iter()
+        .position(|&(separation, offset)| separation < 0.0 && offset > 1e-6 * size)
+    {
+        for j in 0..rows {
+            contact.set_detached(j, false)?;
         }
-        contact.set_detached(k, separation > 0.0 && off)?;
+        let u = contact.unilateral()[k];
+        return Err(StepError::Contact {
+            t,
+            message: format!(
+                "the start is on the wrong side of the unilateral {}: C = {}, and its side is {} (C {} 0)",
+                contact.row_name(k),
+                crate::readable(separations[k].0 * u.side.sign()),
+                u.side.name(),
+                if u.side.sign() > 0.0 { ">=" } else { "<=" }
+            ),
+        });
+    }
+    for (k, (separation, offset)) in separations.into_iter().enumerate() {
+        contact.set_detached(k, separation > 0.0 && offset > 1e-12 * size)?;
     }
     // On it: attached while its force pushes.
     let mut g = vec![0.0; rows];
@@ -182,35 +191,31 @@ pub(super) fn mode_for_positions(
 
 /// Detach unilateral row `k` (`detached` false) or apply its impact and attach it when it
 /// lands softly (see the module documentation), at (t, q) with velocities `qdot` (changed
-/// by an impact): the switch, (s Cdot before, after) and the kinetic energy taken.
+/// by an impact): the switch and (s Cdot before, after).
 fn switch_row(
-    contact: &mut crate::formulation::Contact,
+    contact: &mut dyn Unilateral,
     k: usize,
     detached: bool,
     dt: f64,
     (t, q, qdot): (f64, &[f64], &mut [f64]),
-    kinetic_energy: &dyn Fn(&[f64]) -> f64,
-) -> Result<(SwitchKind, (f64, f64), f64), StepError> {
+) -> Result<(SwitchKind, (f64, f64)), StepError> {
     if !detached {
         let (u, _) = contact.normal_motion(k, t, q, qdot)?;
         contact.set_detached(k, true)?;
-        return Ok((SwitchKind::Detach, (u, u), 0.0));
+        return Ok((SwitchKind::Detach, (u, u)));
     }
-    let before = kinetic_energy(qdot);
     let e = contact.unilateral()[k].restitution;
     let u_before = contact.impact(k, e, t, q, qdot)?;
     let (u_after, normal_acceleration) = contact.normal_motion(k, t, q, qdot)?;
     // Soft: pushed back, and the rebound would land again within one step.
     let soft =
         normal_acceleration < 0.0 && (u_after <= 0.0 || 2.0 * u_after < -normal_acceleration * dt);
-    let (kind, u_after) = if soft {
+    if soft {
         contact.impact(k, 0.0, t, q, qdot)?;
         contact.set_detached(k, false)?;
-        (SwitchKind::Land, 0.0)
-    } else {
-        (SwitchKind::Bounce, u_after)
-    };
-    Ok((kind, (u_before, u_after), before - kinetic_energy(qdot)))
+        return Ok((SwitchKind::Land, (u_before, 0.0)));
+    }
+    Ok((SwitchKind::Bounce, (u_before, u_after)))
 }
 
 impl Simulation {
@@ -227,6 +232,41 @@ impl Simulation {
             .contact()
             .map(|c| c.detached().to_vec())
             .unwrap_or_default()
+    }
+
+    /// The particles' positions and velocities at the integrator's state.
+    fn particles(&mut self) -> (Vec<f64>, Vec<f64>) {
+        let n = self.n;
+        let coordinates = self.formulation.system().n_coords();
+        let (mut x, mut v) = (vec![0.0; coordinates], vec![0.0; coordinates]);
+        let (q, qdot) = (&self.state.q[..n], &self.state.qdot[..n]);
+        self.formulation
+            .particle_state(self.state.t, q, qdot, &mut x, &mut v);
+        (x, v)
+    }
+
+    /// The parametric form landed (its state's x part holds the particles): q fitted to x
+    /// (the map's point closest in the kinetic metric, seeded where q stood), qdot to v (the
+    /// mass-weighted projection onto the map's velocities), the x part at rest.
+    fn fit_parametric(&mut self, n_q: usize) -> Result<(), StepError> {
+        let n = self.n;
+        let t = self.state.t;
+        let system = self.formulation.shared_system();
+        let map = system.parametric().expect("a parametric form");
+        let masses: Vec<f64> = system.inverse_mass().iter().map(|w| 1.0 / w).collect();
+        let x = self.state.q[n_q..n].to_vec();
+        let v = self.state.qdot[n_q..n].to_vec();
+        let seed = self.state.q[..n_q].to_vec();
+        let fitted = super::restart::fit_coordinates(map, t, &[&seed, map.initial()], &x, &masses)
+            .and_then(|q| super::restart::fit_rates(map, t, &q, &v, &masses).map(|qdot| (q, qdot)));
+        let (q, qdot) = fitted.map_err(|e| StepError::Contact {
+            t,
+            message: format!("the landing point has no coordinates on the parametric map: {e}"),
+        })?;
+        self.state.q[..n_q].copy_from_slice(&q);
+        self.state.qdot[..n_q].copy_from_slice(&qdot);
+        self.state.qdot[n_q..n].fill(0.0);
+        Ok(())
     }
 
     /// The switching functions at the integrator's state into `g_end` (or `g_start`).
@@ -387,25 +427,45 @@ impl Simulation {
     }
 
     /// Switch unilateral row `k` at the current state (accepted): detach it, or apply the
-    /// impact and attach it when it lands softly; record the switch and observe the state.
+    /// impact and attach it when it lands softly; for the parametric form move the state
+    /// between q and x; record the switch and observe the state.
     fn apply_switch(&mut self, k: usize) -> Result<(), RunError> {
         let n = self.n;
         let dt = self.config.dt;
         let t = self.state.t;
         let tracks_work = self.ledger.is_some();
         let detached = self.detached()[k];
+        let (x_before, v_before) = self.particles();
         let system = self.formulation.shared_system();
-        let energy = |v: &[f64]| system.kinetic_energy(v);
+        let before = system.kinetic_energy(&v_before);
         let contact = self
             .formulation
             .contact_mut()
             .expect("a contact formulation");
+        let layout = contact.parametric_layout();
         let (q, qdot) = (&self.state.q[..n], &mut self.state.qdot[..n]);
-        let result = switch_row(contact, k, detached, dt, (t, q, qdot), &energy);
-        let (kind, normal_velocity, dissipated) = match result {
+        let (kind, normal_velocity) = match switch_row(contact, k, detached, dt, (t, q, qdot)) {
             Ok(r) => r,
             Err(e) => return Err(self.fail(e)),
         };
+        if let Some(n_q) = layout {
+            // The parametric form: x, v from the map at a detach; q, qdot fitted at a landing.
+            match kind {
+                SwitchKind::Detach => {
+                    self.state.q[n_q..n].copy_from_slice(&x_before);
+                    self.state.qdot[n_q..n].copy_from_slice(&v_before);
+                    self.state.qdot[..n_q].fill(0.0);
+                }
+                SwitchKind::Land => {
+                    if let Err(e) = self.fit_parametric(n_q) {
+                        return Err(self.fail(e));
+                    }
+                }
+                SwitchKind::Bounce => {}
+            }
+        }
+        let (x_after, v_after) = self.particles();
+        let dissipated = before - system.kinetic_energy(&v_after);
         if tracks_work {
             // The work the impact did: the kinetic energy it changed.
             self.state.qdot[n] -= dissipated;
@@ -421,17 +481,14 @@ impl Simulation {
         } else {
             0.0
         };
-        let name = {
-            let contact = self.formulation.contact_mut().expect("contact");
-            contact.row_name(k)
-        };
+        let name = contact.row_name(k);
         self.contact_switches.push(ContactSwitch {
             t,
             constraint: name,
             kind,
             normal_velocity,
             dissipated,
-            x: self.state.q[..n].to_vec(),
+            x: x_after,
         });
         self.unprime();
         let (q, qdot, work) = split(&self.state, n);

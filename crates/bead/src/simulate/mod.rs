@@ -1030,6 +1030,15 @@ impl Simulation {
     /// q and from the scene's initial q, the better fit), qdot = 0. The energy reference
     /// restarts there. On error nothing changes.
     pub fn restart_at_rest(&mut self, x: &[f64]) -> Result<(), RestartError> {
+        if self
+            .formulation
+            .contact()
+            .is_some_and(|c| c.parametric_layout().is_some())
+        {
+            return Err(RestartError::NoCoordinates(
+                "the parametric form of a scene with a unilateral constraint restarts only from its scene's start for now (reset); use the implicit form",
+            ));
+        }
         let target = self.closest_start(x)?;
         let current_q = self.state.q[..self.n].to_vec();
         let mut state = self.formulation.initial_state();

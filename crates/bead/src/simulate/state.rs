@@ -442,6 +442,15 @@ impl Simulation {
     /// error nothing changes. Returns where the state was put and how far that is from what
     /// was asked for.
     pub fn set_state(&mut self, request: &StateRequest) -> Result<PlacedState, SetStateError> {
+        if self
+            .formulation
+            .contact()
+            .is_some_and(|c| c.parametric_layout().is_some())
+        {
+            return Err(SetStateError::Conflict(
+                "the state of the implicit form: the parametric form of a scene with a unilateral constraint cannot be set to a state yet",
+            ));
+        }
         let mut request = request.clone();
         let method = self.method();
         if method == Method::Implicit {
