@@ -16,8 +16,7 @@ use bead::integrate::IntegratorKind;
 use bead::model::{Endpoint, Force, ModelError, ParticleId};
 use bead::scene::Scene;
 use bead::simulate::{
-    ContactCounts, ForceId, PlacedState, RunError, SetupError, Simulation, SimulationConfig,
-    StateRequest,
+    ForceId, PlacedState, RunError, SetupError, Simulation, SimulationConfig, StateRequest,
 };
 
 use crate::geometry::{Curves, Resolution};
@@ -977,7 +976,7 @@ impl Panel {
             reference: self.reference_frame(),
             reference_note: self.reference_note.clone(),
             contact: (!s.system().unilateral().is_empty()).then(|| {
-                let counts = ContactCounts::of(s.contact_switches());
+                let counts = s.contact_counts();
                 ContactFrame {
                     detached: s.detached(),
                     detaches: counts.detaches,

@@ -294,6 +294,14 @@ fn unilateral_scenes_say_what_they_cannot_do() {
         "{err}"
     );
     assert!(sim.t() < 1.0, "stopped at the landing, t = {}", sim.t());
+    // It stands where it failed, in the modes it had: in flight, at the bowl's point below
+    // where it fell from, never back at its start.
+    assert_eq!(sim.detached(), vec![true]);
+    let x = sim.positions();
+    assert!(
+        (x[0] - 50.0).abs() < 1e-9 && (x[1] + 25.0).abs() < 1e-3,
+        "{x:?}"
+    );
     for (from, to, says) in [
         ("restitution = 0.5", "restitution = 1.5", "between 0"),
         (
@@ -563,4 +571,47 @@ bob = ["sin(th)", "-cos(th)"]
             parametric.energy_balance_error()
         );
     }
+}
+
+/// Dropped in mid-air (the viewer's "drop here"), the ball stays there and falls, in both
+/// forms; they land together where free fall says.
+#[test]
+fn restart_at_rest_in_the_air_stays_in_flight_in_both_forms() {
+    let scene = Scene::load(
+        std::path::Path::new(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../../scenes/bounce.toml"
+        )),
+        &[],
+    )
+    .unwrap();
+    let mut landings = Vec::new();
+    for method in [Method::Implicit, Method::Parametric] {
+        let mut config = config(IntegratorKind::Rk4, 1e-3);
+        config.method = method;
+        let mut sim = Simulation::new(Arc::clone(&scene.system), config).unwrap();
+        sim.advance_to(2.0).unwrap();
+        sim.restart_at_rest(&[30.0, -300.0]).unwrap();
+        assert_eq!(sim.positions(), &[30.0, -300.0], "{method:?}");
+        assert_eq!(sim.detached(), vec![true], "{method:?}");
+        sim.advance_to(1.5).unwrap();
+        let first = sim.contact_switches()[0].clone();
+        // From y = -300 to the bowl at y = -30^2/100 = -9: t = sqrt(2 * 291 / 500).
+        let expected = (2.0 * 291.0 / 500.0_f64).sqrt();
+        assert!((first.t - expected).abs() < 1e-9, "{method:?}: {}", first.t);
+        assert!((first.x[0] - 30.0).abs() < 1e-9 && (first.x[1] + 9.0).abs() < 1e-6);
+        landings.push(first.t);
+    }
+    assert!((landings[0] - landings[1]).abs() < 1e-12);
+    // A start asked of the scene in the air stays there too.
+    let (placed, _) = scene
+        .with_state(&bead::simulate::StateRequest {
+            positions: Some(vec![-40.0, -120.0]),
+            ..Default::default()
+        })
+        .unwrap();
+    assert_eq!(
+        placed.system.initial_particle_state().0,
+        vec![-40.0, -120.0]
+    );
 }

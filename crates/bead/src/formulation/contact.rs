@@ -83,6 +83,9 @@ pub trait Unilateral {
     }
 }
 
+/// The most sets of detached rows a [`Contact`] keeps compiled.
+const MAX_MODES: usize = 32;
+
 /// One set of detached rows: its system's implicit form, and where each of the whole
 /// system's rows is in it.
 struct Mode {
@@ -162,12 +165,16 @@ impl Contact {
         if self.detached[k] == detached {
             return Ok(());
         }
-        self.detached[k] = detached;
-        if !self.detached.contains(&true) {
+        // The flag changes only once its mode exists (a failed compile changes nothing).
+        let mut wanted = self.detached.clone();
+        wanted[k] = detached;
+        if !wanted.contains(&true) {
+            self.detached = wanted;
             self.current = None;
             return Ok(());
         }
-        if let Some(i) = self.modes.iter().position(|m| m.detached == self.detached) {
+        if let Some(i) = self.modes.iter().position(|m| m.detached == wanted) {
+            self.detached = wanted;
             self.current = Some(i);
             self.external_stale = true;
             return Ok(());
@@ -176,7 +183,7 @@ impl Contact {
         let drop: Vec<usize> = self
             .unilateral
             .iter()
-            .zip(&self.detached)
+            .zip(&wanted)
             .filter(|(_, &d)| d)
             .map(|(u, _)| u.constraint)
             .collect();
@@ -192,7 +199,7 @@ impl Contact {
             let gone = self
                 .unilateral
                 .iter()
-                .zip(&self.detached)
+                .zip(&wanted)
                 .any(|(u, &d)| d && u.row == r);
             rows.push(if gone {
                 None
@@ -207,11 +214,17 @@ impl Contact {
             implicit.set_constraint_scales(Some(ConstraintScales::of(&reduced)));
         }
         implicit.external.clone_from(&self.full.external);
+        // A bounded cache: a system of many unilateral rows (a rope of slack links) could
+        // visit any of 2^m sets; the oldest mode goes first (it is compiled again if needed).
+        if self.modes.len() >= MAX_MODES {
+            self.modes.remove(0);
+        }
         self.modes.push(Mode {
-            detached: self.detached.clone(),
+            detached: wanted.clone(),
             implicit,
             rows,
         });
+        self.detached = wanted;
         self.current = Some(self.modes.len() - 1);
         self.external_stale = false;
         Ok(())

@@ -143,13 +143,13 @@ impl Dopri5 {
         self.rejected
     }
 
-    /// The last accepted step's interval [t_old, t_new].
     /// The equations changed (a force added, a constraint detached): the last step's final
     /// stage is no longer the next step's first (no FSAL for the next step).
     pub fn forget_last_stage(&mut self) {
         self.fsal = false;
     }
 
+    /// The last accepted step's interval [t_old, t_new].
     pub fn last_step(&self) -> (f64, f64) {
         (self.t_old, self.t_new)
     }

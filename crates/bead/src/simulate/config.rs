@@ -100,7 +100,7 @@ pub enum ConfigError {
     FeedbackOnParametric,
     #[error("the parametric form simulates one unilateral constraint (`side`), and the scene has more: its map holds them all at once, and with some left it has no coordinates for the rest; use the implicit method")]
     UnilateralParametric,
-    #[error("the system has unilateral constraints (`side`), and this implicit form would hold them on both sides: build it with `formulate` (a `Contact`), not `Implicit::new`")]
+    #[error("the system has unilateral constraints (`side`), and this formulation would hold them on both sides: build it with `formulate` (a `Contact` or `ParametricContact`), not `Implicit::new` or `Parametric::new`")]
     UnilateralWithoutContact,
     #[error("the step dt must be positive and finite, got {}", crate::readable(*.0))]
     BadStep(f64),

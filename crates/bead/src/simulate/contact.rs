@@ -16,6 +16,10 @@
 //!   dt (a second, plastic impulse takes the rest of the normal velocity). Otherwise it
 //!   bounces. The kinetic energy an impact takes is work in the energy ledger.
 //!
+//! A switch is looked for where a switching function is below zero at the end of a step (or
+//! of its part after a switch): a sign change that comes back within one step (a graze past
+//! a bump narrower than the step) is not seen.
+//!
 //! The step then goes on from the switch to its planned end, in the new mode (the time grid
 //! is kept). A step switches at most [`MAX_SWITCHES_PER_STEP`] times (a contact chattering
 //! faster is an error that says so). Events are screened on each part of a step; a jump of
@@ -59,7 +63,8 @@ pub struct ContactSwitch {
     pub kind: SwitchKind,
     /// s Cdot (the normal velocity, > 0 leaving) before and after the switch.
     pub normal_velocity: (f64, f64),
-    /// The kinetic energy the switch took (>= 0; 0 for a detach).
+    /// The kinetic energy the switch took: 0 for a detach, >= 0 for an impact on a fixed
+    /// constraint (negative when a moving one, C(x, t), gives the particle energy).
     pub dissipated: f64,
     /// Particle positions at the switch (n_coords).
     pub x: Vec<f64>,
@@ -71,7 +76,7 @@ pub struct ContactCounts {
     pub detaches: u64,
     pub landings: u64,
     pub bounces: u64,
-    /// The kinetic energy the impacts took, in all.
+    /// The kinetic energy the impacts took, in all (see [`ContactSwitch::dissipated`]).
     pub dissipated: f64,
 }
 
@@ -80,14 +85,19 @@ impl ContactCounts {
     pub fn of(switches: &[ContactSwitch]) -> ContactCounts {
         let mut counts = ContactCounts::default();
         for s in switches {
-            match s.kind {
-                SwitchKind::Detach => counts.detaches += 1,
-                SwitchKind::Land => counts.landings += 1,
-                SwitchKind::Bounce => counts.bounces += 1,
-            }
-            counts.dissipated += s.dissipated;
+            counts.add(s.kind, s.dissipated);
         }
         counts
+    }
+
+    /// Count one more switch.
+    pub fn add(&mut self, kind: SwitchKind, dissipated: f64) {
+        match kind {
+            SwitchKind::Detach => self.detaches += 1,
+            SwitchKind::Land => self.landings += 1,
+            SwitchKind::Bounce => self.bounces += 1,
+        }
+        self.dissipated += dissipated;
     }
 }
 
@@ -220,9 +230,14 @@ fn switch_row(
 
 impl Simulation {
     /// The switches of unilateral constraints from the start (or the last reset) up to the
-    /// current time, in time order.
+    /// current time, in time order (every one is kept, as event crossings are).
     pub fn contact_switches(&self) -> &[ContactSwitch] {
         &self.contact_switches
+    }
+
+    /// [`Simulation::contact_switches`] counted, kept as they happen.
+    pub fn contact_counts(&self) -> &ContactCounts {
+        &self.contact_counts
     }
 
     /// Per unilateral row ([`crate::model::System::unilateral`]), whether it is detached now
@@ -232,6 +247,19 @@ impl Simulation {
             .contact()
             .map(|c| c.detached().to_vec())
             .unwrap_or_default()
+    }
+
+    /// A switch that failed: the modes back as they were, the run at the accepted state of
+    /// the switch (saved as `previous`), and the error.
+    fn fail_switch(&mut self, modes: &[bool], error: StepError) -> RunError {
+        if let Some(contact) = self.formulation.contact_mut() {
+            for (k, &d) in modes.iter().enumerate() {
+                // Modes it had (each built before): cannot fail.
+                let _ = contact.set_detached(k, d);
+            }
+        }
+        self.unprime();
+        self.fail(error)
     }
 
     /// The particles' positions and velocities at the integrator's state.
@@ -263,6 +291,26 @@ impl Simulation {
             t,
             message: format!("the landing point has no coordinates on the parametric map: {e}"),
         })?;
+        // The map must pass through the landing point (it traces the constraint landed on).
+        let mapped = super::restart::map_positions(map, t, &q);
+        let size = x.iter().fold(1.0_f64, |m, c| m.max(c.abs()));
+        let off = mapped
+            .iter()
+            .zip(&x)
+            .map(|(a, b)| (a - b) * (a - b))
+            .sum::<f64>()
+            .sqrt();
+        if off > 1e-6 * size {
+            let contact = self.formulation.contact().expect("a contact formulation");
+            return Err(StepError::Contact {
+                t,
+                message: format!(
+                    "the parametric map does not hold the unilateral {}: its closest point to where the particle lands is {} away; the map must trace the constraint the particle lands on; use the implicit method",
+                    contact.row_name(0),
+                    crate::readable(off)
+                ),
+            });
+        }
         self.state.q[..n_q].copy_from_slice(&q);
         self.state.qdot[..n_q].copy_from_slice(&qdot);
         self.state.qdot[n_q..n].fill(0.0);
@@ -434,7 +482,12 @@ impl Simulation {
         let dt = self.config.dt;
         let t = self.state.t;
         let tracks_work = self.ledger.is_some();
-        let detached = self.detached()[k];
+        let modes_before = self.detached();
+        let detached = modes_before[k];
+        // The accepted state at the switch: where a failed switch leaves the run, its modes
+        // as they were.
+        self.save();
+        self.output_behind = false;
         let (x_before, v_before) = self.particles();
         let system = self.formulation.shared_system();
         let before = system.kinetic_energy(&v_before);
@@ -446,7 +499,7 @@ impl Simulation {
         let (q, qdot) = (&self.state.q[..n], &mut self.state.qdot[..n]);
         let (kind, normal_velocity) = match switch_row(contact, k, detached, dt, (t, q, qdot)) {
             Ok(r) => r,
-            Err(e) => return Err(self.fail(e)),
+            Err(e) => return Err(self.fail_switch(&modes_before, e)),
         };
         if let Some(n_q) = layout {
             // The parametric form: x, v from the map at a detach; q, qdot fitted at a landing.
@@ -458,7 +511,7 @@ impl Simulation {
                 }
                 SwitchKind::Land => {
                     if let Err(e) = self.fit_parametric(n_q) {
-                        return Err(self.fail(e));
+                        return Err(self.fail_switch(&modes_before, e));
                     }
                 }
                 SwitchKind::Bounce => {}
@@ -482,6 +535,7 @@ impl Simulation {
             0.0
         };
         let name = contact.row_name(k);
+        self.contact_counts.add(kind, dissipated);
         self.contact_switches.push(ContactSwitch {
             t,
             constraint: name,

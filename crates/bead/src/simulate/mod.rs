@@ -200,6 +200,8 @@ pub struct Simulation {
     contact: Option<contact::ContactState>,
     /// The switches of unilateral constraints so far, in time order.
     contact_switches: Vec<ContactSwitch>,
+    /// The same, counted (what frames and summaries read, in O(1)).
+    contact_counts: ContactCounts,
 }
 
 /// Steps without a retry after which a step tries half of the substeps its predecessors
@@ -259,10 +261,7 @@ impl Simulation {
             let scales = ConstraintScales::of(formulation.system());
             formulation.set_constraint_scales(Some(scales));
         }
-        if formulation.method() == Method::Implicit
-            && !formulation.system().unilateral().is_empty()
-            && formulation.contact_mut().is_none()
-        {
+        if !formulation.system().unilateral().is_empty() && formulation.contact().is_none() {
             return Err(ConfigError::UnilateralWithoutContact.into());
         }
         let state = formulation.initial_state();
@@ -312,6 +311,7 @@ impl Simulation {
             express: true,
             contact,
             contact_switches: Vec::new(),
+            contact_counts: ContactCounts::default(),
             config,
             formulation,
         };
@@ -961,10 +961,11 @@ impl Simulation {
         // system's peak memory (an integrator for no coordinates holds nothing).
         self.monitor = Monitor::default();
         self.stepper = Stepper::new(&self.config, 0);
-        // A start the contact modes cannot be found for keeps the rows as they were; the
-        // first step reports what fails there.
+        // A start the contact modes cannot be found for (on the wrong side of a unilateral
+        // constraint) leaves every row attached; the first step reports what fails there.
         let _ = contact::initial_mode(&mut *self.formulation, &state, n);
         self.contact_switches.clear();
+        self.contact_counts = ContactCounts::default();
         if let Some(c) = self.formulation.contact_mut() {
             self.contact = Some(contact::ContactState::new(c.unilateral().len()));
         }
@@ -1030,15 +1031,12 @@ impl Simulation {
     /// q and from the scene's initial q, the better fit), qdot = 0. The energy reference
     /// restarts there. On error nothing changes.
     pub fn restart_at_rest(&mut self, x: &[f64]) -> Result<(), RestartError> {
-        if self
+        // The parametric form with a unilateral row holds [q; x] (see ParametricContact):
+        // q fitted to the target and x the target itself; the start decides which is in use.
+        let layout = self
             .formulation
             .contact()
-            .is_some_and(|c| c.parametric_layout().is_some())
-        {
-            return Err(RestartError::NoCoordinates(
-                "the parametric form of a scene with a unilateral constraint restarts only from its scene's start for now (reset); use the implicit form",
-            ));
-        }
+            .and_then(|c| c.parametric_layout());
         let target = self.closest_start(x)?;
         let current_q = self.state.q[..self.n].to_vec();
         let mut state = self.formulation.initial_state();
@@ -1051,10 +1049,14 @@ impl Simulation {
         state.qdot[..n].iter_mut().for_each(|v| *v = 0.0);
         match (self.method(), self.system().parametric()) {
             (Method::Parametric, Some(map)) => {
-                let seeds = [current_q.as_slice(), map.initial()];
+                let n_q = layout.unwrap_or(n);
+                let seeds = [&current_q[..n_q], map.initial()];
                 let masses = self.masses();
                 let q = restart::fit_coordinates(map, 0.0, &seeds, &target, &masses)?;
-                state.q[..n].copy_from_slice(&q);
+                state.q[..n_q].copy_from_slice(&q);
+                if layout.is_some() {
+                    state.q[n_q..n].copy_from_slice(&target);
+                }
             }
             _ => {
                 state.q[..n].copy_from_slice(&target);
@@ -1245,10 +1247,7 @@ impl Simulation {
                 .or(self.stop_when())
                 .map(|e| e.source().to_string()),
             stop_time: self.event_time,
-            contacts: self
-                .contact
-                .is_some()
-                .then(|| ContactCounts::of(self.contact_switches())),
+            contacts: self.contact.is_some().then(|| self.contact_counts.clone()),
             events: self
                 .watches
                 .iter()

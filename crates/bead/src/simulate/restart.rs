@@ -75,6 +75,11 @@ pub(super) fn closest_with(
     x: &[f64],
     config: &SimulationConfig,
 ) -> Result<Vec<f64>, RestartError> {
+    // A point off a unilateral constraint on its allowed side is where it is (in flight):
+    // only the rows it is on, or on the wrong side of, are projected onto.
+    if formulation.contact().is_some() {
+        super::contact::mode_for_positions(formulation, t, x).map_err(RestartError::Projection)?;
+    }
     let system = formulation.shared_system();
     let moving =
         (0..system.constraints().n_rows()).any(|r| system.constraints().is_time_dependent(r));
