@@ -53,6 +53,43 @@ pub enum Command {
     /// Start the live browser viewer: a local web server that runs the simulation and streams
     /// it to a page (panels per formulation, live charts, drag a particle, edit the curve).
     Serve(ServeArgs),
+    /// Write the viewer as a static folder that needs no server: the engine runs in the page
+    /// (WebAssembly). Open its index.html, publish it on any static host, or embed a scene in
+    /// a post with the printed <iframe> snippet.
+    #[command(after_long_help = AFTER_EXPORT_PAGE)]
+    ExportPage(ExportPageArgs),
+}
+
+const AFTER_EXPORT_PAGE: &str = "\
+The folder holds index.html, viewer.js, viewer.css, engine.js, bead.wasm (the engine), bead-wasm.js
+(the same bytes in base64, for pages opened from file://), scenes.js (the picker's scenes) and
+embed.html (an <iframe> snippet). The page is the one `bead serve` serves, and share URLs
+(?scene=NAME&param.g=...&panel=...) work on it too. Files of other names in DIR are left alone.
+
+Example: bead export-page scenes/parabola.toml --out site/bead --only";
+
+/// `bead export-page`.
+#[derive(Debug, Args)]
+pub struct ExportPageArgs {
+    /// Scene files (TOML) for the page's picker, named by their file names without .toml; the
+    /// first is shown when the page opens. The shipped scenes follow them unless --only.
+    pub scenes: Vec<PathBuf>,
+
+    /// The folder to write (created if missing).
+    #[arg(long, value_name = "DIR")]
+    pub out: PathBuf,
+
+    /// Only the given scenes in the picker (without the shipped ones).
+    #[arg(long)]
+    pub only: bool,
+
+    /// An HTML fragment shown above the scene (an introduction, a lesson).
+    #[arg(long, value_name = "FILE")]
+    pub intro: Option<PathBuf>,
+
+    /// The page's title (the browser's tab).
+    #[arg(long, value_name = "TEXT", default_value = "bead")]
+    pub title: String,
 }
 
 const AFTER_ORDER: &str = "\

@@ -1,4 +1,5 @@
-// bead viewer: draws what the server streams over /ws (protocol: crates/bead-viewer/src/protocol.rs).
+// bead viewer: draws what the server streams over /ws (protocol: crates/bead-viewer/src/protocol.rs),
+// or, in a static page, what the engine in the page sends (engine.js, the same messages).
 // Plain modern JavaScript, no build step, no dependencies.
 "use strict";
 
@@ -38,7 +39,7 @@
   window.__viewer = state;  // for the end-to-end tests
 
   function send(message) {
-    if (state.ws && state.ws.readyState === WebSocket.OPEN) {
+    if (state.ws && state.ws.readyState === 1 /* OPEN */) {
       state.ws.send(JSON.stringify(message));
     }
   }
@@ -70,13 +71,22 @@
   }
 
   // ---------- connection ----------
+  // The served page connects to its server's /ws; a static page (engine.js loaded before
+  // this script) runs the session in the page, behind the same interface.
   function connect() {
-    const proto = location.protocol === "https:" ? "wss:" : "ws:";
-    const ws = new WebSocket(`${proto}//${location.host}/ws`);
+    let ws;
+    if (window.BeadEngine) {
+      ws = new window.BeadEngine.Socket();
+    } else {
+      const proto = location.protocol === "https:" ? "wss:" : "ws:";
+      ws = new WebSocket(`${proto}//${location.host}/ws`);
+    }
     state.ws = ws;
-    ws.onopen = () => { $("connection").textContent = "connected"; };
-    ws.onclose = () => {
-      $("connection").textContent = "disconnected — reload to reconnect";
+    ws.onopen = () => { $("connection").textContent = ws.label || "connected"; };
+    ws.onclose = (event) => {
+      $("connection").textContent = window.BeadEngine
+        ? `stopped (${(event && event.reason) || "closed"}) — reload to start again`
+        : "disconnected — reload to reconnect";
     };
     ws.binaryType = "arraybuffer";
     ws.onmessage = (event) => receive(event.data);
@@ -267,7 +277,8 @@
       q.set("start.v", start.velocities.map(String).join(","));
     }
     q.set("ts", String(state.timeScale));
-    return `${location.origin}${location.pathname}?${q.toString()}`;
+    // The page's address without its query (origin + path; a file:// page has no origin).
+    return `${location.href.split(/[?#]/)[0]}?${q.toString()}`;
   }
 
   // The curves edited in the implicit panels: [constraint index, expression] where the

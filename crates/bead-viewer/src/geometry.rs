@@ -21,12 +21,14 @@
 //! pans or zooms past the region they were made over (`set_view`).
 
 use std::sync::Arc;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use bead::formulation::Method;
 use bead::integrate::IntegratorKind;
 use bead::model::{DeclaredConstraint, Endpoint, System};
 use bead::simulate::{Simulation, SimulationConfig};
+
+use crate::clock::Stopwatch;
 
 /// Marching-squares resolution per side, for curves made once.
 pub const GRID: usize = 160;
@@ -278,7 +280,7 @@ fn trial_run(system: &Arc<System>, dt: f64, duration: f64, include: &mut impl Fn
         return;
     }
     let steps = (duration / dt).ceil().clamp(1.0, 20_000.0) as u64;
-    let start = Instant::now();
+    let start = Stopwatch::start();
     for _ in 0..steps {
         if simulation.step().is_err() {
             break;

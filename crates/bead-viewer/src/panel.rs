@@ -9,7 +9,7 @@
 
 use std::fmt;
 use std::sync::Arc;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use bead::formulation::{Feedback, Method, StepError};
 use bead::integrate::IntegratorKind;
@@ -19,6 +19,7 @@ use bead::simulate::{
     ForceId, PlacedState, RunError, SetupError, Simulation, SimulationConfig, StateRequest,
 };
 
+use crate::clock::Stopwatch;
 use crate::geometry::{Curves, Resolution};
 use crate::protocol::{
     Applies, Arrows, ContactFrame, DragInfo, PanelFrame, PanelInfo, ReferenceFrame, RowForce,
@@ -693,7 +694,7 @@ impl Panel {
         if count == 0 {
             return 0;
         }
-        let start = Instant::now();
+        let start = Stopwatch::start();
         let steps_before = self.simulation.steps();
         let dt = self.settings.dt;
         let mut taken = 0;

@@ -29,9 +29,8 @@ use axum::routing::get;
 use axum::Router;
 use tokio::net::TcpListener;
 
-use crate::protocol::{
-    message_type, parse_client_message, Encoded, ErrorCode, Limits, ServerMessage,
-};
+use crate::page::{INDEX_HTML, VIEWER_CSS, VIEWER_JS};
+use crate::protocol::{message_type, Encoded, ErrorCode, Limits, ServerMessage};
 use crate::scenes::Catalog;
 use crate::session::Session;
 
@@ -39,10 +38,6 @@ use crate::session::Session;
 pub const FRAME_INTERVAL: Duration = Duration::from_micros(16_667);
 /// A client that does not take a message within this time is dropped.
 const SEND_TIMEOUT: Duration = Duration::from_secs(10);
-
-const INDEX_HTML: &str = include_str!("../assets/index.html");
-const VIEWER_JS: &str = include_str!("../assets/viewer.js");
-const VIEWER_CSS: &str = include_str!("../assets/viewer.css");
 
 /// Messages up to this many times [`Limits::max_message_bytes`] are read whole (and answered
 /// with a `too_large` error); beyond, the transport cannot skip the rest of the frame and the
@@ -323,29 +318,20 @@ async fn connection(mut socket: WebSocket, config: Arc<ServerConfig>, transport_
                         return;
                     }
                     Some(Ok(Message::Text(text))) => {
-                        match parse_client_message(text.as_str(), &limits) {
-                            Ok(message) => {
-                                let kind = message.kind();
-                                let Some((s, result)) =
-                                    on_session(session, move |s| s.handle(message)).await
-                                else {
-                                    return;
-                                };
-                                session = s;
-                                result.unwrap_or_else(|()| {
-                                    vec![error_reply(
-                                        ErrorCode::InternalError,
-                                        "internal error while handling the message".into(),
-                                        Some(kind.into()),
-                                    )]
-                                })
-                            }
-                            Err(e) => vec![error_reply(
-                                e.code(),
-                                e.to_string(),
-                                message_type(text.as_str()),
-                            )],
-                        }
+                        let request = message_type(text.as_str());
+                        let Some((s, result)) =
+                            on_session(session, move |s| s.handle_text(text.as_str())).await
+                        else {
+                            return;
+                        };
+                        session = s;
+                        result.unwrap_or_else(|()| {
+                            vec![error_reply(
+                                ErrorCode::InternalError,
+                                "internal error while handling the message".into(),
+                                request,
+                            )]
+                        })
                     }
                     Some(Ok(Message::Binary(_))) => vec![error_reply(
                         ErrorCode::BinaryMessage,
@@ -366,16 +352,12 @@ async fn connection(mut socket: WebSocket, config: Arc<ServerConfig>, transport_
                 let elapsed = now.duration_since(last).as_secs_f64();
                 last = now;
                 // Encoded on the blocking pool too: its cost grows with the particles.
-                let Some((s, frame)) = on_session(session, move |s| {
-                    s.advance(elapsed);
-                    s.frame().encode()
-                })
-                .await
+                let Some((s, frame)) = on_session(session, move |s| s.tick(elapsed)).await
                 else {
                     return;
                 };
                 session = s;
-                if let Ok(Ok(frame)) = frame {
+                if let Ok(Some(frame)) = frame {
                     if !send_encoded(&mut socket, frame).await {
                         return;
                     }

@@ -15,9 +15,9 @@ use bead::simulate::{ConfigError, RunError, SetupError, StateRequest};
 use crate::geometry;
 use crate::panel::{DragError, Panel, PanelFailure, PanelSettings};
 use crate::protocol::{
-    default_param_range, AtEnd, ClientMessage, Clock, ConstraintInfo, ErrorCode, IntegratorInfo,
-    Limits, PanelFrame, PanelSettingsPatch, ParamInfo, ParticleInfo, Pin, Rod, SceneInfo,
-    ServerMessage, Welcome, PROTOCOL_VERSION,
+    default_param_range, message_type, parse_client_message, AtEnd, ClientMessage, Clock,
+    ConstraintInfo, Encoded, ErrorCode, IntegratorInfo, Limits, PanelFrame, PanelSettingsPatch,
+    ParamInfo, ParticleInfo, Pin, Rod, SceneInfo, ServerMessage, Welcome, PROTOCOL_VERSION,
 };
 use crate::scenes::Catalog;
 
@@ -493,6 +493,28 @@ impl Session {
                 panel,
             }],
         }
+    }
+
+    /// Handle one message as the page sends it (JSON text): parsed within the session's
+    /// limits, then [`Session::handle`]; a message that does not parse gets its error reply.
+    /// Every transport (the server's WebSocket, the page's own engine) goes through here.
+    pub fn handle_text(&mut self, text: &str) -> Vec<ServerMessage> {
+        match parse_client_message(text, &self.limits) {
+            Ok(message) => self.handle(message),
+            Err(e) => vec![ServerMessage::Error {
+                code: e.code(),
+                message: e.to_string(),
+                request: message_type(text),
+                panel: None,
+            }],
+        }
+    }
+
+    /// One tick of the page's clock: [`Session::advance`] by `elapsed` wall seconds, then
+    /// the frame, encoded (`None` if it could not be encoded).
+    pub fn tick(&mut self, elapsed: f64) -> Option<Encoded> {
+        self.advance(elapsed);
+        self.frame().encode().ok()
     }
 
     fn scene(&self) -> Result<&CurrentScene, Rejection> {

@@ -192,6 +192,11 @@ type Checks = for<'a> fn(&'a Client, SocketAddr) -> LocalBoxFuture<'a, ()>;
 /// Serve `config` on 127.0.0.1 and run `checks` in headless Chromium against it (skipped
 /// with a notice when the browser is missing, unless `BEAD_REQUIRE_BROWSER=1`).
 fn in_browser(config: ServerConfig, checks: Checks) {
+    in_browser_at(Site::Served(config), checks)
+}
+
+/// Run `checks` in headless Chromium against `site` (skipped as [`in_browser`] is).
+fn in_browser_at(site: Site, checks: Checks) {
     let (chromium, chromedriver) = match browser() {
         Ok(found) => found,
         Err(why) => {
@@ -213,7 +218,57 @@ fn in_browser(config: ServerConfig, checks: Checks) {
         .enable_all()
         .build()
         .unwrap();
-    runtime.block_on(end_to_end(chromium, chromedriver, config, checks));
+    runtime.block_on(end_to_end(chromium, chromedriver, site, checks));
+}
+
+/// What the browser opens: a bead server, or a static folder served by a plain static file
+/// server (Python's `http.server`: no bead process; the engine runs in the page).
+enum Site {
+    Served(ServerConfig),
+    Static(PathBuf),
+}
+
+/// Kills the static file server when the test ends.
+struct StaticServer(Child);
+
+impl Drop for StaticServer {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+/// Serve `dir` on 127.0.0.1 with `python3 -m http.server`, once it accepts connections.
+fn static_server(dir: &Path) -> (StaticServer, SocketAddr) {
+    let port = free_port();
+    let python = std::env::var_os("BEAD_PYTHON").unwrap_or_else(|| "python3".into());
+    let server = StaticServer(
+        Command::new(&python)
+            .args([
+                "-m",
+                "http.server",
+                &port.to_string(),
+                "--bind",
+                "127.0.0.1",
+                "--directory",
+            ])
+            .arg(dir)
+            .stdin(Stdio::null())
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap_or_else(|e| panic!("cannot start {python:?} -m http.server: {e}")),
+    );
+    let addr = SocketAddr::from(([127, 0, 0, 1], port));
+    let start = Instant::now();
+    while TcpStream::connect(addr).is_err() {
+        assert!(
+            start.elapsed() < Duration::from_secs(20),
+            "the static file server did not start"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    (server, addr)
 }
 
 /// Every shipped scene is in the page's picker, in the catalog's order, and each, chosen
@@ -1456,15 +1511,19 @@ fn page_end_to_end() {
     });
 }
 
-async fn end_to_end(
-    chromium: PathBuf,
-    chromedriver: PathBuf,
-    config: ServerConfig,
-    checks: Checks,
-) {
-    let listener = bind("127.0.0.1:0".parse().unwrap()).await.unwrap();
-    let addr = listener.local_addr().unwrap();
-    tokio::spawn(serve(listener, config));
+async fn end_to_end(chromium: PathBuf, chromedriver: PathBuf, site: Site, checks: Checks) {
+    let (_static_server, addr) = match site {
+        Site::Served(config) => {
+            let listener = bind("127.0.0.1:0".parse().unwrap()).await.unwrap();
+            let addr = listener.local_addr().unwrap();
+            tokio::spawn(serve(listener, config));
+            (None, addr)
+        }
+        Site::Static(dir) => {
+            let (server, addr) = static_server(&dir);
+            (Some(server), addr)
+        }
+    };
 
     let port = free_port();
     let _driver = Driver(
@@ -3354,6 +3413,257 @@ async fn bounce_checks(client: &Client, addr: SocketAddr) {
         text.contains(" bounce") && text.contains("landing"),
         "{text}"
     );
+    let errors = js(client, "return window.__errors;").await;
+    assert_eq!(errors, json!([]), "errors in the page");
+}
+
+// ---------- the static page (issue 21): the same page with the engine in it ----------
+
+/// A static folder of the shipped scenes (`bead_viewer::page::StaticPage`, as `bead
+/// export-page` writes it) with the committed engine (`docs/demo/bead.wasm`, which CI
+/// rebuilds from the sources and compares), under `target/`.
+fn static_folder(name: &str) -> PathBuf {
+    let wasm = std::fs::read(workspace_root().join("docs/demo/bead.wasm"))
+        .expect("docs/demo/bead.wasm (scripts/build-web writes it)");
+    let dir = workspace_root()
+        .join("target")
+        .join(format!("static-page-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    bead_viewer::page::StaticPage {
+        scenes: Catalog::shipped().scenes,
+        wasm: &wasm,
+        intro_html: None,
+        title: "bead".into(),
+    }
+    .write(&dir)
+    .unwrap();
+    dir
+}
+
+/// Removes a static folder when the test ends.
+struct Folder(PathBuf);
+
+impl Drop for Folder {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
+/// The served page's end-to-end checks (load, draw, controls, drag, bad curve) pass on the
+/// static page, served by a plain file server: the engine in the page speaks the server's
+/// protocol.
+#[test]
+fn the_static_page_passes_the_served_pages_end_to_end_checks() {
+    let folder = Folder(static_folder("e2e"));
+    in_browser_at(Site::Static(folder.0.clone()), |client, addr| {
+        async move {
+            checks(client, addr).await;
+            static_page_stats(client).await;
+        }
+        .boxed_local()
+    });
+}
+
+/// The teaching checks (overlay, keys, a slider, the share URL round trip, a drag while
+/// paused) on the static page.
+#[test]
+fn the_static_page_passes_the_teaching_checks() {
+    let folder = Folder(static_folder("teaching"));
+    in_browser_at(Site::Static(folder.0.clone()), |client, addr| {
+        teaching_checks(client, addr).boxed_local()
+    });
+}
+
+/// The engine's load time and tick cost, printed (the README's figures come from here), and
+/// that it is the engine in the page, not a server, that the page talks to.
+async fn static_page_stats(client: &Client) {
+    let stats = js(
+        client,
+        "const w = window.__viewer.ws; return { engine: !!window.BeadEngine && w instanceof window.BeadEngine.Socket,
+           label: document.getElementById('connection').textContent, ...w.stats };",
+    )
+    .await;
+    assert_eq!(stats["engine"], Value::Bool(true), "{stats}");
+    assert_eq!(stats["label"], "running in this page", "{stats}");
+    println!("static page: {stats}");
+}
+
+/// After 10 s of the article's scene, the page's two panels (implicit and parametric rk4 at
+/// dt 1/60) hold the states that the library computes natively for the same settings, as
+/// `bead run` does: the same bits (the scene's equations use no function whose result could
+/// differ between the platforms' math libraries).
+#[test]
+fn the_static_page_after_10_s_holds_what_bead_run_computes() {
+    let folder = Folder(static_folder("ten-seconds"));
+    in_browser_at(Site::Static(folder.0.clone()), |client, addr| {
+        ten_second_checks(client, addr).boxed_local()
+    });
+}
+
+async fn ten_second_checks(client: &Client, addr: SocketAddr) {
+    use bead::formulation::Method;
+    use bead::integrate::IntegratorKind;
+    use bead::simulate::{Simulation, SimulationConfig};
+    // At 10x, the scene's 10 s end (where every panel stops) comes in about a second.
+    client
+        .goto(&format!("http://{addr}/?scene=parabola&ts=10"))
+        .await
+        .unwrap();
+    wait_within(
+        client,
+        "window.__viewer && window.__viewer.clock && window.__viewer.clock.ended && \
+         window.__viewer.panels.size === 2 && [...window.__viewer.panels.values()].every(p => \
+         p.frame && p.frame.status === 'paused' && p.frame.steps === 600)",
+        "the end of the scene",
+        Duration::from_secs(120),
+    )
+    .await;
+    let page = js(
+        client,
+        "return [...window.__viewer.panels.values()].map(p => ({ method: p.info.method, t: p.frame.t, x: Array.from(p.frame.x) }));",
+    )
+    .await;
+    let scene =
+        bead::scene::Scene::load(&workspace_root().join("scenes/parabola.toml"), &[]).unwrap();
+    for (panel, method) in page
+        .as_array()
+        .unwrap()
+        .iter()
+        .zip([Method::Implicit, Method::Parametric])
+    {
+        assert_eq!(panel["method"], method.name(), "{page}");
+        let config = SimulationConfig {
+            method,
+            integrator: IntegratorKind::Rk4,
+            dt: 1.0 / 60.0,
+            ..SimulationConfig::default()
+        };
+        let mut sim = Simulation::new(scene.system.clone(), config).unwrap();
+        for _ in 0..600 {
+            sim.step().unwrap();
+        }
+        let x: Vec<f64> = panel["x"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|v| v.as_f64().unwrap())
+            .collect();
+        assert_eq!(panel["t"].as_f64().unwrap(), sim.t(), "{page}");
+        assert_eq!(
+            x,
+            sim.positions(),
+            "{method:?}: the page against the library"
+        );
+    }
+    let errors = js(client, "return window.__errors;").await;
+    assert_eq!(errors, json!([]), "errors in the page");
+}
+
+/// Opened from `file://` (a folder downloaded and double-clicked), where the browser does not
+/// fetch files: the page loads the engine from its base64 copy and runs; a share URL's scene
+/// comes up.
+#[test]
+fn the_static_page_runs_from_file_urls() {
+    let folder = Folder(static_folder("file"));
+    let url = format!(
+        "file://{}/index.html?scene=circle",
+        folder.0.canonicalize().unwrap().display()
+    );
+    FILE_URL.with(|u| *u.borrow_mut() = url);
+    in_browser_at(Site::Static(folder.0.clone()), |client, _addr| {
+        file_checks(client).boxed_local()
+    });
+}
+
+thread_local! {
+    static FILE_URL: std::cell::RefCell<String> = const { std::cell::RefCell::new(String::new()) };
+}
+
+async fn file_checks(client: &Client) {
+    let url = FILE_URL.with(|u| u.borrow().clone());
+    client.goto(&url).await.unwrap();
+    wait_within(
+        client,
+        "window.__viewer && window.__viewer.scene && window.__viewer.scene.name === 'circle' && \
+         window.__viewer.panels.size === 2 && [...window.__viewer.panels.values()].every(p => \
+         p.frame && p.frame.epoch === p.info.epoch && p.frame.t > 0.3 && p.lastDraw)",
+        "the circle running from file://",
+        Duration::from_secs(60),
+    )
+    .await;
+    let loaded = js(
+        client,
+        "return { base64: typeof window.BEAD_WASM_BASE64 === 'string', protocol: location.protocol, share: (() => { document.getElementById('share').click(); return document.getElementById('share-url').value; })() };",
+    )
+    .await;
+    assert_eq!(loaded["base64"], Value::Bool(true), "{loaded}");
+    assert_eq!(loaded["protocol"], "file:", "{loaded}");
+    // The share URL names the file, not an origin a file page does not have.
+    assert!(
+        loaded["share"]
+            .as_str()
+            .unwrap()
+            .starts_with(&format!("{}?", url.split('?').next().unwrap())),
+        "{loaded}"
+    );
+    let errors = js(client, "return window.__errors;").await;
+    assert_eq!(errors, json!([]), "errors in the page");
+}
+
+/// The committed demo page (docs/demo, the article's experiment), served as it is: its
+/// introduction above the scene, the parabola with the implicit panel left and the
+/// parametric right, both running; every shipped scene in its picker after it.
+#[test]
+fn the_demo_page_shows_the_article_side_by_side() {
+    in_browser_at(
+        Site::Static(workspace_root().join("docs/demo")),
+        |client, addr| demo_checks(client, addr).boxed_local(),
+    );
+}
+
+async fn demo_checks(client: &Client, addr: SocketAddr) {
+    client.goto(&format!("http://{addr}/")).await.unwrap();
+    wait_within(
+        client,
+        "window.__viewer && window.__viewer.scene && window.__viewer.panels.size === 2 && \
+         [...window.__viewer.panels.values()].every(p => p.frame && p.frame.epoch === p.info.epoch && \
+         p.frame.t > 0.5 && p.lastDraw)",
+        "both panels running",
+        Duration::from_secs(60),
+    )
+    .await;
+    let shown = js(
+        client,
+        "const v = window.__viewer; const intro = document.getElementById('intro');
+         return { scene: v.scene.name, methods: [...v.panels.values()].map(p => p.info.method),
+                  intro: intro ? intro.textContent : null, title: document.title,
+                  picker: [...document.getElementById('scene-select').options].map(o => o.value) };",
+    )
+    .await;
+    assert_eq!(shown["scene"], "parabola", "{shown}");
+    assert_eq!(
+        shown["methods"],
+        json!(["implicit", "parametric"]),
+        "{shown}"
+    );
+    let intro = shown["intro"].as_str().unwrap_or("");
+    assert!(
+        intro.contains("implicit form") && intro.contains("parametric form"),
+        "{shown}"
+    );
+    let shipped: Vec<&str> = bead_viewer::scenes::SHIPPED
+        .iter()
+        .map(|(n, _)| *n)
+        .collect();
+    assert_eq!(shown["picker"], json!(shipped), "{shown}");
+    screenshot(client, "demo").await;
+    if std::env::var("BEAD_UPDATE_SCREENSHOT").as_deref() == Ok("1") {
+        std::fs::copy(
+            workspace_root().join("target/viewer-demo.png"),
+            workspace_root().join("docs/demo.png"),
+        )
+        .unwrap();
+    }
     let errors = js(client, "return window.__errors;").await;
     assert_eq!(errors, json!([]), "errors in the page");
 }

@@ -3,6 +3,7 @@
 
 mod check;
 mod compare;
+mod export_page;
 mod grid;
 mod order;
 mod plot;
@@ -36,6 +37,7 @@ pub fn dispatch(command: Command) -> Result<()> {
         Command::Order(args) => order::order(&args),
         Command::Plot(args) => plot::plot(&args),
         Command::Serve(args) => serve::serve(&args),
+        Command::ExportPage(args) => export_page::export_page(&args),
     }
 }
 

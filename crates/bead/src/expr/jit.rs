@@ -399,6 +399,15 @@ pub(super) fn compile(code: &[Instr], outputs: &[u32]) -> (Option<Arc<Native>>, 
     if !jit_enabled() {
         return (None, NativeStatus::Disabled);
     }
+    if cfg!(target_arch = "wasm32") {
+        // No code generation inside wasm32 (and no clock to time it by).
+        return (
+            None,
+            NativeStatus::Fallback(
+                "no machine code on wasm32 (the interpreter evaluates the tapes)".into(),
+            ),
+        );
+    }
     if FORCE_FAILURE.with(Cell::get) {
         return (
             None,

@@ -11,8 +11,9 @@ use super::{Unilateral, UnilateralRow};
 use crate::expr::{parse, Expr, ExprError, Resolved};
 
 /// Slot that stands for time while a system is being built; replaced by the real time slot
-/// (2 n) when the system is compiled, because n is known only then.
-const TIME_PLACEHOLDER: usize = 1 << 40;
+/// (2 n) when the system is compiled, because n is known only then. Far above any slot a
+/// system can have on a 32-bit target too (wasm32).
+const TIME_PLACEHOLDER: usize = 1 << 30;
 const AXES: [&str; 3] = ["x", "y", "z"];
 /// The masses a particle may have: products of masses, inverse masses and squared speeds stay
 /// far from overflow and underflow (1/1e308 is subnormal, so W would lose all precision).

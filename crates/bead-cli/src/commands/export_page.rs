@@ -1,0 +1,113 @@
+//! `bead export-page`: the viewer as a static folder (no server: the engine runs in the page,
+//! `bead_viewer::page`).
+
+use std::collections::HashSet;
+use std::io::Write;
+use std::path::Path;
+
+use anyhow::{bail, Context, Result};
+use bead_viewer::page::StaticPage;
+use bead_viewer::protocol::Limits;
+use bead_viewer::{Catalog, NamedScene};
+
+use super::load_scene;
+use crate::args::ExportPageArgs;
+
+/// The engine: `crates/bead-web` built for wasm32 by `scripts/build-web`, committed with the
+/// demo page (CI rebuilds it and checks that it is current).
+pub const ENGINE_WASM: &[u8] = include_bytes!("../../../../docs/demo/bead.wasm");
+
+/// Write the folder; print its files and the embed snippet.
+pub fn export_page(args: &ExportPageArgs) -> Result<()> {
+    let scenes = page_scenes(&args.scenes, args.only)?;
+    let intro_html = match &args.intro {
+        Some(path) => Some(
+            std::fs::read_to_string(path)
+                .with_context(|| format!("cannot read `{}`", path.display()))?,
+        ),
+        None => None,
+    };
+    let page = StaticPage {
+        scenes,
+        wasm: ENGINE_WASM,
+        intro_html,
+        title: args.title.clone(),
+    };
+    let files = page.write(&args.out)?;
+    let mut stdout = std::io::stdout().lock();
+    let total: usize = files.iter().map(|(_, c)| c.len()).sum();
+    writeln!(
+        stdout,
+        "wrote {} ({} files, {:.2} MB; the page loads bead.wasm, {:.2} MB, or from file:// its base64 copy):",
+        args.out.display(),
+        files.len(),
+        total as f64 / 1e6,
+        ENGINE_WASM.len() as f64 / 1e6
+    )?;
+    for (name, contents) in &files {
+        writeln!(stdout, "  {name:<14} {:>9} bytes", contents.len())?;
+    }
+    writeln!(
+        stdout,
+        "open {}/index.html, or publish the folder on any static host; to embed the first scene in a post:",
+        args.out.display()
+    )?;
+    let embed = files
+        .iter()
+        .find(|(name, _)| *name == "embed.html")
+        .map(|(_, c)| String::from_utf8_lossy(c).into_owned())
+        .unwrap_or_default();
+    write!(stdout, "{embed}")?;
+    Ok(())
+}
+
+/// The picker's scenes: each given file (named by its file stem, checked as `bead serve`
+/// checks its scene), then the shipped scenes not replaced by one of them (same name or same
+/// text), unless `only`. No file: the shipped scenes.
+fn page_scenes(paths: &[std::path::PathBuf], only: bool) -> Result<Vec<NamedScene>> {
+    let mut given: Vec<NamedScene> = Vec::new();
+    let mut names = HashSet::new();
+    for path in paths {
+        let scene = load_scene(path, &[])?;
+        let (count, limit) = (
+            scene.system.particles().len(),
+            Limits::default().max_particles,
+        );
+        if count > limit {
+            bail!(
+                "{}: too many particles for the viewer: {count} (limit {limit})",
+                path.display()
+            );
+        }
+        let text = std::fs::read_to_string(path)
+            .with_context(|| format!("cannot read `{}`", path.display()))?;
+        let name = scene_name(path);
+        if !names.insert(name.clone()) {
+            bail!(
+                "{}: a second scene named `{name}` (scenes are named by their file names without .toml)",
+                path.display()
+            );
+        }
+        given.push(NamedScene { name, text });
+    }
+    if only && given.is_empty() {
+        bail!("--only needs at least one scene file");
+    }
+    let mut scenes = given.clone();
+    if !only {
+        scenes.extend(
+            Catalog::shipped()
+                .scenes
+                .into_iter()
+                .filter(|s| !given.iter().any(|g| g.name == s.name || g.text == s.text)),
+        );
+    }
+    Ok(scenes)
+}
+
+/// A scene's name in the picker and the share URL: its file name without `.toml`.
+fn scene_name(path: &Path) -> String {
+    path.file_stem()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_else(|| path.display().to_string())
+}
