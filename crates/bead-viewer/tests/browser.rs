@@ -3423,14 +3423,23 @@ async fn bounce_checks(client: &Client, addr: SocketAddr) {
 /// export-page` writes it) with the committed engine (`docs/demo/bead.wasm`, which CI
 /// rebuilds from the sources and compares), under `target/`.
 fn static_folder(name: &str) -> PathBuf {
+    static_folder_first(name, "parabola")
+}
+
+/// [`static_folder`] with the shipped scene `first` loaded on open.
+fn static_folder_first(name: &str, first: &str) -> PathBuf {
     let wasm = std::fs::read(workspace_root().join("docs/demo/bead.wasm"))
         .expect("docs/demo/bead.wasm (scripts/build-web writes it)");
     let dir = workspace_root()
         .join("target")
         .join(format!("static-page-{name}-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
+    let mut scenes = Catalog::shipped().scenes;
+    let at = scenes.iter().position(|s| s.name == first).unwrap();
+    let chosen = scenes.remove(at);
+    scenes.insert(0, chosen);
     bead_viewer::page::StaticPage {
-        scenes: Catalog::shipped().scenes,
+        scenes,
         wasm: &wasm,
         intro_html: None,
         title: "bead".into(),
@@ -3664,6 +3673,74 @@ async fn demo_checks(client: &Client, addr: SocketAddr) {
         )
         .unwrap();
     }
+    let errors = js(client, "return window.__errors;").await;
+    assert_eq!(errors, json!([]), "errors in the page");
+}
+
+/// How fast the static page runs (printed for the README; a figure, not asserted, since a
+/// loaded machine runs slower): over 3 s of the page's clock, the frames the engine sent
+/// per second, the page's animation frames per second (the engine runs on the page's
+/// thread, so a slow tick shows here), the simulation rate it shows and the engine's mean
+/// tick. The article's parabola with both panels, and the shipped 1000-link chain.
+#[test]
+fn how_fast_the_static_page_runs() {
+    for first in ["parabola", "chain"] {
+        let folder = Folder(static_folder_first(&format!("speed-{first}"), first));
+        in_browser_at(Site::Static(folder.0.clone()), |client, addr| {
+            speed_checks(client, addr).boxed_local()
+        });
+    }
+}
+
+async fn speed_checks(client: &Client, addr: SocketAddr) {
+    client.goto(&format!("http://{addr}/")).await.unwrap();
+    wait_within(
+        client,
+        "window.__viewer && window.__viewer.scene && window.__viewer.clock && \
+         [...window.__viewer.panels.values()].every(p => p.frame && p.frame.status === 'running' && p.frame.t > 0.2)",
+        "the panels running",
+        Duration::from_secs(120),
+    )
+    .await;
+    js(
+        client,
+        "const v = window.__viewer, w = v.ws;
+         const s = document.getElementById('at-end'); s.value = 'continue'; s.dispatchEvent(new Event('change'));
+         const m = { t0: performance.now(), frames0: v.stats.frames, ticks0: w.stats.ticks, tickMs0: w.stats.tickMs,
+                     raf: 0, rates: [], done: false };
+         const count = () => { m.raf += 1; if (!m.done) requestAnimationFrame(count); };
+         requestAnimationFrame(count);
+         m.timer = setInterval(() => {
+           m.rates.push(v.clock.sim_rate);
+           if (performance.now() - m.t0 >= 3000) {
+             m.done = true; clearInterval(m.timer);
+             const secs = (performance.now() - m.t0) / 1000;
+             m.result = { scene: v.scene.name, panels: v.panels.size,
+                          engine_frames_per_s: (v.stats.frames - m.frames0) / secs,
+                          animation_frames_per_s: m.raf / secs,
+                          sim_rate: m.rates.reduce((a, b) => a + b, 0) / m.rates.length,
+                          tick_ms: (w.stats.tickMs - m.tickMs0) / Math.max(1, w.stats.ticks - m.ticks0),
+                          load_ms: w.stats.loadMs, wasm_bytes: w.stats.wasmBytes };
+           }
+         }, 100);
+         window.__speed = m;
+         return null;",
+    )
+    .await;
+    wait_within(
+        client,
+        "window.__speed.result",
+        "3 s of measurement",
+        Duration::from_secs(60),
+    )
+    .await;
+    let result = js(client, "return window.__speed.result;").await;
+    eprintln!("static page speed: {result}");
+    assert!(
+        result["engine_frames_per_s"].as_f64().unwrap() > 0.0,
+        "{result}"
+    );
+    assert!(result["sim_rate"].as_f64().unwrap() > 0.0, "{result}");
     let errors = js(client, "return window.__errors;").await;
     assert_eq!(errors, json!([]), "errors in the page");
 }
