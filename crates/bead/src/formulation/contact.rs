@@ -135,16 +135,6 @@ impl Contact {
         }
     }
 
-    /// The unilateral rows, in the order of [`Contact::detached`].
-    pub fn unilateral(&self) -> &[UnilateralRow] {
-        &self.unilateral
-    }
-
-    /// Per unilateral row, whether it is detached now.
-    pub fn detached(&self) -> &[bool] {
-        &self.detached
-    }
-
     fn active(&mut self) -> &mut Implicit {
         match self.current {
             None => &mut self.full,
@@ -159,9 +149,31 @@ impl Contact {
         }
     }
 
+    /// A detached row counts in the observation only where it is on the wrong side.
+    fn mask_observation(&self, out: &mut Observation) {
+        for (u, &detached) in self.unilateral.iter().zip(&self.detached) {
+            if detached && u.side.sign() * out.constraints[u.row] >= 0.0 {
+                out.constraints[u.row] = 0.0;
+                out.gradients.offset[u.row] = 0.0;
+            }
+        }
+    }
+}
+
+impl Unilateral for Contact {
+    /// The unilateral rows, in the order of [`Contact::detached`].
+    fn unilateral(&self) -> &[UnilateralRow] {
+        &self.unilateral
+    }
+
+    /// Per unilateral row, whether it is detached now.
+    fn detached(&self) -> &[bool] {
+        &self.detached
+    }
+
     /// Detach (`true`) or attach unilateral row `k`: the equations switch to the system
     /// without the detached rows, compiled the first time this set of rows is detached.
-    pub fn set_detached(&mut self, k: usize, detached: bool) -> Result<(), StepError> {
+    fn set_detached(&mut self, k: usize, detached: bool) -> Result<(), StepError> {
         if self.detached[k] == detached {
             return Ok(());
         }
@@ -235,7 +247,7 @@ impl Contact {
     /// acceleration in the current mode, skipped when every row is detached), s C for a
     /// detached one. Evaluates the whole system's constraints into the contact's own
     /// workspace.
-    pub fn switching_values(
+    fn switching_values(
         &mut self,
         t: f64,
         x: &[f64],
@@ -270,7 +282,7 @@ impl Contact {
     /// s Cdot of unilateral row `k` and s Cddot of it in the current mode at (t, x, v) (one
     /// evaluation of the acceleration): how fast the row separates, and how fast that
     /// grows without its force.
-    pub fn normal_motion(
+    fn normal_motion(
         &mut self,
         k: usize,
         t: f64,
@@ -301,7 +313,7 @@ impl Contact {
     /// change by -W J_A^T mu so that the row's Cdot becomes -e times what it was and every
     /// other attached row's Cdot is unchanged (see the module documentation). Returns the
     /// row's s Cdot before.
-    pub fn impact(
+    fn impact(
         &mut self,
         k: usize,
         e: f64,
@@ -381,7 +393,7 @@ impl Contact {
     }
 
     /// Per unilateral row at (t, x): s C (> 0 on the allowed side) and the offset |C| / |J|.
-    pub fn separations(&mut self, t: f64, x: &[f64]) -> Vec<(f64, f64)> {
+    fn separations(&mut self, t: f64, x: &[f64]) -> Vec<(f64, f64)> {
         let set = self.full.system().constraints();
         set.gradient(t, x, &mut self.eval);
         self.unilateral
@@ -399,65 +411,9 @@ impl Contact {
     }
 
     /// The name of unilateral row `k`'s constraint, e.g. `constraint 1`.
-    pub fn row_name(&self, k: usize) -> String {
+    fn row_name(&self, k: usize) -> String {
         let set = self.full.system().constraints();
         set.info_of_row(self.unilateral[k].row).name.clone()
-    }
-
-    /// A detached row counts in the observation only where it is on the wrong side.
-    fn mask_observation(&self, out: &mut Observation) {
-        for (u, &detached) in self.unilateral.iter().zip(&self.detached) {
-            if detached && u.side.sign() * out.constraints[u.row] >= 0.0 {
-                out.constraints[u.row] = 0.0;
-                out.gradients.offset[u.row] = 0.0;
-            }
-        }
-    }
-}
-
-impl Unilateral for Contact {
-    fn unilateral(&self) -> &[UnilateralRow] {
-        Contact::unilateral(self)
-    }
-    fn detached(&self) -> &[bool] {
-        Contact::detached(self)
-    }
-    fn set_detached(&mut self, k: usize, detached: bool) -> Result<(), StepError> {
-        Contact::set_detached(self, k, detached)
-    }
-    fn switching_values(
-        &mut self,
-        t: f64,
-        q: &[f64],
-        v: &[f64],
-        g: &mut [f64],
-    ) -> Result<(), StepError> {
-        Contact::switching_values(self, t, q, v, g)
-    }
-    fn normal_motion(
-        &mut self,
-        k: usize,
-        t: f64,
-        q: &[f64],
-        v: &[f64],
-    ) -> Result<(f64, f64), StepError> {
-        Contact::normal_motion(self, k, t, q, v)
-    }
-    fn impact(
-        &mut self,
-        k: usize,
-        e: f64,
-        t: f64,
-        q: &[f64],
-        v: &mut [f64],
-    ) -> Result<f64, StepError> {
-        Contact::impact(self, k, e, t, q, v)
-    }
-    fn separations(&mut self, t: f64, q: &[f64]) -> Vec<(f64, f64)> {
-        Contact::separations(self, t, q)
-    }
-    fn row_name(&self, k: usize) -> String {
-        Contact::row_name(self, k)
     }
 }
 
