@@ -72,7 +72,10 @@ fn the_folder_holds_the_page_the_engine_and_the_scenes() {
     assert_eq!(names[1], "parabola");
     assert_eq!(names.len(), bead_viewer::scenes::SHIPPED.len());
     let embed = std::fs::read_to_string(out.join("embed.html")).unwrap();
-    assert!(embed.contains("index.html?scene=my%20scene\""), "{embed}");
+    assert!(
+        embed.contains("index.html?scene=my%20scene&amp;present=1\""),
+        "{embed}"
+    );
     assert!(printed.contains(embed.trim_end()), "{printed}");
 
     // --only: the given scenes alone, in order; the page names itself.

@@ -277,6 +277,7 @@
       q.set("start.v", start.velocities.map(String).join(","));
     }
     q.set("ts", String(state.timeScale));
+    if (state.presenting) q.set("present", "1");
     // The page's address without its query (origin + path; a file:// page has no origin).
     return `${location.href.split(/[?#]/)[0]}?${q.toString()}`;
   }
@@ -2628,6 +2629,9 @@
   }
   window.addEventListener("resize", fitToWindow);
   state.setPresenting = setPresenting;
+  // `?present=1` (the share URL of a page presenting; the static page's embed snippet): open
+  // in presentation mode, which fits the canvases to the window (or the post's iframe).
+  if (new URLSearchParams(location.search).get("present") === "1") setPresenting(true);
 
   // ---------- toolbar ----------
   $("overlay").onchange = () => setOverlay($("overlay").checked);

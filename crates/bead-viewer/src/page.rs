@@ -171,8 +171,9 @@ fn base64_into(bytes: &[u8], out: &mut String) {
     }
 }
 
-/// `embed.html`: an `<iframe>` that shows `scene` from the folder, to paste into a post
-/// (`PAGE_URL` is where the folder is published).
+/// `embed.html`: an `<iframe>` that shows `scene` from the folder in presentation mode (the
+/// canvases fit the frame), to paste into a post (`PAGE_URL` is where the folder is
+/// published).
 pub fn embed_snippet(scene: &str) -> String {
     let mut out = String::new();
     let query = url_component(scene);
@@ -182,7 +183,7 @@ pub fn embed_snippet(scene: &str) -> String {
     );
     let _ = writeln!(
         out,
-        "<iframe src=\"PAGE_URL/index.html?scene={query}\" title=\"bead: {}\" width=\"100%\" height=\"720\" style=\"border: 1px solid #ccc\" loading=\"lazy\"></iframe>",
+        "<iframe src=\"PAGE_URL/index.html?scene={query}&amp;present=1\" title=\"bead: {}\" width=\"100%\" height=\"720\" style=\"border: 1px solid #ccc\" loading=\"lazy\"></iframe>",
         escape_html(scene)
     );
     out
@@ -292,8 +293,11 @@ mod tests {
         assert_eq!(list[1]["name"], "a b");
         assert_eq!(list[1]["text"], "# a b\n");
         let embed = String::from_utf8(files[7].1.clone()).unwrap();
-        assert!(embed.contains("index.html?scene=parabola\""), "{embed}");
-        assert!(embed_snippet("a b").contains("?scene=a%20b\""));
+        assert!(
+            embed.contains("index.html?scene=parabola&amp;present=1\""),
+            "{embed}"
+        );
+        assert!(embed_snippet("a b").contains("?scene=a%20b&amp;"));
     }
 
     #[test]

@@ -3570,12 +3570,13 @@ async fn ten_second_checks(client: &Client, addr: SocketAddr) {
 
 /// Opened from `file://` (a folder downloaded and double-clicked), where the browser does not
 /// fetch files: the page loads the engine from its base64 copy and runs; a share URL's scene
-/// comes up.
+/// comes up, in presentation mode as the embed snippet asks (`present=1`), which the share
+/// URL keeps.
 #[test]
 fn the_static_page_runs_from_file_urls() {
     let folder = Folder(static_folder("file"));
     let url = format!(
-        "file://{}/index.html?scene=circle",
+        "file://{}/index.html?scene=circle&present=1",
         folder.0.canonicalize().unwrap().display()
     );
     FILE_URL.with(|u| *u.borrow_mut() = url);
@@ -3602,11 +3603,17 @@ async fn file_checks(client: &Client) {
     .await;
     let loaded = js(
         client,
-        "return { base64: typeof window.BEAD_WASM_BASE64 === 'string', protocol: location.protocol, share: (() => { document.getElementById('share').click(); return document.getElementById('share-url').value; })() };",
+        "return { base64: typeof window.BEAD_WASM_BASE64 === 'string', protocol: location.protocol,
+           presenting: document.body.classList.contains('presenting'), share: (() => { document.getElementById('share').click(); return document.getElementById('share-url').value; })() };",
     )
     .await;
     assert_eq!(loaded["base64"], Value::Bool(true), "{loaded}");
     assert_eq!(loaded["protocol"], "file:", "{loaded}");
+    assert_eq!(loaded["presenting"], Value::Bool(true), "{loaded}");
+    assert!(
+        loaded["share"].as_str().unwrap().contains("&present=1"),
+        "{loaded}"
+    );
     // The share URL names the file, not an origin a file page does not have.
     assert!(
         loaded["share"]
