@@ -3473,6 +3473,17 @@ fn the_static_page_passes_the_served_pages_end_to_end_checks() {
     });
 }
 
+/// Every shipped scene, chosen in the static page's picker, loads and runs in the engine in
+/// the page (the cloth's sparse factorization, the chain's fused path, the 3D views, the
+/// bounce's contacts: the whole library built for wasm32), as on the served page.
+#[test]
+fn every_shipped_scene_runs_in_the_static_page() {
+    let folder = Folder(static_folder("picker"));
+    in_browser_at(Site::Static(folder.0.clone()), |client, addr| {
+        picker_checks(client, addr).boxed_local()
+    });
+}
+
 /// The teaching checks (overlay, keys, a slider, the share URL round trip, a drag while
 /// paused) on the static page.
 #[test]
