@@ -7,10 +7,9 @@ use std::path::Path;
 
 use anyhow::{bail, Context, Result};
 use bead_viewer::page::StaticPage;
-use bead_viewer::protocol::Limits;
 use bead_viewer::{Catalog, NamedScene};
 
-use super::load_scene;
+use super::serve::viewer_scene;
 use crate::args::ExportPageArgs;
 
 /// The engine: `crates/bead-web` built for wasm32 by `scripts/build-web`, committed with the
@@ -68,27 +67,15 @@ fn page_scenes(paths: &[std::path::PathBuf], only: bool) -> Result<Vec<NamedScen
     let mut given: Vec<NamedScene> = Vec::new();
     let mut names = HashSet::new();
     for path in paths {
-        let scene = load_scene(path, &[])?;
-        let (count, limit) = (
-            scene.system.particles().len(),
-            Limits::default().max_particles,
-        );
-        if count > limit {
+        let scene = viewer_scene(path, scene_name(path))?;
+        if !names.insert(scene.name.clone()) {
             bail!(
-                "{}: too many particles for the viewer: {count} (limit {limit})",
-                path.display()
+                "{}: a second scene named `{}` (scenes are named by their file names without .toml)",
+                path.display(),
+                scene.name
             );
         }
-        let text = std::fs::read_to_string(path)
-            .with_context(|| format!("cannot read `{}`", path.display()))?;
-        let name = scene_name(path);
-        if !names.insert(name.clone()) {
-            bail!(
-                "{}: a second scene named `{name}` (scenes are named by their file names without .toml)",
-                path.display()
-            );
-        }
-        given.push(NamedScene { name, text });
+        given.push(scene);
     }
     if only && given.is_empty() {
         bail!("--only needs at least one scene file");

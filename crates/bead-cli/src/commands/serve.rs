@@ -15,27 +15,7 @@ use crate::args::ServeArgs;
 /// Serve until interrupted.
 pub fn serve(args: &ServeArgs) -> Result<()> {
     let catalog = match &args.scene {
-        Some(path) => {
-            // Validate up front so that a bad scene fails here, located, not in the page; the
-            // viewer's particle limit too (a session refuses more).
-            let scene = load_scene(path, &[])?;
-            let (count, limit) = (
-                scene.system.particles().len(),
-                Limits::default().max_particles,
-            );
-            if count > limit {
-                bail!(
-                    "{}: too many particles for the viewer: {count} (limit {limit})",
-                    path.display()
-                );
-            }
-            let text = std::fs::read_to_string(path)
-                .with_context(|| format!("cannot read `{}`", path.display()))?;
-            Catalog::with_first(NamedScene {
-                name: scene_name(path),
-                text,
-            })
-        }
+        Some(path) => Catalog::with_first(viewer_scene(path, scene_name(path))?),
         None => Catalog::shipped(),
     };
     let config = ServerConfig {
@@ -70,6 +50,26 @@ pub fn serve(args: &ServeArgs) -> Result<()> {
         }
     })
     .with_context(|| format!("cannot serve on {addr}"))
+}
+
+/// A scene file for the viewer's picker, named `name`, checked up front so that a bad scene
+/// fails here, located, not in the page; the viewer's particle limit too (a session refuses
+/// more).
+pub(super) fn viewer_scene(path: &Path, name: String) -> Result<NamedScene> {
+    let scene = load_scene(path, &[])?;
+    let (count, limit) = (
+        scene.system.particles().len(),
+        Limits::default().max_particles,
+    );
+    if count > limit {
+        bail!(
+            "{}: too many particles for the viewer: {count} (limit {limit})",
+            path.display()
+        );
+    }
+    let text = std::fs::read_to_string(path)
+        .with_context(|| format!("cannot read `{}`", path.display()))?;
+    Ok(NamedScene { name, text })
 }
 
 /// The picker name of a scene file: its file name.
