@@ -97,8 +97,7 @@ impl Reference {
                 "no reference: the scene has {n} coordinates, the reference runs for at most {REFERENCE_MAX_COORDS}"
             ));
         }
-        let (x0, _) = system.initial_particle_state();
-        let length = x0.iter().fold(1e-300_f64, |m, c| m.max(c.abs()));
+        let length = system.length_scale();
         let mut config = SimulationConfig {
             method: settings.method,
             integrator: IntegratorKind::Dopri5,

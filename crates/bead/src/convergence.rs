@@ -222,13 +222,7 @@ pub fn study(
             integrator: kind.name(),
         });
     }
-    let (x0, _) = system.initial_particle_state();
-    let length = x0.iter().fold(0.0_f64, |m, c| m.max(c.abs()));
-    let length_scale = if length > 0.0 && length.is_finite() {
-        length
-    } else {
-        1.0
-    };
+    let length_scale = system.length_scale();
     // The reference: dopri5 at the tight tolerance, on the form that cannot drift.
     let reference_method = if system.parametric().is_some() {
         Method::Parametric

@@ -153,12 +153,7 @@ impl ConstraintScales {
     pub fn of(system: &System) -> ConstraintScales {
         let set = system.constraints();
         let (x, v) = system.initial_particle_state();
-        let length = x.iter().fold(0.0, |l: f64, c| l.max(c.abs()));
-        let length = if length > 0.0 && length.is_finite() {
-            length
-        } else {
-            1.0
-        };
+        let length = crate::model::length_scale(&x);
         let mut ws = set.workspace();
         set.evaluate(0.0, &x, &v, &mut ws);
         let norms: Vec<f64> = (0..set.n_rows())

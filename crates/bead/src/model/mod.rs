@@ -120,6 +120,13 @@ impl System {
             .position(|p| p.name == name)
             .map(ParticleId)
     }
+    /// The scene's length scale: the largest magnitude of an initial coordinate, 1 when all
+    /// are 0 ([`length_scale`] of the initial positions). Tolerances in length (a reference
+    /// run's atol, the floors of a convergence study) are relative to it.
+    pub fn length_scale(&self) -> f64 {
+        length_scale(&self.initial_particle_state().0)
+    }
+
     /// Initial particle positions and velocities as flat coordinate vectors (n_coords each).
     pub fn initial_particle_state(&self) -> (Vec<f64>, Vec<f64>) {
         let x = self
@@ -267,5 +274,16 @@ impl FusedTapes {
         [&self.acceleration, &self.rk4, &self.rk4_observed]
             .into_iter()
             .filter_map(|cell| cell.get().and_then(Option::as_ref))
+    }
+}
+
+/// A length scale of positions `x`: the largest coordinate magnitude, 1 when that is 0 or
+/// not finite (a system at the origin).
+pub fn length_scale(x: &[f64]) -> f64 {
+    let length = x.iter().fold(0.0_f64, |m, c| m.max(c.abs()));
+    if length > 0.0 && length.is_finite() {
+        length
+    } else {
+        1.0
     }
 }

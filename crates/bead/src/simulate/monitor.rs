@@ -196,9 +196,10 @@ impl Monitor {
         let kinetic = system.kinetic_energy(&observation.xdot);
         let potential = system.potential_energy(&observation.x);
         let energy = kinetic + potential;
-        // The scene's length scale: the largest initial coordinate magnitude (as for the
-        // constraint tolerance).
+        // The largest coordinate magnitude at the run's start: the energy scale's lever arm
+        // (0 for a system at the origin), and the run's length scale (1 then).
         let length = observation.x.iter().fold(0.0_f64, |m, c| m.max(c.abs()));
+        let length_scale = crate::model::length_scale(&observation.x);
         let gravity = norm(system.gravity());
         let mass: f64 = system.particles().iter().map(|p| p.mass).sum();
         let scale = [
@@ -245,11 +246,6 @@ impl Monitor {
             .map(|r| formulation.row_never_singular(r))
             .collect();
         let watched = never_singular.contains(&false);
-        let length_scale = if length > 0.0 && length.is_finite() {
-            length
-        } else {
-            1.0
-        };
         Monitor {
             observation,
             ends: [last, before],
