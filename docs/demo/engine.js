@@ -48,12 +48,15 @@
       this.exports = null;
       this.panic = null;
       this.timer = null;
+      // Whether drain() is delivering (a handler that sends must not be re-entered).
+      this.draining = false;
       // For the tests: when the engine was ready, and its ticks.
       this.stats = { loadMs: null, ticks: 0, tickMs: 0, wasmBytes: 0 };
       const started = performance.now();
       this.load().then(() => {
-        this.stats.loadMs = performance.now() - started;
         this.open();
+        // Fetched, compiled, scenes added, the first scene loaded: ready to draw.
+        this.stats.loadMs = performance.now() - started;
       }).catch((e) => this.fail("the engine did not load: " + (e && e.message ? e.message : e)));
     }
 
@@ -72,6 +75,7 @@
       const { instance } = await WebAssembly.instantiate(bytes, imports);
       this.exports = instance.exports;
       for (const scene of window.BEAD_SCENES || []) {
+        if (this.readyState === CLOSED) return;
         this.call(() => this.withString(scene.name, (np, nl) =>
           this.withString(scene.text, (tp, tl) => this.exports.bead_add_scene(np, nl, tp, tl))));
       }
@@ -99,10 +103,13 @@
       this.timer = setTimeout(tick, FRAME_MS);
     }
 
+    // The replies are delivered after the sender's handler returns (a microtask), as a
+    // WebSocket delivers them in a later task: a handler that sends, then updates its own
+    // state, sees the replies only after that update.
     send(text) {
       if (this.readyState !== OPEN) return;
       this.call(() => this.withString(text, (ptr, len) => this.exports.bead_message(ptr, len)));
-      this.drain();
+      queueMicrotask(() => this.drain());
     }
 
     close() {
@@ -110,17 +117,24 @@
       this.readyState = CLOSED;
     }
 
-    // Every message the session has for the page, in order.
+    // Every message the session has for the page, in order, one handler at a time: what a
+    // handler's own sends queue is delivered by this loop after that handler returns.
     drain() {
-      while (this.readyState === OPEN) {
-        const kind = this.call(() => this.exports.bead_next());
-        if (!kind) return;
-        const ptr = this.exports.bead_out_ptr();
-        const len = this.exports.bead_out_len();
-        const bytes = new Uint8Array(this.exports.memory.buffer, ptr, len);
-        // Text as a string; a frame copied out of the engine's memory (it is reused).
-        const data = kind === 1 ? decoder.decode(bytes) : bytes.slice().buffer;
-        if (this.onmessage) this.onmessage({ data });
+      if (this.draining) return;
+      this.draining = true;
+      try {
+        while (this.readyState === OPEN) {
+          const kind = this.call(() => this.exports.bead_next());
+          if (!kind) return;
+          const ptr = this.exports.bead_out_ptr();
+          const len = this.exports.bead_out_len();
+          const bytes = new Uint8Array(this.exports.memory.buffer, ptr, len);
+          // Text as a string; a frame copied out of the engine's memory (it is reused).
+          const data = kind === 1 ? decoder.decode(bytes) : bytes.slice().buffer;
+          if (this.onmessage) this.onmessage({ data });
+        }
+      } finally {
+        this.draining = false;
       }
     }
 

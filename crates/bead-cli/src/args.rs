@@ -90,6 +90,11 @@ pub struct ExportPageArgs {
     /// The page's title (the browser's tab).
     #[arg(long, value_name = "TEXT", default_value = "bead")]
     pub title: String,
+
+    /// Write into DIR even when it holds an index.html that `bead export-page` did not write
+    /// (a site's own page would be replaced).
+    #[arg(long)]
+    pub force: bool,
 }
 
 const AFTER_ORDER: &str = "\
@@ -148,7 +153,8 @@ pub struct OrderArgs {
 /// `bead serve`.
 #[derive(Debug, Args)]
 pub struct ServeArgs {
-    /// A scene file (TOML) to show first; the shipped scenes are always available.
+    /// A scene file (TOML) to show first, named by its file name without .toml; the shipped
+    /// scenes are always available.
     pub scene: Option<PathBuf>,
 
     /// Port to listen on (0: any free port).

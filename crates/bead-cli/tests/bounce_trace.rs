@@ -125,6 +125,7 @@ fn the_traced_bounces_are_the_flights_and_impacts_computed_by_hand() {
         );
         let (mut worst_x, mut worst_v, mut rows) = (0.0_f64, 0.0_f64, 0);
         let mut energy_before: Option<(usize, f64)> = None;
+        let mut bounces_checked = 0;
         for line in lines {
             let cells: Vec<f64> = line.split(',').map(|c| c.parse().unwrap()).collect();
             let t = cells[ct];
@@ -157,12 +158,17 @@ fn the_traced_bounces_are_the_flights_and_impacts_computed_by_hand() {
                         (got - taken).abs() <= 1e-9 * before,
                         "{method}: bounce {k} took {got}, by hand {taken}"
                     );
+                    bounces_checked += 1;
                 }
             }
             energy_before = Some((k, cells[ce]));
         }
         println!("{method}: {rows} rows in flight; positions within {worst_x:.2e} px, velocities within {worst_v:.2e} px/s");
         assert!(rows > 1000, "{method}: {rows} rows");
+        assert_eq!(
+            bounces_checked, 9,
+            "{method}: bounces whose energy was checked"
+        );
         assert!(worst_x < 1e-8, "{method}: positions off by {worst_x}");
         assert!(worst_v < 1e-8, "{method}: velocities off by {worst_v}");
     }

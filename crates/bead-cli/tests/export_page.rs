@@ -191,3 +191,31 @@ fn bad_input_is_refused_with_what_and_where() {
     assert!(err.contains("--out"), "{err}");
     assert!(!out.exists(), "nothing written by a refused command");
 }
+
+/// A folder whose index.html another tool wrote (a site's front page) is not overwritten
+/// without --force; a page export-page wrote is written again.
+#[test]
+fn a_sites_own_index_html_is_not_replaced_without_force() {
+    let dir = TempDir::new("export-page-site");
+    let site = dir.path("site");
+    std::fs::create_dir_all(&site).unwrap();
+    std::fs::write(site.join("index.html"), "<html>my site</html>").unwrap();
+    let err = fails(bead_in(&dir.0, &["export-page", "--out", p(&site)]), 1);
+    assert!(
+        err.contains("index.html exists and is not a page bead export-page wrote"),
+        "{err}"
+    );
+    assert_eq!(
+        std::fs::read_to_string(site.join("index.html")).unwrap(),
+        "<html>my site</html>"
+    );
+    ok(bead_in(
+        &dir.0,
+        &["export-page", "--out", p(&site), "--force"],
+    ));
+    // Ours now: written again without --force.
+    ok(bead_in(&dir.0, &["export-page", "--out", p(&site)]));
+    assert!(std::fs::read_to_string(site.join("index.html"))
+        .unwrap()
+        .contains("engine.js"));
+}

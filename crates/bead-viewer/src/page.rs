@@ -179,7 +179,7 @@ pub fn embed_snippet(scene: &str) -> String {
     let query = url_component(scene);
     let _ = writeln!(
         out,
-        "<!-- Paste into a post; replace PAGE_URL with where this folder is published (e.g. https://example.org/bead/). -->"
+        "<!-- Paste into a post; replace PAGE_URL with where this folder is published (e.g. https://example.org/bead). -->"
     );
     let _ = writeln!(
         out,

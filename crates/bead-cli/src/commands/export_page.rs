@@ -9,7 +9,7 @@ use anyhow::{bail, Context, Result};
 use bead_viewer::page::StaticPage;
 use bead_viewer::{Catalog, NamedScene};
 
-use super::serve::viewer_scene;
+use super::serve::{scene_name, viewer_scene};
 use crate::args::ExportPageArgs;
 
 /// The engine: `crates/bead-web` built for wasm32 by `scripts/build-web`, committed with the
@@ -26,6 +26,7 @@ pub fn export_page(args: &ExportPageArgs) -> Result<()> {
         ),
         None => None,
     };
+    refuse_foreign_page(&args.out, args.force)?;
     let page = StaticPage {
         scenes,
         wasm: ENGINE_WASM,
@@ -92,9 +93,19 @@ fn page_scenes(paths: &[std::path::PathBuf], only: bool) -> Result<Vec<NamedScen
     Ok(scenes)
 }
 
-/// A scene's name in the picker and the share URL: its file name without `.toml`.
-fn scene_name(path: &Path) -> String {
-    path.file_stem()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_else(|| path.display().to_string())
+/// Refuse to replace an `index.html` in `dir` that is not a page `bead export-page` wrote (it
+/// loads `engine.js`), unless `force`: a site's own front page is not ours to overwrite.
+fn refuse_foreign_page(dir: &Path, force: bool) -> Result<()> {
+    let index = dir.join("index.html");
+    if force || !index.is_file() {
+        return Ok(());
+    }
+    let text = std::fs::read_to_string(&index).unwrap_or_default();
+    if !text.contains(r#"<script src="engine.js"></script>"#) {
+        bail!(
+            "{} exists and is not a page bead export-page wrote; choose another --out, or --force to replace it",
+            index.display()
+        );
+    }
+    Ok(())
 }

@@ -72,9 +72,10 @@ pub(super) fn viewer_scene(path: &Path, name: String) -> Result<NamedScene> {
     Ok(NamedScene { name, text })
 }
 
-/// The picker name of a scene file: its file name.
-fn scene_name(path: &Path) -> String {
-    path.file_name()
+/// The picker name (and share URL's `scene=`) of a scene file: its file name without
+/// `.toml`, for `bead serve` and `bead export-page` alike.
+pub(super) fn scene_name(path: &Path) -> String {
+    path.file_stem()
         .map(|n| n.to_string_lossy().into_owned())
         .unwrap_or_else(|| path.display().to_string())
 }
