@@ -18,17 +18,10 @@ fn p(path: &Path) -> &str {
 /// The names in a page's `scenes.js`, in order.
 fn scene_names(dir: &Path) -> Vec<String> {
     let text = std::fs::read_to_string(dir.join("scenes.js")).unwrap();
-    let json = text
-        .split_once("window.BEAD_SCENES = ")
-        .unwrap()
-        .1
-        .trim_end()
-        .trim_end_matches(';');
-    let list: serde_json::Value = serde_json::from_str(json).unwrap();
-    list.as_array()
-        .unwrap()
-        .iter()
-        .map(|s| s["name"].as_str().unwrap().to_string())
+    bead_viewer::page::read_scenes_script(&text)
+        .expect("a scenes.js of bead export-page")
+        .into_iter()
+        .map(|s| s.name)
         .collect()
 }
 

@@ -137,8 +137,30 @@ fn scenes_script(scenes: &[NamedScene]) -> String {
         .collect();
     let json = serde_json::to_string_pretty(&list).unwrap_or_else(|_| "[]".into());
     format!(
-        "// The scenes of this page (name and TOML text), written by `bead export-page`; the first is loaded on open.\nwindow.BEAD_SCENES = {json};\n"
+        "// The scenes of this page (name and TOML text), written by `bead export-page`; the first is loaded on open.\n{SCENES_ASSIGNMENT}{json};\n"
     )
+}
+
+/// The assignment `scenes.js` makes (the page reads the scenes there).
+const SCENES_ASSIGNMENT: &str = "window.BEAD_SCENES = ";
+
+/// The scenes of a `scenes.js` that [`StaticPage`] wrote, in order; `None` when `text` is not
+/// one.
+pub fn read_scenes_script(text: &str) -> Option<Vec<NamedScene>> {
+    let json = text
+        .split_once(SCENES_ASSIGNMENT)?
+        .1
+        .trim_end()
+        .strip_suffix(';')?;
+    let list: Vec<serde_json::Value> = serde_json::from_str(json).ok()?;
+    list.iter()
+        .map(|s| {
+            Some(NamedScene {
+                name: s.get("name")?.as_str()?.to_string(),
+                text: s.get("text")?.as_str()?.to_string(),
+            })
+        })
+        .collect()
 }
 
 /// `bead-wasm.js`: the engine's bytes in base64, for pages opened from `file://`, where a
@@ -282,16 +304,9 @@ mod tests {
             )
             .replace("bead &lt;demo&gt;", "bead viewer");
         assert_eq!(back, INDEX_HTML);
-        let scenes = String::from_utf8(files[6].1.clone()).unwrap();
-        let json = scenes
-            .split_once("= ")
-            .unwrap()
-            .1
-            .trim_end()
-            .trim_end_matches(';');
-        let list: serde_json::Value = serde_json::from_str(json).unwrap();
-        assert_eq!(list[1]["name"], "a b");
-        assert_eq!(list[1]["text"], "# a b\n");
+        let scenes = read_scenes_script(std::str::from_utf8(&files[6].1).unwrap()).unwrap();
+        assert_eq!(scenes, page.scenes);
+        assert_eq!(read_scenes_script("window.X = [];"), None);
         let embed = String::from_utf8(files[7].1.clone()).unwrap();
         assert!(
             embed.contains("index.html?scene=parabola&amp;present=1\""),
