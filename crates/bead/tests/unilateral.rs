@@ -383,29 +383,7 @@ fn set_state_keeps_a_start_in_flight_and_projects_one_below_the_floor() {
 /// (not only of its normal part), and with e = 1 it swings back to its start height.
 #[test]
 fn an_impact_keeps_the_other_constraints_a_pendulum_against_a_wall() {
-    let scene = |e: f64| {
-        format!(
-            r#"
-[world]
-gravity = [0.0, -9.81]
-[[particle]]
-name = "bob"
-mass = 2.0
-position = [1.0, 0.0]
-[[constraint]]
-name = "rod"
-kind = "distance"
-particle = "bob"
-anchor = [0.0, 0.0]
-length = 1.0
-[[constraint]]
-name = "wall"
-expr = "bob.x + 0.5"
-side = "above"
-restitution = {e:?}
-"#
-        )
-    };
+    let scene = pendulum_wall;
     for e in [1.0, 0.5] {
         let mut sim = simulation(&scene(e), IntegratorKind::Rk4, 1e-3);
         let mut speeds = Vec::new();
@@ -489,25 +467,8 @@ p = ["sin(th)", "cos(th)"]
         bowl(0.5)
     );
     // A rod and a wall: in flight the parametric form is the rod's implicit form.
-    let pendulum = r#"
-[world]
-gravity = [0.0, -9.81]
-[[particle]]
-name = "bob"
-mass = 2.0
-position = [1.0, 0.0]
-[[constraint]]
-name = "rod"
-kind = "distance"
-particle = "bob"
-anchor = [0.0, 0.0]
-length = 1.0
-[[constraint]]
-name = "wall"
-expr = "bob.x + 0.5"
-side = "above"
-restitution = 0.5
-[parametric]
+    let pendulum = pendulum_wall(0.5)
+        + r#"[parametric]
 coordinates = ["th"]
 initial = ["pi/2"]
 [parametric.positions]
@@ -519,7 +480,7 @@ bob = ["sin(th)", "-cos(th)"]
     const TIME: f64 = 5e-11;
     const POSITION: f64 = 1e-9;
     for (name, text, dt, t_end) in [
-        ("pendulum", pendulum.to_string(), 1e-3, 6.0),
+        ("pendulum", pendulum, 1e-3, 6.0),
         ("circle", circle.to_string(), 1e-3, 7.0),
         ("loop", loop_track, 1e-3, 2.0),
         ("bowl", bowl_track, 1e-4, 3.0),
@@ -617,4 +578,30 @@ fn restart_at_rest_in_the_air_stays_in_flight_in_both_forms() {
         placed.system.initial_particle_state().0,
         vec![-40.0, -120.0]
     );
+}
+
+/// A bob of mass 2 on a rod of length 1 from the origin, released level at (1, 0), and a wall
+/// at x = -0.5 it may not cross (restitution e).
+fn pendulum_wall(e: f64) -> String {
+    format!(
+        r#"
+[world]
+gravity = [0.0, -9.81]
+[[particle]]
+name = "bob"
+mass = 2.0
+position = [1.0, 0.0]
+[[constraint]]
+name = "rod"
+kind = "distance"
+particle = "bob"
+anchor = [0.0, 0.0]
+length = 1.0
+[[constraint]]
+name = "wall"
+expr = "bob.x + 0.5"
+side = "above"
+restitution = {e:?}
+"#
+    )
 }
