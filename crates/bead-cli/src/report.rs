@@ -731,11 +731,10 @@ pub fn check_text(scene: &Scene, start: &StartCheck) -> String {
     }
 
     let set = system.constraints();
-    let infos = set.infos();
     let _ = writeln!(
         s,
         "\nconstraints ({}, {})",
-        infos.len(),
+        set.n_declared(),
         plural(set.n_rows(), "row", "rows")
     );
     let name = |slot: usize| constraint_slot_name(system, slot);
@@ -744,9 +743,9 @@ pub fn check_text(scene: &Scene, start: &StartCheck) -> String {
     if set.n_rows() > 0 {
         set.evaluate(0.0, &x0, &v0, &mut eval);
     }
-    for item in listed(scene, TableKind::Constraint, infos.len()) {
+    for item in listed(scene, TableKind::Constraint, set.n_declared()) {
         let info = match item {
-            Listed::Item(c) => &infos[c],
+            Listed::Item(c) => set.info(c),
             Listed::Elided { .. } => {
                 s.push_str(&item.elided());
                 continue;

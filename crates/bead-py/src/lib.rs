@@ -465,7 +465,7 @@ impl PyScene {
     /// The number of implicit constraints.
     #[getter]
     fn constraint_count(&self) -> usize {
-        self.inner.system.constraints().infos().len()
+        self.inner.system.constraints().n_declared()
     }
 
     /// What the scene's `[run]` table sets (only the keys it sets).
@@ -883,7 +883,7 @@ impl PyScene {
             scene.file,
             counted(scene.system.particles().len(), "particle"),
             scene.system.dim(),
-            counted(scene.system.constraints().infos().len(), "constraint"),
+            counted(scene.system.constraints().n_declared(), "constraint"),
             self.methods().join(", ")
         )
     }

@@ -499,7 +499,7 @@ fn contoured_rows(system: &System) -> impl Iterator<Item = usize> + '_ {
         set.n_rows()
     };
     (0..rows).filter(move |&row| {
-        if pins.contains(&set.info_of_row(row).name.as_str()) {
+        if pins.contains(&set.name_of_row(row)) {
             return false;
         }
         let columns = set.row_columns(row);

@@ -1173,11 +1173,10 @@ pub fn scene_info(name: &str, scene: &Scene) -> SceneInfo {
     let system = &scene.system;
     let declared = system.declared_constraints();
     // By name (unique): a scene may have thousands of constraints.
-    let descriptions: HashMap<&str, &str> = system
+    let descriptions: HashMap<String, String> = system
         .constraints()
         .infos()
-        .iter()
-        .map(|i| (i.name.as_str(), i.description.as_str()))
+        .map(|i| (i.name, i.description))
         .collect();
     let constraints = declared
         .iter()

@@ -772,9 +772,9 @@ fn run_scene(name: &str, integrator: IntegratorKind, dt: Option<f64>, duration: 
         sim.step().unwrap_or_else(|e| panic!("{name}: {e}"));
         // C = (|d|^2 - L^2) / (2 L), so |d| = sqrt(L^2 + 2 L C).
         let c = set.residuals(sim.t(), sim.positions(), &mut ws);
-        for info in set.infos() {
-            if let Some(l) = info.length {
-                let r = info.rows.start;
+        for (rows, length) in set.declared_rows() {
+            if let Some(l) = length {
+                let r = rows.start;
                 let d = (l * l + 2.0 * l * c[r]).sqrt();
                 stretch = stretch.max((d - l).abs() / l);
             }

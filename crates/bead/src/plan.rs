@@ -283,7 +283,7 @@ pub fn run_method(scene: &Scene, requested: Option<Method>) -> Method {
 /// form, else parametric.
 pub fn default_method(scene: &Scene) -> Method {
     let system = &scene.system;
-    if system.constraints().infos().is_empty() && system.parametric().is_some() {
+    if system.constraints().n_declared() == 0 && system.parametric().is_some() {
         Method::Parametric
     } else {
         Method::Implicit
@@ -295,7 +295,7 @@ pub fn default_method(scene: &Scene) -> Method {
 pub fn methods(scene: &Scene) -> Vec<Method> {
     let system = &scene.system;
     let mut methods = Vec::new();
-    if !system.constraints().infos().is_empty() || system.parametric().is_none() {
+    if system.constraints().n_declared() > 0 || system.parametric().is_none() {
         methods.push(Method::Implicit);
     }
     if system.parametric().is_some() {

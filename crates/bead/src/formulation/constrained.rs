@@ -175,10 +175,10 @@ impl ConstraintScales {
         let fallback = if largest > 0.0 { largest } else { 1.0 };
         let mut scale = vec![0.0; set.n_rows()];
         let mut rounding = vec![0.0; set.n_rows()];
-        for info in set.infos() {
-            for i in info.rows.clone() {
+        for (rows, own_length) in set.declared_rows() {
+            for i in rows {
                 let norm = if norms[i] > 0.0 { norms[i] } else { fallback };
-                scale[i] = match info.length {
+                scale[i] = match own_length {
                     Some(l) if l > 0.0 && l.is_finite() => l,
                     _ => norm * length,
                 };
@@ -283,8 +283,8 @@ pub(crate) fn singular_error(set: &ConstraintSet, t: f64, singular: Singular) ->
     let info = set.info_of_row(singular.row);
     StepError::SingularConstraints {
         t,
-        constraint: info.name.clone(),
-        description: info.description.clone(),
+        constraint: info.name,
+        description: info.description,
     }
 }
 

@@ -376,7 +376,7 @@ impl Unilateral for Contact {
                 t,
                 message: format!(
                     "the impact on {} cannot be resolved: its gradient vanishes there or depends on the attached constraints'",
-                    set.info_of_row(landing).name
+                    set.name_of_row(landing)
                 ),
             });
         }
@@ -413,7 +413,7 @@ impl Unilateral for Contact {
     /// The name of unilateral row `k`'s constraint, e.g. `constraint 1`.
     fn row_name(&self, k: usize) -> String {
         let set = self.full.system().constraints();
-        set.info_of_row(self.unilateral[k].row).name.clone()
+        set.name_of_row(self.unilateral[k].row).to_string()
     }
 }
 
@@ -540,7 +540,7 @@ impl Formulation for Contact {
         out.extend(
             self.unilateral
                 .iter()
-                .map(|u| Nonconservation::Impacts(set.info_of_row(u.row).name.clone())),
+                .map(|u| Nonconservation::Impacts(set.name_of_row(u.row).to_string())),
         );
         out
     }

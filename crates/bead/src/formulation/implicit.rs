@@ -414,9 +414,9 @@ impl Formulation for Implicit {
             .into_iter()
             .map(Nonconservation::Force)
             .collect();
-        for info in set.infos() {
-            if info.rows.clone().any(|r| set.is_time_dependent(r)) {
-                out.push(Nonconservation::DrivenConstraint(info.name.clone()));
+        for (k, (mut rows, _)) in set.declared_rows().enumerate() {
+            if rows.any(|r| set.is_time_dependent(r)) {
+                out.push(Nonconservation::DrivenConstraint(set.info(k).name));
             }
         }
         if !self.external.is_empty() {
@@ -487,8 +487,8 @@ impl Formulation for Implicit {
     fn gradient_subject(&self, row: usize) -> Subject {
         let info = self.system.constraints().info_of_row(row);
         Subject::Constraint {
-            name: info.name.clone(),
-            description: info.description.clone(),
+            name: info.name,
+            description: info.description,
         }
     }
 
@@ -578,18 +578,22 @@ fn non_finite_input(
     }
     let set = system.constraints();
     for i in 0..set.n_rows() {
-        let name = &set.info_of_row(i).name;
+        let name = || set.name_of_row(i);
         if !ce.value[i].is_finite() {
-            return error(format!("the value of {name} ({})", ce.value[i]));
+            return error(format!("the value of {} ({})", name(), ce.value[i]));
         }
         if ce.jacobian[set.row_entries(i)]
             .iter()
             .any(|g| !g.is_finite())
         {
-            return error(format!("the gradient of {name}"));
+            return error(format!("the gradient of {}", name()));
         }
         if !ce.bias[i].is_finite() {
-            return error(format!("the acceleration bias of {name} ({})", ce.bias[i]));
+            return error(format!(
+                "the acceleration bias of {} ({})",
+                name(),
+                ce.bias[i]
+            ));
         }
     }
     None

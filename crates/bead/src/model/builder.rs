@@ -1,9 +1,9 @@
 //! Building and checking a [`System`].
 
-use std::collections::HashMap;
+use std::hash::BuildHasher;
 use std::sync::Arc;
 
-use super::constraint::{ConstraintInfo, ConstraintSet, CustomRow, ExprRow, RowForm};
+use super::constraint::{ConstraintSet, CustomRow, Declaration, ExprRow, RowForm};
 use super::holonomic::{Erased, SharedHolonomic};
 use super::native::{distance_expression, NativeRow};
 use super::{Endpoint, Force, Holonomic, ParametricMap, Particle, ParticleId, System};
@@ -24,6 +24,8 @@ const RESERVED: [&str; 6] = ["t", "pi", "e", "x", "y", "z"];
 /// A model that cannot be built, with what is wrong in words.
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
 pub enum ModelError {
+    #[error("more than 2^32 - 1 constraints (or rows in one constraint) in one system")]
+    TooManyConstraints,
     #[error("gravity must have 2 or 3 components (it sets the dimension), got {0}")]
     BadDimension(usize),
     #[error("{what} must have {expected} components (the scene is {expected}D), got {got}")]
@@ -112,7 +114,7 @@ pub struct SystemBuilder {
     pub(super) params: Vec<(String, f64)>,
     pub(super) particles: Vec<Particle>,
     /// Particle index by name, so that lookups stay O(1) in scenes of 10^4 particles.
-    index: HashMap<String, usize>,
+    index: NameIndex,
     pub(super) forces: Vec<Force>,
     pub(super) constraints: Vec<(String, ConstraintSpec)>,
     /// The unilateral constraints: (declaration index, side and restitution).
@@ -141,7 +143,7 @@ impl SystemBuilder {
             gravity: gravity.to_vec(),
             params: Vec::new(),
             particles: Vec::new(),
-            index: HashMap::new(),
+            index: NameIndex::default(),
             forces: Vec::new(),
             constraints: Vec::new(),
             unilateral: Vec::new(),
@@ -188,7 +190,7 @@ impl SystemBuilder {
                 "particle name `{name}` must be a letter or `_` followed by letters, digits or `_`"
             )));
         }
-        if self.index.contains_key(name) {
+        if self.index.get(&self.particles, name).is_some() {
             return Err(ModelError::Duplicate {
                 kind: "particle",
                 name: name.into(),
@@ -208,15 +210,15 @@ impl SystemBuilder {
             position: position.to_vec(),
             velocity: velocity.to_vec(),
         });
-        self.index.insert(name.into(), self.particles.len() - 1);
+        self.index.insert(&self.particles, self.particles.len() - 1);
         Ok(ParticleId(self.particles.len() - 1))
     }
 
     /// Look a particle up by name.
     pub fn particle_id(&self, name: &str) -> Result<ParticleId, ModelError> {
         self.index
-            .get(name)
-            .map(|&p| ParticleId(p))
+            .get(&self.particles, name)
+            .map(ParticleId)
             .ok_or_else(|| ModelError::UnknownParticle(name.into()))
     }
 
@@ -244,7 +246,7 @@ impl SystemBuilder {
                 .map(|a| Resolved::Var(p * dim + a))
         };
         if let Some((particle, axis)) = name.split_once('.') {
-            if let Some(&p) = self.index.get(particle) {
+            if let Some(p) = self.index.get(&self.particles, particle) {
                 return coordinate(p, axis).ok_or_else(|| {
                     format!(
                         "`{particle}` has no coordinate `{axis}`; in {dim}D use {}",
@@ -634,6 +636,32 @@ impl SystemBuilder {
         check_endpoint(self.dim(), self.particles.len(), what, e)
     }
 
+    /// What declared constraint `index` is, as [`super::ConstraintInfo::description`] gives
+    /// it: `source = 0`, `distance(a, b) = L`, `pin(p) at [x, y]` or a Rust constraint.
+    pub(crate) fn describe_constraint(&self, index: usize) -> String {
+        match &self.constraints[index].1 {
+            ConstraintSpec::Expression(_, source) => format!("{source} = 0"),
+            ConstraintSpec::Distance { a, b, length } => format!(
+                "distance({}, {}) = {length}",
+                self.particles[a.0].name,
+                self.endpoint_name(b)
+            ),
+            ConstraintSpec::Pin { particle, anchor } => {
+                format!("pin({}) at {anchor:?}", self.particles[particle.0].name)
+            }
+            ConstraintSpec::Custom(..) => "Rust constraint (derivatives by dual numbers)".into(),
+        }
+    }
+
+    /// Declared constraint `index`'s own length, when it is a distance (see
+    /// [`super::ConstraintInfo::length`]).
+    pub(crate) fn constraint_length(&self, index: usize) -> Option<f64> {
+        match &self.constraints[index].1 {
+            ConstraintSpec::Distance { length, .. } => Some(*length),
+            _ => None,
+        }
+    }
+
     fn endpoint_name(&self, e: &Endpoint) -> String {
         match e {
             Endpoint::Particle(p) => self.particles[p.0].name.clone(),
@@ -752,6 +780,37 @@ impl SystemBuilder {
     }
 }
 
+/// Particle indices by name, with no second copy of the names (a chain of 10^5 links would
+/// hold 10^5 more strings): the table holds indices and compares through the particles'
+/// own names.
+#[derive(Clone, Default)]
+struct NameIndex {
+    table: hashbrown::HashTable<usize>,
+    hasher: std::hash::RandomState,
+}
+
+impl NameIndex {
+    /// The index of the particle named `name`.
+    fn get(&self, particles: &[Particle], name: &str) -> Option<usize> {
+        let hash = self.hasher.hash_one(name);
+        self.table
+            .find(hash, |&i| particles[i].name == name)
+            .copied()
+    }
+
+    /// Index particle `index` by its name (not yet indexed).
+    fn insert(&mut self, particles: &[Particle], index: usize) {
+        let hasher = &self.hasher;
+        let hash = |i: usize| hasher.hash_one(particles[i].name.as_str());
+        self.table.insert_unique(hash(index), index, |&i| hash(i));
+    }
+}
+
+/// A declared constraint's index or row count as [`Declaration`] keeps it.
+fn declaration_index(k: usize) -> Result<u32, ModelError> {
+    u32::try_from(k).map_err(|_| ModelError::TooManyConstraints)
+}
+
 pub(super) fn compile(declared: Arc<SystemBuilder>) -> Result<System, ModelError> {
     let b = &*declared;
     let dim = b.dim();
@@ -772,14 +831,14 @@ pub(super) fn compile(declared: Arc<SystemBuilder>) -> Result<System, ModelError
             Expr::var(k)
         }
     };
-    let mut infos = Vec::new();
+    let mut declarations = Vec::new();
     // Expression rows, each symbolic or native (distances and pins).
     let mut rows: Vec<RowForm> = Vec::new();
     let mut custom = Vec::new();
-    // Rust rows go after all expression rows; remember which info they belong to.
-    let mut custom_infos = Vec::new();
+    // Rust rows go after all expression rows; remember which declarations they are.
+    let mut custom_declarations = Vec::new();
     let mut unilateral = Vec::new();
-    for (index, (name, spec)) in b.constraints.iter().enumerate() {
+    for (index, (_, spec)) in b.constraints.iter().enumerate() {
         let start = rows.len();
         if let Some((_, u)) = b.unilateral.iter().find(|(i, _)| *i == index) {
             unilateral.push(UnilateralRow {
@@ -789,10 +848,9 @@ pub(super) fn compile(declared: Arc<SystemBuilder>) -> Result<System, ModelError
                 restitution: u.restitution,
             });
         }
-        let description = match spec {
-            ConstraintSpec::Expression(expr, source) => {
+        match spec {
+            ConstraintSpec::Expression(expr, _) => {
                 rows.push(RowForm::Symbolic(ExprRow::new(expr.substitute(&time), n)));
-                format!("{source} = 0")
             }
             ConstraintSpec::Distance { a, b: end, length } => {
                 let a_first = a.0 * dim;
@@ -814,11 +872,6 @@ pub(super) fn compile(declared: Arc<SystemBuilder>) -> Result<System, ModelError
                         RowForm::Native(NativeRow::distance_row(dim, a_first, None, point, *length))
                     }
                 });
-                format!(
-                    "distance({}, {}) = {length}",
-                    b.particles[a.0].name,
-                    b.endpoint_name(end)
-                )
             }
             ConstraintSpec::Pin { particle, anchor } => {
                 for (axis, value) in anchor.iter().enumerate() {
@@ -827,7 +880,6 @@ pub(super) fn compile(declared: Arc<SystemBuilder>) -> Result<System, ModelError
                         anchor: *value,
                     }));
                 }
-                format!("pin({}) at {anchor:?}", b.particles[particle.0].name)
             }
             ConstraintSpec::Custom(constraint, particles) => {
                 let mut coords = Vec::new();
@@ -839,31 +891,25 @@ pub(super) fn compile(declared: Arc<SystemBuilder>) -> Result<System, ModelError
                     constraint: constraint.clone(),
                     coords,
                 });
-                custom_infos.push(ConstraintInfo {
-                    name: name.clone(),
-                    description: "Rust constraint (derivatives by dual numbers)".into(),
-                    rows: 0..0,
-                    length: None,
-                });
+                custom_declarations.push(index);
                 continue;
             }
         };
-        infos.push(ConstraintInfo {
-            name: name.clone(),
-            description,
-            rows: start..rows.len(),
-            length: match spec {
-                ConstraintSpec::Distance { length, .. } => Some(*length),
-                _ => None,
-            },
+        declarations.push(Declaration {
+            index: declaration_index(index)?,
+            n_rows: declaration_index(rows.len() - start)?,
+            first_row: start,
         });
     }
     let n_expr = rows.len();
-    for (i, mut info) in custom_infos.into_iter().enumerate() {
-        info.rows = n_expr + i..n_expr + i + 1;
-        infos.push(info);
+    for (i, index) in custom_declarations.into_iter().enumerate() {
+        declarations.push(Declaration {
+            index: declaration_index(index)?,
+            n_rows: 1,
+            first_row: n_expr + i,
+        });
     }
-    let constraints = ConstraintSet::new(n, infos, rows, custom);
+    let constraints = ConstraintSet::new(n, Arc::clone(&declared), declarations, rows, custom);
 
     let parametric = match &b.parametric {
         None => None,

@@ -14,12 +14,16 @@
 
 use std::ops::Range;
 
+use std::sync::Arc;
+
+use super::builder::SystemBuilder;
 use super::holonomic::{DualScratch, SharedHolonomic};
 use super::native::NativeRow;
 use crate::expr::{Expr, Tape};
 
 /// What a user named: one declared constraint, which may own several rows (a pin has one per
-/// axis).
+/// axis). Made on demand from the declaration ([`ConstraintSet::infos`]): a set keeps no
+/// strings per constraint, so that a chain of 10^5 rods does not hold 2 x 10^5 of them.
 #[derive(Clone, Debug, PartialEq)]
 pub struct ConstraintInfo {
     /// Label used in messages, e.g. `constraint 1`.
@@ -125,7 +129,11 @@ pub(crate) struct CustomRow {
 #[derive(Clone)]
 pub struct ConstraintSet {
     n_coords: usize,
-    infos: Vec<ConstraintInfo>,
+    /// What the constraints were declared from (their names and descriptions)
+    declared: Arc<SystemBuilder>,
+    /// Each declared constraint's declaration and rows, in the order of
+    /// [`ConstraintSet::infos`]: sorted by first row
+    declarations: Vec<Declaration>,
     /// Number of expression rows (symbolic and native), which come before the Rust rows.
     n_expr_rows: usize,
     /// The symbolic rows, which the tapes evaluate, in row order (rows `tape_rows`).
@@ -156,9 +164,27 @@ pub struct ConstraintSet {
 impl std::fmt::Debug for ConstraintSet {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("ConstraintSet")
-            .field("infos", &self.infos)
+            .field("n_declared", &self.declarations.len())
             .field("n_rows", &self.n_rows())
             .finish()
+    }
+}
+
+/// One declared constraint of a [`ConstraintSet`]: its index in the declaration and its rows
+/// (16 bytes; its name and description are the declaration's).
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Declaration {
+    /// Index in [`SystemBuilder`]'s constraint list
+    pub(crate) index: u32,
+    /// Number of rows
+    pub(crate) n_rows: u32,
+    /// First row
+    pub(crate) first_row: usize,
+}
+
+impl Declaration {
+    fn rows(&self) -> Range<usize> {
+        self.first_row..self.first_row + self.n_rows as usize
     }
 }
 
@@ -195,7 +221,8 @@ impl ConstraintSet {
     /// symbolic rows only.
     pub(crate) fn new(
         n_coords: usize,
-        mut infos: Vec<ConstraintInfo>,
+        declared: Arc<SystemBuilder>,
+        mut declarations: Vec<Declaration>,
         rows: Vec<RowForm>,
         custom_rows: Vec<CustomRow>,
     ) -> Self {
@@ -248,7 +275,7 @@ impl ConstraintSet {
         }
         native_rows.shrink_to_fit();
         expr_rows.shrink_to_fit();
-        infos.shrink_to_fit();
+        declarations.shrink_to_fit();
         time_dependent.extend(custom_rows.iter().map(|r| r.constraint.time_dependent()));
         // FNV-1a over the row starts and columns, then each distance row's row, particles,
         // anchor and length bits.
@@ -280,7 +307,8 @@ impl ConstraintSet {
             fused: super::FusedTapes::default(),
             time_dependent,
             n_coords,
-            infos,
+            declared,
+            declarations,
             value_tape: Tape::compile(&values),
             full_tape: Tape::compile(&outputs),
             gradient_tape: Tape::compile(&gradient_outputs),
@@ -309,16 +337,67 @@ impl ConstraintSet {
     pub fn n_rows(&self) -> usize {
         self.n_expr_rows + self.custom_rows.len()
     }
-    /// The declared constraints.
-    pub fn infos(&self) -> &[ConstraintInfo] {
-        &self.infos
+    /// Number of declared constraints (a pin owns several rows, a rod one).
+    pub fn n_declared(&self) -> usize {
+        self.declarations.len()
     }
-    /// The declared constraint that owns `row`.
-    pub fn info_of_row(&self, row: usize) -> &ConstraintInfo {
-        self.infos
+    /// The declared constraints: expression constraints, distances and pins in the order they
+    /// were declared, then Rust constraints (the order of their rows). Each is made from the
+    /// declaration when asked for (two strings); [`ConstraintSet::declared_rows`] gives the
+    /// rows and lengths alone.
+    ///
+    /// ```
+    /// use bead::model::SystemBuilder;
+    /// let mut b = SystemBuilder::new(&[0.0, 9.81]);
+    /// let bob = b.particle("bob", 1.0, &[1.0, 0.0], &[0.0, 0.0]).unwrap();
+    /// b.distance("rod", bob, bead::model::Endpoint::Fixed(vec![0.0, 0.0]), 1.0).unwrap();
+    /// let system = b.build().unwrap();
+    /// let rod = system.constraints().infos().next().unwrap();
+    /// assert_eq!((rod.name.as_str(), rod.description.as_str()), ("rod", "distance(bob, [0.0, 0.0]) = 1"));
+    /// assert_eq!((rod.rows, rod.length), (0..1, Some(1.0)));
+    /// ```
+    pub fn infos(&self) -> impl ExactSizeIterator<Item = ConstraintInfo> + '_ {
+        self.declarations.iter().map(|d| self.info_of(d))
+    }
+    /// Declared constraint k of [`ConstraintSet::infos`].
+    pub fn info(&self, k: usize) -> ConstraintInfo {
+        self.info_of(&self.declarations[k])
+    }
+    /// The rows and length ([`ConstraintInfo::rows`], [`ConstraintInfo::length`]) of each
+    /// declared constraint, in the order of [`ConstraintSet::infos`], without their names.
+    pub fn declared_rows(&self) -> impl ExactSizeIterator<Item = (Range<usize>, Option<f64>)> + '_ {
+        self.declarations
             .iter()
-            .find(|i| i.rows.contains(&row))
-            .unwrap_or(&self.infos[0])
+            .map(|d| (d.rows(), self.declared.constraint_length(d.index as usize)))
+    }
+    /// The declared constraint that owns `row` (the first one when no constraint owns it).
+    pub fn info_of_row(&self, row: usize) -> ConstraintInfo {
+        self.info_of(self.declaration_of_row(row))
+    }
+    /// The name of the declared constraint that owns `row` (as [`ConstraintSet::info_of_row`]).
+    pub fn name_of_row(&self, row: usize) -> &str {
+        let index = self.declaration_of_row(row).index as usize;
+        &self.declared.constraints[index].0
+    }
+    /// The declaration that owns `row`: the last whose first row is at most `row` (they are
+    /// sorted by first row).
+    fn declaration_of_row(&self, row: usize) -> &Declaration {
+        let after = self.declarations.partition_point(|d| d.first_row <= row);
+        let d = &self.declarations[after.saturating_sub(1)];
+        if d.rows().contains(&row) {
+            d
+        } else {
+            &self.declarations[0]
+        }
+    }
+    fn info_of(&self, d: &Declaration) -> ConstraintInfo {
+        let index = d.index as usize;
+        ConstraintInfo {
+            name: self.declared.constraints[index].0.clone(),
+            description: self.declared.describe_constraint(index),
+            rows: d.rows(),
+            length: self.declared.constraint_length(index),
+        }
     }
     /// Whether `row` depends on t (a moving or driven constraint, which does work).
     pub fn is_time_dependent(&self, row: usize) -> bool {
@@ -708,7 +787,72 @@ impl ConstraintSet {
 
 #[cfg(test)]
 mod tests {
-    use crate::model::SystemBuilder;
+    use crate::model::{ConstraintInfo, Endpoint, Holonomic, ParticleId, SystemBuilder};
+    use crate::Scalar;
+
+    /// x_p + y_p = 1, written in Rust.
+    struct Diagonal(ParticleId);
+    impl Holonomic for Diagonal {
+        fn particles(&self) -> Vec<ParticleId> {
+            vec![self.0]
+        }
+        fn value<T: Scalar>(&self, x: &[T], _t: T) -> T {
+            x[0] + x[1] - 1.0
+        }
+    }
+
+    /// The declared constraints as the set gives them on demand: names and descriptions
+    /// written out by hand, rows in order with the Rust constraint (declared second) after
+    /// the expression rows, the owner of every row by `info_of_row` and `name_of_row`, and
+    /// the rows and lengths alone by `declared_rows`.
+    #[test]
+    fn declared_constraints_are_described_on_demand() {
+        let mut b = SystemBuilder::new(&[0.0, 9.81]);
+        let p = b.particle("p", 1.0, &[1.0, 0.0], &[0.0, 0.0]).unwrap();
+        let q = b.particle("q", 2.0, &[2.0, 0.0], &[0.0, 0.0]).unwrap();
+        b.constraint_expr("p.x^2 + p.y^2 - 1").unwrap();
+        b.holonomic("diagonal", Diagonal(q));
+        b.pin("pin", q, &[2.0, 0.0]).unwrap();
+        b.distance("rod", q, Endpoint::Particle(p), 1.0).unwrap();
+        b.distance("tether", p, Endpoint::Fixed(vec![0.0, 0.5]), 1.25)
+            .unwrap();
+        let system = b.build().unwrap();
+        let set = system.constraints();
+        let info = |name: &str, description: &str, rows, length| ConstraintInfo {
+            name: name.into(),
+            description: description.into(),
+            rows,
+            length,
+        };
+        let expected = [
+            info("constraint 1", "p.x^2 + p.y^2 - 1 = 0", 0..1, None),
+            info("pin", "pin(q) at [2.0, 0.0]", 1..3, None),
+            info("rod", "distance(q, p) = 1", 3..4, Some(1.0)),
+            info("tether", "distance(p, [0.0, 0.5]) = 1.25", 4..5, Some(1.25)),
+            info(
+                "diagonal",
+                "Rust constraint (derivatives by dual numbers)",
+                5..6,
+                None,
+            ),
+        ];
+        assert_eq!(set.n_declared(), 5);
+        assert_eq!(set.infos().len(), 5);
+        assert_eq!(set.infos().collect::<Vec<_>>(), expected);
+        for (k, want) in expected.iter().enumerate() {
+            assert_eq!(&set.info(k), want);
+            for row in want.rows.clone() {
+                assert_eq!(&set.info_of_row(row), want, "row {row}");
+                assert_eq!(set.name_of_row(row), want.name, "row {row}");
+            }
+        }
+        let rows: Vec<_> = set.declared_rows().collect();
+        let want: Vec<_> = expected
+            .iter()
+            .map(|i| (i.rows.clone(), i.length))
+            .collect();
+        assert_eq!(rows, want);
+    }
 
     fn set(expr: &str, at: [f64; 2]) -> crate::model::System {
         let mut b = SystemBuilder::new(&[0.0, 0.0]);

@@ -144,7 +144,7 @@ impl System {
     /// b.constraint_expr("bead.x^2 + bead.y^2 - r^2")?;
     /// let circle = b.build()?;
     /// let ellipse = circle.with_constraint_expr(0, "bead.x^2 + 4*bead.y^2 - r^2")?;
-    /// assert_eq!(ellipse.constraints().infos()[0].description, "bead.x^2 + 4*bead.y^2 - r^2 = 0");
+    /// assert_eq!(ellipse.constraints().info(0).description, "bead.x^2 + 4*bead.y^2 - r^2 = 0");
     /// // Errors point into the new expression (bytes).
     /// let Err(EditError::Expression { span, .. }) = circle.with_constraint_expr(0, "bead.x + bead.w")
     /// else { panic!() };

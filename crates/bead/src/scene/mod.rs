@@ -634,7 +634,7 @@ impl Scene {
             let mut ws = constraints.workspace();
             constraints.evaluate(0.0, &x0, &v0, &mut ws);
             let speed_scale = length_scale.max(max_abs(&v0));
-            for (i, info) in constraints.infos().iter().enumerate() {
+            for (i, info) in constraints.infos().enumerate() {
                 let warn = |message| at(&lines.constraint, i, message);
                 let rows = info.rows.clone();
                 let name = format!("{} (`{}`)", info.name, info.description);

@@ -63,8 +63,8 @@ pub(super) struct LaneMonitor<const L: usize> {
     start: Vec<usize>,
     /// Whether row r is watched for singular points (`Monitor` watches no rod or pin)
     watched: Vec<bool>,
-    /// The last accepted step end's gradient values, the one before, and the longest each
-    /// row has been
+    /// The last accepted step end's gradient values, the one before (both empty when no row
+    /// is watched, as `Monitor` keeps none then), and the longest each row has been
     pub(super) last: Vec<f64>,
     pub(super) before: Vec<f64>,
     pub(super) longest: Vec<f64>,
@@ -136,18 +136,20 @@ impl<const L: usize> LaneMonitor<L> {
         };
         let n = system.n_coords();
         let m = set.n_rows();
+        let watched: Vec<bool> = members[0]
+            .never_singular()
+            .iter()
+            .map(|&never| !never)
+            .collect();
+        let n_kept = if watched.contains(&true) { n_values } else { 0 };
         let mut monitor = LaneMonitor::<L> {
             source,
             n,
             m,
             start,
-            watched: members[0]
-                .never_singular()
-                .iter()
-                .map(|&never| !never)
-                .collect(),
-            before: vec![0.0; n_values * L],
-            last: vec![0.0; n_values * L],
+            watched,
+            before: vec![0.0; n_kept * L],
+            last: vec![0.0; n_kept * L],
             longest: vec![0.0; rows * L],
             searched: vec![0.0; rows * L],
             maxima: [[0.0; L]; 4],
@@ -471,7 +473,9 @@ impl<const L: usize> LaneMonitor<L> {
     #[inline(always)]
     pub(super) fn accept(&mut self) {
         std::mem::swap(&mut self.before, &mut self.last);
-        self.last.copy_from_slice(&self.values);
+        if !self.last.is_empty() {
+            self.last.copy_from_slice(&self.values);
+        }
         let mut distance = [0.0; L];
         for ((longest, length), offset) in self
             .longest

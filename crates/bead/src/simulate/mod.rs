@@ -1385,7 +1385,7 @@ fn check_start(
         });
     }
     if let Some(i) = observation.constraints.iter().position(|c| !c.is_finite()) {
-        let name = &system.constraints().info_of_row(i).name;
+        let name = system.constraints().name_of_row(i);
         return Err(StepError::NonFinite {
             t,
             quantity: format!("the value of {name} ({})", observation.constraints[i]),

@@ -129,10 +129,11 @@ pub(super) struct Monitor {
     /// The longest each gradient row has been in this run (rows)
     longest: Vec<f64>,
     /// Each gradient row's length at the last observed step end, as the regularity monitor
-    /// computed it (rows; scratch, so that the step's shift does not take the norms again)
+    /// computed it (rows, none when no row is watched; scratch, so that the step's shift does
+    /// not take the norms again)
     lengths: Vec<f64>,
-    /// Each gradient row's length at the start (rows): its scale, which a blow-up cannot
-    /// inflate as it inflates `longest`
+    /// Each gradient row's length at the start (rows, none when no row is watched): its
+    /// scale, which a blow-up cannot inflate as it inflates `longest`
     initial: Vec<f64>,
     /// The formulation's q at the start (a divergence within the first steps is explained
     /// from there, before the blow-up)
@@ -228,8 +229,25 @@ impl Monitor {
         };
         let constraint_error = observation.constraint_error();
         let constraint_distance = observation.constraint_distance();
+        let longest: Vec<f64> = (0..observation.gradients.n_rows())
+            .map(|r| norm(observation.gradients.row(r)))
+            .collect();
+        let searched = vec![f64::INFINITY; longest.len()];
+        let never_singular: Vec<bool> = (0..longest.len())
+            .map(|r| formulation.row_never_singular(r))
+            .collect();
+        let watched = never_singular.contains(&false);
+        // Read for watched rows only: none kept when no row is.
+        let initial = if watched { longest.clone() } else { Vec::new() };
+        let lengths = vec![0.0; if watched { longest.len() } else { 0 }];
+        // With no row watched (a chain, a cloth) a step end's gradient values are never
+        // read: none are kept (48 bytes a rod, twice).
         let last = StepEnd {
-            gradients: observation.gradients.clone(),
+            gradients: if watched {
+                observation.gradients.clone()
+            } else {
+                Default::default()
+            },
             q: q.to_vec(),
             valid: true,
         };
@@ -237,20 +255,11 @@ impl Monitor {
             valid: false,
             ..last.clone()
         };
-        let longest: Vec<f64> = (0..observation.gradients.n_rows())
-            .map(|r| norm(observation.gradients.row(r)))
-            .collect();
-        let searched = vec![f64::INFINITY; longest.len()];
-        let initial = longest.clone();
-        let never_singular: Vec<bool> = (0..longest.len())
-            .map(|r| formulation.row_never_singular(r))
-            .collect();
-        let watched = never_singular.contains(&false);
         Monitor {
             observation,
             ends: [last, before],
             newest: 0,
-            lengths: vec![0.0; longest.len()],
+            lengths,
             longest,
             initial,
             initial_q: q.to_vec(),
@@ -343,7 +352,9 @@ impl Monitor {
     /// took those steps, see `lanes` and `express`): `before` is the step end before it
     /// (none if `last` is the initial state), `longest` each row's longest length so far,
     /// `searched` each row's length at the last fruitless search, `maxima` the energy,
-    /// balance and constraint error maxima. The observation is [`Monitor::observe`]d again by the caller.
+    /// balance and constraint error maxima. The observation is [`Monitor::observe`]d again by
+    /// the caller. The gradient values are those [`Monitor::step_end`] gives (none when no
+    /// row is watched).
     pub(super) fn adopt(
         &mut self,
         last_q: &[f64],
@@ -396,7 +407,7 @@ impl Monitor {
     }
 
     /// The last accepted step end (`newest`) or the one before it: its q and gradient
-    /// values, if it holds a step end yet.
+    /// values (none kept when no row is watched), if it holds a step end yet.
     pub(super) fn step_end(&self, newest: bool) -> Option<(&[f64], &[f64])> {
         let end = &self.ends[if newest { self.newest } else { 1 - self.newest }];
         end.valid
