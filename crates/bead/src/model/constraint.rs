@@ -13,7 +13,6 @@
 //! [`Tape`]; Rust [`super::Holonomic`] constraints get them from dual numbers.
 
 use std::ops::Range;
-
 use std::sync::Arc;
 
 use super::builder::SystemBuilder;
@@ -353,7 +352,8 @@ impl ConstraintSet {
     /// b.distance("rod", bob, bead::model::Endpoint::Fixed(vec![0.0, 0.0]), 1.0).unwrap();
     /// let system = b.build().unwrap();
     /// let rod = system.constraints().infos().next().unwrap();
-    /// assert_eq!((rod.name.as_str(), rod.description.as_str()), ("rod", "distance(bob, [0.0, 0.0]) = 1"));
+    /// assert_eq!(rod.name, "rod");
+    /// assert_eq!(rod.description, "distance(bob, [0.0, 0.0]) = 1");
     /// assert_eq!((rod.rows, rod.length), (0..1, Some(1.0)));
     /// ```
     pub fn infos(&self) -> impl ExactSizeIterator<Item = ConstraintInfo> + '_ {

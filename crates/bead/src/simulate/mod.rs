@@ -1484,6 +1484,46 @@ mod tests {
         assert_send::<Simulation>();
     }
 
+    /// The regularity monitor keeps a step end's gradient values only when it watches a
+    /// row: none for a chain (rods cannot be singular; 48 bytes a rod, twice, at 10^5 links),
+    /// all of them for a curve, whose singular points it looks for. The step ends' positions
+    /// are kept in both.
+    #[test]
+    fn step_ends_keep_gradients_only_where_a_row_is_watched() {
+        use crate::model::{Endpoint, SystemBuilder};
+        let mut b = SystemBuilder::new(&[0.0, 9.81]);
+        let mut previous = None;
+        for i in 0..5 {
+            let p = b
+                .particle(&format!("p{i}"), 1.0, &[(i + 1) as f64, 0.0], &[0.0, 0.0])
+                .unwrap();
+            let end = previous.map_or(Endpoint::Fixed(vec![0.0, 0.0]), Endpoint::Particle);
+            b.distance(&format!("rod {i}"), p, end, 1.0).unwrap();
+            previous = Some(p);
+        }
+        let mut curve = SystemBuilder::new(&[0.0, 9.81]);
+        curve
+            .particle("bead", 1.0, &[1.0, 0.0], &[0.0, 0.0])
+            .unwrap();
+        curve.constraint_expr("bead.x^2 + bead.y^2 - 1").unwrap();
+        let config = SimulationConfig {
+            integrator: crate::integrate::IntegratorKind::Rattle,
+            dt: 0.01,
+            ..Default::default()
+        };
+        for (system, kept) in [(b.build().unwrap(), 0), (curve.build().unwrap(), 2)] {
+            let n = system.n_coords();
+            let mut sim = Simulation::new(Arc::new(system), config.clone()).unwrap();
+            for _ in 0..3 {
+                sim.step().unwrap();
+            }
+            for newest in [true, false] {
+                let (q, gradients) = sim.monitor.step_end(newest).expect("two step ends");
+                assert_eq!((q.len(), gradients.len()), (n, kept), "newest: {newest}");
+            }
+        }
+    }
+
     /// The bits of everything a trace row and the statistics show.
     fn figures(sim: &Simulation) -> Vec<u64> {
         let mut bits = vec![sim.t(), sim.energy(), sim.work(), sim.constraint_error()];
