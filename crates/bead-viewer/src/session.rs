@@ -2,7 +2,6 @@
 //! messages and advances the panels frame by frame. Independent of the network, so that it
 //! can be tested directly.
 
-use std::collections::HashMap;
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -1172,20 +1171,12 @@ impl Session {
 pub fn scene_info(name: &str, scene: &Scene) -> SceneInfo {
     let system = &scene.system;
     let declared = system.declared_constraints();
-    // By name (unique): a scene may have thousands of constraints.
-    let descriptions: HashMap<String, String> = system
-        .constraints()
-        .infos()
-        .map(|i| (i.name, i.description))
-        .collect();
     let constraints = declared
         .iter()
-        .map(|c| ConstraintInfo {
+        .enumerate()
+        .map(|(index, c)| ConstraintInfo {
             name: c.name().to_string(),
-            description: descriptions
-                .get(c.name())
-                .map(|d| d.to_string())
-                .unwrap_or_default(),
+            description: system.constraint_description(index),
             expr: c.source().map(str::to_string),
         })
         .collect();

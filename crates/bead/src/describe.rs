@@ -334,6 +334,10 @@ pub fn equations_mathml(system: &System, method: Method, max_rows: usize) -> Str
             }
             let mut written = 0;
             for info in set.infos() {
+                // Past the rows shown, no more constraints are described (each made on demand).
+                if written >= max_rows {
+                    break;
+                }
                 for row in info.rows.clone() {
                     if written >= max_rows {
                         break;

@@ -24,7 +24,7 @@ const RESERVED: [&str; 6] = ["t", "pi", "e", "x", "y", "z"];
 /// A model that cannot be built, with what is wrong in words.
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
 pub enum ModelError {
-    #[error("more than 2^32 - 1 constraints (or rows in one constraint) in one system")]
+    #[error("more than 2^32 constraints (or rows in one constraint) in one system")]
     TooManyConstraints,
     #[error("gravity must have 2 or 3 components (it sets the dimension), got {0}")]
     BadDimension(usize),

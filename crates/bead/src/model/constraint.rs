@@ -275,6 +275,8 @@ impl ConstraintSet {
         native_rows.shrink_to_fit();
         expr_rows.shrink_to_fit();
         declarations.shrink_to_fit();
+        // `declaration_of_row` finds a row's owner by its first row: each owns at least one.
+        debug_assert!(declarations.iter().all(|d| d.n_rows > 0));
         time_dependent.extend(custom_rows.iter().map(|r| r.constraint.time_dependent()));
         // FNV-1a over the row starts and columns, then each distance row's row, particles,
         // anchor and length bits.
@@ -846,6 +848,10 @@ mod tests {
                 assert_eq!(set.name_of_row(row), want.name, "row {row}");
             }
         }
+        // In declaration order, the Rust constraint second.
+        let declared: Vec<_> = (0..5).map(|k| system.constraint_description(k)).collect();
+        let order = [0, 4, 1, 2, 3];
+        assert_eq!(declared, order.map(|k| expected[k].description.clone()));
         let rows: Vec<_> = set.declared_rows().collect();
         let want: Vec<_> = expected
             .iter()

@@ -132,6 +132,13 @@ impl System {
             .collect()
     }
 
+    /// What declared constraint `index` (see [`Self::declared_constraints`]) is, as
+    /// [`crate::model::ConstraintInfo::description`] says it: `source = 0`,
+    /// `distance(a, b) = L`, `pin(p) at [x, y]`, or a Rust constraint.
+    pub fn constraint_description(&self, index: usize) -> String {
+        self.declared.describe_constraint(index)
+    }
+
     /// A new system with declared constraint `index` (see [`Self::declared_constraints`])
     /// replaced by `source = 0`, parsed with this system's particle names and parameters;
     /// every other declaration is unchanged. Only expression constraints can be replaced.
