@@ -1513,7 +1513,7 @@ mod tests {
         };
         for (system, kept) in [(b.build().unwrap(), 0), (curve.build().unwrap(), 2)] {
             let n = system.n_coords();
-            let mut sim = Simulation::new(Arc::new(system), config.clone()).unwrap();
+            let mut sim = Simulation::new(Arc::new(system), config).unwrap();
             for _ in 0..3 {
                 sim.step().unwrap();
             }
