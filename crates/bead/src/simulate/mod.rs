@@ -1490,30 +1490,19 @@ mod tests {
     /// are kept in both.
     #[test]
     fn step_ends_keep_gradients_only_where_a_row_is_watched() {
-        use crate::model::{Endpoint, SystemBuilder};
-        let mut b = SystemBuilder::new(&[0.0, 9.81]);
-        let mut previous = None;
-        for i in 0..5 {
-            let p = b
-                .particle(&format!("p{i}"), 1.0, &[(i + 1) as f64, 0.0], &[0.0, 0.0])
-                .unwrap();
-            let end = previous.map_or(Endpoint::Fixed(vec![0.0, 0.0]), Endpoint::Particle);
-            b.distance(&format!("rod {i}"), p, end, 1.0).unwrap();
-            previous = Some(p);
-        }
-        let mut curve = SystemBuilder::new(&[0.0, 9.81]);
-        curve
-            .particle("bead", 1.0, &[1.0, 0.0], &[0.0, 0.0])
-            .unwrap();
-        curve.constraint_expr("bead.x^2 + bead.y^2 - 1").unwrap();
+        use crate::scene::Scene;
+        let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes");
+        let chain = Scene::load(&root.join("chain.toml"), &[("N".into(), 5.0)]).unwrap();
+        let circle = Scene::load(&root.join("circle.toml"), &[]).unwrap();
         let config = SimulationConfig {
             integrator: crate::integrate::IntegratorKind::Rattle,
             dt: 0.01,
             ..Default::default()
         };
-        for (system, kept) in [(b.build().unwrap(), 0), (curve.build().unwrap(), 2)] {
-            let n = system.n_coords();
-            let mut sim = Simulation::new(Arc::new(system), config).unwrap();
+        // The chain's 5 rods are never watched; the circle's one row (2 entries) is.
+        for (scene, kept) in [(chain, 0), (circle, 2)] {
+            let n = scene.system.n_coords();
+            let mut sim = Simulation::new(scene.system, config).unwrap();
             for _ in 0..3 {
                 sim.step().unwrap();
             }
