@@ -349,7 +349,7 @@ fn engine_run(n: usize, duration: f64, substeps: Option<u32>) -> Option<Figures>
     let wall = start.elapsed().as_secs_f64();
     let drift = (sim.energy() - e0).abs();
     Some(Figures {
-        substeps: sim.stats(wall).substeps_max,
+        substeps: sim.substeps_max(),
         ..figures(n, steps, wall, stretch, drift)
     })
 }

@@ -25,6 +25,7 @@
 //! path: the projections assemble and factor the formulation's own [`ConstraintMatrix`].
 
 use std::cmp::Ordering;
+use std::sync::Arc;
 
 use super::{Implicit, SecondOrderSystem, StepError};
 use crate::linalg::{max_abs, ConstraintMatrix, LinearSolver, RodPath, RowStructure, Singular};
@@ -44,6 +45,10 @@ pub trait ConstrainedSystem: SecondOrderSystem {
     }
     /// The diagonal inverse mass matrix W (n).
     fn inverse_mass(&self) -> &[f64];
+    /// W as a shared allocation, for integrators that keep it between calls: the same
+    /// values as [`ConstrainedSystem::inverse_mass`] at the same address, so that an
+    /// integrator can tell from the pointer whether its copy is still this system's.
+    fn shared_inverse_mass(&self) -> Arc<[f64]>;
     /// Constraint row `row` as a built-in distance, whose constant Hessian a projection's
     /// Newton iteration uses ([`DistanceRow`]); `None` for every other row (the default).
     fn distance_row(&self, row: usize) -> Option<DistanceRow> {
@@ -221,8 +226,6 @@ impl ConstraintScales {
 /// Scratch space of the projections, sized once for one system: O(n + nnz).
 pub(crate) struct ProjectionWorkspace {
     pub(crate) eval: ConstraintEval,
-    /// F (n)
-    force: Vec<f64>,
     /// rhs, then the multipliers (m)
     rhs: Vec<f64>,
     /// The projections and the implicit acceleration's multipliers fused along the path,
@@ -233,7 +236,6 @@ pub(crate) struct ProjectionWorkspace {
 
 impl ProjectionWorkspace {
     pub(crate) fn new(system: &System, solver: LinearSolver) -> Self {
-        let n = system.n_coords();
         let set = system.constraints();
         let m = set.n_rows();
         let rods = match solver {
@@ -244,7 +246,6 @@ impl ProjectionWorkspace {
         };
         ProjectionWorkspace {
             eval: set.workspace(),
-            force: vec![0.0; n],
             rhs: vec![0.0; m],
             rods,
         }
@@ -305,6 +306,10 @@ impl ConstrainedSystem for Implicit {
         &self.system.inverse_mass
     }
 
+    fn shared_inverse_mass(&self) -> Arc<[f64]> {
+        Arc::clone(&self.system.inverse_mass)
+    }
+
     fn distance_row(&self, row: usize) -> Option<DistanceRow> {
         self.system.constraints().distance_row(row)
     }
@@ -323,10 +328,10 @@ impl ConstrainedSystem for Implicit {
     ) -> Result<(), StepError> {
         self.evaluations += 1;
         let system = &*self.system;
-        let ws = &mut self.projection;
-        super::implicit::accumulate_all_forces(system, &self.external, q, qdot, &mut ws.force);
-        for ((a, f), w) in a.iter_mut().zip(&ws.force).zip(&system.inverse_mass) {
-            *a = w * f;
+        // a = W F, F accumulated in place.
+        super::implicit::accumulate_all_forces(system, &self.external, q, qdot, a);
+        for (a, w) in a.iter_mut().zip(system.inverse_mass.iter()) {
+            *a *= w;
         }
         Ok(())
     }

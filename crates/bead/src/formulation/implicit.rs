@@ -54,7 +54,10 @@ pub struct Implicit {
     pub(crate) solver: LinearSolver,
     /// F (n)
     pub(super) force: Vec<f64>,
+    /// The full evaluation's C, Cdot, bias and J: sized on the first acceleration (an
+    /// integrator that never asks for one, RATTLE, keeps none: 56 bytes a rod in 2D)
     pub(super) constraints: ConstraintEval,
+    constraints_sized: bool,
     /// J W J^T and its factorization (shared by the acceleration and the projections),
     /// built when first needed
     pub(crate) matrix: LazyConstraintMatrix,
@@ -98,7 +101,8 @@ impl Implicit {
             feedback,
             solver,
             force: vec![0.0; n],
-            constraints: system.constraints().workspace(),
+            constraints: ConstraintEval::default(),
+            constraints_sized: false,
             matrix,
             lambda: vec![0.0; m],
             projection,
@@ -127,6 +131,9 @@ impl Implicit {
     /// The last evaluation's C, Cdot, bias, J, lambda and F + J^T lambda into `constraints`,
     /// `lambda` and `force`, where the fused tape left them in its outputs.
     pub(super) fn unpack(&mut self) {
+        if self.fused_pending {
+            self.size_constraints();
+        }
         if let Some(fused) = self.fused.as_ref().filter(|_| self.fused_pending) {
             fused.unpack(ImplicitBuffers {
                 constraints: &mut self.constraints,
@@ -162,7 +169,16 @@ impl Implicit {
     /// The constraint evaluation [`Implicit::accelerate_evaluated`] reads.
     pub(crate) fn evaluation_mut(&mut self) -> &mut ConstraintEval {
         self.unpack();
+        self.size_constraints();
         &mut self.constraints
+    }
+
+    /// `constraints` sized for the system's rows (once: allocates the first time only).
+    fn size_constraints(&mut self) {
+        if !self.constraints_sized {
+            self.constraints = self.system.constraints().workspace();
+            self.constraints_sized = true;
+        }
     }
 
     /// The acceleration at (t, x, v) from the constraint evaluation already in
@@ -222,7 +238,7 @@ impl Implicit {
             set.structure()
                 .add_transpose(&ce.jacobian, &self.lambda, &mut self.force);
         }
-        for ((a, f), w) in a.iter_mut().zip(&self.force).zip(w) {
+        for ((a, f), w) in a.iter_mut().zip(&self.force).zip(w.iter()) {
             *a = w * f;
         }
         Ok(())
@@ -267,6 +283,7 @@ impl SecondOrderSystem for Implicit {
                 return Ok(());
             }
         }
+        self.size_constraints();
         let set = self.system.constraints();
         if set.n_rows() > 0 {
             set.evaluate(t, x, v, &mut self.constraints);
@@ -364,6 +381,10 @@ impl Formulation for Implicit {
     fn power(&self, x: &[f64], v: &[f64], _a: &[f64]) -> f64 {
         let set = self.system.constraints();
         let (jacobian, lambda) = (self.jacobian(), self.multipliers());
+        // Before any evaluation there is no constraint force (and no J kept).
+        if !self.fused_pending && !self.constraints_sized {
+            return self.applied_power(x, v);
+        }
         let constraint: f64 = (0..set.n_rows())
             .map(|i| {
                 let jv: f64 = set

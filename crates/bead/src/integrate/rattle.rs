@@ -94,6 +94,8 @@
 //! (and J W J^T's pattern and symbolic factorization) are built on the first step; later
 //! steps allocate nothing. On the sparse path nothing is of size m x n or m x m.
 
+use std::sync::Arc;
+
 use super::fixed_point::{increment_and_scale, FixedPoint};
 use super::{constraints_of, Integrator, IntegratorKind, IntegratorSettings};
 use crate::formulation::{ConstrainedSystem, SecondOrderSystem, State, StepError};
@@ -165,7 +167,8 @@ pub struct Rattle {
     velocity_iterations_max: usize,
     /// a, then the current iterate of a_{n+1} (n)
     acceleration: Vec<f64>,
-    /// a at the velocity the current a_{n+1} implies (n)
+    /// a at the velocity the current a_{n+1} implies (n; sized on the first step whose
+    /// applied forces depend on the velocity, empty otherwise)
     next: Vec<f64>,
     /// v_half (n)
     velocity_half: Vec<f64>,
@@ -175,8 +178,8 @@ pub struct Rattle {
     constraint_work: f64,
     /// q_n (n)
     q_start: Vec<f64>,
-    /// W (n)
-    inverse_mass: Vec<f64>,
+    /// W (n), the system's own ([`ConstrainedSystem::shared_inverse_mass`])
+    inverse_mass: Arc<[f64]>,
     /// Whether `reserve` has sized the buffers, for the system's `solver`, `m` and
     /// `row_fingerprint` ([`ConstrainedSystem::row_fingerprint`]) or, when it has none, its
     /// row `structure`
@@ -239,12 +242,12 @@ impl Rattle {
             },
             velocity_iterations_max: 0,
             acceleration: vec![0.0; n],
-            next: vec![0.0; n],
+            next: Vec::new(),
             velocity_half: vec![0.0; n],
             velocity_start: vec![0.0; n],
             constraint_work: 0.0,
             q_start: vec![0.0; n],
-            inverse_mass: vec![0.0; n],
+            inverse_mass: Arc::from([]),
             reserved: false,
             solver: LinearSolver::Auto,
             m: 0,
@@ -586,7 +589,10 @@ impl Integrator for Rattle {
         let n = s.q.len();
         let m = cs.n_constraints();
         self.reserve(cs);
-        self.inverse_mass.copy_from_slice(cs.inverse_mass());
+        // The system's W, shared: taken again only when the system is another one.
+        if !std::ptr::eq(cs.inverse_mass(), &*self.inverse_mass) {
+            self.inverse_mass = cs.shared_inverse_mass();
+        }
         let (t0, t1, half) = (s.t, s.t + dt, 0.5 * dt);
 
         // Unconstrained half kick and drift: v_half = v + h/2 a_n, q_pred = q + h v_half.
@@ -657,6 +663,7 @@ impl Integrator for Rattle {
             // Fixed point a_{n+1} = a(q_{n+1}, v_{n+1}(a_{n+1})).
             let mut previous = f64::INFINITY;
             let mut iterations = 0;
+            self.next.resize(n, 0.0);
             loop {
                 iterations += 1;
                 cs.unconstrained_acceleration(t1, &s.q, &s.qdot, &mut self.next)?;

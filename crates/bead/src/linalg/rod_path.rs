@@ -24,24 +24,63 @@
 use super::{PathOrder, Singular, RELATIVE_PIVOT_TOLERANCE};
 use crate::model::DistanceRow;
 
-/// `Rod::b` of a rod to a fixed point, `Rod::shared` at the start of a path.
-const FIXED: usize = usize::MAX;
+/// `Rod::shared` at the start of a path; with [`ANCHORED`], `Rod::b` of a rod to a fixed
+/// point.
+const FIXED: u32 = u32::MAX;
+/// The flag of `Rod::b` that marks a rod to a fixed point; the other bits index
+/// `RodPath::anchors`.
+const ANCHORED: u32 = 1 << 31;
 
-/// One rod at its place in the path (48 bytes: the sweeps stream through these).
+/// One rod at its place in the path (32 bytes: the sweeps stream through these; indices
+/// are 32-bit, so a system with 2^31 coordinates or more takes the general path).
 #[derive(Clone, Debug, PartialEq)]
 struct Rod {
     /// Its row of C
-    row: usize,
+    row: u32,
     /// First coordinate of particle a
-    a: usize,
-    /// First coordinate of particle b, [`FIXED`] for the rod's anchor (`RodPath::anchors`)
-    b: usize,
+    a: u32,
+    /// First coordinate of particle b or, with [`ANCHORED`], the index of the rod's fixed
+    /// point in `RodPath::anchors`
+    b: u32,
     /// The first coordinate of the particle it shares with the rod before it in the path,
     /// [`FIXED`] at the start of a path
-    shared: usize,
+    shared: u32,
     inverse_length: f64,
     /// s_p / (L_p L_p-1) (module documentation); 0 at the start of a path
     link: f64,
+}
+
+impl Rod {
+    #[inline(always)]
+    fn row(&self) -> usize {
+        self.row as usize
+    }
+
+    #[inline(always)]
+    fn a(&self) -> usize {
+        self.a as usize
+    }
+
+    /// Particle b's first coordinate, `None` for a fixed point.
+    #[inline(always)]
+    fn b(&self) -> Option<usize> {
+        (self.b & ANCHORED == 0).then_some(self.b as usize)
+    }
+
+    /// The shared particle's first coordinate, `None` at the start of a path.
+    #[inline(always)]
+    fn shared(&self) -> Option<usize> {
+        (self.shared != FIXED).then_some(self.shared as usize)
+    }
+
+    /// The point b: particle b's coordinates in `x`, or the rod's fixed point.
+    #[inline(always)]
+    fn b_coordinate(&self, anchors: &[[f64; 3]], x: &[f64], k: usize) -> f64 {
+        match self.b() {
+            Some(b) => x[b + k],
+            None => anchors[(self.b & !ANCHORED) as usize][k],
+        }
+    }
 }
 
 /// The rods of a constraint set whose rows are all distances coupled in paths, with the
@@ -70,7 +109,7 @@ pub struct RodPath {
     dim: usize,
     /// In path order (m)
     rods: Vec<Rod>,
-    /// Each rod's fixed point, zeros for a rod between particles (m)
+    /// The fixed points of the anchored rods, in path order (one per anchored rod)
     anchors: Vec<[f64; 3]>,
     /// L_p (m)
     lengths: Vec<f64>,
@@ -175,7 +214,9 @@ impl RodPath {
         row: &impl Fn(usize) -> Option<DistanceRow>,
     ) -> Option<RodPath> {
         let mut rods: Vec<Rod> = Vec::with_capacity(m);
-        let (mut anchors, mut lengths) = (Vec::with_capacity(m), Vec::with_capacity(m));
+        let (mut anchors, mut lengths) = (Vec::new(), Vec::with_capacity(m));
+        // 32-bit indices: a row or coordinate beyond them takes the general path.
+        let index = |i: usize| u32::try_from(i).ok().filter(|&i| i & ANCHORED == 0);
         let mut dim = None;
         for (p, (r, linked)) in order.enumerate() {
             let distance = row(r)?;
@@ -186,11 +227,18 @@ impl RodPath {
             {
                 return None;
             }
-            let particles = |rod: &Rod| [rod.a, rod.b];
+            let b = match distance.b {
+                Some(b) => index(b + distance.dim)? - distance.dim as u32,
+                None => {
+                    anchors.push(distance.anchor);
+                    ANCHORED | index(anchors.len() - 1)?
+                }
+            };
+            let particles = |rod: &Rod| [Some(rod.a()), rod.b()];
             let mut rod = Rod {
-                row: r,
-                a: distance.a,
-                b: distance.b.unwrap_or(FIXED),
+                row: index(r)?,
+                a: index(distance.a + distance.dim)? - distance.dim as u32,
+                b,
                 shared: FIXED,
                 inverse_length: 1.0 / distance.length,
                 link: 0.0,
@@ -199,13 +247,14 @@ impl RodPath {
                 let before = &rods[p - 1];
                 let shared: Vec<usize> = particles(&rod)
                     .into_iter()
-                    .filter(|&s| s != FIXED && particles(before).contains(&s))
+                    .flatten()
+                    .filter(|&s| particles(before).contains(&Some(s)))
                     .collect();
                 match (linked, shared.as_slice()) {
                     (true, &[s]) => {
-                        let role = |rod: &Rod| if rod.a == s { 1.0 } else { -1.0 };
+                        let role = |rod: &Rod| if rod.a() == s { 1.0 } else { -1.0 };
                         let sign = role(&rod) * role(before);
-                        rod.shared = s;
+                        rod.shared = s as u32;
                         rod.link = sign * rod.inverse_length * before.inverse_length;
                     }
                     (false, []) => {}
@@ -213,11 +262,6 @@ impl RodPath {
                 }
             }
             rods.push(rod);
-            anchors.push(if distance.b.is_none() {
-                distance.anchor
-            } else {
-                [0.0; 3]
-            });
             lengths.push(distance.length);
         }
         Some(RodPath {
@@ -245,15 +289,10 @@ impl RodPath {
 
     /// e = x_a - x_b (x_b the anchor for a fixed point) in `D` dimensions.
     #[inline(always)]
-    fn rod_vector<const D: usize>(rod: &Rod, anchor: &[f64; 3], x: &[f64]) -> [f64; 3] {
+    fn rod_vector<const D: usize>(rod: &Rod, anchors: &[[f64; 3]], x: &[f64]) -> [f64; 3] {
         let mut e = [0.0; 3];
         for k in 0..D {
-            let b = if rod.b == FIXED {
-                anchor[k]
-            } else {
-                x[rod.b + k]
-            };
-            e[k] = x[rod.a + k] - b;
+            e[k] = x[rod.a() + k] - rod.b_coordinate(anchors, x, k);
         }
         e
     }
@@ -263,10 +302,9 @@ impl RodPath {
     fn rate<const D: usize>(rod: &Rod, e: &[f64; 3], v: &[f64]) -> f64 {
         let mut dot = 0.0;
         for k in 0..D {
-            let relative = if rod.b == FIXED {
-                v[rod.a + k]
-            } else {
-                v[rod.a + k] - v[rod.b + k]
+            let relative = match rod.b() {
+                Some(b) => v[rod.a() + k] - v[b + k],
+                None => v[rod.a() + k],
             };
             dot += e[k] * relative;
         }
@@ -277,12 +315,12 @@ impl RodPath {
     /// [`RodPath::newton_step`], [`RodPath::subtract_start_transpose`] and
     /// [`RodPath::start_multiply`].
     pub fn set_start(&mut self, q: &[f64]) {
-        let rods = self.rods.iter().zip(&self.anchors);
-        for (e, (rod, anchor)) in self.start.iter_mut().zip(rods) {
+        let anchors = &self.anchors;
+        for (e, rod) in self.start.iter_mut().zip(&self.rods) {
             *e = match self.dim {
-                1 => Self::rod_vector::<1>(rod, anchor, q),
-                2 => Self::rod_vector::<2>(rod, anchor, q),
-                _ => Self::rod_vector::<3>(rod, anchor, q),
+                1 => Self::rod_vector::<1>(rod, anchors, q),
+                2 => Self::rod_vector::<2>(rod, anchors, q),
+                _ => Self::rod_vector::<3>(rod, anchors, q),
             };
         }
     }
@@ -298,11 +336,11 @@ impl RodPath {
     }
 
     fn values_in<const D: usize>(&mut self, q: &[f64], c: &mut [f64]) {
-        let rods = self.rods.iter().zip(&self.anchors).zip(&self.lengths);
-        for (e, ((rod, anchor), length)) in self.current.iter_mut().zip(rods) {
-            *e = Self::rod_vector::<D>(rod, anchor, q);
+        let (anchors, rods) = (&self.anchors, self.rods.iter().zip(&self.lengths));
+        for (e, (rod, length)) in self.current.iter_mut().zip(rods) {
+            *e = Self::rod_vector::<D>(rod, anchors, q);
             let squared: f64 = (0..D).map(|k| e[k] * e[k]).sum();
-            c[rod.row] = (squared - length * length) * (0.5 * rod.inverse_length);
+            c[rod.row()] = (squared - length * length) * (0.5 * rod.inverse_length);
         }
     }
 
@@ -333,13 +371,13 @@ impl RodPath {
     ) -> f64 {
         let mut worst: f64 = 0.0;
         let mut nan = false;
-        let rods = self.rods.iter().zip(&self.anchors).zip(&self.lengths);
-        for (e, ((rod, anchor), length)) in self.current.iter_mut().zip(rods) {
-            *e = Self::rod_vector::<D>(rod, anchor, q);
+        let (anchors, rods) = (&self.anchors, self.rods.iter().zip(&self.lengths));
+        for (e, (rod, length)) in self.current.iter_mut().zip(rods) {
+            *e = Self::rod_vector::<D>(rod, anchors, q);
             let squared: f64 = (0..D).map(|k| e[k] * e[k]).sum();
             let value = (squared - length * length) * (0.5 * rod.inverse_length);
-            c[rod.row] = value;
-            let (size, s) = (value.abs(), scale[rod.row]);
+            c[rod.row()] = value;
+            let (size, s) = (value.abs(), scale[rod.row()]);
             // Not `size <= worst * s`, NaN included.
             if matches!(
                 size.partial_cmp(&(worst * s)),
@@ -348,12 +386,12 @@ impl RodPath {
                 nan |= value.is_nan();
                 let mut coordinates: f64 = 0.0;
                 for k in 0..D {
-                    coordinates = coordinates.max(q[rod.a + k].abs());
-                    if rod.b != FIXED {
-                        coordinates = coordinates.max(q[rod.b + k].abs());
+                    coordinates = coordinates.max(q[rod.a() + k].abs());
+                    if let Some(b) = rod.b() {
+                        coordinates = coordinates.max(q[b + k].abs());
                     }
                 }
-                let excess = size - rounding[rod.row] * coordinates;
+                let excess = size - rounding[rod.row()] * coordinates;
                 if excess > 0.0 {
                     worst = worst.max(excess / s);
                 }
@@ -431,8 +469,8 @@ impl RodPath {
             q,
             w,
             rhs,
-            |rod, _, rhs| rhs[rod.row],
-            |rod, _, z, rhs| rhs[rod.row] = z,
+            |rod, _, rhs| rhs[rod.row()],
+            |rod, _, z, rhs| rhs[rod.row()] = z,
         )
     }
 
@@ -447,8 +485,8 @@ impl RodPath {
         source: impl Fn(&Rod, &[f64; 3], &[f64]) -> f64,
         mut sink: impl FnMut(&Rod, &[f64; 3], f64, &mut [f64]),
     ) -> Result<(), Singular> {
-        for ((e, rod), anchor) in self.current.iter_mut().zip(&self.rods).zip(&self.anchors) {
-            *e = Self::rod_vector::<D>(rod, anchor, q);
+        for (e, rod) in self.current.iter_mut().zip(&self.rods) {
+            *e = Self::rod_vector::<D>(rod, &self.anchors, q);
         }
         let (rods, current) = (&self.rods, &self.current);
         let readable: &[f64] = data;
@@ -487,7 +525,7 @@ impl RodPath {
             &mut self.inverse_pivots,
             &mut self.upper,
             &mut self.eliminated,
-            |p| c[rods[p].row],
+            |p| c[rods[p].row()],
         )?;
         backward(
             rods,
@@ -495,7 +533,7 @@ impl RodPath {
             &self.upper,
             &mut self.eliminated,
             |rod, e, z| {
-                c[rod.row] = z;
+                c[rod.row()] = z;
                 correct::<D>(rod, e, w, z, q);
             },
         );
@@ -513,7 +551,7 @@ impl RodPath {
 
     fn subtract_in<const D: usize>(&self, w: &[f64], z: &[f64], y: &mut [f64]) {
         for (rod, e) in self.rods.iter().zip(&self.start) {
-            correct::<D>(rod, e, w, z[rod.row], y);
+            correct::<D>(rod, e, w, z[rod.row()], y);
         }
     }
 
@@ -529,7 +567,7 @@ impl RodPath {
 
     fn subtract_current_in<const D: usize>(&self, w: &[f64], z: &[f64], y: &mut [f64]) {
         for (rod, e) in self.rods.iter().zip(&self.current) {
-            correct::<D>(rod, e, w, z[rod.row], y);
+            correct::<D>(rod, e, w, z[rod.row()], y);
         }
     }
 
@@ -544,7 +582,7 @@ impl RodPath {
 
     fn start_multiply_in<const D: usize>(&self, v: &[f64], out: &mut [f64]) {
         for (rod, e) in self.rods.iter().zip(&self.start) {
-            out[rod.row] = Self::rate::<D>(rod, e, v);
+            out[rod.row()] = Self::rate::<D>(rod, e, v);
         }
     }
 }
@@ -555,9 +593,10 @@ fn correct<const D: usize>(rod: &Rod, e: &[f64; 3], w: &[f64], z: f64, y: &mut [
     let scaled = z * rod.inverse_length;
     for k in 0..D {
         let g = e[k] * scaled;
-        y[rod.a + k] -= w[rod.a + k] * g;
-        if rod.b != FIXED {
-            y[rod.b + k] += w[rod.b + k] * g;
+        let a = rod.a() + k;
+        y[a] -= w[a] * g;
+        if let Some(b) = rod.b() {
+            y[b + k] += w[b + k] * g;
         }
     }
 }
@@ -601,16 +640,16 @@ fn forward<const D: usize, const SYMMETRIC: bool>(
             .zip(eliminated.iter_mut()),
     );
     for (p, ((rod, (x, y)), ((inverse_pivot, upper), eliminated))) in rows.enumerate() {
-        let mut diagonal = weighted_dot::<D>(x, w, rod.a, y);
-        if rod.b != FIXED {
-            diagonal += weighted_dot::<D>(x, w, rod.b, y);
+        let mut diagonal = weighted_dot::<D>(x, w, rod.a(), y);
+        if let Some(b) = rod.b() {
+            diagonal += weighted_dot::<D>(x, w, b, y);
         }
         diagonal *= rod.inverse_length * rod.inverse_length;
         let mut pivot = diagonal;
         let mut value = source(p);
-        if rod.shared != FIXED {
-            let below = rod.link * weighted_dot::<D>(x, w, rod.shared, right_before);
-            let above = rod.link * weighted_dot::<D>(left_before, w, rod.shared, y);
+        if let Some(shared) = rod.shared() {
+            let below = rod.link * weighted_dot::<D>(x, w, shared, right_before);
+            let above = rod.link * weighted_dot::<D>(left_before, w, shared, y);
             let scaled_above = above * inverse_before;
             pivot -= below * scaled_above;
             value -= below * eliminated_before;
@@ -626,7 +665,7 @@ fn forward<const D: usize, const SYMMETRIC: bool>(
         };
         if !usable {
             return Err(Singular {
-                row: rod.row,
+                row: rod.row(),
                 finite: diagonal.is_finite() && pivot.is_finite(),
             });
         }
@@ -675,9 +714,10 @@ mod tests {
         rng.uniform(-0.5, 0.5)
     }
 
-    /// Rods in scrambled row order, with a and b in both roles, an anchored rod, two
-    /// separate paths, unequal masses and lengths: particles 0..6 in `dim` dimensions.
-    /// Path 1: anchor - p0 - p1 - p2 - p3 (rows 3, 0, 4, 1); path 2: p4 - p5 - p6 (rows 2, 5).
+    /// Rods in scrambled row order, with a and b in both roles, two anchored rods at
+    /// different points, two separate paths, unequal masses and lengths: particles 0..6 in
+    /// `dim` dimensions. Path 1: anchor - p0 - p1 - p2 - p3 (rows 3, 0, 4, 1); path 2:
+    /// p4 - p5 - p6 - another anchor (rows 2, 5, 6).
     fn rods(dim: usize) -> Vec<DistanceRow> {
         let rod = |a: usize, b: Option<usize>, length: f64| DistanceRow {
             a: a * dim,
@@ -693,6 +733,10 @@ mod tests {
             rod(0, None, 0.9),
             rod(1, Some(2), 1.6),
             rod(5, Some(6), 0.8),
+            DistanceRow {
+                anchor: [-0.4, 0.5, 0.2],
+                ..rod(6, None, 1.2)
+            },
         ]
     }
 
@@ -727,7 +771,7 @@ mod tests {
     }
 
     fn path_of(rows: &[DistanceRow]) -> RodPath {
-        let couplings = [(3, 0), (0, 4), (4, 1), (2, 5)];
+        let couplings = [(3, 0), (0, 4), (4, 1), (2, 5), (5, 6)];
         let order = PathOrder::of(&SymmetricPattern::new(rows.len(), couplings)).unwrap();
         RodPath::new(&order, |r| Some(rows[r])).expect("rods in paths")
     }
@@ -848,16 +892,17 @@ mod tests {
         let w: Vec<f64> = (0..14).map(|k| 1.0 + (k / 2) as f64).collect();
         let j = jacobian(rows, &x);
         path.set_start(&x);
-        let z: Vec<f64> = (0..6).map(|_| random(&mut seed)).collect();
+        let m = rows.len();
+        let z: Vec<f64> = (0..m).map(|_| random(&mut seed)).collect();
         let mut y = vec![0.0; 14];
         path.subtract_start_transpose(&w, &z, &mut y);
         for k in 0..14 {
-            let expected = -(0..6).map(|i| w[k] * j[i][k] * z[i]).sum::<f64>();
+            let expected = -(0..m).map(|i| w[k] * j[i][k] * z[i]).sum::<f64>();
             assert!((y[k] - expected).abs() < 1e-14);
         }
-        let mut out = vec![0.0; 6];
+        let mut out = vec![0.0; m];
         path.start_multiply(&x, &mut out);
-        for i in 0..6 {
+        for i in 0..m {
             let expected: f64 = (0..14).map(|k| j[i][k] * x[k]).sum();
             assert!((out[i] - expected).abs() < 1e-12);
         }
@@ -868,8 +913,8 @@ mod tests {
     #[test]
     fn refuses_what_is_not_a_rod_path() {
         let rows = rods(2);
-        let couplings = [(3, 0), (0, 4), (4, 1), (2, 5)];
-        let order = PathOrder::of(&SymmetricPattern::new(6, couplings)).unwrap();
+        let couplings = [(3, 0), (0, 4), (4, 1), (2, 5), (5, 6)];
+        let order = PathOrder::of(&SymmetricPattern::new(7, couplings)).unwrap();
         assert!(RodPath::new(&order, |r| (r != 4).then_some(rows[r])).is_none());
         let mut twice = rows.clone();
         twice[4] = DistanceRow {
@@ -883,7 +928,7 @@ mod tests {
         assert!(RodPath::new(&order, |r| Some(mixed[r])).is_none());
         // The same refusals when the paths are looked for from the rods.
         let found = |rows: &[DistanceRow]| RodPath::of_rows(rows.len(), |r| Some(rows[r]));
-        assert!(RodPath::of_rows(6, |r| (r != 4).then_some(rows[r])).is_none());
+        assert!(RodPath::of_rows(7, |r| (r != 4).then_some(rows[r])).is_none());
         assert!(found(&twice).is_none());
         assert!(found(&mixed).is_none());
         assert!(found(&rows).is_some());
@@ -898,6 +943,12 @@ mod tests {
         assert!(found(&[rod(0, Some(0))]).is_none());
         // A chain hung from both ends is a path.
         assert!(found(&[rod(0, None), rod(0, Some(1)), rod(1, None)]).is_some());
+        // Rods' indices are 32-bit: a coordinate at or past 2^31 takes the general path.
+        let one = PathOrder::of(&SymmetricPattern::new(1, std::iter::empty())).unwrap();
+        let anchored = rows[3];
+        let at = |a: usize| move |_| Some(DistanceRow { a, ..anchored });
+        assert!(RodPath::new(&one, at((1 << 31) - 4)).is_some());
+        assert!(RodPath::new(&one, at((1 << 31) - 2)).is_none());
     }
 
     /// A rod turned by a right angle between y and x: its diagonal entry e(x).e(y) vanishes

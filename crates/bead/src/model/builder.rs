@@ -944,7 +944,8 @@ pub(super) fn compile(declared: Arc<SystemBuilder>) -> Result<System, ModelError
         .particles
         .iter()
         .flat_map(|p| std::iter::repeat_n(1.0 / p.mass, dim))
-        .collect();
+        .collect::<Vec<f64>>()
+        .into();
     // m g per coordinate, the products `System::accumulate_forces` starts from.
     let weight = b
         .particles

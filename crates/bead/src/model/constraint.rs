@@ -187,8 +187,9 @@ impl Declaration {
     }
 }
 
-/// Results and scratch space of [`ConstraintSet::evaluate`], sized once.
-#[derive(Clone, Debug)]
+/// Results and scratch space of [`ConstraintSet::evaluate`], sized once
+/// ([`ConstraintSet::workspace`]; the default is sized for no rows).
+#[derive(Clone, Debug, Default)]
 pub struct ConstraintEval {
     /// C (n_rows)
     pub value: Vec<f64>,

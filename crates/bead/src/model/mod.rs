@@ -58,8 +58,9 @@ pub struct System {
     /// The unilateral rows (see [`SystemBuilder::unilateral`]).
     pub(crate) unilateral: Vec<UnilateralRow>,
     pub(crate) parametric: Option<ParametricMap>,
-    /// Inverse masses per coordinate (n_coords): W = M^-1 as a diagonal.
-    pub(crate) inverse_mass: Vec<f64>,
+    /// Inverse masses per coordinate (n_coords): W = M^-1 as a diagonal (shared with the
+    /// integrators that keep W, see [`crate::formulation::ConstrainedSystem::shared_inverse_mass`]).
+    pub(crate) inverse_mass: std::sync::Arc<[f64]>,
     /// Gravity's force per coordinate, m_p g_a (n_coords).
     pub(crate) weight: Vec<f64>,
     /// The parameters the expressions were parsed with, in declaration order.

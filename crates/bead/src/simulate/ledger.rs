@@ -12,13 +12,15 @@
 //! so constraint impulses never touch it; the applied forces' power drives it through
 //! [`ConstrainedSystem::unconstrained_acceleration`].
 
+use std::sync::Arc;
+
 use crate::formulation::{ConstrainedSystem, Formulation, SecondOrderSystem, StepError};
 use crate::linalg::{LinearSolver, RowStructure};
 
 /// Scratch space of [`WithWork`], sized once.
 pub(super) struct LedgerScratch {
     /// W = M^-1 with a trailing 0 for the work coordinate (n + 1)
-    inverse_mass: Vec<f64>,
+    inverse_mass: Arc<[f64]>,
     /// The formulation's factorization of J W J^T
     solver: LinearSolver,
 }
@@ -32,7 +34,7 @@ impl LedgerScratch {
         };
         inverse_mass.push(0.0);
         LedgerScratch {
-            inverse_mass,
+            inverse_mass: inverse_mass.into(),
             solver,
         }
     }
@@ -123,6 +125,10 @@ impl ConstrainedSystem for WithWork<'_> {
 
     fn inverse_mass(&self) -> &[f64] {
         &self.scratch.inverse_mass
+    }
+
+    fn shared_inverse_mass(&self) -> Arc<[f64]> {
+        Arc::clone(&self.scratch.inverse_mass)
     }
 
     /// The formulation's distance rows (their coordinates are the formulation's, which come

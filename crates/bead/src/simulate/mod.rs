@@ -131,7 +131,9 @@ pub struct Simulation {
     state: State,
     /// The state before the step in progress, restored when the step fails
     previous: State,
-    /// Adaptive integrators: the state at the last requested time, behind `state`
+    /// Adaptive integrators: the state at the last requested time, behind `state` (no
+    /// coordinates with a fixed-step integrator, which never falls behind: see
+    /// [`Simulation::output_buffer`])
     output: State,
     output_behind: bool,
     /// The formulation's coordinate count n
@@ -274,7 +276,7 @@ impl Simulation {
         let mut simulation = Simulation {
             stepper: Stepper::new(&config, n),
             previous: state.clone(),
-            output: state.clone(),
+            output: Self::output_buffer(&config, &state),
             output_behind: false,
             grid_origin: state.t,
             state,
@@ -370,6 +372,21 @@ impl Simulation {
         self.formulation.evaluations()
     }
 
+    /// The buffer of `output` for a run starting at `state`: a copy for an adaptive
+    /// integrator (its dense output lands there); for a fixed-step one, which never falls
+    /// behind, no coordinates (a large system's state is not kept three times).
+    fn output_buffer(config: &SimulationConfig, state: &State) -> State {
+        if config.integrator.is_adaptive() {
+            state.clone()
+        } else {
+            State {
+                t: state.t,
+                q: Vec::new(),
+                qdot: Vec::new(),
+            }
+        }
+    }
+
     /// The observable state: the integrator's, or for adaptive integrators the dense output at
     /// the last requested time.
     fn observed(&self) -> &State {
@@ -454,6 +471,12 @@ impl Simulation {
     /// Integrator steps taken (accepted steps for adaptive integrators).
     pub fn steps(&self) -> u64 {
         self.steps
+    }
+    /// The most substeps any step has taken so far: the configured count, or more where a
+    /// step was retried in smaller ones (as [`RunStats::substeps_max`], without building the
+    /// statistics and their copy of the state).
+    pub fn substeps_max(&self) -> u32 {
+        self.substeps_max.max(self.config.substeps.max(1))
     }
     /// How many times the singular-point monitor searched for a point where a gradient
     /// vanishes after a step (a candidate raised by its first-order tests; see the module
@@ -976,7 +999,7 @@ impl Simulation {
             &state.qdot[..n],
         );
         self.previous = state.clone();
-        self.output = state.clone();
+        self.output = Self::output_buffer(&self.config, &state);
         self.output_behind = false;
         self.grid_origin = state.t;
         self.grid_steps = 0;
@@ -1182,9 +1205,13 @@ impl Simulation {
             return;
         }
         self.ledger = Some(LedgerScratch::new(&mut *self.formulation));
-        for state in [&mut self.state, &mut self.previous, &mut self.output] {
+        for state in [&mut self.state, &mut self.previous] {
             state.q.push(0.0);
             state.qdot.push(0.0);
+        }
+        if self.config.integrator.is_adaptive() {
+            self.output.q.push(0.0);
+            self.output.qdot.push(0.0);
         }
         self.stepper = Stepper::new(&self.config, self.n + 1);
     }
@@ -1238,7 +1265,7 @@ impl Simulation {
             projected: self.config.project,
             newton_iterations_max,
             substeps: self.config.substeps.max(1),
-            substeps_max: self.substeps_max.max(self.config.substeps.max(1)),
+            substeps_max: self.substeps_max(),
             retried_steps: self.retried_steps,
             stop_when: self
                 .fired_event
