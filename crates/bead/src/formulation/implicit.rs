@@ -336,6 +336,14 @@ impl Formulation for Implicit {
         self.evaluations
     }
 
+    fn release_evaluation_scratch(&mut self) {
+        // What the fused tape left in its outputs stays there (`unpack` sizes this again).
+        if self.constraints_sized {
+            self.constraints = ConstraintEval::default();
+            self.constraints_sized = false;
+        }
+    }
+
     fn method(&self) -> Method {
         Method::Implicit
     }

@@ -346,6 +346,12 @@ pub trait Formulation: SecondOrderSystem {
     /// Particle positions x and velocities xdot (n_coords each) of state (t, q, qdot).
     fn particle_state(&mut self, t: f64, q: &[f64], qdot: &[f64], x: &mut [f64], xdot: &mut [f64]);
 
+    /// Give back the scratch space of the full acceleration's evaluation (the constraint
+    /// values, rates and gradients it keeps), sized again by the next evaluation that needs
+    /// it: a run's setup evaluates the acceleration once to check its start, and an
+    /// integrator that never does again (RATTLE) then keeps none. No result changes.
+    fn release_evaluation_scratch(&mut self) {}
+
     /// Evaluations of the acceleration so far (full, or the applied forces alone for RATTLE's
     /// kicks; a compiled RK4 step counts its four): the work measure of convergence studies.
     fn evaluations(&self) -> u64 {

@@ -274,7 +274,9 @@ impl Simulation {
             .map(|c| contact::ContactState::new(c.unilateral().len()));
         let monitor = Monitor::new(&mut *formulation, state.t, &state.q, &state.qdot);
         let mut simulation = Simulation {
-            stepper: Stepper::new(&config, n),
+            // Built once the start is checked (below): the check's scratch and the
+            // integrator's are not held at once.
+            stepper: Stepper::new(&config, 0),
             previous: state.clone(),
             output: Self::output_buffer(&config, &state),
             output_behind: false,
@@ -329,6 +331,10 @@ impl Simulation {
             simulation.enable_work_tracking();
         }
         simulation.check_initial_state()?;
+        // The check's evaluation kept C, Cdot, J and the bias for every row: the integrator
+        // sizes them again if it evaluates the full acceleration.
+        simulation.formulation.release_evaluation_scratch();
+        simulation.stepper = Stepper::new(&simulation.config, simulation.state.q.len());
         Ok(simulation)
     }
 

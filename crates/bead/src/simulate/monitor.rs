@@ -136,7 +136,7 @@ pub(super) struct Monitor {
     /// scale, which a blow-up cannot inflate as it inflates `longest`
     initial: Vec<f64>,
     /// The formulation's q at the start (a divergence within the first steps is explained
-    /// from there, before the blow-up)
+    /// from there, before the blow-up, by the watched rows: none kept when no row is)
     pub(super) initial_q: Vec<f64>,
     /// Per row, the gradient's length when a search for a singular point last found none
     /// (infinite when none failed): the search is repeated only once the gradient has
@@ -262,7 +262,8 @@ impl Monitor {
             lengths,
             longest,
             initial,
-            initial_q: q.to_vec(),
+            // Read for watched rows only (`Simulation::explain_divergence`).
+            initial_q: if watched { q.to_vec() } else { Vec::new() },
             searched,
             never_singular,
             watched,
