@@ -124,8 +124,13 @@ fn relative_difference(a: &[f64], b: &[f64]) -> f64 {
         / scale
 }
 
-/// The solvers compared with the dense LDL^T.
-const SPARSE_SOLVERS: [LinearSolver; 2] = [LinearSolver::Sparse, LinearSolver::Tridiagonal];
+/// The solvers compared with the dense LDL^T (`Auto`: rods in paths and trees fused along
+/// the rods, `RodPath`).
+const SPARSE_SOLVERS: [LinearSolver; 3] = [
+    LinearSolver::Sparse,
+    LinearSolver::Tridiagonal,
+    LinearSolver::Auto,
+];
 const SOLVERS: [LinearSolver; 3] = [
     LinearSolver::Dense,
     LinearSolver::Sparse,
@@ -171,7 +176,8 @@ fn accelerations_and_multipliers_agree() {
 }
 
 /// The tridiagonal solver takes the chains, in their own order or in path order, and leaves
-/// the tree, the ring and the cloth to faer; the chains are solved along their rods.
+/// the tree, the ring and the cloth to faer; the chains and the tree are solved along their
+/// rods.
 #[test]
 fn chains_get_the_tridiagonal_solver() {
     for (name, system) in systems() {
@@ -193,11 +199,13 @@ fn chains_get_the_tridiagonal_solver() {
                 "{name}: {described}, expected {expected}"
             );
         }
-        // The chains' rows are all rods in paths: solved along them (the matrix only
-        // described); not the tree's, the ring's or the cloths'.
+        // The chains' and the tree's rows are all rods in paths or trees: solved along them
+        // (the matrix only described); not the ring's or the cloths'.
         let rods = match name.as_str() {
-            "chain of 20" | "chain of 20, interleaved" | "chain.toml" | "rope.toml" => Some(true),
-            "tree" | "ring of 12" | "cloth 5 x 6" | "cloth.toml" | "net.toml" => Some(false),
+            "chain of 20" | "chain of 20, interleaved" | "chain.toml" | "rope.toml" | "tree" => {
+                Some(true)
+            }
+            "ring of 12" | "cloth 5 x 6" | "cloth.toml" | "net.toml" => Some(false),
             _ => None,
         };
         if let Some(rods) = rods {
@@ -282,6 +290,7 @@ fn rattle_agrees() {
             name.as_str(),
             "chain of 20"
                 | "chain of 20, interleaved"
+                | "tree"
                 | "chain.toml"
                 | "rope.toml"
                 | "double-pendulum.toml"

@@ -228,9 +228,9 @@ pub(crate) struct ProjectionWorkspace {
     pub(crate) eval: ConstraintEval,
     /// rhs, then the multipliers (m)
     rhs: Vec<f64>,
-    /// The projections and the implicit acceleration's multipliers fused along the path,
-    /// when every row is a rod and the rods couple in paths and the solver is not forced
-    /// ([`LinearSolver::Auto`] or [`LinearSolver::Tridiagonal`])
+    /// The projections and the implicit acceleration's multipliers fused along the rods,
+    /// when every row is a rod and the rods couple in paths or trees and the solver is not
+    /// forced ([`LinearSolver::Auto`]; [`LinearSolver::Tridiagonal`] takes paths only)
     pub(super) rods: Option<RodPath>,
 }
 
@@ -239,8 +239,10 @@ impl ProjectionWorkspace {
         let set = system.constraints();
         let m = set.n_rows();
         let rods = match solver {
-            LinearSolver::Auto | LinearSolver::Tridiagonal if m > 0 => {
-                RodPath::of_rows(m, |row| set.distance_row(row))
+            LinearSolver::Auto if m > 0 => RodPath::of_rows(m, |row| set.distance_row(row)),
+            // Forced tridiagonal: paths only (trees take faer, as the matrix would).
+            LinearSolver::Tridiagonal if m > 0 => {
+                RodPath::of_rows(m, |row| set.distance_row(row)).filter(|rods| !rods.is_tree())
             }
             _ => None,
         };

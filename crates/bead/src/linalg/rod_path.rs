@@ -21,8 +21,11 @@
 //! applies z_p's correction -W J_p(y)^T z_p to the two particles of rod p. No Jacobian, no
 //! assembled matrix, no permutation array is written: the work of the hand-written chain.
 
+mod tree;
+
 use super::{PathOrder, Singular, RELATIVE_PIVOT_TOLERANCE};
 use crate::model::DistanceRow;
+use tree::TreeElimination;
 
 /// `Rod::shared` at the start of a path; with [`ANCHORED`], `Rod::b` of a rod to a fixed
 /// point.
@@ -113,16 +116,31 @@ pub struct RodPath {
     anchors: Vec<[f64; 3]>,
     /// L_p (m)
     lengths: Vec<f64>,
-    /// e_p at the configuration the Newton matrix is linearized at (q_n): `set_start` (m)
-    start: Vec<[f64; 3]>,
-    /// e_p at the last configuration `values` or `project_velocities` saw (m)
-    current: Vec<[f64; 3]>,
+    /// e_p at the configuration the Newton matrix is linearized at (q_n): `set_start` (m x
+    /// dim, read `dim` at a time: `as_chunks`)
+    start: Vec<f64>,
+    /// e_p at the last configuration `values` or `project_velocities` saw (m x dim)
+    current: Vec<f64>,
     /// The elimination's inverse pivots 1 / u_p (m)
     inverse_pivots: Vec<f64>,
     /// A_p-1,p / u_p-1: the scaled super-diagonal the backward sweep needs (m)
     upper: Vec<f64>,
     /// The eliminated right-hand side, then z (m)
     eliminated: Vec<f64>,
+    /// Rods that couple in trees: their elimination particle by particle (`tree.rs`), in
+    /// place of the path's sweeps; `Rod::shared` is then each rod's upper particle
+    tree: Option<TreeElimination>,
+}
+
+/// How a rod couples to the rods before it in elimination order.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Link {
+    /// The start of a path
+    Start,
+    /// The next rod of a path, sharing a particle with the rod before it
+    Previous,
+    /// A rod of a tree, hanging from the particle with this first coordinate
+    Upper(usize),
 }
 
 impl RodPath {
@@ -132,54 +150,77 @@ impl RodPath {
     /// same pair of particles, say).
     pub fn new(order: &PathOrder, row: impl Fn(usize) -> Option<DistanceRow>) -> Option<RodPath> {
         let m = order.len();
-        Self::in_order((0..m).map(|p| (order.row(p), order.linked(p))), m, &row)
+        let link = |p| match order.linked(p) {
+            true => Link::Previous,
+            false => Link::Start,
+        };
+        Self::in_order((0..m).map(|p| (order.row(p), link(p))), m, &row, None)
     }
 
     /// The rods of rows 0..m when every row is a distance (`row(r)`) and the rods couple in
-    /// paths (rows are coupled when they share a particle: no particle on more than two
-    /// rods, no ring), found from the rods themselves: the same as [`RodPath::new`] on the
-    /// [`PathOrder`] of J W J^T's pattern, without building the pattern. Each path runs from
-    /// its end with the smallest row; paths in the order of those rows.
+    /// paths or trees (rows are coupled when they share a particle; no ring of rods), found
+    /// from the rods themselves. In paths (no particle on more than two rods) the same as
+    /// [`RodPath::new`] on the [`PathOrder`] of J W J^T's pattern, without building the
+    /// pattern: each path runs from its end with the smallest row, paths in the order of
+    /// those rows. In trees (some particle on three rods or more) the rods are eliminated
+    /// particle by particle (`tree.rs`), each tree rooted at its particle of least index.
     pub fn of_rows(m: usize, row: impl Fn(usize) -> Option<DistanceRow>) -> Option<RodPath> {
         const NONE: usize = usize::MAX;
-        // The (at most two) rows on each particle, by the particle's first coordinate.
-        let mut on_particle: Vec<[usize; 2]> = Vec::new();
+        // The rows on each particle (by the particle's first coordinate / dim), as CSR.
+        let mut ends = Vec::with_capacity(m);
+        let mut dim = 0;
+        let mut starts: Vec<usize> = Vec::new();
         for r in 0..m {
             let distance = row(r)?;
-            let dim = distance.dim;
+            dim = distance.dim;
             for particle in [Some(distance.a), distance.b].into_iter().flatten() {
                 if dim == 0 || particle % dim != 0 {
                     return None;
                 }
                 let i = particle / dim;
-                if i >= on_particle.len() {
-                    on_particle.resize(i + 1, [NONE; 2]);
+                if i + 2 > starts.len() {
+                    starts.resize(i + 2, 0);
                 }
-                let slot = &mut on_particle[i];
-                match slot {
-                    [NONE, _] => slot[0] = r,
-                    [_, NONE] => slot[1] = r,
-                    _ => return None,
-                }
+                starts[i + 1] += 1;
             }
+            ends.push((distance.a, distance.b));
+        }
+        for i in 1..starts.len() {
+            starts[i] += starts[i - 1];
+        }
+        let mut filled = starts.clone();
+        let mut rows_on = vec![0; starts.last().copied().unwrap_or(0)];
+        for (r, &(a, b)) in ends.iter().enumerate() {
+            for particle in [Some(a), b].into_iter().flatten() {
+                let slot = &mut filled[particle / dim];
+                rows_on[*slot] = r;
+                *slot += 1;
+            }
+        }
+        drop(filled);
+        let on = |i: usize| &rows_on[starts[i]..starts[i + 1]];
+        let n_particles = starts.len().saturating_sub(1);
+        if (0..n_particles).any(|i| on(i).len() > 2) {
+            let (order, tree) = tree::forest(&ends, dim, &starts, &rows_on)?;
+            drop((ends, starts, rows_on));
+            let order = order.into_iter().map(|(r, s)| (r, Link::Upper(s)));
+            return Self::in_order(order, m, &row, Some(tree));
         }
         // Each row's neighbours: the other row on each of its particles.
         let mut neighbours = vec![[NONE; 2]; m];
-        for &[i, j] in &on_particle {
-            if i == NONE || j == NONE {
-                continue;
-            }
+        for i in 0..n_particles {
+            let &[i, j] = on(i) else { continue };
             for (r, other) in [(i, j), (j, i)] {
                 let slot = &mut neighbours[r];
                 match slot {
-                    // Two rods on the same pair of particles: not a path.
+                    // Two rods on the same pair of particles: a ring of two.
                     _ if slot.contains(&other) => return None,
                     [NONE, _] => slot[0] = other,
                     _ => slot[1] = other,
                 }
             }
         }
-        drop(on_particle);
+        drop((ends, starts, rows_on));
         let mut order = Vec::with_capacity(m);
         let mut visited = vec![false; m];
         for start in 0..m {
@@ -190,7 +231,12 @@ impl RodPath {
             let (mut previous, mut current) = (NONE, start);
             loop {
                 visited[current] = true;
-                order.push((current, previous != NONE));
+                let link = if previous == NONE {
+                    Link::Start
+                } else {
+                    Link::Previous
+                };
+                order.push((current, link));
                 let next = neighbours[current]
                     .into_iter()
                     .find(|&r| r != NONE && r != previous);
@@ -204,21 +250,23 @@ impl RodPath {
         if order.len() != m {
             return None;
         }
-        Self::in_order(order.into_iter(), m, &row)
+        Self::in_order(order.into_iter(), m, &row, None)
     }
 
-    /// The rods of (row, linked to the one before) in path order.
+    /// The rods of (row, how it couples to the rods before it) in elimination order, with the
+    /// tree's elimination when they couple in trees.
     fn in_order(
-        order: impl Iterator<Item = (usize, bool)>,
+        order: impl Iterator<Item = (usize, Link)>,
         m: usize,
         row: &impl Fn(usize) -> Option<DistanceRow>,
+        tree: Option<TreeElimination>,
     ) -> Option<RodPath> {
         let mut rods: Vec<Rod> = Vec::with_capacity(m);
         let (mut anchors, mut lengths) = (Vec::new(), Vec::with_capacity(m));
         // 32-bit indices: a row or coordinate beyond them takes the general path.
         let index = |i: usize| u32::try_from(i).ok().filter(|&i| i & ANCHORED == 0);
         let mut dim = None;
-        for (p, (r, linked)) in order.enumerate() {
+        for (p, (r, link)) in order.enumerate() {
             let distance = row(r)?;
             if *dim.get_or_insert(distance.dim) != distance.dim
                 || !(1..=3).contains(&distance.dim)
@@ -243,38 +291,52 @@ impl RodPath {
                 inverse_length: 1.0 / distance.length,
                 link: 0.0,
             };
-            if p > 0 {
-                let before = &rods[p - 1];
-                let shared: Vec<usize> = particles(&rod)
-                    .into_iter()
-                    .flatten()
-                    .filter(|&s| particles(before).contains(&Some(s)))
-                    .collect();
-                match (linked, shared.as_slice()) {
-                    (true, &[s]) => {
-                        let role = |rod: &Rod| if rod.a() == s { 1.0 } else { -1.0 };
-                        let sign = role(&rod) * role(before);
-                        rod.shared = s as u32;
-                        rod.link = sign * rod.inverse_length * before.inverse_length;
+            match link {
+                Link::Upper(s) if particles(&rod).contains(&Some(s)) => rod.shared = s as u32,
+                Link::Upper(_) => return None,
+                _ if p == 0 => {}
+                Link::Start | Link::Previous => {
+                    let before = &rods[p - 1];
+                    let shared: Vec<usize> = particles(&rod)
+                        .into_iter()
+                        .flatten()
+                        .filter(|&s| particles(before).contains(&Some(s)))
+                        .collect();
+                    match (link, shared.as_slice()) {
+                        (Link::Previous, &[s]) => {
+                            let role = |rod: &Rod| if rod.a() == s { 1.0 } else { -1.0 };
+                            let sign = role(&rod) * role(before);
+                            rod.shared = s as u32;
+                            rod.link = sign * rod.inverse_length * before.inverse_length;
+                        }
+                        (Link::Start, []) => {}
+                        _ => return None,
                     }
-                    (false, []) => {}
-                    _ => return None,
                 }
             }
             rods.push(rod);
             lengths.push(distance.length);
         }
+        let dim = dim.unwrap_or(2);
         Some(RodPath {
-            dim: dim.unwrap_or(2),
+            dim,
             rods,
             anchors,
             lengths,
-            start: vec![[0.0; 3]; m],
-            current: vec![[0.0; 3]; m],
+            start: vec![0.0; m * dim],
+            current: vec![0.0; m * dim],
             inverse_pivots: vec![0.0; m],
-            upper: vec![0.0; m],
+            // The path's super-diagonal: a tree keeps its blocks instead.
+            upper: vec![0.0; if tree.is_some() { 0 } else { m }],
             eliminated: vec![0.0; m],
+            tree,
         })
+    }
+
+    /// Whether the rods couple in trees (eliminated particle by particle) rather than in
+    /// paths (the Thomas sweeps).
+    pub fn is_tree(&self) -> bool {
+        self.tree.is_some()
     }
 
     /// m
@@ -289,8 +351,8 @@ impl RodPath {
 
     /// e = x_a - x_b (x_b the anchor for a fixed point) in `D` dimensions.
     #[inline(always)]
-    fn rod_vector<const D: usize>(rod: &Rod, anchors: &[[f64; 3]], x: &[f64]) -> [f64; 3] {
-        let mut e = [0.0; 3];
+    fn rod_vector<const D: usize>(rod: &Rod, anchors: &[[f64; 3]], x: &[f64]) -> [f64; D] {
+        let mut e = [0.0; D];
         for k in 0..D {
             e[k] = x[rod.a() + k] - rod.b_coordinate(anchors, x, k);
         }
@@ -299,7 +361,7 @@ impl RodPath {
 
     /// e . (v_a - v_b) / L (v_b = 0 for a fixed point): J_p v at the rod vector e.
     #[inline(always)]
-    fn rate<const D: usize>(rod: &Rod, e: &[f64; 3], v: &[f64]) -> f64 {
+    fn rate<const D: usize>(rod: &Rod, e: &[f64; D], v: &[f64]) -> f64 {
         let mut dot = 0.0;
         for k in 0..D {
             let relative = match rod.b() {
@@ -315,13 +377,17 @@ impl RodPath {
     /// [`RodPath::newton_step`], [`RodPath::subtract_start_transpose`] and
     /// [`RodPath::start_multiply`].
     pub fn set_start(&mut self, q: &[f64]) {
+        match self.dim {
+            1 => self.set_start_in::<1>(q),
+            2 => self.set_start_in::<2>(q),
+            _ => self.set_start_in::<3>(q),
+        }
+    }
+
+    fn set_start_in<const D: usize>(&mut self, q: &[f64]) {
         let anchors = &self.anchors;
-        for (e, rod) in self.start.iter_mut().zip(&self.rods) {
-            *e = match self.dim {
-                1 => Self::rod_vector::<1>(rod, anchors, q),
-                2 => Self::rod_vector::<2>(rod, anchors, q),
-                _ => Self::rod_vector::<3>(rod, anchors, q),
-            };
+        for (e, rod) in self.start.as_chunks_mut::<D>().0.iter_mut().zip(&self.rods) {
+            *e = Self::rod_vector::<D>(rod, anchors, q);
         }
     }
 
@@ -337,7 +403,7 @@ impl RodPath {
 
     fn values_in<const D: usize>(&mut self, q: &[f64], c: &mut [f64]) {
         let (anchors, rods) = (&self.anchors, self.rods.iter().zip(&self.lengths));
-        for (e, (rod, length)) in self.current.iter_mut().zip(rods) {
+        for (e, (rod, length)) in self.current.as_chunks_mut::<D>().0.iter_mut().zip(rods) {
             *e = Self::rod_vector::<D>(rod, anchors, q);
             let squared: f64 = (0..D).map(|k| e[k] * e[k]).sum();
             c[rod.row()] = (squared - length * length) * (0.5 * rod.inverse_length);
@@ -372,7 +438,7 @@ impl RodPath {
         let mut worst: f64 = 0.0;
         let mut nan = false;
         let (anchors, rods) = (&self.anchors, self.rods.iter().zip(&self.lengths));
-        for (e, (rod, length)) in self.current.iter_mut().zip(rods) {
+        for (e, (rod, length)) in self.current.as_chunks_mut::<D>().0.iter_mut().zip(rods) {
             *e = Self::rod_vector::<D>(rod, anchors, q);
             let squared: f64 = (0..D).map(|k| e[k] * e[k]).sum();
             let value = (squared - length * length) * (0.5 * rod.inverse_length);
@@ -482,14 +548,39 @@ impl RodPath {
         q: &[f64],
         w: &[f64],
         data: &mut [f64],
-        source: impl Fn(&Rod, &[f64; 3], &[f64]) -> f64,
-        mut sink: impl FnMut(&Rod, &[f64; 3], f64, &mut [f64]),
+        source: impl Fn(&Rod, &[f64; D], &[f64]) -> f64,
+        mut sink: impl FnMut(&Rod, &[f64; D], f64, &mut [f64]),
     ) -> Result<(), Singular> {
-        for (e, rod) in self.current.iter_mut().zip(&self.rods) {
+        for (e, rod) in self
+            .current
+            .as_chunks_mut::<D>()
+            .0
+            .iter_mut()
+            .zip(&self.rods)
+        {
             *e = Self::rod_vector::<D>(rod, &self.anchors, q);
         }
-        let (rods, current) = (&self.rods, &self.current);
+        let (rods, current) = (&self.rods, self.current.as_chunks::<D>().0);
         let readable: &[f64] = data;
+        if let Some(tree) = &mut self.tree {
+            tree.forward::<D, true>(
+                rods,
+                current,
+                current,
+                w,
+                &mut self.inverse_pivots,
+                &mut self.eliminated,
+                |p| source(&rods[p], &current[p], readable),
+            )?;
+            tree.backward(
+                rods,
+                current,
+                &self.inverse_pivots,
+                &mut self.eliminated,
+                |rod, e, z| sink(rod, e, z, data),
+            );
+            return Ok(());
+        }
         forward::<D, true>(
             rods,
             current,
@@ -517,10 +608,33 @@ impl RodPath {
         q: &mut [f64],
     ) -> Result<(), Singular> {
         let rods = &self.rods;
+        let start = self.start.as_chunks::<D>().0;
+        if let Some(tree) = &mut self.tree {
+            tree.forward::<D, false>(
+                rods,
+                self.current.as_chunks::<D>().0,
+                start,
+                w,
+                &mut self.inverse_pivots,
+                &mut self.eliminated,
+                |p| c[rods[p].row()],
+            )?;
+            tree.backward(
+                rods,
+                start,
+                &self.inverse_pivots,
+                &mut self.eliminated,
+                |rod, e, z| {
+                    c[rod.row()] = z;
+                    correct::<D>(rod, e, w, z, q);
+                },
+            );
+            return Ok(());
+        }
         forward::<D, false>(
             rods,
-            &self.current,
-            &self.start,
+            self.current.as_chunks::<D>().0,
+            start,
             w,
             &mut self.inverse_pivots,
             &mut self.upper,
@@ -529,7 +643,7 @@ impl RodPath {
         )?;
         backward(
             rods,
-            &self.start,
+            start,
             &self.upper,
             &mut self.eliminated,
             |rod, e, z| {
@@ -550,7 +664,7 @@ impl RodPath {
     }
 
     fn subtract_in<const D: usize>(&self, w: &[f64], z: &[f64], y: &mut [f64]) {
-        for (rod, e) in self.rods.iter().zip(&self.start) {
+        for (rod, e) in self.rods.iter().zip(self.start.as_chunks::<D>().0) {
             correct::<D>(rod, e, w, z[rod.row()], y);
         }
     }
@@ -566,7 +680,7 @@ impl RodPath {
     }
 
     fn subtract_current_in<const D: usize>(&self, w: &[f64], z: &[f64], y: &mut [f64]) {
-        for (rod, e) in self.rods.iter().zip(&self.current) {
+        for (rod, e) in self.rods.iter().zip(self.current.as_chunks::<D>().0) {
             correct::<D>(rod, e, w, z[rod.row()], y);
         }
     }
@@ -581,7 +695,7 @@ impl RodPath {
     }
 
     fn start_multiply_in<const D: usize>(&self, v: &[f64], out: &mut [f64]) {
-        for (rod, e) in self.rods.iter().zip(&self.start) {
+        for (rod, e) in self.rods.iter().zip(self.start.as_chunks::<D>().0) {
             out[rod.row()] = Self::rate::<D>(rod, e, v);
         }
     }
@@ -589,7 +703,7 @@ impl RodPath {
 
 /// y -= W J_p(e)^T z for one rod: J_p = e^T / L on a's coordinates, -e^T / L on b's.
 #[inline(always)]
-fn correct<const D: usize>(rod: &Rod, e: &[f64; 3], w: &[f64], z: f64, y: &mut [f64]) {
+fn correct<const D: usize>(rod: &Rod, e: &[f64; D], w: &[f64], z: f64, y: &mut [f64]) {
     let scaled = z * rod.inverse_length;
     for k in 0..D {
         let g = e[k] * scaled;
@@ -603,7 +717,7 @@ fn correct<const D: usize>(rod: &Rod, e: &[f64; 3], w: &[f64], z: f64, y: &mut [
 
 /// sum_k x_k w_{s+k} y_k over D coordinates starting at s.
 #[inline(always)]
-fn weighted_dot<const D: usize>(x: &[f64; 3], w: &[f64], s: usize, y: &[f64; 3]) -> f64 {
+fn weighted_dot<const D: usize>(x: &[f64; D], w: &[f64], s: usize, y: &[f64; D]) -> f64 {
     let mut sum = 0.0;
     for k in 0..D {
         sum += x[k] * w[s + k] * y[k];
@@ -622,8 +736,8 @@ fn weighted_dot<const D: usize>(x: &[f64; 3], w: &[f64], s: usize, y: &[f64; 3])
 #[inline(always)]
 fn forward<const D: usize, const SYMMETRIC: bool>(
     rods: &[Rod],
-    left: &[[f64; 3]],
-    right: &[[f64; 3]],
+    left: &[[f64; D]],
+    right: &[[f64; D]],
     w: &[f64],
     inverse_pivots: &mut [f64],
     upper: &mut [f64],
@@ -631,7 +745,8 @@ fn forward<const D: usize, const SYMMETRIC: bool>(
     source: impl Fn(usize) -> f64,
 ) -> Result<(), Singular> {
     // The previous rod's vectors, inverse pivot and eliminated value, carried in registers.
-    let (mut left_before, mut right_before) = (&[0.0; 3], &[0.0; 3]);
+    let zero = [0.0; D];
+    let (mut left_before, mut right_before) = (&zero, &zero);
     let (mut inverse_before, mut eliminated_before) = (0.0, 0.0);
     let rows = rods.iter().zip(left.iter().zip(right)).zip(
         inverse_pivots
@@ -682,12 +797,12 @@ fn forward<const D: usize, const SYMMETRIC: bool>(
 /// `eliminated` and handed to `sink(rod_p, e_p(right), z_p)` as each is found (last rod
 /// first).
 #[inline(always)]
-fn backward(
+fn backward<const D: usize>(
     rods: &[Rod],
-    right: &[[f64; 3]],
+    right: &[[f64; D]],
     upper: &[f64],
     eliminated: &mut [f64],
-    mut sink: impl FnMut(&Rod, &[f64; 3], f64),
+    mut sink: impl FnMut(&Rod, &[f64; D], f64),
 ) {
     // (A_p,p+1 / u_p, z_p+1), zero past the end.
     let (mut coupling, mut next) = (0.0, 0.0);
@@ -791,10 +906,68 @@ mod tests {
     fn fused_solves_match_dense_ones() {
         for (dim, build) in (1..=3).flat_map(|dim| BUILDERS.map(|build| (dim, build))) {
             let rows = rods(dim);
-            let mut path = build(&rows);
-            let n = 7 * dim;
+            let path = build(&rows);
+            assert!(path.tree.is_none());
+            match_dense(&rows, path, 7, dim);
+        }
+    }
+
+    /// Rods in trees, scrambled rows: particle 0 on four rods (one to a fixed point, p0 as
+    /// a and as b), particle 1 on three; in 2D and 3D a second fixed point on the same tree;
+    /// a free star (particle 10 on three rods, no fixed point) and a path p8 - p7 - p9 as
+    /// other trees. Particles 0..14.
+    fn tree_rods(dim: usize) -> Vec<DistanceRow> {
+        let rod = |a: usize, b: Option<usize>, length: f64| DistanceRow {
+            a: a * dim,
+            b: b.map(|b| b * dim),
+            anchor: [0.3, -0.2, 0.1],
+            dim,
+            length,
+        };
+        let mut rows = vec![
+            rod(1, Some(4), 0.9),
+            rod(0, Some(1), 1.3),
+            rod(12, Some(10), 0.8),
+            rod(2, Some(0), 0.7),
+            rod(0, None, 1.1),
+            rod(5, Some(1), 1.2),
+            rod(0, Some(3), 0.6),
+            rod(8, Some(7), 1.0),
+            rod(10, Some(11), 1.4),
+            rod(7, Some(9), 0.5),
+            rod(5, Some(6), 0.8),
+            rod(13, Some(10), 1.05),
+        ];
+        // In 1D a second fixed point would over-constrain the first tree.
+        if dim > 1 {
+            rows.push(DistanceRow {
+                anchor: [-0.4, 0.5, 0.2],
+                ..rod(6, None, 1.2)
+            });
+        }
+        rows
+    }
+
+    /// The same checks on rods in trees (eliminated particle by particle).
+    #[test]
+    fn fused_tree_solves_match_dense_ones() {
+        for dim in 1..=3 {
+            let rows = tree_rods(dim);
+            let path = found_path(&rows);
+            assert!(path.tree.is_some(), "dim {dim}: not taken as a tree");
+            match_dense(&rows, path, 14, dim);
+        }
+    }
+
+    /// The fused Newton step, velocity projection, multipliers and transposes of `path`
+    /// (rods `rows` on `particles` particles in `dim` dimensions) against dense linear
+    /// algebra on the same J(x) W J(y)^T at random states and unequal masses.
+    fn match_dense(rows: &[DistanceRow], mut path: RodPath, particles: usize, dim: usize) {
+        {
+            let rows = rows.to_vec();
+            let n = particles * dim;
             let mut seed = Rng::new(11 + dim as u64);
-            let w: Vec<f64> = (0..7)
+            let w: Vec<f64> = (0..particles)
                 .flat_map(|_| {
                     let w = 0.5 + random(&mut seed).abs();
                     std::iter::repeat_n(w, dim)
@@ -937,10 +1110,18 @@ mod tests {
             b: b.map(|b| 2 * b),
             ..rows[0]
         };
-        // A ring of three rods, three rods on one particle, a rod from a particle to itself.
+        // A ring of three rods, the same ring with a branch (a particle on three rods: taken
+        // as a tree, and refused there), two rods on one pair of particles beside a branch, a
+        // rod from a particle to itself.
         assert!(found(&[rod(0, Some(1)), rod(1, Some(2)), rod(2, Some(0))]).is_none());
-        assert!(found(&[rod(0, Some(1)), rod(0, Some(2)), rod(0, None)]).is_none());
+        let branch = rod(0, Some(3));
+        assert!(found(&[rod(0, Some(1)), rod(1, Some(2)), rod(2, Some(0)), branch]).is_none());
+        assert!(found(&[rod(0, Some(1)), rod(1, Some(0)), rod(0, Some(2)), branch]).is_none());
         assert!(found(&[rod(0, Some(0))]).is_none());
+        assert!(found(&[rod(0, Some(0)), rod(0, Some(1)), branch, rod(0, None)]).is_none());
+        // Three rods on one particle: a tree (one node, no path).
+        let star = found(&[rod(0, Some(1)), rod(0, Some(2)), rod(0, None)]).unwrap();
+        assert!(star.tree.is_some());
         // A chain hung from both ends is a path.
         assert!(found(&[rod(0, None), rod(0, Some(1)), rod(1, None)]).is_some());
         // Rods' indices are 32-bit: a coordinate at or past 2^31 takes the general path.
