@@ -5,7 +5,7 @@
 /// folder), embedded at build time, in the picker's order: the article's parabola first, then
 /// the curves, the teaching tracks, the 3D and moving ones, the systems of several
 /// particles, the singular curves and the large ones.
-pub const SHIPPED: [(&str, &str); 19] = [
+pub const SHIPPED: [(&str, &str); 20] = [
     ("parabola", include_str!("../../../scenes/parabola.toml")),
     (
         "parabola-x0",
@@ -35,6 +35,7 @@ pub const SHIPPED: [(&str, &str); 19] = [
     ("node", include_str!("../../../scenes/node.toml")),
     ("chain", include_str!("../../../scenes/chain.toml")),
     ("rope", include_str!("../../../scenes/rope.toml")),
+    ("tassel", include_str!("../../../scenes/tassel.toml")),
     ("net", include_str!("../../../scenes/net.toml")),
     ("cloth", include_str!("../../../scenes/cloth.toml")),
 ];

@@ -26,8 +26,9 @@ use std::hint::black_box;
 use std::sync::Arc;
 use std::time::Instant;
 
-use bead::formulation::Method;
+use bead::formulation::{Feedback, Implicit, Method};
 use bead::integrate::IntegratorKind;
+use bead::linalg::LinearSolver;
 use bead::model::{Endpoint, System, SystemBuilder};
 use bead::simulate::{Simulation, SimulationConfig};
 
@@ -467,7 +468,7 @@ fn main() {
         Err(_) => vec![10, 100],
     };
     // BEAD_CHAIN_VARIANTS picks among engine, fixed (the engine at fixed substeps), alone (the
-    // step alone), hand and cloth.
+    // step alone), hand, tassel (the tree of rods) and cloth (with the rope and the net).
     let variants =
         std::env::var("BEAD_CHAIN_VARIANTS").unwrap_or_else(|_| "engine,fixed,alone,hand".into());
     println!();
@@ -539,8 +540,16 @@ fn main() {
             t1 / t0
         );
     }
-    if variants.contains("cloth") || (benchmarking && std::env::var("BEAD_CHAIN_VARIANTS").is_err())
-    {
+    let everything = benchmarking && std::env::var("BEAD_CHAIN_VARIANTS").is_err();
+    if variants.contains("tassel") || everything {
+        // The tassel, a tree of rods: fused along the rods, and by faer's sparse LDL^T of
+        // J W J^T (the general path, which trees took before).
+        let duration = if benchmarking { 10.0 } else { 0.02 };
+        let rattle = IntegratorKind::Rattle;
+        run_scene("tassel.toml", rattle, None, duration);
+        run_scene_solved("tassel.toml", rattle, None, duration, LinearSolver::Sparse);
+    }
+    if variants.contains("cloth") || everything {
         let duration = if benchmarking { 2.0 } else { 0.02 };
         // RATTLE at the step its stiffness needs (see cloth.toml), 1/(120 + F).
         let f = cloth_scene()
@@ -752,6 +761,18 @@ fn run_cloth(integrator: IntegratorKind, dt: Option<f64>, duration: f64) {
 
 /// Shipped scene `name` as [`run_cloth`] runs the cloth.
 fn run_scene(name: &str, integrator: IntegratorKind, dt: Option<f64>, duration: f64) {
+    run_scene_solved(name, integrator, dt, duration, LinearSolver::Auto);
+}
+
+/// [`run_scene`] with the implicit form's `solver` (`Auto`: rods in paths and trees fused
+/// along the rods; `Sparse`: faer's LDL^T of J W J^T, the general path).
+fn run_scene_solved(
+    name: &str,
+    integrator: IntegratorKind,
+    dt: Option<f64>,
+    duration: f64,
+    solver: LinearSolver,
+) {
     let scene = shipped_scene(name);
     let dt = dt.or(scene.run.dt).unwrap_or(FRAME / 2.0);
     let config = SimulationConfig {
@@ -761,7 +782,8 @@ fn run_scene(name: &str, integrator: IntegratorKind, dt: Option<f64>, duration: 
         ..Default::default()
     };
     let system = Arc::clone(&scene.system);
-    let mut sim = Simulation::new(Arc::clone(&system), config).unwrap();
+    let formulation = Implicit::with_solver(Arc::clone(&system), Feedback::default(), solver);
+    let mut sim = Simulation::with_formulation(Box::new(formulation), config).unwrap();
     let set = system.constraints();
     let mut ws = set.workspace();
     let steps = (duration / dt).round() as u64;
@@ -783,10 +805,14 @@ fn run_scene(name: &str, integrator: IntegratorKind, dt: Option<f64>, duration: 
     let wall = start.elapsed().as_secs_f64();
     println!();
     println!(
-        "scenes/{name} ({} particles, {} rows), {} at dt = {dt:.5}, {duration:.3} s simulated:",
+        "scenes/{name} ({} particles, {} rows), {} at dt = {dt:.5}, {duration:.3} s simulated{}:",
         system.particles().len(),
         set.n_rows(),
-        integrator.name()
+        integrator.name(),
+        match solver {
+            LinearSolver::Auto => String::new(),
+            other => format!(", {other:?} solver"),
+        }
     );
     let stats = sim.stats(wall);
     println!(

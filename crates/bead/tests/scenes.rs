@@ -79,6 +79,7 @@ fn small(path: &Path) -> Vec<(String, f64)> {
         "chain.toml" | "rope.toml" => set(&[("N", 5.0)]),
         "cloth.toml" => set(&[("W", 4.0), ("H", 4.0)]),
         "net.toml" => set(&[("W", 4.0), ("R", 2.0)]),
+        "tassel.toml" => set(&[("T", 3.0), ("B", 3.0), ("K", 3.0)]),
         _ => Vec::new(),
     }
 }

@@ -51,6 +51,11 @@ fn systems() -> Vec<(String, Arc<System>)> {
             "rope.toml" => vec![("N".into(), 10.0), ("L".into(), 1.0)],
             "net.toml" => vec![("W".into(), 6.0), ("R".into(), 2.0), ("L".into(), 1.0)],
             "cloth.toml" => vec![("W".into(), 8.0), ("H".into(), 7.0)],
+            "tassel.toml" => ["T", "B", "K", "L"]
+                .into_iter()
+                .zip([3.0, 3.0, 4.0, 1.0])
+                .map(|(name, value)| (name.into(), value))
+                .collect(),
             _ => vec![],
         };
         let scene = Scene::load(&file, &overrides).unwrap();
@@ -188,7 +193,7 @@ fn chains_get_the_tridiagonal_solver() {
                 Some("tridiagonal LDL^T (rows in their own order)")
             }
             "chain of 20, interleaved" => Some("tridiagonal LDL^T (rows in path order)"),
-            "tree" | "ring of 12" | "cloth 5 x 6" | "cloth.toml" | "net.toml" => {
+            "tree" | "ring of 12" | "cloth 5 x 6" | "cloth.toml" | "net.toml" | "tassel.toml" => {
                 Some("sparse LDL^T")
             }
             _ => None,
@@ -202,9 +207,12 @@ fn chains_get_the_tridiagonal_solver() {
         // The chains' and the tree's rows are all rods in paths or trees: solved along them
         // (the matrix only described); not the ring's or the cloths'.
         let rods = match name.as_str() {
-            "chain of 20" | "chain of 20, interleaved" | "chain.toml" | "rope.toml" | "tree" => {
-                Some(true)
-            }
+            "chain of 20"
+            | "chain of 20, interleaved"
+            | "chain.toml"
+            | "rope.toml"
+            | "tree"
+            | "tassel.toml" => Some(true),
             "ring of 12" | "cloth 5 x 6" | "cloth.toml" | "net.toml" => Some(false),
             _ => None,
         };
@@ -291,6 +299,7 @@ fn rattle_agrees() {
             "chain of 20"
                 | "chain of 20, interleaved"
                 | "tree"
+                | "tassel.toml"
                 | "chain.toml"
                 | "rope.toml"
                 | "double-pendulum.toml"

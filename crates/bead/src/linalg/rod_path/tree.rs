@@ -204,22 +204,56 @@ impl TreeElimination {
             let s = rods[first].shared as usize;
             let sign = |p: usize| if rods[p].a() == s { 1.0 } else { -1.0 };
             let block = &mut self.blocks[node.block..node.block + n * n];
+            let diagonal_of = |p: usize| {
+                let rod = &rods[p];
+                let mut diagonal = weighted_dot::<D>(&left[p], w, rod.a(), &right[p]);
+                if let Some(b) = rod.b() {
+                    diagonal += weighted_dot::<D>(&left[p], w, b, &right[p]);
+                }
+                diagonal * (rod.inverse_length * rod.inverse_length)
+            };
+            let coupling = |p: usize, q: usize| {
+                sign(p)
+                    * sign(q)
+                    * weighted_dot::<D>(&left[p], w, s, &right[q])
+                    * (rods[p].inverse_length * rods[q].inverse_length)
+            };
+            if let (1, Some(parent)) = (k, parent) {
+                // A particle on two rods (a stretch of path inside the tree): the general
+                // block's arithmetic below without its loops.
+                let p = first;
+                let diagonal = diagonal_of(p);
+                let pivot = diagonal + self.schur[p];
+                let usable = if SYMMETRIC {
+                    diagonal > 0.0 && pivot > RELATIVE_PIVOT_TOLERANCE * diagonal
+                } else {
+                    pivot.abs() > RELATIVE_PIVOT_TOLERANCE * diagonal.abs()
+                };
+                if !usable {
+                    return Err(Singular {
+                        row: rods[p].row(),
+                        finite: diagonal.is_finite() && pivot.is_finite(),
+                    });
+                }
+                let (upper, lower) = (coupling(p, parent), coupling(parent, p));
+                let inverse = 1.0 / pivot;
+                let l = lower * inverse;
+                let value = source(p) + eliminated[p];
+                block.copy_from_slice(&[pivot, upper, l, 0.0 - l * upper]);
+                inverse_pivots[p] = inverse;
+                eliminated[p] = value;
+                self.schur[parent] = block[3];
+                eliminated[parent] = 0.0 - l * value;
+                continue;
+            }
             for a in 0..n {
                 let p = member(a);
                 for b in 0..n {
                     let q = member(b);
                     block[a * n + b] = if a != b {
-                        sign(p)
-                            * sign(q)
-                            * weighted_dot::<D>(&left[p], w, s, &right[q])
-                            * (rods[p].inverse_length * rods[q].inverse_length)
+                        coupling(p, q)
                     } else if a < k {
-                        let rod = &rods[p];
-                        let mut diagonal = weighted_dot::<D>(&left[p], w, rod.a(), &right[p]);
-                        if let Some(b) = rod.b() {
-                            diagonal += weighted_dot::<D>(&left[p], w, b, &right[p]);
-                        }
-                        diagonal *= rod.inverse_length * rod.inverse_length;
+                        let diagonal = diagonal_of(p);
                         self.diagonal[a] = diagonal;
                         diagonal + self.schur[p]
                     } else {
