@@ -1502,7 +1502,7 @@ mod tests {
 
     /// The parameters whose sweeps are expected to restart members: those that reach only
     /// initial values in the shipped scenes.
-    const RESTARTED: [(&str, &str); 20] = [
+    const RESTARTED: [(&str, &str); 21] = [
         ("bounce.toml", "x0"),
         ("circle.toml", "theta0"),
         ("cloth.toml", "F"),
@@ -1523,6 +1523,7 @@ mod tests {
         ("rope.toml", "F"),
         ("spinning-hoop.toml", "th0"),
         ("spiral.toml", "w0"),
+        ("tassel.toml", "F"),
     ];
 
     /// Every parameter of every shipped scene, swept to two values: a restarted member is

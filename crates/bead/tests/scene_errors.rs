@@ -578,8 +578,8 @@ fn mutated_scenes_never_panic() {
         .map(|e| e.unwrap().path())
         .collect();
     files.sort();
-    // The generated scenes are fuzzed at a few links and a 4 x 4 cloth: at their full sizes
-    // (1000 links, 2500 masses) each of the thousands of loads below takes long in a debug
+    // The generated scenes are fuzzed at a few links, a 4 x 4 cloth and a small tassel: at
+    // their full sizes (1000 links, 2500 masses) each of the thousands of loads below takes long in a debug
     // build, and the mutations exercise the same code at any size.
     let small = |text: String| {
         let mut text = text;
@@ -590,6 +590,9 @@ fn mutated_scenes_never_panic() {
             ("R = { value = 10,", "R = { value = 2,"),
             ("W = { value = 50,", "W = { value = 4,"),
             ("H = { value = 50,", "H = { value = 4,"),
+            ("T = { value = 10,", "T = { value = 2,"),
+            ("B = { value = 8,", "B = { value = 3,"),
+            ("K = { value = 20,", "K = { value = 2,"),
         ] {
             text = text.replacen(from, to, 1);
         }

@@ -47,8 +47,12 @@ pub trait ConstrainedSystem: SecondOrderSystem {
     fn inverse_mass(&self) -> &[f64];
     /// W as a shared allocation, for integrators that keep it between calls: the same
     /// values as [`ConstrainedSystem::inverse_mass`] at the same address, so that an
-    /// integrator can tell from the pointer whether its copy is still this system's.
-    fn shared_inverse_mass(&self) -> Arc<[f64]>;
+    /// integrator can tell from the pointer whether its copy is still this system's. The
+    /// default copies W (a system that holds its W in an `Arc<[f64]>` returns that instead:
+    /// with a copy, RATTLE takes W again at every step).
+    fn shared_inverse_mass(&self) -> Arc<[f64]> {
+        Arc::from(self.inverse_mass())
+    }
     /// Constraint row `row` as a built-in distance, whose constant Hessian a projection's
     /// Newton iteration uses ([`DistanceRow`]); `None` for every other row (the default).
     fn distance_row(&self, row: usize) -> Option<DistanceRow> {

@@ -215,8 +215,8 @@ impl Implicit {
                     - self.feedback.ks * ce.value[i]
                     - self.feedback.kd * ce.velocity[i];
             }
-            // (J W J^T) lambda = rhs: along the rods when they are in paths (no matrix),
-            // else by the assembled matrix's factorization.
+            // (J W J^T) lambda = rhs: along the rods when they are in paths or trees (no
+            // matrix), else by the assembled matrix's factorization.
             let solved = match &mut self.projection.rods {
                 Some(rods) => rods.solve_normal(x, w, &mut self.lambda),
                 None => {
@@ -244,10 +244,10 @@ impl Implicit {
         Ok(())
     }
 
-    /// Whether J W J^T is solved along the rods (every row a rod, the rods in paths, the
-    /// solver [`LinearSolver::Auto`] or [`LinearSolver::Tridiagonal`]): the acceleration's
-    /// multipliers and both projections, with no matrix assembled
-    /// ([`crate::linalg::RodPath`]).
+    /// Whether J W J^T is solved along the rods (every row a rod, the rods in paths or
+    /// trees with the solver [`LinearSolver::Auto`], in paths with
+    /// [`LinearSolver::Tridiagonal`]): the acceleration's multipliers and both projections,
+    /// with no matrix assembled ([`crate::linalg::RodPath`]).
     pub fn fused_rods(&self) -> bool {
         self.projection.rods.is_some()
     }

@@ -31,8 +31,8 @@
 //!   angular velocities for a chain), so it needs more iterations for fast motion and fails
 //!   to converge once that rate nears 1.
 //!
-//! The default ([`NewtonMatrix::Auto`]) is the exact matrix fused along the path when every
-//! row is a rod and the rods couple in paths (the system's own
+//! The default ([`NewtonMatrix::Auto`]) is the exact matrix fused along the rods when every
+//! row is a rod and the rods couple in paths or trees (the system's own
 //! [`RodPath`](crate::linalg::RodPath), [`ConstrainedSystem::rods_mut`], any size), otherwise
 //! the exact matrix for systems of at most [`DENSE_MAX_ROWS`] rows and the simplified one
 //! above.
@@ -134,8 +134,8 @@ enum ExactSolve {
 /// documentation for the measurements behind the default).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum NewtonMatrix {
-    /// The exact matrix fused along the path ([`RodPath`](crate::linalg::RodPath)) when
-    /// every row is a rod and the rods couple in paths; otherwise [`NewtonMatrix::Exact`]
+    /// The exact matrix fused along the rods ([`RodPath`](crate::linalg::RodPath)) when
+    /// every row is a rod and the rods couple in paths or trees; otherwise [`NewtonMatrix::Exact`]
     /// for systems of at most [`DENSE_MAX_ROWS`] rows (solved densely),
     /// [`NewtonMatrix::Simplified`] above.
     #[default]
@@ -275,11 +275,10 @@ impl Rattle {
         self.iterations_total
     }
 
-    /// Whether the position step runs fused along a path of rods
-    /// ([`crate::linalg::RodPath`]: every row a
-    /// distance, the rows coupled in paths, the system solving along them, as
-    /// [`crate::formulation::Implicit`] does with [`LinearSolver::Auto`] or
-    /// [`LinearSolver::Tridiagonal`]; [`NewtonMatrix::Auto`]); known after the first step.
+    /// Whether the position step runs fused along the rods ([`crate::linalg::RodPath`]:
+    /// every row a distance, the rows coupled in paths or trees, the system solving along
+    /// them, as [`crate::formulation::Implicit`] does with [`LinearSolver::Auto`];
+    /// [`NewtonMatrix::Auto`]); known after the first step.
     pub fn fused_rods(&self) -> bool {
         self.fused
     }

@@ -1,5 +1,6 @@
-//! Chains of rods solved in one pass: the rows' values, the Newton matrix's entries, the
-//! tridiagonal elimination and the correction W J^T z, fused along the path.
+//! Chains and trees of rods solved in one pass: the rows' values, the Newton matrix's
+//! entries, the elimination and the correction W J^T z, fused along the rods. Paths below;
+//! trees (a particle on three rods or more) in `tree.rs`, with the same per-rod arithmetic.
 //!
 //! When every row is a rod, C_p = (|e_p|^2 - L_p^2) / (2 L_p) with e_p = x_a - x_b (x_b a
 //! fixed point or a particle), and the rows couple in paths ([`PathOrder`]), the matrices of
@@ -86,8 +87,9 @@ impl Rod {
     }
 }
 
-/// The rods of a constraint set whose rows are all distances coupled in paths, with the
-/// scratch space of their fused solves (O(m), allocated once). See the module documentation.
+/// The rods of a constraint set whose rows are all distances coupled in paths or trees (no
+/// ring), with the scratch space of their fused solves (O(m) for paths and for trees of
+/// bounded degree, allocated once). See the module documentation.
 ///
 /// ```
 /// use bead::linalg::{RodPath, PathOrder, SymmetricPattern};
@@ -172,6 +174,11 @@ impl RodPath {
         let mut starts: Vec<usize> = Vec::new();
         for r in 0..m {
             let distance = row(r)?;
+            // Rows of different dimensions are no set of rods (and would index the
+            // particles differently below).
+            if r > 0 && distance.dim != dim {
+                return None;
+            }
             dim = distance.dim;
             for particle in [Some(distance.a), distance.b].into_iter().flatten() {
                 if dim == 0 || particle % dim != 0 {
@@ -913,9 +920,11 @@ mod tests {
     }
 
     /// Rods in trees, scrambled rows: particle 0 on four rods (one to a fixed point, p0 as
-    /// a and as b), particle 1 on three; in 2D and 3D a second fixed point on the same tree;
-    /// a free star (particle 10 on three rods, no fixed point) and a path p8 - p7 - p9 as
-    /// other trees. Particles 0..14.
+    /// a and as b), particle 1 on three; in 2D and 3D a second fixed point on the same tree
+    /// and a third on particle 1 (a rod to a fixed point among a particle's children, with
+    /// a parent); a free star (particle 10 on three rods, no fixed point), a path p8 - p7 -
+    /// p9, and a tree whose root p14 is on one rod only (p14 - p15, p15 on three) as other
+    /// trees. Particles 0..18.
     fn tree_rods(dim: usize) -> Vec<DistanceRow> {
         let rod = |a: usize, b: Option<usize>, length: f64| DistanceRow {
             a: a * dim,
@@ -937,13 +946,23 @@ mod tests {
             rod(7, Some(9), 0.5),
             rod(5, Some(6), 0.8),
             rod(13, Some(10), 1.05),
+            rod(15, Some(14), 0.75),
+            rod(15, Some(16), 1.15),
+            rod(17, Some(15), 0.95),
         ];
-        // In 1D a second fixed point would over-constrain the first tree.
+        // In 1D more fixed points would over-constrain the first tree.
         if dim > 1 {
             rows.push(DistanceRow {
                 anchor: [-0.4, 0.5, 0.2],
                 ..rod(6, None, 1.2)
             });
+            rows.insert(
+                2,
+                DistanceRow {
+                    anchor: [0.2, 0.9, -0.3],
+                    ..rod(1, None, 1.25)
+                },
+            );
         }
         rows
     }
@@ -955,7 +974,7 @@ mod tests {
             let rows = tree_rods(dim);
             let path = found_path(&rows);
             assert!(path.tree.is_some(), "dim {dim}: not taken as a tree");
-            match_dense(&rows, path, 14, dim);
+            match_dense(&rows, path, 18, dim);
         }
     }
 
@@ -1099,6 +1118,18 @@ mod tests {
         let mut mixed = rows.clone();
         mixed[5].dim = 3;
         assert!(RodPath::new(&order, |r| Some(mixed[r])).is_none());
+        // Mixed dimensions whose coordinates are multiples of both (found from the rods:
+        // the particles would be counted in one dimension and placed in another).
+        let (a, b) = (
+            DistanceRow {
+                a: 30,
+                b: None,
+                dim: 3,
+                ..rows[0]
+            },
+            rows[0],
+        );
+        assert!(RodPath::of_rows(2, |r| Some([a, DistanceRow { a: 1, dim: 1, ..b }][r])).is_none());
         // The same refusals when the paths are looked for from the rods.
         let found = |rows: &[DistanceRow]| RodPath::of_rows(rows.len(), |r| Some(rows[r]));
         assert!(RodPath::of_rows(7, |r| (r != 4).then_some(rows[r])).is_none());
@@ -1119,9 +1150,13 @@ mod tests {
         assert!(found(&[rod(0, Some(1)), rod(1, Some(0)), rod(0, Some(2)), branch]).is_none());
         assert!(found(&[rod(0, Some(0))]).is_none());
         assert!(found(&[rod(0, Some(0)), rod(0, Some(1)), branch, rod(0, None)]).is_none());
-        // Three rods on one particle: a tree (one node, no path).
+        // Three rods on one particle: a tree (one node, no path); a hub of more rods than
+        // the elimination's blocks take goes to the general path.
         let star = found(&[rod(0, Some(1)), rod(0, Some(2)), rod(0, None)]).unwrap();
         assert!(star.tree.is_some());
+        let hub = |n: usize| (1..=n).map(|k| rod(0, Some(k))).collect::<Vec<_>>();
+        assert!(found(&hub(tree::MAX_RODS_ON_A_PARTICLE)).is_some_and(|h| h.is_tree()));
+        assert!(found(&hub(tree::MAX_RODS_ON_A_PARTICLE + 1)).is_none());
         // A chain hung from both ends is a path.
         assert!(found(&[rod(0, None), rod(0, Some(1)), rod(1, None)]).is_some());
         // Rods' indices are 32-bit: a coordinate at or past 2^31 takes the general path.
@@ -1171,5 +1206,40 @@ mod tests {
             .solve_normal(&[0.0, 0.0], &[1.0, 1.0], &mut r)
             .unwrap_err();
         assert_eq!((singular.row, r), (0, [3.0]));
+    }
+
+    /// The same in a tree: particle 0 on three rods (to a fixed point, to p1, to p2), the
+    /// rod to p2 turned by a right angle between y and x, then of zero length: that row is
+    /// named and nothing is written.
+    #[test]
+    fn names_the_singular_rod_in_a_tree() {
+        let rod = |a: usize, b: Option<usize>| DistanceRow {
+            a: 2 * a,
+            b: b.map(|b| 2 * b),
+            anchor: [0.0; 3],
+            dim: 2,
+            length: 1.0,
+        };
+        let rows = [rod(0, None), rod(1, Some(0)), rod(0, Some(2))];
+        let mut path = RodPath::of_rows(3, |r| Some(rows[r])).unwrap();
+        assert!(path.is_tree());
+        let w = [1.0; 6];
+        // At y the rod p0 - p2 points along x, at x along y.
+        path.set_start(&[1.0, 0.0, 1.0, 1.0, 2.0, 0.0]);
+        let x = [1.0, 0.0, 1.0, 1.0, 1.0, 1.0];
+        let mut c = [0.0; 3];
+        path.values(&x, &mut c);
+        let (mut q, before) = (x, c);
+        let singular = path.newton_step(&w, &mut c, &mut q).unwrap_err();
+        assert_eq!(singular.row, 2);
+        assert_eq!((q, c), (x, before));
+        let collapsed = [1.0, 0.0, 1.0, 1.0, 1.0, 0.0];
+        let mut v = [1.0, 2.0, 3.0, 4.0, 5.0, 6.0];
+        let singular = path.project_velocities(&collapsed, &w, &mut v).unwrap_err();
+        assert_eq!(singular.row, 2);
+        assert_eq!(v, [1.0, 2.0, 3.0, 4.0, 5.0, 6.0]);
+        let mut r = [1.0, 2.0, 3.0];
+        let singular = path.solve_normal(&collapsed, &w, &mut r).unwrap_err();
+        assert_eq!((singular.row, r), (2, [1.0, 2.0, 3.0]));
     }
 }

@@ -328,7 +328,8 @@ impl Simulation {
             .track_work
             .unwrap_or(!simulation.nonconservation.is_empty());
         if track {
-            simulation.enable_work_tracking();
+            // The integrator (for n + 1 coordinates) is built below, after the check.
+            simulation.add_work_coordinate();
         }
         simulation.check_initial_state()?;
         // The check's evaluation kept C, Cdot, J and the bias for every row: the integrator
@@ -1207,8 +1208,16 @@ impl Simulation {
 
     /// Start the energy ledger (allocates once; the integrator restarts).
     fn enable_work_tracking(&mut self) {
+        if self.add_work_coordinate() {
+            self.stepper = Stepper::new(&self.config, self.n + 1);
+        }
+    }
+
+    /// The ledger and the work coordinate of [`Simulation::enable_work_tracking`] without a
+    /// new integrator (its caller builds one); false when they were there already.
+    fn add_work_coordinate(&mut self) -> bool {
         if self.ledger.is_some() {
-            return;
+            return false;
         }
         self.ledger = Some(LedgerScratch::new(&mut *self.formulation));
         for state in [&mut self.state, &mut self.previous] {
@@ -1219,7 +1228,7 @@ impl Simulation {
             self.output.q.push(0.0);
             self.output.qdot.push(0.0);
         }
-        self.stepper = Stepper::new(&self.config, self.n + 1);
+        true
     }
 
     /// The statistics so far (wall time and sampling are the caller's: see [`run`]).

@@ -27,6 +27,10 @@ use super::{weighted_dot, Rod, Singular, RELATIVE_PIVOT_TOLERANCE};
 /// No parent rod: the root of its tree.
 const ROOT: u32 = u32::MAX;
 
+/// The most rods on one particle the elimination takes: its block costs n^2 numbers and n^3
+/// operations per solve, so a hub of more rods goes to the general (sparse) path.
+pub(super) const MAX_RODS_ON_A_PARTICLE: usize = 64;
+
 /// One particle with rods hanging from it, in post-order.
 #[derive(Clone, Debug)]
 struct Node {
@@ -58,7 +62,8 @@ pub(super) struct TreeElimination {
 
 /// The rods with ends `ends` (by row: first coordinates of particles a and b, b `None` for
 /// a fixed point; `dim` coordinates a particle) as a forest, or `None` when they close a
-/// ring (two rods on the same pair of particles included): each row in elimination order
+/// ring (two rods on the same pair of particles included) or some particle is on more than
+/// [`MAX_RODS_ON_A_PARTICLE`] rods: each row in elimination order
 /// with the first coordinate of the particle it hangs from, and the elimination. The rows on
 /// particle i are `rows_on[starts[i]..starts[i + 1]]`.
 pub(super) fn forest(
@@ -71,6 +76,9 @@ pub(super) fn forest(
     let m = ends.len();
     let n_particles = starts.len() - 1;
     let on = |particle: usize| &rows_on[starts[particle]..starts[particle + 1]];
+    if (0..n_particles).any(|i| on(i).len() > MAX_RODS_ON_A_PARTICLE) {
+        return None;
+    }
     let below = |r: usize, particle: usize| -> Option<usize> {
         let (a, b) = ends[r];
         let b = b?;
