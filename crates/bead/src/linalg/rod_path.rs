@@ -145,6 +145,15 @@ enum Link {
     Upper(usize),
 }
 
+/// The rod vectors the right factor J(y)^T of a solve is taken at.
+#[derive(Clone, Copy, Debug)]
+enum Sides {
+    /// y = q_n ([`RodPath::set_start`]): RATTLE's unsymmetric Newton matrix
+    Start,
+    /// y = x, the current vectors: J W J^T, symmetric
+    Current,
+}
+
 impl RodPath {
     /// The rods of the rows in `order` (`row(r)`: row r as a distance, `None` when it is
     /// not one), or `None` when some row is not a distance, the rows differ in dimension, or
@@ -567,45 +576,56 @@ impl RodPath {
         {
             *e = Self::rod_vector::<D>(rod, &self.anchors, q);
         }
-        let (rods, current) = (&self.rods, self.current.as_chunks::<D>().0);
         let readable: &[f64] = data;
-        if let Some(tree) = &mut self.tree {
-            tree.forward::<D, true>(
-                rods,
-                current,
-                current,
-                w,
-                &mut self.inverse_pivots,
-                &mut self.eliminated,
-                |p| source(&rods[p], &current[p], readable),
-            )?;
-            tree.backward(
-                rods,
-                current,
-                &self.inverse_pivots,
-                &mut self.eliminated,
-                |rod, e, z| sink(rod, e, z, data),
-            );
-            return Ok(());
-        }
-        forward::<D, true>(
-            rods,
-            current,
-            current,
-            w,
-            &mut self.inverse_pivots,
-            &mut self.upper,
-            &mut self.eliminated,
-            |p| source(&rods[p], &current[p], readable),
-        )?;
-        backward(
-            rods,
-            current,
-            &self.upper,
-            &mut self.eliminated,
-            |rod, e, z| sink(rod, e, z, data),
-        );
+        self.eliminate::<D, true>(Sides::Current, w, |rod, e| source(rod, e, readable))?;
+        self.substitute::<D>(Sides::Current, |rod, e, z| sink(rod, e, z, data));
         Ok(())
+    }
+
+    /// The forward sweep of A z = r, A = J(x) W J(y)^T with x the current rod vectors and y
+    /// those of `right`, r_p = `source(rod_p, e_p(x))`: along the path or the tree.
+    fn eliminate<const D: usize, const SYMMETRIC: bool>(
+        &mut self,
+        right: Sides,
+        w: &[f64],
+        source: impl Fn(&Rod, &[f64; D]) -> f64,
+    ) -> Result<(), Singular> {
+        let (rods, left) = (&self.rods, self.current.as_chunks::<D>().0);
+        let right = match right {
+            Sides::Start => self.start.as_chunks::<D>().0,
+            Sides::Current => left,
+        };
+        let source = |p: usize| source(&rods[p], &left[p]);
+        let (pivots, eliminated) = (&mut self.inverse_pivots, &mut self.eliminated);
+        match &mut self.tree {
+            Some(tree) => {
+                tree.forward::<D, SYMMETRIC>(rods, left, right, w, pivots, eliminated, source)
+            }
+            None => forward::<D, SYMMETRIC>(
+                rods,
+                left,
+                right,
+                w,
+                pivots,
+                &mut self.upper,
+                eliminated,
+                source,
+            ),
+        }
+    }
+
+    /// The backward sweep after [`RodPath::eliminate`] with the same `right`: z_p handed to
+    /// `sink(rod_p, e_p(y), z_p)`.
+    fn substitute<const D: usize>(&mut self, right: Sides, sink: impl FnMut(&Rod, &[f64; D], f64)) {
+        let right = match right {
+            Sides::Start => self.start.as_chunks::<D>().0,
+            Sides::Current => self.current.as_chunks::<D>().0,
+        };
+        let (rods, eliminated) = (&self.rods, &mut self.eliminated);
+        match &self.tree {
+            Some(tree) => tree.backward(rods, right, &self.inverse_pivots, eliminated, sink),
+            None => backward(rods, right, &self.upper, eliminated, sink),
+        }
     }
 
     fn solve<const D: usize>(
@@ -614,50 +634,11 @@ impl RodPath {
         c: &mut [f64],
         q: &mut [f64],
     ) -> Result<(), Singular> {
-        let rods = &self.rods;
-        let start = self.start.as_chunks::<D>().0;
-        if let Some(tree) = &mut self.tree {
-            tree.forward::<D, false>(
-                rods,
-                self.current.as_chunks::<D>().0,
-                start,
-                w,
-                &mut self.inverse_pivots,
-                &mut self.eliminated,
-                |p| c[rods[p].row()],
-            )?;
-            tree.backward(
-                rods,
-                start,
-                &self.inverse_pivots,
-                &mut self.eliminated,
-                |rod, e, z| {
-                    c[rod.row()] = z;
-                    correct::<D>(rod, e, w, z, q);
-                },
-            );
-            return Ok(());
-        }
-        forward::<D, false>(
-            rods,
-            self.current.as_chunks::<D>().0,
-            start,
-            w,
-            &mut self.inverse_pivots,
-            &mut self.upper,
-            &mut self.eliminated,
-            |p| c[rods[p].row()],
-        )?;
-        backward(
-            rods,
-            start,
-            &self.upper,
-            &mut self.eliminated,
-            |rod, e, z| {
-                c[rod.row()] = z;
-                correct::<D>(rod, e, w, z, q);
-            },
-        );
+        self.eliminate::<D, false>(Sides::Start, w, |rod, _| c[rod.row()])?;
+        self.substitute::<D>(Sides::Start, |rod, e, z| {
+            c[rod.row()] = z;
+            correct::<D>(rod, e, w, z, q);
+        });
         Ok(())
     }
 
@@ -722,6 +703,32 @@ fn correct<const D: usize>(rod: &Rod, e: &[f64; D], w: &[f64], z: f64, y: &mut [
     }
 }
 
+/// The pivot test of the sweeps: SYMMETRIC (A positive definite), the diagonal entry must be
+/// positive and the pivot above [`RELATIVE_PIVOT_TOLERANCE`] times it; otherwise the pivot's
+/// magnitude must be above the tolerance times the diagonal's. Row `row` is [`Singular`]
+/// otherwise (NaN included).
+#[inline(always)]
+fn pivot_test<const SYMMETRIC: bool>(
+    pivot: f64,
+    diagonal: f64,
+    row: usize,
+) -> Result<(), Singular> {
+    // Written so that NaN counts as singular.
+    let usable = if SYMMETRIC {
+        diagonal > 0.0 && pivot > RELATIVE_PIVOT_TOLERANCE * diagonal
+    } else {
+        pivot.abs() > RELATIVE_PIVOT_TOLERANCE * diagonal.abs()
+    };
+    if usable {
+        Ok(())
+    } else {
+        Err(Singular {
+            row,
+            finite: diagonal.is_finite() && pivot.is_finite(),
+        })
+    }
+}
+
 /// sum_k x_k w_{s+k} y_k over D coordinates starting at s.
 #[inline(always)]
 fn weighted_dot<const D: usize>(x: &[f64; D], w: &[f64], s: usize, y: &[f64; D]) -> f64 {
@@ -779,18 +786,7 @@ fn forward<const D: usize, const SYMMETRIC: bool>(
         } else {
             *upper = 0.0;
         }
-        // Written so that NaN counts as singular.
-        let usable = if SYMMETRIC {
-            diagonal > 0.0 && pivot > RELATIVE_PIVOT_TOLERANCE * diagonal
-        } else {
-            pivot.abs() > RELATIVE_PIVOT_TOLERANCE * diagonal.abs()
-        };
-        if !usable {
-            return Err(Singular {
-                row: rod.row(),
-                finite: diagonal.is_finite() && pivot.is_finite(),
-            });
-        }
+        pivot_test::<SYMMETRIC>(pivot, diagonal, rod.row())?;
         inverse_before = 1.0 / pivot;
         eliminated_before = value * inverse_before;
         *inverse_pivot = inverse_before;
@@ -836,18 +832,24 @@ mod tests {
         rng.uniform(-0.5, 0.5)
     }
 
-    /// Rods in scrambled row order, with a and b in both roles, two anchored rods at
-    /// different points, two separate paths, unequal masses and lengths: particles 0..6 in
-    /// `dim` dimensions. Path 1: anchor - p0 - p1 - p2 - p3 (rows 3, 0, 4, 1); path 2:
-    /// p4 - p5 - p6 - another anchor (rows 2, 5, 6).
-    fn rods(dim: usize) -> Vec<DistanceRow> {
-        let rod = |a: usize, b: Option<usize>, length: f64| DistanceRow {
+    /// A rod in `dim` dimensions between particles a and b (by index), or from a to the fixed
+    /// point (0.3, -0.2, 0.1) when b is `None`.
+    fn rod_between(dim: usize) -> impl Fn(usize, Option<usize>, f64) -> DistanceRow {
+        move |a, b, length| DistanceRow {
             a: a * dim,
             b: b.map(|b| b * dim),
             anchor: [0.3, -0.2, 0.1],
             dim,
             length,
-        };
+        }
+    }
+
+    /// Rods in scrambled row order, with a and b in both roles, two anchored rods at
+    /// different points, two separate paths, unequal masses and lengths: particles 0..6 in
+    /// `dim` dimensions. Path 1: anchor - p0 - p1 - p2 - p3 (rows 3, 0, 4, 1); path 2:
+    /// p4 - p5 - p6 - another anchor (rows 2, 5, 6).
+    fn rods(dim: usize) -> Vec<DistanceRow> {
+        let rod = rod_between(dim);
         vec![
             rod(0, Some(1), 1.3),
             rod(3, Some(2), 0.7),
@@ -926,13 +928,7 @@ mod tests {
     /// p9, and a tree whose root p14 is on one rod only (p14 - p15, p15 on three) as other
     /// trees. Particles 0..18.
     fn tree_rods(dim: usize) -> Vec<DistanceRow> {
-        let rod = |a: usize, b: Option<usize>, length: f64| DistanceRow {
-            a: a * dim,
-            b: b.map(|b| b * dim),
-            anchor: [0.3, -0.2, 0.1],
-            dim,
-            length,
-        };
+        let rod = rod_between(dim);
         let mut rows = vec![
             rod(1, Some(4), 0.9),
             rod(0, Some(1), 1.3),

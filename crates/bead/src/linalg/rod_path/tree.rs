@@ -22,7 +22,7 @@
 //! `backward` in the parent module), which need no block storage. Cost O(sum over particles of
 //! (rods on it)^3), O(m) for bounded degree.
 
-use super::{weighted_dot, Rod, Singular, RELATIVE_PIVOT_TOLERANCE};
+use super::{pivot_test, weighted_dot, Rod, Singular};
 
 /// No parent rod: the root of its tree.
 const ROOT: u32 = u32::MAX;
@@ -232,17 +232,7 @@ impl TreeElimination {
                 let p = first;
                 let diagonal = diagonal_of(p);
                 let pivot = diagonal + self.schur[p];
-                let usable = if SYMMETRIC {
-                    diagonal > 0.0 && pivot > RELATIVE_PIVOT_TOLERANCE * diagonal
-                } else {
-                    pivot.abs() > RELATIVE_PIVOT_TOLERANCE * diagonal.abs()
-                };
-                if !usable {
-                    return Err(Singular {
-                        row: rods[p].row(),
-                        finite: diagonal.is_finite() && pivot.is_finite(),
-                    });
-                }
+                pivot_test::<SYMMETRIC>(pivot, diagonal, rods[p].row())?;
                 let (upper, lower) = (coupling(p, parent), coupling(parent, p));
                 let inverse = 1.0 / pivot;
                 let l = lower * inverse;
@@ -276,18 +266,7 @@ impl TreeElimination {
             }
             for a in 0..k {
                 let (pivot, diagonal) = (block[a * n + a], self.diagonal[a]);
-                // Written so that NaN counts as singular.
-                let usable = if SYMMETRIC {
-                    diagonal > 0.0 && pivot > RELATIVE_PIVOT_TOLERANCE * diagonal
-                } else {
-                    pivot.abs() > RELATIVE_PIVOT_TOLERANCE * diagonal.abs()
-                };
-                if !usable {
-                    return Err(Singular {
-                        row: rods[first + a].row(),
-                        finite: diagonal.is_finite() && pivot.is_finite(),
-                    });
-                }
+                pivot_test::<SYMMETRIC>(pivot, diagonal, rods[first + a].row())?;
                 let inverse = 1.0 / pivot;
                 inverse_pivots[first + a] = inverse;
                 for r in a + 1..n {
