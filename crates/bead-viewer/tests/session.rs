@@ -723,7 +723,7 @@ fn dragging_works_with_verlet_and_rattle_at_the_default_dt() {
     }
     // At dt = 0.1 and at the viewer's largest dt, 1, their velocity kick cannot converge
     // against the drag's damping in one step (dt c/(2m) = 1.26 and 12.6 > 1): each step is
-    // retried in halves (at most 64) and the panel keeps running and follows the drag. (The
+    // retried in more substeps (at most 64) and the panel keeps running and follows the drag. (The
     // panel's explanation of a kick that fails while dragging stays for failures that
     // retries cannot fix.)
     for integrator in ["verlet", "rattle"] {

@@ -9,7 +9,7 @@
 //! chain's tip whips faster than one Newton solve per 1/120 s can follow; the variants:
 //!
 //! - `engine`: `Simulation` (monitors included, what `bead run` does) with its own retries:
-//!   a step whose Newton solve fails is taken again in 2, 4, ... substeps, and the next steps
+//!   a step whose Newton solve fails is taken again in 2, 3, 5, 8, ... substeps, and the next steps
 //!   start from what it needed (the most any step took is printed);
 //! - `engine, fixed`, `step alone` (the engine's RATTLE stepped directly, no monitors) and
 //!   `hand-written` (the floor): the whole run with 1, 2, 4, ... substeps per step, the
@@ -322,7 +322,7 @@ fn run_engine(n: usize, duration: f64) -> Figures {
 }
 
 /// The engine's run with `substeps` per step and no retry (`None` when a step fails), or,
-/// without, `Simulation`'s own retries in 2, 4, ... substeps as a step needs them.
+/// without, `Simulation`'s own retries in 2, 3, 5, ... substeps as a step needs them.
 fn engine_run(n: usize, duration: f64, substeps: Option<u32>) -> Option<Figures> {
     // The engine's own tolerance: each rod to 1e-12 of its length plus rounding at its
     // coordinates (`ConstraintScales`).

@@ -691,7 +691,7 @@ fn the_rope_and_the_net_keep_their_energy_as_their_comments_say() {
         assert_eq!(stats.retried_steps, 0, "{name}: retried steps");
         assert!(sim.constraint_error() < 1e-9, "{name}");
     }
-    // Why the net's step is 1/480: at 1/120 RATTLE retries steps in substeps (131 of 2,400
+    // Why the net's step is 1/480: at 1/120 RATTLE retries steps in substeps (145 of 2,400
     // over 20 s; over the first 5 s here).
     let net = Scene::load(&scenes_dir().join("net.toml"), &[]).unwrap();
     let config = SimulationConfig {

@@ -555,7 +555,7 @@ fn projection_failure_is_reported() {
     let mut o = options(IntegratorKind::Rattle, 0.01, 10);
     o.settings.constraint_max_iterations = 0;
     o.settings.constraint_tolerance = 1e-14;
-    // With retries, the step is tried in 2, 4, ..., 64 substeps first; the failure is the
+    // With retries, the step is tried in 2, 3, 5, ..., 64 substeps first; the failure is the
     // first substep's of the last try.
     let formulation = formulate(system.clone(), Method::Implicit, Feedback::default()).unwrap();
     let failure = run(formulation, &o, &mut NullSink).unwrap_err();

@@ -1,5 +1,5 @@
 //! Substeps: a step of dt made of K steps of dt/K, and the retry of a step whose iteration
-//! does not converge with twice as many substeps, up to a limit.
+//! does not converge with more substeps (about 1.5 times as many each time), up to a limit.
 //!
 //! A hanging chain released horizontally whips: its tip moves more than a link per step of
 //! 1/60 s, and RATTLE's Newton solve does not converge from such a step's predictor. With
@@ -54,7 +54,7 @@ fn config(dt: f64, substeps: u32, max_substeps: u32) -> SimulationConfig {
 }
 
 /// Law: a 30-link chain at dt = 1/60 runs its 10 s with rattle when whipping steps are
-/// retried in halves (it stopped at its first whip, t = 7.6 s, without), every rod exact to
+/// retried in more substeps (it stopped at its first whip, t = 7.6 s, without), every rod exact to
 /// the tolerance, the energy bounded; the summary says how many steps were retried and how
 /// far they were split.
 #[test]

@@ -31,7 +31,8 @@ pub struct SimulationConfig {
     /// convention of game-physics engines). Default 1.
     pub substeps: u32,
     /// When an iteration of a step does not converge (RATTLE's Newton solve, a projection, an
-    /// implicit kick or stage), retry the step with twice as many substeps, up to this many,
+    /// implicit kick or stage), retry the step with about 1.5 times as many substeps (2, 3,
+    /// 5, 8, ...), up to this many,
     /// before failing. The steps after a retried one start with the substeps it needed and
     /// try half as many after 16 steps without a retry. Default 64; equal to `substeps` to
     /// never retry.

@@ -3,7 +3,9 @@
 //! [`super::Event`] for the rules).
 
 use super::event::{sample_time, Bracket, Crossing, EventError, EventSpec, Watch};
-use super::{dense_samples, retryable, split, RunError, Simulation, Stepper, EVENT_TOLERANCE};
+use super::{
+    dense_samples, more_substeps, retryable, split, RunError, Simulation, Stepper, EVENT_TOLERANCE,
+};
 use crate::formulation::{Method, StepError};
 use crate::simulate::Event;
 
@@ -416,9 +418,9 @@ impl Simulation {
         loop {
             match self.substeps(t_end, substeps) {
                 Ok(()) => return Ok(()),
-                Err(e) if retryable(&e) && substeps * 2 <= self.config.max_substeps => {
+                Err(e) if retryable(&e) && substeps < self.config.max_substeps => {
                     self.restore_state_only();
-                    substeps *= 2;
+                    substeps = more_substeps(substeps, self.config.max_substeps);
                 }
                 Err(e) => return Err(e),
             }
