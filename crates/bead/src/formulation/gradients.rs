@@ -20,6 +20,9 @@ pub struct Gradients {
     /// How far the state is off row r's constraint, |C_r| / |J_r| (rows); 0 for the
     /// parametric form, which cannot leave its curve.
     pub(crate) offset: Vec<f64>,
+    /// Whether `values` are kept: a run that watches no row (a chain, a cloth) reads only
+    /// the offsets, and drops the values ([`Gradients::drop_values`]).
+    pub(crate) values_kept: bool,
 }
 
 impl Gradients {
@@ -35,7 +38,20 @@ impl Gradients {
             start,
             values: vec![0.0; nnz],
             offset: vec![0.0; rows],
+            values_kept: true,
         }
+    }
+
+    /// Keep the offsets only: the rows' entries are neither stored nor copied from now on
+    /// (reading a row then panics rather than give a stale value).
+    pub(crate) fn drop_values(&mut self) {
+        self.values = Vec::new();
+        self.values_kept = false;
+    }
+
+    /// The number of entries of all rows, kept or not.
+    pub(crate) fn n_entries(&self) -> usize {
+        self.start.last().copied().unwrap_or(0)
     }
 
     /// Number of rows.

@@ -487,6 +487,42 @@ impl Formulation for Implicit {
             observe_from_parts(set, value, jacobian, q, qdot, out);
             return;
         }
+        // With J's entries not kept (no row watched), rods and pins give C and |J_i|^2
+        // without writing J.
+        let g = &mut out.gradients;
+        if !g.values_kept
+            && set.n_rows() > 0
+            && set.native_values_and_squared_gradients(q, &mut out.constraints, &mut g.offset)
+        {
+            out.x.copy_from_slice(q);
+            out.xdot.copy_from_slice(qdot);
+            offsets_from_squared_norms(&out.constraints, &mut out.gradients.offset);
+            #[cfg(debug_assertions)]
+            {
+                // The general path's bits (allocation-free).
+                set.gradient(t, q, &mut self.projection.eval);
+                let eval = &self.projection.eval;
+                for (i, (&c, &offset)) in out
+                    .constraints
+                    .iter()
+                    .zip(&out.gradients.offset)
+                    .enumerate()
+                {
+                    let squared: f64 = eval.jacobian[set.row_entries(i)]
+                        .iter()
+                        .map(|g| g * g)
+                        .sum();
+                    let want = eval.value[i].abs() / squared.sqrt();
+                    assert!(
+                        c.to_bits() == eval.value[i].to_bits()
+                            && offset.to_bits() == want.to_bits(),
+                        "row {i}: the native observation differs: {c} {offset} against {} {want}",
+                        eval.value[i]
+                    );
+                }
+            }
+            return;
+        }
         if set.n_rows() > 0 {
             set.gradient(t, q, &mut self.projection.eval);
         }
@@ -656,13 +692,23 @@ fn observe_from_parts(
     }
     out.constraints.copy_from_slice(value);
     let g = &mut out.gradients;
-    g.values.copy_from_slice(jacobian);
-    for (i, (offset, c)) in g.offset.iter_mut().zip(value).enumerate() {
-        let norm = jacobian[set.row_entries(i)]
+    if g.values_kept {
+        g.values.copy_from_slice(jacobian);
+    }
+    for (i, squared) in g.offset.iter_mut().enumerate() {
+        *squared = jacobian[set.row_entries(i)]
             .iter()
             .map(|g| g * g)
-            .sum::<f64>()
-            .sqrt();
-        *offset = c.abs() / norm;
+            .sum::<f64>();
+    }
+    offsets_from_squared_norms(value, &mut g.offset);
+}
+
+/// offset_i = |C_i| / sqrt(offset_i), `offset` holding |J_i|^2 on entry: over all rows in
+/// one loop, which runs in vector registers (correctly rounded there as in scalar ones: the
+/// same bits).
+fn offsets_from_squared_norms(value: &[f64], offset: &mut [f64]) {
+    for (offset, c) in offset.iter_mut().zip(value) {
+        *offset = c.abs() / offset.sqrt();
     }
 }

@@ -637,6 +637,25 @@ impl ConstraintSet {
         }
     }
 
+    /// C (`value`, m) and |J_i|^2 (`squared`, m) at x when every row is native (distances
+    /// and pins, which do not depend on t), without writing J: the values
+    /// [`ConstraintSet::gradient`] gives and the sums of squares of its rows' entries in
+    /// their order, bit for bit. False, nothing written, when some row is not native.
+    pub(crate) fn native_values_and_squared_gradients(
+        &self,
+        x: &[f64],
+        value: &mut [f64],
+        squared: &mut [f64],
+    ) -> bool {
+        if self.native_rows.len() != self.n_rows() {
+            return false;
+        }
+        for (r, row) in &self.native_rows {
+            (value[*r], squared[*r]) = row.value_and_squared_gradient(x);
+        }
+        true
+    }
+
     /// C and J at (t, x) into `ws.value` and `ws.jacobian` (Cdot and bias untouched).
     /// Allocation-free.
     pub fn gradient(&self, t: f64, x: &[f64], ws: &mut ConstraintEval) {

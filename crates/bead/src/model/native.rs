@@ -236,12 +236,91 @@ impl NativeRow {
         }
     }
 
+    /// C and |J|^2 at x, without writing J: the value [`NativeRow::gradient`] returns and
+    /// the sum of its entries' squares in their order (the same bits: (-g)^2 = g^2, and a
+    /// sum of squares is the same from 0 or from -0).
+    #[inline]
+    pub(crate) fn value_and_squared_gradient(&self, x: &[f64]) -> (f64, f64) {
+        match self {
+            NativeRow::Distance { dim, .. } => match dim {
+                1 => self.distance_squared_gradient::<1>(x),
+                2 => self.distance_squared_gradient::<2>(x),
+                _ => self.distance_squared_gradient::<3>(x),
+            },
+            NativeRow::Pin { coordinate, anchor } => (x[*coordinate] - anchor, 1.0),
+        }
+    }
+
+    /// A distance row's C = (|d|^2 - L^2) / (2L) and |J|^2 = sum over its entries
+    /// (+-d_k / L)^2, in entry order: the a side's and the b side's squares are the same
+    /// numbers, so the order of the sides does not matter.
+    #[inline(always)]
+    fn distance_squared_gradient<const D: usize>(&self, x: &[f64]) -> (f64, f64) {
+        let NativeRow::Distance {
+            a,
+            b,
+            anchor,
+            length,
+            ..
+        } = self
+        else {
+            unreachable!("a distance row")
+        };
+        let (d, _) = Self::separation::<D>(*a, *b, anchor, x, None);
+        let inverse_length = 1.0 / length;
+        let mut squared = 0.0;
+        for _side in 0..if b.is_some() { 2 } else { 1 } {
+            for axis in d {
+                let g = axis * inverse_length;
+                squared += g * g;
+            }
+        }
+        let mut dd = 0.0;
+        for axis in d {
+            dd += axis * axis;
+        }
+        ((dd - length * length) * (0.5 * inverse_length), squared)
+    }
+
     /// C at x.
     #[inline]
     pub(crate) fn value(&self, x: &[f64]) -> f64 {
         match self {
             NativeRow::Distance { dim, .. } => self.distance_any(*dim, x, None, None).0,
             NativeRow::Pin { coordinate, anchor } => x[*coordinate] - anchor,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// C and |J|^2 without J give the bits of C and the sum of squares of J's entries in
+    /// their order: rods with either particle first, anchored rods, 2D and 3D, pins.
+    #[test]
+    fn value_and_squared_gradient_match_the_gradient() {
+        let x = [0.3, -1.7, 2.25, 1e-3, 4.0, -0.6, 0.1, 7.5, -3.3];
+        let rows = [
+            NativeRow::distance_row(2, 0, Some(4), &[], 1.3),
+            NativeRow::distance_row(2, 4, Some(0), &[], 1.3),
+            NativeRow::distance_row(2, 2, None, &[0.5, -0.25], 0.7),
+            NativeRow::distance_row(3, 0, Some(6), &[], 2.9),
+            NativeRow::distance_row(3, 6, Some(3), &[], 0.31),
+            NativeRow::distance_row(3, 3, None, &[1.0, 2.0, -3.0], 5.0),
+            NativeRow::Pin {
+                coordinate: 5,
+                anchor: 0.4,
+            },
+        ];
+        for row in &rows {
+            let mut jacobian = vec![0.0; row.columns().len()];
+            let value = row.gradient(&x, &mut jacobian);
+            let squared: f64 = jacobian.iter().map(|g| g * g).sum();
+            let (got_value, got_squared) = row.value_and_squared_gradient(&x);
+            assert_eq!(got_value.to_bits(), value.to_bits(), "{row:?}");
+            assert_eq!(got_squared.to_bits(), squared.to_bits(), "{row:?}");
+            assert!(squared > 0.0);
         }
     }
 }

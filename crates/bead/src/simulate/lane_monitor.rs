@@ -117,7 +117,7 @@ impl<const L: usize> LaneMonitor<L> {
     pub(super) fn new(system: &System, method: Method, members: &[&Monitor]) -> LaneMonitor<L> {
         let template = &members[0].observation;
         let start = template.gradients.start.clone();
-        let n_values = template.gradients.values.len();
+        let n_values = template.gradients.n_entries();
         let rows = start.len() - 1;
         let set = system.constraints();
         let source = match method {

@@ -1482,7 +1482,7 @@ fn non_finite_state(
     state: &State,
     n: usize,
 ) -> Option<(Quantity, f64)> {
-    if state.q.iter().chain(&state.qdot).all(|c| c.is_finite()) {
+    if crate::linalg::all_finite(&state.q) && crate::linalg::all_finite(&state.qdot) {
         // The common case, without asking the formulation for names.
         return None;
     }

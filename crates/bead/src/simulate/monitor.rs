@@ -4,7 +4,7 @@
 use std::fmt;
 
 use crate::formulation::{Formulation, Observation, SingularKind, StepError};
-use crate::linalg::max_nan;
+use crate::linalg::{max_abs, max_nan};
 use crate::model::System;
 
 /// A particle farther than this many times the run's length scale, or faster than this many
@@ -255,6 +255,15 @@ impl Monitor {
             valid: false,
             ..last.clone()
         };
+        #[cfg(debug_assertions)]
+        let mut check = formulation.new_observation();
+        if !watched {
+            // Nor are the observation's: only the offsets are read from here on (a copy of
+            // J's entries saved at every step, 32 bytes a rod in 2D).
+            observation.gradients.drop_values();
+            #[cfg(debug_assertions)]
+            check.gradients.drop_values();
+        }
         Monitor {
             observation,
             ends: [last, before],
@@ -282,7 +291,7 @@ impl Monitor {
             floor: reach.at(0.0),
             energy_terms: EnergyTerms::of(system),
             #[cfg(debug_assertions)]
-            check: formulation.new_observation(),
+            check,
             reach,
         }
     }
@@ -568,13 +577,12 @@ impl Monitor {
         })
     }
 
-    /// A row whose gradient is zero or not finite at the initial state.
+    /// A row whose gradient is zero or not finite at the initial state: call on a new
+    /// monitor, whose longest lengths are the initial state's.
     pub(super) fn singular_at_start(&self) -> Option<usize> {
-        let g = &self.observation.gradients;
-        (0..g.n_rows()).find(|&r| {
-            let length = norm(g.row(r));
-            !(length > 0.0 && length.is_finite())
-        })
+        self.longest
+            .iter()
+            .position(|&length| !(length > 0.0 && length.is_finite()))
     }
 
     fn check_divergence(&self, system: &System, t: f64) -> Result<(), Rejection> {
@@ -597,9 +605,10 @@ impl Monitor {
         let x = &self.observation.x;
         let v = &self.observation.xdot;
         // Within the limits at t = 0, the least at any time: nothing diverged, whatever t (a
-        // NaN fails the comparison and takes the full test).
+        // NaN fails the comparison and takes the full test; the largest sizes are taken
+        // without a branch per entry).
         let (position_floor, speed_floor) = self.floor;
-        if x.iter().all(|c| c.abs() <= position_floor) && v.iter().all(|c| c.abs() <= speed_floor) {
+        if max_abs(x) <= position_floor && max_abs(v) <= speed_floor {
             return Ok(());
         }
         let (position_limit, speed_limit) = self.reach.at(t);
@@ -852,27 +861,36 @@ impl EnergyTerms {
         if self.general {
             return system.energy(x, v);
         }
-        let dim = self.dim;
+        // Systems are 2D or 3D (`ModelError::BadDimension`).
+        let energy = match self.dim {
+            2 => self.gravity_energy::<2>(x, v),
+            _ => self.gravity_energy::<3>(x, v),
+        };
+        debug_assert_eq!(energy.to_bits(), system.energy(x, v).to_bits());
+        energy
+    }
+
+    /// T + V under gravity alone, D coordinates a particle: the sums of `System::energy` in
+    /// its order (kinetic sum_p m_p/2 |v_p|^2 and gravity sum_p -m_p g . x_p, each term's
+    /// own sum from -0.0), the two running sums in one pass so that their additions overlap.
+    fn gravity_energy<const D: usize>(&self, x: &[f64], v: &[f64]) -> f64 {
+        let gravity_vector: &[f64; D] = self.gravity.as_slice().try_into().expect("D entries");
         let mut kinetic = self.zero;
-        for (p, &half_mass) in self.half_mass.iter().enumerate() {
+        let mut gravity = self.zero;
+        let particles = x.as_chunks::<D>().0.iter().zip(v.as_chunks::<D>().0);
+        let masses = self.half_mass.iter().zip(&self.negative_mass);
+        for ((xp, vp), (&half_mass, &negative_mass)) in particles.zip(masses) {
             let mut s = self.zero;
-            for c in &v[p * dim..p * dim + dim] {
-                s += c * c;
+            let mut gx = self.zero;
+            for k in 0..D {
+                s += vp[k] * vp[k];
+                gx += gravity_vector[k] * xp[k];
             }
             kinetic += half_mass * s;
-        }
-        let mut gravity = self.zero;
-        for (p, &negative_mass) in self.negative_mass.iter().enumerate() {
-            let mut gx = self.zero;
-            for (g, c) in self.gravity.iter().zip(&x[p * dim..p * dim + dim]) {
-                gx += g * c;
-            }
             gravity += negative_mass * gx;
         }
         // The applied forces' potentials: an empty sum.
-        let energy = kinetic + (gravity + self.zero);
-        debug_assert_eq!(energy.to_bits(), system.energy(x, v).to_bits());
-        energy
+        kinetic + (gravity + self.zero)
     }
 }
 
