@@ -309,7 +309,8 @@ async fn picker_checks(client: &Client, addr: SocketAddr) {
         js(
             client,
             &format!(
-                "const s = document.getElementById('scene-select'); s.value = '{name}';
+                "window.__viewer.scene.replaced = true;
+                 const s = document.getElementById('scene-select'); s.value = '{name}';
                  s.dispatchEvent(new Event('change')); return null;"
             ),
         )
@@ -317,7 +318,8 @@ async fn picker_checks(client: &Client, addr: SocketAddr) {
         wait_within(
             client,
             &format!(
-                "window.__viewer.scene.name === '{name}' && window.__viewer.panels.size > 0 && \
+                "!window.__viewer.scene.replaced && window.__viewer.scene.name === '{name}' && \
+                 window.__viewer.panels.size > 0 && \
                  [...window.__viewer.panels.values()].every(p => p.frame && \
                  p.frame.epoch === p.info.epoch && p.lastDraw && \
                  (p.frame.steps > 0 || p.frame.status === 'failed'))"
@@ -1294,7 +1296,8 @@ async fn layout_checks(client: &Client, addr: SocketAddr) {
             js(
                 client,
                 &format!(
-                    "const s = document.getElementById('scene-select'); s.value = '{name}';
+                    "window.__viewer.scene.replaced = true;
+                     const s = document.getElementById('scene-select'); s.value = '{name}';
                      s.dispatchEvent(new Event('change')); return null;"
                 ),
             )
@@ -1302,7 +1305,8 @@ async fn layout_checks(client: &Client, addr: SocketAddr) {
             wait_within(
                 client,
                 &format!(
-                    "window.__viewer.scene.name === '{name}' && window.__viewer.panels.size > 0 && \
+                    "!window.__viewer.scene.replaced && window.__viewer.scene.name === '{name}' && \
+                     window.__viewer.panels.size > 0 && \
                      [...window.__viewer.panels.values()].every(p => p.frame && \
                      p.frame.epoch === p.info.epoch && p.lastDraw && p.history.length > 3 && \
                      (p.frame.steps > 0 || p.frame.status === 'failed'))"
