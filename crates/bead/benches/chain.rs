@@ -17,9 +17,9 @@
 //!
 //! The floor is a hand-written RATTLE of this chain alone: the SHAKE step by exact Newton
 //! with the tridiagonal matrix J(x^k) W J(x_n)^T solved by the Thomas algorithm, the velocity
-//! step by the tridiagonal J W J^T, single-threaded, allocation-free; its tolerance on max |C|
-//! is the engine's per-rod one at the chain's far end (1e-12 L, or 16 eps |x| L where
-//! rounding allows no less). The peak memory (the process's high-water mark) is printed after
+//! step by the tridiagonal J W J^T, single-threaded, allocation-free; it stops its Newton
+//! iteration by the engine's own per-rod test (each rod to 1e-12 of its length plus the
+//! rounding its coordinates allow: `TOLERANCE`), so both do the same work. The peak memory (the process's high-water mark) is printed after
 //! each size, the sizes in increasing order.
 
 use std::hint::black_box;
@@ -39,12 +39,20 @@ const FRAME: f64 = 1.0 / 60.0;
 /// The step: two per frame.
 const DT: f64 = FRAME / 2.0;
 
-/// max |C_i| the solves must reach, in the units of C = (|d|^2 - L^2) / (2 L) (a length):
-/// 1e-12 of a rod's length, but not below what rounding allows at the chain's far end
-/// (|x| up to N L: |C| cannot go below a few eps |x| L there).
-fn tolerance(n: usize) -> f64 {
-    (1e-12 * L).max(16.0 * f64::EPSILON * n as f64 * L)
-}
+/// The solves' stopping rule, the engine's own (`ConstraintScales`, `Simulation`'s
+/// tolerance 1e-12): every rod i within
+///
+/// ```text
+/// |C_i| <= 1e-12 L + rho_i max_k |x_k|,   rho_i = 16 eps |J_i(x_0)|
+/// ```
+///
+/// in the units of C = (|d|^2 - L^2) / (2 L) (a length), the max over rod i's coordinates:
+/// 1e-12 of a rod's length plus what rounding allows at its coordinates (|x| up to N L:
+/// |C| cannot go below a few eps |x| L there). |J_i(x_0)| is sqrt(2) for a rod between two
+/// particles (J_i = (d / L, -d / L)), 1 for the first, anchored one.
+const TOLERANCE: f64 = 1e-12;
+const ROUNDING_LINK: f64 = 16.0 * f64::EPSILON * std::f64::consts::SQRT_2;
+const ROUNDING_FIRST: f64 = 16.0 * f64::EPSILON;
 
 /// The chain's figures after a run.
 #[derive(Clone, Copy, Debug)]
@@ -78,7 +86,6 @@ struct HandChain {
     rhs: Vec<f64>,
     nu: Vec<f64>,
     scratch: Vec<f64>,
-    tolerance: f64,
 }
 
 impl HandChain {
@@ -99,7 +106,6 @@ impl HandChain {
             rhs: vec![0.0; n],
             nu: vec![0.0; n],
             scratch: vec![0.0; n],
-            tolerance: tolerance(n),
         }
     }
 
@@ -127,17 +133,29 @@ impl HandChain {
         let inv_l2 = 1.0 / (L * L);
         loop {
             Self::rods(&self.x, &mut self.e);
-            let mut worst = 0.0_f64;
+            let (mut worst, mut nan) = (0.0_f64, false);
             for i in 0..n {
                 let e = self.e[i];
                 let c = (e[0] * e[0] + e[1] * e[1] - L * L) / (2.0 * L);
                 self.rhs[i] = c;
-                worst = worst.max(c.abs());
+                // The engine's per-rod test (`ConstraintScales`): |C_i| beyond the rounding
+                // allowance rho_i max |x_k| of the rod's coordinates, in units of L.
+                let size = c.abs();
+                if !(size <= worst * L) {
+                    let mut coordinates = self.x[i][0].abs().max(self.x[i][1].abs());
+                    if i > 0 {
+                        coordinates =
+                            coordinates.max(self.x[i - 1][0].abs().max(self.x[i - 1][1].abs()));
+                    }
+                    let rounding = if i > 0 { ROUNDING_LINK } else { ROUNDING_FIRST };
+                    worst = worst.max((size - rounding * coordinates) / L);
+                    nan |= c.is_nan();
+                }
             }
-            if worst <= self.tolerance {
+            if worst <= TOLERANCE && !nan {
                 break;
             }
-            if iterations >= 50 || worst.is_nan() {
+            if iterations >= 50 || nan {
                 return None;
             }
             // A = J(x^k) W J(x_n)^T, tridiagonal.
