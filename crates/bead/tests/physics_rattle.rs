@@ -318,6 +318,54 @@ fn rattle_follows_a_moving_constraint() {
     assert!(worst_cdot <= 1e-12, "{worst_cdot:e}");
 }
 
+/// Law: the constraint forces do work -lambda . C_t, none for a fixed constraint. RATTLE's
+/// constraint work is exactly 0 on a pendulum (a fixed rod, also with drag, whose applied
+/// forces make the second half kick implicit) and not 0 on the moving circle, where it is the
+/// trapezoidal rule for -lambda . C_t: summed over the run it matches the kinetic and
+/// potential energy's change, which only the moving constraint causes.
+#[test]
+fn rattle_constraint_work_is_exactly_zero_for_fixed_constraints_only() {
+    for drag in [0.0, 0.3] {
+        let mut b = SystemBuilder::new(&[0.0, G]);
+        let p = b.particle("bob", 1.0, &[1.0, 0.0], &[0.0, 0.0]).unwrap();
+        b.distance("rod", p, Endpoint::Fixed(vec![0.0, 0.0]), 1.0)
+            .unwrap();
+        if drag > 0.0 {
+            b.force(Force::Drag {
+                particle: Some(p),
+                coefficient: drag,
+            })
+            .unwrap();
+        }
+        let mut formulation = Implicit::new(Arc::new(b.build().unwrap()), Feedback::default());
+        let mut state = bead::formulation::Formulation::initial_state(&formulation);
+        let mut rattle = Rattle::new(2, 1e-13, 20);
+        for step in 0..200 {
+            rattle.step(&mut formulation, &mut state, 1e-2).unwrap();
+            assert_eq!(rattle.constraint_work(), 0.0, "drag {drag}, step {step}");
+        }
+    }
+    let system = moving_circle();
+    let mut formulation = Implicit::new(system.clone(), Feedback::default());
+    let (q, qdot) = system.initial_particle_state();
+    let mut state = State { t: 0.0, q, qdot };
+    formulation
+        .project_velocities(0.0, &state.q.clone(), &mut state.qdot)
+        .unwrap();
+    let e0 = system.energy(&state.q, &state.qdot);
+    let mut rattle = Rattle::new(2, 1e-13, 20);
+    let (mut work, mut largest) = (0.0, 0.0_f64);
+    for _ in 0..2000 {
+        rattle.step(&mut formulation, &mut state, 1e-3).unwrap();
+        work += rattle.constraint_work();
+        largest = largest.max(rattle.constraint_work().abs());
+    }
+    let change = system.energy(&state.q, &state.qdot) - e0;
+    println!("moving circle: constraint work {work:.6e}, energy change {change:.6e}");
+    assert!(largest > 1e-6, "{largest:e}");
+    assert!((work - change).abs() < 1e-4 * change.abs(), "{work} vs {change}");
+}
+
 // ---------------------------------------------------------------------------------------
 // energy
 

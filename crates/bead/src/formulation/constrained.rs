@@ -80,6 +80,14 @@ pub trait ConstrainedSystem: SecondOrderSystem {
     fn applied_forces_velocity_dependent(&self) -> bool {
         true
     }
+    /// Whether C depends on t (some row has C_t != 0: a moving or driven constraint). When
+    /// it does not, the constraint forces do no work (their power lambda . J v = -lambda .
+    /// C_t is zero), and an integrator's `constraint_work` is exactly 0 without being summed
+    /// from impulses whose J v is zero only to rounding. The default, true, is the safe
+    /// answer.
+    fn constraints_time_dependent(&self) -> bool {
+        true
+    }
     /// C(q, t) into `c` (m).
     fn constraint_values(&mut self, t: f64, q: &[f64], c: &mut [f64]);
     /// The size of the constraint error `c` = C(q, t) that position tolerances are compared
@@ -345,6 +353,10 @@ impl ConstrainedSystem for Implicit {
     fn applied_forces_velocity_dependent(&self) -> bool {
         self.system.has_velocity_dependent_forces()
             || self.external.iter().any(|f| f.depends_on_velocity())
+    }
+
+    fn constraints_time_dependent(&self) -> bool {
+        self.system.constraints().any_time_dependent()
     }
 
     fn constraint_values(&mut self, t: f64, q: &[f64], c: &mut [f64]) {

@@ -599,6 +599,8 @@ impl Integrator for Rattle {
         self.q_start.copy_from_slice(&s.q);
         self.velocity_start.copy_from_slice(&s.qdot);
         self.constraint_work = 0.0;
+        // Constraints fixed in time do no work: exactly 0, not the rounding of J v = 0.
+        let work_done = m > 0 && cs.constraints_time_dependent();
         for ((q, v), a) in
             s.q.iter_mut()
                 .zip(s.qdot.iter_mut())
@@ -625,7 +627,9 @@ impl Integrator for Rattle {
             match cs.rods_mut().filter(|_| self.fused) {
                 Some((rods, _)) => {
                     rods.subtract_start_transpose(&self.inverse_mass, &self.residual, &mut s.qdot);
-                    rods.start_multiply(&self.velocity_start, &mut self.jv);
+                    if work_done {
+                        rods.start_multiply(&self.velocity_start, &mut self.jv);
+                    }
                 }
                 None => {
                     let rows = cs.constraint_structure();
@@ -635,15 +639,19 @@ impl Integrator for Rattle {
                         &self.residual,
                         &mut s.qdot,
                     );
-                    rows.multiply(&self.jacobian_start, &self.velocity_start, &mut self.jv);
+                    if work_done {
+                        rows.multiply(&self.jacobian_start, &self.velocity_start, &mut self.jv);
+                    }
                 }
             }
-            self.constraint_work -= self
-                .residual
-                .iter()
-                .zip(&self.jv)
-                .map(|(d, jv)| d * jv)
-                .sum::<f64>();
+            if work_done {
+                self.constraint_work -= self
+                    .residual
+                    .iter()
+                    .zip(&self.jv)
+                    .map(|(d, jv)| d * jv)
+                    .sum::<f64>();
+            }
         }
         // Second half kick, then the velocity constraint J v + C_t = 0 (the mu solve), with
         // a_{n+1} first at v_half.
@@ -690,7 +698,7 @@ impl Integrator for Rattle {
         }
         // The velocity projection's impulse M (v_{n+1} - (v_half + h/2 a_{n+1})) does the work
         // (h/2) mu . J(q_{n+1}) v_{n+1}: the trapezoidal rule's second half.
-        if m > 0 {
+        if work_done {
             for k in 0..n {
                 let w = self.inverse_mass[k];
                 if w > 0.0 {

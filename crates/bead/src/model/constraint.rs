@@ -155,6 +155,8 @@ pub struct ConstraintSet {
     columns: Vec<usize>,
     /// Whether row i depends on t (m).
     time_dependent: Vec<bool>,
+    /// Whether any row depends on t
+    any_time_dependent: bool,
     /// A hash of the row structure and the distance rows' geometry (see
     /// [`ConstraintSet::row_fingerprint`])
     row_fingerprint: u64,
@@ -307,6 +309,7 @@ impl ConstraintSet {
         ConstraintSet {
             row_fingerprint,
             fused: super::FusedTapes::default(),
+            any_time_dependent: time_dependent.iter().any(|&d| d),
             time_dependent,
             n_coords,
             declared,
@@ -405,6 +408,11 @@ impl ConstraintSet {
     /// Whether `row` depends on t (a moving or driven constraint, which does work).
     pub fn is_time_dependent(&self, row: usize) -> bool {
         self.time_dependent[row]
+    }
+    /// Whether any row depends on t (C_t != 0 somewhere): false when every constraint is
+    /// fixed (scleronomic), whose forces then do no work.
+    pub fn any_time_dependent(&self) -> bool {
+        self.any_time_dependent
     }
     /// Whether `row` is a built-in distance (length > 0) or pin row, evaluated natively:
     /// rows whose gradient vanishes nowhere on their constraint.

@@ -159,6 +159,13 @@ impl ConstrainedSystem for WithWork<'_> {
         )
     }
 
+    fn constraints_time_dependent(&self) -> bool {
+        self.formulation
+            .active_system()
+            .constraints()
+            .any_time_dependent()
+    }
+
     /// Whether the applied accelerations depend on v, the work coordinate's (the power
     /// F_nc . v) included: see [`WithWork::new`].
     fn applied_forces_velocity_dependent(&self) -> bool {
