@@ -34,8 +34,9 @@ pub struct SimulationConfig {
     /// implicit kick or stage), retry the step with about 1.5 times as many substeps (2, 3,
     /// 5, 8, ...), up to this many,
     /// before failing. The steps after a retried one start with the substeps it needed and
-    /// try half as many after 16 steps without a retry. Default 64; equal to `substeps` to
-    /// never retry.
+    /// try one place fewer in that sequence after 16 steps without a retry (after twice as
+    /// many steps each time such a try fails at once, up to 256). Default 64; equal to
+    /// `substeps` to never retry.
     pub max_substeps: u32,
     /// Track the work W done on T + V (the energy ledger, see [`super::Simulation::work`]):
     /// `None` (the default) tracks it when the formulation does not conserve T + V (drag,

@@ -99,7 +99,7 @@ impl Simulation {
     /// step end (the regularity monitor's reference, bit for bit), with no retried substeps
     /// in force.
     fn express_ready(&self) -> bool {
-        self.sticky_substeps <= 1
+        self.sticky.substeps <= 1
             && self.state.q.len() == self.n
             && self
                 .monitor

@@ -157,12 +157,8 @@ pub struct Simulation {
     substeps_max: u32,
     /// Steps retried with more substeps because an iteration did not converge
     retried_steps: u64,
-    /// The substeps the next fixed step starts with after retries: what a recent step
-    /// needed (a whipping chain needs them for many steps in a row), halved again after
-    /// `CALM_STEPS` steps that needed no retry. 0: none, start from `config.substeps`.
-    sticky_substeps: u32,
-    /// Steps since the last retry, at `sticky_substeps`
-    calm_steps: u32,
+    /// The substeps the next fixed steps start from after retries
+    sticky: StickySubsteps,
     /// The substeps the last fixed step took (an event re-integrates part of it with them)
     last_substeps: u32,
     /// The events being watched (see `watching.rs`)
@@ -206,9 +202,69 @@ pub struct Simulation {
     contact_counts: ContactCounts,
 }
 
-/// Steps without a retry after which a step tries half of the substeps its predecessors
-/// needed.
+/// Steps without a retry after which a step tries fewer substeps than its predecessors
+/// needed (a probe).
 const CALM_STEPS: u32 = 16;
+
+/// The most calm steps between probes (about 2 s at dt = 1/120).
+const CALM_STEPS_MAX: u32 = 256;
+
+/// What recent retries needed, for the steps after them: a whipping chain needs more
+/// substeps for many steps in a row, and each attempt that fails costs several Newton
+/// iterations of the whole system.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct StickySubsteps {
+    /// The substeps the next step starts from (at least the configured ones): what the
+    /// last retried step needed, one place back in the retries' sequence after
+    /// `calm_needed` steps without a retry (a probe). 0: none.
+    substeps: u32,
+    /// Steps without a retry since the last retry or probe
+    calm_steps: u32,
+    /// Calm steps before the next probe: `CALM_STEPS`, doubled (up to `CALM_STEPS_MAX`)
+    /// each time a probe fails at once, as they do all through a long hard stretch (each
+    /// such failure is an attempt wasted), and back to `CALM_STEPS` when one holds
+    calm_needed: u32,
+    /// Whether the step under way is a probe
+    probing: bool,
+}
+
+impl Default for StickySubsteps {
+    fn default() -> Self {
+        StickySubsteps {
+            substeps: 0,
+            calm_steps: 0,
+            calm_needed: CALM_STEPS,
+            probing: false,
+        }
+    }
+}
+
+impl StickySubsteps {
+    /// After a step that took `substeps` (`retried`: after failed attempts with fewer),
+    /// `configured` the run's own.
+    fn after_step(&mut self, substeps: u32, retried: bool, configured: u32) {
+        let probed = std::mem::take(&mut self.probing);
+        if retried {
+            self.substeps = substeps;
+            self.calm_steps = 0;
+            if probed {
+                self.calm_needed = (2 * self.calm_needed).min(CALM_STEPS_MAX);
+            }
+            return;
+        }
+        if probed {
+            self.calm_needed = CALM_STEPS;
+        }
+        if self.substeps > configured {
+            self.calm_steps += 1;
+            if self.calm_steps >= self.calm_needed {
+                self.substeps = fewer_substeps(self.substeps);
+                self.calm_steps = 0;
+                self.probing = true;
+            }
+        }
+    }
+}
 
 /// An event's time is located to this fraction of dt (see [`Event`]).
 pub const EVENT_TOLERANCE: f64 = 1e-10;
@@ -295,8 +351,7 @@ impl Simulation {
             projection_iterations_max: None,
             substeps_max: 0,
             retried_steps: 0,
-            sticky_substeps: 0,
-            calm_steps: 0,
+            sticky: StickySubsteps::default(),
             last_substeps: 1,
             watches: Vec::new(),
             g_before: Vec::new(),
@@ -659,7 +714,7 @@ impl Simulation {
         let configured = self.config.substeps.max(1);
         // Start from what recent steps needed, so that a run of hard steps does not pay for
         // the same failed attempts again at every step.
-        let mut substeps = configured.max(self.sticky_substeps);
+        let mut substeps = configured.max(self.sticky.substeps);
         let mut retried = false;
         loop {
             match self.substeps(t_end, substeps) {
@@ -677,15 +732,8 @@ impl Simulation {
         }
         if retried {
             self.retried_steps += 1;
-            self.sticky_substeps = substeps;
-            self.calm_steps = 0;
-        } else if self.sticky_substeps > configured {
-            self.calm_steps += 1;
-            if self.calm_steps >= CALM_STEPS {
-                self.sticky_substeps /= 2;
-                self.calm_steps = 0;
-            }
         }
+        self.sticky.after_step(substeps, retried, configured);
         self.substeps_max = self.substeps_max.max(substeps);
         self.last_substeps = substeps;
         Ok(())
@@ -1014,8 +1062,7 @@ impl Simulation {
         self.projection_iterations_max = None;
         self.substeps_max = 0;
         self.retried_steps = 0;
-        self.sticky_substeps = 0;
-        self.calm_steps = 0;
+        self.sticky = StickySubsteps::default();
         self.stepper = Stepper::new(&self.config, state.q.len());
         self.state = state;
         self.pending_event = None;
@@ -1348,6 +1395,12 @@ fn more_substeps(substeps: u32, max: u32) -> u32 {
     (substeps + substeps.div_ceil(2)).min(max)
 }
 
+/// The retries' sequence one place back (12 -> 8 -> 5 -> 3 -> 2 -> 1): the largest s with
+/// s + ceil(s / 2) <= `substeps`, i.e. floor(2 substeps / 3), at least 1.
+fn fewer_substeps(substeps: u32) -> u32 {
+    (2 * substeps / 3).max(1)
+}
+
 /// Whether a failed step may succeed on shorter substeps: an iteration that did not converge.
 fn retryable(error: &StepError) -> bool {
     matches!(
@@ -1533,6 +1586,46 @@ mod tests {
     #[test]
     fn a_simulation_can_move_to_another_thread() {
         assert_send::<Simulation>();
+    }
+
+    /// The retries' sequence backwards, and the probes: after a retry at 3 substeps the
+    /// steps start from 3, and after 16 calm steps one probes 2; a probe that fails at once
+    /// (retried at 3 again) makes the next probe wait twice as long, up to 256 steps; one
+    /// that holds brings the wait back to 16 and the next probe goes on down to 1.
+    #[test]
+    fn sticky_substeps_probe_less_often_while_probes_fail() {
+        for (s, fewer) in [(1, 1), (2, 1), (3, 2), (5, 3), (8, 5), (12, 8), (18, 12)] {
+            assert_eq!(fewer_substeps(s), fewer, "{s}");
+            assert!(s == 1 || more_substeps(fewer, u32::MAX) <= s);
+        }
+        let mut sticky = StickySubsteps::default();
+        sticky.after_step(3, true, 1);
+        // Steps until the next probe, each probe failing at once.
+        let mut waits = Vec::new();
+        for _ in 0..7 {
+            let mut wait = 0;
+            while sticky.substeps == 3 {
+                sticky.after_step(3, false, 1);
+                wait += 1;
+            }
+            assert_eq!(sticky.substeps, 2);
+            waits.push(wait);
+            sticky.after_step(3, true, 1);
+        }
+        assert_eq!(waits, [16, 32, 64, 128, 256, 256, 256]);
+        // A probe that holds: 2 from then on, the next probe after 16 steps, down to 1.
+        for _ in 0..256 {
+            sticky.after_step(3, false, 1);
+        }
+        assert_eq!((sticky.substeps, sticky.probing), (2, true));
+        sticky.after_step(2, false, 1);
+        assert_eq!(sticky.calm_needed, CALM_STEPS);
+        for _ in 0..15 {
+            sticky.after_step(2, false, 1);
+        }
+        assert_eq!((sticky.substeps, sticky.probing), (1, true));
+        sticky.after_step(1, false, 1);
+        assert_eq!(sticky.substeps, 1);
     }
 
     /// The regularity monitor keeps a step end's gradient values only when it watches a
