@@ -141,7 +141,11 @@ impl HandChain {
                 // The engine's per-rod test (`ConstraintScales`): |C_i| beyond the rounding
                 // allowance rho_i max |x_k| of the rod's coordinates, in units of L.
                 let size = c.abs();
-                if !(size <= worst * L) {
+                // Not `size <= worst * L`, NaN included.
+                if matches!(
+                    size.partial_cmp(&(worst * L)),
+                    None | Some(std::cmp::Ordering::Greater)
+                ) {
                     let mut coordinates = self.x[i][0].abs().max(self.x[i][1].abs());
                     if i > 0 {
                         coordinates =

@@ -363,7 +363,10 @@ fn rattle_constraint_work_is_exactly_zero_for_fixed_constraints_only() {
     let change = system.energy(&state.q, &state.qdot) - e0;
     println!("moving circle: constraint work {work:.6e}, energy change {change:.6e}");
     assert!(largest > 1e-6, "{largest:e}");
-    assert!((work - change).abs() < 1e-4 * change.abs(), "{work} vs {change}");
+    assert!(
+        (work - change).abs() < 1e-4 * change.abs(),
+        "{work} vs {change}"
+    );
 }
 
 // ---------------------------------------------------------------------------------------
