@@ -113,6 +113,19 @@ fn moving_circle() -> Arc<System> {
 // ---------------------------------------------------------------------------------------
 // helpers
 
+/// The moving circle, its implicit form and its initial state, the velocity projected onto
+/// the velocity constraint J v + C_t = 0 too.
+fn moving_circle_started() -> (Arc<System>, Implicit, State) {
+    let system = moving_circle();
+    let mut formulation = Implicit::new(system.clone(), Feedback::default());
+    let (q, qdot) = system.initial_particle_state();
+    let mut state = State { t: 0.0, q, qdot };
+    formulation
+        .project_velocities(0.0, &state.q.clone(), &mut state.qdot)
+        .unwrap();
+    (system, formulation, state)
+}
+
 fn options(kind: IntegratorKind, dt: f64, steps: u64) -> Options {
     Options {
         integrator: kind,
@@ -295,14 +308,7 @@ fn rattle_keeps_every_step_on_the_constraints() {
 /// tolerance and the velocity residual Cdot = J v + C_t at round-off after every step.
 #[test]
 fn rattle_follows_a_moving_constraint() {
-    let system = moving_circle();
-    let mut formulation = Implicit::new(system.clone(), Feedback::default());
-    let (q, qdot) = system.initial_particle_state();
-    let mut state = State { t: 0.0, q, qdot };
-    // Start on the velocity constraint too.
-    formulation
-        .project_velocities(0.0, &state.q.clone(), &mut state.qdot)
-        .unwrap();
+    let (system, mut formulation, mut state) = moving_circle_started();
     let mut rattle = Rattle::new(2, 1e-13, 20);
     let set = system.constraints();
     let mut ws = set.workspace();
@@ -345,13 +351,7 @@ fn rattle_constraint_work_is_exactly_zero_for_fixed_constraints_only() {
             assert_eq!(rattle.constraint_work(), 0.0, "drag {drag}, step {step}");
         }
     }
-    let system = moving_circle();
-    let mut formulation = Implicit::new(system.clone(), Feedback::default());
-    let (q, qdot) = system.initial_particle_state();
-    let mut state = State { t: 0.0, q, qdot };
-    formulation
-        .project_velocities(0.0, &state.q.clone(), &mut state.qdot)
-        .unwrap();
+    let (system, mut formulation, mut state) = moving_circle_started();
     let e0 = system.energy(&state.q, &state.qdot);
     let mut rattle = Rattle::new(2, 1e-13, 20);
     let (mut work, mut largest) = (0.0, 0.0_f64);
