@@ -19,8 +19,9 @@
 //! with the tridiagonal matrix J(x^k) W J(x_n)^T solved by the Thomas algorithm, the velocity
 //! step by the tridiagonal J W J^T, single-threaded, allocation-free; it stops its Newton
 //! iteration by the engine's own per-rod test (each rod to 1e-12 of its length plus the
-//! rounding its coordinates allow: `TOLERANCE`), so both do the same work. The peak memory (the process's high-water mark) is printed after
-//! each size, the sizes in increasing order.
+//! rounding its coordinates allow: `TOLERANCE`), so both do the same work. The peak memory
+//! (the process's high-water mark) is printed after each size, the sizes in increasing
+//! order.
 
 use std::hint::black_box;
 use std::sync::Arc;
