@@ -66,12 +66,13 @@ pub(crate) fn all_finite(values: &[f64]) -> bool {
 
 /// max(a, b), NaN when either is NaN.
 pub(crate) fn max_nan(a: f64, b: f64) -> f64 {
-    // Both tests and the max taken unconditionally: a select, no branch, in lane loops.
-    let max = a.max(b);
-    if a.is_nan() | b.is_nan() {
-        f64::NAN
+    // One compare-and-select, no branch, in lane loops: a NaN a is kept, and a NaN b wins
+    // the comparison's failure. (Equal arguments give b: the callers' are magnitudes, never
+    // -0.0, so which of two equal ones comes back changes no bit.)
+    if (a > b) | a.is_nan() {
+        a
     } else {
-        max
+        b
     }
 }
 
@@ -294,6 +295,23 @@ pub fn gauss_newton_zero(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// max(a, b), NaN when either is: each order, infinities, equal arguments.
+    #[test]
+    fn max_nan_is_the_maximum_or_nan() {
+        let values = [0.0, 1.5, -2.0, 1e300, f64::INFINITY, f64::NEG_INFINITY];
+        for a in values {
+            for b in values {
+                let want = if a >= b { a } else { b };
+                assert_eq!(max_nan(a, b).to_bits(), want.to_bits(), "{a} {b}");
+            }
+            assert!(
+                max_nan(a, f64::NAN).is_nan() && max_nan(f64::NAN, a).is_nan(),
+                "{a}"
+            );
+        }
+        assert!(max_nan(f64::NAN, f64::NAN).is_nan());
+    }
 
     /// The four-lane maximum gives the bits of the one-by-one fold for every length and
     /// every position of a NaN, an infinity, a negative zero or the largest entry; the

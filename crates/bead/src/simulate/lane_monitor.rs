@@ -562,6 +562,7 @@ fn energy_across_lanes<const L: usize>(
     let dim = system.dim();
     let gravity = system.gravity();
     let zero = empty_sum();
+    let (x, xdot) = (rows::<L>(x), rows::<L>(xdot));
     let mut kinetic = [zero; L];
     let mut potential = [zero; L];
     for (p, particle) in system.particles().iter().enumerate() {
@@ -569,16 +570,14 @@ fn energy_across_lanes<const L: usize>(
         let mut gx = [zero; L];
         for a in 0..dim {
             let k = p * dim + a;
-            for l in 0..L {
-                let v = xdot[k * L + l];
-                s[l] += v * v;
-                gx[l] += gravity[a] * x[k * L + l];
-            }
+            let (x, v, g) = (&x[k], &xdot[k], gravity[a]);
+            s = std::array::from_fn(|l| s[l] + v[l] * v[l]);
+            gx = std::array::from_fn(|l| gx[l] + g * x[l]);
         }
-        for l in 0..L {
-            kinetic[l] += 0.5 * particle.mass * s[l];
-            potential[l] += -particle.mass * gx[l];
-        }
+        let half_mass = 0.5 * particle.mass;
+        let weight = -particle.mass;
+        kinetic = std::array::from_fn(|l| kinetic[l] + half_mass * s[l]);
+        potential = std::array::from_fn(|l| potential[l] + weight * gx[l]);
     }
     for l in 0..L {
         // The forces' potentials: an empty sum.
