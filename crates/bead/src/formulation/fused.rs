@@ -473,6 +473,7 @@ impl FusedStep {
 
     /// Evaluate the step of every lane from (t, q, qdot) by h: the new state stays in the
     /// outputs; returns which lanes passed every stage's pivot test (`pivots_pass`).
+    #[inline(always)]
     fn run<const L: usize>(&mut self, t: f64, h: f64, q: &[f64], qdot: &[f64]) -> [bool; L] {
         let (n, rows) = (self.n, self.rows);
         let after = 2 * n + 1 + self.constants;
@@ -484,15 +485,23 @@ impl FusedStep {
         }
         self.tape
             .eval_lanes::<L>(&self.vars, &mut self.scratch, &mut self.out);
-        let mut pass = [true; L];
         let tests = &self.out[2 * n * L..(2 * n + 2 * rows * STAGES) * L];
         let (diagonals, pivots) = tests.split_at(rows * STAGES * L);
-        for (diagonal, pivot) in diagonals.chunks_exact(L).zip(pivots.chunks_exact(L)) {
-            for l in 0..L {
-                pass[l] &= (diagonal[l] > 0.0) & (pivot[l] > self.tolerance * diagonal[l]);
-            }
+        let tolerance = self.tolerance;
+        // Rows of L (fixed-size arrays) and one 64-bit flag per lane, as wide as the values,
+        // so that the lanes' tests run in vector registers.
+        let mut pass = [1u64; L];
+        for (diagonal, pivot) in diagonals
+            .as_chunks::<L>()
+            .0
+            .iter()
+            .zip(pivots.as_chunks::<L>().0)
+        {
+            pass = std::array::from_fn(|l| {
+                pass[l] & u64::from((diagonal[l] > 0.0) & (pivot[l] > tolerance * diagonal[l]))
+            });
         }
-        pass
+        pass.map(|pass| pass != 0)
     }
 
     /// Size the buffers for one lane and load `constants` (fixed for the step's life: a
@@ -576,16 +585,16 @@ impl FusedStep {
     }
 
     /// One step of every lane from time t by h under `constants` (loaded on the first call
-    /// only: the lanes' are fixed): (q, qdot) (n x L each) advanced in place;
-    /// `failed[l] = true` where a stage's matrix fails the pivot test (the lane's state is
+    /// only: the lanes' are fixed): from `start` = (q, qdot) (n x L each) to `end`;
+    /// `failed[l] = true` where a stage's matrix fails the pivot test (the lane's end is
     /// then garbage).
     #[inline(always)]
     pub(crate) fn step_lanes<const L: usize>(
         &mut self,
         t: f64,
         h: f64,
-        q: &mut [f64],
-        qdot: &mut [f64],
+        start: (&[f64], &[f64]),
+        end: (&mut [f64], &mut [f64]),
         constants: &[f64],
         failed: &mut [bool; L],
     ) {
@@ -593,10 +602,10 @@ impl FusedStep {
             self.size_for::<L>();
             self.load_constants::<L>(constants);
         }
-        let pass = self.run::<L>(t, h, q, qdot);
+        let pass = self.run::<L>(t, h, start.0, start.1);
         let n = self.n;
-        q.copy_from_slice(&self.out[..n * L]);
-        qdot.copy_from_slice(&self.out[n * L..2 * n * L]);
+        end.0.copy_from_slice(&self.out[..n * L]);
+        end.1.copy_from_slice(&self.out[n * L..2 * n * L]);
         for l in 0..L {
             failed[l] = !pass[l];
         }

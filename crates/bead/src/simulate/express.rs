@@ -182,7 +182,7 @@ impl Simulation {
                 self.state.qdot.copy_from_slice(qdot);
                 break;
             }
-            express.monitor.accept();
+            express.monitor.accept(out);
             std::mem::swap(&mut express.start, &mut express.before);
             self.steps += 1;
             self.grid_steps += 1;

