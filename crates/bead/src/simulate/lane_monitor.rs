@@ -398,9 +398,9 @@ impl<const L: usize> LaneMonitor<L> {
                 if m == 0 {
                     return;
                 }
-                // C and the gradient values stay in `out` (see [`observed`]).
-                let nnz = self.values.len();
-                let (constraints, values) = (&out[..m * L], &out[m * L..m * L + nnz]);
+                // C and the gradient values stay in `out`.
+                let own = (&self.constraints[..], &self.values[..]);
+                let (constraints, values) = observed::<L>(&self.source, m, own, out);
                 // |C_r| / |g_r| (as `observe_from`).
                 row_lengths::<L>(&self.start, values, &mut self.squared, &mut self.lengths);
                 for ((offset, c), length) in
