@@ -40,6 +40,10 @@ use bead::plan::PlanRequest;
 use bead::scene::Scene;
 use bead::sweep::{Axis, Combine, Member, Sweep};
 
+/// The allocator of bead's front ends (`bead sweep`, `bead.sweep`), whose path this measures.
+#[global_allocator]
+static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
+
 const G: f64 = 500.0;
 const DT: f64 = 1.0 / 60.0;
 const STEPS: u64 = 1000;
