@@ -16,7 +16,7 @@ use clap::Parser;
 
 /// mimalloc rather than the system's allocator: a sweep sets up and drops thousands of
 /// simulations, each some hundred small buffers, which glibc's malloc frees and coalesces
-/// at ~13% of a sweep's instructions (see DESIGN.md, dependency choices).
+/// at ~16% of a sweep's instructions (see DESIGN.md, dependency choices).
 #[global_allocator]
 static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
 

@@ -32,7 +32,7 @@ mod toml_text;
 use simulation::PySimulation;
 
 /// mimalloc for the extension's own (Rust) allocations, as the CLI: a sweep sets up and
-/// drops thousands of simulations, which glibc's malloc frees and coalesces at ~13% of a
+/// drops thousands of simulations, which glibc's malloc frees and coalesces at ~16% of a
 /// sweep's instructions. numpy's arrays keep Python's allocator; a Rust buffer handed to
 /// numpy is freed by the allocator that made it.
 #[global_allocator]
