@@ -19,7 +19,9 @@
 //! with the tridiagonal matrix J(x^k) W J(x_n)^T solved by the Thomas algorithm, the velocity
 //! step by the tridiagonal J W J^T, single-threaded, allocation-free; it stops its Newton
 //! iteration by the engine's own per-rod test (each rod to 1e-12 of its length plus the
-//! rounding its coordinates allow: `TOLERANCE`), so both do the same work. The peak memory
+//! rounding its coordinates allow: `TOLERANCE`), so both do the same work. `hand, warm` is
+//! the same floor warm-started as the engine's RATTLE is (each step's Newton iteration from
+//! the last step's multipliers), the stronger floor. The peak memory
 //! (the process's high-water mark) is printed after each size, the sizes in increasing
 //! order.
 
@@ -87,10 +89,13 @@ struct HandChain {
     rhs: Vec<f64>,
     nu: Vec<f64>,
     scratch: Vec<f64>,
+    /// Warm start: a step of the same h as the last one starts from its nu (0: cold)
+    warm: bool,
+    nu_h: f64,
 }
 
 impl HandChain {
-    fn new(n: usize) -> Self {
+    fn new(n: usize, warm: bool) -> Self {
         let x = (0..n).map(|k| [(k + 1) as f64 * L, 0.0]).collect();
         let zeros = vec![[0.0; 2]; n];
         HandChain {
@@ -107,6 +112,25 @@ impl HandChain {
             rhs: vec![0.0; n],
             nu: vec![0.0; n],
             scratch: vec![0.0; n],
+            warm,
+            nu_h: 0.0,
+        }
+    }
+
+    /// x = pred - W J(x_n)^T nu.
+    fn apply_multipliers(&mut self) {
+        let n = self.n;
+        for j in 0..n {
+            let mut p = self.pred[j];
+            let dj = self.d[j];
+            p[0] -= dj[0] / L * self.nu[j];
+            p[1] -= dj[1] / L * self.nu[j];
+            if j + 1 < n {
+                let dn = self.d[j + 1];
+                p[0] += dn[0] / L * self.nu[j + 1];
+                p[1] += dn[1] / L * self.nu[j + 1];
+            }
+            self.x[j] = p;
         }
     }
 
@@ -128,8 +152,15 @@ impl HandChain {
             let vy = self.v[k][1] + 0.5 * h * G;
             self.pred[k] = [self.x[k][0] + h * self.v[k][0], self.x[k][1] + h * vy];
         }
-        self.x.copy_from_slice(&self.pred);
-        self.nu.fill(0.0);
+        // Warm: the last step's nu, from a step of the same h (the floor's substeps are all
+        // alike); cold: nu = 0, x = pred.
+        if self.warm && self.nu_h == h {
+            self.apply_multipliers();
+        } else {
+            self.x.copy_from_slice(&self.pred);
+            self.nu.fill(0.0);
+        }
+        self.nu_h = 0.0;
         let mut iterations = 0;
         let inv_l2 = 1.0 / (L * L);
         loop {
@@ -187,19 +218,7 @@ impl HandChain {
             for (nu, delta) in self.nu.iter_mut().zip(&self.rhs) {
                 *nu += delta;
             }
-            // x = pred - W J(x_n)^T nu.
-            for j in 0..n {
-                let mut p = self.pred[j];
-                let dj = self.d[j];
-                p[0] -= dj[0] / L * self.nu[j];
-                p[1] -= dj[1] / L * self.nu[j];
-                if j + 1 < n {
-                    let dn = self.d[j + 1];
-                    p[0] += dn[0] / L * self.nu[j + 1];
-                    p[1] += dn[1] / L * self.nu[j + 1];
-                }
-                self.x[j] = p;
-            }
+            self.apply_multipliers();
             iterations += 1;
         }
         // v_half = (x - x_n) / h, then the second half kick and the velocity projection onto
@@ -245,6 +264,7 @@ impl HandChain {
                 self.v[j][1] += en[1] / L * self.rhs[j + 1];
             }
         }
+        self.nu_h = h;
         Some(iterations)
     }
 
@@ -315,9 +335,9 @@ fn energy_scale(n: usize) -> f64 {
 
 /// The floor with `substeps` per step (`None` when a step does not converge), and its Newton
 /// iterations per step.
-fn hand_run(n: usize, duration: f64, substeps: u32) -> Option<(Figures, f64)> {
+fn hand_run(n: usize, duration: f64, substeps: u32, warm: bool) -> Option<(Figures, f64)> {
     let steps = (duration / DT).round() as u64;
-    let mut chain = HandChain::new(n);
+    let mut chain = HandChain::new(n, warm);
     let e0 = chain.energy();
     let h = DT / substeps as f64;
     let mut stretch = 0.0_f64;
@@ -491,9 +511,10 @@ fn main() {
         Err(_) => vec![10, 100],
     };
     // BEAD_CHAIN_VARIANTS picks among engine, fixed (the engine at fixed substeps), alone (the
-    // step alone), hand, tassel (the tree of rods) and cloth (with the rope and the net).
-    let variants =
-        std::env::var("BEAD_CHAIN_VARIANTS").unwrap_or_else(|_| "engine,fixed,alone,hand".into());
+    // step alone), hand (the floor), warm (the floor warm-started), tassel (the tree of rods)
+    // and cloth (with the rope and the net).
+    let variants = std::env::var("BEAD_CHAIN_VARIANTS")
+        .unwrap_or_else(|_| "engine,fixed,alone,hand,warm".into());
     println!();
     println!("A chain of N rods, rattle at dt = 1/120, {duration} s simulated:");
     println!(
@@ -519,9 +540,14 @@ fn main() {
             rows.push(("step alone", figures));
         }
         if variants.contains("hand") {
-            let (figures, per_step) = fewest_substeps(n, |k| hand_run(n, duration, k));
+            let (figures, per_step) = fewest_substeps(n, |k| hand_run(n, duration, k, false));
             iterations.push(("the floor", per_step));
             rows.push(("hand-written", figures));
+        }
+        if variants.contains("warm") {
+            let (figures, per_step) = fewest_substeps(n, |k| hand_run(n, duration, k, true));
+            iterations.push(("the floor, warm", per_step));
+            rows.push(("hand, warm", figures));
         }
         for (name, figures) in &rows {
             println!(
@@ -537,11 +563,12 @@ fn main() {
             black_box(figures.steps);
         }
         let find = |variant: &str| rows.iter().find(|(name, _)| *name == variant).map(|r| r.1);
-        if let Some(hand) = find("hand-written") {
+        for floor in ["hand-written", "hand, warm"] {
+            let Some(hand) = find(floor) else { continue };
             for variant in ["engine", "engine, fixed", "step alone"] {
                 if let Some(figures) = find(variant) {
                     println!(
-                        "  {:>6}  {variant} / hand-written: {:.2}x the floor's frames/s",
+                        "  {:>6}  {variant} / {floor}: {:.2}x the floor's frames/s",
                         n,
                         figures.frames_per_second / hand.frames_per_second
                     );

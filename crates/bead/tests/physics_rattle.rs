@@ -868,3 +868,232 @@ fn a_fused_step_that_turns_a_rod_over_hands_over_to_the_simplified_matrix() {
     let stretch = (state.q[0].hypot(state.q[1]) - 1.0).abs();
     assert!(stretch < 1e-12, "stretch {stretch}");
 }
+
+// ---------------------------------------------------------------------------------------
+// warm start
+
+/// A chain of `n` unit masses on rods of length 1 hanging from the origin, released
+/// horizontally at rest (its tip whips: the multipliers grow and turn fast).
+fn hanging_chain(n: usize) -> Arc<System> {
+    let mut b = SystemBuilder::new(&[0.0, G]);
+    let mut previous = None;
+    for k in 0..n {
+        let p = b
+            .particle(&format!("p{k}"), 1.0, &[(k + 1) as f64, 0.0], &[0.0, 0.0])
+            .unwrap();
+        let end = previous.map_or(Endpoint::Fixed(vec![0.0, 0.0]), Endpoint::Particle);
+        b.distance(&format!("rod {k}"), p, end, 1.0).unwrap();
+        previous = Some(p);
+    }
+    Arc::new(b.build().unwrap())
+}
+
+/// `system`'s implicit form with the per-row tolerance scales `Simulation` gives it.
+fn scaled_implicit(system: &Arc<System>) -> Implicit {
+    let mut formulation = Implicit::new(system.clone(), Feedback::default());
+    bead::formulation::Formulation::set_constraint_scales(
+        &mut formulation,
+        Some(bead::formulation::ConstraintScales::of(system)),
+    );
+    formulation
+}
+
+/// The warm start (the last step's multipliers scaled by (h / h_prev)^2 as the Newton
+/// iteration's start) is a better first guess, not another method: warm and cold RATTLE end
+/// on the same trajectory to the solver's tolerance, on every path of the position solve
+/// (the rods fused along a chain, the dense exact matrix, the simplified matrix, and the
+/// stages of rattle4, whose steps alternate in length and sign), and warm needs fewer
+/// Newton iterations where a cold start needs more than two.
+#[test]
+fn warm_started_rattle_ends_where_cold_does_in_fewer_newton_iterations() {
+    use bead::integrate::{Composition, NewtonMatrix};
+    // Simulation's stopping rule: every row to 1e-12 of its scale, plus rounding.
+    let settings = IntegratorSettings {
+        constraint_tolerance: 1e-12,
+        ..IntegratorSettings::default()
+    };
+    let chain = hanging_chain(30);
+    let pendulum = double_pendulum();
+    type Build = fn(usize, &IntegratorSettings, bool) -> Box<dyn Integrator>;
+    let rattle: Build = |n, s, warm| Box::new(Rattle::with_settings(n, s).with_warm_start(warm));
+    let simplified: Build = |n, s, warm| {
+        Box::new(
+            Rattle::with_settings(n, s)
+                .with_newton(NewtonMatrix::Simplified)
+                .with_warm_start(warm),
+        )
+    };
+    let rattle4: Build = |n, s, warm| {
+        Box::new(Composition::suzuki(
+            Rattle::with_settings(n, s).with_warm_start(warm),
+        ))
+    };
+    let cases: [(&str, &Arc<System>, Build, f64); 5] = [
+        ("chain, fused", &chain, rattle, 1.0 / 120.0),
+        ("chain, simplified", &chain, simplified, 1.0 / 120.0),
+        (
+            "double pendulum, dense exact",
+            &pendulum,
+            rattle,
+            1.0 / 240.0,
+        ),
+        (
+            "double pendulum, simplified",
+            &pendulum,
+            simplified,
+            1.0 / 240.0,
+        ),
+        ("chain, rattle4", &chain, rattle4, 1.0 / 120.0),
+    ];
+    for (name, system, build, dt) in cases {
+        let n = system.n_coords();
+        let steps = (1.0 / dt) as usize;
+        let run = |warm| {
+            let mut integrator = build(n, &settings, warm);
+            let mut formulation = scaled_implicit(system);
+            let (q, qdot) = system.initial_particle_state();
+            let mut state = State { t: 0.0, q, qdot };
+            for _ in 0..steps {
+                integrator.step(&mut formulation, &mut state, dt).unwrap();
+            }
+            state
+        };
+        let (warm, cold) = (run(true), run(false));
+        let apart = warm
+            .q
+            .iter()
+            .zip(&cold.q)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0, f64::max);
+        println!("{name}: warm and cold {apart:.1e} apart after 1 s");
+        assert!(apart > 0.0, "{name}: the warm start changed nothing");
+        assert!(apart < 1e-10, "{name}: warm and cold {apart:e} apart");
+    }
+    // Fewer iterations over 3 s (RATTLE counts every step's), where a cold start needs more
+    // than two: a long chain whose rods turn fast, the simplified matrix's linear
+    // convergence, the double pendulum at dt = 1/60.
+    let (long_chain, chain_100) = (hanging_chain(1000), hanging_chain(100));
+    for (name, system, newton, dt) in [
+        (
+            "chain of 1000, fused",
+            &long_chain,
+            NewtonMatrix::Auto,
+            1.0 / 120.0,
+        ),
+        (
+            "chain of 100, simplified",
+            &chain_100,
+            NewtonMatrix::Simplified,
+            1.0 / 120.0,
+        ),
+        (
+            "double pendulum, dense exact",
+            &pendulum,
+            NewtonMatrix::Auto,
+            1.0 / 60.0,
+        ),
+    ] {
+        let n = system.n_coords();
+        let total = |warm| {
+            let mut rattle = Rattle::with_settings(n, &settings)
+                .with_newton(newton)
+                .with_warm_start(warm);
+            let mut formulation = scaled_implicit(system);
+            let (q, qdot) = system.initial_particle_state();
+            let mut state = State { t: 0.0, q, qdot };
+            let steps = (3.0 / dt) as usize;
+            for _ in 0..steps {
+                rattle.step(&mut formulation, &mut state, dt).unwrap();
+            }
+            rattle.newton_iterations_total() as f64 / steps as f64
+        };
+        let (warm, cold) = (total(true), total(false));
+        println!("{name}: {warm:.2} Newton iterations per step warm, {cold:.2} cold");
+        assert!(warm < 0.85 * cold, "{name}: {warm} warm, {cold} cold");
+    }
+}
+
+/// The warm start holds only for a step from bitwise the state the last step ended at: a
+/// step from any other state (set from outside, an impulse applied, another time) has a fresh
+/// integrator's bits; a step of another length scales the last multipliers by (h / h_prev)^2
+/// and ends on the constraints as a cold one does.
+#[test]
+fn a_warm_start_needs_the_state_the_last_step_ended_at() {
+    // Simulation's stopping rule: every row to 1e-12 of its scale, plus rounding.
+    let settings = IntegratorSettings {
+        constraint_tolerance: 1e-12,
+        ..IntegratorSettings::default()
+    };
+    let system = hanging_chain(20);
+    let n = system.n_coords();
+    let dt = 1.0 / 120.0;
+    let mut formulation = scaled_implicit(&system);
+    let (q, qdot) = system.initial_particle_state();
+    let mut state = State { t: 0.0, q, qdot };
+    let mut warm = Rattle::with_settings(n, &settings);
+    for _ in 0..60 {
+        warm.step(&mut formulation, &mut state, dt).unwrap();
+    }
+    // From a state of its own ending, warm differs from a fresh (cold) first step.
+    let fresh_step = |from: &State, h: f64| {
+        let mut fresh = Rattle::with_settings(n, &settings);
+        let mut formulation = scaled_implicit(&system);
+        let mut s = from.clone();
+        fresh.step(&mut formulation, &mut s, h).unwrap();
+        s
+    };
+    let mut continued = state.clone();
+    warm.step(&mut formulation, &mut continued, dt).unwrap();
+    assert_ne!(continued.q, fresh_step(&state, dt).q, "no warm start");
+    // The other starts: cold, a fresh integrator's bits. Each integrator first ends a step
+    // of its own at `ended`, then steps from a state beside it.
+    type Perturbation = fn(&mut State);
+    let perturbations: [(&str, Perturbation); 3] = [
+        ("kicked", |s| s.qdot[7] += 1e-3),
+        ("moved", |s| s.q[4] = f64::from_bits(s.q[4].to_bits() + 1)),
+        ("later", |s| s.t += 1e-9),
+    ];
+    for (what, perturb) in perturbations {
+        let mut other = Rattle::with_settings(n, &settings);
+        let mut ended = state.clone();
+        other.step(&mut formulation, &mut ended, dt).unwrap();
+        // The control: from `ended` itself the step is warm, not a fresh one.
+        let mut control = Rattle::with_settings(n, &settings);
+        let mut own = state.clone();
+        control.step(&mut formulation, &mut own, dt).unwrap();
+        control.step(&mut formulation, &mut own, dt).unwrap();
+        assert_ne!(own.q, fresh_step(&ended, dt).q, "{what}: no warm start");
+        let mut from = ended.clone();
+        perturb(&mut from);
+        let mut s = from.clone();
+        other.step(&mut formulation, &mut s, dt).unwrap();
+        let fresh = fresh_step(&from, dt);
+        assert_eq!(s.q, fresh.q, "{what}: positions are not a cold start's");
+        assert_eq!(
+            s.qdot, fresh.qdot,
+            "{what}: velocities are not a cold start's"
+        );
+    }
+    // Half the step from the continued state: scaled warm start, on the constraints, fewer
+    // iterations than cold.
+    let mut half = continued.clone();
+    let before = warm.newton_iterations_total();
+    warm.step(&mut formulation, &mut half, 0.5 * dt).unwrap();
+    let warm_iterations = warm.newton_iterations_total() - before;
+    let mut cold = Rattle::with_settings(n, &settings);
+    let mut half_cold = continued.clone();
+    cold.step(&mut formulation, &mut half_cold, 0.5 * dt)
+        .unwrap();
+    let cold_iterations = cold.newton_iterations_total();
+    assert!(
+        warm_iterations < cold_iterations,
+        "half step: {warm_iterations} warm, {cold_iterations} cold"
+    );
+    let apart = half
+        .q
+        .iter()
+        .zip(&half_cold.q)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0, f64::max);
+    assert!(apart < 1e-11, "half step: warm and cold {apart:e} apart");
+}
