@@ -875,27 +875,19 @@ fn a_fused_step_that_turns_a_rod_over_hands_over_to_the_simplified_matrix() {
 /// A chain of `n` unit masses on rods of length 1 hanging from the origin, released
 /// horizontally at rest (its tip whips: the multipliers grow and turn fast).
 fn hanging_chain(n: usize) -> Arc<System> {
-    let mut b = SystemBuilder::new(&[0.0, G]);
-    let mut previous = None;
-    for k in 0..n {
-        let p = b
-            .particle(&format!("p{k}"), 1.0, &[(k + 1) as f64, 0.0], &[0.0, 0.0])
-            .unwrap();
-        let end = previous.map_or(Endpoint::Fixed(vec![0.0, 0.0]), Endpoint::Particle);
-        b.distance(&format!("rod {k}"), p, end, 1.0).unwrap();
-        previous = Some(p);
-    }
-    Arc::new(b.build().unwrap())
+    Arc::new(common::chain(n))
 }
 
-/// `system`'s implicit form with the per-row tolerance scales `Simulation` gives it.
-fn scaled_implicit(system: &Arc<System>) -> Implicit {
+/// `system`'s implicit form with the per-row tolerance scales `Simulation` gives it, and its
+/// initial state.
+fn scaled_implicit(system: &Arc<System>) -> (Implicit, State) {
     let mut formulation = Implicit::new(system.clone(), Feedback::default());
     bead::formulation::Formulation::set_constraint_scales(
         &mut formulation,
         Some(bead::formulation::ConstraintScales::of(system)),
     );
-    formulation
+    let (q, qdot) = system.initial_particle_state();
+    (formulation, State { t: 0.0, q, qdot })
 }
 
 /// The warm start (the last step's multipliers scaled by (h / h_prev)^2 as the Newton
@@ -950,9 +942,7 @@ fn warm_started_rattle_ends_where_cold_does_in_fewer_newton_iterations() {
         let steps = (1.0 / dt) as usize;
         let run = |warm| {
             let mut integrator = build(n, &settings, warm);
-            let mut formulation = scaled_implicit(system);
-            let (q, qdot) = system.initial_particle_state();
-            let mut state = State { t: 0.0, q, qdot };
+            let (mut formulation, mut state) = scaled_implicit(system);
             for _ in 0..steps {
                 integrator.step(&mut formulation, &mut state, dt).unwrap();
             }
@@ -998,9 +988,7 @@ fn warm_started_rattle_ends_where_cold_does_in_fewer_newton_iterations() {
             let mut rattle = Rattle::with_settings(n, &settings)
                 .with_newton(newton)
                 .with_warm_start(warm);
-            let mut formulation = scaled_implicit(system);
-            let (q, qdot) = system.initial_particle_state();
-            let mut state = State { t: 0.0, q, qdot };
+            let (mut formulation, mut state) = scaled_implicit(system);
             let steps = (3.0 / dt) as usize;
             for _ in 0..steps {
                 rattle.step(&mut formulation, &mut state, dt).unwrap();
@@ -1027,9 +1015,7 @@ fn a_warm_start_needs_the_state_the_last_step_ended_at() {
     let system = hanging_chain(20);
     let n = system.n_coords();
     let dt = 1.0 / 120.0;
-    let mut formulation = scaled_implicit(&system);
-    let (q, qdot) = system.initial_particle_state();
-    let mut state = State { t: 0.0, q, qdot };
+    let (mut formulation, mut state) = scaled_implicit(&system);
     let mut warm = Rattle::with_settings(n, &settings);
     for _ in 0..60 {
         warm.step(&mut formulation, &mut state, dt).unwrap();
@@ -1037,7 +1023,7 @@ fn a_warm_start_needs_the_state_the_last_step_ended_at() {
     // From a state of its own ending, warm differs from a fresh (cold) first step.
     let fresh_step = |from: &State, h: f64| {
         let mut fresh = Rattle::with_settings(n, &settings);
-        let mut formulation = scaled_implicit(&system);
+        let (mut formulation, _) = scaled_implicit(&system);
         let mut s = from.clone();
         fresh.step(&mut formulation, &mut s, h).unwrap();
         s
