@@ -75,7 +75,8 @@ def test_three_events_with_directions_match_the_analytic_crossing_times(
 
 @pytest.mark.parametrize(
     "method,integrator",
-    [("implicit", "rk4"), ("implicit", "rattle"), ("implicit", "verlet"),
+    [("implicit", "rk4"), ("implicit", "rattle"), ("implicit", "rattle4"),
+     ("implicit", "fast-projection"), ("implicit", "verlet"),
      ("parametric", "gauss-legendre"), ("implicit", "dopri5"), ("parametric", "dopri5")],
 )
 def test_recording_events_changes_no_number_of_the_run(method, integrator):

@@ -114,6 +114,14 @@ impl<I: Integrator> Integrator for Composition<I> {
         self.inner.newton_iterations_max()
     }
 
+    fn set_aside_carry(&mut self) {
+        self.inner.set_aside_carry();
+    }
+
+    fn take_back_carry(&mut self) {
+        self.inner.take_back_carry();
+    }
+
     /// The work of every stage's constraint impulses.
     fn constraint_work(&self) -> f64 {
         self.constraint_work

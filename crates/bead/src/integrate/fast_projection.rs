@@ -84,6 +84,10 @@ pub struct FastProjection {
     q_start: Vec<f64>,
     /// The projection's Newton iteration, built for the system's rows on the first step
     newton: Option<ProjectionNewton>,
+    /// Its multipliers and their step, set aside while an event is located
+    /// ([`Integrator::set_aside_carry`])
+    aside_lambda: Vec<f64>,
+    aside_lambda_dt: f64,
 }
 
 /// The projection's Newton matrix and the buffers sized for one row structure.
@@ -313,6 +317,8 @@ impl FastProjection {
             acceleration: vec![0.0; n],
             q_start: vec![0.0; n],
             newton: None,
+            aside_lambda: Vec::new(),
+            aside_lambda_dt: 0.0,
         }
     }
 
@@ -392,5 +398,24 @@ impl Integrator for FastProjection {
 
     fn constraint_work(&self) -> f64 {
         self.constraint_work
+    }
+
+    fn set_aside_carry(&mut self) {
+        if let Some(newton) = &self.newton {
+            self.aside_lambda.clone_from(&newton.lambda);
+            self.aside_lambda_dt = newton.lambda_dt;
+        }
+    }
+
+    /// The multipliers set aside, unless the rows changed since (then they start at 0).
+    fn take_back_carry(&mut self) {
+        if let Some(newton) = &mut self.newton {
+            if newton.lambda.len() == self.aside_lambda.len() {
+                newton.lambda.clone_from(&self.aside_lambda);
+                newton.lambda_dt = self.aside_lambda_dt;
+            } else {
+                newton.lambda_dt = 0.0;
+            }
+        }
     }
 }

@@ -87,6 +87,16 @@ pub trait Integrator: Send {
 
     /// Forget a primed first stage (the system changed, e.g. its external forces).
     fn unprime(&mut self) {}
+
+    /// Set aside what the next step takes over from the last one (RATTLE's and fast
+    /// projection's multipliers, their warm start) before steps that are not the run's own:
+    /// an event's location integrates parts of a step again from its start. With
+    /// [`Integrator::take_back_carry`] after them, the run's next step is the one it would
+    /// have taken without them, bit for bit.
+    fn set_aside_carry(&mut self) {}
+
+    /// Take back what [`Integrator::set_aside_carry`] set aside.
+    fn take_back_carry(&mut self) {}
 }
 
 /// Settings of the iterative integrators and of the constraint projection, with defaults.

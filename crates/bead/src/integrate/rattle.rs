@@ -244,6 +244,11 @@ pub struct Rattle {
     /// The state the last step ended at: t, then q and qdot (2n; empty without warm start)
     end_t: f64,
     end_state: Vec<f64>,
+    /// The same, set aside while an event is located ([`Integrator::set_aside_carry`])
+    aside_nu: Vec<f64>,
+    aside_nu_step: f64,
+    aside_end_t: f64,
+    aside_end_state: Vec<f64>,
     /// J(q_n) v_n (m)
     jv: Vec<f64>,
 }
@@ -302,6 +307,10 @@ impl Rattle {
             nu_step: 0.0,
             end_t: f64::NAN,
             end_state: Vec::new(),
+            aside_nu: Vec::new(),
+            aside_nu_step: 0.0,
+            aside_end_t: f64::NAN,
+            aside_end_state: Vec::new(),
             jv: Vec::new(),
         }
     }
@@ -888,5 +897,22 @@ impl Integrator for Rattle {
 
     fn newton_iterations_max(&self) -> Option<usize> {
         Some(self.iterations_max)
+    }
+
+    fn set_aside_carry(&mut self) {
+        self.aside_nu.clone_from(&self.nu);
+        self.aside_end_state.clone_from(&self.end_state);
+        (self.aside_nu_step, self.aside_end_t) = (self.nu_step, self.end_t);
+    }
+
+    /// The multipliers set aside, unless the rows changed since (then the next step is cold).
+    fn take_back_carry(&mut self) {
+        if self.aside_nu.len() == self.nu.len() {
+            self.nu.clone_from(&self.aside_nu);
+            self.end_state.clone_from(&self.aside_end_state);
+            (self.nu_step, self.end_t) = (self.aside_nu_step, self.aside_end_t);
+        } else {
+            self.nu_step = 0.0;
+        }
     }
 }

@@ -221,6 +221,20 @@ impl Simulation {
     /// a g that is not a number there is an error. Without a terminal crossing the step
     /// stands as it was taken.
     fn scan_fixed(&mut self) -> Result<(), RunError> {
+        // The samples' and the location's partial steps must not change the run's next step.
+        if let Stepper::Fixed(integrator) = &mut self.stepper {
+            integrator.set_aside_carry();
+        }
+        let scanned = self.scan_fixed_samples();
+        if let Stepper::Fixed(integrator) = &mut self.stepper {
+            integrator.take_back_carry();
+        }
+        scanned
+    }
+
+    /// [`Simulation::scan_fixed`], between setting aside what the integrator carries from
+    /// step to step ([`crate::integrate::Integrator::set_aside_carry`]) and taking it back.
+    fn scan_fixed_samples(&mut self) -> Result<(), RunError> {
         let n = self.n;
         let samples = self.config.event_samples;
         let (t0, t1) = (self.previous.t, self.state.t);
