@@ -360,13 +360,14 @@ fn hand_run(n: usize, duration: f64, substeps: u32, warm: bool) -> Option<(Figur
     ))
 }
 
-fn run_engine(n: usize, duration: f64) -> Figures {
+fn run_engine(n: usize, duration: f64) -> (Figures, f64) {
     engine_run(n, duration, None).expect("retries allowed")
 }
 
 /// The engine's run with `substeps` per step and no retry (`None` when a step fails), or,
-/// without, `Simulation`'s own retries in 2, 3, 5, ... substeps as a step needs them.
-fn engine_run(n: usize, duration: f64, substeps: Option<u32>) -> Option<Figures> {
+/// without, `Simulation`'s own retries in 2, 3, 5, ... substeps as a step needs them; and
+/// its Newton iterations per step.
+fn engine_run(n: usize, duration: f64, substeps: Option<u32>) -> Option<(Figures, f64)> {
     // The engine's own tolerance: each rod to 1e-12 of its length plus rounding at its
     // coordinates (`ConstraintScales`).
     let mut config = SimulationConfig {
@@ -392,10 +393,14 @@ fn engine_run(n: usize, duration: f64, substeps: Option<u32>) -> Option<Figures>
     }
     let wall = start.elapsed().as_secs_f64();
     let drift = (sim.energy() - e0).abs();
-    Some(Figures {
-        substeps: sim.substeps_max(),
-        ..figures(n, steps, wall, stretch, drift)
-    })
+    let iterations = sim.newton_iterations_total().expect("rattle counts") as f64;
+    Some((
+        Figures {
+            substeps: sim.substeps_max(),
+            ..figures(n, steps, wall, stretch, drift)
+        },
+        iterations / steps as f64,
+    ))
 }
 
 /// `run(substeps)` with 1, 2, 4, ... substeps per step until a whole run converges (the
@@ -526,12 +531,14 @@ fn main() {
         let mut rows = Vec::new();
         let mut iterations = Vec::new();
         if variants.contains("engine") {
-            let figures = run_engine(n, duration);
+            let (figures, per_step) = run_engine(n, duration);
             per_frame.push((n, 1.0 / figures.frames_per_second));
+            iterations.push(("the engine", per_step));
             rows.push(("engine", figures));
         }
         if variants.contains("fixed") {
-            let figures = fewest_substeps(n, |k| engine_run(n, duration, Some(k)));
+            let (figures, per_step) = fewest_substeps(n, |k| engine_run(n, duration, Some(k)));
+            iterations.push(("the engine, fixed", per_step));
             rows.push(("engine, fixed", figures));
         }
         if variants.contains("alone") {

@@ -102,16 +102,26 @@ impl<I: Integrator> Integrator for Composition<I> {
         for (weight, offset) in self.weights.iter().zip(&self.offsets) {
             // Each stage starts at t0 + (its offset) dt, not at the sum of rounded stage
             // ends, so that the times do not drift with the step count.
-            state.t = t0 + offset * dt;
+            let stepped = std::mem::replace(&mut state.t, t0 + offset * dt);
+            self.inner.continued(stepped, state, false);
             self.inner.step(system, state, weight * dt)?;
             self.constraint_work += self.inner.constraint_work();
         }
-        state.t = t0 + dt;
+        let stepped = std::mem::replace(&mut state.t, t0 + dt);
+        self.inner.continued(stepped, state, false);
         Ok(())
     }
 
     fn newton_iterations_max(&self) -> Option<usize> {
         self.inner.newton_iterations_max()
+    }
+
+    fn iterations_total(&self) -> Option<u64> {
+        self.inner.iterations_total()
+    }
+
+    fn continued(&mut self, stepped: f64, state: &State, amended: bool) {
+        self.inner.continued(stepped, state, amended);
     }
 
     fn set_aside_carry(&mut self) {

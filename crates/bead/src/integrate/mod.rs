@@ -97,6 +97,21 @@ pub trait Integrator: Send {
 
     /// Take back what [`Integrator::set_aside_carry`] set aside.
     fn take_back_carry(&mut self) {}
+
+    /// The driver changed the state the last step ended at without changing the motion, and
+    /// a step from `state` continues the last one (RATTLE's and fast projection's warm
+    /// start, which otherwise needs bitwise the state the last step ended at): it moved the
+    /// time from `stepped` (the step's own t + dt) to `state.t` (substeps and composition
+    /// stages land on t0 + k h, which differs from the sum of rounded steps in the last bit
+    /// for about one step in eight), and, where `amended`, changed entries the motion does
+    /// not read (the energy ledger adds the constraint impulses' work to its own).
+    fn continued(&mut self, _stepped: f64, _state: &State, _amended: bool) {}
+
+    /// For iterative methods: the iterations (e.g. Newton steps) of all steps so far, whose
+    /// most in one step is [`Integrator::newton_iterations_max`]; `None` for explicit methods.
+    fn iterations_total(&self) -> Option<u64> {
+        None
+    }
 }
 
 /// Settings of the iterative integrators and of the constraint projection, with defaults.

@@ -507,14 +507,15 @@ impl Rattle {
     /// general exact matrix does.
     ///
     /// `warm`: q is already q_pred - W J(q_n)^T nu for the nu held (the warm start), kept
-    /// only if it starts nearer the constraints than q_pred (else q goes back to q_pred);
+    /// only if it starts nearer the constraints than q_pred (else q goes back to q_pred and
+    /// `warm` becomes `None`, so that a failure after it is known to be a cold start's);
     /// without it q is q_pred and nu starts at 0.
     fn solve_positions(
         &mut self,
         cs: &mut dyn ConstrainedSystem,
         t0: f64,
         t: f64,
-        mut warm: Option<WarmStart>,
+        warm: &mut Option<WarmStart>,
         q: &mut [f64],
     ) -> Result<usize, StepError> {
         if warm.is_none() {
@@ -529,7 +530,7 @@ impl Rattle {
             loop {
                 let residual = self.residual_at(cs, t, q);
                 if !std::mem::replace(&mut started, true)
-                    && Self::cold_again(&self.q_start, &mut self.nu, &mut warm, residual, q)
+                    && Self::cold_again(&self.q_start, &mut self.nu, warm, residual, q)
                 {
                     continue;
                 }
@@ -584,7 +585,7 @@ impl Rattle {
             }
             let residual = cs.constraint_residual(q, &self.residual);
             if !std::mem::replace(&mut started, true)
-                && Self::cold_again(&self.q_start, &mut self.nu, &mut warm, residual, q)
+                && Self::cold_again(&self.q_start, &mut self.nu, warm, residual, q)
             {
                 continue;
             }
@@ -751,7 +752,7 @@ impl Integrator for Rattle {
                 Some((rods, _)) => rods.set_start(&self.q_start),
                 None => cs.constraint_jacobian(t0, &self.q_start, &mut self.jacobian_start),
             }
-            let start = warm.then(|| WarmStart {
+            let mut start = warm.then(|| WarmStart {
                 cold_residual: self.residual_at(cs, t1, &s.q),
                 velocity_half: &s.qdot,
                 dt,
@@ -772,16 +773,17 @@ impl Integrator for Rattle {
                     ),
                 }
             }
-            let iterations = match self.solve_positions(cs, t0, t1, start, &mut s.q) {
+            let iterations = match self.solve_positions(cs, t0, t1, &mut start, &mut s.q) {
                 // Multipliers that moved too far for the last step's to be a start (fast
-                // turns): the step again from q_pred and nu = 0, a cold step's bits.
-                Err(error) if warm => {
+                // turns): the step again from q_pred and nu = 0, a cold step's bits (unless
+                // the start went cold at its first residual: that failure is the cold one's).
+                Err(error) if start.is_some() => {
                     let spent = match error {
                         StepError::ProjectionFailed { iterations, .. } => iterations,
                         _ => 0,
                     };
                     WarmStart::predictor(&self.q_start, &s.qdot, dt, &mut s.q);
-                    spent + self.solve_positions(cs, t0, t1, None, &mut s.q)?
+                    spent + self.solve_positions(cs, t0, t1, &mut None, &mut s.q)?
                 }
                 solved => solved?,
             };
@@ -903,6 +905,21 @@ impl Integrator for Rattle {
         self.aside_nu.clone_from(&self.nu);
         self.aside_end_state.clone_from(&self.end_state);
         (self.aside_nu_step, self.aside_end_t) = (self.nu_step, self.end_t);
+    }
+
+    fn continued(&mut self, stepped: f64, state: &State, amended: bool) {
+        if self.end_t.to_bits() == stepped.to_bits() {
+            self.end_t = state.t;
+            let n = state.q.len();
+            if amended && self.end_state.len() == 2 * n {
+                self.end_state[..n].copy_from_slice(&state.q);
+                self.end_state[n..].copy_from_slice(&state.qdot);
+            }
+        }
+    }
+
+    fn iterations_total(&self) -> Option<u64> {
+        Some(self.iterations_total)
     }
 
     /// The multipliers set aside, unless the rows changed since (then the next step is cold).

@@ -428,6 +428,17 @@ impl Simulation {
         self.config.integrator
     }
 
+    /// The integrator's Newton (or projection) iterations in all steps so far: every
+    /// substep's, and those of a retried attempt's substeps that converged (see
+    /// [`Integrator::iterations_total`](crate::integrate::Integrator::iterations_total));
+    /// `None` for explicit and adaptive integrators. `--project`'s iterations are not in it.
+    pub fn newton_iterations_total(&self) -> Option<u64> {
+        match &self.stepper {
+            Stepper::Fixed(integrator) => integrator.iterations_total(),
+            Stepper::Adaptive(_) => None,
+        }
+    }
+
     /// Evaluations of the acceleration since the formulation was built (see
     /// [`Formulation::evaluations`]): the work of a run, in the unit of convergence studies.
     pub fn evaluations(&self) -> u64 {
@@ -761,11 +772,16 @@ impl Simulation {
         with_system(formulation, ledger, |system| {
             for k in 1..=count {
                 integrator.step(system, state, h)?;
-                state.t = if k == count { t_end } else { t0 + k as f64 * h };
+                // On the grid t0 + k h; the integrator's warm start goes along.
+                let stepped = std::mem::replace(
+                    &mut state.t,
+                    if k == count { t_end } else { t0 + k as f64 * h },
+                );
                 if tracks_work {
                     // Impulses the integrator applied outside f (RATTLE's) did work too.
                     state.qdot[*n] += integrator.constraint_work();
                 }
+                integrator.continued(stepped, state, tracks_work);
                 if config.project {
                     let iterations = project(system, state, config)?;
                     *projection_iterations_max =
