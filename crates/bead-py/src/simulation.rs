@@ -365,6 +365,14 @@ impl PySimulation {
         self.read(py, Simulation::steps)
     }
 
+    /// Newton (or projection) iterations of every step so far, for the integrators that
+    /// solve onto the constraints (rattle, rattle4, fast-projection); None for the others.
+    /// Divided by `steps`, the solver's work per step (substeps included).
+    #[getter]
+    fn newton_iterations(&self, py: Python<'_>) -> PyResult<Option<u64>> {
+        self.read(py, Simulation::newton_iterations_total)
+    }
+
     /// "implicit" or "parametric".
     #[getter]
     fn method(&self, py: Python<'_>) -> PyResult<&'static str> {

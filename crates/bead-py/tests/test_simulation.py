@@ -118,3 +118,14 @@ def test_a_run_ends_exactly_at_a_duration_off_the_grid_as_in_the_cli(integrator,
         assert code == 0, err
         assert cli["t_final"] == duration
         assert cli["particles"]["bead"]["position"] == list(run.positions[-1, 0])
+
+
+def test_newton_iterations_count_the_solver_work_of_every_step():
+    scene = bead.load(scene_path("parabola.toml"))
+    sim = scene.simulation(method="implicit", integrator="rattle", dt=1 / 60)
+    assert sim.newton_iterations == 0
+    sim.advance_to(60.0)
+    # The README's figures for this scene: at most 2 iterations a step, warm-started.
+    assert sim.steps == 3600
+    assert sim.steps <= sim.newton_iterations <= 2 * sim.steps
+    assert scene.simulation(method="implicit", integrator="rk4").newton_iterations is None
