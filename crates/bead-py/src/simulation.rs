@@ -365,9 +365,10 @@ impl PySimulation {
         self.read(py, Simulation::steps)
     }
 
-    /// Newton (or projection) iterations of every step so far, for the integrators that
-    /// solve onto the constraints (rattle, rattle4, fast-projection); None for the others.
-    /// Divided by `steps`, the solver's work per step (substeps included).
+    /// Newton (or projection) iterations of every step so far (since the start or the last
+    /// set_state, as `steps`), for the integrators that solve onto the constraints (rattle,
+    /// rattle4, fast-projection); None for the others. Divided by `steps`, the solver's work
+    /// per step: substeps, retries and events' partial steps included.
     #[getter]
     fn newton_iterations(&self, py: Python<'_>) -> PyResult<Option<u64>> {
         self.read(py, Simulation::newton_iterations_total)

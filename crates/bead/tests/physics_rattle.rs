@@ -1001,9 +1001,10 @@ fn warm_started_rattle_ends_where_cold_does_in_fewer_newton_iterations() {
     }
 }
 
-/// The warm start holds only for a step from bitwise the state the last step ended at: a
-/// step from any other state (set from outside, an impulse applied, another time) has a fresh
-/// integrator's bits; a step of another length scales the last multipliers by (h / h_prev)^2
+/// The warm start holds only for a step from bitwise the state the last step ended at (or
+/// that state as its driver retimed it, `Integrator::continued`): a step from any other
+/// state (set from outside, an impulse applied, another time, retimed from another step's
+/// end) has a fresh integrator's bits; a step of another length scales the last multipliers by (h / h_prev)^2
 /// and ends on the constraints as a cold one does.
 #[test]
 fn a_warm_start_needs_the_state_the_last_step_ended_at() {
@@ -1034,15 +1035,22 @@ fn a_warm_start_needs_the_state_the_last_step_ended_at() {
     // The other starts: cold, a fresh integrator's bits. Each integrator first ends a step
     // of its own at `ended`, then steps from a state beside it.
     type Perturbation = fn(&mut State);
-    let perturbations: [(&str, Perturbation); 3] = [
+    let perturbations: [(&str, Perturbation); 4] = [
         ("kicked", |s| s.qdot[7] += 1e-3),
         ("moved", |s| s.q[4] = f64::from_bits(s.q[4].to_bits() + 1)),
         ("later", |s| s.t += 1e-9),
+        // Retimed by a driver that names another step's end: not this one's continuation.
+        ("retimed from elsewhere", |s| s.t += 1e-9),
     ];
     for (what, perturb) in perturbations {
         let mut other = Rattle::with_settings(n, &settings);
         let mut ended = state.clone();
         other.step(&mut formulation, &mut ended, dt).unwrap();
+        if what == "retimed from elsewhere" {
+            let mut retimed = ended.clone();
+            perturb(&mut retimed);
+            other.continued(ended.t + 1e-6, &retimed, false);
+        }
         // The control: from `ended` itself the step is warm, not a fresh one.
         let mut control = Rattle::with_settings(n, &settings);
         let mut own = state.clone();
@@ -1060,6 +1068,20 @@ fn a_warm_start_needs_the_state_the_last_step_ended_at() {
             "{what}: velocities are not a cold start's"
         );
     }
+    // A driver's own retiming of the state (`continued` with this step's end) keeps it warm.
+    let mut retimed_by_driver = Rattle::with_settings(n, &settings);
+    let mut ended = state.clone();
+    retimed_by_driver
+        .step(&mut formulation, &mut ended, dt)
+        .unwrap();
+    let stepped = ended.t;
+    ended.t += 1e-9;
+    retimed_by_driver.continued(stepped, &ended, false);
+    let mut s = ended.clone();
+    retimed_by_driver
+        .step(&mut formulation, &mut s, dt)
+        .unwrap();
+    assert_ne!(s.q, fresh_step(&ended, dt).q, "retimed: no warm start");
     // Half the step from the continued state: scaled warm start, on the constraints, fewer
     // iterations than cold.
     let mut half = continued.clone();

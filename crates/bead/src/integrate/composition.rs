@@ -99,11 +99,13 @@ impl<I: Integrator> Integrator for Composition<I> {
     ) -> Result<(), StepError> {
         let t0 = state.t;
         self.constraint_work = 0.0;
-        for (weight, offset) in self.weights.iter().zip(&self.offsets) {
+        for (stage, (weight, offset)) in self.weights.iter().zip(&self.offsets).enumerate() {
             // Each stage starts at t0 + (its offset) dt, not at the sum of rounded stage
             // ends, so that the times do not drift with the step count.
-            let stepped = std::mem::replace(&mut state.t, t0 + offset * dt);
-            self.inner.continued(stepped, state, false);
+            if stage > 0 {
+                let stepped = std::mem::replace(&mut state.t, t0 + offset * dt);
+                self.inner.continued(stepped, state, false);
+            }
             self.inner.step(system, state, weight * dt)?;
             self.constraint_work += self.inner.constraint_work();
         }

@@ -38,11 +38,11 @@
 //! with the exact Hessians H_i of distance rows ((1/L) [I, -I; -I, I]: the tension's
 //! transverse stiffness) and the multipliers warm-started from the last step's (scaled by
 //! (h / h_last)^2: lambda is an impulse times h) when the step starts at bitwise the state
-//! the last one ended at (any other start, from lambda = 0, has a fresh integrator's bits).
-//! Each step factors this matrix at its
-//! first iterate; later iterations reuse the factorization (chord steps, one solve each)
-//! while the residual keeps shrinking at least 4x per iteration, and factor again when it
-//! does not. On the 50 x 50 cloth at dt = 1/60 that is about one factorization and four
+//! the last one ended at, or at it as its driver retimed it ([`Integrator::continued`]);
+//! any other start, from lambda = 0, has a fresh integrator's bits.
+//! Each step factors this matrix at its first iterate; later iterations reuse the
+//! factorization (chord steps, one solve each) while the residual keeps shrinking at least
+//! 4x per iteration, and factor again when it does not. On the 50 x 50 cloth at dt = 1/60 that is about one factorization and four
 //! solves per step (the chain bench; `tests/fast_projection.rs`). Rows without a known
 //! Hessian (expressions, pins, Rust rows) are taken in Gauss-Newton form: where their
 //! multipliers' curvature matters (a taut expression row at dt omega >> 1) the iteration
@@ -52,7 +52,7 @@
 //! [`ConstrainedSystem::project_velocities`]. A projection that does not converge within
 //! the iteration limit is [`StepError::ProjectionFailed`], never a silent continuation.
 
-use super::{constraints_of, Integrator, IntegratorKind, IntegratorSettings};
+use super::{constraints_of, Integrator, IntegratorKind, IntegratorSettings, StepEnd};
 use crate::formulation::{ConstrainedSystem, SecondOrderSystem, State, StepError};
 use crate::linalg::{
     max_abs, max_nan, Curvature, NewtonMatrixError, ProjectionNewtonMatrix, RowCurvature,
@@ -86,16 +86,14 @@ pub struct FastProjection {
     q_start: Vec<f64>,
     /// The projection's Newton iteration, built for the system's rows on the first step
     newton: Option<ProjectionNewton>,
-    /// The state the last step ended at: t (`None` until a step ends, and while one runs),
-    /// then q and qdot (2n). The multipliers are a start only for a step from it.
-    end_t: Option<f64>,
-    end_state: Vec<f64>,
+    /// The state the last constrained step ended at: the multipliers are a start only for a
+    /// step from it
+    end: StepEnd,
     /// Its multipliers, their step and its end, set aside while an event is located
     /// ([`Integrator::set_aside_carry`])
     aside_lambda: Vec<f64>,
     aside_lambda_dt: f64,
-    aside_end_t: Option<f64>,
-    aside_end_state: Vec<f64>,
+    aside_end: StepEnd,
 }
 
 /// The projection's Newton matrix and the buffers sized for one row structure.
@@ -325,12 +323,10 @@ impl FastProjection {
             acceleration: vec![0.0; n],
             q_start: vec![0.0; n],
             newton: None,
-            end_t: None,
-            end_state: Vec::new(),
+            end: StepEnd::default(),
             aside_lambda: Vec::new(),
             aside_lambda_dt: 0.0,
-            aside_end_t: None,
-            aside_end_state: Vec::new(),
+            aside_end: StepEnd::default(),
         }
     }
 
@@ -355,18 +351,11 @@ impl Integrator for FastProjection {
         dt: f64,
     ) -> Result<(), StepError> {
         let cs = constraints_of(system, IntegratorKind::FastProjection)?;
-        let n = s.q.len();
         // The last multipliers start the projection only from bitwise the state the last
         // step ended at: a state set from outside, an impact or a retry after a failure
         // starts from lambda = 0, a fresh integrator's bits (stale multipliers may lead
         // Newton's method to another stationary point of the projection).
-        let from_own_end = self
-            .end_t
-            .take()
-            .is_some_and(|t| t.to_bits() == s.t.to_bits())
-            && self.end_state.len() == 2 * n
-            && crate::same_bits(&self.end_state[..n], &s.q)
-            && crate::same_bits(&self.end_state[n..], &s.qdot);
+        let from_own_end = self.end.take_continued_by(s);
         let (t0, t1) = (s.t, s.t + dt);
         cs.unconstrained_acceleration(t0, &s.q, &s.qdot, &mut self.acceleration)?;
         self.q_start.copy_from_slice(&s.q);
@@ -418,10 +407,7 @@ impl Integrator for FastProjection {
         }
         s.t = t1;
         if constrained {
-            self.end_t = Some(t1);
-            self.end_state.resize(2 * n, 0.0);
-            self.end_state[..n].copy_from_slice(&s.q);
-            self.end_state[n..].copy_from_slice(&s.qdot);
+            self.end.record(s);
         }
         Ok(())
     }
@@ -439,22 +425,11 @@ impl Integrator for FastProjection {
             self.aside_lambda.clone_from(&newton.lambda);
             self.aside_lambda_dt = newton.lambda_dt;
         }
-        self.aside_end_state.clone_from(&self.end_state);
-        self.aside_end_t = self.end_t;
+        self.aside_end.clone_from(&self.end);
     }
 
     fn continued(&mut self, stepped: f64, state: &State, amended: bool) {
-        if self
-            .end_t
-            .is_some_and(|end| end.to_bits() == stepped.to_bits())
-        {
-            self.end_t = Some(state.t);
-            let n = state.q.len();
-            if amended && self.end_state.len() == 2 * n {
-                self.end_state[..n].copy_from_slice(&state.q);
-                self.end_state[n..].copy_from_slice(&state.qdot);
-            }
-        }
+        self.end.continued(stepped, state, amended);
     }
 
     fn iterations_total(&self) -> Option<u64> {
@@ -467,10 +442,10 @@ impl Integrator for FastProjection {
             if newton.lambda.len() == self.aside_lambda.len() {
                 newton.lambda.clone_from(&self.aside_lambda);
                 newton.lambda_dt = self.aside_lambda_dt;
-                self.end_state.clone_from(&self.aside_end_state);
-                self.end_t = self.aside_end_t;
+                self.end.clone_from(&self.aside_end);
             } else {
                 newton.lambda_dt = 0.0;
+                self.end.forget();
             }
         }
     }

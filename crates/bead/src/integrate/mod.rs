@@ -103,8 +103,10 @@ pub trait Integrator: Send {
     /// start, which otherwise needs bitwise the state the last step ended at): it moved the
     /// time from `stepped` (the step's own t + dt) to `state.t` (substeps and composition
     /// stages land on t0 + k h, which differs from the sum of rounded steps in the last bit
-    /// for about one step in eight), and, where `amended`, changed entries the motion does
-    /// not read (the energy ledger adds the constraint impulses' work to its own).
+    /// for about one step in eight), and, where `amended`, changed entries on which no force,
+    /// constraint or multiplier depends (the energy ledger adds the constraint impulses'
+    /// work to its own entry). A driver that changes anything else calls nothing: the next
+    /// step starts cold.
     fn continued(&mut self, _stepped: f64, _state: &State, _amended: bool) {}
 
     /// For iterative methods: the iterations (e.g. Newton steps) of all steps so far, whose
@@ -315,5 +317,55 @@ fn constraints_of(
 fn axpy_into(y: &mut [f64], x: &[f64], h: f64, z: &[f64]) {
     for ((y, x), z) in y.iter_mut().zip(x).zip(z) {
         *y = x + h * z;
+    }
+}
+
+/// The state a step ended at, bit for bit (t, then q and qdot), as its driver retimed or
+/// amended it ([`Integrator::continued`]): what a warm start (RATTLE's, fast projection's)
+/// needs the next step to start from.
+#[derive(Clone, Debug, Default)]
+pub(crate) struct StepEnd {
+    /// `None` until a step records its end, and from the check of the next step's start
+    /// until that step records its own
+    t: Option<f64>,
+    /// q, then qdot (2n)
+    state: Vec<f64>,
+}
+
+impl StepEnd {
+    /// Whether `s` is bitwise the recorded end; forgets it either way, so that a step that
+    /// fails leaves none.
+    pub(crate) fn take_continued_by(&mut self, s: &State) -> bool {
+        let n = s.q.len();
+        self.t.take().is_some_and(|t| t.to_bits() == s.t.to_bits())
+            && self.state.len() == 2 * n
+            && crate::same_bits(&self.state[..n], &s.q)
+            && crate::same_bits(&self.state[n..], &s.qdot)
+    }
+
+    /// The step ended at `s`.
+    pub(crate) fn record(&mut self, s: &State) {
+        let n = s.q.len();
+        self.t = Some(s.t);
+        self.state.resize(2 * n, 0.0);
+        self.state[..n].copy_from_slice(&s.q);
+        self.state[n..].copy_from_slice(&s.qdot);
+    }
+
+    /// [`Integrator::continued`]: the end recorded at `stepped` is now `state` (its time,
+    /// and where `amended`, its other entries).
+    pub(crate) fn continued(&mut self, stepped: f64, state: &State, amended: bool) {
+        if self.t.is_some_and(|t| t.to_bits() == stepped.to_bits()) {
+            if amended {
+                self.record(state);
+            } else {
+                self.t = Some(state.t);
+            }
+        }
+    }
+
+    /// No end: the next step starts cold.
+    pub(crate) fn forget(&mut self) {
+        self.t = None;
     }
 }

@@ -157,6 +157,8 @@ pub struct Simulation {
     substeps_max: u32,
     /// Steps retried with more substeps because an iteration did not converge
     retried_steps: u64,
+    /// Newton iterations of integrators this run replaced (the ledger's start builds one)
+    iterations_replaced: u64,
     /// The substeps the next fixed steps start from after retries
     sticky: StickySubsteps,
     /// The substeps the last fixed step took (an event re-integrates part of it with them)
@@ -351,6 +353,7 @@ impl Simulation {
             projection_iterations_max: None,
             substeps_max: 0,
             retried_steps: 0,
+            iterations_replaced: 0,
             sticky: StickySubsteps::default(),
             last_substeps: 1,
             watches: Vec::new(),
@@ -428,13 +431,18 @@ impl Simulation {
         self.config.integrator
     }
 
-    /// The integrator's Newton (or projection) iterations in all steps so far: every
-    /// substep's, and those of a retried attempt's substeps that converged (see
-    /// [`Integrator::iterations_total`](crate::integrate::Integrator::iterations_total));
-    /// `None` for explicit and adaptive integrators. `--project`'s iterations are not in it.
+    /// The Newton (or projection) iterations of the integrators that solve onto the
+    /// constraints (rattle, rattle4, fast-projection) in every step since the run started
+    /// (or its state was set; as [`Simulation::steps`]): every substep's, and the
+    /// iterations spent where the step was taken again (a retried attempt's converged
+    /// substeps, an abandoned warm start, an event's or an impact's partial steps). See
+    /// [`Integrator::iterations_total`](crate::integrate::Integrator::iterations_total).
+    /// `None` for the other integrators. `--project`'s iterations are not in it.
     pub fn newton_iterations_total(&self) -> Option<u64> {
         match &self.stepper {
-            Stepper::Fixed(integrator) => integrator.iterations_total(),
+            Stepper::Fixed(integrator) => integrator
+                .iterations_total()
+                .map(|total| total + self.iterations_replaced),
             Stepper::Adaptive(_) => None,
         }
     }
@@ -1078,6 +1086,7 @@ impl Simulation {
         self.projection_iterations_max = None;
         self.substeps_max = 0;
         self.retried_steps = 0;
+        self.iterations_replaced = 0;
         self.sticky = StickySubsteps::default();
         self.stepper = Stepper::new(&self.config, state.q.len());
         self.state = state;
@@ -1272,7 +1281,11 @@ impl Simulation {
     /// Start the energy ledger (allocates once; the integrator restarts).
     fn enable_work_tracking(&mut self) {
         if self.add_work_coordinate() {
-            self.stepper = Stepper::new(&self.config, self.n + 1);
+            let replaced =
+                std::mem::replace(&mut self.stepper, Stepper::new(&self.config, self.n + 1));
+            if let Stepper::Fixed(integrator) = replaced {
+                self.iterations_replaced += integrator.iterations_total().unwrap_or(0);
+            }
         }
     }
 
