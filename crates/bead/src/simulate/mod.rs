@@ -436,7 +436,7 @@ impl Simulation {
     /// (or its state was set; as [`Simulation::steps`]): every substep's, and the
     /// iterations spent where the step was taken again (a retried attempt's converged
     /// substeps, an abandoned warm start, an event's or an impact's partial steps). See
-    /// [`Integrator::iterations_total`](crate::integrate::Integrator::iterations_total).
+    /// [`Integrator::iterations_total`].
     /// `None` for the other integrators. `--project`'s iterations are not in it.
     pub fn newton_iterations_total(&self) -> Option<u64> {
         match &self.stepper {
