@@ -259,13 +259,15 @@ CSV columns (--format wide, the default), one row per member in index order:
   energy_balance_error_max   max of |E - W - E0| / E_scale when something does work on the
                              system (the error of the conserved E - W); empty otherwise
   constraint_error_max       max over the run of max_i |C_i|
+  newton_iterations          Newton iterations of all steps (rattle, rattle4,
+                             fast-projection, --project); empty for the other integrators
   P.x P.y [P.z] P.vx ...     every particle's final position and velocity
   q.NAME qdot.NAME           final generalized coordinates (parametric runs)
   error                      why the member failed (empty otherwise)
 The wide columns are the scene's: a member whose particles or generalized coordinates differ
 (a swept N that sets their number) is refused with an error naming it; the rows before it stay
 written. --format long writes one row per member and coordinate instead, with the columns
-member, NAME..., status ... constraint_error_max as above, then
+member, NAME..., status ... newton_iterations as above, then
   coordinate                 P.x, P.y, ... (the member's own particles), then q.NAME
   position, velocity         its final value and rate (q and qdot for q.NAME)
   error

@@ -1991,6 +1991,10 @@ fn rattle_keeps_the_parabola_on_its_constraint() {
     assert!(c_max <= 1e-7, "{out}");
     let newton = value["newton_iterations_max"].as_u64().unwrap();
     assert!((1..=5).contains(&newton), "{out}");
+    // All steps' iterations: at least one a step, at most 2 a step warm and 3 for the
+    // first, cold (physics_rattle.rs holds that bound on RATTLE alone).
+    let total = value["newton_iterations"].as_u64().unwrap();
+    assert!((1000..=2001).contains(&total), "{out}");
     assert!(value.get("projected").is_none(), "{out}");
     let text = ok(bead(&[
         "run",
@@ -1998,12 +2002,48 @@ fn rattle_keeps_the_parabola_on_its_constraint() {
         "--integrator",
         "rattle",
         "--steps",
-        "10",
+        "1000",
     ]));
     assert!(
         text.contains("integrator   rattle (order 2, symplectic"),
         "{text}"
     );
+    // The text summary reads the same run's figures.
+    let per_step = bead_report::report::sig(total as f64 / 1000.0, 3);
+    assert!(
+        text.contains(&format!(
+            "newton       at most {newton} Newton iteration(s) per step, {total} in all ({per_step} per step)"
+        )),
+        "{text}"
+    );
+}
+
+/// `--project`'s Newton iterations count as the integrator's own do; an explicit integrator
+/// without it solves nothing and reports nothing.
+#[test]
+fn projection_iterations_are_counted_over_the_run() {
+    let scene = parabola();
+    let run = |project: bool| {
+        let mut args = vec!["run", p(&scene), "--integrator", "rk4", "--steps", "200"];
+        if project {
+            args.push("--project");
+        }
+        args.push("--json");
+        let out = ok(bead(&args));
+        serde_json::from_str::<serde_json::Value>(&out).expect("JSON")
+    };
+    let projected = run(true);
+    let (max, total) = (
+        projected["newton_iterations_max"].as_u64().unwrap(),
+        projected["newton_iterations"].as_u64().unwrap(),
+    );
+    assert!(
+        max >= 1 && total >= max && total <= 200 * max,
+        "{projected}"
+    );
+    let plain = run(false);
+    assert!(plain.get("newton_iterations").is_none(), "{plain}");
+    assert!(plain.get("newton_iterations_max").is_none(), "{plain}");
 }
 
 #[test]

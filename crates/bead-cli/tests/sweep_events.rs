@@ -483,10 +483,10 @@ fn sweep_csv_refuses_members_with_another_particle_count() {
     );
     assert!(error.contains("--format long"), "{error}");
     assert_eq!(csv.lines().count(), 2, "{csv}");
-    assert_eq!(aligned(&csv), 1 + 1 + 7 + 8 + 1);
+    assert_eq!(aligned(&csv), 1 + 1 + 8 + 8 + 1);
     assert!(csv.lines().nth(1).unwrap().starts_with("0,2,ok,"), "{csv}");
     // The case: the shipped chain (N = 1000) swept over N = 2, 3, 4 refuses member 0
-    // and writes its 4009-column header alone.
+    // and writes its 4011-column header alone.
     let chain = shipped("chain.toml");
     let out = bead(
         &dir.0,
@@ -506,7 +506,7 @@ fn sweep_csv_refuses_members_with_another_particle_count() {
         "{error}"
     );
     assert_eq!(csv.lines().count(), 1);
-    assert_eq!(aligned(&csv), 4010);
+    assert_eq!(aligned(&csv), 4011);
     // --format long: every member, one row per coordinate, named after its own particles.
     let csv = ok(bead(
         &dir.0,
@@ -514,12 +514,12 @@ fn sweep_csv_refuses_members_with_another_particle_count() {
             "sweep", s, "--param", "N=2:4:3", "--steps", "5", "--format", "long",
         ],
     ));
-    assert_eq!(aligned(&csv), 13);
+    assert_eq!(aligned(&csv), 14);
     let rows = csv_rows(&csv);
     assert_eq!(rows.len(), 1 + 2 * (2 + 3 + 4));
     let coordinates: Vec<(String, String)> = rows[1..]
         .iter()
-        .map(|r| (r[0].clone(), r[9].clone()))
+        .map(|r| (r[0].clone(), r[10].clone()))
         .collect();
     assert_eq!(coordinates[4], ("1".to_string(), "p0.x".to_string()));
     assert_eq!(coordinates[17], ("2".to_string(), "p3.y".to_string()));

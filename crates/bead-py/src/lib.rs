@@ -1785,6 +1785,8 @@ struct Columns {
     energy_rel: Vec<f64>,
     energy_balance: Vec<f64>,
     constraint: Vec<f64>,
+    /// Newton iterations of all steps (NaN where none solved onto the constraints)
+    newton: Vec<f64>,
     steps: Vec<i64>,
     x: Vec<f64>,
     xdot: Vec<f64>,
@@ -1837,6 +1839,7 @@ impl Columns {
             energy_rel: floats(),
             energy_balance: floats(),
             constraint: floats(),
+            newton: floats(),
             steps: Vec::with_capacity(count),
             x: Vec::with_capacity(count * nc),
             xdot: Vec::with_capacity(count * nc),
@@ -1867,6 +1870,8 @@ impl Columns {
                 self.energy_balance
                     .push(stats.energy_balance_error_max.unwrap_or(f64::NAN));
                 self.constraint.push(stats.constraint_error_max);
+                self.newton
+                    .push(stats.newton_iterations.map_or(f64::NAN, |n| n as f64));
                 self.steps
                     .push(i64::try_from(stats.steps).unwrap_or(i64::MAX));
                 self.x.extend_from_slice(&stats.x);
@@ -1885,6 +1890,7 @@ impl Columns {
                     &mut self.energy_rel,
                     &mut self.energy_balance,
                     &mut self.constraint,
+                    &mut self.newton,
                 ] {
                     column.push(f64::NAN);
                 }
@@ -1931,6 +1937,7 @@ impl Columns {
             self.energy_balance.into_pyarray(py),
         )?;
         dict.set_item("constraint_error_max", self.constraint.into_pyarray(py))?;
+        dict.set_item("newton_iterations", self.newton.into_pyarray(py))?;
         for (key, values) in [("positions", self.x), ("velocities", self.xdot)] {
             let array = Array3::from_shape_vec((n, p, d), values).map_err(shape_error)?;
             dict.set_item(key, array.into_pyarray(py))?;

@@ -365,10 +365,12 @@ impl PySimulation {
         self.read(py, Simulation::steps)
     }
 
-    /// Newton (or projection) iterations of every step so far (since the start or the last
-    /// set_state, as `steps`), for the integrators that solve onto the constraints (rattle,
-    /// rattle4, fast-projection); None for the others. Divided by `steps`, the solver's work
-    /// per step: substeps, retries and events' partial steps included.
+    /// Newton iterations of every step so far (since the start or the last set_state, as
+    /// `steps`) that solved onto the constraints: the integrator's own (rattle, rattle4,
+    /// fast-projection) and `project=True`'s after every substep; None when no step solves
+    /// (other integrators without project). Divided by `steps`, the solver's work per step:
+    /// substeps, retries and events' partial steps included. A run's summary and a sweep's
+    /// `newton_iterations` give the same count.
     #[getter]
     fn newton_iterations(&self, py: Python<'_>) -> PyResult<Option<u64>> {
         self.read(py, Simulation::newton_iterations_total)

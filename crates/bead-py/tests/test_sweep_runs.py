@@ -3,6 +3,7 @@ members that record their states (`every=K`, `t_eval=`) as arrays shaped grid + 
 MuJoCo's `rollout`. Each member equals its run alone bit for bit; the trajectories are
 checked against the helix's closed form and the observed orders against the integrators'."""
 
+import csv
 import pickle
 
 import numpy as np
@@ -51,12 +52,49 @@ def test_an_integrator_and_dt_grid_is_the_runs_alone_bit_for_bit(method, integra
                 for field in ("energy_rel_error_max", "constraint_error_max", "t_final",
                               "steps"):
                     assert r.__dict__[field][i, j, k] == s[field], (integrator, dt, field)
+                newton = s.get("newton_iterations")
+                got = r.newton_iterations[i, j, k]
+                assert np.isnan(got) if newton is None else got == newton, (integrator, dt)
                 assert same_bits(r.positions[i, j, k], alone.positions[-1])
                 assert same_bits(r.velocities[i, j, k], alone.velocities[-1])
     table = r.to_pandas()
     assert list(table.columns[:4]) == ["member", "integrator", "dt", "theta0"]
     assert table["integrator"].tolist() == list(r.params["integrator"].ravel())
     assert np.array_equal(table["t_final"], r.t_final.ravel())
+
+
+@pytest.mark.parametrize("integrator,project", [
+    ("rattle", False), ("rattle4", False), ("rk4", True), ("rk4", False)])
+def test_newton_iterations_agree_in_the_csv_the_arrays_and_a_simulation(
+        cli, tmp_path, integrator, project):
+    """The Newton iterations a member's steps took: `bead sweep`'s column, the sweep's
+    array and a `Simulation` stepped by hand to the same time count the same solves; an
+    integrator that solves nothing has an empty column and NaN."""
+    thetas = np.linspace(0.5, 2.5, 3)
+    out = tmp_path / "sweep.csv"
+    flags = ["--project"] if project else []
+    code, _, err = cli("sweep", CIRCLE, "--param", "theta0=0.5:2.5:3", "--integrator",
+                       integrator, "--dt", "0.01", "--duration", "1.5", *flags, "--out", out)
+    assert code == 0, err
+    with open(out, newline="") as f:
+        rows = list(csv.DictReader(f))
+    r = bead.sweep(bead.load(CIRCLE), {"theta0": thetas},
+                   integrator=integrator, dt=0.01, duration=1.5, project=project)
+    scene = bead.load(CIRCLE)
+    for k, theta0 in enumerate(thetas):
+        sim = scene.with_params({"theta0": theta0}).simulation(
+            integrator=integrator, dt=0.01, project=project)
+        sim.advance_to(1.5)
+        assert sim.steps == r.steps[k] == 150
+        if sim.newton_iterations is None:
+            assert integrator == "rk4" and not project
+            assert np.isnan(r.newton_iterations[k]) and rows[k]["newton_iterations"] == ""
+        else:
+            # RATTLE: at least one iteration a step (rattle4: a stage); a projection may
+            # find a step already on the circle.
+            assert sim.newton_iterations >= (1 if project else 150)
+            assert r.newton_iterations[k] == sim.newton_iterations
+            assert int(rows[k]["newton_iterations"]) == sim.newton_iterations
 
 
 def test_observed_orders_from_one_sweep_over_dt():

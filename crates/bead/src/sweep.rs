@@ -349,7 +349,8 @@ pub struct Member {
     pub params: Vec<f64>,
     /// The figures of its run, complete or up to where it stopped: final state (`x`, `xdot`,
     /// and `q`, `qdot` for the parametric form), `energy_rel_error_max`,
-    /// `energy_balance_error_max`, `constraint_error_max`, `stop_time`, `steps`. `None` when
+    /// `energy_balance_error_max`, `constraint_error_max`, `stop_time`, `steps`,
+    /// `newton_iterations`. `None` when
     /// the member could not start (its scene or initial state is invalid). `wall_seconds` is
     /// the only figure that differs between two runs.
     pub stats: Option<RunStats>,
@@ -1275,7 +1276,7 @@ impl Ready {
 }
 
 /// The columns every row of both CSV formats starts with, after `member` and the parameters.
-const FIGURES: [&str; 7] = [
+const FIGURES: [&str; 8] = [
     "status",
     "t_final",
     "stop_time",
@@ -1283,12 +1284,13 @@ const FIGURES: [&str; 7] = [
     "energy_rel_error_max",
     "energy_balance_error_max",
     "constraint_error_max",
+    "newton_iterations",
 ];
 
 impl Sweep {
     /// The wide CSV's header ([`CsvFormat::Wide`]): `member`, the parameters,
     /// `status,t_final,stop_time,steps,energy_rel_error_max,energy_balance_error_max,
-    /// constraint_error_max` (the keys of `bead run --json`), every particle's final
+    /// constraint_error_max,newton_iterations` (the keys of `bead run --json`), every particle's final
     /// position and velocity (`P.x`, ..., `P.vx`, ...), the final generalized coordinates
     /// and rates of a parametric run (`q.NAME`, `qdot.NAME`), then `error`.
     pub fn csv_header(&self) -> String {
@@ -1303,7 +1305,7 @@ impl Sweep {
     }
 
     /// The long CSV's header ([`CsvFormat::Long`]): the wide one's columns up to
-    /// `constraint_error_max`, then `coordinate,position,velocity,error`.
+    /// `newton_iterations`, then `coordinate,position,velocity,error`.
     pub fn long_csv_header(&self) -> String {
         let mut columns = self.leading_columns();
         columns.extend(["coordinate", "position", "velocity", "error"].map(String::from));
@@ -1351,7 +1353,10 @@ impl Sweep {
                 if let Some(balance) = stats.energy_balance_error_max {
                     let _ = write!(row, "{balance}");
                 }
-                let _ = write!(row, ",{}", stats.constraint_error_max);
+                let _ = write!(row, ",{},", stats.constraint_error_max);
+                if let Some(iterations) = stats.newton_iterations {
+                    let _ = write!(row, "{iterations}");
+                }
             }
             None => row.push_str(&",".repeat(FIGURES.len() - 1)),
         }

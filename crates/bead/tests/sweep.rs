@@ -300,12 +300,12 @@ fn csv_has_a_column_per_parameter_state_and_coordinate() {
     .unwrap();
     assert_eq!(
         sweep.csv_header(),
-        "member,x0,status,t_final,stop_time,steps,energy_rel_error_max,energy_balance_error_max,constraint_error_max,bead.x,bead.y,bead.vx,bead.vy,q.q,qdot.q,error"
+        "member,x0,status,t_final,stop_time,steps,energy_rel_error_max,energy_balance_error_max,constraint_error_max,newton_iterations,bead.x,bead.y,bead.vx,bead.vy,q.q,qdot.q,error"
     );
     let members = sweep.run(1).unwrap();
     let row = sweep.csv_row(&members[1]).unwrap();
     let fields: Vec<&str> = row.split(',').collect();
-    assert_eq!(fields.len(), 16);
+    assert_eq!(fields.len(), 17);
     let stats = members[1].stats.as_ref().unwrap();
     assert_eq!(fields[0], "1");
     assert_eq!(fields[1].parse::<f64>().unwrap(), 20.0);
@@ -323,9 +323,11 @@ fn csv_has_a_column_per_parameter_state_and_coordinate() {
         fields[8].parse::<f64>().unwrap(),
         stats.constraint_error_max
     );
-    assert_eq!(fields[9].parse::<f64>().unwrap(), stats.x[0]);
-    assert_eq!(fields[14].parse::<f64>().unwrap(), stats.qdot[0]);
-    assert_eq!(fields[15], "");
+    // rk4 solves nothing: no Newton iterations.
+    assert_eq!((fields[9], stats.newton_iterations), ("", None));
+    assert_eq!(fields[10].parse::<f64>().unwrap(), stats.x[0]);
+    assert_eq!(fields[15].parse::<f64>().unwrap(), stats.qdot[0]);
+    assert_eq!(fields[16], "");
 }
 
 /// Without a stop condition of its own, a sweep uses each member's `[run] stop_when`, and
@@ -431,7 +433,7 @@ fn sweep_csv_refuses_members_with_another_particle_count() {
     let lines: Vec<&str> = text.lines().collect();
     assert_eq!(lines.len(), 2);
     let width = lines[0].split(',').count();
-    assert_eq!(width, 1 + 1 + 7 + 4 * 3 + 1);
+    assert_eq!(width, 1 + 1 + 8 + 4 * 3 + 1);
     assert_eq!(lines[1].split(',').count(), width);
     // Long: one row per member and coordinate, named after the member's own particles.
     let mut out = Vec::new();
@@ -442,11 +444,11 @@ fn sweep_csv_refuses_members_with_another_particle_count() {
     let lines: Vec<&str> = text.lines().collect();
     assert_eq!(
         lines[0],
-        "member,N,status,t_final,stop_time,steps,energy_rel_error_max,energy_balance_error_max,constraint_error_max,coordinate,position,velocity,error"
+        "member,N,status,t_final,stop_time,steps,energy_rel_error_max,energy_balance_error_max,constraint_error_max,newton_iterations,coordinate,position,velocity,error"
     );
     assert_eq!(lines.len(), 1 + 2 * (3 + 2 + 4));
     for line in &lines[1..] {
-        assert_eq!(line.split(',').count(), 13, "{line}");
+        assert_eq!(line.split(',').count(), 14, "{line}");
     }
     let rows_of = |index: usize| -> Vec<Vec<&str>> {
         lines[1..]
@@ -461,16 +463,21 @@ fn sweep_csv_refuses_members_with_another_particle_count() {
         assert_eq!(rows.len(), 2 * n);
         for (k, row) in rows.iter().enumerate() {
             let axis = ["x", "y"][k % 2];
-            assert_eq!(row[9], format!("p{}.{axis}", k / 2));
+            assert_eq!(row[10], format!("p{}.{axis}", k / 2));
             assert_eq!(
-                row[10].parse::<f64>().unwrap().to_bits(),
+                row[11].parse::<f64>().unwrap().to_bits(),
                 stats.x[k].to_bits()
             );
             assert_eq!(
-                row[11].parse::<f64>().unwrap().to_bits(),
+                row[12].parse::<f64>().unwrap().to_bits(),
                 stats.xdot[k].to_bits()
             );
             assert_eq!(row[5], "5");
+            // The chain's plan steps it with rattle: its Newton iterations, one a step at
+            // least.
+            let newton = stats.newton_iterations.expect("rattle solves");
+            assert!(newton >= 5);
+            assert_eq!(row[9].parse::<u64>().unwrap(), newton);
         }
     }
 }
@@ -489,12 +496,15 @@ fn long_csv_rows_of_parametric_and_failed_members() {
     .unwrap();
     let members = sweep.run(1).unwrap();
     let rows = sweep.long_csv_rows(&members[0]);
-    let names: Vec<&str> = rows.lines().map(|l| l.split(',').nth(9).unwrap()).collect();
+    let names: Vec<&str> = rows
+        .lines()
+        .map(|l| l.split(',').nth(10).unwrap())
+        .collect();
     assert_eq!(names, ["bead.x", "bead.y", "q.q"]);
     let stats = members[0].stats.as_ref().unwrap();
     let q_row: Vec<&str> = rows.lines().nth(2).unwrap().split(',').collect();
-    assert_eq!(q_row[10].parse::<f64>().unwrap(), stats.q[0]);
-    assert_eq!(q_row[11].parse::<f64>().unwrap(), stats.qdot[0]);
+    assert_eq!(q_row[11].parse::<f64>().unwrap(), stats.q[0]);
+    assert_eq!(q_row[12].parse::<f64>().unwrap(), stats.qdot[0]);
     let failed = sweep.long_csv_rows(&members[1]);
     assert_eq!(failed.lines().count(), 1);
     assert!(failed.starts_with("1,-1,failed,,,,,,,,,,"), "{failed}");

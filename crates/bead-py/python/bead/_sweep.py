@@ -57,6 +57,7 @@ _FIELDS = (
     "energy_rel_error_max",
     "energy_balance_error_max",
     "constraint_error_max",
+    "newton_iterations",
     "positions",
     "velocities",
     "q",
@@ -69,7 +70,7 @@ _STATUS = np.array(["ok", "event", "failed"], dtype="<U6")
 
 # The columns of `bead sweep`'s CSV before the final state: member, the parameters, then these.
 _FIGURES = ("status", "t_final", "stop_time", "steps", "energy_rel_error_max",
-            "energy_balance_error_max", "constraint_error_max")
+            "energy_balance_error_max", "constraint_error_max", "newton_iterations")
 
 
 def _run_axis(key: str, value: Any) -> Optional[np.ndarray]:
@@ -257,7 +258,10 @@ class SweepResult:
     - ``t_final``, ``stop_time`` (NaN where the event did not fire), ``steps`` (int64),
       ``energy_rel_error_max`` (max of |E - E0| / E_scale, as ``run.summary``),
       ``energy_balance_error_max`` (max of |E - W - E0| / E_scale where something does
-      work on the system, else NaN), ``constraint_error_max``: ``shape``
+      work on the system, else NaN), ``constraint_error_max``, ``newton_iterations``
+      (float64: the Newton iterations of all steps of rattle, rattle4, fast-projection and
+      ``project=True``, as ``Simulation.newton_iterations``; NaN for the other
+      integrators): ``shape``
     - ``positions``, ``velocities`` ``shape + (P, D)``: the final state
     - ``q``, ``qdot`` ``shape + (K,)`` for the parametric form, else None
     - ``errors`` ``shape`` (object): each member's error message, or None
@@ -286,6 +290,7 @@ class SweepResult:
     energy_rel_error_max: np.ndarray
     energy_balance_error_max: np.ndarray
     constraint_error_max: np.ndarray
+    newton_iterations: np.ndarray
     positions: np.ndarray
     velocities: np.ndarray
     q: Optional[np.ndarray]
@@ -398,7 +403,7 @@ class SweepResult:
     def to_pandas(self) -> Any:
         """One row per member, with the columns of ``bead sweep``'s CSV: member, the swept
         parameters (``integrator`` and ``dt`` first when they are swept), status, t_final, stop_time, steps, energy_rel_error_max,
-        energy_balance_error_max, constraint_error_max, each particle's final position and
+        energy_balance_error_max, constraint_error_max, newton_iterations, each particle's final position and
         velocity (P.x, P.vx, ...), q.NAME and qdot.NAME for the parametric form, error. Needs
         pandas."""
         try:

@@ -33,7 +33,8 @@ use crate::simulate::{RunFailure, RunStats};
 /// | `constraint_distance_max`, `constraint_distance_final` | implicit form only: max_i \|C_i\| / \|grad C_i\| over the run and at the end, how far the state is off the constraints in length units |
 /// | `length_scale` | the scene's length scale (the largest initial coordinate magnitude), to read the distance against |
 /// | `projected` | only when `--project` was on: `true` |
-/// | `newton_iterations_max` | rattle or `--project` only: most Newton iterations of any step |
+/// | `newton_iterations_max` | rattle, rattle4, fast-projection or `--project` only: most Newton iterations of any step |
+/// | `newton_iterations` | the same only: Newton iterations of all steps, substeps and retried attempts included |
 /// | `substeps` | only when more than 1: substeps per step of dt asked for (`--substeps`) |
 /// | `substeps_max` | only when more than 1: the most substeps any step took, retries included |
 /// | `retried_steps` | only when some were: steps retried with more substeps because an iteration did not converge |
@@ -135,6 +136,10 @@ pub struct Summary {
     /// Most Newton iterations any step needed (rattle's position solve, the projection).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub newton_iterations_max: Option<usize>,
+    /// Newton iterations of all steps, of the same solves (see
+    /// [`crate::simulate::Simulation::newton_iterations_total`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub newton_iterations: Option<u64>,
     /// Substeps per step of dt as asked (written only when more than 1).
     #[serde(skip_serializing_if = "is_one")]
     pub substeps: u32,
@@ -261,6 +266,7 @@ impl Summary {
             length_scale: stats.length_scale,
             projected: stats.projected,
             newton_iterations_max: stats.newton_iterations_max,
+            newton_iterations: stats.newton_iterations,
             substeps: stats.substeps,
             substeps_max: stats.substeps_max,
             retried_steps: stats.retried_steps,
@@ -474,6 +480,7 @@ mod tests {
             rejected_steps: None,
             projected: false,
             newton_iterations_max: None,
+            newton_iterations: None,
             substeps: 1,
             substeps_max: 1,
             retried_steps: 0,

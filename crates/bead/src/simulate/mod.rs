@@ -153,6 +153,8 @@ pub struct Simulation {
     /// Integrator steps taken (accepted ones for adaptive integrators)
     steps: u64,
     projection_iterations_max: Option<usize>,
+    /// `--project`'s Newton iterations of every step so far
+    projection_iterations_total: u64,
     /// The most substeps any step of dt took (configured ones and retries)
     substeps_max: u32,
     /// Steps retried with more substeps because an iteration did not converge
@@ -351,6 +353,7 @@ impl Simulation {
             grid_steps: 0,
             steps: 0,
             projection_iterations_max: None,
+            projection_iterations_total: 0,
             substeps_max: 0,
             retried_steps: 0,
             iterations_replaced: 0,
@@ -431,19 +434,28 @@ impl Simulation {
         self.config.integrator
     }
 
-    /// The Newton (or projection) iterations of the integrators that solve onto the
-    /// constraints (rattle, rattle4, fast-projection) in every step since the run started
-    /// (or its state was set; as [`Simulation::steps`]): every substep's, and the
-    /// iterations spent where the step was taken again (a retried attempt's converged
-    /// substeps, an abandoned warm start, an event's or an impact's partial steps). See
-    /// [`Integrator::iterations_total`].
-    /// `None` for the other integrators. `--project`'s iterations are not in it.
+    /// The Newton iterations that solved onto the constraints in every step since the run
+    /// started (or its state was set; as [`Simulation::steps`]): those of the integrators
+    /// that do (rattle, rattle4, fast-projection; see [`Integrator::iterations_total`]) and
+    /// of `--project` after every substep, the same solves whose most in one step is
+    /// [`RunStats::newton_iterations_max`]. Every substep's, and the iterations spent where
+    /// the step was taken again (a retried attempt's converged substeps, an abandoned warm
+    /// start, an event's or an impact's partial steps). `None` when no step solves onto the
+    /// constraints (other integrators without `--project`).
     pub fn newton_iterations_total(&self) -> Option<u64> {
-        match &self.stepper {
+        let integrator = match &self.stepper {
             Stepper::Fixed(integrator) => integrator
                 .iterations_total()
                 .map(|total| total + self.iterations_replaced),
             Stepper::Adaptive(_) => None,
+        };
+        let projection = self
+            .config
+            .project
+            .then_some(self.projection_iterations_total);
+        match (integrator, projection) {
+            (Some(a), Some(b)) => Some(a + b),
+            (a, b) => a.or(b),
         }
     }
 
@@ -770,6 +782,7 @@ impl Simulation {
             stepper,
             config,
             projection_iterations_max,
+            projection_iterations_total,
             n,
             ..
         } = self;
@@ -794,6 +807,7 @@ impl Simulation {
                     let iterations = project(system, state, config)?;
                     *projection_iterations_max =
                         Some(projection_iterations_max.unwrap_or(0).max(iterations));
+                    *projection_iterations_total += iterations as u64;
                 }
             }
             Ok(())
@@ -1084,6 +1098,7 @@ impl Simulation {
         self.grid_steps = 0;
         self.steps = 0;
         self.projection_iterations_max = None;
+        self.projection_iterations_total = 0;
         self.substeps_max = 0;
         self.retried_steps = 0;
         self.iterations_replaced = 0;
@@ -1355,6 +1370,7 @@ impl Simulation {
             rejected_steps: rejected,
             projected: self.config.project,
             newton_iterations_max,
+            newton_iterations: self.newton_iterations_total(),
             substeps: self.config.substeps.max(1),
             substeps_max: self.substeps_max(),
             retried_steps: self.retried_steps,

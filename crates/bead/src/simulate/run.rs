@@ -152,6 +152,9 @@ pub struct RunStats {
     /// The most Newton iterations any step needed, over the integrator's own solve (rattle)
     /// and the projection; `None` when neither ran.
     pub newton_iterations_max: Option<usize>,
+    /// The same solves' iterations over every step
+    /// ([`super::Simulation::newton_iterations_total`]); `None` when neither ran.
+    pub newton_iterations: Option<u64>,
     /// Substeps per step of dt as configured (1: none).
     pub substeps: u32,
     /// The most substeps any step took, retries included.
