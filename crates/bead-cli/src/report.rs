@@ -124,7 +124,7 @@ pub fn run_text(scene: &Scene, plan: &Plan, summary: &Summary) -> String {
     if let Some(iterations) = summary.newton_iterations_max {
         let total = match summary.newton_iterations {
             Some(total) if summary.steps > 0 => format!(
-                ", {total} in all ({} per step)",
+                ", {total} in all ({} per step of dt)",
                 g(total as f64 / summary.steps as f64, 3)
             ),
             _ => String::new(),
@@ -132,7 +132,7 @@ pub fn run_text(scene: &Scene, plan: &Plan, summary: &Summary) -> String {
         row(
             &mut s,
             "newton",
-            format!("at most {iterations} Newton iteration(s) per step{total}"),
+            format!("at most {iterations} Newton iteration(s) per solve{total}"),
         );
     }
     let adaptive = summary.accepted_steps.is_some();

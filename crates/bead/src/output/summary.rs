@@ -33,8 +33,8 @@ use crate::simulate::{RunFailure, RunStats};
 /// | `constraint_distance_max`, `constraint_distance_final` | implicit form only: max_i \|C_i\| / \|grad C_i\| over the run and at the end, how far the state is off the constraints in length units |
 /// | `length_scale` | the scene's length scale (the largest initial coordinate magnitude), to read the distance against |
 /// | `projected` | only when `--project` was on: `true` |
-/// | `newton_iterations_max` | rattle, rattle4, fast-projection or `--project` only: most Newton iterations of any step |
-/// | `newton_iterations` | the same only: Newton iterations of all steps, substeps and retried attempts included |
+/// | `newton_iterations_max` | rattle, rattle4, fast-projection or `--project` only: most Newton iterations of any one solve (a step, a substep, a rattle4 stage, a projection) |
+/// | `newton_iterations` | the same only: Newton iterations of all solves, substeps, stages and retried attempts included |
 /// | `substeps` | only when more than 1: substeps per step of dt asked for (`--substeps`) |
 /// | `substeps_max` | only when more than 1: the most substeps any step took, retries included |
 /// | `retried_steps` | only when some were: steps retried with more substeps because an iteration did not converge |
@@ -133,7 +133,8 @@ pub struct Summary {
     /// (written only when true).
     #[serde(skip_serializing_if = "std::ops::Not::not")]
     pub projected: bool,
-    /// Most Newton iterations any step needed (rattle's position solve, the projection).
+    /// Most Newton iterations any one solve needed (a step, substep or rattle4 stage of the
+    /// integrator's own solve; the projection).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub newton_iterations_max: Option<usize>,
     /// Newton iterations of all steps, of the same solves (see

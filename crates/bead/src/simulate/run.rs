@@ -149,8 +149,8 @@ pub struct RunStats {
     pub rejected_steps: Option<u64>,
     /// Whether positions and velocities were projected onto the constraints after every step.
     pub projected: bool,
-    /// The most Newton iterations any step needed, over the integrator's own solve (rattle)
-    /// and the projection; `None` when neither ran.
+    /// The most Newton iterations any one solve needed: the integrator's own (a step, a
+    /// substep or a rattle4 stage) and the projection's; `None` when neither ran.
     pub newton_iterations_max: Option<usize>,
     /// The same solves' iterations over every step
     /// ([`super::Simulation::newton_iterations_total`]); `None` when neither ran.
