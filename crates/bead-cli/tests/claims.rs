@@ -1,8 +1,8 @@
 //! What the README and the summaries claim, computed again (issue 15): the article's
 //! comparison table exactly as the README prints it, the distance the implicit rk4 bead ends
 //! off the wire (the true distance to the parabola, found here by Newton's method on the
-//! closest-point equation, not by bead), and the summary's note that an energy error alone
-//! does not measure accuracy.
+//! closest-point equation, not by bead), the summary's note that an energy error alone
+//! does not measure accuracy, and every `bead run` and `bead sweep` example's printed lines.
 
 mod common;
 
@@ -256,4 +256,148 @@ fn the_readmes_convergence_study_is_what_bead_order_prints() {
     }
     assert!(std::fs::metadata(&plot).unwrap().len() > 10_000);
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Every `$ bead run` and `$ bead sweep` example in the README with the lines printed under
+/// it (up to the next `$ ` line or the block's end): the command's words (double quotes
+/// grouping, a trailing `# comment` and a `| grep WORD` filter split off) and its lines.
+fn readme_run_and_sweep_examples() -> Vec<(Vec<String>, Option<String>, Vec<String>)> {
+    let text = readme();
+    let mut examples = Vec::new();
+    let mut in_block = false;
+    let mut current: Option<(Vec<String>, Option<String>, Vec<String>)> = None;
+    for line in text.lines() {
+        if line.starts_with("```") {
+            in_block = !in_block;
+            examples.extend(current.take());
+            continue;
+        }
+        if !in_block {
+            continue;
+        }
+        if let Some(command) = line.strip_prefix("$ ") {
+            examples.extend(current.take());
+            let (words, filter) = shell_words(command);
+            if matches!(
+                words.get(..2).map(|w| [w[0].as_str(), w[1].as_str()]),
+                Some(["bead", "run" | "sweep"])
+            ) {
+                current = Some((words[1..].to_vec(), filter, Vec::new()));
+            }
+        } else if let Some((_, _, printed)) = &mut current {
+            printed.push(line.to_string());
+        }
+    }
+    examples
+}
+
+/// A README command line's words: double quotes group, `#` outside them starts a comment,
+/// `| grep WORD` becomes the filter.
+fn shell_words(command: &str) -> (Vec<String>, Option<String>) {
+    let (mut words, mut word, mut quoted) = (Vec::new(), String::new(), false);
+    for c in command.chars() {
+        match c {
+            '"' => quoted = !quoted,
+            '#' if !quoted => break,
+            c if c.is_whitespace() && !quoted => {
+                if !word.is_empty() {
+                    words.push(std::mem::take(&mut word));
+                }
+            }
+            c => word.push(c),
+        }
+    }
+    if !word.is_empty() {
+        words.push(word);
+    }
+    match words.iter().position(|w| w == "|") {
+        Some(pipe) => {
+            assert_eq!(words[pipe + 1], "grep", "{command}");
+            let filter = words[pipe + 2].clone();
+            words.truncate(pipe);
+            (words, Some(filter))
+        }
+        None => (words, None),
+    }
+}
+
+/// Whether the README's `printed` line shows `actual`: equal, or where the README elides
+/// part of a CSV line with `,...,`, the same start and end.
+fn shows(printed: &str, actual: &str) -> bool {
+    match printed.split_once(",...,") {
+        Some((start, end)) => {
+            actual.starts_with(&format!("{start},")) && actual.ends_with(&format!(",{end}"))
+        }
+        None => printed == actual,
+    }
+}
+
+/// What the README prints under `bead run` and `bead sweep` examples is what they print now,
+/// in order: every line but `...` (elided lines), wall-clock figures (the `speed` row, a
+/// sweep's time and rate) and examples on files outside the repository or wrapped by hand.
+/// The README's CSV rows went stale once in their last digits when RATTLE's warm start
+/// changed them; nothing caught it.
+#[test]
+fn the_readmes_run_and_sweep_examples_print_what_bead_prints() {
+    // The events example's scene: the pendulum with three [[event]] tables, as it says.
+    let dir = common::TempDir::new("readme-events");
+    let circle = std::fs::read_to_string(root().join("scenes/circle.toml")).unwrap();
+    let events = dir.write(
+        "circle-events.toml",
+        &format!(
+            "{circle}\n[[event]]\nexpr = \"bead.x\"\ndirection = -1\n\n[[event]]\nexpr = \"bead.x\"\ndirection = 1\n\n[[event]]\nexpr = \"bead.vx\"\n"
+        ),
+    );
+    let (mut checked, mut stale) = (0, Vec::new());
+    for (mut args, filter, printed) in readme_run_and_sweep_examples() {
+        if args[1] == "/tmp/circle-events.toml" {
+            args[1] = events.to_str().unwrap().to_string();
+        }
+        let scene = Path::new(&args[1]);
+        let shipped = root().join(scene).is_file();
+        if printed.is_empty() || !shipped || args.iter().any(|a| a == "scenes/node.toml") {
+            // bad.toml is shown, not shipped; node.toml's error is wrapped by hand.
+            continue;
+        }
+        let words: Vec<&str> = args.iter().map(String::as_str).collect();
+        let out = bead_in(&root(), &words);
+        let mut actual: Vec<String> = String::from_utf8_lossy(&out.stdout)
+            .lines()
+            .chain(String::from_utf8_lossy(&out.stderr).lines())
+            .map(String::from)
+            .collect();
+        if let Some(filter) = &filter {
+            actual.retain(|l| l.contains(filter.as_str()));
+        }
+        let mut at = 0;
+        for line in &printed {
+            let line = line.trim_end();
+            if line.trim() == "..." || line.starts_with("  speed") {
+                continue;
+            }
+            // A sweep's closing line: the counts, not the time.
+            let (line, prefix) = match line.strip_prefix("sweep: ") {
+                Some(rest) => (rest.split(" in ").next().unwrap(), true),
+                None => (line, false),
+            };
+            let found = actual[at..].iter().position(|a| match prefix {
+                true => a
+                    .strip_prefix("sweep: ")
+                    .is_some_and(|r| r.starts_with(line)),
+                false => shows(line, a),
+            });
+            match found {
+                Some(k) => at += k + 1,
+                None => stale.push(format!(
+                    "README under `bead {}`:\n{line}\nis not printed (in order); bead printed:\n{}",
+                    args.join(" "),
+                    actual.join("\n")
+                )),
+            }
+        }
+        checked += 1;
+    }
+    assert!(stale.is_empty(), "{}", stale.join("\n\n"));
+    // The sweeps (3), the stop conditions (4) and the events (1): a new example counts here.
+    assert_eq!(checked, 8, "examples checked");
 }
