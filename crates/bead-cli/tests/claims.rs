@@ -2,7 +2,8 @@
 //! comparison table exactly as the README prints it, the distance the implicit rk4 bead ends
 //! off the wire (the true distance to the parabola, found here by Newton's method on the
 //! closest-point equation, not by bead), the summary's note that an energy error alone
-//! does not measure accuracy, and every `bead run` and `bead sweep` example's printed lines.
+//! does not measure accuracy, and every `bead run`, `bead sweep` and `bead order` example's
+//! printed lines.
 
 mod common;
 
@@ -258,10 +259,11 @@ fn the_readmes_convergence_study_is_what_bead_order_prints() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
-/// Every `$ bead run` and `$ bead sweep` example in the README with the lines printed under
+/// Every `$ bead run`, `bead sweep` and `bead order` example in the README with the lines
+/// printed under
 /// it (up to the next `$ ` line or the block's end): the command's words (double quotes
 /// grouping, a trailing `# comment` and a `| grep WORD` filter split off) and its lines.
-fn readme_run_and_sweep_examples() -> Vec<(Vec<String>, Option<String>, Vec<String>)> {
+fn readme_cli_examples() -> Vec<(Vec<String>, Option<String>, Vec<String>)> {
     let text = readme();
     let mut examples = Vec::new();
     let mut in_block = false;
@@ -280,7 +282,7 @@ fn readme_run_and_sweep_examples() -> Vec<(Vec<String>, Option<String>, Vec<Stri
             let (words, filter) = shell_words(command);
             if matches!(
                 words.get(..2).map(|w| [w[0].as_str(), w[1].as_str()]),
-                Some(["bead", "run" | "sweep"])
+                Some(["bead", "run" | "sweep" | "order"])
             ) {
                 current = Some((words[1..].to_vec(), filter, Vec::new()));
             }
@@ -332,13 +334,14 @@ fn shows(printed: &str, actual: &str) -> bool {
     }
 }
 
-/// What the README prints under `bead run` and `bead sweep` examples is what they print now,
+/// What the README prints under `bead run`, `bead sweep` and `bead order` examples is what
+/// they print now,
 /// in order: every line but `...` (elided lines), wall-clock figures (the `speed` row, a
 /// sweep's time and rate) and examples on files outside the repository or wrapped by hand.
 /// The README's CSV rows went stale once in their last digits when RATTLE's warm start
 /// changed them; nothing caught it.
 #[test]
-fn the_readmes_run_and_sweep_examples_print_what_bead_prints() {
+fn the_readmes_run_sweep_and_order_examples_print_what_bead_prints() {
     // The events example's scene: the pendulum with three [[event]] tables, as it says.
     let dir = common::TempDir::new("readme-events");
     let circle = std::fs::read_to_string(root().join("scenes/circle.toml")).unwrap();
@@ -349,7 +352,7 @@ fn the_readmes_run_and_sweep_examples_print_what_bead_prints() {
         ),
     );
     let (mut checked, mut stale) = (0, Vec::new());
-    for (mut args, filter, printed) in readme_run_and_sweep_examples() {
+    for (mut args, filter, printed) in readme_cli_examples() {
         if args[1] == "/tmp/circle-events.toml" {
             args[1] = events.to_str().unwrap().to_string();
         }
@@ -358,6 +361,10 @@ fn the_readmes_run_and_sweep_examples_print_what_bead_prints() {
         if printed.is_empty() || !shipped || args.iter().any(|a| a == "scenes/node.toml") {
             // bad.toml is shown, not shipped; node.toml's error is wrapped by hand.
             continue;
+        }
+        // `order --plot FILE` draws the README's figure: not here.
+        if let Some(plot) = args.iter().position(|a| a == "--plot") {
+            args.drain(plot..plot + 2);
         }
         let words: Vec<&str> = args.iter().map(String::as_str).collect();
         let out = bead_in(&root(), &words);
@@ -398,6 +405,7 @@ fn the_readmes_run_and_sweep_examples_print_what_bead_prints() {
         checked += 1;
     }
     assert!(stale.is_empty(), "{}", stale.join("\n\n"));
-    // The sweeps (3), the stop conditions (4) and the events (1): a new example counts here.
-    assert_eq!(checked, 8, "examples checked");
+    // The sweeps (3), the stop conditions (4), the events (1) and the orders (1): a new
+    // example counts here.
+    assert_eq!(checked, 9, "examples checked");
 }
