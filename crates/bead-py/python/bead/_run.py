@@ -180,6 +180,10 @@ class Run:
             ("|E - E0| / E_scale, max", f"{summary.get('energy_rel_error_max', float('nan')):.3g}"),
             ("max |C|", f"{summary.get('constraint_error_max', float('nan')):.3g}"),
         ]
+        if summary.get("newton_iterations") is not None and summary.get("steps"):
+            rows.append(("Newton iterations", f"{summary['newton_iterations']} "
+                         f"({summary['newton_iterations'] / summary['steps']:.3g} per step, "
+                         f"at most {summary['newton_iterations_max']} per solve)"))
         if summary.get("stop_time") is not None:
             rows.append(("stop_when fired at t", f"{summary['stop_time']}"))
         table = "".join(
