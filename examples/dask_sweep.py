@@ -39,7 +39,8 @@ def identical(a, b) -> bool:
 
 
 FIELDS = ("t_final", "stop_time", "steps", "energy_rel_error_max", "energy_balance_error_max",
-          "constraint_error_max", "positions", "velocities", "q", "qdot", "status", "errors")
+          "constraint_error_max", "newton_iterations", "positions", "velocities", "q", "qdot",
+          "status", "errors")
 
 
 def main(argv=None) -> int:

@@ -124,7 +124,7 @@ pub fn run_text(scene: &Scene, plan: &Plan, summary: &Summary) -> String {
     if let Some(iterations) = summary.newton_iterations_max {
         let total = match summary.newton_iterations {
             Some(total) if summary.steps > 0 => format!(
-                ", {total} in all ({} per step of dt)",
+                ", {total} in all ({} per step)",
                 g(total as f64 / summary.steps as f64, 3)
             ),
             _ => String::new(),

@@ -2012,7 +2012,7 @@ fn rattle_keeps_the_parabola_on_its_constraint() {
     let per_step = bead_report::report::sig(total as f64 / 1000.0, 3);
     assert!(
         text.contains(&format!(
-            "newton       at most {newton} Newton iteration(s) per solve, {total} in all ({per_step} per step of dt)"
+            "newton       at most {newton} Newton iteration(s) per solve, {total} in all ({per_step} per step)"
         )),
         "{text}"
     );

@@ -418,7 +418,16 @@ fn a_failed_member_is_a_row_not_the_end_of_the_sweep() {
     let rows: Vec<&str> = csv.lines().collect();
     assert_eq!(rows.len(), 4);
     assert!(rows[1].starts_with("0,-1,failed,,,"), "{}", rows[1]);
-    assert!(rows[1].contains("mass"), "{}", rows[1]);
+    // As wide as the header, with the error (commas and all) in the last column.
+    let width = rows[0].split(',').count();
+    let fields: Vec<&str> = rows[1].splitn(width, ',').collect();
+    assert_eq!(fields.len(), width, "{}", rows[1]);
+    assert!(
+        fields[3..width - 1].iter().all(|f| f.is_empty()),
+        "{}",
+        rows[1]
+    );
+    assert!(fields[width - 1].contains("mass"), "{}", rows[1]);
     assert!(rows[2].starts_with("1,0,failed,"), "{}", rows[2]);
     assert!(rows[3].starts_with("2,1,ok,"), "{}", rows[3]);
 }

@@ -1800,8 +1800,9 @@ struct Columns {
 
 impl Columns {
     /// Bytes one member takes at the peak of a sweep in Python: 8 per float64 (the K
-    /// parameters, t_final, stop_time, steps, the three error maxima, 2 x P x D of
-    /// positions and velocities, 2 x Q of q and qdot), its status (1 byte here, 24 as
+    /// parameters, t_final, stop_time, steps, the three error maxima, the Newton
+    /// iterations, the run index, 2 x P x D of positions and velocities, 2 x Q of q and
+    /// qdot), its status (1 byte here, 24 as
     /// numpy's `<U6`) and its error slot (24 here while it is converted, 8 in the list, 8 in
     /// the object array). An error message itself is not counted. A recorded trajectory
     /// counts twice its rows (t, energy, constraint_error, work, positions, velocities, q,
@@ -1809,7 +1810,7 @@ impl Columns {
     fn bytes_per_member(sweep: &Sweep) -> u64 {
         let layout = sweep.layout();
         let state = layout.n_coords() + layout.coordinates.len();
-        let floats = sweep.axes().len() + 7 + 2 * state;
+        let floats = sweep.axes().len() + 8 + 2 * state;
         let recorded = sweep
             .rows_per_member()
             .saturating_mul(2 * 8 * (4 + 2 * state as u64));

@@ -367,8 +367,8 @@ impl PySimulation {
 
     /// Newton iterations of every step so far (since the start or the last set_state, as
     /// `steps`) that solved onto the constraints: the integrator's own (rattle, rattle4,
-    /// fast-projection) and `project=True`'s after every substep; None when no step solves
-    /// (other integrators without project). Divided by `steps`, the solver's work per step:
+    /// fast-projection) and `project=True`'s after every substep; None for the other
+    /// integrators (with project=True: until the first projection). Divided by `steps`, the solver's work per step:
     /// substeps, retries and events' partial steps included. A run's summary and a sweep's
     /// `newton_iterations` give the same count.
     #[getter]

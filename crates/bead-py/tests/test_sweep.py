@@ -265,8 +265,8 @@ def test_sweep_count_beyond_limit_is_an_error_not_an_abort():
     with pytest.raises(ValueError) as caught:
         bead.sweep(scene, grid, steps=1)
     text = str(caught.value)
-    assert text.startswith("100000000 members need about 20.1 GB for their result arrays "
-                           "(201 bytes each: 2 parameter(s), 2 particle(s) in 2D, 0 generalized "
+    assert text.startswith("100000000 members need about 20.9 GB for their result arrays "
+                           "(209 bytes each: 2 parameter(s), 2 particle(s) in 2D, 0 generalized "
                            "coordinate(s)), more than the 8 GiB a sweep returns at once"), text
     assert "sweep.run_range(start, stop)" in text and "sweep.chunks(" in text
     # A chunk that fits runs.

@@ -437,11 +437,11 @@ impl Simulation {
     /// The Newton iterations that solved onto the constraints in every step since the run
     /// started (or its state was set; as [`Simulation::steps`]): those of the integrators
     /// that do (rattle, rattle4, fast-projection; see [`Integrator::iterations_total`]) and
-    /// of `--project` after every substep, the same solves whose most in one step is
+    /// of `--project` after every substep, the same solves whose most in one solve is
     /// [`RunStats::newton_iterations_max`]. Every substep's, and the iterations spent where
     /// the step was taken again (a retried attempt's converged substeps, an abandoned warm
-    /// start, an event's or an impact's partial steps). `None` when no step solves onto the
-    /// constraints (other integrators without `--project`).
+    /// start, an event's or an impact's partial steps). `None` when no step has solved onto
+    /// the constraints with `--project` and the integrator is not one that solves.
     pub fn newton_iterations_total(&self) -> Option<u64> {
         let integrator = match &self.stepper {
             Stepper::Fixed(integrator) => integrator
@@ -449,10 +449,10 @@ impl Simulation {
                 .map(|total| total + self.iterations_replaced),
             Stepper::Adaptive(_) => None,
         };
+        // As `projection_iterations_max`: none before the first projection.
         let projection = self
-            .config
-            .project
-            .then_some(self.projection_iterations_total);
+            .projection_iterations_max
+            .map(|_| self.projection_iterations_total);
         match (integrator, projection) {
             (Some(a), Some(b)) => Some(a + b),
             (a, b) => a.or(b),
