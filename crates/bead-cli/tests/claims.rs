@@ -24,40 +24,63 @@ fn readme() -> String {
 }
 
 /// Every `bead compare` example in the README (`$ bead compare ...` or `$ cargo run
-/// --release -- compare ...`, continued over `\` lines): its arguments after `bead`, and
-/// the lines printed under it in the same block.
+/// --release -- compare ...`): its arguments after `bead`, and the lines printed under it.
 fn readme_compare_examples() -> Vec<(Vec<String>, Vec<String>)> {
+    readme_examples()
+        .into_iter()
+        .filter(|(args, _, _)| args[0] == "compare")
+        .map(|(args, _, printed)| (args, printed))
+        .collect()
+}
+
+/// Every `$ bead ...` (or `$ cargo run --release -- ...`) command in the README's code
+/// blocks, continued over `\` lines, with the lines printed under it (up to the next `$ `
+/// line or the block's end): its arguments after `bead` (double quotes grouping, a trailing
+/// `# comment` and a `| grep WORD` filter split off), the filter and its lines.
+fn readme_examples() -> Vec<(Vec<String>, Option<String>, Vec<String>)> {
     let text = readme();
     let mut examples = Vec::new();
-    let mut rest = text.as_str();
-    while let Some(start) = rest.find("\n$ ") {
-        let block = &rest[start + 1..];
-        let end = block.find("```").unwrap_or(block.len());
-        let mut lines = block[..end].lines();
-        let mut command = String::new();
-        for line in lines.by_ref() {
-            let line = line.trim_start_matches("$ ").trim();
-            match line.strip_suffix('\\') {
-                Some(part) => command.push_str(part),
-                None => {
-                    command.push_str(line);
-                    break;
-                }
-            }
+    let (mut in_block, mut continued) = (false, None::<String>);
+    let mut current: Option<(Vec<String>, Option<String>, Vec<String>)> = None;
+    for line in text.lines() {
+        if line.starts_with("```") {
+            in_block = !in_block;
+            examples.extend(current.take());
+            continue;
         }
-        let words: Vec<&str> = command.split_whitespace().collect();
-        let args = match words.as_slice() {
-            ["bead", "compare", ..] => Some(words[1..].to_vec()),
-            ["cargo", "run", "--release", "--", "compare", ..] => Some(words[4..].to_vec()),
+        if !in_block {
+            continue;
+        }
+        let command = match (continued.take(), line.strip_prefix("$ ")) {
+            (Some(head), _) => Some(head + line.trim()),
+            (None, Some(command)) => {
+                examples.extend(current.take());
+                Some(command.trim().to_string())
+            }
+            (None, None) => {
+                if let Some((_, _, printed)) = &mut current {
+                    printed.push(line.to_string());
+                }
+                None
+            }
+        };
+        let Some(command) = command else { continue };
+        if let Some(head) = command.strip_suffix('\\') {
+            continued = Some(head.to_string());
+            continue;
+        }
+        let (words, filter) = shell_words(&command);
+        let args = match words
+            .iter()
+            .map(String::as_str)
+            .collect::<Vec<_>>()
+            .as_slice()
+        {
+            ["bead", ..] => Some(words[1..].to_vec()),
+            ["cargo", "run", "--release", "--", ..] => Some(words[4..].to_vec()),
             _ => None,
         };
-        if let Some(args) = args {
-            examples.push((
-                args.iter().map(|a| a.to_string()).collect(),
-                lines.map(String::from).collect(),
-            ));
-        }
-        rest = &block[end..];
+        current = args.map(|args| (args, filter, Vec::new()));
     }
     examples
 }
@@ -259,38 +282,13 @@ fn the_readmes_convergence_study_is_what_bead_order_prints() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
-/// Every `$ bead run` and `$ bead sweep` example in the README with the lines printed under
-/// it (up to the next `$ ` line or the block's end): the command's words (double quotes
-/// grouping, a trailing `# comment` and a `| grep WORD` filter split off) and its lines.
-/// (`bead compare` and `bead order` examples have tests of their own above.)
+/// Every `$ bead run` and `$ bead sweep` example in the README (see [`readme_examples`];
+/// `bead compare` and `bead order` examples have tests of their own above).
 fn readme_cli_examples() -> Vec<(Vec<String>, Option<String>, Vec<String>)> {
-    let text = readme();
-    let mut examples = Vec::new();
-    let mut in_block = false;
-    let mut current: Option<(Vec<String>, Option<String>, Vec<String>)> = None;
-    for line in text.lines() {
-        if line.starts_with("```") {
-            in_block = !in_block;
-            examples.extend(current.take());
-            continue;
-        }
-        if !in_block {
-            continue;
-        }
-        if let Some(command) = line.strip_prefix("$ ") {
-            examples.extend(current.take());
-            let (words, filter) = shell_words(command);
-            if matches!(
-                words.get(..2).map(|w| [w[0].as_str(), w[1].as_str()]),
-                Some(["bead", "run" | "sweep"])
-            ) {
-                current = Some((words[1..].to_vec(), filter, Vec::new()));
-            }
-        } else if let Some((_, _, printed)) = &mut current {
-            printed.push(line.to_string());
-        }
-    }
-    examples
+    readme_examples()
+        .into_iter()
+        .filter(|(args, _, _)| matches!(args[0].as_str(), "run" | "sweep"))
+        .collect()
 }
 
 /// A README command line's words: double quotes group, `#` outside them starts a comment,
