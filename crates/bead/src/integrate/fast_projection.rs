@@ -42,9 +42,8 @@
 //! any other start, from lambda = 0, has a fresh integrator's bits.
 //! Each step factors this matrix at its first iterate; later iterations reuse the
 //! factorization (chord steps, one solve each) while the residual keeps shrinking at least
-//! 4x per iteration, and factor again when it does not. On the 50 x 50 cloth at dt = 1/60
-//! that is about one factorization and four solves per step (the chain bench;
-//! `tests/fast_projection.rs`). Rows without a known
+//! 4x per iteration, and factor again when it does not. On the 50 x 50 cloth at dt = 1/60 that is about one factorization and four
+//! solves per step (the chain bench; `tests/fast_projection.rs`). Rows without a known
 //! Hessian (expressions, pins, Rust rows) are taken in Gauss-Newton form: where their
 //! multipliers' curvature matters (a taut expression row at dt omega >> 1) the iteration
 //! converges slowly or not at all, and the step fails with `ProjectionFailed` (which a
