@@ -3,7 +3,9 @@
 //!
 //! - engine, scene loaded from TOML text (`Scene::parse`): implicit form (the constraint as an
 //!   expression, compiled to a tape) and parametric form (x = (q, -q^2/100));
-//! - engine, system built in Rust with the constraint as a `Holonomic` type (dual numbers);
+//! - engine, system built in Rust with the constraint as a `Holonomic` type: traced into an
+//!   expression when the system is built (`SystemBuilder::holonomic`, then the TOML path), and
+//!   by dual numbers at every evaluation (`SystemBuilder::holonomic_by_dual_numbers`);
 //! - hand-written closed forms, the floor: RK4 on (x, y, vx, vy) with the article's constraint
 //!   force Fc.y = (-50 m vx^2 - 2500 Fy) / (x^2 + 2500), Fc.x = Fc.y x / 50 (gravity only, so
 //!   Fx = 0), and RK4 on (q, qdot) with qddot = (-q qdot^2 - 50 g q) / (2500 + q^2).
@@ -75,7 +77,7 @@ fn scene_system() -> Arc<System> {
         .system
 }
 
-fn holonomic_system() -> Arc<System> {
+fn holonomic_system(traced: bool) -> Arc<System> {
     let mut b = SystemBuilder::new(&[0.0, G]);
     let bead = b
         .particle(
@@ -85,7 +87,11 @@ fn holonomic_system() -> Arc<System> {
             &[VX0, -2.0 * X0 * VX0 / 100.0],
         )
         .unwrap();
-    b.holonomic("parabola", Parabola(bead));
+    if traced {
+        b.holonomic("parabola", Parabola(bead));
+    } else {
+        b.holonomic_by_dual_numbers("parabola", Parabola(bead));
+    }
     Arc::new(b.build().unwrap())
 }
 
@@ -179,6 +185,7 @@ struct Variants {
     implicit_toml: EngineStep<Implicit>,
     parametric_toml: EngineStep<Parametric>,
     implicit_holonomic: EngineStep<Implicit>,
+    implicit_holonomic_duals: EngineStep<Implicit>,
 }
 
 impl Variants {
@@ -188,7 +195,11 @@ impl Variants {
             implicit_toml: EngineStep::new(Implicit::new(system.clone(), Feedback::default())),
             parametric_toml: EngineStep::new(Parametric::new(system).unwrap()),
             implicit_holonomic: EngineStep::new(Implicit::new(
-                holonomic_system(),
+                holonomic_system(true),
+                Feedback::default(),
+            )),
+            implicit_holonomic_duals: EngineStep::new(Implicit::new(
+                holonomic_system(false),
                 Feedback::default(),
             )),
         };
@@ -208,7 +219,11 @@ impl Variants {
             }
         };
         let hand = hand_implicit_rk4(IMPLICIT_START, DT);
-        for engine in [&mut self.implicit_toml, &mut self.implicit_holonomic] {
+        for engine in [
+            &mut self.implicit_toml,
+            &mut self.implicit_holonomic,
+            &mut self.implicit_holonomic_duals,
+        ] {
             assert_eq!(
                 [engine.start.q.as_slice(), &engine.start.qdot].concat(),
                 IMPLICIT_START
@@ -237,6 +252,9 @@ fn bench_steps(c: &mut Criterion) {
     });
     group.bench_function("implicit, engine with Holonomic type", |b| {
         b.iter(|| black_box(v.implicit_holonomic.step()))
+    });
+    group.bench_function("implicit, Holonomic type by dual numbers", |b| {
+        b.iter(|| black_box(v.implicit_holonomic_duals.step()))
     });
     group.bench_function("implicit, hand-written", |b| {
         b.iter(|| black_box(hand_implicit_rk4(black_box(IMPLICIT_START), black_box(DT))))
@@ -279,6 +297,9 @@ fn print_ratios(quick: bool) {
     let implicit_holonomic = mean_ns(n, || {
         black_box(v.implicit_holonomic.step());
     });
+    let implicit_holonomic_duals = mean_ns(n, || {
+        black_box(v.implicit_holonomic_duals.step());
+    });
     let parametric_toml = mean_ns(n, || {
         black_box(v.parametric_toml.step());
     });
@@ -297,6 +318,10 @@ fn print_ratios(quick: bool) {
     for (name, ns) in [
         ("implicit, engine from TOML", implicit_toml),
         ("implicit, engine with Holonomic type", implicit_holonomic),
+        (
+            "implicit, Holonomic type by dual numbers",
+            implicit_holonomic_duals,
+        ),
         ("implicit, hand-written", hand_implicit),
         ("parametric, engine from TOML", parametric_toml),
         ("parametric, hand-written", hand_parametric),
@@ -309,8 +334,9 @@ fn print_ratios(quick: bool) {
         implicit_toml / hand_implicit
     );
     println!(
-        "  implicit Holonomic / hand-written = {:.1}x",
-        implicit_holonomic / hand_implicit
+        "  implicit Holonomic / hand-written = {:.1}x (traced; {:.1}x by dual numbers)",
+        implicit_holonomic / hand_implicit,
+        implicit_holonomic_duals / hand_implicit
     );
     println!(
         "  parametric TOML / hand-written    = {:.1}x",
@@ -392,6 +418,7 @@ fn only(variant: &str, count: u64) {
     let mut step: Box<dyn FnMut() -> f64> = match variant {
         "implicit_toml" => Box::new(|| v.implicit_toml.step()),
         "implicit_holonomic" => Box::new(|| v.implicit_holonomic.step()),
+        "implicit_holonomic_duals" => Box::new(|| v.implicit_holonomic_duals.step()),
         "parametric_toml" => Box::new(|| v.parametric_toml.step()),
         "implicit_hand" => {
             Box::new(|| hand_implicit_rk4(black_box(IMPLICIT_START), black_box(DT))[0])

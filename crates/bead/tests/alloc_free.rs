@@ -135,13 +135,18 @@ fn parabola() -> Arc<System> {
     Arc::new(b.build().unwrap())
 }
 
-/// The same wire as a Rust `Holonomic` type (implicit form only).
-fn parabola_rust_type() -> Arc<System> {
+/// The same wire as a Rust `Holonomic` type (implicit form only), traced into an expression
+/// or by dual numbers at every evaluation.
+fn parabola_rust_type(traced: bool) -> Arc<System> {
     let mut b = SystemBuilder::new(&[0.0, 500.0]);
     let bead = b
         .particle("bead", 1.0, &[150.0, -225.0], &[0.0, 0.0])
         .unwrap();
-    b.holonomic("parabola", Parabola(bead));
+    if traced {
+        b.holonomic("parabola", Parabola(bead));
+    } else {
+        b.holonomic_by_dual_numbers("parabola", Parabola(bead));
+    }
     Arc::new(b.build().unwrap())
 }
 
@@ -226,7 +231,12 @@ fn calls_while_stepping<F: Formulation>(
 fn every_integrator_steps_the_implicit_form_without_allocating() {
     let systems = [
         ("parabola", parabola(), 1.0 / 600.0),
-        ("Holonomic parabola", parabola_rust_type(), 1.0 / 600.0),
+        ("Holonomic parabola", parabola_rust_type(true), 1.0 / 600.0),
+        (
+            "Holonomic parabola, duals",
+            parabola_rust_type(false),
+            1.0 / 600.0,
+        ),
         ("double pendulum", double_pendulum(), 1e-3),
         // 40 rows: J W J^T by faer's sparse LDL^T (numeric factorization and solves in
         // buffers sized at construction).

@@ -90,7 +90,10 @@ fn cases(seed: u64) -> Vec<Case> {
 #[derive(Clone, Copy, Debug)]
 enum Written {
     Expression,
+    /// A Rust `Holonomic` type, traced into an expression when the system is built
     RustType,
+    /// The same type by dual numbers at every evaluation
+    RustDuals,
 }
 
 /// The article's parabola as a Rust type: C = x^2 + 100 y, differentiated by dual numbers.
@@ -123,6 +126,9 @@ fn article_system(case: &Case, written: Written) -> Arc<bead::model::System> {
         }
         Written::RustType => {
             b.holonomic("parabola", Parabola(bead));
+        }
+        Written::RustDuals => {
+            b.holonomic_by_dual_numbers("parabola", Parabola(bead));
         }
     }
     b.parametric(&["q"], &[case.x], &[case.vx]).unwrap();
@@ -375,31 +381,26 @@ fn parametric_acceleration_with_gravity_only_matches_article_formula() {
     );
 }
 
-// Test (c). Same derivation as (a); only the way the engine gets J and the bias changes:
-// dual numbers through a Rust `Holonomic` type instead of symbolic derivatives of text. The
-// two engine paths must also agree with each other to rounding.
+// Test (c). Same derivation as (a); only the way the engine gets J and the bias changes: a
+// Rust `Holonomic` type instead of text, traced into an expression when the system is built
+// and, separately, by dual numbers at every evaluation. The engine's paths must also agree
+// with each other to rounding.
 #[test]
 fn rust_holonomic_constraint_equals_hand_derived_witkin_solution() {
     let mut worst: f64 = 0.0;
     for case in cases(6) {
         let (want, fc) = implicit_closed_form(&case);
         let scale = implicit_scale(&case, fc);
-        let got = implicit_acceleration(&case, Written::RustType);
-        worst = worst.max(assert_close(
-            "Holonomic-type acceleration",
-            &got,
-            &want,
-            scale,
-            &case,
-        ));
         let from_text = implicit_acceleration(&case, Written::Expression);
-        worst = worst.max(assert_close(
-            "Holonomic type vs expression",
-            &got,
-            &from_text,
-            scale,
-            &case,
-        ));
+        for (written, what) in [
+            (Written::RustType, "Holonomic type, traced"),
+            (Written::RustDuals, "Holonomic type, dual numbers"),
+        ] {
+            let got = implicit_acceleration(&case, written);
+            worst = worst.max(assert_close(what, &got, &want, scale, &case));
+            let versus = format!("{what} vs expression");
+            worst = worst.max(assert_close(&versus, &got, &from_text, scale, &case));
+        }
     }
     report(
         "rust_holonomic_constraint_equals_hand_derived_witkin_solution",

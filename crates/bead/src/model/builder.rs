@@ -75,7 +75,10 @@ pub(super) enum ConstraintSpec {
         particle: ParticleId,
         anchor: Vec<f64>,
     },
-    Custom(SharedHolonomic, Vec<ParticleId>),
+    /// A Rust constraint, its particles, and its trace: C as an expression over the
+    /// coordinates and t (see `super::trace`), or why it has none (its derivatives then come
+    /// from dual numbers at every evaluation).
+    Custom(SharedHolonomic, Vec<ParticleId>, Result<Expr, &'static str>),
 }
 
 /// The parametric form as declared.
@@ -337,11 +340,50 @@ impl SystemBuilder {
     }
 
     /// A constraint written as a Rust type, differentiated automatically.
+    ///
+    /// Its `value` is traced once, here, into an expression at the particles' positions (see
+    /// [`Holonomic`]): a constraint whose code does not branch on a value then runs as one
+    /// typed in a scene file (symbolic derivatives, machine code). Code that compares or
+    /// reads a value, or calls a function expressions do not have, keeps dual numbers at
+    /// every evaluation, as [`Self::holonomic_by_dual_numbers`] does;
+    /// [`crate::model::ConstraintInfo::description`] says which.
     pub fn holonomic<H: Holonomic>(&mut self, name: &str, constraint: H) -> &mut Self {
+        let particles = constraint.particles();
+        let dim = self.dim();
+        let traced = if particles.iter().all(|p| p.0 < self.particles.len()) {
+            let x: Vec<f64> = (particles.iter())
+                .flat_map(|p| self.particles[p.0].position.iter().copied())
+                .collect();
+            let vars: Vec<usize> = (particles.iter())
+                .flat_map(|p| (0..dim).map(move |axis| p.0 * dim + axis))
+                .collect();
+            super::trace::trace(&constraint, &x, &vars, TIME_PLACEHOLDER)
+        } else {
+            Err("it names a particle the system does not have")
+        };
+        self.constraints.push((
+            name.into(),
+            ConstraintSpec::Custom(Arc::new(Erased(constraint)), particles, traced),
+        ));
+        self
+    }
+
+    /// A constraint written as a Rust type, differentiated by dual numbers at every
+    /// evaluation (never traced, see [`Self::holonomic`]): for code that must run as written
+    /// each time, or to compare the two.
+    pub fn holonomic_by_dual_numbers<H: Holonomic>(
+        &mut self,
+        name: &str,
+        constraint: H,
+    ) -> &mut Self {
         let particles = constraint.particles();
         self.constraints.push((
             name.into(),
-            ConstraintSpec::Custom(Arc::new(Erased(constraint)), particles),
+            ConstraintSpec::Custom(
+                Arc::new(Erased(constraint)),
+                particles,
+                Err("declared with holonomic_by_dual_numbers"),
+            ),
         ));
         self
     }
@@ -576,7 +618,7 @@ impl SystemBuilder {
                             anchor: v,
                         },
                     ) => p == q && bits(u, v),
-                    (ConstraintSpec::Custom(c, p), ConstraintSpec::Custom(d, q)) => {
+                    (ConstraintSpec::Custom(c, p, _), ConstraintSpec::Custom(d, q, _)) => {
                         Arc::ptr_eq(c, d) && p == q
                     }
                     _ => false,
@@ -649,7 +691,12 @@ impl SystemBuilder {
             ConstraintSpec::Pin { particle, anchor } => {
                 format!("pin({}) at {anchor:?}", self.particles[particle.0].name)
             }
-            ConstraintSpec::Custom(..) => "Rust constraint (derivatives by dual numbers)".into(),
+            ConstraintSpec::Custom(_, _, Ok(_)) => {
+                "Rust constraint (traced into an expression: symbolic derivatives)".into()
+            }
+            ConstraintSpec::Custom(_, _, Err(why)) => {
+                format!("Rust constraint (derivatives by dual numbers: {why})")
+            }
         }
     }
 
@@ -881,7 +928,13 @@ pub(super) fn compile(declared: Arc<SystemBuilder>) -> Result<System, ModelError
                     }));
                 }
             }
-            ConstraintSpec::Custom(constraint, particles) => {
+            ConstraintSpec::Custom(_, particles, Ok(expr)) => {
+                for p in particles {
+                    b.check_particle(*p)?;
+                }
+                rows.push(RowForm::Symbolic(ExprRow::new(expr.substitute(&time), n)));
+            }
+            ConstraintSpec::Custom(constraint, particles, Err(_)) => {
                 let mut coords = Vec::new();
                 for p in particles {
                     b.check_particle(*p)?;

@@ -832,20 +832,22 @@ mod tests {
     }
 
     /// The declared constraints as the set gives them on demand: names and descriptions
-    /// written out by hand, rows in order with the Rust constraint (declared second) after
-    /// the expression rows, the owner of every row by `info_of_row` and `name_of_row`, and
-    /// the rows and lengths alone by `declared_rows`.
+    /// written out by hand, rows in order with the Rust constraint by dual numbers (declared
+    /// second) after the expression rows and the traced one (declared last) among them, the
+    /// owner of every row by `info_of_row` and `name_of_row`, and the rows and lengths alone
+    /// by `declared_rows`.
     #[test]
     fn declared_constraints_are_described_on_demand() {
         let mut b = SystemBuilder::new(&[0.0, 9.81]);
         let p = b.particle("p", 1.0, &[1.0, 0.0], &[0.0, 0.0]).unwrap();
         let q = b.particle("q", 2.0, &[2.0, 0.0], &[0.0, 0.0]).unwrap();
         b.constraint_expr("p.x^2 + p.y^2 - 1").unwrap();
-        b.holonomic("diagonal", Diagonal(q));
+        b.holonomic_by_dual_numbers("diagonal", Diagonal(q));
         b.pin("pin", q, &[2.0, 0.0]).unwrap();
         b.distance("rod", q, Endpoint::Particle(p), 1.0).unwrap();
         b.distance("tether", p, Endpoint::Fixed(vec![0.0, 0.5]), 1.25)
             .unwrap();
+        b.holonomic("traced", Diagonal(p));
         let system = b.build().unwrap();
         let set = system.constraints();
         let info = |name: &str, description: &str, rows, length| ConstraintInfo {
@@ -860,14 +862,21 @@ mod tests {
             info("rod", "distance(q, p) = 1", 3..4, Some(1.0)),
             info("tether", "distance(p, [0.0, 0.5]) = 1.25", 4..5, Some(1.25)),
             info(
-                "diagonal",
-                "Rust constraint (derivatives by dual numbers)",
+                "traced",
+                "Rust constraint (traced into an expression: symbolic derivatives)",
                 5..6,
                 None,
             ),
+            info(
+                "diagonal",
+                "Rust constraint (derivatives by dual numbers: declared with \
+                 holonomic_by_dual_numbers)",
+                6..7,
+                None,
+            ),
         ];
-        assert_eq!(set.n_declared(), 5);
-        assert_eq!(set.infos().len(), 5);
+        assert_eq!(set.n_declared(), 6);
+        assert_eq!(set.infos().len(), 6);
         assert_eq!(set.infos().collect::<Vec<_>>(), expected);
         for (k, want) in expected.iter().enumerate() {
             assert_eq!(&set.info(k), want);
@@ -876,9 +885,9 @@ mod tests {
                 assert_eq!(set.name_of_row(row), want.name, "row {row}");
             }
         }
-        // In declaration order, the Rust constraint second.
-        let declared: Vec<_> = (0..5).map(|k| system.constraint_description(k)).collect();
-        let order = [0, 4, 1, 2, 3];
+        // In declaration order, the Rust constraint by dual numbers second.
+        let declared: Vec<_> = (0..6).map(|k| system.constraint_description(k)).collect();
+        let order = [0, 5, 1, 2, 3, 4];
         assert_eq!(declared, order.map(|k| expected[k].description.clone()));
         let rows: Vec<_> = set.declared_rows().collect();
         let want: Vec<_> = expected

@@ -1,5 +1,8 @@
-//! Constraints written as Rust types. Derivatives come from forward-mode automatic
-//! differentiation with num-dual's dual numbers, so a user writes only C(x, t).
+//! Constraints written as Rust types: a user writes only C(x, t). When it is declared,
+//! [`super::SystemBuilder::holonomic`] traces its code into an expression (see
+//! `super::trace`), which then takes the path of a constraint typed in a scene file; code a
+//! trace cannot follow (it branches on a value) is differentiated at every evaluation by
+//! forward-mode automatic differentiation with num-dual's dual numbers (here).
 
 use std::sync::Arc;
 
@@ -9,7 +12,12 @@ use super::ParticleId;
 use crate::Scalar;
 
 /// A holonomic constraint C(x, t) = 0 written in Rust, generic over the number type so that
-/// the engine differentiates it exactly (forward-mode dual numbers, not finite differences).
+/// the engine differentiates it exactly, never by finite differences: traced once into an
+/// expression with symbolic derivatives and machine code, as a scene file's constraint, or,
+/// when the code compares or reads a value (`if x[0] > 0.0`, `re()`) or calls a function
+/// expressions do not have (`cbrt`, `exp2`, `log2`, the inverse hyperbolic functions...),
+/// by forward-mode dual numbers at every evaluation. [`crate::model::ConstraintInfo`]'s
+/// description says which.
 ///
 /// `x` holds the coordinates of [`Holonomic::particles`], concatenated, `dim` entries each.
 ///
@@ -30,6 +38,10 @@ use crate::Scalar;
 /// b.holonomic("parabola", Parabola(bead));
 /// let system = b.build().unwrap();
 /// assert_eq!(system.constraints().n_rows(), 1);
+/// assert_eq!(
+///     system.constraint_description(0),
+///     "Rust constraint (traced into an expression: symbolic derivatives)"
+/// );
 /// ```
 pub trait Holonomic: Send + Sync + 'static {
     /// The particles whose coordinates the constraint reads, in the order of `x`.
@@ -40,6 +52,7 @@ pub trait Holonomic: Send + Sync + 'static {
     /// the particles, which the energy ledger counts. The default, `true`, is the safe answer:
     /// a constraint that does not in fact depend on t then does no work, and the ledger shows
     /// it. Return `false` for a fixed constraint so that its energy is reported as conserved.
+    /// Read only by dual numbers: a traced constraint depends on t when its expression does.
     fn time_dependent(&self) -> bool {
         true
     }

@@ -20,6 +20,7 @@ mod force;
 mod holonomic;
 mod native;
 mod parametric;
+mod trace;
 mod unilateral;
 
 pub(crate) use builder::compile_reusing;
