@@ -605,3 +605,59 @@ restitution = {e:?}
 "#
     )
 }
+
+/// The sphere above as a Rust type: |x|^2 - 1.
+struct Sphere(bead::model::ParticleId);
+impl bead::model::Holonomic for Sphere {
+    fn particles(&self) -> Vec<bead::model::ParticleId> {
+        vec![self.0]
+    }
+    fn value<T: bead::Scalar>(&self, x: &[T], _t: T) -> T {
+        x[0] * x[0] + x[1] * x[1] + x[2] * x[2] - 1.0
+    }
+}
+
+/// A Rust constraint traced into an expression can be unilateral, and it is then the
+/// constraint typed as text: the particle leaves the sphere at the same step, at the same
+/// point, bit for bit. One that keeps dual numbers cannot, and the error says why.
+#[test]
+fn a_traced_rust_constraint_can_be_unilateral() {
+    use bead::model::{Side, SystemBuilder};
+    let builder = || {
+        let mut b = SystemBuilder::new(&[0.0, 0.0, -9.81]);
+        let p = b
+            .particle("p", 1.0, &[0.0, 0.0, 1.0], &[0.5, 0.0, 0.0])
+            .unwrap();
+        (b, p)
+    };
+    let (mut rust, p) = builder();
+    rust.holonomic("sphere", Sphere(p))
+        .unilateral(Side::Above, 0.0)
+        .unwrap();
+    let (mut text, _) = builder();
+    text.constraint_expr("p.x*p.x + p.y*p.y + p.z*p.z - 1")
+        .unwrap()
+        .unilateral(Side::Above, 0.0)
+        .unwrap();
+    let leave = |b: SystemBuilder| {
+        let system = Arc::new(b.build().unwrap());
+        assert_eq!(system.unilateral().len(), 1);
+        let mut sim = Simulation::new(system, config(IntegratorKind::Rk4, 1e-3)).unwrap();
+        sim.advance_to(2.0).unwrap();
+        let switches = sim.contact_switches();
+        assert!(!switches.is_empty(), "it never left");
+        let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        (switches[0].t.to_bits(), bits(&switches[0].x), bits(sim.q()))
+    };
+    assert_eq!(leave(rust), leave(text));
+    let (mut duals, p) = builder();
+    let error = duals
+        .holonomic_by_dual_numbers("sphere", Sphere(p))
+        .unilateral(Side::Above, 0.0)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        error.contains("sphere: a Rust constraint can be unilateral only when it is traced"),
+        "{error}"
+    );
+}

@@ -76,7 +76,8 @@ pub struct UnilateralRow {
 impl SystemBuilder {
     /// Make the constraint declared last unilateral: it holds only `side` of C = 0 and
     /// lands with restitution coefficient `restitution` (see the module documentation).
-    /// Only scalar constraints (expressions and distances) can be unilateral.
+    /// Only scalar constraints can be unilateral: expressions, distances and Rust constraints
+    /// traced into expressions (see [`SystemBuilder::holonomic`]).
     ///
     /// ```
     /// use bead::model::{Side, SystemBuilder};
@@ -103,13 +104,22 @@ impl SystemBuilder {
             ));
         };
         let name = &self.constraints[index].0;
-        if !matches!(
-            self.constraints[index].1,
-            ConstraintSpec::Expression(..) | ConstraintSpec::Distance { .. }
-        ) {
-            return Err(ModelError::Unilateral(format!(
-                "{name}: only a scalar constraint (an expression or a distance) can be unilateral"
-            )));
+        match &self.constraints[index].1 {
+            ConstraintSpec::Expression(..)
+            | ConstraintSpec::Distance { .. }
+            | ConstraintSpec::Custom(_, _, Ok(_)) => {}
+            ConstraintSpec::Custom(_, _, Err(why)) => {
+                return Err(ModelError::Unilateral(format!(
+                    "{name}: a Rust constraint can be unilateral only when it is traced into an \
+                     expression, and this one keeps dual numbers ({why})"
+                )));
+            }
+            ConstraintSpec::Pin { .. } => {
+                return Err(ModelError::Unilateral(format!(
+                    "{name}: only a scalar constraint (an expression, a distance or a traced \
+                     Rust constraint) can be unilateral"
+                )));
+            }
         }
         if !(0.0..=1.0).contains(&restitution) {
             return Err(ModelError::Unilateral(format!(
