@@ -15,7 +15,8 @@ pub mod scene;
 pub mod simulate;
 pub mod sweep;
 
-/// A number type the engine can differentiate through: `f64` and num-dual's dual numbers.
+/// A number type the engine can differentiate through: `f64`, num-dual's dual numbers, and
+/// the crate's own number that records operations to trace a constraint into an expression.
 /// Constraints written as Rust types are generic over it (see [`model::Holonomic`]).
 pub trait Scalar: num_dual::DualNum<Primitive = f64> + Copy {}
 impl<T: num_dual::DualNum<Primitive = f64> + Copy> Scalar for T {}

@@ -342,11 +342,12 @@ impl SystemBuilder {
     /// A constraint written as a Rust type, differentiated automatically.
     ///
     /// Its `value` is traced once, here, into an expression at the particles' positions (see
-    /// [`Holonomic`]): a constraint whose code does not branch on a value then runs as one
-    /// typed in a scene file (symbolic derivatives, machine code). Code that compares or
-    /// reads a value, or calls a function expressions do not have, keeps dual numbers at
-    /// every evaluation, as [`Self::holonomic_by_dual_numbers`] does;
-    /// [`crate::model::ConstraintInfo::description`] says which.
+    /// [`Holonomic::value`]; a panic in it is a panic here): a constraint whose code does not
+    /// branch on a value then runs as one typed in a scene file (symbolic derivatives,
+    /// machine code). Code that compares or reads a value, or calls a function expressions
+    /// do not have, keeps dual numbers at every evaluation, as
+    /// [`Self::holonomic_by_dual_numbers`] does; [`crate::model::ConstraintInfo::description`]
+    /// says which.
     pub fn holonomic<H: Holonomic>(&mut self, name: &str, constraint: H) -> &mut Self {
         let particles = constraint.particles();
         let dim = self.dim();
@@ -888,6 +889,8 @@ pub(super) fn compile(declared: Arc<SystemBuilder>) -> Result<System, ModelError
     for (index, (_, spec)) in b.constraints.iter().enumerate() {
         let start = rows.len();
         if let Some((_, u)) = b.unilateral.iter().find(|(i, _)| *i == index) {
+            // Its row is `start` only in declaration order: `unilateral` refuses the others.
+            debug_assert!(!matches!(spec, ConstraintSpec::Custom(_, _, Err(_))));
             unilateral.push(UnilateralRow {
                 row: start,
                 constraint: index,

@@ -10,7 +10,8 @@
 //!
 //! Expression constraints get these symbolically at build time (bias as the total time
 //! derivative of the Cdot expression with the accelerations left out) and run as one compiled
-//! [`Tape`]; Rust [`super::Holonomic`] constraints get them from dual numbers.
+//! [`Tape`], as do Rust [`super::Holonomic`] constraints traced into expressions; those that
+//! cannot be traced get them from dual numbers.
 
 use std::ops::Range;
 use std::sync::Arc;
@@ -346,8 +347,9 @@ impl ConstraintSet {
     pub fn n_declared(&self) -> usize {
         self.declarations.len()
     }
-    /// The declared constraints: expression constraints, distances and pins in the order they
-    /// were declared, then Rust constraints (the order of their rows). Each is made from the
+    /// The declared constraints: expression constraints (traced Rust ones among them),
+    /// distances and pins in the order they were declared, then Rust constraints by dual
+    /// numbers (the order of their rows). Each is made from the
     /// declaration when asked for (two strings); [`ConstraintSet::declared_rows`] gives the
     /// rows and lengths alone.
     ///

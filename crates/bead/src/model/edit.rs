@@ -106,7 +106,7 @@ impl DeclaredConstraint<'_> {
 impl System {
     /// The constraints in declaration order (the order of the builder's calls, or of a scene's
     /// `[[constraint]]` tables). [`crate::model::ConstraintSet::infos`] lists the same
-    /// constraints, but with Rust constraints moved last.
+    /// constraints, but with Rust constraints differentiated by dual numbers moved last.
     pub fn declared_constraints(&self) -> Vec<DeclaredConstraint<'_>> {
         self.declared
             .constraints

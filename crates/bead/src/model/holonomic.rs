@@ -46,7 +46,13 @@ use crate::Scalar;
 pub trait Holonomic: Send + Sync + 'static {
     /// The particles whose coordinates the constraint reads, in the order of `x`.
     fn particles(&self) -> Vec<ParticleId>;
-    /// C(x, t).
+    /// C(x, t): a function of x, t and the type's own fixed data. Declared with
+    /// [`crate::model::SystemBuilder::holonomic`], it runs once there, at the particles'
+    /// positions, to be traced (a panic here is one there), and the expression it records
+    /// stands for it from then on: state it reads besides x and t (a parameter changed
+    /// through a `Mutex` or an atomic, a clock, a counter) would be frozen, so such code
+    /// needs [`crate::model::SystemBuilder::holonomic_by_dual_numbers`], which calls it at
+    /// every evaluation. (A trace refuses code that gives another value when run again.)
     fn value<T: Scalar>(&self, x: &[T], t: T) -> T;
     /// Whether C depends on t (a moving or driven constraint). Such a constraint does work on
     /// the particles, which the energy ledger counts. The default, `true`, is the safe answer:

@@ -9,19 +9,27 @@
 //! path cannot depend on the values, so it is refused, and the constraint keeps its dual
 //! numbers, when the code
 //!
-//! - compares a value (`<`, `==`, `is_positive`, `signum`, `is_zero`...) or reads one out
-//!   (`re()`): it may branch on it;
+//! - compares a value that depends on x or t (`<`, `==`, `is_positive`, `signum`,
+//!   `is_zero`...) or reads one out (`re()`, `Display`): it may branch on it (constants, made
+//!   from numbers alone, may be compared and read);
 //! - calls a function the expression language does not have with the same bits (`cbrt`,
 //!   `exp2`, `exp_m1`, `ln_1p`, `log`, `log2`, the inverse hyperbolic functions, the spherical
-//!   Bessel functions, a fused `mul_add`, `%`);
-//! - gives at the sample a value other than the recorded expression's (a safety net: the two
-//!   must agree bit for bit).
+//!   Bessel functions, a fused `mul_add`, `%`, `abs_sub`) on such a value;
+//! - mixes numbers of two traces (kept from an earlier one, or from a constraint whose
+//!   `value` declares another);
+//! - gives, at the sample or at a second point near it (t = 0.01), a value other than the
+//!   recorded expression's, beyond the rounding of the largest value the code computed
+//!   there (a safety net against a recording rule that is wrong, and against code that
+//!   reads state other than x and t, which a trace would freeze).
 //!
 //! The traced expression computes what `value::<f64>` computes, operation for operation, up
-//! to the expression language's exact simplifications (`x * 1 = x`, constants folded) and
-//! its integer powers (`x^n` by `powi`, as `f64::powi`; a constant `powf` exponent that is an
-//! integer is taken as one). Its derivatives are the symbolic ones, which may differ from
-//! the dual numbers' in the last bits.
+//! to the expression language's simplifications (`x * 1 = x`, `x + 0 = x`, `0 * x = 0`,
+//! constants folded and merged: `2 * (3 * x) = 6 * x`), which may change a last bit, the sign
+//! of a zero, or an infinity or NaN into a number, and its powers (`x^n` by `powi` for an
+//! integer |n| <= 16, as `f64::powi`, by `powf` beyond; a `powf` exponent that is such an
+//! integer is taken as one). Its derivatives are the symbolic ones, which may differ from the
+//! dual numbers' in the last bits, and at a kink of `abs` (where sign(0) = 0 gives a zero
+//! derivative, num-dual's +-1).
 
 use std::cmp::Ordering;
 use std::fmt;
@@ -29,6 +37,7 @@ use std::iter::{Product, Sum};
 use std::ops::{
     Add, AddAssign, Div, DivAssign, Mul, MulAssign, Neg, Rem, RemAssign, Sub, SubAssign,
 };
+use std::sync::atomic::{AtomicU32, Ordering as Atomic};
 use std::sync::Mutex;
 
 use num_dual::{DualNum, DualStruct, Mappable};
@@ -37,108 +46,147 @@ use num_traits::{FromPrimitive, Inv, Num, One, ParseFloatError, Signed, Zero};
 use super::Holonomic;
 use crate::expr::{Expr, Func};
 
-/// The recording of the trace in progress: every node made so far and, once the code did
-/// something a trace cannot follow, what it was.
+/// The node of a number that is a constant (its value alone, in no recording).
+const CONSTANT: u32 = u32::MAX;
+/// The node of a number whose trace had ended when it was made (see [`Traced::record`]).
+const LOST: u32 = u32::MAX - 1;
+
+/// One trace's recording: every node made so far and, once the code did something a trace
+/// cannot follow, what it was.
 struct Recording {
+    trace: u32,
     nodes: Vec<Expr>,
     refused: Option<&'static str>,
-    /// The largest magnitude of any value at the sample (the scale of its rounding)
+    /// The largest magnitude of any value at the sample that depends on x or t (the scale of
+    /// the code's rounding)
     scale: f64,
 }
 
-/// The trace in progress (one at a time, see [`TURN`]); a number made on another thread of the
-/// traced code records here too.
-static RECORDING: Mutex<Option<Recording>> = Mutex::new(None);
-/// Held for a whole trace, so that two systems built at once trace one after the other.
-static TURN: Mutex<()> = Mutex::new(());
-
-thread_local! {
-    /// Whether this thread is tracing: a constraint whose `value` builds a system with a
-    /// Rust constraint of its own would otherwise wait for its own turn forever.
-    static TRACING: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
-}
-
-/// Marks this thread as tracing while it lives (cleared on a panic too).
-struct Tracing;
-impl Tracing {
-    /// None when this thread traces already (which it leaves marked).
-    fn start() -> Option<Tracing> {
-        if TRACING.replace(true) {
-            None
-        } else {
-            Some(Tracing)
-        }
-    }
-}
-impl Drop for Tracing {
-    fn drop(&mut self) {
-        TRACING.set(false);
-    }
-}
+/// The traces in progress, by number: one at a time on most days, one per thread when
+/// systems are built on several at once, and a trace inside a trace when a constraint's
+/// `value` declares another. A number records in its own trace's, from any thread.
+static RECORDINGS: Mutex<Vec<Recording>> = Mutex::new(Vec::new());
+static NEXT_TRACE: AtomicU32 = AtomicU32::new(1);
 
 /// A number that records the operations made on it (see the module): its value at the
-/// sample point and its node in the recording.
+/// sample point, its trace and its node in that trace's recording ([`CONSTANT`] for a
+/// constant).
 #[derive(Clone, Copy)]
 pub(crate) struct Traced {
     re: f64,
+    trace: u32,
     node: u32,
 }
 
-fn with_recording<R>(f: impl FnOnce(&mut Recording) -> R) -> Option<R> {
-    let mut guard = RECORDING.lock().unwrap_or_else(|e| e.into_inner());
-    guard.as_mut().map(f)
+fn with_recording<R>(trace: u32, f: impl FnOnce(&mut Recording) -> R) -> Option<R> {
+    let mut all = RECORDINGS.lock().unwrap_or_else(|e| e.into_inner());
+    all.iter_mut().find(|r| r.trace == trace).map(f)
 }
 
 impl Traced {
-    /// A new number of value `re` whose expression is `expr`. Outside a trace (which the
-    /// crate never does), the node is a dangling index and the trace that reads it fails.
-    fn record(re: f64, expr: impl FnOnce(&[Expr]) -> Expr) -> Traced {
-        let node = with_recording(|r| {
-            let e = expr(&r.nodes);
+    fn constant(re: f64) -> Traced {
+        Traced {
+            re,
+            trace: 0,
+            node: CONSTANT,
+        }
+    }
+
+    fn is_constant(self) -> bool {
+        self.node == CONSTANT
+    }
+
+    /// The number of value `re` made from `args` by `expr` (given each argument's
+    /// expression): a constant when every argument is one, else a node in their trace. When
+    /// the arguments come from two traces, that trace is refused; when it has ended, the
+    /// number is lost, and so is the trace that meets it.
+    fn record(
+        re: f64,
+        args: &[Traced],
+        expr: impl FnOnce(&dyn Fn(Traced) -> Expr) -> Expr,
+    ) -> Traced {
+        let mut traces = args.iter().filter(|a| !a.is_constant()).map(|a| a.trace);
+        let Some(trace) = traces.next() else {
+            return Traced::constant(re);
+        };
+        let mixed = traces.any(|other| other != trace);
+        let node = with_recording(trace, |r| {
+            if mixed {
+                r.refused.get_or_insert("it mixes numbers of two traces");
+            }
+            let nodes = &r.nodes;
+            let e = expr(&|a: Traced| match a.node {
+                CONSTANT => Expr::constant(a.re),
+                node if a.trace == trace => nodes
+                    .get(node as usize)
+                    .cloned()
+                    .unwrap_or_else(|| Expr::constant(f64::NAN)),
+                _ => Expr::constant(f64::NAN),
+            });
             r.nodes.push(e);
             if re.is_finite() {
                 r.scale = r.scale.max(re.abs());
             }
-            r.nodes.len() - 1
-        })
-        .and_then(|n| u32::try_from(n).ok())
-        .unwrap_or(u32::MAX);
-        Traced { re, node }
-    }
-
-    fn constant(re: f64) -> Traced {
-        Traced::record(re, |_| Expr::constant(re))
-    }
-
-    fn expr(nodes: &[Expr], t: Traced) -> Expr {
-        nodes
-            .get(t.node as usize)
-            .cloned()
-            .unwrap_or_else(|| Expr::constant(f64::NAN))
-    }
-
-    /// This number's value, noting that the traced code may branch on it.
-    fn refuse(self, why: &'static str) -> f64 {
-        with_recording(|r| {
-            r.refused.get_or_insert(why);
+            u32::try_from(r.nodes.len() - 1).unwrap_or(LOST)
         });
+        Traced {
+            re,
+            trace,
+            node: node.unwrap_or(LOST),
+        }
+    }
+
+    /// This number's value, noting that the traced code may branch on it (a constant's may
+    /// be read).
+    fn refuse(self, why: &'static str) -> f64 {
+        if !self.is_constant() {
+            with_recording(self.trace, |r| {
+                r.refused.get_or_insert(why);
+            });
+        }
         self.re
     }
 
-    /// The result of a function the expression language has no exact form of: the value on
-    /// f64, and a refused trace.
-    fn unsupported(self, name: &'static str, re: f64) -> Traced {
-        self.refuse(name);
-        Traced::constant(re)
+    /// The result `re` of a function the expression language has no exact form of, applied
+    /// to `args`: a constant when they all are, else a refused trace.
+    fn unsupported(name: &'static str, re: f64, args: &[Traced]) -> Traced {
+        for a in args {
+            a.refuse(name);
+        }
+        Traced::record(re, args, |_| Expr::constant(f64::NAN))
     }
 
     fn unary(self, re: f64, f: Func) -> Traced {
-        Traced::record(re, |n| Expr::call(f, vec![Traced::expr(n, self)]))
+        Traced::record(re, &[self], |e| Expr::call(f, vec![e(self)]))
     }
 
     fn binary(self, other: Traced, re: f64, op: fn(Expr, Expr) -> Expr) -> Traced {
-        Traced::record(re, |n| op(Traced::expr(n, self), Traced::expr(n, other)))
+        Traced::record(re, &[self, other], |e| op(e(self), e(other)))
     }
+}
+
+/// Removes a trace's recording when the trace ends, by a panic too.
+struct Ending(u32);
+impl Drop for Ending {
+    fn drop(&mut self) {
+        let mut all = RECORDINGS.lock().unwrap_or_else(|e| e.into_inner());
+        all.retain(|r| r.trace != self.0);
+    }
+}
+
+#[cfg(test)]
+thread_local! {
+    /// The last trace this thread started (for the tests, which run on several threads).
+    static LAST_TRACE: std::cell::Cell<u32> = const { std::cell::Cell::new(0) };
+}
+
+/// Whether the last trace this thread started is still in progress (a trace that ended,
+/// by a panic too, leaves nothing behind).
+#[cfg(test)]
+fn last_trace_in_progress() -> bool {
+    let last = LAST_TRACE.get();
+    let all = RECORDINGS.lock().unwrap_or_else(|e| e.into_inner());
+    all.iter().any(|r| r.trace == last)
 }
 
 /// Trace `constraint` into C(x, t) over the system's variables: `vars[i]` is the variable of
@@ -150,48 +198,69 @@ pub(crate) fn trace<H: Holonomic>(
     vars: &[usize],
     time: usize,
 ) -> Result<Expr, &'static str> {
-    let Some(_tracing) = Tracing::start() else {
-        return Err("its value declares a Rust constraint of its own");
+    let trace = NEXT_TRACE.fetch_add(1, Atomic::Relaxed);
+    #[cfg(test)]
+    LAST_TRACE.set(trace);
+    let _ending = Ending(trace);
+    RECORDINGS
+        .lock()
+        .unwrap_or_else(|e| e.into_inner())
+        .push(Recording {
+            trace,
+            nodes: Vec::new(),
+            refused: None,
+            scale: 0.0,
+        });
+    // Local slots: coordinate i is variable i, t is variable k (the system's afterwards).
+    let k = x.len();
+    let variable = |slot: usize, re: f64| {
+        let number = Traced { re, trace, node: 0 };
+        Traced::record(re, &[number], |_| Expr::var(slot))
     };
-    let _turn = TURN.lock().unwrap_or_else(|e| e.into_inner());
-    let fresh = Recording {
-        nodes: Vec::new(),
-        refused: None,
-        scale: 0.0,
-    };
-    *RECORDING.lock().unwrap_or_else(|e| e.into_inner()) = Some(fresh);
     let point: Vec<Traced> = x
         .iter()
-        .zip(vars)
-        .map(|(&re, &k)| Traced::record(re, |_| Expr::var(k)))
+        .enumerate()
+        .map(|(i, &re)| variable(i, re))
         .collect();
-    let t = Traced::record(0.0, |_| Expr::var(time));
+    let t = variable(k, 0.0);
     let value = constraint.value(&point, t);
-    let recording = RECORDING.lock().unwrap_or_else(|e| e.into_inner()).take();
+    let recording = {
+        let mut all = RECORDINGS.lock().unwrap_or_else(|e| e.into_inner());
+        let at = all.iter().position(|r| r.trace == trace);
+        at.map(|at| all.swap_remove(at))
+    };
     let recording = recording.ok_or("the trace was lost")?;
     if let Some(why) = recording.refused {
         return Err(why);
     }
-    let expr = recording
-        .nodes
-        .get(value.node as usize)
-        .cloned()
-        .ok_or("a number was made outside the trace")?;
-    // The safety net: the expression gives the value the code computed on f64, to the
-    // rounding of its largest intermediate (an integer power by `powi` where the code calls
-    // `powf` may differ in the last bit), and the value recorded beside it.
-    let exact = constraint.value(x, 0.0);
-    let mut at = vec![0.0; vars.iter().chain([&time]).max().map_or(0, |m| m + 1)];
-    for (&k, &v) in vars.iter().zip(x) {
-        at[k] = v;
-    }
-    let traced = expr.eval(&at);
+    let expr = match value.node {
+        CONSTANT => Expr::constant(value.re),
+        node if value.trace == trace => recording
+            .nodes
+            .get(node as usize)
+            .cloned()
+            .ok_or("its value is a number lost by an ended trace")?,
+        _ => return Err("its value is a number of another trace"),
+    };
+    // The safety net: the expression gives the value the code computes on f64, at the
+    // sample and at a point near it (to the rounding of the largest value computed there:
+    // an integer power by `powi` where the code calls `powf` may differ in the last bit).
     let tolerance = 1e-12 * recording.scale;
-    let agree = |a: f64, b: f64| a.to_bits() == b.to_bits() || (a - b).abs() <= tolerance;
-    if !agree(traced, exact) || !agree(value.re, exact) {
-        return Err("its traced expression gives another value than its code");
+    let agree = |a: f64, b: f64| {
+        a.to_bits() == b.to_bits() || (a - b).abs() <= tolerance || (a.is_nan() && b.is_nan())
+    };
+    let near: Vec<f64> = (x.iter().enumerate())
+        .map(|(i, v)| v + if i % 2 == 0 { 1e-3 } else { -1e-3 } * (1.0 + v.abs()))
+        .collect();
+    for (at, t) in [(x, 0.0), (&near[..], 0.01)] {
+        let exact = constraint.value(at, t);
+        let slots: Vec<f64> = at.iter().copied().chain([t]).collect();
+        let traced = expr.eval(&slots);
+        if !agree(traced, exact) || (t == 0.0 && !agree(value.re, exact)) {
+            return Err("its traced expression gives another value than its code");
+        }
     }
-    Ok(expr)
+    Ok(expr.substitute(&|slot| Expr::var(if slot < k { vars[slot] } else { time })))
 }
 
 // Arithmetic, as f64 does it, recorded.
@@ -239,8 +308,7 @@ binary_ops!(
 impl Rem for Traced {
     type Output = Traced;
     fn rem(self, other: Traced) -> Traced {
-        other.refuse("%");
-        self.unsupported("%", self.re % other.re)
+        Traced::unsupported("%", self.re % other.re, &[self, other])
     }
 }
 impl Rem<&Traced> for Traced {
@@ -252,7 +320,7 @@ impl Rem<&Traced> for Traced {
 impl Rem<f64> for Traced {
     type Output = Traced;
     fn rem(self, other: f64) -> Traced {
-        self.unsupported("%", self.re % other)
+        Traced::unsupported("%", self.re % other, &[self])
     }
 }
 impl RemAssign for Traced {
@@ -269,7 +337,7 @@ impl RemAssign<f64> for Traced {
 impl Neg for Traced {
     type Output = Traced;
     fn neg(self) -> Traced {
-        Traced::record(-self.re, |n| -Traced::expr(n, self))
+        Traced::record(-self.re, &[self], |e| -e(self))
     }
 }
 
@@ -307,17 +375,17 @@ impl Signed for Traced {
         self.unary(self.re.abs(), Func::Abs)
     }
     fn abs_sub(&self, other: &Traced) -> Traced {
-        other.refuse("abs_sub");
-        self.unsupported("abs_sub", <f64 as Signed>::abs_sub(&self.re, &other.re))
+        let re = <f64 as Signed>::abs_sub(&self.re, &other.re);
+        Traced::unsupported("abs_sub", re, &[*self, *other])
     }
     fn signum(&self) -> Traced {
-        self.unsupported("signum", self.re.signum())
+        Traced::unsupported("signum", self.re.signum(), &[*self])
     }
     fn is_positive(&self) -> bool {
-        self.refuse("is_positive").is_sign_positive()
+        <f64 as Signed>::is_positive(&self.refuse("is_positive"))
     }
     fn is_negative(&self) -> bool {
-        self.refuse("is_negative").is_sign_negative()
+        <f64 as Signed>::is_negative(&self.refuse("is_negative"))
     }
 }
 
@@ -348,6 +416,12 @@ impl FromPrimitive for Traced {
     }
     fn from_u64(n: u64) -> Option<Traced> {
         f64::from_u64(n).map(Traced::constant)
+    }
+    fn from_i128(n: i128) -> Option<Traced> {
+        f64::from_i128(n).map(Traced::constant)
+    }
+    fn from_u128(n: u128) -> Option<Traced> {
+        f64::from_u128(n).map(Traced::constant)
     }
     fn from_f64(n: f64) -> Option<Traced> {
         Some(Traced::constant(n))
@@ -403,14 +477,16 @@ impl PartialOrd<f64> for Traced {
     }
 }
 
+// Printing reads the value out (code could parse it back): refused, as `re()` is.
+
 impl fmt::Display for Traced {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(f, "{}", self.re)
+        write!(f, "{}", self.refuse("printing"))
     }
 }
 impl fmt::Debug for Traced {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(f, "Traced({}, node {})", self.re, self.node)
+        write!(f, "{}", self.refuse("printing"))
     }
 }
 
@@ -430,13 +506,11 @@ impl DualNum for Traced {
     }
     fn powi(&self, n: i32) -> Traced {
         let re = crate::expr::pow_const_f64(self.re, f64::from(n));
-        Traced::record(re, |nodes| Traced::expr(nodes, *self).powi(n))
+        Traced::record(re, &[*self], |e| e(*self).powi(n))
     }
     fn powf(&self, n: f64) -> Traced {
         let re = crate::expr::pow_const_f64(self.re, n);
-        Traced::record(re, |nodes| {
-            Traced::expr(nodes, *self).powf(&Expr::constant(n))
-        })
+        Traced::record(re, &[*self], |e| e(*self).powf(&Expr::constant(n)))
     }
     fn powd(&self, n: Traced) -> Traced {
         let re = self.re.powf(n.re);
@@ -446,31 +520,31 @@ impl DualNum for Traced {
         self.unary(self.re.sqrt(), Func::Sqrt)
     }
     fn cbrt(&self) -> Traced {
-        self.unsupported("cbrt", self.re.cbrt())
+        Traced::unsupported("cbrt", self.re.cbrt(), &[*self])
     }
     fn exp(&self) -> Traced {
         self.unary(self.re.exp(), Func::Exp)
     }
     fn exp2(&self) -> Traced {
-        self.unsupported("exp2", self.re.exp2())
+        Traced::unsupported("exp2", self.re.exp2(), &[*self])
     }
     fn exp_m1(&self) -> Traced {
-        self.unsupported("exp_m1", self.re.exp_m1())
+        Traced::unsupported("exp_m1", self.re.exp_m1(), &[*self])
     }
     fn ln(&self) -> Traced {
         self.unary(self.re.ln(), Func::Ln)
     }
     fn log(&self, base: f64) -> Traced {
-        self.unsupported("log", self.re.log(base))
+        Traced::unsupported("log", self.re.log(base), &[*self])
     }
     fn log2(&self) -> Traced {
-        self.unsupported("log2", self.re.log2())
+        Traced::unsupported("log2", self.re.log2(), &[*self])
     }
     fn log10(&self) -> Traced {
         self.unary(self.re.log10(), Func::Log10)
     }
     fn ln_1p(&self) -> Traced {
-        self.unsupported("ln_1p", self.re.ln_1p())
+        Traced::unsupported("ln_1p", self.re.ln_1p(), &[*self])
     }
     fn sin(&self) -> Traced {
         self.unary(self.re.sin(), Func::Sin)
@@ -499,11 +573,8 @@ impl DualNum for Traced {
     }
     fn atan2(&self, other: Traced) -> Traced {
         let re = self.re.atan2(other.re);
-        Traced::record(re, |n| {
-            Expr::call(
-                Func::Atan2,
-                vec![Traced::expr(n, *self), Traced::expr(n, other)],
-            )
+        Traced::record(re, &[*self, other], |e| {
+            Expr::call(Func::Atan2, vec![e(*self), e(other)])
         })
     }
     fn sinh(&self) -> Traced {
@@ -516,27 +587,25 @@ impl DualNum for Traced {
         self.unary(self.re.tanh(), Func::Tanh)
     }
     fn asinh(&self) -> Traced {
-        self.unsupported("asinh", self.re.asinh())
+        Traced::unsupported("asinh", self.re.asinh(), &[*self])
     }
     fn acosh(&self) -> Traced {
-        self.unsupported("acosh", self.re.acosh())
+        Traced::unsupported("acosh", self.re.acosh(), &[*self])
     }
     fn atanh(&self) -> Traced {
-        self.unsupported("atanh", self.re.atanh())
+        Traced::unsupported("atanh", self.re.atanh(), &[*self])
     }
     fn sph_j0(&self) -> Traced {
-        self.unsupported("sph_j0", self.re.sph_j0())
+        Traced::unsupported("sph_j0", self.re.sph_j0(), &[*self])
     }
     fn sph_j1(&self) -> Traced {
-        self.unsupported("sph_j1", self.re.sph_j1())
+        Traced::unsupported("sph_j1", self.re.sph_j1(), &[*self])
     }
     fn sph_j2(&self) -> Traced {
-        self.unsupported("sph_j2", self.re.sph_j2())
+        Traced::unsupported("sph_j2", self.re.sph_j2(), &[*self])
     }
     fn mul_add(&self, a: Traced, b: Traced) -> Traced {
-        a.refuse("mul_add");
-        b.refuse("mul_add");
-        self.unsupported("mul_add", self.re.mul_add(a.re, b.re))
+        Traced::unsupported("mul_add", self.re.mul_add(a.re, b.re), &[*self, a, b])
     }
 }
 
@@ -696,6 +765,41 @@ mod tests {
             case!("log2", |x| x[0].log2() + x[1]),
             case!("asinh", |x| x[0].asinh() + x[1]),
             case!("mul_add", |x| x[0].mul_add(x[0], x[1])),
+            case!("is_zero", |x| if x[0].is_zero() {
+                x[1]
+            } else {
+                x[0] * x[0] + x[1]
+            }),
+            case!("is_negative", |x| if x[0].is_negative() {
+                x[1]
+            } else {
+                x[0] * x[0] + x[1]
+            }),
+            case!("abs_sub", |x| x[0].abs_sub(&x[1]) + x[1]),
+            // `One::is_one`'s default compares with `==`, `!=` is `==`'s, `<=` `partial_cmp`'s.
+            case!("==", |x| if x[0].is_one() {
+                x[1]
+            } else {
+                x[0] * x[0] + x[1]
+            }),
+            case!("==", |x| if x[0] != x[1] {
+                x[0] * x[0] + x[1]
+            } else {
+                x[1]
+            }),
+            case!("a comparison", |x| if x[0] <= x[1] {
+                x[1]
+            } else {
+                x[0] * x[0] + x[1]
+            }),
+            case!("exp_m1", |x| x[0].exp_m1() + x[1]),
+            case!("ln_1p", |x| x[0].ln_1p() + x[1]),
+            case!("log", |x| x[0].log(3.0) + x[1]),
+            case!("acosh", |x| x[0].acosh() + x[1]),
+            case!("atanh", |x| (x[0] * 0.5).atanh() + x[1]),
+            case!("sph_j0", |x| x[0].sph_j0() + x[1]),
+            case!("printing", |x| x[0] * x[0]
+                + x[1] * format!("{}", x[0]).len() as f64),
         ];
         for (why, declare) in cases {
             let system = |traced: bool| {
@@ -776,8 +880,7 @@ mod tests {
     }
 
     /// A constraint whose value declares a Rust constraint of its own (a system built
-    /// inside it) does not wait for itself: the inner one keeps its dual numbers, and the
-    /// outer one is traced.
+    /// inside it) does not wait for itself: both are traced, each in its own recording.
     #[test]
     fn a_trace_inside_a_trace_does_not_wait_for_itself() {
         static INNER: std::sync::Mutex<Vec<String>> = std::sync::Mutex::new(Vec::new());
@@ -814,8 +917,170 @@ mod tests {
         let inner = INNER.lock().unwrap();
         assert_eq!(
             inner[0],
-            "Rust constraint (derivatives by dual numbers: its value declares a Rust \
-             constraint of its own)"
+            "Rust constraint (traced into an expression: symbolic derivatives)"
         );
+    }
+
+    /// A trace: refused with `%` (whose dual numbers num-dual leaves unimplemented, so the
+    /// table above cannot hold it), and kept with comparisons and reads of constants, which
+    /// do not depend on x or t.
+    #[test]
+    fn remainders_refuse_and_constants_may_be_compared() {
+        struct Remainder;
+        impl Holonomic for Remainder {
+            fn particles(&self) -> Vec<ParticleId> {
+                vec![]
+            }
+            fn value<T: Scalar>(&self, x: &[T], _t: T) -> T {
+                x[0] % 2.0 + x[1]
+            }
+        }
+        struct Constants;
+        impl Holonomic for Constants {
+            fn particles(&self) -> Vec<ParticleId> {
+                vec![]
+            }
+            fn value<T: Scalar>(&self, x: &[T], _t: T) -> T {
+                let two = T::from(2.0);
+                let scale = if two > T::zero() && two.re() == 2.0 && !two.is_one() {
+                    two.sqrt()
+                } else {
+                    two
+                };
+                x[0] * scale + x[1] * format!("{two}").len() as f64
+            }
+        }
+        let (x, vars) = ([1.2, -0.7], [4, 5]);
+        assert_eq!(super::trace(&Remainder, &x, &vars, 9).unwrap_err(), "%");
+        let expr = super::trace(&Constants, &x, &vars, 9).expect("traced");
+        let mut at = [0.0; 10];
+        at[4] = 1.5;
+        at[5] = 2.0;
+        assert_eq!(expr.eval(&at), 1.5 * 2f64.sqrt() + 2.0);
+        assert!(!super::last_trace_in_progress());
+    }
+
+    /// The safety net: code that reads state other than x and t (here a counter of its
+    /// calls) gives another value when it runs again, and a trace, which would freeze that
+    /// state, is refused.
+    #[test]
+    fn code_that_reads_other_state_is_not_traced() {
+        use std::sync::atomic::{AtomicU64, Ordering};
+        struct Counting(ParticleId, AtomicU64);
+        impl Holonomic for Counting {
+            fn particles(&self) -> Vec<ParticleId> {
+                vec![self.0]
+            }
+            fn value<T: Scalar>(&self, x: &[T], _t: T) -> T {
+                let calls = self.1.fetch_add(1, Ordering::Relaxed) as f64;
+                x[0] * x[0] + x[1] + T::from(calls)
+            }
+        }
+        let mut b = SystemBuilder::new(&[0.0, 9.81]);
+        let p = b.particle("p", 1.0, &[1.2, -0.7], &[0.0, 0.0]).unwrap();
+        b.holonomic("counting", Counting(p, AtomicU64::new(0)));
+        assert_eq!(
+            b.build().unwrap().constraint_description(0),
+            "Rust constraint (derivatives by dual numbers: its traced expression gives \
+             another value than its code)"
+        );
+    }
+
+    /// A number kept from an ended trace and met in another refuses that one, whatever the
+    /// order of the operands.
+    #[test]
+    fn numbers_of_an_ended_trace_refuse_the_next() {
+        use std::any::Any;
+        use std::cell::RefCell;
+        thread_local! {
+            static KEPT: RefCell<Option<Box<dyn Any>>> = const { RefCell::new(None) };
+        }
+        struct Keeping(ParticleId, bool);
+        impl Holonomic for Keeping {
+            fn particles(&self) -> Vec<ParticleId> {
+                vec![self.0]
+            }
+            fn value<T: Scalar>(&self, x: &[T], _t: T) -> T {
+                let kept =
+                    KEPT.with_borrow(|k| k.as_ref().and_then(|k| k.downcast_ref::<T>().copied()));
+                KEPT.with_borrow_mut(|k| *k = Some(Box::new(x[0])));
+                match kept {
+                    Some(old) if self.1 => old + x[0] * x[0] + x[1],
+                    Some(old) => x[0] * x[0] + x[1] + old,
+                    None => x[0] * x[0] + x[1],
+                }
+            }
+        }
+        for kept_first in [true, false] {
+            KEPT.with_borrow_mut(|k| *k = None);
+            let mut b = SystemBuilder::new(&[0.0, 9.81]);
+            let p = b.particle("p", 1.0, &[1.2, -0.7], &[0.0, 0.0]).unwrap();
+            b.holonomic("first", Keeping(p, kept_first));
+            b.holonomic("second", Keeping(p, kept_first));
+            let system = b.build().unwrap();
+            let second = system.constraint_description(1);
+            assert!(
+                second.starts_with("Rust constraint (derivatives by dual numbers: "),
+                "{second}"
+            );
+        }
+    }
+
+    /// A trace whose code panics leaves nothing behind, and the next trace is taken.
+    #[test]
+    fn a_panic_in_a_trace_leaves_nothing_behind() {
+        struct Panicking(ParticleId);
+        impl Holonomic for Panicking {
+            fn particles(&self) -> Vec<ParticleId> {
+                vec![self.0]
+            }
+            fn value<T: Scalar>(&self, x: &[T], _t: T) -> T {
+                let _ = x[0] * x[0];
+                panic!("a constraint that panics")
+            }
+        }
+        let mut b = SystemBuilder::new(&[0.0, 9.81]);
+        let p = b.particle("p", 1.0, &[1.2, -0.7], &[0.0, 0.0]).unwrap();
+        let panicked = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+            b.holonomic("panics", Panicking(p));
+        }));
+        assert!(panicked.is_err());
+        assert!(!super::last_trace_in_progress());
+        b.holonomic("parabola", Parabola(p));
+        assert!(b.build().unwrap().constraints().only_taped());
+    }
+
+    /// Systems built on several threads at once each trace their own constraints, to the
+    /// same expression as built alone; and a constraint naming a particle the system does
+    /// not have is an error of `build`, not a panic.
+    #[test]
+    fn traces_on_several_threads_and_an_unknown_particle() {
+        let build = || {
+            let (mut b, p, q) = two_particles();
+            b.holonomic("everything", Everything(p, q));
+            b.build().unwrap()
+        };
+        let alone = evaluated(&build(), 0.3, &[1.0; 6], &[0.5; 6]);
+        std::thread::scope(|scope| {
+            let threads: Vec<_> = (0..4)
+                .map(|_| {
+                    scope.spawn(|| {
+                        (0..20)
+                            .map(|_| evaluated(&build(), 0.3, &[1.0; 6], &[0.5; 6]))
+                            .collect::<Vec<_>>()
+                    })
+                })
+                .collect();
+            for thread in threads {
+                for figures in thread.join().unwrap() {
+                    assert!(crate::same_bits(&figures, &alone));
+                }
+            }
+        });
+        let mut b = SystemBuilder::new(&[0.0, 9.81]);
+        b.particle("p", 1.0, &[1.2, -0.7], &[0.0, 0.0]).unwrap();
+        b.holonomic("nowhere", Parabola(ParticleId(7)));
+        let error = b.build().unwrap_err().to_string();
+        assert!(error.contains('7') || error.contains("particle"), "{error}");
     }
 }
