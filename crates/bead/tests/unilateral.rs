@@ -617,9 +617,22 @@ impl bead::model::Holonomic for Sphere {
     }
 }
 
+/// A second particle held to the plane z = 5 by a Rust constraint kept on dual numbers.
+struct Plane(bead::model::ParticleId);
+impl bead::model::Holonomic for Plane {
+    fn particles(&self) -> Vec<bead::model::ParticleId> {
+        vec![self.0]
+    }
+    fn value<T: bead::Scalar>(&self, x: &[T], _t: T) -> T {
+        x[2] - 5.0
+    }
+}
+
 /// A Rust constraint traced into an expression can be unilateral, and it is then the
 /// constraint typed as text: the particle leaves the sphere at the same step, at the same
-/// point, bit for bit. One that keeps dual numbers cannot, and the error says why.
+/// point, bit for bit, with a constraint by dual numbers declared before it (whose row goes
+/// last, so that the sphere's declaration and row numbers differ). One that keeps dual
+/// numbers cannot be unilateral, and the error says why.
 #[test]
 fn a_traced_rust_constraint_can_be_unilateral() {
     use bead::model::{Side, SystemBuilder};
@@ -628,6 +641,10 @@ fn a_traced_rust_constraint_can_be_unilateral() {
         let p = b
             .particle("p", 1.0, &[0.0, 0.0, 1.0], &[0.5, 0.0, 0.0])
             .unwrap();
+        let q = b
+            .particle("q", 1.0, &[3.0, 0.0, 5.0], &[0.0, 0.2, 0.0])
+            .unwrap();
+        b.holonomic_by_dual_numbers("plane", Plane(q));
         (b, p)
     };
     let (mut rust, p) = builder();
@@ -641,7 +658,9 @@ fn a_traced_rust_constraint_can_be_unilateral() {
         .unwrap();
     let leave = |b: SystemBuilder| {
         let system = Arc::new(b.build().unwrap());
-        assert_eq!(system.unilateral().len(), 1);
+        let unilateral = system.unilateral();
+        assert_eq!((unilateral.len(), unilateral[0].constraint), (1, 1));
+        assert_eq!(unilateral[0].row, 0, "expression rows before the dual-number one");
         let mut sim = Simulation::new(system, config(IntegratorKind::Rk4, 1e-3)).unwrap();
         sim.advance_to(2.0).unwrap();
         let switches = sim.contact_switches();
