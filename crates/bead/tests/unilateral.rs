@@ -660,7 +660,10 @@ fn a_traced_rust_constraint_can_be_unilateral() {
         let system = Arc::new(b.build().unwrap());
         let unilateral = system.unilateral();
         assert_eq!((unilateral.len(), unilateral[0].constraint), (1, 1));
-        assert_eq!(unilateral[0].row, 0, "expression rows before the dual-number one");
+        assert_eq!(
+            unilateral[0].row, 0,
+            "expression rows before the dual-number one"
+        );
         let mut sim = Simulation::new(system, config(IntegratorKind::Rk4, 1e-3)).unwrap();
         sim.advance_to(2.0).unwrap();
         let switches = sim.contact_switches();
