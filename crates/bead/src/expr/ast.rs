@@ -728,8 +728,8 @@ pub(crate) fn neg(a: Expr) -> Expr {
 }
 
 /// `a * b`: folds constants; `x*0 = 0*x = 0`; `x*1 = 1*x = x`; `x*(-1) = -x`; `x*x = x^2`
-/// (same node); constants move to the left and merge (`c1*(c2*x) = (c1 c2)*x`); signs move
-/// out (`(-a)*b = -(a*b)`).
+/// (same node); constants move to the left and merge (`c1*(c2*x) = (c1 c2)*x`, unless the
+/// product underflows to zero or a subnormal); signs move out (`(-a)*b = -(a*b)`).
 pub(crate) fn mul(a: Expr, b: Expr) -> Expr {
     let (mut a, mut b) = (a, b);
     let (ca, cb) = (konst(&a), konst(&b));
@@ -755,7 +755,9 @@ pub(crate) fn mul(a: Expr, b: Expr) -> Expr {
     if let Some(c) = konst(&a) {
         match &*b.0 {
             Node::Mul(c2, x) => {
-                if let Some(c2) = konst(c2) {
+                // Merged only where the product is a normal number: one that underflows
+                // would drop x (`x*1e-170*1e-170` is 1e-320 at x = 1e20, not 0).
+                if let Some(c2) = konst(c2).filter(|c2| (c * c2).is_normal()) {
                     if let Some(p) = fold(c * c2) {
                         return mul(p, x.clone());
                     }
@@ -1169,6 +1171,25 @@ mod tests {
                 let want = r.eval(&v);
                 assert!(got.to_bits() == want.to_bits() || (got.is_nan() && want.is_nan()));
             }
+        }
+    }
+
+    /// Constants merge only where their product is a normal number: one that underflows
+    /// would drop the variable or lose its digits.
+    #[test]
+    fn constants_merge_unless_their_product_underflows() {
+        assert_eq!(show(&p("2*(3*x)")), "6*x");
+        for src in ["x*1e-170*1e-170", "1e-160*(1e-160*x)"] {
+            let e = p(src);
+            assert!(e.depends_on(0), "{src}: {}", show(&e));
+            let v = [1e20, 0.0, 0.0, 0.0];
+            let want: f64 = if src.starts_with('x') {
+                1e20 * 1e-170 * 1e-170
+            } else {
+                1e-160 * (1e-160 * 1e20)
+            };
+            assert_eq!(e.eval(&v).to_bits(), want.to_bits(), "{src}");
+            assert!(want != 0.0);
         }
     }
 
