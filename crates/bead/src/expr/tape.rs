@@ -646,27 +646,85 @@ impl TapeBuilder {
     }
 
     /// `tape`'s code appended with its variable k read from `vars[k]` (another evaluation of
-    /// it inside this tape): its outputs in order.
+    /// it inside this tape): its outputs in order. Where a variable is a constant, what it
+    /// reaches is folded as the other methods fold (the same IEEE operations, done at build
+    /// time where every operand is constant).
     pub(crate) fn append_with(&mut self, tape: &Tape, vars: &[Sym]) -> Vec<Sym> {
-        let mut slots: Vec<u32> = Vec::with_capacity(tape.code.len());
+        let mut vals: Vec<Val> = Vec::with_capacity(tape.code.len());
         for &ins in &tape.code {
-            if let Instr::Var(k) = ins {
-                slots.push(self.b.slot(vars[k as usize].0));
-                continue;
-            }
-            let mut ins = ins;
-            for s in ins.operands_mut().into_iter().flatten() {
-                *s = slots[*s as usize];
-            }
-            match self.b.emit(ins) {
-                Val::Slot(s) => slots.push(s),
-                Val::Const(_) => unreachable!("emit returns a slot"),
-            }
+            let val = match ins {
+                Instr::Var(k) => vars[k as usize].0,
+                Instr::Const(c) => Val::Const(c),
+                _ => self.fold(ins, &vals),
+            };
+            vals.push(val);
         }
         tape.outputs
             .iter()
-            .map(|&o| Sym(Val::Slot(slots[o as usize])))
+            .map(|&o| Sym(vals[o as usize]))
             .collect()
+    }
+
+    /// `ins` with its operands read from `vals` (by the appended tape's slot numbers).
+    fn fold(&mut self, ins: Instr, vals: &[Val]) -> Val {
+        use Val::{Const as C, Slot as S};
+        let operands = ins.operands().map(|o| o.map(|s| vals[s as usize]));
+        let present = || operands.iter().flatten();
+        if present().all(|v| matches!(v, S(_))) {
+            let mut ins = ins;
+            for s in ins.operands_mut().into_iter().flatten() {
+                let S(slot) = vals[*s as usize] else {
+                    unreachable!("checked above")
+                };
+                *s = slot;
+            }
+            return self.b.emit(ins);
+        }
+        if present().all(|v| matches!(v, C(_))) {
+            // The interpreter's own operation on the constants.
+            let mut code: Vec<Instr> = present()
+                .map(|v| match v {
+                    C(c) => Instr::Const(*c),
+                    S(_) => unreachable!("checked above"),
+                })
+                .collect();
+            let mut ins = ins;
+            for (k, s) in ins.operands_mut().into_iter().flatten().enumerate() {
+                *s = k as u32;
+            }
+            code.push(ins);
+            let mut scratch = vec![0.0; code.len()];
+            run_lanes::<1>(&code, &[], &mut scratch);
+            return C(scratch[code.len() - 1]);
+        }
+        let [a, b, c] = operands.map(|o| Sym(o.unwrap_or(C(f64::NAN))));
+        match ins {
+            Instr::Add(..) => self.add(a, b).0,
+            Instr::Sub(..) => self.sub(a, b).0,
+            Instr::Mul(..) => self.mul(a, b).0,
+            Instr::Div(..) => self.div(a, b).0,
+            // x y + z, x y - z, z - x y: two roundings, as the fused instructions do.
+            Instr::MulAdd(..) => {
+                let p = self.mul(a, b);
+                self.add(p, c).0
+            }
+            Instr::MulSub(..) => {
+                let p = self.mul(a, b);
+                self.sub(p, c).0
+            }
+            Instr::SubMul(..) => {
+                let p = self.mul(a, b);
+                self.sub(c, p).0
+            }
+            // Pow, Atan2: the constant operand into a slot.
+            _ => {
+                let mut ins = ins;
+                for s in ins.operands_mut().into_iter().flatten() {
+                    *s = self.b.slot(vals[*s as usize]);
+                }
+                self.b.emit(ins)
+            }
+        }
     }
 
     /// `a + b`
@@ -674,6 +732,8 @@ impl TapeBuilder {
         use Val::{Const as C, Slot as S};
         Sym(match (a.0, b.0) {
             (C(x), C(y)) => C(x + y),
+            // x + (-0) == x for every x.
+            (C(c), S(s)) | (S(s), C(c)) if is_negative_zero(c) => S(s),
             (C(c), S(s)) | (S(s), C(c)) => self.b.emit(Instr::AddC(s, c)),
             (S(x), S(y)) => self.b.emit(Instr::Add(x.min(y), x.max(y))),
         })
@@ -684,6 +744,8 @@ impl TapeBuilder {
         Sym(match (a.0, b.0) {
             (C(x), C(y)) => C(x - y),
             (C(c), S(s)) => self.b.emit(Instr::CSub(s, c)),
+            // x - 0 == x + (-0) == x for every x.
+            (S(s), C(c)) if c.to_bits() == 0 => S(s),
             // x - c == x + (-c) exactly.
             (S(s), C(c)) => self.b.emit(Instr::AddC(s, -c)),
             (S(x), S(y)) => self.b.emit(Instr::Sub(x, y)),
@@ -694,6 +756,8 @@ impl TapeBuilder {
         use Val::{Const as C, Slot as S};
         Sym(match (a.0, b.0) {
             (C(x), C(y)) => C(x * y),
+            // x * 1 == x for every x.
+            (C(c), S(s)) | (S(s), C(c)) if c == 1.0 => S(s),
             (C(c), S(s)) | (S(s), C(c)) => self.b.emit(Instr::MulC(s, c)),
             (S(x), S(y)) if x == y => self.b.emit(Instr::Square(x)),
             (S(x), S(y)) => self.b.emit(Instr::Mul(x.min(y), x.max(y))),
@@ -705,6 +769,8 @@ impl TapeBuilder {
         Sym(match (a.0, b.0) {
             (C(x), C(y)) => C(x / y),
             (C(c), S(s)) => self.b.emit(Instr::CDiv(s, c)),
+            // x / 1 == x for every x.
+            (S(s), C(1.0)) => S(s),
             (S(s), C(c)) => self.b.emit(Instr::DivC(s, c)),
             (S(x), S(y)) => self.b.emit(Instr::Div(x, y)),
         })
@@ -723,6 +789,12 @@ impl TapeBuilder {
         let mut out: Vec<u32> = outputs.iter().map(|o| self.b.slot(o.0)).collect();
         Tape::assemble(self.b.code, &mut out)
     }
+}
+
+/// Whether `c` is -0.0 (the additive identity of IEEE arithmetic: x + (-0) == x, where
+/// x + 0 turns -0 into +0).
+fn is_negative_zero(c: f64) -> bool {
+    c.to_bits() == (-0.0f64).to_bits()
 }
 
 /// Run `code` over L lanes: slot i of lane l is `s[i * L + l]`. One function for the scalar
@@ -1087,6 +1159,61 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// A tape appended with some variables constant (1, -0 and +0, the identities of the
+    /// folds, and infinities, NaN, random values) gives the bits of the original tape run
+    /// with those values, every instruction kind included; and the identities do vanish.
+    #[test]
+    fn appending_with_constants_folds_exactly() {
+        let mut rng = Rng::new(11);
+        let specials = [1.0, -0.0, 0.0, -1.0, f64::INFINITY, f64::NAN, 2.5];
+        for round in 0..80 {
+            let mut pool = Vec::new();
+            let mut outs: Vec<Expr> = (0..4)
+                .map(|_| random_expr(&mut rng, 3, 4 + round % 3, &mut pool))
+                .collect();
+            let ds: Vec<Expr> = outs.iter().map(|e| e.derivative(round % 3)).collect();
+            outs.extend(ds);
+            let t = Tape::compile(&outs);
+            for trial in 0..6 {
+                let mut values = [0.0; 3];
+                for v in values.iter_mut() {
+                    *v = rng.uniform(-2.0, 2.0);
+                }
+                // One or two variables constant, from the specials or the random values.
+                let constant = [trial % 3 == 0, trial % 2 == 0, trial % 3 == 1];
+                for (k, v) in values.iter_mut().enumerate() {
+                    if constant[k] && trial < 5 {
+                        *v = specials[(round + k + trial) % specials.len()];
+                    }
+                }
+                let mut b = TapeBuilder::new();
+                let vars: Vec<Sym> = (0..3)
+                    .map(|k| match constant[k] {
+                        true => b.constant(values[k]),
+                        false => b.var(k),
+                    })
+                    .collect();
+                let folded_outputs = b.append_with(&t, &vars);
+                let folded = b.finish(&folded_outputs);
+                let (want, got) = (run(&t, &values), run(&folded, &values));
+                for (j, (w, g)) in want.iter().zip(&got).enumerate() {
+                    let same = w.to_bits() == g.to_bits() || (w.is_nan() && g.is_nan());
+                    assert!(same, "round {round}, trial {trial}, output {j}: {g} vs {w}");
+                }
+            }
+        }
+        // x * y + z - w / y with y = 1, z = -0, w = 0: x alone (x - 0 == x).
+        let t = Tape::compile(&[
+            Expr::var(0) * Expr::var(1) + Expr::var(2) - Expr::var(3) / Expr::var(1)
+        ]);
+        let mut b = TapeBuilder::new();
+        let x = b.var(0);
+        let vars = [x, b.constant(1.0), b.constant(-0.0), b.constant(0.0)];
+        let out = b.append_with(&t, &vars);
+        let folded = b.finish(&out);
+        assert_eq!(folded.code, vec![Instr::Var(0)]);
     }
 
     #[test]
