@@ -38,7 +38,7 @@ mod parse;
 mod tape;
 
 pub(crate) use ast::same_structure;
-pub(crate) use ast::{pow_const_f64, reads_any, share};
+pub(crate) use ast::{pow_const_f64, reads_any, share, unary_f64};
 pub use ast::{Expr, Func};
 pub(crate) use diff::gradients;
 pub use jit::{

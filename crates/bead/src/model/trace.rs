@@ -156,7 +156,9 @@ impl Traced {
         Traced::record(re, args, |_| Expr::constant(f64::NAN))
     }
 
-    fn unary(self, re: f64, f: Func) -> Traced {
+    /// `f(self)`, its value computed as the tape computes it.
+    fn unary(self, f: Func) -> Traced {
+        let re = crate::expr::unary_f64(f, self.re);
         Traced::record(re, &[self], |e| Expr::call(f, vec![e(self)]))
     }
 
@@ -372,7 +374,7 @@ impl Num for Traced {
 
 impl Signed for Traced {
     fn abs(&self) -> Traced {
-        self.unary(self.re.abs(), Func::Abs)
+        self.unary(Func::Abs)
     }
     fn abs_sub(&self, other: &Traced) -> Traced {
         let re = <f64 as Signed>::abs_sub(&self.re, &other.re);
@@ -517,13 +519,13 @@ impl DualNum for Traced {
         self.binary(n, re, |a, b| a.powf(&b))
     }
     fn sqrt(&self) -> Traced {
-        self.unary(self.re.sqrt(), Func::Sqrt)
+        self.unary(Func::Sqrt)
     }
     fn cbrt(&self) -> Traced {
         Traced::unsupported("cbrt", self.re.cbrt(), &[*self])
     }
     fn exp(&self) -> Traced {
-        self.unary(self.re.exp(), Func::Exp)
+        self.unary(Func::Exp)
     }
     fn exp2(&self) -> Traced {
         Traced::unsupported("exp2", self.re.exp2(), &[*self])
@@ -532,7 +534,7 @@ impl DualNum for Traced {
         Traced::unsupported("exp_m1", self.re.exp_m1(), &[*self])
     }
     fn ln(&self) -> Traced {
-        self.unary(self.re.ln(), Func::Ln)
+        self.unary(Func::Ln)
     }
     fn log(&self, base: f64) -> Traced {
         Traced::unsupported("log", self.re.log(base), &[*self])
@@ -541,35 +543,40 @@ impl DualNum for Traced {
         Traced::unsupported("log2", self.re.log2(), &[*self])
     }
     fn log10(&self) -> Traced {
-        self.unary(self.re.log10(), Func::Log10)
+        self.unary(Func::Log10)
     }
     fn ln_1p(&self) -> Traced {
         Traced::unsupported("ln_1p", self.re.ln_1p(), &[*self])
     }
     fn sin(&self) -> Traced {
-        self.unary(self.re.sin(), Func::Sin)
+        self.unary(Func::Sin)
     }
     fn cos(&self) -> Traced {
-        self.unary(self.re.cos(), Func::Cos)
+        self.unary(Func::Cos)
     }
     fn tan(&self) -> Traced {
-        self.unary(self.re.tan(), Func::Tan)
+        self.unary(Func::Tan)
     }
     fn sin_cos(&self) -> (Traced, Traced) {
         let (s, c) = self.re.sin_cos();
         if s.to_bits() != self.re.sin().to_bits() || c.to_bits() != self.re.cos().to_bits() {
-            self.refuse("sin_cos");
+            // f64's sin_cos is not sin and cos here: no exact form.
+            let args = [*self];
+            return (
+                Traced::unsupported("sin_cos", s, &args),
+                Traced::unsupported("sin_cos", c, &args),
+            );
         }
-        (self.unary(s, Func::Sin), self.unary(c, Func::Cos))
+        (self.unary(Func::Sin), self.unary(Func::Cos))
     }
     fn asin(&self) -> Traced {
-        self.unary(self.re.asin(), Func::Asin)
+        self.unary(Func::Asin)
     }
     fn acos(&self) -> Traced {
-        self.unary(self.re.acos(), Func::Acos)
+        self.unary(Func::Acos)
     }
     fn atan(&self) -> Traced {
-        self.unary(self.re.atan(), Func::Atan)
+        self.unary(Func::Atan)
     }
     fn atan2(&self, other: Traced) -> Traced {
         let re = self.re.atan2(other.re);
@@ -578,13 +585,13 @@ impl DualNum for Traced {
         })
     }
     fn sinh(&self) -> Traced {
-        self.unary(self.re.sinh(), Func::Sinh)
+        self.unary(Func::Sinh)
     }
     fn cosh(&self) -> Traced {
-        self.unary(self.re.cosh(), Func::Cosh)
+        self.unary(Func::Cosh)
     }
     fn tanh(&self) -> Traced {
-        self.unary(self.re.tanh(), Func::Tanh)
+        self.unary(Func::Tanh)
     }
     fn asinh(&self) -> Traced {
         Traced::unsupported("asinh", self.re.asinh(), &[*self])
