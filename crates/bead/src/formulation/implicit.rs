@@ -42,6 +42,24 @@ impl Feedback {
             kd: 2.0 * damping_ratio * omega,
         }
     }
+
+    /// Whether both gains are zero: the feedback is then no term at all, not `- 0 C -
+    /// 0 Cdot` (which would turn a -0 right-hand side into +0, an infinite C into NaN).
+    pub fn is_off(&self) -> bool {
+        self.ks == 0.0 && self.kd == 0.0
+    }
+
+    /// `rhs - ks C - kd Cdot`, or `rhs` itself when the feedback is off: no term, rather
+    /// than a zero one (`rhs - 0 C` would turn a -0 into +0, and an infinite C into NaN).
+    /// Every path (general, fused, lanes) computes it so.
+    #[inline]
+    pub(crate) fn subtract(&self, rhs: f64, c: f64, cdot: f64) -> f64 {
+        if self.is_off() {
+            rhs
+        } else {
+            rhs - self.ks * c - self.kd * cdot
+        }
+    }
 }
 
 /// The implicit (constraint-force) formulation; q = particle coordinates.
@@ -92,7 +110,7 @@ impl Implicit {
         let m = system.constraints().n_rows();
         let matrix = LazyConstraintMatrix::new(solver);
         let dense_pivot_tolerance = matrix.dense_pivot_tolerance(system.constraints().structure());
-        let fused = FusedImplicit::new(&system, dense_pivot_tolerance, feedback.ks, feedback.kd);
+        let fused = FusedImplicit::new(&system, dense_pivot_tolerance, feedback);
         let projection = super::constrained::ProjectionWorkspace::new(&system, solver);
         Implicit {
             evaluations: 0,
@@ -201,7 +219,7 @@ impl Implicit {
         let m = set.n_rows();
         if m > 0 {
             let ce = &self.constraints;
-            // rhs = -bias - J W F - ks C - kd Cdot.
+            // rhs = -bias - J W F [- ks C - kd Cdot].
             for i in 0..m {
                 let columns = set.row_columns(i);
                 let row = &ce.jacobian[set.row_entries(i)];
@@ -210,10 +228,9 @@ impl Implicit {
                     .zip(row)
                     .map(|(&k, &jik)| jik * w[k] * self.force[k])
                     .sum();
-                self.lambda[i] = -ce.bias[i]
-                    - jwf
-                    - self.feedback.ks * ce.value[i]
-                    - self.feedback.kd * ce.velocity[i];
+                self.lambda[i] =
+                    self.feedback
+                        .subtract(-ce.bias[i] - jwf, ce.value[i], ce.velocity[i]);
             }
             // (J W J^T) lambda = rhs: along the rods when they are in paths or trees (no
             // matrix), else by the assembled matrix's factorization.

@@ -222,30 +222,40 @@ fn run_lanes_body(
     // The whole RK4 step as one tape, where the fused acceleration applies. Building it costs
     // a few milliseconds once per system: not for a lone member (a sweep whose members each
     // load their own equations) unless it is built already.
-    let built = match &kernel {
-        Kernel::Implicit(_) => system.constraints().fused().rk4.get().is_some(),
-        Kernel::Parametric(_) => system
-            .parametric()
-            .is_some_and(|map| map.fused().rk4.get().is_some()),
-    };
-    let worth_building = count > 1 || built;
-    let mut fused_step = match &kernel {
+    let constants = match &kernel {
         Kernel::Implicit(implicit) => implicit
             .fused
             .as_ref()
-            .filter(|_| worth_building && across_lanes(implicit).is_some())
-            .map(|fused| {
-                let constants = fused.step_constants(&gravity_force(&system));
-                (fused.rk4_step(system.constraints()), constants)
-            }),
+            .map(|fused| fused.step_constants(&gravity_force(&system))),
         Kernel::Parametric(parametric) => parametric
+            .fused
+            .as_ref()
+            .map(|fused| fused.step_constants().to_vec()),
+    };
+    let tapes = match &kernel {
+        Kernel::Implicit(_) => Some(system.constraints().fused()),
+        Kernel::Parametric(_) => system.parametric().map(|map| map.fused()),
+    };
+    let built = match (&constants, tapes) {
+        (Some(constants), Some(tapes)) => tapes.step_kept(constants, true),
+        _ => false,
+    };
+    let worth_building = count > 1 || built;
+    let mut fused_step = match (&kernel, constants) {
+        (Kernel::Implicit(implicit), Some(constants)) => implicit
+            .fused
+            .as_ref()
+            .filter(|_| worth_building && across_lanes(implicit).is_some())
+            .map(|fused| (fused.rk4_step(system.constraints(), &constants), constants)),
+        (Kernel::Parametric(parametric), Some(constants)) => parametric
             .fused
             .as_ref()
             .filter(|_| worth_building && parametric.across_lanes())
             .map(|fused| {
                 let map = system.parametric().expect("checked by lanes_can_run");
-                (fused.rk4_step(map), fused.step_constants().to_vec())
+                (fused.rk4_step(map), constants)
             }),
+        _ => None,
     };
     // Every lane starts from its member's state; lanes beyond `count` repeat the first.
     for l in 0..LANES {
@@ -697,8 +707,7 @@ fn implicit_across_lanes(
                     jwf += jacobian[e * LANES + l] * w[k] * lanes.force[k * LANES + l];
                 }
                 let at = i * LANES + l;
-                lanes.lambda[at] =
-                    -bias[at] - jwf - feedback.ks * value[at] - feedback.kd * velocity[at];
+                lanes.lambda[at] = feedback.subtract(-bias[at] - jwf, value[at], velocity[at]);
             }
         }
         crate::linalg::ldlt_lanes::<LANES>(m, &mut lanes.dense, tolerance, failed);
