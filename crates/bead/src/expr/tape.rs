@@ -112,7 +112,8 @@ impl Instr {
             Abs(a) => (29, a, 0, 0),
             Sign(a) => (30, a, 0, 0),
             Atan2(a, b) => (31, a, b, 0),
-            // Fused instructions are created after hash-consing and never looked up.
+            // Fused instructions come from `fuse` after hash-consing, or from a tape
+            // appended whole (`TapeBuilder::append_with`), where sharing them is as exact.
             MulAdd(a, b, c) => (32, a, b, u64::from(c)),
             MulSub(a, b, c) => (33, a, b, u64::from(c)),
             SubMul(a, b, c) => (34, a, b, u64::from(c)),
@@ -611,9 +612,11 @@ impl std::fmt::Debug for Val {
 /// Builds a tape from elementary operations, for code beyond expressions (the fused
 /// accelerations of [`crate::formulation`]): each method emits exactly the IEEE operation it
 /// names, in the order called, so the tape computes the same bits as the same sequence of
-/// `f64` operations in Rust. Constants are folded only where the fold is exact (both operands
-/// constant: the build does the operation the run would do); common subexpressions are
-/// shared (an identical operation on identical operands gives identical bits).
+/// `f64` operations in Rust. Constants are folded only where the fold is exact: both
+/// operands constant (the build does the operation the run would do), and `x * 1`, `x / 1`,
+/// `x + (-0)`, `x - 0`, which are x for every x (`x + 0` and `0 * x` are not, at x = -0,
+/// negative, inf or NaN); common subexpressions are shared (an identical operation on
+/// identical operands gives identical bits).
 pub(crate) struct TapeBuilder {
     b: Builder,
 }
@@ -1083,19 +1086,24 @@ mod tests {
         }
     }
 
+    /// Four outputs drawn from one pool, so they share subexpressions, plus their
+    /// derivatives (which share with the originals), and their tape.
+    fn random_outputs(rng: &mut Rng, round: usize) -> (Vec<Expr>, Tape) {
+        let mut pool = Vec::new();
+        let mut outs: Vec<Expr> = (0..4)
+            .map(|_| random_expr(rng, 3, 4 + round % 3, &mut pool))
+            .collect();
+        let ds: Vec<Expr> = outs.iter().map(|e| e.derivative(round % 3)).collect();
+        outs.extend(ds);
+        let t = Tape::compile(&outs);
+        (outs, t)
+    }
+
     #[test]
     fn random_expressions_match_eval() {
         let mut rng = Rng::new(1);
         for round in 0..60 {
-            // Several outputs drawn from one pool, so they share subexpressions, plus their
-            // derivatives (which share with the originals).
-            let mut pool = Vec::new();
-            let mut outs: Vec<Expr> = (0..4)
-                .map(|_| random_expr(&mut rng, 3, 4 + round % 3, &mut pool))
-                .collect();
-            let ds: Vec<Expr> = outs.iter().map(|e| e.derivative(round % 3)).collect();
-            outs.extend(ds);
-            let t = Tape::compile(&outs);
+            let (outs, t) = random_outputs(&mut rng, round);
             let distinct: usize = super::topo(&outs).nodes.len();
             assert!(t.n_instructions() <= distinct);
             for _ in 0..5 {
@@ -1120,13 +1128,7 @@ mod tests {
         const L: usize = 8;
         let mut rng = Rng::new(7);
         for round in 0..60 {
-            let mut pool = Vec::new();
-            let mut outs: Vec<Expr> = (0..4)
-                .map(|_| random_expr(&mut rng, 3, 4 + round % 3, &mut pool))
-                .collect();
-            let ds: Vec<Expr> = outs.iter().map(|e| e.derivative(round % 3)).collect();
-            outs.extend(ds);
-            let t = Tape::compile(&outs);
+            let (_, t) = random_outputs(&mut rng, round);
             let mut lanes = [[0.0; 3]; L];
             for (l, v) in lanes.iter_mut().enumerate() {
                 for c in v.iter_mut() {
@@ -1169,23 +1171,18 @@ mod tests {
         let mut rng = Rng::new(11);
         let specials = [1.0, -0.0, 0.0, -1.0, f64::INFINITY, f64::NAN, 2.5];
         for round in 0..80 {
-            let mut pool = Vec::new();
-            let mut outs: Vec<Expr> = (0..4)
-                .map(|_| random_expr(&mut rng, 3, 4 + round % 3, &mut pool))
-                .collect();
-            let ds: Vec<Expr> = outs.iter().map(|e| e.derivative(round % 3)).collect();
-            outs.extend(ds);
-            let t = Tape::compile(&outs);
-            for trial in 0..6 {
+            let (_, t) = random_outputs(&mut rng, round);
+            for trial in 0..8 {
                 let mut values = [0.0; 3];
                 for v in values.iter_mut() {
                     *v = rng.uniform(-2.0, 2.0);
                 }
-                // One or two variables constant, from the specials or the random values.
+                // One or two variables constant: specials on the first five trials, random
+                // values on the rest; from trial 4 on, the other variables specials too.
                 let constant = [trial % 3 == 0, trial % 2 == 0, trial % 3 == 1];
                 for (k, v) in values.iter_mut().enumerate() {
-                    if constant[k] && trial < 5 {
-                        *v = specials[(round + k + trial) % specials.len()];
+                    if (constant[k] && trial < 5) || (!constant[k] && trial >= 4) {
+                        *v = specials[(round + 2 * k + trial) % specials.len()];
                     }
                 }
                 let mut b = TapeBuilder::new();
@@ -1214,6 +1211,19 @@ mod tests {
         let out = b.append_with(&t, &vars);
         let folded = b.finish(&out);
         assert_eq!(folded.code, vec![Instr::Var(0)]);
+        // x + 0, x - (-0) and 0 * x are not x (nor 0) at x = -0, inf or NaN: they stay.
+        for (source, zero) in [("x + y", 0.0), ("x - y", -0.0), ("y * x", 0.0)] {
+            let t = Tape::compile(&[p(source)]);
+            let mut b = TapeBuilder::new();
+            let vars = [b.var(0), b.constant(zero)];
+            let out = b.append_with(&t, &vars);
+            let folded = b.finish(&out);
+            assert_eq!(folded.code.len(), 2, "{source}: {:?}", folded.code);
+            for x in [-0.0, 0.0, -1.5, f64::INFINITY] {
+                let (want, got) = (run(&t, &[x, zero])[0], run(&folded, &[x, 0.0])[0]);
+                assert_eq!(got.to_bits(), want.to_bits(), "{source} at {x}");
+            }
+        }
     }
 
     #[test]

@@ -9,7 +9,7 @@
 //!
 //! ```text
 //! implicit:   C, Cdot, bias, J (the constraint tape); A = J W J^T;
-//!             A lambda = -bias - J W F - ks C - kd Cdot (dense LDL^T); a = W (F + J^T lambda)
+//!             A lambda = -bias - J W F [- ks C - kd Cdot] (dense LDL^T); a = W (F + J^T lambda)
 //! parametric: x, xdot, h, J (the map's tape); M = sum_k m_k J_k^T J_k;
 //!             M qddot = sum_k J_k^T (F_k - m_k h_k) (dense LDL^T)
 //! ```
@@ -20,11 +20,20 @@
 //! them on every shipped scene. The LDL^T's pivots come out with the accelerations: when one
 //! fails the relative pivot test, the caller runs the general path, which reports the
 //! singular matrix (or the non-finite input) exactly as before.
-use super::State;
+//!
+//! An RK4 step ([`compiled_rk4_step`] for a simulation, [`FusedStep::step_lanes`] for the
+//! sweep lanes, whose members share one system) is one tape of four stages with the
+//! system's constants (F, W, the feedback gains; F and the masses) folded in: products by 1
+//! and sums with -0 vanish and products of constants are done once. Each fold is exact,
+//! so the step keeps the general path's bits.
+use super::{Feedback, State};
 use crate::expr::{Sym, Tape, TapeBuilder};
 use crate::integrate::rk4::{self, AccelerationTape};
 use crate::linalg::{ConstraintMatrix, LinearSolver, SymmetricPattern};
 use crate::model::{ConstraintEval, ConstraintSet, Force, FusedTapes, ParametricMap, System};
+
+/// The variant of the fused tapes without feedback terms (a parametric map's only one).
+const NO_FEEDBACK: usize = 0;
 
 /// The most rows (implicit) or generalized coordinates (parametric) fused: the factorization's
 /// code grows as m^3 / 6 and the general path's overhead stops dominating.
@@ -125,7 +134,8 @@ fn pivots_pass(diagonal: &[f64], pivot: &[f64], tolerance: f64) -> bool {
 }
 
 /// The implicit form's fused acceleration. Variables: x (n), v (n), t, F (n), the applied
-/// forces computed before (so that every force, the viewer's drag included, enters).
+/// forces computed before (so that every force, the viewer's drag included, enters), W (n),
+/// ks, kd (read only with feedback).
 /// Outputs: C, Cdot, bias (m each), J (nnz), lambda (m), F + J^T lambda (n), a (n), then the
 /// LDL^T's diagonals and pivots (m each).
 #[derive(Clone, Debug)]
@@ -158,33 +168,33 @@ pub(crate) struct ImplicitBuffers<'a> {
 /// its own on first use; this lets [`System::machine_code`] count them all before any run).
 pub fn prepare(system: &System) {
     let set = system.constraints();
-    set.fused()
-        .acceleration
-        .get_or_init(|| implicit_tape(set, system.n_coords()));
-    // The layouts alone matter here: any tolerance, gains, forces and masses.
-    if let Some(fused) = FusedImplicit::new(system, Some(0.0), 0.0, 0.0) {
+    // Without feedback, as scenes run by default; any tolerance.
+    if let Some(mut fused) = FusedImplicit::new(system, Some(0.0), Feedback::default()) {
         if fused.has_constant_force() {
             // With the monitors' observation, as single runs and the lanes build it.
-            FusedStep::new(fused.layout(), set.fused(), Some(set.gradient_tape()), 0.0);
+            compiled_step(&mut fused, set.fused(), Some(set.gradient_tape()));
         }
     }
     if let Some(map) = system.parametric() {
-        map.fused()
-            .acceleration
-            .get_or_init(|| parametric_tape(map));
-        let zeros = vec![0.0; map.positions.len()];
-        if let Some(fused) = FusedParametric::new(system, &zeros, &zeros, 0.0) {
-            FusedStep::new(fused.layout(), map.fused(), None, 0.0);
+        // The system's constant forces (x, v are not read) and masses.
+        let zeros = vec![0.0; system.n_coords()];
+        let mut force = zeros.clone();
+        system.accumulate_forces(&zeros, &zeros, &mut force);
+        let masses = system.coordinate_masses();
+        if let Some(mut fused) = FusedParametric::new(system, &force, &masses, 0.0) {
+            fused.rk4_step(map);
+            compiled_step(&mut fused, map.fused(), None);
         }
     }
 }
 
 /// The implicit form's fused tape for `set` (n coordinates), when it applies: 1 to
 /// [`FUSE_MAX_ROWS`] rows, all evaluated by the constraint tape. Variables: x, v (n each), t,
-/// F (n), w (n, the inverse masses), ks, kd; outputs as [`FusedImplicit`] reads them. Masses,
-/// forces and feedback are variables so that one tape serves every system and run that
-/// shares the set (a sweep's members).
-fn implicit_tape(set: &ConstraintSet, n: usize) -> Option<Tape> {
+/// F (n), w (n, the inverse masses), ks, kd (read only with `feedback`: without, the terms
+/// are absent, as [`Feedback::subtract`] leaves them); outputs as [`FusedImplicit`] reads
+/// them. Masses, forces and gains are variables so that one tape serves every system and
+/// run that shares the set (a sweep's members).
+fn implicit_tape(set: &ConstraintSet, n: usize, feedback: bool) -> Option<Tape> {
     let m = set.n_rows();
     if m == 0 || m > FUSE_MAX_ROWS || !set.only_taped() {
         return None;
@@ -212,7 +222,7 @@ fn implicit_tape(set: &ConstraintSet, n: usize) -> Option<Tape> {
             sum(&mut b, terms)
         })
         .collect();
-    // lambda = -bias - J W F - ks C - kd Cdot
+    // lambda = -bias - J W F [- ks C - kd Cdot]
     let mut lambda: Vec<Sym> = (0..m)
         .map(|i| {
             let terms: Vec<Sym> = set
@@ -227,6 +237,9 @@ fn implicit_tape(set: &ConstraintSet, n: usize) -> Option<Tape> {
             let jwf = sum(&mut b, terms);
             let nb = b.neg(bias[i]);
             let r = b.sub(nb, jwf);
+            if !feedback {
+                return r;
+            }
             let sc = b.mul(ks, value[i]);
             let r = b.sub(r, sc);
             let dc = b.mul(kd, velocity[i]);
@@ -255,20 +268,19 @@ fn implicit_tape(set: &ConstraintSet, n: usize) -> Option<Tape> {
 impl FusedImplicit {
     /// The fused acceleration of `system`'s implicit form with `feedback`, when it applies
     /// (see [`implicit_tape`]) and J W J^T is factored by the dense LDL^T, whose relative
-    /// pivot tolerance `tolerance` is. The tape is built once per constraint set.
+    /// pivot tolerance `tolerance` is. The tape is built once per constraint set and
+    /// feedback variant.
     pub(crate) fn new(
         system: &System,
         tolerance: Option<f64>,
-        ks: f64,
-        kd: f64,
+        feedback: Feedback,
     ) -> Option<FusedImplicit> {
         let tolerance = tolerance?;
         let set = system.constraints();
         let n = system.n_coords();
-        let tape = set
-            .fused()
-            .acceleration
-            .get_or_init(|| implicit_tape(set, n))
+        let variant = FusedTapes::variant(!feedback.is_off());
+        let tape = set.fused().acceleration[variant]
+            .get_or_init(|| implicit_tape(set, n, !feedback.is_off()))
             .clone()?;
         let mut vars = vec![0.0; 4 * n + 3];
         let constant = |f: &Force| matches!(f, Force::Constant { .. });
@@ -280,8 +292,8 @@ impl FusedImplicit {
             force
         });
         vars[3 * n + 1..4 * n + 1].copy_from_slice(&system.inverse_mass);
-        vars[4 * n + 1] = ks;
-        vars[4 * n + 2] = kd;
+        vars[4 * n + 1] = feedback.ks;
+        vars[4 * n + 2] = feedback.kd;
         Some(FusedImplicit {
             scratch: vec![0.0; tape.n_slots()],
             out: vec![0.0; tape.n_outputs()],
@@ -422,22 +434,45 @@ pub(crate) struct FusedStep {
 }
 
 impl FusedStep {
-    /// The step of `accel` (see [`rk4::step_tape`]); its tape built once per constraint set
-    /// or map, into `tapes`.
-    fn new(
+    /// The step of `accel` with `constants` folded into its tape (see [`rk4::step_tape`]),
+    /// `observe` at its end; kept in `tapes` by the constants while there is room (see
+    /// [`FusedTapes::FOLDED_KEPT`]).
+    fn folded(
         accel: AccelerationTape<'_>,
         tapes: &FusedTapes,
         observe: Option<&Tape>,
         tolerance: f64,
+        constants: &[f64],
     ) -> FusedStep {
-        let cache = match observe {
-            None => &tapes.rk4,
-            Some(_) => &tapes.rk4_observed,
+        let key: Vec<u64> = constants.iter().map(|c| c.to_bits()).collect();
+        let observed = observe.is_some();
+        let kept = |folded: &[(Vec<u64>, bool, Tape)]| {
+            folded
+                .iter()
+                .find(|(k, o, _)| *k == key && *o == observed)
+                .map(|(_, _, tape)| tape.clone())
         };
-        let tape = cache
-            .get_or_init(|| Some(rk4::step_tape(&accel, observe)))
-            .clone()
-            .expect("built above");
+        let found = kept(&tapes.folded());
+        let tape = found.unwrap_or_else(|| {
+            // Built without the lock held (it compiles machine code).
+            let tape = rk4::step_tape(&accel, observe, Some(constants));
+            let mut folded = tapes.folded();
+            match kept(&folded) {
+                Some(tape) => tape,
+                None => {
+                    if folded.len() < FusedTapes::FOLDED_KEPT {
+                        folded.push((key.clone(), observed, tape.clone()));
+                    }
+                    tape
+                }
+            }
+        });
+        let mut step = Self::with_tape(tape, accel, tolerance);
+        step.load_one(constants);
+        step
+    }
+
+    fn with_tape(tape: Tape, accel: AccelerationTape<'_>, tolerance: f64) -> FusedStep {
         FusedStep {
             tape,
             n: accel.n,
@@ -613,15 +648,17 @@ impl FusedStep {
 }
 
 impl FusedImplicit {
-    /// One RK4 step as one tape for sweep lanes (built once per constraint set), with the
-    /// monitors' observation (C and J, the gradient tape) at its end; the lanes pass
-    /// [`Self::step_constants`] with their applied forces.
-    pub(crate) fn rk4_step(&self, set: &ConstraintSet) -> FusedStep {
-        FusedStep::new(
+    /// One RK4 step as one tape for sweep lanes, with the monitors' observation (C and J,
+    /// the gradient tape) at its end and `constants` (see [`Self::step_constants`]) folded
+    /// in: the single runs' step where the constants are theirs.
+    pub(crate) fn rk4_step(&self, set: &ConstraintSet, constants: &[f64]) -> FusedStep {
+        let observe = Some(set.gradient_tape());
+        FusedStep::folded(
             self.layout(),
             set.fused(),
-            Some(set.gradient_tape()),
+            observe,
             self.tolerance,
+            constants,
         )
     }
 
@@ -660,10 +697,10 @@ pub(crate) trait CompiledAcceleration {
 }
 
 /// One RK4 step of a simulation (see `SecondOrderSystem::compiled_rk4_step`): `state`'s q
-/// and qdot advanced by dt, the step's tape built on first use, once per constraint set or
-/// map into `tapes`, with `observe` (what the monitors evaluate at a step's end) at its end
-/// when given (see [`CompiledSteps::observation_at`]). False, `state` untouched, when a
-/// pivot test failed.
+/// and qdot advanced by dt, the step's tape, with the constants folded in, built on first
+/// use (see [`FusedStep::folded`]), with `observe` (what the monitors evaluate at a step's
+/// end) at its end when given (see [`CompiledSteps::observation_at`]). False, `state`
+/// untouched, when a pivot test failed.
 #[inline]
 pub(crate) fn compiled_rk4_step(
     fused: &mut impl CompiledAcceleration,
@@ -672,14 +709,34 @@ pub(crate) fn compiled_rk4_step(
     state: &mut State,
     dt: f64,
 ) -> bool {
-    if fused.steps().step.is_none() {
-        let tolerance = fused.steps().tolerance;
-        let mut step = FusedStep::new(fused.layout(), tapes, observe, tolerance);
-        step.load_one(&fused.constants());
-        fused.steps().step = Some(Box::new(step));
-    }
-    let step = fused.steps().step.as_deref_mut().expect("built above");
+    let step = compiled_step(fused, tapes, observe);
     step.step_one(state.t, dt, &mut state.q, &mut state.qdot)
+}
+
+/// The compiled RK4 step of `fused`, built the first time.
+#[inline(always)]
+fn compiled_step<'a>(
+    fused: &'a mut impl CompiledAcceleration,
+    tapes: &FusedTapes,
+    observe: Option<&Tape>,
+) -> &'a mut FusedStep {
+    if fused.steps().step.is_none() {
+        build_compiled_step(fused, tapes, observe);
+    }
+    fused.steps().step.as_deref_mut().expect("built above")
+}
+
+#[cold]
+#[inline(never)]
+fn build_compiled_step(
+    fused: &mut impl CompiledAcceleration,
+    tapes: &FusedTapes,
+    observe: Option<&Tape>,
+) {
+    let tolerance = fused.steps().tolerance;
+    let constants = fused.constants();
+    let step = FusedStep::folded(fused.layout(), tapes, observe, tolerance, &constants);
+    fused.steps().step = Some(Box::new(step));
 }
 
 /// The RK4 step a formulation compiles from its fused acceleration (see
@@ -791,9 +848,7 @@ impl FusedParametric {
         if !system.forces().iter().all(constant) {
             return None;
         }
-        let tape = map
-            .fused()
-            .acceleration
+        let tape = map.fused().acceleration[NO_FEEDBACK]
             .get_or_init(|| parametric_tape(map))
             .clone()?;
         let (n, n_q) = (map.positions.len(), map.n_q());
@@ -817,15 +872,17 @@ impl FusedParametric {
         })
     }
 
-    /// One RK4 step as one tape for sweep lanes (built once per map), with the monitors'
-    /// observation (x, xdot and J, the observation tape) at its end, under
-    /// [`Self::step_constants`].
+    /// One RK4 step as one tape for sweep lanes, with the monitors' observation (x, xdot
+    /// and J, the observation tape) at its end and [`Self::step_constants`] folded in.
     pub(crate) fn rk4_step(&self, map: &ParametricMap) -> FusedStep {
-        FusedStep::new(
+        let observe = Some(map.observation_tape());
+        let constants = self.step_constants();
+        FusedStep::folded(
             self.layout(),
             map.fused(),
-            Some(map.observation_tape()),
+            observe,
             self.tolerance,
+            constants,
         )
     }
 
@@ -913,10 +970,11 @@ mod tests {
     use std::path::{Path, PathBuf};
     use std::sync::Arc;
 
+    use super::CompiledAcceleration;
     use crate::expr::testutil::Rng;
     use crate::formulation::{Feedback, Implicit, Parametric, SecondOrderSystem, State, StepError};
     use crate::integrate::{Integrator, Rk4};
-    use crate::model::System;
+    use crate::model::{FusedTapes, System};
     use crate::scene::Scene;
 
     /// Two particles of unlike masses in 3D under gravity and a constant force, held by
@@ -1346,5 +1404,69 @@ b = ["sin(th) + 0.3*ph", "cos(ph)*th", "0.5 + 0.1*sin(th*ph)"]
                 "{must} not compiled: {compiled:?}"
             );
         }
+    }
+
+    /// A simulation's RK4 step folds the system's constants in: the parabola's step has
+    /// fewer instructions than the lanes' (the products by the mass 1 vanish); simulations
+    /// with the same constants share one folded tape, and a set keeps at most
+    /// `FOLDED_KEPT` of them, while every step keeps the general path's bits.
+    #[test]
+    fn folded_steps_are_shared_by_their_constants_and_kept_to_a_bound() {
+        let scene = Scene::load(&scene_files()[0].with_file_name("parabola.toml"), &[]).unwrap();
+        let system = &scene.system;
+        let tapes = system.constraints().fused();
+        let kept = || tapes.folded().len();
+        assert_eq!(kept(), 0);
+        let mut rng = Rng::new(5);
+        let start = {
+            let f = Implicit::new(Arc::clone(system), Feedback::default());
+            crate::formulation::Formulation::initial_state(&f)
+        };
+        let step = |feedback: Feedback, rng: &mut Rng| {
+            let mut f = Implicit::new(Arc::clone(system), feedback);
+            let mut general = Implicit::new(Arc::clone(system), feedback);
+            general.fused = None;
+            assert!(check_rk4_steps(&mut f, &mut general, &start, rng, "parabola.toml") > 0);
+            f
+        };
+        let a = step(Feedback::default(), &mut rng);
+        let b = step(Feedback::default(), &mut rng);
+        assert_eq!(kept(), 1, "the same constants share a tape");
+        let fused = a.fused.as_ref().unwrap();
+        let folded = fused.steps.step.as_ref().unwrap();
+        // The same step with the constants as variables.
+        let observe = Some(system.constraints().gradient_tape());
+        let unfolded = crate::integrate::rk4::step_tape(&fused.layout(), observe, None);
+        let (short, long) = (folded.tape.n_instructions(), unfolded.n_instructions());
+        assert!(short + 4 <= long, "folded {short} vs {long} instructions");
+        // The lanes' step for these constants is that tape.
+        let lanes = fused.rk4_step(system.constraints(), &fused.constants());
+        assert_eq!(format!("{:?}", lanes.tape), format!("{:?}", folded.tape));
+        assert_eq!(kept(), 1);
+        drop(b);
+        for k in 1..=FusedTapes::FOLDED_KEPT + 2 {
+            step(
+                Feedback {
+                    ks: k as f64,
+                    kd: 0.5,
+                },
+                &mut rng,
+            );
+        }
+        assert_eq!(kept(), FusedTapes::FOLDED_KEPT);
+    }
+
+    /// Zero gains are no term at all: a -0 right-hand side stays -0 and an infinite C
+    /// does not turn it into NaN; nonzero gains subtract in the order written.
+    #[test]
+    fn feedback_off_adds_no_term() {
+        let off = Feedback::default();
+        assert!(off.is_off());
+        assert_eq!(off.subtract(-0.0, 3.0, -2.0).to_bits(), (-0.0f64).to_bits());
+        assert_eq!(off.subtract(1.5, f64::INFINITY, f64::NAN), 1.5);
+        let on = Feedback { ks: 4.0, kd: 0.0 };
+        assert!(!on.is_off());
+        assert_eq!(on.subtract(1.0, 0.25, 7.0), 1.0 - 4.0 * 0.25 - 0.0 * 7.0);
+        assert!(on.subtract(1.0, f64::INFINITY, 0.0).is_infinite());
     }
 }

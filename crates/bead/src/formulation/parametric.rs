@@ -83,11 +83,7 @@ impl Parametric {
         let velocity_dependent =
             system.has_velocity_dependent_forces() || map.bias_depends_on_rates();
         let solver = DenseLdlt::new(&SymmetricPattern::dense(n_q));
-        let coordinate_mass: Vec<f64> = system
-            .particles()
-            .iter()
-            .flat_map(|p| std::iter::repeat_n(p.mass, system.dim()))
-            .collect();
+        let coordinate_mass = system.coordinate_masses();
         // The applied forces, constant where the fused path applies (x, v are not read).
         let mut force = vec![0.0; system.n_coords()];
         let zeros = vec![0.0; system.n_coords()];

@@ -178,18 +178,30 @@ pub(crate) fn step_variables(t: f64, h: f64) -> [f64; 5] {
 /// q' = q + h/6 (v1 + 2 v2 + 2 v3 + v4),  qdot' = qdot + h/6 (a1 + 2 a2 + 2 a3 + a4)
 /// ```
 ///
-/// Variables: q, qdot (n each), t, the constants, then [`step_variables`]. Outputs: q',
+/// Variables: q, qdot (n each), t, the constants, then [`step_variables`]; with `values`,
+/// the constants are those values, folded into the tape where exact (see
+/// `TapeBuilder::append_with`), and their variable slots are not read. Outputs: q',
 /// qdot' (n each), then the factorization's diagonals of the four stages (`rows` each),
 /// then their pivots in the same order (so that the test is one pass over two runs), then, with
 /// `observe` (a tape of variables q, qdot, t: what a run's monitors evaluate at a step's
 /// end), its outputs at (q', qdot', t + h).
-pub(crate) fn step_tape(accel: &AccelerationTape<'_>, observe: Option<&Tape>) -> Tape {
+pub(crate) fn step_tape(
+    accel: &AccelerationTape<'_>,
+    observe: Option<&Tape>,
+    values: Option<&[f64]>,
+) -> Tape {
     let n = accel.n;
     let mut b = TapeBuilder::new();
     let q: Vec<Sym> = (0..n).map(|k| b.var(k)).collect();
     let qdot: Vec<Sym> = (0..n).map(|k| b.var(n + k)).collect();
     let t = b.var(2 * n);
-    let constants: Vec<Sym> = (0..accel.constants).map(|k| b.var(2 * n + 1 + k)).collect();
+    let constants: Vec<Sym> = match values {
+        Some(values) => {
+            debug_assert_eq!(values.len(), accel.constants);
+            values.iter().map(|&c| b.constant(c)).collect()
+        }
+        None => (0..accel.constants).map(|k| b.var(2 * n + 1 + k)).collect(),
+    };
     let after = 2 * n + 1 + accel.constants;
     let [t_half, t_full, half, h, sixth] = std::array::from_fn(|i| b.var(after + i));
     let mut diagonals = Vec::with_capacity(4 * accel.rows);

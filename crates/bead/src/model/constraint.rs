@@ -546,11 +546,11 @@ impl ConstraintSet {
 
     /// Every tape of the set (for the machine code summary), the fused acceleration's and
     /// its RK4 steps' once built.
-    pub(crate) fn tapes(&self) -> Vec<&Tape> {
-        let fused = self.fused.built();
+    pub(crate) fn tapes(&self) -> Vec<Tape> {
         [&self.value_tape, &self.full_tape, &self.gradient_tape]
             .into_iter()
-            .chain(fused)
+            .cloned()
+            .chain(self.fused.built())
             .collect()
     }
 

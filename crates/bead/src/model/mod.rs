@@ -150,7 +150,7 @@ impl System {
         let mut summary = crate::expr::NativeSummary::default();
         let parametric = self.parametric.iter().flat_map(|p| p.tapes());
         for tape in self.constraints.tapes().into_iter().chain(parametric) {
-            summary.add(tape);
+            summary.add(&tape);
         }
         summary
     }
@@ -169,6 +169,14 @@ impl System {
         for f in &self.forces {
             f.accumulate(dim, x, v, force);
         }
+    }
+
+    /// Each coordinate's mass (its particle's), n_coords.
+    pub(crate) fn coordinate_masses(&self) -> Vec<f64> {
+        self.particles()
+            .iter()
+            .flat_map(|p| std::iter::repeat_n(p.mass, self.dim))
+            .collect()
     }
 
     /// Kinetic energy T = 1/2 sum m_i |v_i|^2.
@@ -259,23 +267,67 @@ impl System {
 
 /// The fused tapes a constraint set or a parametric map keeps for its formulation (see
 /// `formulation::fused`), each built on first use and shared by the set's or map's clones:
-/// the whole acceleration (`None`: none applies) and one RK4 step of it, as the sweep lanes
-/// and a simulation's RK4 run it.
-#[derive(Clone, Debug, Default)]
+/// the whole acceleration (`None`: none applies) by [`FusedTapes::variant`] (the implicit
+/// form's feedback off or on; a map's is always off), and the RK4 steps that simulations
+/// and the sweep lanes run, with their constants folded in.
+#[derive(Debug, Default)]
 pub(crate) struct FusedTapes {
-    pub(crate) acceleration: std::sync::OnceLock<Option<crate::expr::Tape>>,
-    pub(crate) rk4: std::sync::OnceLock<Option<crate::expr::Tape>>,
-    /// The same step with the monitors' observation at its end (the sweep lanes')
-    pub(crate) rk4_observed: std::sync::OnceLock<Option<crate::expr::Tape>>,
+    pub(crate) acceleration: [std::sync::OnceLock<Option<crate::expr::Tape>>; 2],
+    /// Steps with their constants folded in, by the constants' bits and whether the
+    /// monitors' observation is at their end (at most [`FusedTapes::FOLDED_KEPT`]; a
+    /// formulation whose constants find no room builds its own)
+    pub(crate) rk4_folded: std::sync::Mutex<Vec<(Vec<u64>, bool, crate::expr::Tape)>>,
+}
+
+impl Clone for FusedTapes {
+    fn clone(&self) -> Self {
+        FusedTapes {
+            acceleration: self.acceleration.clone(),
+            rk4_folded: std::sync::Mutex::new(self.folded().clone()),
+        }
+    }
 }
 
 impl FusedTapes {
-    /// The fused acceleration's tape and the RK4 step, those built (for the machine code
+    /// The most folded steps kept per set or map. Systems that share a set have the same
+    /// masses and forces, so its steps differ only by the feedback gains: a run's, and a
+    /// few more (a notebook's loop over gains, the viewer's) before each builds its own.
+    pub(crate) const FOLDED_KEPT: usize = 8;
+
+    /// The variant index of the acceleration tape with feedback terms (`true`) or without.
+    pub(crate) fn variant(feedback: bool) -> usize {
+        usize::from(feedback)
+    }
+
+    /// The folded steps kept.
+    pub(crate) fn folded(
+        &self,
+    ) -> std::sync::MutexGuard<'_, Vec<(Vec<u64>, bool, crate::expr::Tape)>> {
+        self.rk4_folded
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+    }
+
+    /// The fused accelerations' tapes and the RK4 steps, those built (for the machine code
     /// summary).
-    pub(crate) fn built(&self) -> impl Iterator<Item = &crate::expr::Tape> {
-        [&self.acceleration, &self.rk4, &self.rk4_observed]
-            .into_iter()
-            .filter_map(|cell| cell.get().and_then(Option::as_ref))
+    pub(crate) fn built(&self) -> Vec<crate::expr::Tape> {
+        let cells = self.acceleration.iter();
+        cells
+            .filter_map(|cell| cell.get().and_then(Option::clone))
+            .chain(self.folded().iter().map(|(_, _, tape)| tape.clone()))
+            .collect()
+    }
+
+    /// Whether the step with `constants` folded in (and the observation at its end, or not)
+    /// is kept.
+    pub(crate) fn step_kept(&self, constants: &[f64], observed: bool) -> bool {
+        self.folded().iter().any(|(key, o, _)| {
+            *o == observed
+                && key
+                    .iter()
+                    .copied()
+                    .eq(constants.iter().map(|c| c.to_bits()))
+        })
     }
 }
 

@@ -351,11 +351,11 @@ impl ParametricMap {
 
     /// Every tape of the map (for the machine code summary), the fused acceleration's and
     /// its RK4 steps' once built.
-    pub(crate) fn tapes(&self) -> Vec<&Tape> {
-        let fused = self.fused.built();
+    pub(crate) fn tapes(&self) -> Vec<Tape> {
         [&self.tape, &self.state_tape, &self.observe_tape]
             .into_iter()
-            .chain(fused)
+            .cloned()
+            .chain(self.fused.built())
             .collect()
     }
 
