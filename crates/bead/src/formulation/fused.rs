@@ -452,21 +452,17 @@ impl FusedStep {
                 .find(|(k, o, _)| *k == key && *o == observed)
                 .map(|(_, _, tape)| tape.clone())
         };
-        let found = kept(&tapes.folded());
-        let tape = found.unwrap_or_else(|| {
-            // Built without the lock held (it compiles machine code).
+        // Built under the lock (a few milliseconds, once per constants): another formulation
+        // of the same set that asks for the same step meanwhile waits for it, not builds it.
+        let mut folded = tapes.folded();
+        let tape = kept(&folded).unwrap_or_else(|| {
             let tape = rk4::step_tape(&accel, observe, Some(constants));
-            let mut folded = tapes.folded();
-            match kept(&folded) {
-                Some(tape) => tape,
-                None => {
-                    if folded.len() < FusedTapes::FOLDED_KEPT {
-                        folded.push((key.clone(), observed, tape.clone()));
-                    }
-                    tape
-                }
+            if folded.len() < FusedTapes::FOLDED_KEPT {
+                folded.push((key.clone(), observed, tape.clone()));
             }
+            tape
         });
+        drop(folded);
         let mut step = Self::with_tape(tape, accel, tolerance);
         step.load_one(constants);
         step
