@@ -444,27 +444,22 @@ impl FusedStep {
         tolerance: f64,
         constants: &[f64],
     ) -> FusedStep {
-        let key: Vec<u64> = constants.iter().map(|c| c.to_bits()).collect();
         let observed = observe.is_some();
-        let kept = |folded: &[(Vec<u64>, bool, Tape)]| {
-            folded
-                .iter()
-                .find(|(k, o, _)| *k == key && *o == observed)
-                .map(|(_, _, tape)| tape.clone())
-        };
         // Built under the lock (a few milliseconds, once per constants): another formulation
         // of the same set that asks for the same step meanwhile waits for it, not builds it.
         let mut folded = tapes.folded();
-        let tape = kept(&folded).unwrap_or_else(|| {
+        let kept = FusedTapes::find(&folded, constants, observed).cloned();
+        let tape = kept.unwrap_or_else(|| {
             let tape = rk4::step_tape(&accel, observe, Some(constants));
             if folded.len() < FusedTapes::FOLDED_KEPT {
-                folded.push((key.clone(), observed, tape.clone()));
+                let key = constants.iter().map(|c| c.to_bits()).collect();
+                folded.push((key, observed, tape.clone()));
             }
             tape
         });
         drop(folded);
         let mut step = Self::with_tape(tape, accel, tolerance);
-        step.load_one(constants);
+        step.size_for::<1>();
         step
     }
 
@@ -491,14 +486,6 @@ impl FusedStep {
             self.scratch = vec![0.0; self.tape.n_slots() * L];
             self.out = vec![0.0; self.tape.n_outputs() * L];
             self.lanes = L;
-        }
-    }
-
-    /// The constants (the same for every lane) into the variables.
-    fn load_constants<const L: usize>(&mut self, constants: &[f64]) {
-        let at = 2 * self.n + 1;
-        for (k, &value) in constants.iter().enumerate() {
-            self.vars[(at + k) * L..(at + k + 1) * L].fill(value);
         }
     }
 
@@ -535,14 +522,7 @@ impl FusedStep {
         pass.map(|pass| pass != 0)
     }
 
-    /// Size the buffers for one lane and load `constants` (fixed for the step's life: a
-    /// formulation's F, W and gains or F and masses), before [`Self::step_one`].
-    fn load_one(&mut self, constants: &[f64]) {
-        self.size_for::<1>();
-        self.load_constants::<1>(constants);
-    }
-
-    /// One step of one state from time t by h under the constants of [`Self::load_one`]:
+    /// One step of one state from time t by h (the constants are in the tape):
     /// (q, qdot) advanced in place. False, (q, qdot) untouched, when a stage's matrix fails
     /// the pivot test. Only what changes from step to step is written (q, qdot, t and the
     /// step's variables).
@@ -569,7 +549,7 @@ impl FusedStep {
         q: &mut [f64],
         qdot: &mut [f64],
     ) -> bool {
-        debug_assert_eq!(self.lanes, 1, "load_one first");
+        debug_assert_eq!(self.lanes, 1, "sized for one lane by `folded`");
         debug_assert!(q.len() == self.n && qdot.len() == self.n);
         let n = if N == 0 { self.n } else { N };
         let after = 2 * n + 1 + self.constants;
@@ -615,8 +595,8 @@ impl FusedStep {
         &self.out[(2 * self.n + 2 * self.rows * STAGES) * L..]
     }
 
-    /// One step of every lane from time t by h under `constants` (loaded on the first call
-    /// only: the lanes' are fixed): from `start` = (q, qdot) (n x L each) to `end`;
+    /// One step of every lane from time t by h (the lanes share the constants, which are in
+    /// the tape): from `start` = (q, qdot) (n x L each) to `end`;
     /// `failed[l] = true` where a stage's matrix fails the pivot test (the lane's end is
     /// then garbage).
     #[inline(always)]
@@ -626,13 +606,9 @@ impl FusedStep {
         h: f64,
         start: (&[f64], &[f64]),
         end: (&mut [f64], &mut [f64]),
-        constants: &[f64],
         failed: &mut [bool; L],
     ) {
-        if self.lanes != L {
-            self.size_for::<L>();
-            self.load_constants::<L>(constants);
-        }
+        self.size_for::<L>();
         let pass = self.run::<L>(t, h, start.0, start.1);
         let n = self.n;
         end.0.copy_from_slice(&self.out[..n * L]);

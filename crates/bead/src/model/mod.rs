@@ -321,13 +321,21 @@ impl FusedTapes {
     /// Whether the step with `constants` folded in (and the observation at its end, or not)
     /// is kept.
     pub(crate) fn step_kept(&self, constants: &[f64], observed: bool) -> bool {
-        self.folded().iter().any(|(key, o, _)| {
-            *o == observed
-                && key
-                    .iter()
-                    .copied()
-                    .eq(constants.iter().map(|c| c.to_bits()))
-        })
+        Self::find(&self.folded(), constants, observed).is_some()
+    }
+
+    /// The step among `folded` with `constants` folded in (bit for bit) and the observation
+    /// at its end, or not.
+    pub(crate) fn find<'a>(
+        folded: &'a [(Vec<u64>, bool, crate::expr::Tape)],
+        constants: &[f64],
+        observed: bool,
+    ) -> Option<&'a crate::expr::Tape> {
+        let bits = || constants.iter().map(|c| c.to_bits());
+        folded
+            .iter()
+            .find(|(key, o, _)| *o == observed && key.iter().copied().eq(bits()))
+            .map(|(_, _, tape)| tape)
     }
 }
 

@@ -246,15 +246,12 @@ fn run_lanes_body(
             .fused
             .as_ref()
             .filter(|_| worth_building && across_lanes(implicit).is_some())
-            .map(|fused| (fused.rk4_step(system.constraints(), &constants), constants)),
-        (Kernel::Parametric(parametric), Some(constants)) => parametric
+            .map(|fused| fused.rk4_step(system.constraints(), &constants)),
+        (Kernel::Parametric(parametric), Some(_)) => parametric
             .fused
             .as_ref()
             .filter(|_| worth_building && parametric.across_lanes())
-            .map(|fused| {
-                let map = system.parametric().expect("checked by lanes_can_run");
-                (fused.rk4_step(map), constants)
-            }),
+            .map(|fused| fused.rk4_step(system.parametric().expect("checked by lanes_can_run"))),
         _ => None,
     };
     // Every lane starts from its member's state; lanes beyond `count` repeat the first.
@@ -288,11 +285,11 @@ fn run_lanes_body(
         std::mem::swap(&mut lanes.q_back, &mut lanes.q);
         std::mem::swap(&mut lanes.qdot_back, &mut lanes.qdot);
         let active_before = active;
-        if let Some((step, constants)) = fused_step.as_mut() {
+        if let Some(step) = fused_step.as_mut() {
             let mut failed = [false; LANES];
             let start = (&lanes.q_back[..], &lanes.qdot_back[..]);
             let end = (&mut lanes.q[..], &mut lanes.qdot[..]);
-            step.step_lanes::<LANES>(t, h, start, end, constants, &mut failed);
+            step.step_lanes::<LANES>(t, h, start, end, &mut failed);
             leave_where_failed(&failed, &mut active, &mut outcome);
         } else {
             // Stage by stage, in place from the start.
@@ -324,9 +321,7 @@ fn run_lanes_body(
         // t + h, where that is bitwise t (whenever t_end - t is exact, as it is once
         // t >= t_end / 2); else the observation tape's at t.
         let out = match &fused_step {
-            Some((step, _)) if (t_previous + h).to_bits() == t.to_bits() => {
-                step.observation::<LANES>()
-            }
+            Some(step) if (t_previous + h).to_bits() == t.to_bits() => step.observation::<LANES>(),
             _ => {
                 observe_lanes(&mut lanes, &observe_tape, t);
                 &lanes.out[..observe_tape.n_outputs() * LANES]
