@@ -118,9 +118,17 @@ impl<F: Formulation> EngineStep<F> {
         }
     }
     fn step(&mut self) -> f64 {
+        self.restart();
+        self.advance()
+    }
+    /// Back to the start state.
+    fn restart(&mut self) {
         self.state.t = self.start.t;
         self.state.q.copy_from_slice(&self.start.q);
         self.state.qdot.copy_from_slice(&self.start.qdot);
+    }
+    /// One step from where the last one ended.
+    fn advance(&mut self) -> f64 {
         self.integrator
             .step(&mut self.formulation, &mut self.state, black_box(DT))
             .unwrap();
@@ -287,6 +295,87 @@ fn mean_ns(n: u32, mut f: impl FnMut()) -> f64 {
     best
 }
 
+/// Steps along a trajectory run at a time: each step from the last one's end, as a run takes
+/// them, so that a step waits for the one before; from the start state again every 60 steps
+/// (one second), so that the implicit form's drift stays as small as in a run. The best of 7
+/// rounds of n steps (restarts included: the same 4-float copy on both sides), ns per step.
+fn trajectory_ns(n: u32, mut restart: impl FnMut(), mut advance: impl FnMut()) -> f64 {
+    mean_ns((n / 60).max(1), || {
+        restart();
+        for _ in 0..60 {
+            advance();
+        }
+    }) / 60.0
+}
+
+/// Ratios engine / hand-written along trajectories (see [`trajectory_ns`]), printed as a
+/// table: what a run's steps cost, where each waits for the last one's result, beside the
+/// table of independent steps (which a processor overlaps, and which measures how much work
+/// a step is).
+fn print_trajectory_ratios(v: &mut Variants, n: u32) {
+    let engine = |e: &mut EngineStep<_>| {
+        let e = std::cell::RefCell::new(e);
+        trajectory_ns(
+            n,
+            || e.borrow_mut().restart(),
+            || {
+                black_box(e.borrow_mut().advance());
+            },
+        )
+    };
+    let implicit_toml = engine(&mut v.implicit_toml);
+    let implicit_holonomic = engine(&mut v.implicit_holonomic);
+    let parametric_toml = {
+        let e = std::cell::RefCell::new(&mut v.parametric_toml);
+        trajectory_ns(
+            n,
+            || e.borrow_mut().restart(),
+            || {
+                black_box(e.borrow_mut().advance());
+            },
+        )
+    };
+    let implicit = std::cell::Cell::new(IMPLICIT_START);
+    let hand_implicit = trajectory_ns(
+        n,
+        || implicit.set(black_box(IMPLICIT_START)),
+        || implicit.set(hand_implicit_rk4(implicit.get(), black_box(DT))),
+    );
+    black_box(implicit.get());
+    let parametric = std::cell::Cell::new(PARAMETRIC_START);
+    let hand_parametric = trajectory_ns(
+        n,
+        || parametric.set(black_box(PARAMETRIC_START)),
+        || parametric.set(hand_parametric_rk4(parametric.get(), black_box(DT))),
+    );
+    black_box(parametric.get());
+    println!();
+    println!("Along a trajectory (each step from the last one's end, 60 at a time):");
+    println!("  {:<40} {:>10}", "variant", "ns/step");
+    for (name, ns) in [
+        ("implicit, engine from TOML", implicit_toml),
+        ("implicit, engine with Holonomic type", implicit_holonomic),
+        ("implicit, hand-written", hand_implicit),
+        ("parametric, engine from TOML", parametric_toml),
+        ("parametric, hand-written", hand_parametric),
+    ] {
+        println!("  {name:<40} {ns:>10.1}");
+    }
+    println!();
+    println!(
+        "  implicit TOML / hand-written      = {:.2}x",
+        implicit_toml / hand_implicit
+    );
+    println!(
+        "  implicit Holonomic / hand-written = {:.2}x (traced)",
+        implicit_holonomic / hand_implicit
+    );
+    println!(
+        "  parametric TOML / hand-written    = {:.2}x",
+        parametric_toml / hand_parametric
+    );
+}
+
 /// Ratios engine / hand-written, printed as a table.
 fn print_ratios(quick: bool) {
     let mut v = Variants::new();
@@ -342,6 +431,7 @@ fn print_ratios(quick: bool) {
         "  parametric TOML / hand-written    = {:.1}x",
         parametric_toml / hand_parametric
     );
+    print_trajectory_ratios(&mut v, n);
     // The constrained-symplectic methods on the same step of the implicit form (no
     // hand-written floor: their position solves iterate): RATTLE, and rattle4 (five RATTLE
     // steps per step, order 4), beside rk4.
