@@ -308,33 +308,34 @@ fn trajectory_ns(n: u32, mut restart: impl FnMut(), mut advance: impl FnMut()) -
     }) / 60.0
 }
 
+/// [`trajectory_ns`] of an engine's steps.
+fn engine_trajectory_ns<F: Formulation>(engine: &mut EngineStep<F>, n: u32) -> f64 {
+    let engine = std::cell::RefCell::new(engine);
+    trajectory_ns(
+        n,
+        || engine.borrow_mut().restart(),
+        || {
+            black_box(engine.borrow_mut().advance());
+        },
+    )
+}
+
+/// A table of variants and their ns per step.
+fn print_times(rows: &[(&str, f64)]) {
+    println!("  {:<40} {:>10}", "variant", "ns/step");
+    for (name, ns) in rows {
+        println!("  {name:<40} {ns:>10.1}");
+    }
+}
+
 /// Ratios engine / hand-written along trajectories (see [`trajectory_ns`]), printed as a
 /// table: what a run's steps cost, where each waits for the last one's result, beside the
 /// table of independent steps (which a processor overlaps, and which measures how much work
 /// a step is).
 fn print_trajectory_ratios(v: &mut Variants, n: u32) {
-    let engine = |e: &mut EngineStep<_>| {
-        let e = std::cell::RefCell::new(e);
-        trajectory_ns(
-            n,
-            || e.borrow_mut().restart(),
-            || {
-                black_box(e.borrow_mut().advance());
-            },
-        )
-    };
-    let implicit_toml = engine(&mut v.implicit_toml);
-    let implicit_holonomic = engine(&mut v.implicit_holonomic);
-    let parametric_toml = {
-        let e = std::cell::RefCell::new(&mut v.parametric_toml);
-        trajectory_ns(
-            n,
-            || e.borrow_mut().restart(),
-            || {
-                black_box(e.borrow_mut().advance());
-            },
-        )
-    };
+    let implicit_toml = engine_trajectory_ns(&mut v.implicit_toml, n);
+    let implicit_holonomic = engine_trajectory_ns(&mut v.implicit_holonomic, n);
+    let parametric_toml = engine_trajectory_ns(&mut v.parametric_toml, n);
     let implicit = std::cell::Cell::new(IMPLICIT_START);
     let hand_implicit = trajectory_ns(
         n,
@@ -351,16 +352,13 @@ fn print_trajectory_ratios(v: &mut Variants, n: u32) {
     black_box(parametric.get());
     println!();
     println!("Along a trajectory (each step from the last one's end, 60 at a time):");
-    println!("  {:<40} {:>10}", "variant", "ns/step");
-    for (name, ns) in [
+    print_times(&[
         ("implicit, engine from TOML", implicit_toml),
         ("implicit, engine with Holonomic type", implicit_holonomic),
         ("implicit, hand-written", hand_implicit),
         ("parametric, engine from TOML", parametric_toml),
         ("parametric, hand-written", hand_parametric),
-    ] {
-        println!("  {name:<40} {ns:>10.1}");
-    }
+    ]);
     println!();
     println!(
         "  implicit TOML / hand-written      = {:.2}x",
@@ -403,8 +401,7 @@ fn print_ratios(quick: bool) {
     });
     println!();
     println!("One RK4 step of the article's parabola (best of 7 rounds of {n} steps):");
-    println!("  {:<40} {:>10}", "variant", "ns/step");
-    for (name, ns) in [
+    print_times(&[
         ("implicit, engine from TOML", implicit_toml),
         ("implicit, engine with Holonomic type", implicit_holonomic),
         (
@@ -414,9 +411,7 @@ fn print_ratios(quick: bool) {
         ("implicit, hand-written", hand_implicit),
         ("parametric, engine from TOML", parametric_toml),
         ("parametric, hand-written", hand_parametric),
-    ] {
-        println!("  {name:<40} {ns:>10.1}");
-    }
+    ]);
     println!();
     println!(
         "  implicit TOML / hand-written      = {:.1}x",
