@@ -944,7 +944,9 @@ mod tests {
 
     use super::CompiledAcceleration;
     use crate::expr::testutil::Rng;
-    use crate::formulation::{Feedback, Implicit, Parametric, SecondOrderSystem, State, StepError};
+    use crate::formulation::{
+        Feedback, Formulation, Implicit, Parametric, SecondOrderSystem, State, StepError,
+    };
     use crate::integrate::{Integrator, Rk4};
     use crate::model::{FusedTapes, System};
     use crate::scene::Scene;
@@ -1279,15 +1281,19 @@ b = ["sin(th) + 0.3*ph", "cos(ph)*th", "0.5 + 0.1*sin(th*ph)"]
     /// takes the general path), unprimed and primed: the same bits (NaNs aside: see
     /// [`values`]), or the same error where a pivot test fails. Returns how many steps were compiled (a step the system declines
     /// leaves the state untouched).
+    /// Compiled RK4 steps of `compiled` against the general path's `general` from random
+    /// states near `start` (see the test below); returns how many direct compiled steps
+    /// were taken, and of those how many left the monitors' observation at their end (which
+    /// must be the general path's `observe` there, bit for bit).
     fn check_rk4_steps(
-        compiled: &mut dyn SecondOrderSystem,
-        general: &mut dyn SecondOrderSystem,
+        compiled: &mut dyn Formulation,
+        general: &mut dyn Formulation,
         start: &State,
         rng: &mut Rng,
         file: &str,
-    ) -> usize {
+    ) -> (usize, usize) {
         let n = start.q.len();
-        let mut count = 0;
+        let (mut count, mut observed) = (0, 0);
         for case in 0..120 {
             let spread = [0.0, 1e-6, 0.1, 2.0][case % 4];
             let mut from = State {
@@ -1327,12 +1333,29 @@ b = ["sin(th) + 0.3*ph", "cos(ph)*th", "0.5 + 0.1*sin(th*ph)"]
                 state.t += dt;
                 let got = (state.t.to_bits(), values(&state.q), values(&state.qdot));
                 assert_eq!(want.as_ref().ok(), Some(&got), "{file}: direct");
+                // What the monitors observe there: taken from the step's outputs where it
+                // evaluated them, the general path's own evaluation's bits.
+                let (t, q, qdot) = (state.t, &state.q, &state.qdot);
+                if compiled.compiled_step_observation(t, q, qdot).is_some() {
+                    observed += 1;
+                    let observation = |f: &mut dyn Formulation| {
+                        let mut o = f.new_observation();
+                        f.observe(t, q, qdot, &mut o);
+                        let g = &o.gradients;
+                        [&o.x, &o.xdot, &o.constraints, &g.values, &g.offset].map(|v| bits(v))
+                    };
+                    assert_eq!(
+                        observation(compiled),
+                        observation(general),
+                        "{file}: the observation at the step's end"
+                    );
+                }
             } else {
                 assert_eq!(bits(&state.q), bits(&from.q), "{file}: declined");
                 assert_eq!(bits(&state.qdot), bits(&from.qdot), "{file}: declined");
             }
         }
-        count
+        (count, observed)
     }
 
     #[test]
@@ -1346,8 +1369,13 @@ b = ["sin(th) + 0.3*ph", "cos(ph)*th", "0.5 + 0.1*sin(th*ph)"]
                 let mut general = Implicit::new(Arc::clone(system), feedback);
                 general.fused = None;
                 let start = crate::formulation::Formulation::initial_state(&f);
-                if check_rk4_steps(&mut f, &mut general, &start, &mut rng, &file) > 0 {
+                let (steps, observed) =
+                    check_rk4_steps(&mut f, &mut general, &start, &mut rng, &file);
+                if steps > 0 {
                     compiled.push(format!("implicit {file}"));
+                }
+                if observed > 0 {
+                    compiled.push(format!("implicit {file}, observed"));
                 }
             }
             if let (Ok(mut f), Ok(mut general)) = (
@@ -1356,8 +1384,13 @@ b = ["sin(th) + 0.3*ph", "cos(ph)*th", "0.5 + 0.1*sin(th*ph)"]
             ) {
                 general.fused = None;
                 let start = crate::formulation::Formulation::initial_state(&f);
-                if check_rk4_steps(&mut f, &mut general, &start, &mut rng, &file) > 0 {
+                let (steps, observed) =
+                    check_rk4_steps(&mut f, &mut general, &start, &mut rng, &file);
+                if steps > 0 {
                     compiled.push(format!("parametric {file}"));
+                }
+                if observed > 0 {
+                    compiled.push(format!("parametric {file}, observed"));
                 }
             }
         }
@@ -1370,6 +1403,9 @@ b = ["sin(th) + 0.3*ph", "cos(ph)*th", "0.5 + 0.1*sin(th*ph)"]
             "parametric mixed.toml",
             "parametric cycloid.toml",
             "parametric double-pendulum.toml",
+            "implicit parabola.toml, observed",
+            "parametric parabola.toml, observed",
+            "parametric double-pendulum.toml, observed",
         ] {
             assert!(
                 compiled.iter().any(|c| c == must),
@@ -1398,7 +1434,7 @@ b = ["sin(th) + 0.3*ph", "cos(ph)*th", "0.5 + 0.1*sin(th*ph)"]
             let mut f = Implicit::new(Arc::clone(system), feedback);
             let mut general = Implicit::new(Arc::clone(system), feedback);
             general.fused = None;
-            assert!(check_rk4_steps(&mut f, &mut general, &start, rng, "parabola.toml") > 0);
+            assert!(check_rk4_steps(&mut f, &mut general, &start, rng, "parabola.toml").0 > 0);
             f
         };
         let a = step(Feedback::default(), &mut rng);

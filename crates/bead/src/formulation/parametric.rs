@@ -196,7 +196,10 @@ impl SecondOrderSystem for Parametric {
             .parametric()
             .expect("checked in Parametric::new");
         let fused = self.fused.as_mut().expect("checked above");
-        let stepped = compiled_rk4_step(fused, map.fused(), None, state, dt);
+        // With x, xdot and J at the step's end, which the monitors read there (`observe`;
+        // the sweep lanes' step for these constants, so one tape for both).
+        let observe = Some(map.observation_tape());
+        let stepped = compiled_rk4_step(fused, map.fused(), observe, state, dt);
         self.evaluations += if stepped { 4 } else { 0 };
         stepped
     }
@@ -522,7 +525,32 @@ impl Formulation for Parametric {
             .system
             .parametric()
             .expect("checked in Parametric::new");
-        map.observe(t, q, qdot, &mut self.map);
+        let ws = &mut self.map;
+        // At the end of a compiled step, x, xdot and J were evaluated inside it: the
+        // observation tape's outputs, taken as `ParametricMap::observe` takes its own.
+        match self
+            .fused
+            .as_ref()
+            .and_then(|f| f.observation_at(t, q, qdot))
+        {
+            Some(observed) => {
+                #[cfg(debug_assertions)]
+                {
+                    map.observe(t, q, qdot, ws);
+                    let n = ws.position.len();
+                    let (x, rest) = observed.split_at(n);
+                    let (xdot, jacobian) = rest.split_at(n);
+                    assert!(
+                        crate::same_bits(x, &ws.position)
+                            && crate::same_bits(xdot, &ws.velocity)
+                            && crate::same_bits(jacobian, &ws.jacobian),
+                        "the step's observation differs from the observation tape's"
+                    );
+                }
+                map.take_observation(observed, ws);
+            }
+            None => map.observe(t, q, qdot, ws),
+        }
         self.observe_evaluated(t, out);
     }
 

@@ -392,6 +392,18 @@ impl ParametricMap {
         ws.jacobian.copy_from_slice(&ws.out[2 * n..outputs]);
     }
 
+    /// [`ParametricMap::observe`]'s result from the observation tape's outputs `observed`
+    /// (x, xdot, J), evaluated elsewhere (inside a compiled step, at its end): `ws` as
+    /// `observe` leaves it. Allocation-free.
+    ///
+    /// # Panics
+    /// If `observed` is not the observation tape's outputs.
+    pub(crate) fn take_observation(&self, observed: &[f64], ws: &mut ParametricEval) {
+        let outputs = 2 * self.positions.len() + self.columns.len();
+        ws.out[..outputs].copy_from_slice(observed);
+        self.unpack_observation(ws);
+    }
+
     /// x, xdot and J at (t, q, qdot), without h: what the run's monitors read. Allocation-free.
     pub fn observe(&self, t: f64, q: &[f64], qdot: &[f64], ws: &mut ParametricEval) {
         let n_q = self.n_q();
