@@ -10,9 +10,12 @@
 //!   force Fc.y = (-50 m vx^2 - 2500 Fy) / (x^2 + 2500), Fc.x = Fc.y x / 50 (gravity only, so
 //!   Fx = 0), and RK4 on (q, qdot) with qddot = (-q qdot^2 - 50 g q) / (2500 + q^2).
 //!
-//! Every step starts from the same state (a 4-float copy, done on both sides), so that the
-//! implicit form's drift cannot change what is measured. After the criterion groups, the
-//! engine/hand-written ratios are measured with plain `Instant` loops and printed as a table.
+//! In the criterion groups and the first table every step starts from the same state (a copy
+//! of the state, done on both sides), so that the implicit form's drift cannot change what is
+//! measured, and the processor may overlap one step with the next: how much work a step is.
+//! The second table takes steps along trajectories, each from the last one's end, as a run
+//! does: how long a step takes when it waits for the one before. Both tables of
+//! engine/hand-written ratios are measured with plain `Instant` loops.
 
 use std::hint::black_box;
 use std::sync::Arc;
@@ -298,7 +301,9 @@ fn mean_ns(n: u32, mut f: impl FnMut()) -> f64 {
 /// Steps along a trajectory run at a time: each step from the last one's end, as a run takes
 /// them, so that a step waits for the one before; from the start state again every 60 steps
 /// (one second), so that the implicit form's drift stays as small as in a run. The best of 7
-/// rounds of n steps (restarts included: the same 4-float copy on both sides), ns per step.
+/// rounds of n steps (restarts included: a copy of the start state on both sides), ns per
+/// step. The hand-written steps' results pass from step to step through a `Cell`, and the
+/// last is given to `black_box`.
 fn trajectory_ns(n: u32, mut restart: impl FnMut(), mut advance: impl FnMut()) -> f64 {
     mean_ns((n / 60).max(1), || {
         restart();

@@ -182,8 +182,9 @@ pub fn prepare(system: &System) {
         system.accumulate_forces(&zeros, &zeros, &mut force);
         let masses = system.coordinate_masses();
         if let Some(mut fused) = FusedParametric::new(system, &force, &masses, 0.0) {
-            fused.rk4_step(map);
-            compiled_step(&mut fused, map.fused(), None);
+            // With the monitors' observation, as single runs and the lanes build it: one
+            // tape for both.
+            compiled_step(&mut fused, map.fused(), Some(map.observation_tape()));
         }
     }
 }
@@ -1279,12 +1280,10 @@ b = ["sin(th) + 0.3*ph", "cos(ph)*th", "0.5 + 0.1*sin(th*ph)"]
     /// RK4 steps from perturbed states near `start` through `compiled` (its fused
     /// acceleration kept) and through `general` (the same system without it, so every stage
     /// takes the general path), unprimed and primed: the same bits (NaNs aside: see
-    /// [`values`]), or the same error where a pivot test fails. Returns how many steps were compiled (a step the system declines
-    /// leaves the state untouched).
-    /// Compiled RK4 steps of `compiled` against the general path's `general` from random
-    /// states near `start` (see the test below); returns how many direct compiled steps
-    /// were taken, and of those how many left the monitors' observation at their end (which
-    /// must be the general path's `observe` there, bit for bit).
+    /// [`values`]), or the same error where a pivot test fails. Returns how many direct
+    /// compiled steps were taken (a step the system declines leaves the state untouched),
+    /// and of those how many left the monitors' observation at their end, which must be
+    /// what the general path's `observe` gives there, bit for bit.
     fn check_rk4_steps(
         compiled: &mut dyn Formulation,
         general: &mut dyn Formulation,
@@ -1406,12 +1405,70 @@ b = ["sin(th) + 0.3*ph", "cos(ph)*th", "0.5 + 0.1*sin(th*ph)"]
             "implicit parabola.toml, observed",
             "parametric parabola.toml, observed",
             "parametric double-pendulum.toml, observed",
+            "parametric mixed.toml, observed",
+            "parametric cycloid.toml, observed",
         ] {
             assert!(
                 compiled.iter().any(|c| c == must),
                 "{must} not compiled: {compiled:?}"
             );
         }
+    }
+
+    /// The observation a compiled step evaluated at its end is given only for bitwise that
+    /// end: a state or a time one ulp off gets none (the caller evaluates its own), for both
+    /// forms.
+    #[test]
+    fn a_compiled_steps_observation_is_given_only_at_its_end() {
+        let (_, scene) = scenes()
+            .into_iter()
+            .find(|(file, _)| file == "parabola.toml")
+            .expect("the parabola is shipped");
+        let system = &scene.system;
+        let forms: [Box<dyn Formulation>; 2] = [
+            Box::new(Implicit::new(Arc::clone(system), Feedback::default())),
+            Box::new(Parametric::new(Arc::clone(system)).unwrap()),
+        ];
+        for mut f in forms {
+            let mut state = f.initial_state();
+            assert!(f.compiled_rk4_step(&mut state, 1.0 / 60.0));
+            state.t += 1.0 / 60.0;
+            let (t, q, qdot) = (state.t, &state.q[..], &state.qdot[..]);
+            assert!(f.compiled_step_observation(t, q, qdot).is_some());
+            let ulp = |v: f64| f64::from_bits(v.to_bits() + 1);
+            assert!(f.compiled_step_observation(ulp(t), q, qdot).is_none());
+            let mut moved = q.to_vec();
+            moved[0] = ulp(moved[0]);
+            assert!(f.compiled_step_observation(t, &moved, qdot).is_none());
+            let mut moved = qdot.to_vec();
+            moved[0] = ulp(moved[0]);
+            assert!(f.compiled_step_observation(t, q, &moved).is_none());
+        }
+    }
+
+    /// The parametric form's single runs, its sweep lanes and `prepare` ask for one step
+    /// tape for the same constants (the one with the monitors' observation at its end).
+    #[test]
+    fn a_parametric_step_is_one_tape_for_runs_lanes_and_prepare() {
+        let (_, scene) = scenes()
+            .into_iter()
+            .find(|(file, _)| file == "parabola.toml")
+            .expect("the parabola is shipped");
+        let system = &scene.system;
+        let map = system.parametric().unwrap();
+        let kept = || map.fused().folded().len();
+        assert_eq!(kept(), 0);
+        super::prepare(system);
+        assert_eq!(kept(), 1, "prepare builds the one step");
+        let mut f = Parametric::new(Arc::clone(system)).unwrap();
+        let mut state = crate::formulation::Formulation::initial_state(&f);
+        assert!(f.compiled_rk4_step(&mut state, 1.0 / 60.0));
+        assert_eq!(kept(), 1, "a single run's step is prepare's");
+        let fused = f.fused.as_ref().unwrap();
+        let lanes = fused.rk4_step(map);
+        assert_eq!(kept(), 1, "the lanes' step is the single run's");
+        let single = fused.steps.step.as_ref().unwrap();
+        assert_eq!(format!("{:?}", lanes.tape), format!("{:?}", single.tape));
     }
 
     /// A simulation's RK4 step folds the system's constants in: the parabola's step has

@@ -546,6 +546,10 @@ impl Formulation for Parametric {
                             && crate::same_bits(jacobian, &ws.jacobian),
                         "the step's observation differs from the observation tape's"
                     );
+                    // What `take_observation` does not write would show as NaN.
+                    for v in [&mut ws.position, &mut ws.velocity, &mut ws.jacobian] {
+                        v.fill(f64::NAN);
+                    }
                 }
                 map.take_observation(observed, ws);
             }
