@@ -1415,15 +1415,18 @@ b = ["sin(th) + 0.3*ph", "cos(ph)*th", "0.5 + 0.1*sin(th*ph)"]
         }
     }
 
+    /// The article's scene, as shipped.
+    fn parabola_scene() -> Scene {
+        let file = scene_files()[0].with_file_name("parabola.toml");
+        Scene::load(&file, &[]).unwrap_or_else(|e| panic!("{e}"))
+    }
+
     /// The observation a compiled step evaluated at its end is given only for bitwise that
     /// end: a state or a time one ulp off gets none (the caller evaluates its own), for both
     /// forms.
     #[test]
     fn a_compiled_steps_observation_is_given_only_at_its_end() {
-        let (_, scene) = scenes()
-            .into_iter()
-            .find(|(file, _)| file == "parabola.toml")
-            .expect("the parabola is shipped");
+        let scene = parabola_scene();
         let system = &scene.system;
         let forms: [Box<dyn Formulation>; 2] = [
             Box::new(Implicit::new(Arc::clone(system), Feedback::default())),
@@ -1450,10 +1453,7 @@ b = ["sin(th) + 0.3*ph", "cos(ph)*th", "0.5 + 0.1*sin(th*ph)"]
     /// tape for the same constants (the one with the monitors' observation at its end).
     #[test]
     fn a_parametric_step_is_one_tape_for_runs_lanes_and_prepare() {
-        let (_, scene) = scenes()
-            .into_iter()
-            .find(|(file, _)| file == "parabola.toml")
-            .expect("the parabola is shipped");
+        let scene = parabola_scene();
         let system = &scene.system;
         let map = system.parametric().unwrap();
         let kept = || map.fused().folded().len();
