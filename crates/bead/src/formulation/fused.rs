@@ -1477,7 +1477,7 @@ b = ["sin(th) + 0.3*ph", "cos(ph)*th", "0.5 + 0.1*sin(th*ph)"]
     /// `FOLDED_KEPT` of them, while every step keeps the general path's bits.
     #[test]
     fn folded_steps_are_shared_by_their_constants_and_kept_to_a_bound() {
-        let scene = Scene::load(&scene_files()[0].with_file_name("parabola.toml"), &[]).unwrap();
+        let scene = parabola_scene();
         let system = &scene.system;
         let tapes = system.constraints().fused();
         let kept = || tapes.folded().len();
