@@ -8,9 +8,11 @@
 //! drift |E - E0| / (m g L N (N + 1) / 2) at the end and the substeps per step. A long
 //! chain's tip whips faster than one Newton solve per 1/120 s can follow; the variants:
 //!
-//! - `engine`: `Simulation` (monitors included, what `bead run` does) with its own retries:
-//!   a step whose Newton solve fails is taken again in 2, 3, 5, 8, ... substeps, and the next steps
-//!   start from what it needed (the most any step took is printed);
+//! - `engine`: `Simulation` (monitors included, what `bead run` does) with its own
+//!   substeps: as many as RATTLE's stability needs under the rods' last tensions (h omega
+//!   <= 2), and a step whose Newton solve fails anyway is taken again in 2, 3, 5, 8, ...
+//!   substeps, the next steps starting from what it needed (the most any step took is
+//!   printed);
 //! - `engine, fixed`, `step alone` (the engine's RATTLE stepped directly, no monitors) and
 //!   `hand-written` (the floor): the whole run with 1, 2, 4, ... substeps per step, the
 //!   fewest at which every step converges.
@@ -365,7 +367,8 @@ fn run_engine(n: usize, duration: f64) -> (Figures, f64) {
 }
 
 /// The engine's run with `substeps` per step and no retry (`None` when a step fails), or,
-/// without, `Simulation`'s own retries in 2, 3, 5, ... substeps as a step needs them; and
+/// without, `Simulation`'s own substeps (for stability, and retries in 2, 3, 5, ... where a
+/// step fails anyway); and
 /// its Newton iterations per step.
 fn engine_run(n: usize, duration: f64, substeps: Option<u32>) -> Option<(Figures, f64)> {
     // The engine's own tolerance: each rod to 1e-12 of its length plus rounding at its

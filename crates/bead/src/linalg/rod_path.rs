@@ -24,7 +24,7 @@
 
 mod tree;
 
-use super::{PathOrder, Singular, RELATIVE_PIVOT_TOLERANCE};
+use super::{max_nan, PathOrder, Singular, RELATIVE_PIVOT_TOLERANCE};
 use crate::model::DistanceRow;
 use tree::TreeElimination;
 
@@ -673,6 +673,61 @@ impl RodPath {
         }
     }
 
+    /// An upper bound of omega^2, the square of the fastest oscillation the rods' forces
+    /// `lambda(row)` (a rod's tension or thrust) give the particles across the rods: the
+    /// forces' stiffness K = sum_r lambda_r Hess C_r, with Hess C_r = (1/L_r) [I, -I; -I, I]
+    /// over the rod's two particles, in the mass metric W^(1/2) K W^(1/2), whose largest
+    /// eigenvalue is at most its largest absolute row sum (Gershgorin):
+    ///
+    /// ```text
+    /// omega^2 <= max_i sum_{rods r on i} |lambda_r| / L_r (w_i + sqrt(w_i w_j))
+    /// ```
+    ///
+    /// (j the rod's other particle, w_j = 0 at a fixed point). On a chain of equal masses
+    /// m under tension T it is 4 T / (m L), the chain's own highest frequency squared: a
+    /// Verlet step h is stable for h omega < 2. NaN when a `lambda` is. `scratch` has an entry
+    /// per coordinate (`w.len()`); those at the rods' particles are overwritten.
+    ///
+    /// ```
+    /// use bead::linalg::RodPath;
+    /// use bead::model::DistanceRow;
+    /// // A particle of mass 2 hanging from the origin on a rod of length 0.5 with tension 9.
+    /// let row = DistanceRow { a: 0, b: None, anchor: [0.0; 3], dim: 2, length: 0.5 };
+    /// let rods = RodPath::of_rows(1, |_| Some(row)).unwrap();
+    /// let bound = rods.stiffness_bound(&[0.5, 0.5], |_| 9.0, &mut [0.0; 2]);
+    /// // The pendulum's T / (m L) = 9.
+    /// assert_eq!(bound, 9.0);
+    /// ```
+    pub fn stiffness_bound(
+        &self,
+        w: &[f64],
+        lambda: impl Fn(usize) -> f64,
+        scratch: &mut [f64],
+    ) -> f64 {
+        for rod in &self.rods {
+            scratch[rod.a()] = 0.0;
+            if let Some(b) = rod.b() {
+                scratch[b] = 0.0;
+            }
+        }
+        for rod in &self.rods {
+            let k = lambda(rod.row()).abs() * rod.inverse_length;
+            let (a, wa) = (rod.a(), w[rod.a()]);
+            match rod.b() {
+                Some(b) => {
+                    let cross = (wa * w[b]).sqrt();
+                    scratch[a] += k * (wa + cross);
+                    scratch[b] += k * (w[b] + cross);
+                }
+                None => scratch[a] += k * wa,
+            }
+        }
+        self.rods.iter().fold(0.0, |most, rod| {
+            let most = max_nan(scratch[rod.a()], most);
+            rod.b().map_or(most, |b| max_nan(scratch[b], most))
+        })
+    }
+
     /// out\[row\] = J_row(q_n) v (q_n the configuration of [`RodPath::set_start`]).
     pub fn start_multiply(&self, v: &[f64], out: &mut [f64]) {
         match self.dim {
@@ -1093,6 +1148,72 @@ mod tests {
         for i in 0..m {
             let expected: f64 = (0..14).map(|k| j[i][k] * x[k]).sum();
             assert!((out[i] - expected).abs() < 1e-12);
+        }
+    }
+
+    /// The stiffness bound is the largest absolute row sum of the dense W^(1/2) K W^(1/2),
+    /// K = sum_r |lambda_r| Hess C_r assembled from each rod's Hessian (1/L) [I, -I; -I, I],
+    /// and bounds the spectral radius of that matrix for the signed forces too (power
+    /// iteration, from below): rods in paths and in trees, 1-3 dimensions, unequal masses, a
+    /// massless (fixed) particle, forces of both signs; NaN when a force is.
+    #[test]
+    fn the_stiffness_bound_is_the_dense_gershgorin_bound() {
+        let cases = (1..=3).flat_map(|dim| [(rods(dim), 7, dim), (tree_rods(dim), 18, dim)]);
+        for (rows, particles, dim) in cases {
+            let path = found_path(&rows);
+            let n = particles * dim;
+            let mut seed = Rng::new(3 + dim as u64);
+            let mut w: Vec<f64> = (0..particles)
+                .flat_map(|_| std::iter::repeat_n(0.3 + random(&mut seed).abs(), dim))
+                .collect();
+            w[dim..2 * dim].fill(0.0);
+            let lambda: Vec<f64> = rows.iter().map(|_| 10.0 * random(&mut seed)).collect();
+            // sqrt(W) K sqrt(W), dense, for the forces `force(r)`.
+            let dense = |force: &dyn Fn(usize) -> f64| {
+                let mut k = vec![0.0; n * n];
+                for (r, row) in rows.iter().enumerate() {
+                    let stiffness = force(r) / row.length;
+                    for c in 0..dim {
+                        let a = row.a + c;
+                        k[a * n + a] += stiffness * w[a];
+                        if let Some(b) = row.b.map(|b| b + c) {
+                            k[b * n + b] += stiffness * w[b];
+                            let cross = -stiffness * (w[a] * w[b]).sqrt();
+                            k[a * n + b] += cross;
+                            k[b * n + a] += cross;
+                        }
+                    }
+                }
+                k
+            };
+            let mut scratch = vec![f64::NAN; n];
+            let bound = path.stiffness_bound(&w, |r| lambda[r], &mut scratch);
+            let pulling = dense(&|r| lambda[r].abs());
+            let gershgorin = (0..n)
+                .map(|i| (0..n).map(|j| pulling[i * n + j].abs()).sum::<f64>())
+                .fold(0.0, f64::max);
+            assert!(
+                (bound - gershgorin).abs() <= 1e-14 * gershgorin,
+                "dim {dim}: {bound} against {gershgorin}"
+            );
+            // The spectral radius for the signed forces, by power iteration.
+            let k = dense(&|r| lambda[r]);
+            let mut v: Vec<f64> = (0..n).map(|_| random(&mut seed)).collect();
+            let mut radius = 0.0;
+            for _ in 0..500 {
+                let kv: Vec<f64> = (0..n)
+                    .map(|i| (0..n).map(|j| k[i * n + j] * v[j]).sum())
+                    .collect();
+                radius = kv.iter().map(|x| x * x).sum::<f64>().sqrt();
+                v = kv.iter().map(|x| x / radius).collect();
+            }
+            assert!(
+                radius > 0.1 * bound && radius <= bound,
+                "{radius} against {bound}"
+            );
+            let nan =
+                path.stiffness_bound(&w, |r| if r == 1 { f64::NAN } else { 1.0 }, &mut scratch);
+            assert!(nan.is_nan());
         }
     }
 

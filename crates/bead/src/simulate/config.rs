@@ -35,8 +35,11 @@ pub struct SimulationConfig {
     /// 5, 8, ...), up to this many,
     /// before failing. The steps after a retried one start with the substeps it needed and
     /// try one place fewer in that sequence after 16 steps without a retry (after twice as
-    /// many steps each time such a try fails at once, up to 256). Default 64; equal to
-    /// `substeps` to never retry.
+    /// many steps each time such a try fails at once, up to 256). RATTLE on rods also
+    /// takes, before it fails, as many substeps as it needs to stay stable (h omega <= 2
+    /// for the rods' fastest oscillation omega, bounded from the last step's tensions:
+    /// [`crate::integrate::Integrator::stable_step`]), up to this many. Default 64; equal
+    /// to `substeps` to never retry nor add any.
     pub max_substeps: u32,
     /// Track the work W done on T + V (the energy ledger, see [`super::Simulation::work`]):
     /// `None` (the default) tracks it when the formulation does not conserve T + V (drag,

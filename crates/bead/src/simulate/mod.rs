@@ -744,8 +744,10 @@ impl Simulation {
         self.save();
         let configured = self.config.substeps.max(1);
         // Start from what recent steps needed, so that a run of hard steps does not pay for
-        // the same failed attempts again at every step.
-        let mut substeps = configured.max(self.sticky.substeps);
+        // the same failed attempts again at every step, and from what stability needs.
+        let mut substeps = configured
+            .max(self.sticky.substeps)
+            .max(self.stable_substeps(t_end));
         let mut retried = false;
         loop {
             match self.substeps(t_end, substeps) {
@@ -768,6 +770,35 @@ impl Simulation {
         self.substeps_max = self.substeps_max.max(substeps);
         self.last_substeps = substeps;
         Ok(())
+    }
+
+    /// The fewest substeps of the step to `t_end` at which the integrator stays stable, as
+    /// far as it can tell from its last step ([`Integrator::stable_step`]: RATTLE on rods),
+    /// at most `max_substeps`; 1 when it cannot tell.
+    fn stable_substeps(&mut self, t_end: f64) -> u32 {
+        let Simulation {
+            formulation,
+            ledger,
+            state,
+            stepper,
+            config,
+            ..
+        } = self;
+        let Stepper::Fixed(integrator) = stepper else {
+            return 1;
+        };
+        let Some(stable) =
+            with_system(formulation, ledger, |system| integrator.stable_step(system))
+        else {
+            return 1;
+        };
+        // NaN (no stable step) compares false: one substep.
+        let needed = ((t_end - state.t) / stable).ceil();
+        if needed > 1.0 {
+            needed.min(config.max_substeps as f64) as u32
+        } else {
+            1
+        }
     }
 
     /// The step from the current state to `t_end` as `count` steps of equal length, each
