@@ -685,8 +685,10 @@ impl RodPath {
     ///
     /// (j the rod's other particle, w_j = 0 at a fixed point). On a chain of equal masses
     /// m under tension T it is 4 T / (m L), the chain's own highest frequency squared: a
-    /// Verlet step h is stable for h omega < 2. NaN when a `lambda` is. `scratch` has an entry
-    /// per coordinate (`w.len()`); those at the rods' particles are overwritten.
+    /// Verlet step h is stable for h omega < 2. NaN when a `lambda` is. One pass along
+    /// paths (a particle is on the rod before or after it in the path, or on no other);
+    /// trees sum each particle's rods in `scratch`, an entry per coordinate (`w.len()`),
+    /// whose entries at the rods' particles are overwritten.
     ///
     /// ```
     /// use bead::linalg::RodPath;
@@ -704,6 +706,34 @@ impl RodPath {
         lambda: impl Fn(usize) -> f64,
         scratch: &mut [f64],
     ) -> f64 {
+        // Rod r's part of its particles' row sums: |lambda_r| / L_r (w + sqrt(w_a w_b)).
+        let parts = |rod: &Rod| {
+            let k = lambda(rod.row()).abs() * rod.inverse_length;
+            let wa = w[rod.a()];
+            let (wb, cross) = rod.b().map_or((0.0, 0.0), |b| (w[b], (wa * w[b]).sqrt()));
+            (k, wa, wb, cross)
+        };
+        if self.tree.is_none() {
+            // Each end alone, and the particle a rod shares with the one before it in the
+            // path with both rods' parts.
+            // (A NaN force makes the sum of the k NaN; the maxima, one comparison each, may
+            // skip it.)
+            let larger = |a: f64, b: f64| if a > b { a } else { b };
+            let (mut most, mut sum) = (0.0, 0.0);
+            let (mut k_before, mut cross_before) = (0.0, 0.0);
+            for rod in &self.rods {
+                let (k, wa, wb, cross) = parts(rod);
+                sum += k;
+                let mut row = k * (larger(wa, wb) + cross);
+                if let Some(shared) = rod.shared() {
+                    let ws = w[shared];
+                    row = larger(k_before * (ws + cross_before) + k * (ws + cross), row);
+                }
+                most = larger(row, most);
+                (k_before, cross_before) = (k, cross);
+            }
+            return if sum.is_nan() { sum } else { most };
+        }
         for rod in &self.rods {
             scratch[rod.a()] = 0.0;
             if let Some(b) = rod.b() {
@@ -711,15 +741,10 @@ impl RodPath {
             }
         }
         for rod in &self.rods {
-            let k = lambda(rod.row()).abs() * rod.inverse_length;
-            let (a, wa) = (rod.a(), w[rod.a()]);
-            match rod.b() {
-                Some(b) => {
-                    let cross = (wa * w[b]).sqrt();
-                    scratch[a] += k * (wa + cross);
-                    scratch[b] += k * (w[b] + cross);
-                }
-                None => scratch[a] += k * wa,
+            let (k, wa, wb, cross) = parts(rod);
+            scratch[rod.a()] += k * (wa + cross);
+            if let Some(b) = rod.b() {
+                scratch[b] += k * (wb + cross);
             }
         }
         self.rods.iter().fold(0.0, |most, rod| {
