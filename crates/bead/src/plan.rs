@@ -32,7 +32,8 @@ pub const DEFAULT_DT: f64 = 1.0 / 60.0;
 pub const DEFAULT_DURATION: f64 = 10.0;
 /// Integrator when neither the request nor the scene name one.
 pub const DEFAULT_INTEGRATOR: IntegratorKind = IntegratorKind::Rk4;
-/// Most substeps a retried step may take when the request does not say.
+/// Most substeps a step may take (retried, or split for RATTLE's stability) when the request
+/// does not say.
 pub const DEFAULT_MAX_SUBSTEPS: u32 = 64;
 /// More steps than 2^53 cannot be timed exactly (t = step * dt) and would not finish anyway.
 const MAX_STEPS: f64 = 9_007_199_254_740_992.0;
@@ -64,8 +65,8 @@ pub struct PlanRequest {
     pub project: bool,
     /// Substeps per step of dt, >= 1; default 1.
     pub substeps: Option<u32>,
-    /// Most substeps a retried step may take, >= 1; default [`DEFAULT_MAX_SUBSTEPS`], and
-    /// never fewer than `substeps`.
+    /// Most substeps a step may take (retried, or split for RATTLE's stability), >= 1;
+    /// default [`DEFAULT_MAX_SUBSTEPS`], and never fewer than `substeps`.
     pub max_substeps: Option<u32>,
     /// Interior times per step at which a stop condition is sampled, 0 to
     /// [`crate::simulate::MAX_EVENT_SAMPLES`]; default: the scene's, else
@@ -137,7 +138,8 @@ pub struct Plan {
     pub project: bool,
     /// Substeps per step of dt.
     pub substeps: u32,
-    /// The most substeps a retried step may take (at least `substeps`).
+    /// The most substeps a step may take, retried or split for RATTLE's stability (at least
+    /// `substeps`).
     pub max_substeps: u32,
     /// Interior times per step at which a stop condition is sampled.
     pub event_samples: u32,

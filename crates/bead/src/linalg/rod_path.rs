@@ -684,8 +684,9 @@ impl RodPath {
     /// ```
     ///
     /// (j the rod's other particle, w_j = 0 at a fixed point). On a chain of equal masses
-    /// m under tension T it is 4 T / (m L), the chain's own highest frequency squared: a
-    /// Verlet step h is stable for h omega < 2. NaN when a `lambda` is. One pass along
+    /// m under tension T it is 4 T / (m L), the limit of the chain's highest frequency
+    /// squared as it grows long (a hanging chain's is 0.90 of it at 20 links, 0.99 at
+    /// 1000): a Verlet step h is stable for h omega < 2. NaN when a `lambda` is. One pass along
     /// paths (a particle is on the rod before or after it in the path, or on no other);
     /// trees sum each particle's rods in `scratch`, an entry per coordinate (`w.len()`),
     /// whose entries at the rods' particles are overwritten.

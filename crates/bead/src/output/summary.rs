@@ -36,7 +36,7 @@ use crate::simulate::{RunFailure, RunStats};
 /// | `newton_iterations_max` | rattle, rattle4, fast-projection or `--project` only: most Newton iterations of any one solve (a step, a substep, a rattle4 stage, a projection) |
 /// | `newton_iterations` | the same only: Newton iterations of all solves, substeps, stages and retried attempts included |
 /// | `substeps` | only when more than 1: substeps per step of dt asked for (`--substeps`) |
-/// | `substeps_max` | only when more than 1: the most substeps any step took, retries included |
+/// | `substeps_max` | only when more than 1: the most substeps any step took, those RATTLE's stability asked for and retries included |
 /// | `retried_steps` | only when some were: steps retried with more substeps because an iteration did not converge |
 /// | `stop_when` | the stop condition as written (`null` when none) |
 /// | `stop_time` | the time the stop condition fired and the run ended (`null` when it did not) |
@@ -144,7 +144,8 @@ pub struct Summary {
     /// Substeps per step of dt as asked (written only when more than 1).
     #[serde(skip_serializing_if = "is_one")]
     pub substeps: u32,
-    /// The most substeps any step took, retries included (written only when more than 1).
+    /// The most substeps any step took, those RATTLE's stability asked for and retries
+    /// included (written only when more than 1).
     #[serde(skip_serializing_if = "is_one")]
     pub substeps_max: u32,
     /// Steps retried with more substeps because an iteration did not converge (written only

@@ -155,7 +155,8 @@ pub struct Simulation {
     projection_iterations_max: Option<usize>,
     /// `--project`'s Newton iterations of every step so far
     projection_iterations_total: u64,
-    /// The most substeps any step of dt took (configured ones and retries)
+    /// The most substeps any step of dt took (configured ones, those stability asked for,
+    /// retries)
     substeps_max: u32,
     /// Steps retried with more substeps because an iteration did not converge
     retried_steps: u64,
@@ -565,8 +566,9 @@ impl Simulation {
     pub fn steps(&self) -> u64 {
         self.steps
     }
-    /// The most substeps any step has taken so far: the configured count, or more where a
-    /// step was retried in smaller ones (as [`RunStats::substeps_max`], without building the
+    /// The most substeps any step has taken so far: the configured count, or more where
+    /// RATTLE's stability asked for them or a step was retried in smaller ones (as
+    /// [`RunStats::substeps_max`], without building the
     /// statistics and their copy of the state).
     pub fn substeps_max(&self) -> u32 {
         self.substeps_max.max(self.config.substeps.max(1))
@@ -787,6 +789,10 @@ impl Simulation {
         let Stepper::Fixed(integrator) = stepper else {
             return 1;
         };
+        // No more substeps allowed than configured: nothing to ask.
+        if config.max_substeps <= config.substeps {
+            return 1;
+        }
         let Some(stable) =
             with_system(formulation, ledger, |system| integrator.stable_step(system))
         else {

@@ -157,7 +157,8 @@ pub struct RunStats {
     pub newton_iterations: Option<u64>,
     /// Substeps per step of dt as configured (1: none).
     pub substeps: u32,
-    /// The most substeps any step took, retries included.
+    /// The most substeps any step took, those RATTLE's stability asked for and retries
+    /// included.
     pub substeps_max: u32,
     /// Steps retried with more substeps because an iteration did not converge.
     pub retried_steps: u64,
