@@ -401,7 +401,7 @@ pub struct SimArgs {
 
     /// When a step's iteration does not converge (rattle's Newton solve, --project, an
     /// implicit kick or stage), retry it with about 1.5 times as many substeps (2, 3, 5, 8,
-    /// ...), up to M, before failing; rattle on rods in paths or trees (chains, ropes) also
+    /// ...), up to M, before failing; rattle on systems of rods and pins (chains, cloth) also
     /// takes, up to M, as many as it needs to stay stable (h omega <= 2, omega the rods'
     /// fastest oscillation under their last tensions)
     #[arg(long, value_name = "M", default_value_t = 64, value_parser = clap::value_parser!(u32).range(1..))]

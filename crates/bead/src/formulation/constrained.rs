@@ -59,6 +59,12 @@ pub trait ConstrainedSystem: SecondOrderSystem {
         let _ = row;
         None
     }
+    /// Whether constraint row `row` is linear in q (a built-in pin: its Hessian is zero, and
+    /// its force stiffens nothing); `false` when the system does not know (the default).
+    fn linear_row(&self, row: usize) -> bool {
+        let _ = row;
+        false
+    }
     /// The rods the system solves J W J^T along ([`RodPath`]: every row a rod, the rods
     /// coupled in paths), with the scales its residual is measured with (see
     /// [`ConstrainedSystem::constraint_scales`]): an integrator may take its own exact Newton
@@ -326,6 +332,10 @@ impl ConstrainedSystem for Implicit {
 
     fn distance_row(&self, row: usize) -> Option<DistanceRow> {
         self.system.constraints().distance_row(row)
+    }
+
+    fn linear_row(&self, row: usize) -> bool {
+        self.system.constraints().is_pin_row(row)
     }
 
     fn rods_mut(&mut self) -> Option<(&mut RodPath, Option<&ConstraintScales>)> {

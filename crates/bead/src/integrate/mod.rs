@@ -116,7 +116,7 @@ pub trait Integrator: Send {
     }
 
     /// The longest step at which the method stays stable after its last step, as far as it
-    /// can tell from that step: RATTLE's 2 / omega on rods that couple in paths or trees,
+    /// can tell from that step: RATTLE's 2 / omega on systems of rods and pins,
     /// omega bounded from its multipliers ([`Rattle`]'s stable step); `None` when it cannot
     /// tell (the default: every other method, other constraints, no step yet).
     fn stable_step(&mut self, _system: &mut dyn SecondOrderSystem) -> Option<f64> {

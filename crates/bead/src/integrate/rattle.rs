@@ -89,8 +89,9 @@
 //!
 //! **Stable step.** Across the rods RATTLE is the Stormer-Verlet method, explicit in the
 //! oscillations the rods' tensions give the particles, and stable only for h omega < 2
-//! (omega the fastest of them). On rods that couple in paths or trees it bounds omega^2 from
-//! its last multipliers ([`crate::linalg::RodPath::stiffness_bound`]), and `Simulation` takes
+//! (omega the fastest of them). On systems of rods and pins it bounds omega^2 from its last
+//! multipliers ([`crate::linalg::RodPath::stiffness_bound`] along paths and trees,
+//! [`crate::linalg::stiffness_bound_of_rows`] elsewhere), and `Simulation` takes
 //! as many substeps as keep h omega <= 2 ([`Integrator::stable_step`]) before any Newton solve
 //! fails: beyond the bound the fastest oscillation grows from step to step, and when the
 //! solve fails at last the retried step leaves it in the motion for good (a symplectic
@@ -121,7 +122,9 @@ use std::sync::Arc;
 use super::fixed_point::{increment_and_scale, FixedPoint};
 use super::{constraints_of, Integrator, IntegratorKind, IntegratorSettings, StepEnd};
 use crate::formulation::{ConstrainedSystem, SecondOrderSystem, State, StepError};
-use crate::linalg::{max_abs, solve_general, ConstraintMatrix, LinearSolver, DENSE_MAX_ROWS};
+use crate::linalg::{
+    max_abs, solve_general, stiffness_bound_of_rows, ConstraintMatrix, LinearSolver, DENSE_MAX_ROWS,
+};
 
 /// Iterations the fused exact Newton iteration may go without halving its best residual
 /// before the step is given up as failed (and retried in substeps by `Simulation`): Newton's
@@ -903,16 +906,17 @@ impl Integrator for Rattle {
         Some(self.iterations_max)
     }
 
-    /// 2 / omega, omega^2 bounded by [`RodPath::stiffness_bound`] from the last step's
-    /// multipliers lambda = -2 nu / h^2 (the rods' tensions over that step): the
+    /// 2 / omega, omega^2 bounded by [`RodPath::stiffness_bound`] (rods in paths and
+    /// trees) or [`stiffness_bound_of_rows`] (rods and pins in any graph) from the last
+    /// step's multipliers lambda = -2 nu / h^2 (the rods' tensions over that step): the
     /// Stormer-Verlet step RATTLE takes across the rods is stable for h omega < 2 and
     /// excites their fastest oscillation beyond it. Measured on the hanging chain of 10^4
     /// links at h = 1/120: h omega (the bound) passes 2 at 2.0 s; a run that goes to two
     /// substeps by then takes one Newton iteration per substep for the rest of 10 s, one that
     /// goes on in single steps until the Newton solve fails at h omega = 2.09 leaves that
-    /// oscillation in the chain for good, at 2-3 iterations per substep. Rods only (their
-    /// Hessians are constant and their forces are the multipliers); after a warm-start
-    /// step only (`nu_step`, else `None`).
+    /// oscillation in the chain for good, at 2-3 iterations per substep. Rods and pins only
+    /// (their Hessians are constant and their forces are the multipliers; `None` with a row
+    /// written as an expression); after a warm-start step only (`nu_step`, else `None`).
     ///
     /// [`RodPath::stiffness_bound`]: crate::linalg::RodPath::stiffness_bound
     fn stable_step(&mut self, system: &mut dyn SecondOrderSystem) -> Option<f64> {
@@ -925,14 +929,21 @@ impl Integrator for Rattle {
         if h == 0.0 || !same {
             return None;
         }
-        let (rods, _) = cs.rods_mut()?;
         let scale = 2.0 / (h * h);
         let nu = &self.nu;
-        let omega_squared = rods.stiffness_bound(
-            &self.inverse_mass,
-            |row| scale * nu[row],
-            &mut self.acceleration,
-        );
+        let lambda = |row: usize| scale * nu[row];
+        let (w, scratch) = (&self.inverse_mass, &mut self.acceleration);
+        let omega_squared = match cs.rods_mut() {
+            Some((rods, _)) => rods.stiffness_bound(w, lambda, scratch),
+            // Rods in rings (a cloth, a net) and pins, one row at a time.
+            None => {
+                let row = |r| match cs.distance_row(r) {
+                    Some(rod) => Some(Some(rod)),
+                    None => cs.linear_row(r).then_some(None),
+                };
+                stiffness_bound_of_rows(nu.len(), row, w, lambda, scratch)?
+            }
+        };
         (omega_squared >= 0.0).then(|| 2.0 / omega_squared.sqrt())
     }
 

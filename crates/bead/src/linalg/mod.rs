@@ -26,7 +26,7 @@ pub(crate) use dense::{ldlt_lanes, ldlt_substitute_lanes};
 pub use kkt::{Curvature, NewtonMatrixError, ProjectionNewtonMatrix, RowCurvature};
 pub use path::{PathLdlt, PathOrder};
 pub use pattern::SymmetricPattern;
-pub use rod_path::RodPath;
+pub use rod_path::{stiffness_bound_of_rows, RodPath};
 pub use sparse::{Ordering, SparseLdlt, SparseOptions};
 
 /// max_i |v_i|, NaN when any entry is NaN (a non-finite value must not hide behind max);

@@ -742,11 +742,8 @@ impl RodPath {
             }
         }
         for rod in &self.rods {
-            let (k, wa, wb, cross) = parts(rod);
-            scratch[rod.a()] += k * (wa + cross);
-            if let Some(b) = rod.b() {
-                scratch[b] += k * (wb + cross);
-            }
+            let k = lambda(rod.row()).abs() * rod.inverse_length;
+            add_rod_stiffness(scratch, w, rod.a(), rod.b(), k);
         }
         self.rods.iter().fold(0.0, |most, rod| {
             let most = max_nan(scratch[rod.a()], most);
@@ -900,6 +897,63 @@ fn backward<const D: usize>(
         (coupling, next) = (*upper, z);
         sink(rod, e, z);
     }
+}
+
+/// A rod's part of its particles' row sums in [`RodPath::stiffness_bound`]: k (w + sqrt(w_a
+/// w_b)) added to each end's first coordinate in `sums` (k = |lambda| / L; w_b = 0 at a
+/// fixed point).
+fn add_rod_stiffness(sums: &mut [f64], w: &[f64], a: usize, b: Option<usize>, k: f64) {
+    let wa = w[a];
+    match b {
+        Some(b) => {
+            let cross = (wa * w[b]).sqrt();
+            sums[a] += k * (wa + cross);
+            sums[b] += k * (w[b] + cross);
+        }
+        None => sums[a] += k * wa,
+    }
+}
+
+/// [`RodPath::stiffness_bound`] for rows that are rods or pins in any graph (rings too: a
+/// cloth, a net), rows 0..m: `row(r)` is `Some(Some(rod))` for a rod, `Some(None)` for a row
+/// whose Hessian is zero (a pin, which stiffens nothing), `None` for any other row, and then
+/// the bound is `None` (its curvature is not known). `scratch` has an entry per coordinate
+/// (`w.len()`), all overwritten.
+///
+/// ```
+/// use bead::linalg::stiffness_bound_of_rows;
+/// use bead::model::DistanceRow;
+/// // A pin (row 0) and a rod of length 2 with tension 8 between particles of mass 1 and 4.
+/// let rod = DistanceRow { a: 0, b: Some(2), anchor: [0.0; 3], dim: 2, length: 2.0 };
+/// let rows = |r| if r == 0 { Some(None) } else { Some(Some(rod)) };
+/// let w = [1.0, 1.0, 0.25, 0.25];
+/// let bound = stiffness_bound_of_rows(2, rows, &w, |_| 8.0, &mut [0.0; 4]);
+/// // (8 / 2) (1 + sqrt(1 / 4)) at the lighter particle.
+/// assert_eq!(bound, Some(6.0));
+/// ```
+pub fn stiffness_bound_of_rows(
+    m: usize,
+    row: impl Fn(usize) -> Option<Option<DistanceRow>>,
+    w: &[f64],
+    lambda: impl Fn(usize) -> f64,
+    scratch: &mut [f64],
+) -> Option<f64> {
+    scratch.fill(0.0);
+    // The particles' first coordinates are multiples of the rods' dimension.
+    let mut dim = 1;
+    for r in 0..m {
+        if let Some(rod) = row(r)? {
+            let k = lambda(r).abs() / rod.length;
+            add_rod_stiffness(scratch, w, rod.a, rod.b, k);
+            dim = rod.dim;
+        }
+    }
+    Some(
+        scratch
+            .iter()
+            .step_by(dim)
+            .fold(0.0, |most, &sum| max_nan(sum, most)),
+    )
 }
 
 #[cfg(test)]
@@ -1180,13 +1234,26 @@ mod tests {
     /// The stiffness bound is the largest absolute row sum of the dense W^(1/2) K W^(1/2),
     /// K = sum_r |lambda_r| Hess C_r assembled from each rod's Hessian (1/L) [I, -I; -I, I],
     /// and bounds the spectral radius of that matrix for the signed forces too (power
-    /// iteration, from below): rods in paths and in trees, 1-3 dimensions, unequal masses, a
-    /// massless (fixed) particle, forces of both signs; NaN when a force is.
+    /// iteration, from below): rods in paths, in trees and in rings (the general rows'
+    /// bound, which also takes pins and refuses other rows), 1-3 dimensions, unequal
+    /// masses, a massless (fixed) particle, forces of both signs; NaN when a force is.
     #[test]
     fn the_stiffness_bound_is_the_dense_gershgorin_bound() {
-        let cases = (1..=3).flat_map(|dim| [(rods(dim), 7, dim), (tree_rods(dim), 18, dim)]);
+        // The paths' rods with one more closing a ring p3 - p4 (no longer a path).
+        let ring = |dim: usize| {
+            let mut rows = rods(dim);
+            rows.push(rod_between(dim)(3, Some(4), 2.1));
+            rows
+        };
+        let cases = (1..=3).flat_map(|dim| {
+            [
+                (rods(dim), 7, dim),
+                (tree_rods(dim), 18, dim),
+                (ring(dim), 7, dim),
+            ]
+        });
         for (rows, particles, dim) in cases {
-            let path = found_path(&rows);
+            let ringed = RodPath::of_rows(rows.len(), |r| Some(rows[r])).is_none();
             let n = particles * dim;
             let mut seed = Rng::new(3 + dim as u64);
             let mut w: Vec<f64> = (0..particles)
@@ -1213,7 +1280,32 @@ mod tests {
                 k
             };
             let mut scratch = vec![f64::NAN; n];
-            let bound = path.stiffness_bound(&w, |r| lambda[r], &mut scratch);
+            // Rows: a pin first (its force stiffens nothing), then the rods.
+            let general = |force: &dyn Fn(usize) -> f64, scratch: &mut [f64]| {
+                let row = |r: usize| {
+                    if r == 0 {
+                        Some(None)
+                    } else {
+                        Some(Some(rows[r - 1]))
+                    }
+                };
+                let force = |r: usize| if r == 0 { 1e6 } else { force(r - 1) };
+                stiffness_bound_of_rows(rows.len() + 1, row, &w, force, scratch).unwrap()
+            };
+            let bound = general(&|r| lambda[r], &mut scratch);
+            if !ringed {
+                let path = found_path(&rows);
+                let along = path.stiffness_bound(&w, |r| lambda[r], &mut scratch);
+                assert!(
+                    (along - bound).abs() <= 1e-14 * bound,
+                    "{along} against {bound}"
+                );
+                let nan = path.stiffness_bound(&w, |r| [1.0, f64::NAN][r % 2], &mut scratch);
+                assert!(nan.is_nan());
+            }
+            let other =
+                stiffness_bound_of_rows(2, |r| (r == 0).then_some(None), &w, |_| 1.0, &mut scratch);
+            assert_eq!(other, None, "a row that is neither a rod nor a pin");
             let pulling = dense(&|r| lambda[r].abs());
             let gershgorin = (0..n)
                 .map(|i| (0..n).map(|j| pulling[i * n + j].abs()).sum::<f64>())
@@ -1237,9 +1329,7 @@ mod tests {
                 radius > 0.1 * bound && radius <= bound,
                 "{radius} against {bound}"
             );
-            let nan =
-                path.stiffness_bound(&w, |r| if r == 1 { f64::NAN } else { 1.0 }, &mut scratch);
-            assert!(nan.is_nan());
+            assert!(general(&|r| [1.0, f64::NAN][r % 2], &mut scratch).is_nan());
         }
     }
 

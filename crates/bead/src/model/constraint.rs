@@ -432,6 +432,12 @@ impl ConstraintSet {
     pub fn row_fingerprint(&self) -> u64 {
         self.row_fingerprint
     }
+    /// Whether `row` is a built-in pin (x_k - anchor: linear, its Hessian zero).
+    pub fn is_pin_row(&self, row: usize) -> bool {
+        self.native_rows
+            .binary_search_by_key(&row, |(r, _)| *r)
+            .is_ok_and(|at| matches!(self.native_rows[at].1, NativeRow::Pin { .. }))
+    }
     /// `row` as a built-in distance ([`DistanceRow`]), if it is one.
     pub fn distance_row(&self, row: usize) -> Option<DistanceRow> {
         let at = self

@@ -140,6 +140,13 @@ impl ConstrainedSystem for WithWork<'_> {
             .distance_row(row)
     }
 
+    fn linear_row(&self, row: usize) -> bool {
+        self.formulation
+            .active_system()
+            .constraints()
+            .is_pin_row(row)
+    }
+
     /// The formulation's rods (they read only its coordinates, which come first) and scales.
     fn rods_mut(
         &mut self,
