@@ -200,7 +200,7 @@ fn rattle_takes_the_substeps_its_stability_needs() {
     let n = 20;
     // Along the path of rods, and row by row (the top particle pinned).
     for pinned in [false, true] {
-        let push = |k: usize| if k % 2 == 0 { 1e-3 } else { -1e-3 };
+        let push = |k: usize| if k.is_multiple_of(2) { 1e-3 } else { -1e-3 };
         let system = hanging_chain(n, pinned, push);
         let dt = 1.5 * hanging_stable_step(n);
         let steps = 200;

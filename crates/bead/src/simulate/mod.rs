@@ -775,8 +775,8 @@ impl Simulation {
     }
 
     /// The fewest substeps of the step to `t_end` at which the integrator stays stable, as
-    /// far as it can tell from its last step ([`Integrator::stable_step`]: RATTLE on rods),
-    /// at most `max_substeps`; 1 when it cannot tell.
+    /// far as it can tell from its last step ([`Integrator::stable_step`]: RATTLE on rods
+    /// and pins), at most `max_substeps`; 1 when it cannot tell.
     fn stable_substeps(&mut self, t_end: f64) -> u32 {
         let Simulation {
             formulation,
