@@ -1239,21 +1239,27 @@ mod tests {
     /// masses, a massless (fixed) particle, forces of both signs; NaN when a force is.
     #[test]
     fn the_stiffness_bound_is_the_dense_gershgorin_bound() {
-        // The paths' rods with one more closing a ring p3 - p4 (no longer a path).
+        // The paths' rods with one more closing a ring p0 - p1 - p2 - p3 - p0 (no longer
+        // paths or trees).
         let ring = |dim: usize| {
             let mut rows = rods(dim);
-            rows.push(rod_between(dim)(3, Some(4), 2.1));
+            rows.push(rod_between(dim)(3, Some(0), 2.1));
             rows
         };
         let cases = (1..=3).flat_map(|dim| {
             [
-                (rods(dim), 7, dim),
-                (tree_rods(dim), 18, dim),
-                (ring(dim), 7, dim),
+                (rods(dim), 7, dim, false),
+                (tree_rods(dim), 18, dim, false),
+                (ring(dim), 7, dim, true),
             ]
         });
-        for (rows, particles, dim) in cases {
-            let ringed = RodPath::of_rows(rows.len(), |r| Some(rows[r])).is_none();
+        for (rows, particles, dim, ringed) in cases {
+            let found = RodPath::of_rows(rows.len(), |r| Some(rows[r]));
+            assert_eq!(
+                found.is_none(),
+                ringed,
+                "dim {dim}: a ring is not a path or tree"
+            );
             let n = particles * dim;
             let mut seed = Rng::new(3 + dim as u64);
             let mut w: Vec<f64> = (0..particles)
