@@ -25,7 +25,9 @@
 //! the same floor warm-started as the engine's RATTLE is (each step's Newton iteration from
 //! the last step's multipliers), the stronger floor. The peak memory
 //! (the process's high-water mark) is printed after each size, the sizes in increasing
-//! order.
+//! order; the last lines give the growth from each size to the next of the engine's time
+//! per frame, the floor's, and the engine's time per Newton iteration (one sweep along the
+//! chain, where linear in N is 10x per decade).
 
 use std::hint::black_box;
 use std::sync::Arc;
@@ -529,13 +531,16 @@ fn main() {
         "  {:>6}  {:<14} {:>12} {:>16} {:>10} {:>10} {:>9}",
         "N", "variant", "frames/s", "ns/step/link", "stretch", "drift", "substeps"
     );
-    let mut per_frame = Vec::new();
+    // (N, engine time per frame, the floor's, engine time per Newton iteration), in s
+    let mut growth: Vec<(usize, f64, Option<f64>, f64)> = Vec::new();
     for &n in &sizes {
         let mut rows = Vec::new();
         let mut iterations = Vec::new();
         if variants.contains("engine") {
             let (figures, per_step) = run_engine(n, duration);
-            per_frame.push((n, 1.0 / figures.frames_per_second));
+            let frame = 1.0 / figures.frames_per_second;
+            // Two steps of 1/120 s per frame.
+            growth.push((n, frame, None, frame / (2.0 * per_step)));
             iterations.push(("the engine", per_step));
             rows.push(("engine", figures));
         }
@@ -551,6 +556,9 @@ fn main() {
         }
         if variants.contains("hand") {
             let (figures, per_step) = fewest_substeps(n, |k| hand_run(n, duration, k, false));
+            if let Some(last) = growth.last_mut().filter(|g| g.0 == n) {
+                last.2 = Some(1.0 / figures.frames_per_second);
+            }
             iterations.push(("the floor", per_step));
             rows.push(("hand-written", figures));
         }
@@ -592,12 +600,23 @@ fn main() {
             println!("  {n:>6}  peak memory of the process so far: {peak:.0} MB");
         }
     }
-    // Growth of the engine's time per frame with N (linear: x10 per x10 links).
-    for pair in per_frame.windows(2) {
-        let ((n0, t0), (n1, t1)) = (pair[0], pair[1]);
+    // Growth with N of the engine's time per frame, the floor's, and the engine's time per
+    // Newton iteration (one sweep along the chain: linear would be x10 per x10 links). The
+    // frame's grows faster than N on a hanging chain whatever the method: the tension at the
+    // pivot grows as N, the fastest oscillation as sqrt(N), and with it the substeps a
+    // stable step needs (issue 19's target, restated: time per iteration <= ~12x per decade,
+    // time per frame no faster than the floor's).
+    for pair in growth.windows(2) {
+        let ((n0, frame0, floor0, iteration0), (n1, frame1, floor1, iteration1)) =
+            (pair[0], pair[1]);
+        let floor = match (floor0, floor1) {
+            (Some(a), Some(b)) => format!(" (the floor's {:.1})", b / a),
+            _ => String::new(),
+        };
         println!(
-            "  engine time per frame, N = {n1} / N = {n0}: {:.1}",
-            t1 / t0
+            "  N = {n1} / N = {n0}: engine time per frame {:.1}{floor}, per Newton iteration {:.1}",
+            frame1 / frame0,
+            iteration1 / iteration0
         );
     }
     let everything = benchmarking && std::env::var("BEAD_CHAIN_VARIANTS").is_err();
