@@ -366,6 +366,12 @@ impl FusedImplicit {
         self.steps.observation_at(t, x, v)
     }
 
+    /// The same, the state known to be the step's end (see
+    /// [`FusedStep::observation_after_step`]).
+    pub(crate) fn observation_after_step(&self, t: f64) -> Option<&[f64]> {
+        self.steps.observation_after_step(t)
+    }
+
     /// C (m) and J's entries (nnz) at the end of the last compiled RK4 step, if it ended at
     /// exactly (t, x, v) (see [`FusedStep::observation_at`]): what the monitors observe
     /// there, evaluated inside the step's tape.
@@ -577,16 +583,23 @@ impl FusedStep {
     /// step's own t + h misses by a rounding).
     pub(crate) fn observation_at(&self, t: f64, q: &[f64], qdot: &[f64]) -> Option<&[f64]> {
         let n = self.n;
+        self.observation_after_step(t).filter(|_| {
+            crate::same_bits(&self.out[..n], q) && crate::same_bits(&self.out[n..2 * n], qdot)
+        })
+    }
+
+    /// [`Self::observation_at`] for a state known to be the end of the last
+    /// [`Self::step_one`], which passed (its q and qdot, untouched since): only the time is
+    /// compared (the step's own t + h may miss the grid's t by a rounding).
+    pub(crate) fn observation_after_step(&self, t: f64) -> Option<&[f64]> {
+        let n = self.n;
         // The outputs after the step end and the pivot tests: the observation, if any.
         let observation = &self.out[(2 * n + 2 * self.rows * STAGES).min(self.out.len())..];
         if !(self.stepped && self.lanes == 1) || observation.is_empty() {
             return None;
         }
         let t_end = self.vars[2 * n + 1 + self.constants + 1];
-        (t_end.to_bits() == t.to_bits()
-            && crate::same_bits(&self.out[..n], q)
-            && crate::same_bits(&self.out[n..2 * n], qdot))
-        .then_some(observation)
+        (t_end.to_bits() == t.to_bits()).then_some(observation)
     }
 
     /// The observation tape's outputs at the end of the last [`Self::step_lanes`] (lanes
@@ -727,6 +740,11 @@ impl CompiledSteps {
     pub(crate) fn observation_at(&self, t: f64, q: &[f64], qdot: &[f64]) -> Option<&[f64]> {
         self.step.as_deref()?.observation_at(t, q, qdot)
     }
+
+    /// See [`FusedStep::observation_after_step`].
+    pub(crate) fn observation_after_step(&self, t: f64) -> Option<&[f64]> {
+        self.step.as_deref()?.observation_after_step(t)
+    }
 }
 
 /// The parametric form's fused acceleration, for maps whose applied forces are constant
@@ -863,6 +881,11 @@ impl FusedParametric {
     /// built with them and ended at exactly (t, q, qdot) (see [`FusedStep::observation_at`]).
     pub(crate) fn observation_at(&self, t: f64, q: &[f64], qdot: &[f64]) -> Option<&[f64]> {
         self.steps.observation_at(t, q, qdot)
+    }
+
+    /// See [`FusedStep::observation_after_step`].
+    pub(crate) fn observation_after_step(&self, t: f64) -> Option<&[f64]> {
+        self.steps.observation_after_step(t)
     }
 
     /// The step's constants: F and the masses.

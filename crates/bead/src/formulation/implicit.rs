@@ -335,8 +335,16 @@ impl SecondOrderSystem for Implicit {
         stepped
     }
 
+    fn discount_compiled_steps(&mut self, steps: u64) {
+        self.evaluations -= 4 * steps;
+    }
+
     fn compiled_step_observation(&self, t: f64, q: &[f64], qdot: &[f64]) -> Option<&[f64]> {
         self.fused.as_ref()?.observation_at(t, q, qdot)
+    }
+
+    fn compiled_step_observation_after(&self, t: f64) -> Option<&[f64]> {
+        self.fused.as_ref()?.observation_after_step(t)
     }
 
     fn compiles_rk4_step(&self) -> bool {

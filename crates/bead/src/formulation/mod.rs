@@ -89,6 +89,20 @@ pub trait SecondOrderSystem {
     fn compiled_step_observation(&self, _t: f64, _q: &[f64], _qdot: &[f64]) -> Option<&[f64]> {
         None
     }
+
+    /// [`Self::compiled_step_observation`] right after a [`Self::compiled_rk4_step`] that
+    /// returned true, the state untouched since but for its time, set to t: only t is
+    /// compared with the step's end (a single run's express steps).
+    #[doc(hidden)]
+    fn compiled_step_observation_after(&self, _t: f64) -> Option<&[f64]> {
+        None
+    }
+
+    /// Take `steps` compiled RK4 steps back out of the evaluation count: steps a single
+    /// run's express batch took past one that failed its checks, which the run never takes
+    /// there (`simulate::express`).
+    #[doc(hidden)]
+    fn discount_compiled_steps(&mut self, _steps: u64) {}
 }
 
 /// Why an acceleration could not be computed.

@@ -38,9 +38,30 @@ pub(super) const EXPRESS_CHUNK: u64 = 1024;
 /// bend the regularity monitor accepts, would otherwise be taken twice at every step).
 pub(super) const EXPRESS_COOLDOWN: u64 = 16;
 
+/// Steps checked at once by [`Simulation::express_batch`], where a run takes that many
+/// in a row: the lane monitor over them, as over a sweep's lanes.
+const BATCH: usize = super::lanes::LANES;
+
+/// A batch's steps, structure of arrays (value i of step k at `i * BATCH + k`): their
+/// observation (the observation tape's outputs at each end), end and start states and times.
+struct Batch {
+    monitor: LaneMonitor<BATCH>,
+    /// Outputs of the observation tape
+    observed: usize,
+    observation: Vec<f64>,
+    q: Vec<f64>,
+    qdot: Vec<f64>,
+    q_back: Vec<f64>,
+    qdot_back: Vec<f64>,
+    t: [f64; BATCH],
+    t_start: [f64; BATCH],
+}
+
 /// An express stepper for one simulation's run (see the module).
 pub(super) struct Express {
     monitor: LaneMonitor<1>,
+    /// The batches' buffers
+    batch: Option<Batch>,
     /// The form's observation tape, evaluated where the compiled step did not evaluate it
     /// at the step's end; its variables (q, qdot, t), scratch and outputs
     observe_tape: Tape,
@@ -82,8 +103,22 @@ impl Express {
         };
         let n = simulation.n;
         let state = (0.0, vec![0.0; n], vec![0.0; n]);
+        let observed = observe_tape.n_outputs();
+        let soa = |width: usize| vec![0.0; width * BATCH];
+        let batch = Batch {
+            monitor: LaneMonitor::new(system, method, &[&simulation.monitor]),
+            observed,
+            observation: soa(observed),
+            q: soa(n),
+            qdot: soa(n),
+            q_back: soa(n),
+            qdot_back: soa(n),
+            t: [0.0; BATCH],
+            t_start: [0.0; BATCH],
+        };
         Some(Express {
             monitor: LaneMonitor::new(system, method, &[&simulation.monitor]),
+            batch: simulation.express_batches.then_some(batch),
             vars: vec![0.0; 2 * n + 1],
             scratch: vec![0.0; observe_tape.n_slots()],
             out: vec![0.0; observe_tape.n_outputs()],
@@ -127,31 +162,150 @@ impl Simulation {
         // The lane monitor takes up where the simulation's own stands (it may have taken
         // steps since the last express run).
         express.monitor.load(&[&self.monitor]);
-        let n = self.n;
-        let dt = self.config.dt;
-        let tolerance = 1e-9 * dt;
+        if let Some(batch) = &mut express.batch {
+            batch.monitor.load(&[&self.monitor]);
+        }
         let mut reached = from;
-        for interval in from + 1..=to {
-            // As `advance_to` steps to the interval's end: one step onto the grid point it
-            // lands on (else, e.g. a duration that ends between grid points, its own path).
-            let target = options.output_time(t0, interval, dt);
-            let next = self.grid_origin + (self.grid_steps + 1) as f64 * dt;
-            let off_grid = (next - target).abs();
-            if off_grid.is_nan() || off_grid > tolerance {
+        while reached < to {
+            let (accepted, go_on) = if to - reached >= BATCH as u64 && express.batch.is_some() {
+                self.express_batch(express, t0, reached, options)
+            } else {
+                let accepted = self.express_step(express, t0, reached + 1, options);
+                (u64::from(accepted), accepted)
+            };
+            reached += accepted;
+            if !go_on {
                 break;
             }
-            let t = self.state.t;
-            let h = (target - t) / 1.0;
-            let (t_start, q_start, qdot_start) = &mut express.start;
-            *t_start = t;
-            q_start.copy_from_slice(&self.state.q);
-            qdot_start.copy_from_slice(&self.state.qdot);
+        }
+        if reached > from {
+            self.express_done(express);
+        }
+        reached
+    }
+
+    /// Where output interval `interval`'s end lands (`options.output_time`) and the step to
+    /// it from the simulation's time, `steps` steps after its last (as `advance_to` takes
+    /// it: one step onto the grid point it lands on); `None` off the grid (e.g. a duration
+    /// that ends between grid points: the simulation's own path).
+    fn express_target(
+        &self,
+        t0: f64,
+        interval: u64,
+        steps: u64,
+        options: &RunOptions,
+    ) -> Option<f64> {
+        let dt = self.config.dt;
+        let target = options.output_time(t0, interval, dt);
+        let next = self.grid_origin + (self.grid_steps + steps + 1) as f64 * dt;
+        let off_grid = (next - target).abs();
+        (!off_grid.is_nan() && off_grid <= 1e-9 * dt).then_some(target)
+    }
+
+    /// One express step, to the end of output interval `interval`, checked by the lane
+    /// monitor for one lane; whether it was accepted (else the simulation stands where it
+    /// stood, for its own path).
+    fn express_step(
+        &mut self,
+        express: &mut Express,
+        t0: f64,
+        interval: u64,
+        options: &RunOptions,
+    ) -> bool {
+        let n = self.n;
+        let Some(target) = self.express_target(t0, interval, 0, options) else {
+            return false;
+        };
+        let t = self.state.t;
+        let h = (target - t) / 1.0;
+        let (t_start, q_start, qdot_start) = &mut express.start;
+        *t_start = t;
+        q_start.copy_from_slice(&self.state.q);
+        qdot_start.copy_from_slice(&self.state.qdot);
+        if !self.formulation.compiled_rk4_step(&mut self.state, h) {
+            return false;
+        }
+        self.state.t = target;
+        let (q, qdot) = (&self.state.q[..], &self.state.qdot[..]);
+        debug_assert!(same_observation(&*self.formulation, target, q, qdot));
+        let out = match self.formulation.compiled_step_observation_after(target) {
+            Some(out) => out,
+            None => {
+                let vars = &mut express.vars;
+                vars[..n].copy_from_slice(q);
+                vars[n..2 * n].copy_from_slice(qdot);
+                vars[2 * n] = target;
+                express
+                    .observe_tape
+                    .eval(vars, &mut express.scratch, &mut express.out);
+                &express.out
+            }
+        };
+        let monitor = &self.monitor;
+        let [failed] = express.monitor.check(
+            self.formulation.system(),
+            1,
+            |_, t| monitor.limits(t),
+            &[target],
+            out,
+            q,
+            qdot,
+            &express.start.1,
+        );
+        if failed {
+            let (t, q, qdot) = &express.start;
+            self.state.t = *t;
+            self.state.q.copy_from_slice(q);
+            self.state.qdot.copy_from_slice(qdot);
+            return false;
+        }
+        express.monitor.accept(out);
+        std::mem::swap(&mut express.start, &mut express.before);
+        self.steps += 1;
+        self.grid_steps += 1;
+        true
+    }
+
+    /// [`BATCH`] express steps from the end of output interval `from`, then the lane
+    /// monitor's checks of all of them at once, the steps as its lanes (lane k the step
+    /// after lane k - 1, its memory what the run's monitor holds after the steps before:
+    /// [`LaneMonitor::chain_from`]); the steps before the first that fails a check are
+    /// accepted and the simulation stands at the end of the last, as if it had taken them
+    /// one by one. Returns how many were accepted, and whether all were (else the next
+    /// step is the simulation's own). A step that its pivot tests or the time grid refuse
+    /// ends the batch there.
+    fn express_batch(
+        &mut self,
+        express: &mut Express,
+        t0: f64,
+        from: u64,
+        options: &RunOptions,
+    ) -> (u64, bool) {
+        let n = self.n;
+        let batch = express.batch.as_mut().expect("checked by the caller");
+        let width = batch.observed;
+        let mut taken = BATCH;
+        for k in 0..BATCH {
+            let Some(target) = self.express_target(t0, from + 1 + k as u64, k as u64, options)
+            else {
+                taken = k;
+                break;
+            };
+            batch.t_start[k] = self.state.t;
+            batch.t[k] = target;
+            for i in 0..n {
+                batch.q_back[i * BATCH + k] = self.state.q[i];
+                batch.qdot_back[i * BATCH + k] = self.state.qdot[i];
+            }
+            let h = (target - self.state.t) / 1.0;
             if !self.formulation.compiled_rk4_step(&mut self.state, h) {
+                taken = k;
                 break;
             }
             self.state.t = target;
             let (q, qdot) = (&self.state.q[..], &self.state.qdot[..]);
-            let out = match self.formulation.compiled_step_observation(target, q, qdot) {
+            debug_assert!(same_observation(&*self.formulation, target, q, qdot));
+            let out = match self.formulation.compiled_step_observation_after(target) {
                 Some(out) => out,
                 None => {
                     let vars = &mut express.vars;
@@ -164,34 +318,66 @@ impl Simulation {
                     &express.out
                 }
             };
-            let monitor = &self.monitor;
-            let [failed] = express.monitor.check(
-                self.formulation.system(),
-                1,
-                |_, t| monitor.limits(t),
-                target,
-                out,
-                q,
-                qdot,
-                &express.start.1,
-            );
-            if failed {
-                let (t, q, qdot) = &express.start;
-                self.state.t = *t;
-                self.state.q.copy_from_slice(q);
-                self.state.qdot.copy_from_slice(qdot);
-                break;
+            debug_assert_eq!(out.len(), width, "the observation tape's outputs");
+            for (i, v) in out[..width].iter().enumerate() {
+                batch.observation[i * BATCH + k] = *v;
             }
-            express.monitor.accept(out);
-            std::mem::swap(&mut express.start, &mut express.before);
-            self.steps += 1;
-            self.grid_steps += 1;
-            reached = interval;
+            for i in 0..n {
+                batch.q[i * BATCH + k] = q[i];
+                batch.qdot[i * BATCH + k] = qdot[i];
+            }
         }
-        if reached > from {
-            self.express_done(express);
+        // Lanes past the steps taken repeat the last one taken (checked, never accepted).
+        for k in taken.max(1)..BATCH {
+            let last = taken.max(1) - 1;
+            let rows = [
+                &mut batch.observation[..],
+                &mut batch.q[..],
+                &mut batch.qdot[..],
+                &mut batch.q_back[..],
+            ];
+            for soa in rows {
+                for row in soa.as_chunks_mut::<BATCH>().0 {
+                    row[k] = row[last];
+                }
+            }
+            batch.t[k] = batch.t[last];
         }
-        reached
+        let mut accepted = 0;
+        if taken > 0 {
+            let system = self.formulation.system();
+            let monitor = &self.monitor;
+            accepted = check_batch(batch, &mut express.monitor, system, monitor, taken);
+            if accepted > 0 {
+                // The last accepted step's start, for `express_done`.
+                let (t, q, qdot) = &mut express.before;
+                *t = batch.t_start[accepted - 1];
+                for i in 0..n {
+                    q[i] = batch.q_back[i * BATCH + accepted - 1];
+                    qdot[i] = batch.qdot_back[i * BATCH + accepted - 1];
+                }
+            }
+            #[cfg(test)]
+            tests::BATCHES.with(|b| {
+                let (all, partial) = b.get();
+                b.set((all + 1, partial + usize::from(accepted < taken)));
+            });
+            if accepted < taken {
+                // Stand at the end of the last accepted step (the start of the first that
+                // failed), as the step-by-step path leaves it; the steps taken after that
+                // one were never taken there.
+                self.state.t = batch.t_start[accepted];
+                for i in 0..n {
+                    self.state.q[i] = batch.q_back[i * BATCH + accepted];
+                    self.state.qdot[i] = batch.qdot_back[i * BATCH + accepted];
+                }
+                self.formulation
+                    .discount_compiled_steps((taken - accepted - 1) as u64);
+            }
+        }
+        self.steps += accepted as u64;
+        self.grid_steps += accepted as u64;
+        (accepted as u64, accepted == BATCH)
     }
 
     /// After express steps: the simulation as its own steps would have left it (see
@@ -225,12 +411,95 @@ impl Simulation {
     }
 }
 
+/// Whether the observation after a compiled step (only t compared) is the one the full
+/// comparison finds, at the state (t, q, qdot) the step left.
+fn same_observation(
+    formulation: &dyn crate::formulation::Formulation,
+    t: f64,
+    q: &[f64],
+    qdot: &[f64],
+) -> bool {
+    let pointer = |o: Option<&[f64]>| o.map(<[f64]>::as_ptr);
+    pointer(formulation.compiled_step_observation_after(t))
+        == pointer(formulation.compiled_step_observation(t, q, qdot))
+}
+
+/// The lane monitor's checks of a batch's first `taken` steps (its lanes, chained from the
+/// run's monitor `one`: [`LaneMonitor::chain_from`]); the steps before the first that fails
+/// one are accepted into `one`. Returns how many.
+fn check_batch(
+    batch: &mut Batch,
+    one: &mut LaneMonitor<1>,
+    system: &crate::model::System,
+    monitor: &super::monitor::Monitor,
+    taken: usize,
+) -> usize {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: this CPU has AVX2 (checked above).
+        #[allow(unsafe_code)]
+        return unsafe { check_batch_avx2(batch, one, system, monitor, taken) };
+    }
+    check_batch_body(batch, one, system, monitor, taken)
+}
+
+/// [`check_batch`] compiled for AVX2, as the sweep lanes' loop is (the same operations,
+/// 4-wide).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn check_batch_avx2(
+    batch: &mut Batch,
+    one: &mut LaneMonitor<1>,
+    system: &crate::model::System,
+    monitor: &super::monitor::Monitor,
+    taken: usize,
+) -> usize {
+    check_batch_body(batch, one, system, monitor, taken)
+}
+
+/// [`check_batch`] itself, inlined into each compilation of it.
+#[inline(always)]
+fn check_batch_body(
+    batch: &mut Batch,
+    one: &mut LaneMonitor<1>,
+    system: &crate::model::System,
+    monitor: &super::monitor::Monitor,
+    taken: usize,
+) -> usize {
+    let lanes = &mut batch.monitor;
+    lanes.observe(system, taken, &batch.t, &batch.observation);
+    lanes.chain_from(one, &batch.observation);
+    let failed = lanes.check_observed(
+        system,
+        taken,
+        |_, t| monitor.limits(t),
+        &batch.t,
+        &batch.observation,
+        &batch.q,
+        &batch.qdot,
+        &batch.q_back,
+    );
+    let accepted = failed[..taken].iter().position(|&f| f).unwrap_or(taken);
+    if accepted > 0 {
+        lanes.accept(&batch.observation);
+        lanes.hand_prefix(one, accepted);
+    }
+    accepted
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::plan::{methods, Plan, PlanRequest};
     use crate::scene::Scene;
     use crate::simulate::{run, RunOptions, RunStats, Sample, SimulationConfig, Sink};
+
+    thread_local! {
+        /// Batches checked on this thread, and those that accepted fewer steps than they
+        /// took.
+        pub(super) static BATCHES: std::cell::Cell<(usize, usize)> =
+            const { std::cell::Cell::new((0, 0)) };
+    }
 
     /// Every recorded sample's numbers, as bits.
     #[derive(Default)]
@@ -249,6 +518,76 @@ mod tests {
         }
     }
 
+    /// Express steps checked in batches give what they give checked one by one: every
+    /// shipped scene's samples, statistics, end state and evaluation count, bit for bit,
+    /// both forms, rk4, for twice its duration with a row every 1000 intervals (long express
+    /// runs); batches ran, and some accepted fewer steps than they took (a step that fails
+    /// a check in mid-batch: the article's implicit bead drifting off its curve).
+    #[test]
+    fn express_batches_change_no_number() {
+        BATCHES.with(|b| b.set((0, 0)));
+        let mut compared = 0;
+        for path in crate::shipped_scene_paths() {
+            let scene = Scene::load(&path, &[]).unwrap_or_else(|e| panic!("{e}"));
+            let plan = Plan::resolve(&scene, &PlanRequest::default()).expect("a plan");
+            if scene.system.n_coords() > 60 {
+                continue; // no compiled step
+            }
+            for method in methods(&scene) {
+                let config = SimulationConfig {
+                    integrator: IntegratorKind::Rk4,
+                    ..plan.config(method)
+                };
+                let new = || Simulation::new(scene.system.clone(), config);
+                let (Ok(mut batched), Ok(mut single)) = (new(), new()) else {
+                    continue;
+                };
+                single.express_batches = false;
+                let options = RunOptions {
+                    steps: (2 * plan.steps).min(20_000),
+                    every: 1000,
+                    duration: None,
+                };
+                let (mut a, mut b) = (Bits::default(), Bits::default());
+                // The outcomes, but for the wall time.
+                let outcome = |r: Result<RunStats, crate::simulate::RunFailure>| match r {
+                    Ok(stats) => format!(
+                        "{:?}",
+                        RunStats {
+                            wall_seconds: 0.0,
+                            ..stats
+                        }
+                    ),
+                    Err(mut failure) => {
+                        failure.stats.wall_seconds = 0.0;
+                        format!("{failure:?}")
+                    }
+                };
+                let ra = outcome(run(&mut batched, options, &mut a));
+                let rb = outcome(run(&mut single, options, &mut b));
+                let what = format!("{} {}", path.display(), method.name());
+                assert_eq!(ra, rb, "{what}");
+                assert!(a.0 == b.0, "{what}: the samples differ");
+                let figures = |s: &Simulation| {
+                    let v = [s.t(), s.energy(), s.constraint_error()];
+                    let bits: Vec<u64> = v
+                        .iter()
+                        .chain(s.q())
+                        .chain(s.qdot())
+                        .map(|v| v.to_bits())
+                        .collect();
+                    format!("{:?} {bits:?} {}", s.stats(0.0), s.evaluations())
+                };
+                assert_eq!(figures(&batched), figures(&single), "{what}");
+                compared += 1;
+            }
+        }
+        let (batches, partial) = BATCHES.with(std::cell::Cell::get);
+        assert!(compared >= 10, "only {compared} runs compared");
+        assert!(batches >= 1000, "only {batches} batches");
+        assert!(partial >= 1, "no batch accepted fewer steps than it took");
+    }
+
     /// `run` with express steps gives every shipped scene's samples, final state, outcome
     /// and statistics bit for bit as the simulation's own steps do: both forms, rk4 at the
     /// scene's dt, run for twice its duration (the article's implicit bead drifts off its
@@ -263,7 +602,8 @@ mod tests {
             if scene.system.n_coords() > 60 {
                 continue; // chains and cloth: no compiled step, and slow in a debug build
             }
-            for method in methods(&scene) {
+            // Rows every 7 intervals (express runs shorter than a batch) and every 100.
+            for (method, every) in methods(&scene).into_iter().flat_map(|m| [(m, 7), (m, 100)]) {
                 let config = SimulationConfig {
                     integrator: IntegratorKind::Rk4,
                     ..plan.config(method)
@@ -276,7 +616,7 @@ mod tests {
                 express_runs += usize::from(Express::new(&fast).is_some());
                 let options = RunOptions {
                     steps: (2 * plan.steps).min(20_000),
-                    every: 7,
+                    every,
                     duration: None,
                 };
                 let (mut a, mut b) = (Bits::default(), Bits::default());
@@ -296,7 +636,7 @@ mod tests {
                 };
                 let ra = outcome(run(&mut fast, options, &mut a));
                 let rb = outcome(run(&mut own, options, &mut b));
-                let what = format!("{} {}", path.display(), method.name());
+                let what = format!("{} {} every {every}", path.display(), method.name());
                 assert_eq!(ra, rb, "{what}");
                 assert!(a.0 == b.0, "{what}: the samples differ");
                 let stats = |s: &Simulation| format!("{:?}", s.stats(0.0));

@@ -254,9 +254,10 @@ impl<const L: usize> LaneMonitor<L> {
         (&self.x_one, &self.xdot_one)
     }
 
-    /// The checks at the end of a step to time t, for every lane: `out` is the observation
-    /// tape's outputs, (q, qdot) the state and `q_back` the step's start; the first `count`
-    /// lanes are members, and `limits(l, t)` is member l's reach at t
+    /// The checks at the end of a step, for every lane: lane l's step ends at `t[l]`, `out`
+    /// is the observation tape's outputs, (q, qdot) the state and `q_back` the step's start;
+    /// the first `count` lanes are members (or a run's consecutive steps: see
+    /// [`Self::chain_from`]), and `limits(l, t)` is member l's reach at t
     /// ([`Monitor::limits`]). Returns which lanes fail one and must leave; the others'
     /// observation stays for [`LaneMonitor::accept`].
     #[allow(clippy::too_many_arguments)]
@@ -266,7 +267,25 @@ impl<const L: usize> LaneMonitor<L> {
         system: &System,
         count: usize,
         limits: impl Fn(usize, f64) -> (f64, f64),
-        t: f64,
+        t: &PerLane<L>,
+        out: &[f64],
+        q: &[f64],
+        qdot: &[f64],
+        q_back: &[f64],
+    ) -> [bool; L] {
+        self.observe(system, count, t, out);
+        self.check_observed(system, count, limits, t, out, q, qdot, q_back)
+    }
+
+    /// [`Self::check`] after [`Self::observe`] of the same step ends.
+    #[allow(clippy::too_many_arguments)]
+    #[inline(always)]
+    pub(super) fn check_observed(
+        &mut self,
+        system: &System,
+        count: usize,
+        limits: impl Fn(usize, f64) -> (f64, f64),
+        t: &PerLane<L>,
         out: &[f64],
         q: &[f64],
         qdot: &[f64],
@@ -277,7 +296,6 @@ impl<const L: usize> LaneMonitor<L> {
         for (q, qdot) in rows::<L>(q).iter().zip(rows::<L>(qdot)) {
             failed = std::array::from_fn(|l| failed[l] | !q[l].is_finite() | !qdot[l].is_finite());
         }
-        self.observe(system, count, t, out);
         let (x, xdot) = self.particle_state(out, q, qdot);
         // E = T + V, as `System::energy`.
         if system.forces().is_empty() {
@@ -306,7 +324,7 @@ impl<const L: usize> LaneMonitor<L> {
             let mut reach = [[f64::INFINITY; L]; 2];
             for l in 0..count {
                 if beyond_floor[l] {
-                    (reach[0][l], reach[1][l]) = limits(l, t);
+                    (reach[0][l], reach[1][l]) = limits(l, t[l]);
                 }
             }
             for (failed, beyond) in failed.iter_mut().zip(beyond::<L>(x, xdot, &reach)) {
@@ -391,7 +409,7 @@ impl<const L: usize> LaneMonitor<L> {
     /// C, the gradient values and the offsets |C_r| / |g_r| (0 for the parametric form) of
     /// every lane from the observation tape's outputs, as the formulations' `observe`.
     #[inline(always)]
-    fn observe(&mut self, system: &System, count: usize, t: f64, out: &[f64]) {
+    pub(super) fn observe(&mut self, system: &System, count: usize, t: &PerLane<L>, out: &[f64]) {
         let (n, m) = (self.n, self.m);
         match &self.source {
             Source::Implicit { .. } => {
@@ -430,7 +448,7 @@ impl<const L: usize> LaneMonitor<L> {
                 match values {
                     Some(tape) => {
                         self.vars[..n * L].copy_from_slice(x);
-                        self.vars[2 * n * L..].fill(t);
+                        self.vars[2 * n * L..].copy_from_slice(t);
                         self.scratch.resize(tape.n_slots() * L, 0.0);
                         tape.eval_lanes::<L>(&self.vars, &mut self.scratch, &mut self.constraints);
                     }
@@ -438,7 +456,7 @@ impl<const L: usize> LaneMonitor<L> {
                         let set = system.constraints();
                         for l in 0..count {
                             gather::<L>(x, l, &mut self.x_one);
-                            let c = set.residuals(t, &self.x_one, &mut self.residuals);
+                            let c = set.residuals(t[l], &self.x_one, &mut self.residuals);
                             for (r, v) in c.iter().enumerate() {
                                 self.constraints[r * L + l] = *v;
                             }
@@ -489,6 +507,66 @@ impl<const L: usize> LaneMonitor<L> {
             balance_max[l] = max_nan(balance_max[l], balance);
             constraint_max[l] = max_nan(constraint_max[l], self.constraint_error[l]);
             distance_max[l] = max_nan(distance_max[l], distance[l]);
+        }
+    }
+}
+
+/// Lanes as consecutive steps of one run, for a run's steps checked in batches
+/// (`super::express`): lane l is the step after lane l - 1.
+impl<const L: usize> LaneMonitor<L> {
+    /// After [`Self::observe`] of the batch's step ends `out`, give each lane the memory the
+    /// run's monitor `one` (as it stood before the batch's first step) would hold after
+    /// accepting the steps before it, as [`Self::accept`] moves it on: the last step end's
+    /// gradient values, the longest lengths and the lengths at the last fruitless search;
+    /// the maxima start from `one`'s in every lane (see [`Self::hand_prefix`]).
+    #[inline(always)]
+    pub(super) fn chain_from(&mut self, one: &LaneMonitor<1>, out: &[f64]) {
+        if !self.last.is_empty() {
+            let own = (&self.constraints[..], &self.values[..]);
+            let (_, values) = observed::<L>(&self.source, self.m, own, out);
+            for (k, row) in self.last.as_chunks_mut::<L>().0.iter_mut().enumerate() {
+                row[0] = one.last[k];
+                row[1..].copy_from_slice(&values[k * L..(k + 1) * L - 1]);
+            }
+        }
+        let rows = self.longest.len() / L;
+        for r in 0..rows {
+            let (mut longest, mut searched) = (one.longest[r], one.searched[r]);
+            for l in 0..L {
+                self.longest[r * L + l] = longest;
+                self.searched[r * L + l] = searched;
+                let length = self.lengths[r * L + l];
+                longest = longest.max(length);
+                if length > 2.0 * searched {
+                    searched = f64::INFINITY;
+                }
+            }
+        }
+        self.maxima = one.maxima.map(|[m]| [m; L]);
+    }
+
+    /// `one` (the run's monitor a batch was chained from, [`Self::chain_from`]) after
+    /// accepting the batch's first `j` >= 1 steps, once [`Self::accept`] has accepted the
+    /// batch: lane j - 1's memory, the one before it, and the running maxima over lanes 0 to
+    /// j - 1 (each lane holds max(start, its own value); `max_nan` of magnitudes is
+    /// associative, and equal ones have equal bits, so the sequential maxima's).
+    #[inline(always)]
+    pub(super) fn hand_prefix(&self, one: &mut LaneMonitor<1>, j: usize) {
+        debug_assert!((1..=L).contains(&j));
+        for k in 0..one.last.len() {
+            one.before[k] = if j >= 2 {
+                self.last[k * L + j - 2]
+            } else {
+                one.last[k]
+            };
+            one.last[k] = self.last[k * L + j - 1];
+        }
+        for r in 0..one.longest.len() {
+            one.longest[r] = self.longest[r * L + j - 1];
+            one.searched[r] = self.searched[r * L + j - 1];
+        }
+        for (kept, lanes) in one.maxima.iter_mut().zip(&self.maxima) {
+            kept[0] = lanes[..j].iter().copied().reduce(max_nan).expect("j >= 1");
         }
     }
 }

@@ -331,7 +331,7 @@ fn run_lanes_body(
             &system,
             count,
             |l, t| members[l].monitor.limits(t),
-            t,
+            &[t; LANES],
             out,
             &lanes.q,
             &lanes.qdot,

@@ -196,9 +196,10 @@ pub struct Simulation {
     /// monitors read that evaluation (see [`Simulation::observe_step_end`]); off only in the
     /// test that shows it changes no number
     prime_first_stage: bool,
-    /// Whether `run` may take plain steps as express steps (see `express.rs`); off only to
-    /// compare both paths
+    /// Whether `run` may take plain steps as express steps (see `express.rs`), and check
+    /// them in batches; off only to compare the paths
     express: bool,
+    express_batches: bool,
     /// The switching of unilateral constraints, when the system has any (`contact.rs`).
     contact: Option<contact::ContactState>,
     /// The switches of unilateral constraints so far, in time order.
@@ -375,6 +376,7 @@ impl Simulation {
             stopped_at_event: false,
             prime_first_stage: true,
             express: true,
+            express_batches: true,
             contact,
             contact_switches: Vec::new(),
             contact_counts: ContactCounts::default(),
