@@ -747,14 +747,32 @@ impl Simulation {
     fn integrate_fixed(&mut self, t_end: f64) -> Result<(), RunError> {
         self.save();
         let configured = self.config.substeps.max(1);
+        let span = t_end - self.state.t;
         // Start from what recent steps needed, so that a run of hard steps does not pay for
         // the same failed attempts again at every step, and from what stability needs.
+        let stable = self.stable_substeps(span);
         let mut substeps = configured
             .max(self.sticky.substeps)
-            .max(self.stable_substeps(t_end));
+            .max(stable.unwrap_or(1));
         let mut retried = false;
+        // Whether what stability needs was known for this step.
+        let mut known = stable.is_some();
         loop {
             match self.substeps(t_end, substeps) {
+                // A step taken before the integrator could tell what stability needs (the
+                // first after a start or a reset: no tensions yet) is taken again if the
+                // tensions it found ask for more substeps: a step at h omega > 2 would
+                // excite an oscillation that a symplectic method never damps.
+                Ok(()) if !known => {
+                    known = true;
+                    match self.stable_substeps(span) {
+                        Some(needed) if needed > substeps => {
+                            self.restore_state_only();
+                            substeps = needed;
+                        }
+                        _ => break,
+                    }
+                }
                 Ok(()) => break,
                 // An iteration that did not converge (RATTLE's Newton solve, a projection, an
                 // implicit kick or stage) may converge on shorter steps: retry this step in
@@ -776,37 +794,33 @@ impl Simulation {
         Ok(())
     }
 
-    /// The fewest substeps of the step to `t_end` at which the integrator stays stable, as
-    /// far as it can tell from its last step ([`Integrator::stable_step`]: RATTLE on rods
-    /// and pins), at most `max_substeps`; 1 when it cannot tell.
-    fn stable_substeps(&mut self, t_end: f64) -> u32 {
+    /// The fewest substeps of a step of length `span` at which the integrator stays
+    /// stable, as far as it can tell from its last step ([`Integrator::stable_step`]:
+    /// RATTLE on rods and pins), at most `max_substeps`; 1 when no more are allowed than
+    /// configured, `None` when it cannot tell (no such bound, or no step yet).
+    fn stable_substeps(&mut self, span: f64) -> Option<u32> {
         let Simulation {
             formulation,
             ledger,
-            state,
             stepper,
             config,
             ..
         } = self;
         let Stepper::Fixed(integrator) = stepper else {
-            return 1;
+            return Some(1);
         };
         // No more substeps allowed than configured: nothing to ask.
         if config.max_substeps <= config.substeps {
-            return 1;
+            return Some(1);
         }
-        let Some(stable) =
-            with_system(formulation, ledger, |system| integrator.stable_step(system))
-        else {
-            return 1;
-        };
+        let stable = with_system(formulation, ledger, |system| integrator.stable_step(system))?;
         // NaN (no stable step) compares false: one substep.
-        let needed = ((t_end - state.t) / stable).ceil();
-        if needed > 1.0 {
+        let needed = (span / stable).ceil();
+        Some(if needed > 1.0 {
             needed.min(config.max_substeps as f64) as u32
         } else {
             1
-        }
+        })
     }
 
     /// The step from the current state to `t_end` as `count` steps of equal length, each
