@@ -501,6 +501,23 @@ mod tests {
             const { std::cell::Cell::new((0, 0)) };
     }
 
+    /// A run's outcome, its statistics or its failure, but for the wall time.
+    fn outcome(r: Result<RunStats, crate::simulate::RunFailure>) -> String {
+        match r {
+            Ok(stats) => format!(
+                "{:?}",
+                RunStats {
+                    wall_seconds: 0.0,
+                    ..stats
+                }
+            ),
+            Err(mut failure) => {
+                failure.stats.wall_seconds = 0.0;
+                format!("{failure:?}")
+            }
+        }
+    }
+
     /// Every recorded sample's numbers, as bits.
     #[derive(Default)]
     struct Bits(Vec<u64>);
@@ -549,20 +566,6 @@ mod tests {
                     duration: None,
                 };
                 let (mut a, mut b) = (Bits::default(), Bits::default());
-                // The outcomes, but for the wall time.
-                let outcome = |r: Result<RunStats, crate::simulate::RunFailure>| match r {
-                    Ok(stats) => format!(
-                        "{:?}",
-                        RunStats {
-                            wall_seconds: 0.0,
-                            ..stats
-                        }
-                    ),
-                    Err(mut failure) => {
-                        failure.stats.wall_seconds = 0.0;
-                        format!("{failure:?}")
-                    }
-                };
                 let ra = outcome(run(&mut batched, options, &mut a));
                 let rb = outcome(run(&mut single, options, &mut b));
                 let what = format!("{} {}", path.display(), method.name());
@@ -620,20 +623,6 @@ mod tests {
                     duration: None,
                 };
                 let (mut a, mut b) = (Bits::default(), Bits::default());
-                // The outcomes, but for the wall time.
-                let outcome = |r: Result<_, crate::simulate::RunFailure>| match r {
-                    Ok(stats) => format!(
-                        "{:?}",
-                        RunStats {
-                            wall_seconds: 0.0,
-                            ..stats
-                        }
-                    ),
-                    Err(mut failure) => {
-                        failure.stats.wall_seconds = 0.0;
-                        format!("{failure:?}")
-                    }
-                };
                 let ra = outcome(run(&mut fast, options, &mut a));
                 let rb = outcome(run(&mut own, options, &mut b));
                 let what = format!("{} {} every {every}", path.display(), method.name());
