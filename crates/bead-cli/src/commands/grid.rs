@@ -35,6 +35,9 @@ impl Sink for Tee<'_> {
         let second = self.1.finish();
         first.and(second)
     }
+    fn discards(&self) -> bool {
+        self.0.discards() && self.1.discards()
+    }
 }
 
 /// `bead compare` with `--integrators`, `--dts` or `--report`.

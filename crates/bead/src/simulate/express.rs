@@ -20,8 +20,10 @@
 //! leaving), a step off the time grid. The simulation then stands after the last express
 //! step exactly as if it had taken every step itself (state, step counts, the monitor's step
 //! ends, longest gradients and maxima, its observation taken again), and takes the next step
-//! alone. Rows, progress and interruptions happen between express runs, at the output
-//! intervals `run` asks for, so the sink sees the same samples.
+//! alone. Rows happen between express runs, at the output intervals `run` asks for, so the
+//! sink sees the same samples (a sink that discards them asks for none but the first and
+//! the last); progress and interruptions are seen where an express run ends, at most
+//! [`EXPRESS_CHUNK`] intervals apart.
 
 use super::lane_monitor::LaneMonitor;
 use super::{RunOptions, Simulation, Stepper};
@@ -589,6 +591,80 @@ mod tests {
         assert!(compared >= 10, "only {compared} runs compared");
         assert!(batches >= 1000, "only {batches} batches");
         assert!(partial >= 1, "no batch accepted fewer steps than it took");
+    }
+
+    /// A run into a sink that discards its samples (`bead run` without `--trace`) takes its
+    /// express steps in batches at the scene's own duration, progress reported as it goes,
+    /// and ends where the simulation's own steps, recording every sample, end: the same
+    /// outcome, statistics and state, bit for bit, on every shipped scene, both forms.
+    #[test]
+    fn a_run_that_keeps_no_samples_batches_and_changes_no_figure() {
+        struct Reports(u64, u64);
+        impl crate::simulate::Progress for Reports {
+            fn advance(&mut self, step: u64, total: u64) {
+                assert!(
+                    step > self.1 && step <= total,
+                    "{step} after {} of {total}",
+                    self.1
+                );
+                (self.0, self.1) = (self.0 + 1, step);
+            }
+        }
+        BATCHES.with(|b| b.set((0, 0)));
+        let (mut compared, mut batched_runs) = (0, 0);
+        for path in crate::shipped_scene_paths() {
+            let scene = Scene::load(&path, &[]).unwrap_or_else(|e| panic!("{e}"));
+            let plan = Plan::resolve(&scene, &PlanRequest::default()).expect("a plan");
+            if scene.system.n_coords() > 60 {
+                continue; // no compiled step
+            }
+            for method in methods(&scene) {
+                let config = SimulationConfig {
+                    integrator: IntegratorKind::Rk4,
+                    ..plan.config(method)
+                };
+                let new = || Simulation::new(scene.system.clone(), config);
+                let (Ok(mut fast), Ok(mut own)) = (new(), new()) else {
+                    continue;
+                };
+                own.express = false;
+                let options = RunOptions {
+                    steps: plan.steps,
+                    every: 1,
+                    duration: None,
+                };
+                let before = BATCHES.with(std::cell::Cell::get).0;
+                let mut reports = Reports(0, 0);
+                let rf = outcome(crate::simulate::run_with_progress(
+                    &mut fast,
+                    options,
+                    &mut crate::simulate::NullSink,
+                    &mut reports,
+                ));
+                let ro = outcome(run(&mut own, options, &mut Bits::default()));
+                let what = format!("{} {}", path.display(), method.name());
+                assert_eq!(rf, ro, "{what}");
+                let figures = |s: &Simulation| {
+                    let v = [s.t(), s.energy(), s.constraint_error()];
+                    let bits: Vec<u64> = v
+                        .iter()
+                        .chain(s.q())
+                        .chain(s.qdot())
+                        .map(|v| v.to_bits())
+                        .collect();
+                    format!("{:?} {bits:?}", s.stats(0.0))
+                };
+                assert_eq!(figures(&fast), figures(&own), "{what}");
+                if fast.stats(0.0).steps == plan.steps {
+                    assert_eq!(reports.1, plan.steps, "{what}: the end is reported");
+                }
+                assert!(reports.0 <= 101, "{what}: {} reports", reports.0);
+                batched_runs += usize::from(BATCHES.with(std::cell::Cell::get).0 > before);
+                compared += 1;
+            }
+        }
+        assert!(compared >= 10, "only {compared} runs compared");
+        assert!(batched_runs >= 6, "only {batched_runs} runs took batches");
     }
 
     /// `run` with express steps gives every shipped scene's samples, final state, outcome

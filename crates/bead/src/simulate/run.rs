@@ -91,6 +91,11 @@ pub trait Sink {
     fn finish(&mut self) -> std::io::Result<()> {
         Ok(())
     }
+    /// Whether the sink throws every sample away: then [`run`] records only the first and
+    /// the last, and takes the steps between without stopping for rows (express runs).
+    fn discards(&self) -> bool {
+        false
+    }
 }
 
 /// A sink that discards everything.
@@ -98,6 +103,9 @@ pub struct NullSink;
 impl Sink for NullSink {
     fn record(&mut self, _: &Sample) -> std::io::Result<()> {
         Ok(())
+    }
+    fn discards(&self) -> bool {
+        true
     }
 }
 
@@ -273,14 +281,15 @@ pub struct RunFailure {
 }
 
 /// Told how far a run has got, for progress bars. Called at most about 100 times per run
-/// (every `max(1, total / 100)` output intervals), from the step loop, which allocates
-/// nothing: implementations should not allocate either.
+/// (at the first output interval past each hundredth of it, and at its end), from the step
+/// loop, which allocates nothing: implementations should not allocate either.
 pub trait Progress {
     /// `step` of `total` output intervals done.
     fn advance(&mut self, step: u64, total: u64);
 
-    /// Asked after every output interval, and after every integrator step inside one (an
-    /// adaptive integrator's output interval may take many): `true` ends the run there, at a
+    /// Asked after every output interval (after every run of at most 1024 intervals taken
+    /// as express steps), and after every integrator step inside one (an adaptive
+    /// integrator's output interval may take many): `true` ends the run there, at a
     /// good state, with [`RunError::Interrupted`] (what a front end does on Ctrl-C). It is
     /// called often, so an implementation should look at a clock or a flag only every so many
     /// calls.
@@ -425,8 +434,14 @@ pub fn run_with_progress(
     let start = Instant::now();
     let t0 = simulation.t();
     let dt = simulation.config().dt;
-    let every = options.every.max(1);
+    // A sink that discards its samples needs no row between the first and the last.
+    let every = if sink.discards() {
+        options.steps.max(1)
+    } else {
+        options.every.max(1)
+    };
     let progress_every = (options.steps / 100).max(1);
+    let mut reported = 0;
     simulation.set_stop_time(Some(options.output_time(t0, options.steps, dt)));
     let mut failure = None;
     let mut recorded_t = t0;
@@ -443,9 +458,10 @@ pub fn run_with_progress(
     let mut cooldown = 0;
     while failure.is_none() && interval < options.steps {
         if let Some(express) = express.as_mut().filter(|_| cooldown == 0) {
-            let mut boundary = (interval / every + 1) * every;
-            boundary = boundary.min((interval / progress_every + 1) * progress_every);
-            boundary = boundary.min(options.steps).min(interval + EXPRESS_CHUNK);
+            // Progress is reported where an express run ends, not by ending one.
+            let boundary = ((interval / every + 1) * every)
+                .min(options.steps)
+                .min(interval + EXPRESS_CHUNK);
             let reached = simulation.express(express, t0, interval, boundary, &options);
             if reached < boundary {
                 // The next interval needs the simulation's own path.
@@ -465,8 +481,9 @@ pub fn run_with_progress(
             interval = next;
             cooldown = cooldown.saturating_sub(1);
         }
-        if interval % progress_every == 0 {
+        if interval / progress_every > reported / progress_every || interval == options.steps {
             progress.advance(interval, options.steps);
+            reported = interval;
         }
         if simulation.stopped_at_event() {
             recorded_t = simulation.t();
