@@ -1057,13 +1057,16 @@ fn range(values: impl Iterator<Item = f64>, log: bool) -> (f64, f64) {
     if !lo.is_finite() || !hi.is_finite() {
         return (0.0, 1.0);
     }
+    // The margin of values that span more than f64::MAX is computed without overflowing,
+    // and the range clamped to finite numbers (such a range is not drawn: `drawable`).
     let (mut low, mut high) = if hi - lo <= 0.0 {
         let pad = if log { 1.0 } else { lo.abs().max(1.0) * 0.1 };
         (lo - pad, hi + pad)
     } else {
-        let pad = if log { 0.25 } else { 0.05 * (hi - lo) };
+        let pad = if log { 0.25 } else { 0.05 * hi - 0.05 * lo };
         (lo - pad, hi + pad)
     };
+    (low, high) = (low.max(f64::MIN), high.min(f64::MAX));
     if !log {
         if lo >= 0.0 && low < 0.0 {
             low = 0.0;
@@ -1355,6 +1358,27 @@ fn empty_message(panel: &Panel) -> String {
     }
 }
 
+/// Whether an axis over `range` can be drawn: its width a finite number (values from
+/// -1e308 to 1e308 span more than f64::MAX, and no tick spacing divides an infinite width).
+fn drawable(range: (f64, f64)) -> bool {
+    (range.1 - range.0).is_finite()
+}
+
+/// What a panel whose values span more than f64::MAX says instead of its curves.
+fn too_wide_message(x: (f64, f64), y: (f64, f64)) -> String {
+    let axis = |name: &str, (lo, hi): (f64, f64)| {
+        (!(hi - lo).is_finite()).then(|| format!("{name} from {lo:e} to {hi:e}"))
+    };
+    let mut wide: Vec<String> = [axis("x", x), axis("y", y)].into_iter().flatten().collect();
+    if wide.is_empty() {
+        wide.push("at equal scales".into());
+    }
+    format!(
+        "not drawn: the values span more than the largest number ({})",
+        wide.join(", ")
+    )
+}
+
 /// The runs of drawable points between non-finite ones.
 fn segments(points: &[(f64, f64)]) -> Vec<Vec<(f64, f64)>> {
     let mut segments = vec![Vec::new()];
@@ -1514,12 +1538,27 @@ fn draw_panel<DB: DrawingBackend>(
         _ => (area.clone(), None),
     };
     let plot_area = plot_area.titled(&panel.title, (FAMILY, 15)).map_err(err)?;
-    if !has_data {
+    if panel.equal_aspect && has_data {
+        let (w, h) = plot_area.dim_in_pixel();
+        (x_range, y_range) = equalize(
+            x_range,
+            y_range,
+            w.saturating_sub(2 * MARGIN + Y_LABEL_AREA),
+            h.saturating_sub(2 * MARGIN + X_LABEL_AREA),
+        );
+    }
+    let too_wide = has_data && !(drawable(x_range) && drawable(y_range));
+    if !has_data || too_wide {
         // An honest empty panel: no invented axes, the reason in words.
+        let message = if too_wide {
+            too_wide_message(x_extent, y_extent)
+        } else {
+            empty_message(panel)
+        };
         let (w, h) = plot_area.dim_in_pixel();
         plot_area
             .draw(&Text::new(
-                empty_message(panel),
+                message,
                 ((w / 2) as i32, (h / 2) as i32),
                 (FAMILY, 15)
                     .into_font()
@@ -1537,15 +1576,6 @@ fn draw_panel<DB: DrawingBackend>(
             ))
             .map_err(err)?;
         return Ok(());
-    }
-    if panel.equal_aspect {
-        let (w, h) = plot_area.dim_in_pixel();
-        (x_range, y_range) = equalize(
-            x_range,
-            y_range,
-            w.saturating_sub(2 * MARGIN + Y_LABEL_AREA),
-            h.saturating_sub(2 * MARGIN + X_LABEL_AREA),
-        );
     }
     let mut chart = ChartBuilder::on(&plot_area)
         .margin(MARGIN)
@@ -1904,6 +1934,36 @@ mod tests {
             columns: 0,
             size: (640, 400),
         }
+    }
+
+    /// Values that span more than f64::MAX (a run blown up to +-1e308) draw a panel that
+    /// says so, where the axis' ticks once looped forever; one just inside still draws.
+    #[test]
+    fn values_spanning_more_than_the_largest_number_are_said_not_drawn() {
+        let huge = vec![(0.0, -1e308), (1.0, 1e308)];
+        let cases = [
+            (huge.clone(), false, "y from -1e308 to 1e308"),
+            (
+                huge.iter().map(|&(t, v)| (v, t)).collect(),
+                false,
+                "x from -1e308 to 1e308",
+            ),
+            (huge.clone(), true, "y from -1e308 to 1e308"),
+        ];
+        for (points, equal_aspect, said) in cases {
+            let mut wide = figure();
+            wide.panels[0].y_log = false;
+            wide.panels[0].equal_aspect = equal_aspect;
+            wide.panels[0].series = vec![Series::line("a", points)];
+            let svg = svg_string(&wide).unwrap();
+            assert!(svg.contains("not drawn: the values span more"), "{said}");
+            assert!(svg.contains(said), "{said}");
+        }
+        let mut inside = figure();
+        inside.panels[0].y_log = false;
+        inside.panels[0].series = vec![Series::line("a", vec![(0.0, -8e307), (1.0, 8e307)])];
+        let svg = svg_string(&inside).unwrap();
+        assert!(!svg.contains("not drawn"));
     }
 
     #[test]
