@@ -415,6 +415,6 @@ fn the_readmes_run_and_sweep_examples_print_what_bead_prints() {
     }
     assert!(stale.is_empty(), "{}", stale.join("\n\n"));
     assert_eq!(shown, ["scenes/node.toml", "bad.toml"]);
-    // The sweeps (3), the stop conditions (4) and the events (1): a new example counts here.
-    assert_eq!(checked, 8, "examples checked");
+    // The sweeps (3), the stop conditions (5) and the events (1): a new example counts here.
+    assert_eq!(checked, 9, "examples checked");
 }

@@ -634,8 +634,8 @@ impl PyScene {
     /// velocities, t and params, e.g. "-bead.x": the run ends where it crosses zero upward,
     /// located to 1e-10 of dt; default: the scene's `[run] stop_when`), and event_samples
     /// (times inside each step at which stop_when is also sampled, 0 to 1024; default: the
-    /// scene's `[run] event_samples`, else 4). A stop_when that is not a number (NaN) raises
-    /// `bead.RunError`.
+    /// scene's `[run] event_samples`, else 4). A stop_when that is not a number (NaN), is infinite,
+    /// or changes sign by a pole (-1/bead.x at x = 0) raises `bead.RunError`.
     ///
     /// Raises ValueError for a bad argument, `bead.SetupError` when the simulation cannot
     /// start (e.g. rattle on the parametric form), and `bead.RunError` (`bead.DivergenceError`

@@ -892,3 +892,77 @@ fn recording_events_changes_no_bit_of_a_warm_started_run() {
         );
     }
 }
+
+/// g = -1/bead.x changes sign where the pendulum passes the bottom (x = 0, a quarter
+/// period), by a pole, not by crossing zero: the run stops at the step's start with an
+/// error that says so, at the pole's time, on a fixed-step path and on a dense output,
+/// terminal or not; a bounded jump there (-sign(bead.x)) still fires at the same time, as
+/// -bead.x does; and a g that is infinite (1/0) is an error as a NaN is.
+#[test]
+fn a_pole_is_not_a_crossing_and_an_infinite_value_is_an_error() {
+    use bead::simulate::RunError;
+    use IntegratorKind::*;
+    let scene = circle();
+    let exact = quarter_period();
+    for (integrator, dt, tolerance) in [(Rk4, 1e-3, 1e-11), (Dopri5, 1e-2, 1e-10)] {
+        for terminal in [true, false] {
+            let label = format!("{} terminal {terminal}", integrator.name());
+            let config = config(Method::Implicit, integrator, dt);
+            let mut sim = Simulation::new(Arc::clone(&scene.system), config).unwrap();
+            let event = Event::parse(&scene.system, "-1/bead.x").unwrap();
+            sim.set_events(vec![EventSpec {
+                event,
+                direction: Direction::Up,
+                terminal,
+                stop_when: terminal,
+            }])
+            .unwrap();
+            let failure = run(&mut sim, RunOptions::steps(2000), &mut NullSink).expect_err(&label);
+            let RunError::EventJump {
+                t,
+                before,
+                after,
+                stopped,
+                ..
+            } = failure.error
+            else {
+                panic!("{label}: {}", failure.error);
+            };
+            assert!((t - exact).abs() <= tolerance, "{label}: {t} vs {exact}");
+            assert!(before < -1e6 && after > 1e6, "{label}: {before} {after}");
+            assert!(stopped < t && t - stopped <= dt, "{label}: {stopped}");
+            assert_eq!(failure.stats.t_final, stopped, "{label}");
+            let name = if terminal { "stop_when" } else { "the event" };
+            let message = failure.error.to_string();
+            let start = format!("{name} `-1/bead.x` jumps over zero at t = ");
+            assert!(message.starts_with(&start), "{message}");
+            assert!(
+                message.contains(": a pole, not a crossing of zero)"),
+                "{message}"
+            );
+            let jump = run_until(&scene, "-sign(bead.x)", config, 2000).0;
+            let crossing = run_until(&scene, "-bead.x", config, 2000).0;
+            let (jump, crossing) = (jump.stop_time.unwrap(), crossing.stop_time.unwrap());
+            assert!(
+                (jump - crossing).abs() <= tolerance,
+                "{label}: {jump} vs {crossing}"
+            );
+        }
+        let mut sim = Simulation::new(
+            Arc::clone(&scene.system),
+            config(Method::Implicit, integrator, dt),
+        )
+        .unwrap();
+        sim.set_stop_when(Some(Event::parse(&scene.system, "1/0 - bead.x").unwrap()))
+            .unwrap();
+        let failure = run(&mut sim, RunOptions::steps(10), &mut NullSink).unwrap_err();
+        assert!(
+            failure
+                .error
+                .to_string()
+                .starts_with("stop_when `1/0 - bead.x` is infinite at t = 0 (with bead.x = 0.866"),
+            "{}",
+            failure.error
+        );
+    }
+}

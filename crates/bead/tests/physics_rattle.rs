@@ -611,9 +611,18 @@ fn projection_failure_is_reported() {
     let formulation = formulate(system.clone(), Method::Implicit, Feedback::default()).unwrap();
     let failure = run(formulation, &o, &mut NullSink).unwrap_err();
     match &failure.error {
-        RunError::Step(StepError::ProjectionFailed { t, .. }) => assert_eq!(*t, 0.01 / 64.0),
+        RunError::Step(StepError::ProjectionFailed { t, substeps, .. }) => {
+            assert_eq!((*t, *substeps), (0.01 / 64.0, 64))
+        }
         other => panic!("expected ProjectionFailed, got {other}"),
     }
+    assert!(failure
+        .error
+        .to_string()
+        .contains("rattle's solve for the constraint forces did not converge: max |C| = "));
+    assert!(failure.error.to_string().ends_with(
+        " in 64 substeps of the step, the most allowed (raise max_substeps, `--max-substeps`, or reduce dt)"
+    ), "{}", failure.error);
     assert_eq!(failure.stats.steps, 0);
     o.max_substeps = 1;
     let formulation = formulate(system.clone(), Method::Implicit, Feedback::default()).unwrap();
@@ -623,8 +632,10 @@ fn projection_failure_is_reported() {
             t,
             iterations,
             residual,
+            substeps,
+            ..
         }) => {
-            assert_eq!((*t, *iterations), (0.01, 0));
+            assert_eq!((*t, *iterations, *substeps), (0.01, 0, 1));
             assert!(*residual > 1e-14);
         }
         other => panic!("expected ProjectionFailed, got {other}"),
@@ -632,7 +643,10 @@ fn projection_failure_is_reported() {
     assert!(failure
         .error
         .to_string()
-        .contains("projection onto the constraints did not converge"));
+        .contains("rattle's solve for the constraint forces did not converge: max |C| = "));
+    assert!(failure.error.to_string().ends_with(
+        " in a step without substeps (allow substeps with max_substeps, `--max-substeps`, or reduce dt)"
+    ), "{}", failure.error);
     assert_eq!(failure.stats.steps, 0);
 
     // Retries off: shorter substeps leave the rod by less and may need no iteration at all.
@@ -651,6 +665,10 @@ fn projection_failure_is_reported() {
         "{}",
         failure.error
     );
+    assert!(failure
+        .error
+        .to_string()
+        .contains(": the projection onto the constraints did not converge: max |C| = "));
 
     let mut b = SystemBuilder::new(&[0.0, 0.0]);
     b.particle("bead", 1.0, &[0.5, 0.5], &[0.0, 0.0]).unwrap();

@@ -444,6 +444,8 @@ impl ConstrainedSystem for Implicit {
                     t,
                     iterations,
                     residual: max_abs(&ws.eval.value),
+                    solve: "the projection onto the constraints",
+                    substeps: 0,
                 });
             }
             ws.rhs.copy_from_slice(&ws.eval.value);

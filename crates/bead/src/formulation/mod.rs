@@ -105,6 +105,16 @@ pub trait SecondOrderSystem {
     fn discount_compiled_steps(&mut self, _steps: u64) {}
 }
 
+/// What a [`StepError::ProjectionFailed`] suggests, given the substeps its step was last
+/// tried in.
+fn gave_up_hint(substeps: u32) -> String {
+    match substeps {
+        0 => " (reduce dt)".into(),
+        1 => " in a step without substeps (allow substeps with max_substeps, `--max-substeps`, or reduce dt)".into(),
+        n => format!(" in {n} substeps of the step, the most allowed (raise max_substeps, `--max-substeps`, or reduce dt)"),
+    }
+}
+
 /// Why an acceleration could not be computed.
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
 pub enum StepError {
@@ -120,11 +130,17 @@ pub enum StepError {
     NonFinite { t: f64, quantity: String },
     #[error("at t = {}: {message}", crate::readable(*t))]
     Contact { t: f64, message: String },
-    #[error("at t = {}: projection onto the constraints did not converge: max |C| = {residual:e} after {iterations} iterations (raise the tolerance or the iteration limit, or reduce dt)", crate::readable(*t))]
+    /// An iteration onto the constraints (`solve`: RATTLE's solve for its constraint
+    /// forces, the fast projection's, `--project`'s) did not converge; `substeps` is how
+    /// many the step was last tried in, as many as the simulation allowed (0: not from a
+    /// simulation's step).
+    #[error("at t = {}: {solve} did not converge: max |C| = {residual:e} after {iterations} iterations{}", crate::readable(*t), gave_up_hint(*substeps))]
     ProjectionFailed {
         t: f64,
         iterations: usize,
         residual: f64,
+        solve: &'static str,
+        substeps: u32,
     },
     #[error("{what} needs the implicit form; the parametric form has no constraints to project onto — use gauss-legendre or rk4")]
     NeedsConstraints { what: String },

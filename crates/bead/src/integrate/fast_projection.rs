@@ -256,6 +256,8 @@ impl ProjectionNewton {
                     t,
                     iterations,
                     residual: max_abs(&self.c),
+                    solve: "the fast projection onto the constraints",
+                    substeps: 0,
                 });
             }
             // Each step's first iterate is factored; later ones reuse it while it still
@@ -285,6 +287,8 @@ impl ProjectionNewton {
                             t,
                             iterations,
                             residual: f64::NAN,
+                            solve: "the fast projection onto the constraints",
+                            substeps: 0,
                         },
                     });
                 }

@@ -559,6 +559,8 @@ impl Rattle {
                         t,
                         iterations,
                         residual: max_abs(&self.residual),
+                        solve: "rattle's solve for the constraint forces",
+                        substeps: 0,
                     });
                 }
                 let (rods, _) = cs.rods_mut().expect("fused rods");
@@ -617,6 +619,8 @@ impl Rattle {
                     t,
                     iterations,
                     residual: max_abs(&self.residual),
+                    solve: "rattle's solve for the constraint forces",
+                    substeps: 0,
                 });
             }
             let mut solved = false;

@@ -533,7 +533,7 @@ impl Watch {
         let t0 = self.t_last;
         let h = t - t0;
         let mut before = self.g_last;
-        if before.is_nan() || g_end.is_nan() {
+        if !before.is_finite() || !g_end.is_finite() {
             return true;
         }
         if self.samples > 0 && h > 0.0 {
@@ -555,7 +555,7 @@ impl Watch {
                 let ti = sample_time(t0, t, i, self.samples);
                 self.vars[t_slot] = ti;
                 let g = self.eval_loaded();
-                if g.is_nan() || self.direction.crossing(before, g).is_some() {
+                if !g.is_finite() || self.direction.crossing(before, g).is_some() {
                     return true;
                 }
                 before = g;
@@ -564,13 +564,32 @@ impl Watch {
         self.direction.crossing(before, g_end).is_some()
     }
 
+    /// The error for g jumping over zero at time t, from `before` to `after` (see
+    /// [`Bracket::jump`]); the run stands at `stopped`.
+    pub(super) fn jump(
+        &self,
+        t: f64,
+        (before, after): (f64, f64),
+        stopped: f64,
+    ) -> super::RunError {
+        super::RunError::EventJump {
+            source_text: self.event.source.clone(),
+            stop_when: self.stop_when,
+            t,
+            before,
+            after,
+            stopped,
+        }
+    }
+
     /// The error for g = NaN at time t, at the state last given to [`Watch::eval`]; the run
     /// stands at `stopped`.
-    pub(super) fn not_a_number(&self, t: f64, stopped: f64) -> super::RunError {
+    pub(super) fn not_a_number(&self, t: f64, g: f64, stopped: f64) -> super::RunError {
         super::RunError::EventNotANumber {
             source_text: self.event.source.clone(),
             stop_when: self.stop_when,
             t,
+            infinite: g.is_infinite(),
             values: self
                 .event
                 .names
@@ -600,6 +619,11 @@ pub(super) struct Bracket {
     pub(super) g_lo: f64,
     pub(super) hi: f64,
     pub(super) g_hi: f64,
+    /// The largest |g| at the ends as given, and the last g found at each end (`g_lo` and
+    /// `g_hi` are halved by Illinois' rule)
+    g_given: f64,
+    g_lo_found: f64,
+    g_hi_found: f64,
     /// Which end the last two updates moved (Illinois: an end kept twice has its g halved)
     last_side: i8,
     /// Width before the last two iterations, to force a bisection when it did not halve
@@ -614,6 +638,9 @@ impl Bracket {
             g_lo,
             hi,
             g_hi,
+            g_given: g_lo.abs().max(g_hi.abs()),
+            g_lo_found: g_lo,
+            g_hi_found: g_hi,
             last_side: 0,
             width_before: f64::INFINITY,
             width_prev: f64::INFINITY,
@@ -644,6 +671,7 @@ impl Bracket {
         if g >= 0.0 {
             self.hi = t;
             self.g_hi = g;
+            self.g_hi_found = g;
             if self.last_side == 1 {
                 self.g_lo *= 0.5;
             }
@@ -651,6 +679,7 @@ impl Bracket {
         } else {
             self.lo = t;
             self.g_lo = g;
+            self.g_lo_found = g;
             if self.last_side == -1 {
                 self.g_hi *= 0.5;
             }
@@ -662,6 +691,15 @@ impl Bracket {
     pub(super) fn done(&self, tolerance: f64) -> bool {
         let mid = self.lo + 0.5 * (self.hi - self.lo);
         self.hi - self.lo <= tolerance || mid <= self.lo || mid >= self.hi
+    }
+
+    /// Once [`Bracket::done`]: g's values at the ends `(lo, hi)` when they grew as the
+    /// bracket closed in (each end beyond both given ends in size), where a continuous g
+    /// would have shrunk towards its root: g jumps over zero there (a pole, like -1/x's at
+    /// x = 0), it does not cross it.
+    pub(super) fn jump(&self) -> Option<(f64, f64)> {
+        let found = self.g_lo_found.abs().min(self.g_hi_found.abs());
+        (found > self.g_given).then_some((self.g_lo_found, self.g_hi_found))
     }
 }
 

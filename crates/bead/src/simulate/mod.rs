@@ -782,7 +782,7 @@ impl Simulation {
                     substeps = more_substeps(substeps, self.config.max_substeps);
                     retried = true;
                 }
-                Err(e) => return Err(self.fail(e)),
+                Err(e) => return Err(self.fail(tried_in(e, substeps))),
             }
         }
         if retried {
@@ -1497,6 +1497,27 @@ fn more_substeps(substeps: u32, max: u32) -> u32 {
 /// s + ceil(s / 2) <= `substeps`, i.e. floor(2 substeps / 3), at least 1.
 fn fewer_substeps(substeps: u32) -> u32 {
     (2 * substeps / 3).max(1)
+}
+
+/// A step's error, told the substeps it was last tried in when it is an iteration that
+/// did not converge (then as many as allowed).
+pub(super) fn tried_in(error: StepError, substeps: u32) -> StepError {
+    match error {
+        StepError::ProjectionFailed {
+            t,
+            iterations,
+            residual,
+            solve,
+            ..
+        } => StepError::ProjectionFailed {
+            t,
+            iterations,
+            residual,
+            solve,
+            substeps,
+        },
+        other => other,
+    }
 }
 
 /// Whether a failed step may succeed on shorter substeps: an iteration that did not converge.

@@ -230,17 +230,32 @@ pub enum RunError {
     },
     #[error("cannot advance to t = {} from t = {}: time only moves forward, to a finite time", crate::readable(*requested), crate::readable(*now))]
     TimeBehind { requested: f64, now: f64 },
-    /// The stop condition (`stop_when`) or an event is not a number (NaN) at time `t` of the
-    /// integrator's path (a step end, a sample inside a step, or a time its crossing was
-    /// looked for): it can neither cross zero nor stay below it. `values` are the quantities
-    /// it reads there; the run stands at `stopped`, the start of that step, its last good
-    /// state.
-    #[error("{} `{source_text}` is not a number at t = {}{}; the run stopped at the last good state, t = {}", if *stop_when { "stop_when" } else { "the event" }, crate::readable(*t), event_values(values), crate::readable(*stopped))]
+    /// The stop condition (`stop_when`) or an event is not a number (NaN), or is infinite
+    /// (`infinite`), at time `t` of the integrator's path (a step end, a sample inside a
+    /// step, or a time its crossing was looked for): it can neither cross zero nor stay
+    /// below it. `values` are the quantities it reads there; the run stands at `stopped`,
+    /// the start of that step, its last good state.
+    #[error("{} `{source_text}` {} at t = {}{}; the run stopped at the last good state, t = {}", if *stop_when { "stop_when" } else { "the event" }, if *infinite { "is infinite" } else { "is not a number" }, crate::readable(*t), event_values(values), crate::readable(*stopped))]
     EventNotANumber {
         source_text: String,
         stop_when: bool,
         t: f64,
+        infinite: bool,
         values: Vec<(String, f64)>,
+        stopped: f64,
+    },
+    /// The stop condition or an event changes sign at time `t` by a jump that grows as it
+    /// is looked at closer: from `before` to `after` across the located instant, each larger
+    /// in size than at the ends of the interval it was found in (a pole, like -1/x's at
+    /// x = 0), where a crossing of zero would have shrunk towards it. The run stands at
+    /// `stopped`, the start of that step, its last good state.
+    #[error("{} `{source_text}` jumps over zero at t = {} (from {} to {}: a pole, not a crossing of zero); the run stopped at the last good state, t = {}", if *stop_when { "stop_when" } else { "the event" }, crate::readable(*t), crate::significant(*before, 4), crate::significant(*after, 4), crate::readable(*stopped))]
+    EventJump {
+        source_text: String,
+        stop_when: bool,
+        t: f64,
+        before: f64,
+        after: f64,
         stopped: f64,
     },
     /// The run's [`Progress::interrupted`] (or the callback of

@@ -4,7 +4,8 @@
 
 use super::event::{sample_time, Bracket, Crossing, EventError, EventSpec, Watch};
 use super::{
-    dense_samples, more_substeps, retryable, split, RunError, Simulation, Stepper, EVENT_TOLERANCE,
+    dense_samples, more_substeps, retryable, split, tried_in, RunError, Simulation, Stepper,
+    EVENT_TOLERANCE,
 };
 use crate::formulation::{Method, StepError};
 use crate::simulate::Event;
@@ -207,8 +208,8 @@ impl Simulation {
 
     /// The error for a g of event `k` that is not a number at time t (its watch holds the
     /// state it was evaluated at): the step is undone, the run stands at its start.
-    fn event_not_a_number(&mut self, k: usize, t: f64) -> RunError {
-        let error = self.watches[k].not_a_number(t, self.previous.t);
+    fn event_not_a_number(&mut self, k: usize, t: f64, g: f64) -> RunError {
+        let error = self.watches[k].not_a_number(t, g, self.previous.t);
         self.steps -= 1;
         self.restore();
         error
@@ -241,11 +242,11 @@ impl Simulation {
         for (g, watch) in self.g_before.iter_mut().zip(&self.watches) {
             *g = watch.g_last;
         }
-        if let Some(k) = self.g_before.iter().position(|g| g.is_nan()) {
+        if let Some(k) = self.g_before.iter().position(|g| !g.is_finite()) {
             self.restore();
-            self.event_value(k, false);
+            let g = self.event_value(k, false);
             self.steps -= 1;
-            return Err(self.watches[k].not_a_number(t0, t0));
+            return Err(self.watches[k].not_a_number(t0, g, t0));
         }
         self.step_end.clone_from(&self.state);
         let mut t_before = t0;
@@ -262,8 +263,8 @@ impl Simulation {
             self.observe_state(ti);
             for k in 0..self.watches.len() {
                 self.g_now[k] = self.event_value(k, false);
-                if self.g_now[k].is_nan() {
-                    return Err(self.event_not_a_number(k, ti));
+                if !self.g_now[k].is_finite() {
+                    return Err(self.event_not_a_number(k, ti, self.g_now[k]));
                 }
             }
             if self.any_crossing() && self.locate_crossings(t_before, ti)? {
@@ -411,13 +412,19 @@ impl Simulation {
             }
             self.observe_state(t);
             let g = self.event_value(k, false);
-            if g.is_nan() {
-                return Err(self.event_not_a_number(k, t));
+            if !g.is_finite() {
+                return Err(self.event_not_a_number(k, t, g));
             }
             if sign * g >= 0.0 {
                 self.event_state.clone_from(&self.state);
             }
             bracket.update(t, sign * g);
+        }
+        if let Some((lo, hi)) = bracket.jump() {
+            let error = self.watches[k].jump(bracket.hi, (sign * lo, sign * hi), self.previous.t);
+            self.steps -= 1;
+            self.restore();
+            return Err(error);
         }
         self.state.clone_from(&self.event_state);
         let t = self.state.t;
@@ -436,7 +443,7 @@ impl Simulation {
                     self.restore_state_only();
                     substeps = more_substeps(substeps, self.config.max_substeps);
                 }
-                Err(e) => return Err(e),
+                Err(e) => return Err(tried_in(e, substeps)),
             }
         }
     }
@@ -454,9 +461,9 @@ impl Simulation {
         };
         let (t_old, t_new) = dopri.last_step();
         let samples = dense_samples(t_new - t_old, self.config.dt, self.config.event_samples);
-        if let Some(k) = self.g_before.iter().position(|g| g.is_nan()) {
-            self.dense_value(k, from);
-            return Err(self.watches[k].not_a_number(from, stopped));
+        if let Some(k) = self.g_before.iter().position(|g| !g.is_finite()) {
+            let g = self.dense_value(k, from);
+            return Err(self.watches[k].not_a_number(from, g, stopped));
         }
         let mut t_before = from;
         for i in 1..=samples + 1 {
@@ -470,9 +477,9 @@ impl Simulation {
                 } else {
                     self.watches[k].g_last
                 };
-                if g.is_nan() {
+                if !g.is_finite() {
                     self.dense_value(k, ti);
-                    return Err(self.watches[k].not_a_number(ti, stopped));
+                    return Err(self.watches[k].not_a_number(ti, g, stopped));
                 }
                 self.g_now[k] = g;
             }
@@ -579,10 +586,13 @@ impl Simulation {
         while !bracket.done(tolerance) {
             let t = bracket.next();
             let g = self.dense_value(k, t);
-            if g.is_nan() {
-                return Err(self.watches[k].not_a_number(t, stopped));
+            if !g.is_finite() {
+                return Err(self.watches[k].not_a_number(t, g, stopped));
             }
             bracket.update(t, sign * g);
+        }
+        if let Some((lo, hi)) = bracket.jump() {
+            return Err(self.watches[k].jump(bracket.hi, (sign * lo, sign * hi), stopped));
         }
         Ok(bracket.hi)
     }
