@@ -182,7 +182,9 @@ an expression of numbers, pi, e and functions, like 1/60 or 2*pi/100.
 
 Exit status: 0 on success, 1 when the scene is invalid or the run fails (the trace keeps every
 finished row and --summary is still written, with completed: false), 2 on a usage error (a bad
-flag value, or two outputs naming the same file).";
+flag value, or two outputs naming the same file), 130 when Ctrl-C (SIGINT, SIGTERM, SIGHUP)
+ended the run of `run` or `compare`: at its last good state, with its trace and --summary
+written as for a failed run (a second Ctrl-C ends the process at once).";
 
 /// `bead run`.
 #[derive(Debug, Args)]

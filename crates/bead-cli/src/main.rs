@@ -26,7 +26,16 @@ fn main() -> ExitCode {
     if cli.no_jit {
         bead::expr::set_jit_enabled(false);
     }
-    match commands::dispatch(cli.command) {
+    let result = commands::dispatch(cli.command);
+    if commands::progress::interrupted() {
+        // Ctrl-C: the runs stopped at their last good states, their files written, and
+        // the error says where; 128 + SIGINT, as a shell reports a process it interrupted.
+        if let Err(error) = &result {
+            let _ = writeln!(io::stderr(), "error: {}", commands::terminal(&chain(error)));
+        }
+        return ExitCode::from(130);
+    }
+    match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(error) => {
             if error

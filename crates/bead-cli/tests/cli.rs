@@ -3091,3 +3091,55 @@ fn run_counts_the_bounces_of_a_unilateral_scene() {
     );
     assert!((a - b).abs() < 1e-6 * a, "{a} vs {b}");
 }
+
+/// Ctrl-C (SIGINT) in a long `bead run` ends the run at its last good state: the summary
+/// file is written with the error and the state reached, the trace ends with that state's
+/// row, stderr says where, and the exit code is 130. The signal is sent once the trace
+/// shows the run under way (its handler is set before the run's first step).
+#[test]
+fn ctrl_c_ends_a_run_at_its_last_good_state_with_its_files_written() {
+    use std::process::{Command, Stdio};
+    let dir = TempDir::new("ctrl-c");
+    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes/parabola.toml");
+    let scene = scene.to_str().unwrap();
+    let mut child = Command::new(env!("CARGO_BIN_EXE_bead"))
+        .args(["run", scene, "--duration", "1e9", "--every", "1000"])
+        .args(["--trace", "trace.csv", "--summary", "summary.json"])
+        .current_dir(&dir.0)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("run bead");
+    let rows = || {
+        std::fs::read_to_string(dir.path("trace.csv"))
+            .map(|t| t.lines().count())
+            .unwrap_or(0)
+    };
+    while rows() < 3 {
+        assert!(
+            child.try_wait().unwrap().is_none(),
+            "the run ended by itself"
+        );
+        std::thread::sleep(std::time::Duration::from_millis(10));
+    }
+    let kill = Command::new("kill")
+        .args(["-INT", &child.id().to_string()])
+        .status()
+        .expect("kill");
+    assert!(kill.success());
+    let output = child.wait_with_output().expect("the run ends");
+    let err = stderr(&output);
+    assert_eq!(output.status.code(), Some(130), "{err}");
+    assert!(err.contains("error: interrupted at t = "), "{err}");
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.path("summary.json")).unwrap()).unwrap();
+    let error = summary["error"].as_str().unwrap();
+    assert!(error.starts_with("interrupted at t = "), "{error}");
+    let t_final = summary["t_final"].as_f64().unwrap();
+    assert!(t_final > 0.0 && t_final < 1e9, "{t_final}");
+    let trace = std::fs::read_to_string(dir.path("trace.csv")).unwrap();
+    let last = trace.lines().last().unwrap();
+    let t_last: f64 = last.split(',').next().unwrap().parse().unwrap();
+    assert_eq!(t_last, t_final, "the trace's last row is the state reached");
+    assert!(stdout(&output).contains("(stopped early)"));
+}

@@ -7,7 +7,7 @@ mod export_page;
 mod grid;
 mod order;
 mod plot;
-mod progress;
+pub mod progress;
 mod run;
 mod serve;
 mod sweep;

@@ -1,7 +1,11 @@
 //! A progress bar for long runs: on stderr, only when stderr is a terminal, and only once a
-//! run has taken more than a second (short runs print nothing).
+//! run has taken more than a second (short runs print nothing); and Ctrl-C (SIGINT, SIGTERM,
+//! SIGHUP) during a run, which ends it at its last good state, its trace, summary and report
+//! written as for a failed run (exit code 130). A second one ends the process at once.
 
 use std::io::IsTerminal;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Once;
 use std::time::{Duration, Instant};
 
 use bead::simulate::Progress;
@@ -18,8 +22,33 @@ pub struct Bar {
     bar: Option<ProgressBar>,
 }
 
+/// Set by the first Ctrl-C (or SIGTERM, SIGHUP) after a run has started.
+static INTERRUPTED: AtomicBool = AtomicBool::new(false);
+
+/// Whether a run of this process was interrupted (then `main` exits with code 130).
+pub fn interrupted() -> bool {
+    INTERRUPTED.load(Ordering::Relaxed)
+}
+
+/// From the first run on, a signal that would end the process sets [`INTERRUPTED`] instead,
+/// which every run's [`Bar`] reports to the run; a second one exits at once. Commands that
+/// start no run (the viewer's server) keep the default: the signal ends them.
+fn catch_interrupts() {
+    static ONCE: Once = Once::new();
+    ONCE.call_once(|| {
+        // Without a handler (one already set, or none allowed) a signal ends the process
+        // as it did.
+        let _ = ctrlc::set_handler(|| {
+            if INTERRUPTED.swap(true, Ordering::SeqCst) {
+                std::process::exit(130);
+            }
+        });
+    });
+}
+
 impl Bar {
     pub fn new(label: String) -> Self {
+        catch_interrupts();
         Bar {
             label,
             start: Instant::now(),
@@ -55,6 +84,10 @@ impl Progress for Bar {
         if let Some(bar) = &self.bar {
             bar.set_position(step);
         }
+    }
+
+    fn interrupted(&mut self) -> bool {
+        interrupted()
     }
 }
 
