@@ -361,7 +361,7 @@ fn check_request(request: &PlanRequest) -> Result<(), PlanError> {
             ))
         }
         (Some(0), None) => return Err(bad("steps", "0".into(), "must be at least 1")),
-        (Some(steps), None) if steps as f64 > MAX_STEPS => {
+        (Some(steps), None) if steps > MAX_STEPS as u64 => {
             return Err(bad(
                 "steps",
                 steps.to_string(),
@@ -427,6 +427,21 @@ mod tests {
             (600, Some(10.0), false)
         );
         assert_eq!(steps_for(1.0, 0.1).unwrap(), (10, Some(1.0), false));
+    }
+
+    /// 2^53 steps are allowed and 2^53 + 1 are not (which rounds to 2^53 as an f64).
+    #[test]
+    fn at_most_2_to_the_53_steps() {
+        let with = |steps: u64| {
+            let request = PlanRequest {
+                steps: Some(steps),
+                ..Default::default()
+            };
+            Plan::resolve(&scene(""), &request).map(|plan| plan.steps)
+        };
+        assert_eq!(with(1 << 53).unwrap(), 1 << 53);
+        let error = with((1 << 53) + 1).unwrap_err().to_string();
+        assert!(error.contains("at most 2^53 steps are allowed"), "{error}");
     }
 
     #[test]

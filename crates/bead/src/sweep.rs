@@ -89,8 +89,9 @@ impl Axis {
 
     /// `count` values from `start` to `stop`, both included, evenly spaced, as numpy's
     /// `linspace(start, stop, count)` computes them: value i = start + i (stop - start) /
-    /// (count - 1), the last exactly `stop` (one value: `start`). Computed when asked for, so
-    /// any count costs no memory.
+    /// (count - 1), the last exactly `stop` (one value: `start`); where stop - start
+    /// overflows, start (1 - f) + stop f with f = i / (count - 1). Computed when asked for,
+    /// so any count costs no memory.
     pub fn linspace(name: &str, start: f64, stop: f64, count: usize) -> Result<Axis, SweepError> {
         if count == 0 {
             return Err(SweepError::NoValues {
@@ -133,8 +134,13 @@ impl Axis {
                     } else {
                         stop
                     }
-                } else {
+                } else if (stop - start).is_finite() {
                     i as f64 * ((stop - start) / (count - 1) as f64) + start
+                } else {
+                    // A span beyond f64::MAX (start and stop of opposite signs, both near
+                    // it): weights of each end, whose terms stay finite.
+                    let f = i as f64 / (count - 1) as f64;
+                    start * (1.0 - f) + stop * f
                 }
             }
         }
@@ -1480,6 +1486,23 @@ mod tests {
                 (name, Scene::load(&p, &[]).unwrap())
             })
             .collect()
+    }
+
+    /// An axis spanning more than f64::MAX (-1e308 to 1e308) has finite, evenly spaced
+    /// values (its spacing overflowed to inf: the middle values were NaN and inf); within
+    /// range the values are numpy's, bit for bit.
+    #[test]
+    fn linspace_values_stay_finite_across_a_span_beyond_the_largest_number() {
+        let wide = Axis::linspace("g", -1e308, 1e308, 5).unwrap();
+        let values: Vec<f64> = wide.values().collect();
+        assert_eq!(values, [-1e308, -5e307, 0.0, 5e307, 1e308]);
+        let max = Axis::linspace("g", f64::MIN, f64::MAX, 3).unwrap();
+        assert_eq!(max.values().collect::<Vec<_>>(), [f64::MIN, 0.0, f64::MAX]);
+        // numpy's `_nx.arange(0, num) * step + start`, step = (stop - start) / (num - 1)
+        let step = (0.7 - 0.1) / 6.0;
+        let numpy: Vec<f64> = (0..6).map(|i| i as f64 * step + 0.1).chain([0.7]).collect();
+        let narrow = Axis::linspace("g", 0.1, 0.7, 7).unwrap();
+        assert_eq!(narrow.values().collect::<Vec<_>>(), numpy);
     }
 
     /// Two values near `v` that keep a count a count.
