@@ -3143,3 +3143,16 @@ fn ctrl_c_ends_a_run_at_its_last_good_state_with_its_files_written() {
     assert_eq!(t_last, t_final, "the trace's last row is the state reached");
     assert!(stdout(&output).contains("(stopped early)"));
 }
+
+/// A "scene" that never ends (`/dev/zero`) or is too large is refused after 16 MiB, not
+/// read forever.
+#[cfg(unix)]
+#[test]
+fn a_scene_file_that_never_ends_is_refused() {
+    let dir = TempDir::new("endless");
+    let err = fails(bead_in(&dir.0, &["check", "/dev/zero"]), 1);
+    assert!(
+        err.contains("error: /dev/zero: the scene file is larger than 16 MiB"),
+        "{err}"
+    );
+}

@@ -340,18 +340,35 @@ impl SceneError {
     }
 }
 
+/// The largest scene file [`Scene::load`] reads: 16 MiB (the shipped scenes are a few
+/// kilobytes).
+pub const MAX_SCENE_BYTES: u64 = 16 << 20;
+
 impl Scene {
     /// Read and load a scene file; `overrides` replace `[params]` values (`--set NAME=VALUE`;
     /// an unknown name is an error).
     pub fn load(path: &Path, overrides: &[(String, f64)]) -> Result<Scene, SceneError> {
+        use std::io::Read;
         let file = path.display().to_string();
-        let text = std::fs::read_to_string(path).map_err(|e| SceneError {
+        let error = |message: String| SceneError {
             file: file.clone(),
             line: 0,
             column: 0,
-            message: format!("cannot read the scene file: {e}"),
+            message,
             snippet: None,
-        })?;
+        };
+        // Read at most one byte past the limit, so that a device or a pipe that never ends
+        // (`/dev/zero`) is refused rather than read forever.
+        let mut text = String::new();
+        std::fs::File::open(path)
+            .and_then(|f| f.take(MAX_SCENE_BYTES + 1).read_to_string(&mut text))
+            .map_err(|e| error(format!("cannot read the scene file: {e}")))?;
+        if text.len() as u64 > MAX_SCENE_BYTES {
+            return Err(error(format!(
+                "the scene file is larger than {} MiB (a scene is a few kilobytes; tables with `for` make many items from one line)",
+                MAX_SCENE_BYTES >> 20
+            )));
+        }
         Scene::parse(&text, &file, overrides)
     }
 
