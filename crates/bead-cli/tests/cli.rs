@@ -3156,3 +3156,36 @@ fn a_scene_file_that_never_ends_is_refused() {
         "{err}"
     );
 }
+
+/// A parameter set twice, or both set and swept, is a usage error naming both, where the
+/// last (or the sweep) won silently.
+#[test]
+fn a_parameter_set_twice_or_set_and_swept_is_refused() {
+    let dir = TempDir::new("set-twice");
+    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes/parabola.toml");
+    let scene = scene.to_str().unwrap();
+    let err = fails(
+        bead_in(&dir.0, &["run", scene, "--set", "g=5", "--set", "g=6"]),
+        2,
+    );
+    assert!(
+        err.contains("error: --set g is given twice (g=5 and g=6); give each parameter once"),
+        "{err}"
+    );
+    let err = fails(
+        bead_in(
+            &dir.0,
+            &["sweep", scene, "--param", "g=1:2:2", "--set", "g=5"],
+        ),
+        2,
+    );
+    assert!(
+        err.contains("error: --set g and --param g both give `g`; set it or sweep it"),
+        "{err}"
+    );
+    // Different parameters, or one each, are fine.
+    ok(bead_in(
+        &dir.0,
+        &["run", scene, "--set", "g=5", "--duration", "0.1"],
+    ));
+}

@@ -54,8 +54,19 @@ impl std::fmt::Display for Usage {
 
 impl std::error::Error for Usage {}
 
-/// Load a scene and print its warnings to stderr.
+/// Load a scene and print its warnings to stderr. A parameter `--set` twice is a usage
+/// error (the library lets the last win, which the command line should not do silently).
 fn load_scene(path: &Path, overrides: &[(String, f64)]) -> Result<Scene> {
+    for (i, (name, value)) in overrides.iter().enumerate() {
+        if let Some((_, first)) = overrides[..i].iter().find(|(n, _)| n == name) {
+            return Err(Usage(format!(
+                "--set {name} is given twice ({name}={} and {name}={}); give each parameter once",
+                bead::readable(*first),
+                bead::readable(*value)
+            ))
+            .into());
+        }
+    }
     // The scene error renders as `file:line:column: message` and a caret snippet.
     let scene = Scene::load(path, overrides)?;
     for warning in scene.warnings() {

@@ -23,6 +23,15 @@ pub fn sweep(args: &SweepArgs) -> Result<()> {
         files.output("--out", out);
     }
     files.check()?;
+    // A parameter both set and swept: the sweep's values would win, silently.
+    if let Some((name, _)) =
+        (args.sim.set.iter()).find(|(n, _)| args.params.iter().any(|p| &p.name == n))
+    {
+        return Err(Usage(format!(
+            "--set {name} and --param {name} both give `{name}`; set it or sweep it"
+        ))
+        .into());
+    }
     let scene = load_scene(&args.scene, &args.sim.set)?;
     let plan = plan::resolve(&scene, &args.sim, args.method.map(|m| m.0))?;
     let method = plan.method;
