@@ -1,9 +1,11 @@
 //! A run that blows up stops and says so; one that is merely large does not.
 //!
 //! Law checked: explicit Euler on a mass on a spring at omega dt = 2 is unstable, so its
-//! energy grows geometrically; the run must stop with a divergence error naming the quantity
-//! long before f64 overflows, instead of finishing with numbers like 1e292 and exit code 0. Free fall under gravity, by contrast, grows only
-//! as y = g t^2 / 2 and must never be flagged over a long run.
+//! energy grows geometrically (by 1 + (omega dt)^2 = 5 per step, exactly); the run must stop
+//! with a divergence error naming the quantity long before f64 overflows, instead of
+//! finishing with numbers like 1e292 and exit code 0: at the first step whose energy has
+//! changed by more than 10^6 times its scale. Free fall under gravity, by contrast, grows
+//! only as y = g t^2 / 2 and must never be flagged over a long run.
 
 mod common;
 
@@ -40,18 +42,33 @@ fn unstable_euler_is_reported_as_divergence_not_finished() {
         ..Options::default()
     };
     let failure = run(free, &options, &mut NullSink).expect_err("must diverge");
+    // E_n = 5^n E_0 with E_0 = k x0^2 / 2 = 2, the energy scale: |E_n - E_0| / E_scale is
+    // 5^n - 1, beyond 10^6 first at n = 9 (5^8 - 1 = 390,624; 5^9 - 1 = 1,953,124).
     match &failure.error {
         RunError::Diverged {
-            step, value, limit, ..
+            step,
+            quantity,
+            value,
+            limit,
+            ..
         } => {
-            assert!(*step < 100, "caught at step {step}");
-            assert!(limit.is_some(), "{:?}", failure.error);
-            assert!(value.is_finite() && value.abs() > 1e12, "{value}");
+            assert_eq!(*step, 9, "caught at step {step}");
+            assert_eq!(*quantity, bead::simulate::Quantity::EnergyChange);
+            assert_eq!(*limit, Some(1e6));
+            assert!((value - 1_953_124.0).abs() <= 1e-9 * 1_953_124.0, "{value}");
         }
         other => panic!("expected divergence, got {other}"),
     }
     let message = failure.to_string();
-    assert!(message.starts_with("diverged at t = "), "{message}");
+    assert!(
+        message.starts_with(
+            "diverged at t = 9 (step 9): the energy's change |E - E0| / E_scale is 1953124"
+        ),
+        "{message}"
+    );
+    assert!(message.contains(", beyond 1000000 (a million times the energy it started with"));
+    // The last good state is step 8's: its energy changed by 5^8 - 1 times the scale.
+    assert!((failure.stats.energy_rel_error_max - 390_624.0).abs() <= 1e-9 * 390_624.0);
     // The figures kept are those of the last good state, all finite.
     assert!(failure.stats.energy_final.is_finite());
 }
@@ -111,4 +128,144 @@ fn an_interrupted_run_stops_at_a_good_state_and_says_so() {
     }
     assert_eq!(failure.stats.steps, 7);
     assert_eq!(failure.stats.t_final, 3.5);
+}
+
+/// A slow blow-up: rk4 on the article's bead released at x0 = 1 (small oscillations, omega
+/// = sqrt(2 g / 100) = sqrt(10)) at dt = 0.9, just past rk4's stability limit (omega dt =
+/// 2.85 > 2.785): the energy grows by a fraction of a percent per step, the implicit form
+/// drifting off its curve, and passes 10^6 times its scale after some 24,000 steps, with
+/// the bead still far within the reach. The
+/// run stops there with the energy named, whether its steps go through the express path and
+/// its batched checks (a run that records nothing) or through the simulation's own (one that
+/// records every step): the same error, statistics and figures.
+#[test]
+fn a_slow_blow_up_stops_where_the_energy_passes_a_million_times_its_scale() {
+    use bead::plan::{Plan, PlanRequest};
+    use bead::scene::Scene;
+    use bead::simulate::{run as run_simulation, Simulation};
+    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../../scenes/parabola-x0.toml");
+    let scene = Scene::load(std::path::Path::new(path), &[("x0".into(), 1.0)]).unwrap();
+    let request = PlanRequest {
+        method: Some(Method::Implicit),
+        integrator: Some(IntegratorKind::Rk4),
+        dt: Some(0.9),
+        steps: Some(40_000),
+        ..Default::default()
+    };
+    let plan = Plan::resolve(&scene, &request).unwrap();
+    struct Every(u64);
+    impl bead::simulate::Sink for Every {
+        fn record(&mut self, _: &bead::simulate::Sample) -> std::io::Result<()> {
+            self.0 += 1;
+            Ok(())
+        }
+    }
+    let mut outcomes = Vec::new();
+    for records in [false, true] {
+        let mut simulation =
+            Simulation::new(Arc::clone(&scene.system), plan.config(plan.method)).unwrap();
+        let mut every = Every(0);
+        let failure = if records {
+            run_simulation(&mut simulation, plan.options(), &mut every)
+        } else {
+            run_simulation(&mut simulation, plan.options(), &mut NullSink)
+        }
+        .expect_err("must diverge");
+        let RunError::Diverged {
+            step,
+            quantity,
+            value,
+            ..
+        } = &failure.error
+        else {
+            panic!("expected divergence, got {}", failure.error);
+        };
+        assert_eq!(*quantity, bead::simulate::Quantity::EnergyChange);
+        assert!(*step > 20_000 && *step < 30_000, "{step}");
+        assert!(*value > 1e6 && *value < 1.01e6, "{value}");
+        assert!(failure.stats.energy_rel_error_max <= 1e6);
+        // Far within the reach (10^12 times the scene's scales): the bead has drifted up off
+        // its curve to y ~ -10^6 (V = -m g y = 5 10^8 = 10^6 times E0 = 500), no further.
+        assert!(
+            failure.stats.x.iter().all(|x| x.abs() < 2e6),
+            "{:?}",
+            failure.stats.x
+        );
+        if records {
+            assert_eq!(
+                every.0, *step,
+                "the start and every step before the one that failed"
+            );
+        }
+        let stats = bead::simulate::RunStats {
+            wall_seconds: 0.0,
+            ..*failure.stats
+        };
+        outcomes.push(format!("{} {stats:?}", failure.error));
+    }
+    assert_eq!(outcomes[0], outcomes[1]);
+}
+
+/// The sweep lanes watch the energy too: a mass on a spring (k = m = 1, omega = 1) and no
+/// constraint, so that no regularity candidate takes a member out of the lanes, stepped by
+/// rk4 at dt = 2.83, just past its stability limit 2 sqrt(2): |R(2.83 i)|^2 = 1.0079, the
+/// energy grows by 0.8% a step and passes 10^6 times its scale near step 1750, far within
+/// the reach. Every member of a sweep over its release point leaves the lanes at that step
+/// with the divergence its run alone reports through the simulation's own path (one that
+/// records every step), bit for bit.
+#[test]
+fn sweep_members_stop_where_their_energy_passes_a_million_times_its_scale() {
+    use bead::plan::{Plan, PlanRequest};
+    use bead::scene::Scene;
+    use bead::simulate::{run as run_simulation, Simulation};
+    use bead::sweep::{Axis, Combine, Sweep};
+    let text = "[params]\nx0 = 1.0\n[world]\ngravity = [0.0, 0.0]\n[[particle]]\nname = \"p\"\nmass = 1.0\nposition = [\"x0\", 0.0]\nvelocity = [0.0, 0.0]\n[[force]]\nkind = \"spring\"\nparticle = \"p\"\nanchor = [0.0, 0.0]\nstiffness = 1.0\nrest_length = 0.0\n";
+    let scene = Scene::parse(text, "spring.toml", &[]).unwrap();
+    let request = PlanRequest {
+        integrator: Some(IntegratorKind::Rk4),
+        dt: Some(2.83),
+        steps: Some(5000),
+        ..Default::default()
+    };
+    let axis = Axis::linspace("x0", 0.5, 3.0, 20).unwrap();
+    let sweep = Sweep::new(&scene, vec![axis], Combine::Grid, request.clone(), None).unwrap();
+    let members = sweep.run(2).unwrap();
+    struct Rows;
+    impl bead::simulate::Sink for Rows {
+        fn record(&mut self, _: &bead::simulate::Sample) -> std::io::Result<()> {
+            Ok(())
+        }
+    }
+    for (i, member) in members.iter().enumerate() {
+        let alone = Scene::parse(text, "spring.toml", &[("x0".into(), member.params[0])]).unwrap();
+        let plan = Plan::resolve(&alone, &request).unwrap();
+        let mut simulation =
+            Simulation::new(Arc::clone(&alone.system), plan.config(plan.method)).unwrap();
+        let failure =
+            run_simulation(&mut simulation, plan.options(), &mut Rows).expect_err("must diverge");
+        let RunError::Diverged { step, quantity, .. } = &failure.error else {
+            panic!("member {i}: {}", failure.error);
+        };
+        assert_eq!(
+            *quantity,
+            bead::simulate::Quantity::EnergyChange,
+            "member {i}"
+        );
+        assert!(*step > 1500 && *step < 2000, "member {i}: step {step}");
+        assert_eq!(member.error, Some(failure.error.to_string()), "member {i}");
+        let stats = |s: &bead::simulate::RunStats| {
+            format!(
+                "{:?}",
+                bead::simulate::RunStats {
+                    wall_seconds: 0.0,
+                    ..s.clone()
+                }
+            )
+        };
+        assert_eq!(
+            stats(member.stats.as_ref().unwrap()),
+            stats(&failure.stats),
+            "member {i}"
+        );
+    }
 }

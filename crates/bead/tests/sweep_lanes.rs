@@ -348,3 +348,32 @@ fn members_that_blow_up_leave_with_their_divergence() {
         );
     }
 }
+
+/// Members whose energy grows slowly past 10^6 times its scale (rk4 just past its stability
+/// limit, small releases of the article's bead: omega dt = 2.85, the implicit form drifting
+/// off its curve) end as their runs alone do, with the energy's divergence, after leaving
+/// the lanes on the drift's regularity candidates (tests/divergence.rs has a sweep whose
+/// members stay in the lanes to the energy's limit).
+#[test]
+fn members_whose_energy_blows_up_slowly_leave_where_they_would_alone() {
+    let scene = Scene::parse(common::PARABOLA_SWEPT, "parabola.toml", &[]).unwrap();
+    let members = check(
+        &scene,
+        vec![Axis::linspace("x0", 0.5, 1.2, 5).unwrap()],
+        rk4(Method::Implicit, 0.9, 30_000),
+        None,
+    );
+    let diverged = members
+        .iter()
+        .filter(|m| {
+            m.error
+                .as_ref()
+                .is_some_and(|e| e.contains("the energy's change |E - E0| / E_scale"))
+        })
+        .count();
+    assert!(
+        diverged >= 3,
+        "{:?}",
+        members.iter().map(|m| &m.error).collect::<Vec<_>>()
+    );
+}

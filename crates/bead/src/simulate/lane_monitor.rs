@@ -8,7 +8,8 @@
 //! ```text
 //! observation   x, xdot; C (m rows); gradient rows g_r; offset_r = |C_r| / |g_r| (implicit)
 //! energy        E = sum_p m_p |v_p|^2 / 2 - sum_p m_p g . x_p (+ the forces' potentials)
-//! divergence    E, max |C| finite; |x_k| <= position limit(t); |xdot_k| <= speed limit(t)
+//! divergence    E, max |C| finite; |E - E0| <= 10^6 E_scale where watched; |x_k| <= position
+//!               limit(t); |xdot_k| <= speed limit(t)
 //! regularity    a first-order candidate of `Monitor::regularity` for any row (see
 //!               [`super::lanes`]): g.p < 0, the shortest |g| ahead within 2 steps, |g| below
 //!               1e-2 of its longest, an off-branch drift, or |g| NaN
@@ -75,6 +76,8 @@ pub(super) struct LaneMonitor<const L: usize> {
     pub(super) maxima: [PerLane<L>; 4],
     energy_initial: PerLane<L>,
     energy_scale: PerLane<L>,
+    /// The limit of |E - E0| ([`Monitor`]'s energy watch; infinite where none)
+    energy_limit: PerLane<L>,
     /// Each member's divergence limits at t = 0: position, speed (see [`Monitor::floor`])
     floor: [PerLane<L>; 2],
     /// This step end's gradient values, offsets, constraint values and energies (the
@@ -158,6 +161,7 @@ impl<const L: usize> LaneMonitor<L> {
             energy_initial: [0.0; L],
             floor: [[0.0; L]; 2],
             energy_scale: [0.0; L],
+            energy_limit: [f64::INFINITY; L],
             values: vec![0.0; n_values * L],
             offset: vec![0.0; rows * L],
             squared: vec![0.0; rows * L],
@@ -205,6 +209,11 @@ impl<const L: usize> LaneMonitor<L> {
         ];
         self.energy_initial = per_lane(&|m| m.energy_initial);
         self.energy_scale = per_lane(&|m| m.energy_scale);
+        // Lanes run without the ledger: the watch compares |E - E0|.
+        debug_assert!(members
+            .iter()
+            .all(|m| m.energy_watch.is_none_or(|w| !w.balance)));
+        self.energy_limit = per_lane(&|m| m.energy_watch.map_or(f64::INFINITY, |w| w.limit));
         self.floor = [per_lane(&|m| m.floor().0), per_lane(&|m| m.floor().1)];
     }
 
@@ -332,7 +341,10 @@ impl<const L: usize> LaneMonitor<L> {
             }
         }
         for l in 0..L {
-            failed[l] |= !self.energy[l].is_finite() | !constraint_error[l].is_finite();
+            let change = (self.energy[l] - self.energy_initial[l]).abs();
+            failed[l] |= !self.energy[l].is_finite()
+                | !constraint_error[l].is_finite()
+                | (change > self.energy_limit[l]);
         }
         self.constraint_error = constraint_error;
         // Regularity candidates, row by row: the first-order tests of `Monitor::regularity`,

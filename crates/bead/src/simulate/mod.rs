@@ -555,6 +555,16 @@ impl Simulation {
             reasons.push(Nonconservation::External);
         }
         self.nonconservation = reasons;
+        self.watch_energy();
+    }
+    /// Watch the energy for a blow-up where it means something: |E - W - E0| with the
+    /// ledger, |E - E0| when T + V is conserved, beyond 10^6 times the energy scale
+    /// ([`monitor::ENERGY_BLOW_UP`]); not when something does work that no ledger counts.
+    fn watch_energy(&mut self) {
+        let balance = self.ledger.is_some();
+        let limit = monitor::ENERGY_BLOW_UP * self.monitor.energy_scale;
+        self.monitor.energy_watch = (balance || self.nonconservation.is_empty())
+            .then_some(monitor::EnergyWatch { limit, balance });
     }
     /// Whether the work W is being tracked.
     pub fn tracks_work(&self) -> bool {
@@ -1144,6 +1154,7 @@ impl Simulation {
             &state.q[..n],
             &state.qdot[..n],
         );
+        self.watch_energy();
         self.previous = state.clone();
         self.output = Self::output_buffer(&self.config, &state);
         self.output_behind = false;
@@ -1372,6 +1383,7 @@ impl Simulation {
             self.output.q.push(0.0);
             self.output.qdot.push(0.0);
         }
+        self.watch_energy();
         true
     }
 

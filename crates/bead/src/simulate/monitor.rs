@@ -11,6 +11,13 @@ use crate::model::System;
 /// times its speed scale, has diverged (see [`Reach`]).
 pub(super) const BLOW_UP_FACTOR: f64 = 1e12;
 
+/// A run whose energy has changed by more than this many times its energy scale (|E - E0|,
+/// or |E - W - E0| with the ledger, over E_scale) has diverged: no integrator that follows
+/// the physics gets near it, while an unstable one (explicit Euler on an oscillator) grows
+/// the energy geometrically, slowly enough to stay within [`BLOW_UP_FACTOR`] times the reach
+/// for a long time.
+pub(super) const ENERGY_BLOW_UP: f64 = 1e6;
+
 /// A gradient row shorter than this fraction of its longest length in the run has all but
 /// vanished (a candidate, confirmed by a search).
 pub(super) const VANISHED: f64 = 1e-2;
@@ -49,6 +56,10 @@ pub enum Quantity {
     ConstraintError,
     /// The work W of the energy ledger.
     Work,
+    /// The energy's change |E - E0| over the energy scale.
+    EnergyChange,
+    /// The energy balance's error |E - W - E0| over the energy scale.
+    EnergyBalance,
 }
 
 impl fmt::Display for Quantity {
@@ -60,6 +71,10 @@ impl fmt::Display for Quantity {
             Quantity::Energy => write!(f, "the energy"),
             Quantity::ConstraintError => write!(f, "the constraint error"),
             Quantity::Work => write!(f, "the work W"),
+            Quantity::EnergyChange => write!(f, "the energy's change |E - E0| / E_scale"),
+            Quantity::EnergyBalance => {
+                write!(f, "the energy balance's error |E - W - E0| / E_scale")
+            }
         }
     }
 }
@@ -115,6 +130,15 @@ impl Reach {
     }
 }
 
+/// The energy's blow-up watch: |E - E0| (or, with `balance`, |E - W - E0|) beyond `limit`,
+/// [`ENERGY_BLOW_UP`] times the energy scale, has diverged. Watched where the energy is
+/// conserved or the ledger balances it (`Simulation::watch_energy`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(super) struct EnergyWatch {
+    pub(super) limit: f64,
+    pub(super) balance: bool,
+}
+
 /// The monitors of one simulation: energy ledger, constraint error and regularity, with their
 /// maxima. Buffers are sized once. (`Default`: an empty placeholder, observing nothing.)
 #[derive(Default)]
@@ -157,6 +181,8 @@ pub(super) struct Monitor {
     pub(super) energy_scale: f64,
     pub(super) energy: f64,
     pub(super) work: f64,
+    /// Whether the energy is watched for a blow-up, and how (see [`EnergyWatch`])
+    pub(super) energy_watch: Option<EnergyWatch>,
     pub(super) energy_rel_error_max: f64,
     pub(super) balance_error_max: f64,
     pub(super) constraint_error: f64,
@@ -282,6 +308,7 @@ impl Monitor {
             energy_scale,
             energy,
             work: 0.0,
+            energy_watch: None,
             energy_rel_error_max: 0.0,
             balance_error_max: 0.0,
             constraint_error,
@@ -608,20 +635,38 @@ impl Monitor {
         // NaN fails the comparison and takes the full test; the largest sizes are taken
         // without a branch per entry).
         let (position_floor, speed_floor) = self.floor;
-        if max_abs(x) <= position_floor && max_abs(v) <= speed_floor {
-            return Ok(());
+        if !(max_abs(x) <= position_floor && max_abs(v) <= speed_floor) {
+            let (position_limit, speed_limit) = self.reach.at(t);
+            if let Some(k) = x
+                .iter()
+                .position(|c| c.is_nan() || c.abs() > position_limit)
+            {
+                let limit = x[k].is_finite().then_some(position_limit);
+                return diverged(Quantity::Position(system.coordinate_name(k)), x[k], limit);
+            }
+            if let Some(k) = v.iter().position(|c| c.is_nan() || c.abs() > speed_limit) {
+                let limit = v[k].is_finite().then_some(speed_limit);
+                return diverged(Quantity::Velocity(system.velocity_name(k)), v[k], limit);
+            }
         }
-        let (position_limit, speed_limit) = self.reach.at(t);
-        if let Some(k) = x
-            .iter()
-            .position(|c| c.is_nan() || c.abs() > position_limit)
-        {
-            let limit = x[k].is_finite().then_some(position_limit);
-            return diverged(Quantity::Position(system.coordinate_name(k)), x[k], limit);
-        }
-        if let Some(k) = v.iter().position(|c| c.is_nan() || c.abs() > speed_limit) {
-            let limit = v[k].is_finite().then_some(speed_limit);
-            return diverged(Quantity::Velocity(system.velocity_name(k)), v[k], limit);
+        // A blow-up slow enough to stay within the reach (checked after it, so that a fast
+        // one is still named by the coordinate that left).
+        if let Some(EnergyWatch { limit, balance }) = self.energy_watch {
+            let change = if balance {
+                self.energy - self.work - self.energy_initial
+            } else {
+                self.energy - self.energy_initial
+            };
+            // As the lane monitors compare it (the same operations, so the same verdict).
+            if change.abs() > limit {
+                let quantity = if balance {
+                    Quantity::EnergyBalance
+                } else {
+                    Quantity::EnergyChange
+                };
+                let relative = change.abs() / self.energy_scale;
+                return diverged(quantity, relative, Some(ENERGY_BLOW_UP));
+            }
         }
         Ok(())
     }

@@ -214,12 +214,27 @@ impl RunStats {
     }
 }
 
+/// The limit a diverged quantity passed, in words.
+fn beyond(quantity: &Quantity, limit: Option<f64>) -> String {
+    match (quantity, limit) {
+        (_, None) => String::new(),
+        (Quantity::EnergyChange | Quantity::EnergyBalance, Some(l)) => format!(
+            ", beyond {} (a million times the energy it started with: the integrator is unstable at this dt; reduce dt or take a symplectic one)",
+            crate::readable(l)
+        ),
+        (_, Some(l)) => format!(
+            ", beyond {} (10^12 times the reach of the initial state, gravity and the initial energy by then)",
+            crate::readable(l)
+        ),
+    }
+}
+
 /// Why a simulation or a run stopped.
 #[derive(Debug, thiserror::Error)]
 pub enum RunError {
     #[error("{0}")]
     Step(StepError),
-    #[error("diverged at t = {} (step {step}): {quantity} is {}{}", crate::readable(*t), crate::readable(*value), limit.map(|l| format!(", beyond {} (10^12 times the reach of the initial state, gravity and the initial energy by then)", crate::readable(l))).unwrap_or_default())]
+    #[error("diverged at t = {} (step {step}): {quantity} is {}{}", crate::readable(*t), crate::readable(*value), beyond(quantity, *limit))]
     Diverged {
         t: f64,
         step: u64,
