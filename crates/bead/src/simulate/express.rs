@@ -537,6 +537,41 @@ mod tests {
         }
     }
 
+    /// A simulation's end: its statistics, then t, E, max |C|, q and qdot as bits.
+    fn end_state(s: &Simulation) -> String {
+        let v = [s.t(), s.energy(), s.constraint_error()];
+        let bits: Vec<u64> = v
+            .iter()
+            .chain(s.q())
+            .chain(s.qdot())
+            .map(|v| v.to_bits())
+            .collect();
+        format!("{:?} {bits:?}", s.stats(0.0))
+    }
+
+    /// Every shipped scene with a compiled step (chains and cloth have none, and are slow
+    /// in a debug build), each of its forms under rk4 at its plan's dt: `visit(what, plan,
+    /// a, b)` with two simulations set up alike.
+    fn for_each_rk4_pair(mut visit: impl FnMut(String, &Plan, Simulation, Simulation)) {
+        for path in crate::shipped_scene_paths() {
+            let scene = Scene::load(&path, &[]).unwrap_or_else(|e| panic!("{e}"));
+            let plan = Plan::resolve(&scene, &PlanRequest::default()).expect("a plan");
+            if scene.system.n_coords() > 60 {
+                continue;
+            }
+            for method in methods(&scene) {
+                let config = SimulationConfig {
+                    integrator: IntegratorKind::Rk4,
+                    ..plan.config(method)
+                };
+                let new = || Simulation::new(scene.system.clone(), config);
+                if let (Ok(a), Ok(b)) = (new(), new()) {
+                    visit(format!("{} {}", path.display(), method.name()), &plan, a, b);
+                }
+            }
+        }
+    }
+
     /// Express steps checked in batches give what they give checked one by one: every
     /// shipped scene's samples, statistics, end state and evaluation count, bit for bit,
     /// both forms, rk4, for twice its duration with a row every 1000 intervals (long express
@@ -546,47 +581,22 @@ mod tests {
     fn express_batches_change_no_number() {
         BATCHES.with(|b| b.set((0, 0)));
         let mut compared = 0;
-        for path in crate::shipped_scene_paths() {
-            let scene = Scene::load(&path, &[]).unwrap_or_else(|e| panic!("{e}"));
-            let plan = Plan::resolve(&scene, &PlanRequest::default()).expect("a plan");
-            if scene.system.n_coords() > 60 {
-                continue; // no compiled step
-            }
-            for method in methods(&scene) {
-                let config = SimulationConfig {
-                    integrator: IntegratorKind::Rk4,
-                    ..plan.config(method)
-                };
-                let new = || Simulation::new(scene.system.clone(), config);
-                let (Ok(mut batched), Ok(mut single)) = (new(), new()) else {
-                    continue;
-                };
-                single.express_batches = false;
-                let options = RunOptions {
-                    steps: (2 * plan.steps).min(20_000),
-                    every: 1000,
-                    duration: None,
-                };
-                let (mut a, mut b) = (Bits::default(), Bits::default());
-                let ra = outcome(run(&mut batched, options, &mut a));
-                let rb = outcome(run(&mut single, options, &mut b));
-                let what = format!("{} {}", path.display(), method.name());
-                assert_eq!(ra, rb, "{what}");
-                assert!(a.0 == b.0, "{what}: the samples differ");
-                let figures = |s: &Simulation| {
-                    let v = [s.t(), s.energy(), s.constraint_error()];
-                    let bits: Vec<u64> = v
-                        .iter()
-                        .chain(s.q())
-                        .chain(s.qdot())
-                        .map(|v| v.to_bits())
-                        .collect();
-                    format!("{:?} {bits:?} {}", s.stats(0.0), s.evaluations())
-                };
-                assert_eq!(figures(&batched), figures(&single), "{what}");
-                compared += 1;
-            }
-        }
+        for_each_rk4_pair(|what, plan, mut batched, mut single| {
+            single.express_batches = false;
+            let options = RunOptions {
+                steps: (2 * plan.steps).min(20_000),
+                every: 1000,
+                duration: None,
+            };
+            let (mut a, mut b) = (Bits::default(), Bits::default());
+            let ra = outcome(run(&mut batched, options, &mut a));
+            let rb = outcome(run(&mut single, options, &mut b));
+            assert_eq!(ra, rb, "{what}");
+            assert!(a.0 == b.0, "{what}: the samples differ");
+            let figures = |s: &Simulation| format!("{} {}", end_state(s), s.evaluations());
+            assert_eq!(figures(&batched), figures(&single), "{what}");
+            compared += 1;
+        });
         let (batches, partial) = BATCHES.with(std::cell::Cell::get);
         assert!(compared >= 10, "only {compared} runs compared");
         assert!(batches >= 1000, "only {batches} batches");
@@ -612,57 +622,31 @@ mod tests {
         }
         BATCHES.with(|b| b.set((0, 0)));
         let (mut compared, mut batched_runs) = (0, 0);
-        for path in crate::shipped_scene_paths() {
-            let scene = Scene::load(&path, &[]).unwrap_or_else(|e| panic!("{e}"));
-            let plan = Plan::resolve(&scene, &PlanRequest::default()).expect("a plan");
-            if scene.system.n_coords() > 60 {
-                continue; // no compiled step
+        for_each_rk4_pair(|what, plan, mut fast, mut own| {
+            own.express = false;
+            let options = RunOptions {
+                steps: plan.steps,
+                every: 1,
+                duration: None,
+            };
+            let before = BATCHES.with(std::cell::Cell::get).0;
+            let mut reports = Reports(0, 0);
+            let rf = outcome(crate::simulate::run_with_progress(
+                &mut fast,
+                options,
+                &mut crate::simulate::NullSink,
+                &mut reports,
+            ));
+            let ro = outcome(run(&mut own, options, &mut Bits::default()));
+            assert_eq!(rf, ro, "{what}");
+            assert_eq!(end_state(&fast), end_state(&own), "{what}");
+            if fast.stats(0.0).steps == plan.steps {
+                assert_eq!(reports.1, plan.steps, "{what}: the end is reported");
             }
-            for method in methods(&scene) {
-                let config = SimulationConfig {
-                    integrator: IntegratorKind::Rk4,
-                    ..plan.config(method)
-                };
-                let new = || Simulation::new(scene.system.clone(), config);
-                let (Ok(mut fast), Ok(mut own)) = (new(), new()) else {
-                    continue;
-                };
-                own.express = false;
-                let options = RunOptions {
-                    steps: plan.steps,
-                    every: 1,
-                    duration: None,
-                };
-                let before = BATCHES.with(std::cell::Cell::get).0;
-                let mut reports = Reports(0, 0);
-                let rf = outcome(crate::simulate::run_with_progress(
-                    &mut fast,
-                    options,
-                    &mut crate::simulate::NullSink,
-                    &mut reports,
-                ));
-                let ro = outcome(run(&mut own, options, &mut Bits::default()));
-                let what = format!("{} {}", path.display(), method.name());
-                assert_eq!(rf, ro, "{what}");
-                let figures = |s: &Simulation| {
-                    let v = [s.t(), s.energy(), s.constraint_error()];
-                    let bits: Vec<u64> = v
-                        .iter()
-                        .chain(s.q())
-                        .chain(s.qdot())
-                        .map(|v| v.to_bits())
-                        .collect();
-                    format!("{:?} {bits:?}", s.stats(0.0))
-                };
-                assert_eq!(figures(&fast), figures(&own), "{what}");
-                if fast.stats(0.0).steps == plan.steps {
-                    assert_eq!(reports.1, plan.steps, "{what}: the end is reported");
-                }
-                assert!(reports.0 <= 101, "{what}: {} reports", reports.0);
-                batched_runs += usize::from(BATCHES.with(std::cell::Cell::get).0 > before);
-                compared += 1;
-            }
-        }
+            assert!(reports.0 <= 101, "{what}: {} reports", reports.0);
+            batched_runs += usize::from(BATCHES.with(std::cell::Cell::get).0 > before);
+            compared += 1;
+        });
         assert!(compared >= 10, "only {compared} runs compared");
         assert!(batched_runs >= 6, "only {batched_runs} runs took batches");
     }
@@ -675,22 +659,9 @@ mod tests {
     #[test]
     fn express_steps_change_no_number() {
         let (mut compared, mut express_runs) = (0, 0);
-        for path in crate::shipped_scene_paths() {
-            let scene = Scene::load(&path, &[]).unwrap_or_else(|e| panic!("{e}"));
-            let plan = Plan::resolve(&scene, &PlanRequest::default()).expect("a plan");
-            if scene.system.n_coords() > 60 {
-                continue; // chains and cloth: no compiled step, and slow in a debug build
-            }
-            // Rows every 7 intervals (express runs shorter than a batch) and every 100.
-            for (method, every) in methods(&scene).into_iter().flat_map(|m| [(m, 7), (m, 100)]) {
-                let config = SimulationConfig {
-                    integrator: IntegratorKind::Rk4,
-                    ..plan.config(method)
-                };
-                let new = || Simulation::new(scene.system.clone(), config);
-                let (Ok(mut fast), Ok(mut own)) = (new(), new()) else {
-                    continue;
-                };
+        // Rows every 7 intervals (express runs shorter than a batch) and every 100.
+        for every in [7, 100] {
+            for_each_rk4_pair(|what, plan, mut fast, mut own| {
                 own.express = false;
                 express_runs += usize::from(Express::new(&fast).is_some());
                 let options = RunOptions {
@@ -701,28 +672,18 @@ mod tests {
                 let (mut a, mut b) = (Bits::default(), Bits::default());
                 let ra = outcome(run(&mut fast, options, &mut a));
                 let rb = outcome(run(&mut own, options, &mut b));
-                let what = format!("{} {} every {every}", path.display(), method.name());
+                let what = format!("{what} every {every}");
                 assert_eq!(ra, rb, "{what}");
                 assert!(a.0 == b.0, "{what}: the samples differ");
-                let stats = |s: &Simulation| format!("{:?}", s.stats(0.0));
-                assert_eq!(stats(&fast), stats(&own), "{what}");
-                let end = |s: &Simulation| {
-                    let v = [s.t(), s.energy(), s.constraint_error()];
-                    v.iter()
-                        .chain(s.q())
-                        .chain(s.qdot())
-                        .map(|v| v.to_bits())
-                        .collect::<Vec<_>>()
-                };
-                assert_eq!(end(&fast), end(&own), "{what}");
+                assert_eq!(end_state(&fast), end_state(&own), "{what}");
                 // And on from there by the simulation's own steps: the same again.
                 for _ in 0..50 {
                     let (x, y) = (fast.step(), own.step());
                     assert_eq!(format!("{x:?}"), format!("{y:?}"), "{what}");
                 }
-                assert_eq!(end(&fast), end(&own), "{what}");
+                assert_eq!(end_state(&fast), end_state(&own), "{what}");
                 compared += 1;
-            }
+            });
         }
         assert!(compared >= 10, "only {compared} runs compared");
         assert!(
