@@ -27,12 +27,11 @@ fn main() -> ExitCode {
         bead::expr::set_jit_enabled(false);
     }
     let result = commands::dispatch(cli.command);
-    if commands::progress::interrupted() {
-        // Ctrl-C: the runs stopped at their last good states, their files written, and
+    if let (true, Err(error)) = (commands::progress::interrupted(), &result) {
+        // Ctrl-C ended a run: it stopped at its last good state, its files written, and
         // the error says where; 128 + SIGINT, as a shell reports a process it interrupted.
-        if let Err(error) = &result {
-            let _ = writeln!(io::stderr(), "error: {}", commands::terminal(&chain(error)));
-        }
+        // (A command whose runs had all finished when the signal came completes: exit 0.)
+        let _ = writeln!(io::stderr(), "error: {}", commands::terminal(&chain(error)));
         return ExitCode::from(130);
     }
     match result {

@@ -1364,10 +1364,12 @@ fn drawable(range: (f64, f64)) -> bool {
     (range.1 - range.0).is_finite()
 }
 
-/// What a panel whose values span more than f64::MAX says instead of its curves.
-fn too_wide_message(x: (f64, f64), y: (f64, f64)) -> String {
-    let axis = |name: &str, (lo, hi): (f64, f64)| {
-        (!(hi - lo).is_finite()).then(|| format!("{name} from {lo:e} to {hi:e}"))
+/// What a panel whose values span more than f64::MAX says instead of its curves: each
+/// axis whose drawn range (the values with their margin, `(extent, range)`) cannot be
+/// drawn, by its values.
+fn too_wide_message(x: ((f64, f64), (f64, f64)), y: ((f64, f64), (f64, f64))) -> String {
+    let axis = |name: &str, ((lo, hi), range): ((f64, f64), (f64, f64))| {
+        (!drawable(range)).then(|| format!("{name} from {lo:e} to {hi:e}"))
     };
     let mut wide: Vec<String> = [axis("x", x), axis("y", y)].into_iter().flatten().collect();
     if wide.is_empty() {
@@ -1551,7 +1553,7 @@ fn draw_panel<DB: DrawingBackend>(
     if !has_data || too_wide {
         // An honest empty panel: no invented axes, the reason in words.
         let message = if too_wide {
-            too_wide_message(x_extent, y_extent)
+            too_wide_message((x_extent, x_range), (y_extent, y_range))
         } else {
             empty_message(panel)
         };

@@ -66,7 +66,9 @@ fn unstable_euler_is_reported_as_divergence_not_finished() {
         ),
         "{message}"
     );
-    assert!(message.contains(", beyond 1000000 (a million times the energy it started with"));
+    assert!(message.contains(
+        ", beyond 1000000 (T + V is conserved, and has changed by more than 10^6 times its scale"
+    ));
     // The last good state is step 8's: its energy changed by 5^8 - 1 times the scale.
     assert!((failure.stats.energy_rel_error_max - 390_624.0).abs() <= 1e-9 * 390_624.0);
     // The figures kept are those of the last good state, all finite.
@@ -134,10 +136,9 @@ fn an_interrupted_run_stops_at_a_good_state_and_says_so() {
 /// = sqrt(2 g / 100) = sqrt(10)) at dt = 0.9, just past rk4's stability limit (omega dt =
 /// 2.85 > 2.785): the energy grows by a fraction of a percent per step, the implicit form
 /// drifting off its curve, and passes 10^6 times its scale after some 24,000 steps, with
-/// the bead still far within the reach. The
-/// run stops there with the energy named, whether its steps go through the express path and
-/// its batched checks (a run that records nothing) or through the simulation's own (one that
-/// records every step): the same error, statistics and figures.
+/// the bead still far within the reach. `run` into a sink that keeps nothing (express steps
+/// checked in batches by the lane monitor) stops at the step where `Simulation::step`, one
+/// step at a time through the simulation's own monitor, stops: the same error and state.
 #[test]
 fn a_slow_blow_up_stops_where_the_energy_passes_a_million_times_its_scale() {
     use bead::plan::{Plan, PlanRequest};
@@ -153,57 +154,45 @@ fn a_slow_blow_up_stops_where_the_energy_passes_a_million_times_its_scale() {
         ..Default::default()
     };
     let plan = Plan::resolve(&scene, &request).unwrap();
-    struct Every(u64);
-    impl bead::simulate::Sink for Every {
-        fn record(&mut self, _: &bead::simulate::Sample) -> std::io::Result<()> {
-            self.0 += 1;
-            Ok(())
+    let new = || Simulation::new(Arc::clone(&scene.system), plan.config(plan.method)).unwrap();
+    let mut batched = new();
+    let failure =
+        run_simulation(&mut batched, plan.options(), &mut NullSink).expect_err("must diverge");
+    let RunError::Diverged {
+        step,
+        quantity,
+        value,
+        ..
+    } = &failure.error
+    else {
+        panic!("expected divergence, got {}", failure.error);
+    };
+    assert_eq!(*quantity, bead::simulate::Quantity::EnergyChange);
+    assert!(*step > 20_000 && *step < 30_000, "{step}");
+    assert!(*value > 1e6 && *value < 1.01e6, "{value}");
+    assert!(failure.stats.energy_rel_error_max <= 1e6);
+    // Far within the reach (10^12 times the scene's scales): the bead has drifted up off its
+    // curve to y ~ -10^6 (V = -m g y = 5 10^8 = 10^6 times E0 = 500), no further.
+    assert!(
+        failure.stats.x.iter().all(|x| x.abs() < 2e6),
+        "{:?}",
+        failure.stats.x
+    );
+    let mut own = new();
+    let error = loop {
+        if let Err(error) = own.step() {
+            break error;
         }
-    }
-    let mut outcomes = Vec::new();
-    for records in [false, true] {
-        let mut simulation =
-            Simulation::new(Arc::clone(&scene.system), plan.config(plan.method)).unwrap();
-        let mut every = Every(0);
-        let failure = if records {
-            run_simulation(&mut simulation, plan.options(), &mut every)
-        } else {
-            run_simulation(&mut simulation, plan.options(), &mut NullSink)
-        }
-        .expect_err("must diverge");
-        let RunError::Diverged {
-            step,
-            quantity,
-            value,
-            ..
-        } = &failure.error
-        else {
-            panic!("expected divergence, got {}", failure.error);
-        };
-        assert_eq!(*quantity, bead::simulate::Quantity::EnergyChange);
-        assert!(*step > 20_000 && *step < 30_000, "{step}");
-        assert!(*value > 1e6 && *value < 1.01e6, "{value}");
-        assert!(failure.stats.energy_rel_error_max <= 1e6);
-        // Far within the reach (10^12 times the scene's scales): the bead has drifted up off
-        // its curve to y ~ -10^6 (V = -m g y = 5 10^8 = 10^6 times E0 = 500), no further.
-        assert!(
-            failure.stats.x.iter().all(|x| x.abs() < 2e6),
-            "{:?}",
-            failure.stats.x
-        );
-        if records {
-            assert_eq!(
-                every.0, *step,
-                "the start and every step before the one that failed"
-            );
-        }
-        let stats = bead::simulate::RunStats {
-            wall_seconds: 0.0,
-            ..*failure.stats
-        };
-        outcomes.push(format!("{} {stats:?}", failure.error));
-    }
-    assert_eq!(outcomes[0], outcomes[1]);
+        assert!(own.steps() < 40_000, "the own steps ran on");
+    };
+    assert_eq!(error.to_string(), failure.error.to_string());
+    let end = |s: &Simulation| {
+        let bits: Vec<u64> = (s.q().iter().chain(s.qdot()))
+            .map(|v| v.to_bits())
+            .collect();
+        (s.t().to_bits(), s.steps(), bits)
+    };
+    assert_eq!(end(&batched), end(&own));
 }
 
 /// The sweep lanes watch the energy too: a mass on a spring (k = m = 1, omega = 1) and no
@@ -211,13 +200,13 @@ fn a_slow_blow_up_stops_where_the_energy_passes_a_million_times_its_scale() {
 /// rk4 at dt = 2.83, just past its stability limit 2 sqrt(2): |R(2.83 i)|^2 = 1.0079, the
 /// energy grows by 0.8% a step and passes 10^6 times its scale near step 1750, far within
 /// the reach. Every member of a sweep over its release point leaves the lanes at that step
-/// with the divergence its run alone reports through the simulation's own path (one that
-/// records every step), bit for bit.
+/// with the divergence its run alone reports one `Simulation::step` at a time (the
+/// simulation's own monitor), at the same step and state.
 #[test]
 fn sweep_members_stop_where_their_energy_passes_a_million_times_its_scale() {
     use bead::plan::{Plan, PlanRequest};
     use bead::scene::Scene;
-    use bead::simulate::{run as run_simulation, Simulation};
+    use bead::simulate::Simulation;
     use bead::sweep::{Axis, Combine, Sweep};
     let text = "[params]\nx0 = 1.0\n[world]\ngravity = [0.0, 0.0]\n[[particle]]\nname = \"p\"\nmass = 1.0\nposition = [\"x0\", 0.0]\nvelocity = [0.0, 0.0]\n[[force]]\nkind = \"spring\"\nparticle = \"p\"\nanchor = [0.0, 0.0]\nstiffness = 1.0\nrest_length = 0.0\n";
     let scene = Scene::parse(text, "spring.toml", &[]).unwrap();
@@ -230,21 +219,20 @@ fn sweep_members_stop_where_their_energy_passes_a_million_times_its_scale() {
     let axis = Axis::linspace("x0", 0.5, 3.0, 20).unwrap();
     let sweep = Sweep::new(&scene, vec![axis], Combine::Grid, request.clone(), None).unwrap();
     let members = sweep.run(2).unwrap();
-    struct Rows;
-    impl bead::simulate::Sink for Rows {
-        fn record(&mut self, _: &bead::simulate::Sample) -> std::io::Result<()> {
-            Ok(())
-        }
-    }
     for (i, member) in members.iter().enumerate() {
+        // Alone, one `Simulation::step` at a time: the simulation's own monitor.
         let alone = Scene::parse(text, "spring.toml", &[("x0".into(), member.params[0])]).unwrap();
         let plan = Plan::resolve(&alone, &request).unwrap();
         let mut simulation =
             Simulation::new(Arc::clone(&alone.system), plan.config(plan.method)).unwrap();
-        let failure =
-            run_simulation(&mut simulation, plan.options(), &mut Rows).expect_err("must diverge");
-        let RunError::Diverged { step, quantity, .. } = &failure.error else {
-            panic!("member {i}: {}", failure.error);
+        let error = loop {
+            if let Err(error) = simulation.step() {
+                break error;
+            }
+            assert!(simulation.steps() < 5000, "member {i} ran on");
+        };
+        let RunError::Diverged { step, quantity, .. } = &error else {
+            panic!("member {i}: {error}");
         };
         assert_eq!(
             *quantity,
@@ -252,20 +240,9 @@ fn sweep_members_stop_where_their_energy_passes_a_million_times_its_scale() {
             "member {i}"
         );
         assert!(*step > 1500 && *step < 2000, "member {i}: step {step}");
-        assert_eq!(member.error, Some(failure.error.to_string()), "member {i}");
-        let stats = |s: &bead::simulate::RunStats| {
-            format!(
-                "{:?}",
-                bead::simulate::RunStats {
-                    wall_seconds: 0.0,
-                    ..s.clone()
-                }
-            )
-        };
-        assert_eq!(
-            stats(member.stats.as_ref().unwrap()),
-            stats(&failure.stats),
-            "member {i}"
-        );
+        assert_eq!(member.error, Some(error.to_string()), "member {i}");
+        let stats = member.stats.as_ref().unwrap();
+        assert_eq!(stats.steps, simulation.steps(), "member {i}");
+        assert_eq!(stats.x, simulation.positions(), "member {i}");
     }
 }

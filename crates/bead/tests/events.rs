@@ -896,8 +896,8 @@ fn recording_events_changes_no_bit_of_a_warm_started_run() {
 /// g = -1/bead.x changes sign where the pendulum passes the bottom (x = 0, a quarter
 /// period), by a pole, not by crossing zero: the run stops at the step's start with an
 /// error that says so, at the pole's time, on a fixed-step path and on a dense output,
-/// terminal or not; a bounded jump there (-sign(bead.x)) still fires at the same time, as
-/// -bead.x does; and a g that is infinite (1/0) is an error as a NaN is.
+/// terminal or not; a bounded jump there (-sign(bead.x), or times 2 - x^2) still fires at
+/// the same time, as -bead.x does; and a g that is infinite (1/0) is an error as a NaN is.
 #[test]
 fn a_pole_is_not_a_crossing_and_an_infinite_value_is_an_error() {
     use bead::simulate::RunError;
@@ -939,6 +939,15 @@ fn a_pole_is_not_a_crossing_and_an_infinite_value_is_an_error() {
             assert!(
                 message.contains(": a pole, not a crossing of zero)"),
                 "{message}"
+            );
+            // A bounded jump whose size at the crossing exceeds its size at the samples
+            // around it (2 against ~1.2) is still a crossing.
+            let scaled = run_until(&scene, "-sign(bead.x)*(2 - bead.x^2)", config, 2000).0;
+            let crossing = run_until(&scene, "-bead.x", config, 2000).0;
+            let (scaled, at) = (scaled.stop_time.unwrap(), crossing.stop_time.unwrap());
+            assert!(
+                (scaled - at).abs() <= tolerance,
+                "{label}: {scaled} vs {at}"
             );
             let jump = run_until(&scene, "-sign(bead.x)", config, 2000).0;
             let crossing = run_until(&scene, "-bead.x", config, 2000).0;

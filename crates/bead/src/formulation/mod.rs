@@ -109,7 +109,7 @@ pub trait SecondOrderSystem {
 /// tried in.
 fn gave_up_hint(substeps: u32) -> String {
     match substeps {
-        0 => " (reduce dt)".into(),
+        0 => " (reduce dt, or start nearer the constraints)".into(),
         1 => " in a step without substeps (allow substeps with max_substeps, `--max-substeps`, or reduce dt)".into(),
         n => format!(" in {n} substeps of the step, the most allowed (raise max_substeps, `--max-substeps`, or reduce dt)"),
     }

@@ -359,16 +359,19 @@ impl Scene {
         };
         // Read at most one byte past the limit, so that a device or a pipe that never ends
         // (`/dev/zero`) is refused rather than read forever.
-        let mut text = String::new();
+        let mut bytes = Vec::new();
         std::fs::File::open(path)
-            .and_then(|f| f.take(MAX_SCENE_BYTES + 1).read_to_string(&mut text))
+            .and_then(|f| f.take(MAX_SCENE_BYTES + 1).read_to_end(&mut bytes))
             .map_err(|e| error(format!("cannot read the scene file: {e}")))?;
-        if text.len() as u64 > MAX_SCENE_BYTES {
+        if bytes.len() as u64 > MAX_SCENE_BYTES {
             return Err(error(format!(
                 "the scene file is larger than {} MiB (a scene is a few kilobytes; tables with `for` make many items from one line)",
                 MAX_SCENE_BYTES >> 20
             )));
         }
+        let text = String::from_utf8(bytes).map_err(|_| {
+            error("cannot read the scene file: stream did not contain valid UTF-8".into())
+        })?;
         Scene::parse(&text, &file, overrides)
     }
 

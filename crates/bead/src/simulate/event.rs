@@ -612,6 +612,10 @@ pub(super) fn sample_time(t0: f64, t1: f64, i: u32, samples: u32) -> f64 {
     }
 }
 
+/// How much larger than at a bracket's given ends g must be at its located ends to be a
+/// pole rather than a bounded jump (see [`Bracket::jump`]).
+const POLE_GROWTH: f64 = 1e3;
+
 /// The root finder's bracket of an upward crossing: g(lo) < 0 <= g(hi).
 #[derive(Clone, Copy, Debug)]
 pub(super) struct Bracket {
@@ -694,12 +698,13 @@ impl Bracket {
     }
 
     /// Once [`Bracket::done`]: g's values at the ends `(lo, hi)` when they grew as the
-    /// bracket closed in (each end beyond both given ends in size), where a continuous g
-    /// would have shrunk towards its root: g jumps over zero there (a pole, like -1/x's at
-    /// x = 0), it does not cross it.
+    /// bracket closed in, each end beyond [`POLE_GROWTH`] times both given ends in size,
+    /// where a continuous g would have shrunk towards its root: g jumps over zero there (a
+    /// pole, like -1/x's at x = 0, grows by about the bracket's narrowing, ~10^9), it does
+    /// not cross it. A bounded jump (a sign function, times anything finite) is a crossing.
     pub(super) fn jump(&self) -> Option<(f64, f64)> {
         let found = self.g_lo_found.abs().min(self.g_hi_found.abs());
-        (found > self.g_given).then_some((self.g_lo_found, self.g_hi_found))
+        (found > POLE_GROWTH * self.g_given).then_some((self.g_lo_found, self.g_hi_found))
     }
 }
 

@@ -209,10 +209,6 @@ impl<const L: usize> LaneMonitor<L> {
         ];
         self.energy_initial = per_lane(&|m| m.energy_initial);
         self.energy_scale = per_lane(&|m| m.energy_scale);
-        // Lanes run without the ledger: the watch compares |E - E0|.
-        debug_assert!(members
-            .iter()
-            .all(|m| m.energy_watch.is_none_or(|w| !w.balance)));
         self.energy_limit = per_lane(&|m| m.energy_watch.map_or(f64::INFINITY, |w| w.limit));
         self.floor = [per_lane(&|m| m.floor().0), per_lane(&|m| m.floor().1)];
     }

@@ -557,14 +557,16 @@ impl Simulation {
         self.nonconservation = reasons;
         self.watch_energy();
     }
-    /// Watch the energy for a blow-up where it means something: |E - W - E0| with the
-    /// ledger, |E - E0| when T + V is conserved, beyond 10^6 times the energy scale
-    /// ([`monitor::ENERGY_BLOW_UP`]); not when something does work that no ledger counts.
+    /// Watch the energy for a blow-up where T + V is conserved: |E - E0| beyond 10^6 times
+    /// the energy scale ([`monitor::ENERGY_BLOW_UP`]). Not where something does work: a
+    /// driven constraint or a force can add far more than the start's scale legitimately,
+    /// and the ledger's balance |E - W - E0| errs in proportion to |E| and |W|, not to it.
     fn watch_energy(&mut self) {
-        let balance = self.ledger.is_some();
         let limit = monitor::ENERGY_BLOW_UP * self.monitor.energy_scale;
-        self.monitor.energy_watch = (balance || self.nonconservation.is_empty())
-            .then_some(monitor::EnergyWatch { limit, balance });
+        self.monitor.energy_watch = self
+            .nonconservation
+            .is_empty()
+            .then_some(monitor::EnergyWatch { limit });
     }
     /// Whether the work W is being tracked.
     pub fn tracks_work(&self) -> bool {

@@ -11,11 +11,11 @@ use crate::model::System;
 /// times its speed scale, has diverged (see [`Reach`]).
 pub(super) const BLOW_UP_FACTOR: f64 = 1e12;
 
-/// A run whose energy has changed by more than this many times its energy scale (|E - E0|,
-/// or |E - W - E0| with the ledger, over E_scale) has diverged: no integrator that follows
-/// the physics gets near it, while an unstable one (explicit Euler on an oscillator) grows
-/// the energy geometrically, slowly enough to stay within [`BLOW_UP_FACTOR`] times the reach
-/// for a long time.
+/// A run whose energy T + V is conserved and has changed by more than this many times its
+/// energy scale (|E - E0| / E_scale) has diverged: no integrator that follows the physics
+/// gets near it, while an unstable one (explicit Euler on an oscillator) grows the energy
+/// geometrically, slowly enough to stay within [`BLOW_UP_FACTOR`] times the reach for a
+/// long time.
 pub(super) const ENERGY_BLOW_UP: f64 = 1e6;
 
 /// A gradient row shorter than this fraction of its longest length in the run has all but
@@ -58,8 +58,6 @@ pub enum Quantity {
     Work,
     /// The energy's change |E - E0| over the energy scale.
     EnergyChange,
-    /// The energy balance's error |E - W - E0| over the energy scale.
-    EnergyBalance,
 }
 
 impl fmt::Display for Quantity {
@@ -72,9 +70,6 @@ impl fmt::Display for Quantity {
             Quantity::ConstraintError => write!(f, "the constraint error"),
             Quantity::Work => write!(f, "the work W"),
             Quantity::EnergyChange => write!(f, "the energy's change |E - E0| / E_scale"),
-            Quantity::EnergyBalance => {
-                write!(f, "the energy balance's error |E - W - E0| / E_scale")
-            }
         }
     }
 }
@@ -130,13 +125,12 @@ impl Reach {
     }
 }
 
-/// The energy's blow-up watch: |E - E0| (or, with `balance`, |E - W - E0|) beyond `limit`,
-/// [`ENERGY_BLOW_UP`] times the energy scale, has diverged. Watched where the energy is
-/// conserved or the ledger balances it (`Simulation::watch_energy`).
+/// The energy's blow-up watch: |E - E0| beyond `limit`, [`ENERGY_BLOW_UP`] times the
+/// energy scale, has diverged. Watched where T + V is conserved
+/// (`Simulation::watch_energy`).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub(super) struct EnergyWatch {
     pub(super) limit: f64,
-    pub(super) balance: bool,
 }
 
 /// The monitors of one simulation: energy ledger, constraint error and regularity, with their
@@ -651,21 +645,12 @@ impl Monitor {
         }
         // A blow-up slow enough to stay within the reach (checked after it, so that a fast
         // one is still named by the coordinate that left).
-        if let Some(EnergyWatch { limit, balance }) = self.energy_watch {
-            let change = if balance {
-                self.energy - self.work - self.energy_initial
-            } else {
-                self.energy - self.energy_initial
-            };
+        if let Some(EnergyWatch { limit }) = self.energy_watch {
             // As the lane monitors compare it (the same operations, so the same verdict).
-            if change.abs() > limit {
-                let quantity = if balance {
-                    Quantity::EnergyBalance
-                } else {
-                    Quantity::EnergyChange
-                };
-                let relative = change.abs() / self.energy_scale;
-                return diverged(quantity, relative, Some(ENERGY_BLOW_UP));
+            let change = (self.energy - self.energy_initial).abs();
+            if change > limit {
+                let relative = change / self.energy_scale;
+                return diverged(Quantity::EnergyChange, relative, Some(ENERGY_BLOW_UP));
             }
         }
         Ok(())

@@ -214,12 +214,20 @@ impl RunStats {
     }
 }
 
+/// A diverged quantity's value: a coordinate exactly, a ratio of energies to 7 digits.
+fn shown(quantity: &Quantity, value: f64) -> String {
+    match quantity {
+        Quantity::EnergyChange if value.is_finite() => crate::significant(value, 7),
+        _ => crate::readable(value),
+    }
+}
+
 /// The limit a diverged quantity passed, in words.
 fn beyond(quantity: &Quantity, limit: Option<f64>) -> String {
     match (quantity, limit) {
         (_, None) => String::new(),
-        (Quantity::EnergyChange | Quantity::EnergyBalance, Some(l)) => format!(
-            ", beyond {} (a million times the energy it started with: the integrator is unstable at this dt; reduce dt or take a symplectic one)",
+        (Quantity::EnergyChange, Some(l)) => format!(
+            ", beyond {} (T + V is conserved, and has changed by more than 10^6 times its scale at the start: the integration is unstable at this dt; reduce dt)",
             crate::readable(l)
         ),
         (_, Some(l)) => format!(
@@ -234,7 +242,7 @@ fn beyond(quantity: &Quantity, limit: Option<f64>) -> String {
 pub enum RunError {
     #[error("{0}")]
     Step(StepError),
-    #[error("diverged at t = {} (step {step}): {quantity} is {}{}", crate::readable(*t), crate::readable(*value), beyond(quantity, *limit))]
+    #[error("diverged at t = {} (step {step}): {quantity} is {}{}", crate::readable(*t), shown(quantity, *value), beyond(quantity, *limit))]
     Diverged {
         t: f64,
         step: u64,
