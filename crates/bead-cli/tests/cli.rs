@@ -3189,3 +3189,28 @@ fn a_parameter_set_twice_or_set_and_swept_is_refused() {
         &["run", scene, "--set", "g=5", "--duration", "0.1"],
     ));
 }
+
+/// The README's slow blow-up: explicit Euler on the pendulum at dt = 0.01 stops where its
+/// energy has changed by more than 10^6 times its scale, t = 72.36, exit code 1 (it ran on
+/// to 100 s with an energy error of 5.7e9 and exit code 0).
+#[test]
+fn the_readmes_euler_pendulum_stops_as_diverged() {
+    let dir = TempDir::new("euler-blow-up");
+    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes/circle.toml");
+    let args = [
+        "run",
+        scene.to_str().unwrap(),
+        "--integrator",
+        "euler",
+        "--dt",
+        "0.01",
+    ];
+    let err = fails(
+        bead_in(&dir.0, &[&args[..], &["--duration", "100"]].concat()),
+        1,
+    );
+    assert!(
+        err.contains("error: diverged at t = 72.36 (step 7236): the energy's change |E - E0| / E_scale is 1002973, beyond 1000000"),
+        "{err}"
+    );
+}

@@ -268,9 +268,10 @@ pub enum RunError {
         stopped: f64,
     },
     /// The stop condition or an event changes sign at time `t` by a jump that grows as it
-    /// is looked at closer: from `before` to `after` across the located instant, each larger
-    /// in size than at the ends of the interval it was found in (a pole, like -1/x's at
-    /// x = 0), where a crossing of zero would have shrunk towards it. The run stands at
+    /// is looked at closer: from `before` to `after` across the located instant, each more
+    /// than 1000 times larger in size than at the ends of the interval it was found in (a
+    /// pole, like -1/x's at x = 0), where a crossing of zero would have shrunk towards it.
+    /// The run stands at
     /// `stopped`, the start of that step, its last good state.
     #[error("{} `{source_text}` jumps over zero at t = {} (from {} to {}: a pole, not a crossing of zero); the run stopped at the last good state, t = {}", if *stop_when { "stop_when" } else { "the event" }, crate::readable(*t), crate::significant(*before, 4), crate::significant(*after, 4), crate::readable(*stopped))]
     EventJump {
