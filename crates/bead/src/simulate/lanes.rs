@@ -34,6 +34,7 @@
 use std::sync::Arc;
 
 use super::lane_monitor::{gather, LaneMonitor};
+use super::vector::{compiled_per_vector_set, VectorSet};
 use super::{RunOptions, Simulation, Stepper};
 use crate::expr::Tape;
 use crate::formulation::{Implicit, LaneScratch, Method, Parametric};
@@ -159,26 +160,16 @@ pub(crate) fn run_lanes(
     members: &mut [Simulation],
     options: RunOptions,
 ) -> Vec<LaneOutcome> {
-    #[cfg(target_arch = "x86_64")]
-    if std::arch::is_x86_feature_detected!("avx2") {
-        // SAFETY: this CPU has AVX2 (checked above).
-        #[allow(unsafe_code)]
-        return unsafe { run_lanes_avx2(system, members, options) };
-    }
-    run_lanes_body(system, members, options)
+    run_lanes_in(VectorSet::best(), system, members, options)
 }
 
-/// [`run_lanes`] compiled for AVX2 (the same operations in the same order, so the same
-/// bits, in 4-wide vector instructions instead of SSE2's 2-wide: ~17% fewer instructions
-/// per member and step). AVX2 does not bring fused multiply-adds; nothing here asks for them.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-fn run_lanes_avx2(
-    system: &Arc<System>,
-    members: &mut [Simulation],
-    options: RunOptions,
-) -> Vec<LaneOutcome> {
-    run_lanes_body(system, members, options)
+compiled_per_vector_set! {
+    /// [`run_lanes`] in the vector instructions of `set` (the same bits in each).
+    fn run_lanes_in(
+        system: &Arc<System>,
+        members: &mut [Simulation],
+        options: RunOptions,
+    ) -> Vec<LaneOutcome> = run_lanes_body
 }
 
 /// [`run_lanes`] itself, inlined into each compilation of it.
@@ -769,20 +760,22 @@ mod tests {
     }
 
     /// The lanes take the parabola's runs to the end, and each member's figures are its run's
-    /// alone, bit for bit: through the code this CPU is given (AVX2 where it has it) and
-    /// through the portable code.
+    /// alone, bit for bit, in every instruction set this CPU runs (the baseline, AVX2,
+    /// AVX-512).
     #[test]
     fn the_lanes_run_the_parabola_to_the_end_as_each_member_alone() {
         let x0: Vec<f64> = (0..LANES - 3).map(|i| 10.0 + 12.5 * i as f64).collect();
-        type RunLanes = fn(&Arc<System>, &mut [Simulation], RunOptions) -> Vec<LaneOutcome>;
-        let paths: [RunLanes; 2] = [run_lanes, run_lanes_body];
-        for (method, run_lanes) in [Method::Implicit, Method::Parametric]
+        for (method, set) in [Method::Implicit, Method::Parametric]
             .into_iter()
-            .flat_map(|method| paths.map(|path| (method, path)))
+            .flat_map(|method| {
+                VectorSet::available()
+                    .into_iter()
+                    .map(move |set| (method, set))
+            })
         {
             let (system, mut together) = members(method, &x0);
             assert!(together.iter().all(lanes_can_run));
-            let outcomes = run_lanes(&system, &mut together, RunOptions::steps(240));
+            let outcomes = run_lanes_in(set, &system, &mut together, RunOptions::steps(240));
             assert!(
                 outcomes.iter().all(|&o| o == LaneOutcome::Done),
                 "{outcomes:?}"

@@ -65,6 +65,7 @@ mod monitor;
 mod restart;
 mod run;
 mod state;
+mod vector;
 mod watching;
 
 use std::sync::Arc;
