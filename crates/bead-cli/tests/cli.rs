@@ -3144,6 +3144,64 @@ fn ctrl_c_ends_a_run_at_its_last_good_state_with_its_files_written() {
     assert!(stdout(&output).contains("(stopped early)"));
 }
 
+/// Ctrl-C during `bead sweep` stops it after the member it came during: the CSV holds the
+/// header and the rows of the members finished before it, in member order, each whole, and
+/// the message says how many (exit code 130).
+#[cfg(unix)]
+#[test]
+fn ctrl_c_stops_a_sweep_with_the_rows_written_so_far() {
+    use std::process::{Command, Stdio};
+    let dir = TempDir::new("ctrl-c-sweep");
+    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes/parabola.toml");
+    let members = 1_000_000;
+    let mut child = Command::new(env!("CARGO_BIN_EXE_bead"))
+        .args(["sweep", scene.to_str().unwrap(), "--threads", "2"])
+        .args([
+            "--param",
+            &format!("g=100:1000:{members}"),
+            "--out",
+            "sweep.csv",
+        ])
+        .current_dir(&dir.0)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("run bead");
+    let lines = || {
+        std::fs::read_to_string(dir.path("sweep.csv"))
+            .map(|t| t.lines().count())
+            .unwrap_or(0)
+    };
+    // Rows reach the file at least every second: wait for some.
+    while lines() < 3 {
+        assert!(
+            child.try_wait().unwrap().is_none(),
+            "the sweep ended by itself"
+        );
+        std::thread::sleep(std::time::Duration::from_millis(10));
+    }
+    let kill = Command::new("kill")
+        .args(["-INT", &child.id().to_string()])
+        .status()
+        .expect("kill");
+    assert!(kill.success());
+    let output = child.wait_with_output().expect("the sweep ends");
+    let err = stderr(&output);
+    assert_eq!(output.status.code(), Some(130), "{err}");
+    let csv = std::fs::read_to_string(dir.path("sweep.csv")).unwrap();
+    assert!(csv.ends_with('\n'), "the last row is whole");
+    let rows: Vec<&str> = csv.lines().skip(1).collect();
+    let written = rows.len();
+    assert!(written >= 2 && written < members, "{written} rows");
+    for (i, row) in rows.iter().enumerate() {
+        assert!(row.starts_with(&format!("{i},")), "row {i}: {row}");
+        assert!(row.contains(",ok,"), "row {i}: {row}");
+    }
+    let said =
+        format!("error: interrupted: the sweep stopped after {written} of its {members} members");
+    assert!(err.contains(&said), "{err}");
+}
+
 /// A "scene" that never ends (`/dev/zero`) or is too large is refused after 16 MiB, not
 /// read forever.
 #[cfg(unix)]

@@ -2,6 +2,8 @@
 //! run has taken more than a second (short runs print nothing); and Ctrl-C (SIGINT, SIGTERM,
 //! SIGHUP) during a run, which ends it at its last good state, its trace, summary and report
 //! written as for a failed run (exit code 130). A second one ends the process at once.
+//! `bead sweep` stops handing out members instead, its CSV holding the rows of those
+//! finished before it.
 
 use std::io::IsTerminal;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -31,9 +33,10 @@ pub fn interrupted() -> bool {
 }
 
 /// From the first run on, a signal that would end the process sets [`INTERRUPTED`] instead,
-/// which every run's [`Bar`] reports to the run; a second one exits at once. Commands that
-/// start no run (the viewer's server) keep the default: the signal ends them.
-fn catch_interrupts() {
+/// which every run's [`Bar`] reports to the run (and `bead sweep` reads between members); a
+/// second one exits at once. Commands that start no run (the viewer's server) keep the
+/// default: the signal ends them.
+pub fn catch_interrupts() {
     static ONCE: Once = Once::new();
     ONCE.call_once(|| {
         // Without a handler (one already set, or none allowed) a signal ends the process

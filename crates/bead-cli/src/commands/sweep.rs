@@ -87,6 +87,10 @@ pub fn sweep(args: &SweepArgs) -> Result<()> {
         SweepFormat::Long => CsvFormat::Long,
     };
     let start = Instant::now();
+    // Ctrl-C (SIGINT, SIGTERM, SIGHUP) stops the sweep after the member it comes during
+    // (the members running on other threads finish theirs, unwritten), the rows so far
+    // flushed; a second one ends the process at once.
+    super::progress::catch_interrupts();
     writeln!(out, "{}", sweep.header(format))?;
     let mut tally = Tally::default();
     let mut flushed_at = Instant::now();
@@ -100,6 +104,9 @@ pub fn sweep(args: &SweepArgs) -> Result<()> {
             flushed_at = Instant::now();
         }
         tally.add(member);
+        if super::progress::interrupted() {
+            return Err(Stop::Interrupted);
+        }
         Ok(())
     });
     // The rows written so far stay valid whatever stopped the sweep.
@@ -121,6 +128,17 @@ pub fn sweep(args: &SweepArgs) -> Result<()> {
             ));
         }
         Err(Stop::Member(e)) => return Err(e.into()),
+        Err(Stop::Interrupted) => {
+            flushed?;
+            return Err(anyhow!(
+                "interrupted: the sweep stopped after {} of its {} members ({} stopped at the event, {} failed) in {} s; the CSV holds their rows, in member order",
+                tally.members,
+                sweep.len(),
+                tally.events,
+                tally.failed,
+                bead::significant(seconds, 4),
+            ));
+        }
     }
     let _ = writeln!(
         io::stderr(),
@@ -150,6 +168,8 @@ pub fn sweep(args: &SweepArgs) -> Result<()> {
 enum Stop {
     Member(SweepError),
     Io(io::Error),
+    /// Ctrl-C (see [`super::progress`])
+    Interrupted,
 }
 
 impl From<SweepError> for Stop {
