@@ -24,16 +24,13 @@ impl VectorSet {
         if let Some(set) = ASKED.with(std::cell::Cell::get) {
             return set;
         }
-        #[cfg(target_arch = "x86_64")]
-        {
-            if std::arch::is_x86_feature_detected!("avx512f") {
-                return VectorSet::Avx512;
-            }
-            if std::arch::is_x86_feature_detected!("avx2") {
-                return VectorSet::Avx2;
-            }
-        }
-        VectorSet::Baseline
+        let wider = [
+            #[cfg(target_arch = "x86_64")]
+            VectorSet::Avx512,
+            #[cfg(target_arch = "x86_64")]
+            VectorSet::Avx2,
+        ];
+        (wider.into_iter().find(|set| set.runs_here())).unwrap_or(VectorSet::Baseline)
     }
 
     /// This set, or AVX2 where it is wider: for code that runs in short bursts between
@@ -46,20 +43,28 @@ impl VectorSet {
         }
     }
 
-    /// Every set this CPU runs, narrowest first.
-    pub(crate) fn available() -> Vec<VectorSet> {
-        #[allow(unused_mut)]
-        let mut sets = vec![VectorSet::Baseline];
-        #[cfg(target_arch = "x86_64")]
-        {
-            if std::arch::is_x86_feature_detected!("avx2") {
-                sets.push(VectorSet::Avx2);
-            }
-            if std::arch::is_x86_feature_detected!("avx512f") {
-                sets.push(VectorSet::Avx512);
-            }
+    /// Whether this CPU runs this set.
+    pub(crate) fn runs_here(self) -> bool {
+        match self {
+            VectorSet::Baseline => true,
+            #[cfg(target_arch = "x86_64")]
+            VectorSet::Avx2 => std::arch::is_x86_feature_detected!("avx2"),
+            #[cfg(target_arch = "x86_64")]
+            VectorSet::Avx512 => std::arch::is_x86_feature_detected!("avx512f"),
         }
-        sets
+    }
+
+    /// Every set this CPU runs, narrowest first (the tests run each).
+    #[cfg(test)]
+    pub(crate) fn available() -> Vec<VectorSet> {
+        let all = [
+            VectorSet::Baseline,
+            #[cfg(target_arch = "x86_64")]
+            VectorSet::Avx2,
+            #[cfg(target_arch = "x86_64")]
+            VectorSet::Avx512,
+        ];
+        all.into_iter().filter(|set| set.runs_here()).collect()
     }
 }
 
@@ -99,7 +104,7 @@ macro_rules! compiled_per_vector_set {
                 $body($($arg),*)
             }
             use $crate::simulate::vector::VectorSet;
-            debug_assert!(VectorSet::available().contains(&set), "{set:?} on this CPU");
+            debug_assert!(set.runs_here(), "{set:?} on this CPU");
             match set {
                 VectorSet::Baseline => $body($($arg),*),
                 // SAFETY: `set` is one this CPU runs (`VectorSet::available`).
