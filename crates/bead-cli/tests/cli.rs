@@ -3092,33 +3092,27 @@ fn run_counts_the_bounces_of_a_unilateral_scene() {
     assert!((a - b).abs() < 1e-6 * a, "{a} vs {b}");
 }
 
-/// Ctrl-C (SIGINT) in a long `bead run` ends the run at its last good state: the summary
-/// file is written with the error and the state reached, the trace ends with that state's
-/// row, stderr says where, and the exit code is 130. The signal is sent once the trace
-/// shows the run under way (its handler is set before the run's first step).
-#[test]
-fn ctrl_c_ends_a_run_at_its_last_good_state_with_its_files_written() {
+/// `bead args` run in `dir` and sent SIGINT once file `watched` there holds 3 lines (the
+/// command under way, its handler set before it writes), to its end.
+#[cfg(unix)]
+fn interrupted_once_written(dir: &TempDir, args: &[&str], watched: &str) -> Output {
     use std::process::{Command, Stdio};
-    let dir = TempDir::new("ctrl-c");
-    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes/parabola.toml");
-    let scene = scene.to_str().unwrap();
     let mut child = Command::new(env!("CARGO_BIN_EXE_bead"))
-        .args(["run", scene, "--duration", "1e9", "--every", "1000"])
-        .args(["--trace", "trace.csv", "--summary", "summary.json"])
+        .args(args)
         .current_dir(&dir.0)
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
         .spawn()
         .expect("run bead");
-    let rows = || {
-        std::fs::read_to_string(dir.path("trace.csv"))
+    let lines = || {
+        std::fs::read_to_string(dir.path(watched))
             .map(|t| t.lines().count())
             .unwrap_or(0)
     };
-    while rows() < 3 {
+    while lines() < 3 {
         assert!(
             child.try_wait().unwrap().is_none(),
-            "the run ended by itself"
+            "bead {args:?} ended by itself"
         );
         std::thread::sleep(std::time::Duration::from_millis(10));
     }
@@ -3127,7 +3121,22 @@ fn ctrl_c_ends_a_run_at_its_last_good_state_with_its_files_written() {
         .status()
         .expect("kill");
     assert!(kill.success());
-    let output = child.wait_with_output().expect("the run ends");
+    child.wait_with_output().expect("bead ends")
+}
+
+/// Ctrl-C (SIGINT) in a long `bead run` ends the run at its last good state: the summary
+/// file is written with the error and the state reached, the trace ends with that state's
+/// row, stderr says where, and the exit code is 130. The signal is sent once the trace
+/// shows the run under way (its handler is set before the run's first step).
+#[cfg(unix)]
+#[test]
+fn ctrl_c_ends_a_run_at_its_last_good_state_with_its_files_written() {
+    let dir = TempDir::new("ctrl-c");
+    let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes/parabola.toml");
+    let scene = scene.to_str().unwrap();
+    let run = ["run", scene, "--duration", "1e9", "--every", "1000"];
+    let files = ["--trace", "trace.csv", "--summary", "summary.json"];
+    let output = interrupted_once_written(&dir, &[&run[..], &files].concat(), "trace.csv");
     let err = stderr(&output);
     assert_eq!(output.status.code(), Some(130), "{err}");
     assert!(err.contains("error: interrupted at t = "), "{err}");
@@ -3146,46 +3155,18 @@ fn ctrl_c_ends_a_run_at_its_last_good_state_with_its_files_written() {
 
 /// Ctrl-C during `bead sweep` stops it after the member it came during: the CSV holds the
 /// header and the rows of the members finished before it, in member order, each whole, and
-/// the message says how many (exit code 130).
+/// the message says how many (exit code 130). The signal is sent once rows have reached the
+/// file.
 #[cfg(unix)]
 #[test]
 fn ctrl_c_stops_a_sweep_with_the_rows_written_so_far() {
-    use std::process::{Command, Stdio};
     let dir = TempDir::new("ctrl-c-sweep");
     let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes/parabola.toml");
     let members = 1_000_000;
-    let mut child = Command::new(env!("CARGO_BIN_EXE_bead"))
-        .args(["sweep", scene.to_str().unwrap(), "--threads", "2"])
-        .args([
-            "--param",
-            &format!("g=100:1000:{members}"),
-            "--out",
-            "sweep.csv",
-        ])
-        .current_dir(&dir.0)
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .expect("run bead");
-    let lines = || {
-        std::fs::read_to_string(dir.path("sweep.csv"))
-            .map(|t| t.lines().count())
-            .unwrap_or(0)
-    };
-    // Rows reach the file at least every second: wait for some.
-    while lines() < 3 {
-        assert!(
-            child.try_wait().unwrap().is_none(),
-            "the sweep ended by itself"
-        );
-        std::thread::sleep(std::time::Duration::from_millis(10));
-    }
-    let kill = Command::new("kill")
-        .args(["-INT", &child.id().to_string()])
-        .status()
-        .expect("kill");
-    assert!(kill.success());
-    let output = child.wait_with_output().expect("the sweep ends");
+    let values = format!("g=100:1000:{members}");
+    let args = ["sweep", scene.to_str().unwrap(), "--threads", "2"];
+    let out = ["--param", &values, "--out", "sweep.csv"];
+    let output = interrupted_once_written(&dir, &[&args[..], &out].concat(), "sweep.csv");
     let err = stderr(&output);
     assert_eq!(output.status.code(), Some(130), "{err}");
     let csv = std::fs::read_to_string(dir.path("sweep.csv")).unwrap();
