@@ -87,8 +87,7 @@ pub(crate) fn with_vector_set<R>(set: VectorSet, f: impl FnOnce() -> R) -> R {
 }
 
 /// `fn $name(...) -> T` calling `$body(...)` compiled for the set asked (see
-/// [`VectorSet`]): `$name(set, args...)`, where `set` must be one of
-/// [`VectorSet::available`].
+/// [`VectorSet`]): `$name(set, args...)`; a set the CPU lacks runs the baseline.
 macro_rules! compiled_per_vector_set {
     ($(#[$doc:meta])* $vis:vis fn $name:ident($($arg:ident: $ty:ty),* $(,)?) -> $ret:ty = $body:ident) => {
         $(#[$doc])*
@@ -104,14 +103,15 @@ macro_rules! compiled_per_vector_set {
                 $body($($arg),*)
             }
             use $crate::simulate::vector::VectorSet;
-            debug_assert!(set.runs_here(), "{set:?} on this CPU");
-            match set {
+            // A set this CPU lacks falls back to the baseline (the same bits), so that the
+            // unsafe calls below only ever run on a CPU with their instructions.
+            match if set.runs_here() { set } else { VectorSet::Baseline } {
                 VectorSet::Baseline => $body($($arg),*),
-                // SAFETY: `set` is one this CPU runs (`VectorSet::available`).
+                // SAFETY: this CPU has AVX2 (`runs_here` above).
                 #[cfg(target_arch = "x86_64")]
                 #[allow(unsafe_code)]
                 VectorSet::Avx2 => unsafe { avx2($($arg),*) },
-                // SAFETY: as above.
+                // SAFETY: this CPU has AVX-512F (`runs_here` above).
                 #[cfg(target_arch = "x86_64")]
                 #[allow(unsafe_code)]
                 VectorSet::Avx512 => unsafe { avx512($($arg),*) },
