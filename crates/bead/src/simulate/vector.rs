@@ -24,13 +24,13 @@ impl VectorSet {
         if let Some(set) = ASKED.with(std::cell::Cell::get) {
             return set;
         }
-        let wider = [
+        let wider: &[VectorSet] = &[
             #[cfg(target_arch = "x86_64")]
             VectorSet::Avx512,
             #[cfg(target_arch = "x86_64")]
             VectorSet::Avx2,
         ];
-        (wider.into_iter().find(|set| set.runs_here())).unwrap_or(VectorSet::Baseline)
+        (wider.iter().copied().find(|set| set.runs_here())).unwrap_or(VectorSet::Baseline)
     }
 
     /// This set, or AVX2 where it is wider: for code that runs in short bursts between
@@ -57,14 +57,14 @@ impl VectorSet {
     /// Every set this CPU runs, narrowest first (the tests run each).
     #[cfg(test)]
     pub(crate) fn available() -> Vec<VectorSet> {
-        let all = [
+        let all: &[VectorSet] = &[
             VectorSet::Baseline,
             #[cfg(target_arch = "x86_64")]
             VectorSet::Avx2,
             #[cfg(target_arch = "x86_64")]
             VectorSet::Avx512,
         ];
-        all.into_iter().filter(|set| set.runs_here()).collect()
+        all.iter().copied().filter(|set| set.runs_here()).collect()
     }
 }
 
