@@ -184,9 +184,8 @@ Exit status: 0 on success, 1 when the scene is invalid or the run fails (the tra
 finished row and --summary is still written, with completed: false), 2 on a usage error (a bad
 flag value, or two outputs naming the same file), 130 when Ctrl-C (SIGINT, SIGTERM, SIGHUP)
 ended the run of `run` or `compare`: at its last good state, with its trace and --summary
-written as for a failed run, or stopped `sweep` after the member it came during, its CSV
-holding the rows of the members finished before, in order (a second Ctrl-C ends the process
-at once).";
+written as for a failed run, or stopped `sweep` at the next member handed over in order,
+its CSV holding the rows up to that member (a second Ctrl-C ends the process at once).";
 
 /// `bead run`.
 #[derive(Debug, Args)]

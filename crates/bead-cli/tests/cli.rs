@@ -3153,9 +3153,9 @@ fn ctrl_c_ends_a_run_at_its_last_good_state_with_its_files_written() {
     assert!(stdout(&output).contains("(stopped early)"));
 }
 
-/// Ctrl-C during `bead sweep` stops it after the member it came during: the CSV holds the
-/// header and the rows of the members finished before it, in member order, each whole, and
-/// the message says how many (exit code 130). The signal is sent once rows have reached the
+/// Ctrl-C during `bead sweep` stops it at the next member handed over in order: the CSV
+/// holds the header and the rows up to that member, in member order, each whole, and the
+/// message says how many (exit code 130). The signal is sent once rows have reached the
 /// file.
 #[cfg(unix)]
 #[test]

@@ -2,8 +2,8 @@
 //! run has taken more than a second (short runs print nothing); and Ctrl-C (SIGINT, SIGTERM,
 //! SIGHUP) during a run, which ends it at its last good state, its trace, summary and report
 //! written as for a failed run (exit code 130). A second one ends the process at once.
-//! `bead sweep` stops handing out members instead, its CSV holding the rows of those
-//! finished before it.
+//! `bead sweep` stops at the next member handed over in order instead, its CSV holding the
+//! rows up to that member.
 
 use std::io::IsTerminal;
 use std::sync::atomic::{AtomicBool, Ordering};

@@ -87,9 +87,9 @@ pub fn sweep(args: &SweepArgs) -> Result<()> {
         SweepFormat::Long => CsvFormat::Long,
     };
     let start = Instant::now();
-    // Ctrl-C (SIGINT, SIGTERM, SIGHUP) stops the sweep after the member it comes during
-    // (the members running on other threads finish theirs, unwritten), the rows so far
-    // flushed; a second one ends the process at once.
+    // Ctrl-C (SIGINT, SIGTERM, SIGHUP) stops the sweep at the next member handed over in
+    // order, its rows written and flushed at once (a second Ctrl-C ends the process without
+    // waiting for the members still running on other threads, which are dropped unwritten).
     super::progress::catch_interrupts();
     writeln!(out, "{}", sweep.header(format))?;
     let mut tally = Tally::default();
@@ -105,6 +105,7 @@ pub fn sweep(args: &SweepArgs) -> Result<()> {
         }
         tally.add(member);
         if super::progress::interrupted() {
+            out.flush().map_err(Stop::Io)?;
             return Err(Stop::Interrupted);
         }
         Ok(())

@@ -438,7 +438,7 @@ fn check_batch(
     taken: usize,
 ) -> usize {
     // AVX-512 measured 1-3% slower here than AVX2 (a run of the article's scene, 72-74 ns
-    // a step against 71-72, on an AMD EPYC), and 10-15% faster in the sweep lanes.
+    // a step against 71-72, on an AMD EPYC), and 7-15% faster in the sweep lanes.
     let set = VectorSet::best().at_most_avx2();
     check_batch_in(set, batch, one, system, monitor, taken)
 }

@@ -1,8 +1,9 @@
 //! Which vector instructions the lanes' loop ([`super::lanes`]) and a run's batched checks
 //! ([`super::express`]) run in: the same Rust compiled once per instruction set and chosen
 //! at run time by what the CPU has. Every compilation performs the same operations in the
-//! same order (no fused multiply-add, no approximate reciprocal: Rust asks for neither), so
-//! all give the same bits; they differ in how many lanes one instruction takes.
+//! same order, so all give the same bits: AVX-512F enables FMA too, but nothing here calls
+//! `mul_add` and Rust never contracts a multiply and an add, nor uses approximate
+//! reciprocals; they differ in how many lanes one instruction takes.
 
 /// An instruction set the lanes' code is compiled for.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
