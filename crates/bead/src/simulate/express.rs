@@ -350,7 +350,10 @@ impl Simulation {
         if taken > 0 {
             let system = self.formulation.system();
             let monitor = &self.monitor;
-            accepted = check_batch(batch, &mut express.monitor, system, monitor, taken);
+            // AVX-512 measured 1-3% slower here than AVX2 (a run of the article's scene,
+            // 72-74 ns a step against 71-72, on an AMD EPYC), and 7-15% faster in the lanes.
+            let set = VectorSet::best().at_most_avx2();
+            accepted = check_batch(set, batch, &mut express.monitor, system, monitor, taken);
             if accepted > 0 {
                 // The last accepted step's start, for `express_done`.
                 let (t, q, qdot) = &mut express.before;
@@ -427,26 +430,12 @@ fn same_observation(
         == pointer(formulation.compiled_step_observation(t, q, qdot))
 }
 
-/// The lane monitor's checks of a batch's first `taken` steps (its lanes, chained from the
-/// run's monitor `one`: [`LaneMonitor::chain_from`]); the steps before the first that fails
-/// one are accepted into `one`. Returns how many.
-fn check_batch(
-    batch: &mut Batch,
-    one: &mut LaneMonitor<1>,
-    system: &crate::model::System,
-    monitor: &super::monitor::Monitor,
-    taken: usize,
-) -> usize {
-    // AVX-512 measured 1-3% slower here than AVX2 (a run of the article's scene, 72-74 ns
-    // a step against 71-72, on an AMD EPYC), and 7-15% faster in the sweep lanes.
-    let set = VectorSet::best().at_most_avx2();
-    check_batch_in(set, batch, one, system, monitor, taken)
-}
-
 compiled_per_vector_set! {
-    /// [`check_batch`] in the vector instructions of `set`, as the sweep lanes' loop is
-    /// (the same bits in each).
-    fn check_batch_in(
+    /// The lane monitor's checks of a batch's first `taken` steps (its lanes, chained from
+    /// the run's monitor `one`: [`LaneMonitor::chain_from`]), in the vector instructions of
+    /// `set` (the same bits in each); the steps before the first that fails one are accepted
+    /// into `one`. Returns how many.
+    fn check_batch(
         batch: &mut Batch,
         one: &mut LaneMonitor<1>,
         system: &crate::model::System,
@@ -455,7 +444,7 @@ compiled_per_vector_set! {
     ) -> usize = check_batch_body
 }
 
-/// [`check_batch`] itself, inlined into each compilation of it.
+/// [`check_batch`]'s body, inlined into each compilation of it.
 #[inline(always)]
 fn check_batch_body(
     batch: &mut Batch,
