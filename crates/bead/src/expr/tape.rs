@@ -483,6 +483,12 @@ impl Tape {
         self.outputs.len()
     }
 
+    /// The instructions and the output slots (for the machine code's tests).
+    #[cfg(test)]
+    pub(super) fn parts(&self) -> (&[Instr], &[u32]) {
+        (&self.code, &self.outputs)
+    }
+
     /// Number of instructions (for `bead check` and benchmarks).
     pub fn n_instructions(&self) -> usize {
         self.code.len()
