@@ -3052,6 +3052,49 @@ fn order_prints_each_methods_order_and_writes_the_plot() {
     assert!(error.contains("--halvings"), "{error}");
 }
 
+/// `bead order` goes on past a step size whose run fails: explicit Euler on the article's
+/// scene fails at dt = 0.2 in both forms, and the table says why in that step's row, then
+/// measures dt = 1/10 and 1/20 and their order (before, the series ended at the failure and
+/// reported no order).
+#[test]
+fn order_goes_on_past_a_failed_coarse_step() {
+    let out = ok(bead(&[
+        "order",
+        p(&parabola()),
+        "--integrators",
+        "euler",
+        "--dt",
+        "0.2",
+        "--duration",
+        "10",
+        "--halvings",
+        "2",
+    ]));
+    for method in ["implicit", "parametric"] {
+        let rows: Vec<&str> = out
+            .lines()
+            .filter(|l| l.starts_with(method) && l.contains(" euler "))
+            .collect();
+        assert_eq!(rows.len(), 3, "{method}:\n{out}");
+        assert!(
+            rows[0].contains(" 1/5 failed: ") && rows[0].contains("reduce dt"),
+            "{method}:\n{out}"
+        );
+        assert!(
+            rows[1].contains(" 1/10 ") && rows[2].contains(" 1/20 "),
+            "{out}"
+        );
+        let orders = out
+            .lines()
+            .find(|l| {
+                l.trim_start()
+                    .starts_with(&format!("{method} euler: position "))
+            })
+            .unwrap_or_else(|| panic!("no orders of {method} euler:\n{out}"));
+        assert!(!orders.contains("position -,"), "{orders}\n{out}");
+    }
+}
+
 /// `bead run scenes/bounce.toml` (the README's figures): the switches counted in the text and
 /// the JSON, and the impacts' energy equal to the ledger's work, -W (nothing else does work).
 #[test]

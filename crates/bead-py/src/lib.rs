@@ -705,9 +705,10 @@ impl PyScene {
     /// position_error (max |x - x_ref| at the times of dt), energy_error (max |E - E0| /
     /// E_scale, of E - W when work is done), constraint_error (max |C_i| / |grad C_i|; NaN for
     /// the parametric form), and position_order, energy_order, constraint_order (log2 of the
-    /// previous step's error over this one's; NaN at the first step and where an error is at
-    /// its floor); with `floors` (the floors, a dict), `reference` (its form and steps) and
-    /// `failures` ("method integrator" to why a series ended early).
+    /// previous step's error over this one's; NaN at the first step, where an error is at
+    /// its floor and after a failed step); with `floors` (the floors, a dict), `reference`
+    /// (its form and steps) and `failures` ("method integrator" to a dict of each dt whose
+    /// run failed to why: the series goes on at the finer steps).
     ///
     /// Raises ValueError for a bad argument (an adaptive integrator, a duration that is not a
     /// whole number of steps) and `bead.SetupError` when the reference cannot run. The GIL is
@@ -2248,10 +2249,14 @@ fn study_dict<'py>(
                 column.push(value);
             }
         }
-        if let Some(failure) = &series.failure {
+        if !series.failures.is_empty() {
+            let why = PyDict::new(py);
+            for failure in &series.failures {
+                why.set_item(failure.dt, &failure.error)?;
+            }
             failures.set_item(
                 format!("{} {}", series.method.name(), series.integrator.name()),
-                failure,
+                why,
             )?;
         }
     }

@@ -81,3 +81,20 @@ def test_bad_arguments_say_what_is_wrong():
         scene.order(halvings=0)
     with pytest.raises(ValueError, match="not a whole number of steps"):
         scene.order(duration=0.1001)
+
+
+def test_a_failed_coarse_step_is_reported_and_the_finer_steps_still_run():
+    # Explicit Euler on the article's parabola fails at dt = 0.2 in both forms (a step too
+    # long for the curve's turn; the energy blowing up); 0.1 and 0.05 still run.
+    study = bead.load(scene_path("parabola.toml")).order(
+        integrators=["euler"], dt=0.2, duration=10.0, halvings=2)
+    assert set(study["failures"]) == {"implicit euler", "parametric euler"}
+    for why in study["failures"].values():
+        assert list(why) == [0.2]
+        assert "reduce dt" in why[0.2]
+    runs = study["runs"]
+    assert runs["dt"] == [0.1, 0.05, 0.1, 0.05]
+    # The first run after the failure has no order (nothing one halving coarser ran).
+    orders = runs["position_order"]
+    assert math.isnan(orders[0]) and math.isnan(orders[2])
+    assert not math.isnan(orders[1]) and not math.isnan(orders[3])

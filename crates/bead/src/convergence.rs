@@ -68,14 +68,26 @@ pub struct Level {
     pub constraint_error: Option<f64>,
 }
 
-/// One integrator on one form at every step size, up to the first that failed.
+/// A step size whose run failed.
+#[derive(Clone, Debug, PartialEq)]
+pub struct LevelFailure {
+    pub dt: f64,
+    /// Why (divergence, a failed solve, a step too long for a constraint)
+    pub error: String,
+}
+
+/// One integrator on one form at every step size: the runs that finished, and the ones that
+/// failed. A failed step size does not end the series: an unstable coarse step is common
+/// (explicit Euler at dt = 0.2 on the article's parabola), and the finer ones still measure
+/// the order.
 #[derive(Clone, Debug)]
 pub struct Series {
     pub method: Method,
     pub integrator: IntegratorKind,
+    /// The runs that finished, coarsest first
     pub levels: Vec<Level>,
-    /// Why the run at the next step size failed (divergence, a failed solve), if one did.
-    pub failure: Option<String>,
+    /// The step sizes whose run failed, coarsest first
+    pub failures: Vec<LevelFailure>,
 }
 
 /// The observed orders log2(e_k / e_k+1) per halving, `None` where either error is at or
@@ -91,21 +103,29 @@ pub fn observed_orders(errors: &[f64], floor: f64) -> Vec<Option<f64>> {
 }
 
 impl Series {
+    /// The observed orders of the position error between consecutive levels (one fewer
+    /// than the levels; see [`observed_orders`]), `None` also across a failed step size
+    /// (two halvings are not one).
     pub fn position_orders(&self, floors: &Floors) -> Vec<Option<f64>> {
-        let errors: Vec<f64> = self.levels.iter().map(|l| l.position_error).collect();
-        observed_orders(&errors, floors.position)
+        self.orders(|l| l.position_error, floors.position)
     }
+    /// As [`Self::position_orders`], of the energy error.
     pub fn energy_orders(&self, floors: &Floors) -> Vec<Option<f64>> {
-        let errors: Vec<f64> = self.levels.iter().map(|l| l.energy_error).collect();
-        observed_orders(&errors, floors.energy)
+        self.orders(|l| l.energy_error, floors.energy)
     }
+    /// As [`Self::position_orders`], of the distance off the constraints.
     pub fn constraint_orders(&self, floors: &Floors) -> Vec<Option<f64>> {
-        let errors: Vec<f64> = self
-            .levels
-            .iter()
-            .map(|l| l.constraint_error.unwrap_or(0.0))
-            .collect();
-        observed_orders(&errors, floors.constraint)
+        self.orders(|l| l.constraint_error.unwrap_or(0.0), floors.constraint)
+    }
+
+    fn orders(&self, error: impl Fn(&Level) -> f64, floor: f64) -> Vec<Option<f64>> {
+        let errors: Vec<f64> = self.levels.iter().map(error).collect();
+        observed_orders(&errors, floor)
+            .into_iter()
+            .zip(self.levels.windows(2))
+            // dt / 2^k is exact: the next level is one halving on exactly when its dt is half.
+            .map(|(order, pair)| order.filter(|_| pair[1].dt * 2.0 == pair[0].dt))
+            .collect()
     }
 }
 
@@ -266,7 +286,7 @@ pub fn study(
     let mut series = Vec::new();
     for &(method, integrator) in cases {
         let mut levels = Vec::new();
-        let mut failure = None;
+        let mut failures = Vec::new();
         for k in 0..=halvings {
             let every = 1u64 << k;
             let mut config = SimulationConfig {
@@ -283,8 +303,11 @@ pub fn study(
                 match positions_of(system, config, steps * every, every) {
                     Ok(run) => run,
                     Err(error) => {
-                        failure = Some(format!("at dt = {}: {error}", dt / every as f64));
-                        break;
+                        failures.push(LevelFailure {
+                            dt: dt / every as f64,
+                            error,
+                        });
+                        continue;
                     }
                 };
             let position_error = largest_difference(&positions, &reference, every);
@@ -302,7 +325,7 @@ pub fn study(
             method,
             integrator,
             levels,
-            failure,
+            failures,
         });
     }
     Ok(Study {

@@ -147,7 +147,12 @@ fn text(scene: &Scene, file: &str, study: &Study, skipped: &[String]) -> String 
         let position = series.position_orders(&study.floors);
         let energy = series.energy_orders(&study.floors);
         let constraint = series.constraint_orders(&study.floors);
+        // The failed step sizes in their place among the others (coarsest first).
+        let mut failures = series.failures.iter().peekable();
         for (k, level) in series.levels.iter().enumerate() {
+            while let Some(failure) = failures.next_if(|f| f.dt > level.dt) {
+                failure_row(&mut out, series, failure);
+            }
             let before = |orders: &[Option<f64>]| {
                 if k == 0 {
                     String::new()
@@ -176,13 +181,8 @@ fn text(scene: &Scene, file: &str, study: &Study, skipped: &[String]) -> String 
                 },
             );
         }
-        if let Some(failure) = &series.failure {
-            let _ = writeln!(
-                out,
-                "{:<11} {:<17} failed {failure}",
-                series.method.name(),
-                series.integrator.name()
-            );
+        for failure in failures {
+            failure_row(&mut out, series, failure);
         }
     }
     let _ = writeln!(out, "\nObserved orders at the last measured halving:");
@@ -196,6 +196,18 @@ fn text(scene: &Scene, file: &str, study: &Study, skipped: &[String]) -> String 
     out.lines()
         .map(|l| l.trim_end().to_string() + "\n")
         .collect()
+}
+
+/// A row of the table for a step size whose run failed, with why.
+fn failure_row(out: &mut String, series: &Series, failure: &convergence::LevelFailure) {
+    let _ = writeln!(
+        out,
+        "{:<11} {:<17} {:>7} failed: {}",
+        series.method.name(),
+        series.integrator.name(),
+        step_text(failure.dt),
+        failure.error
+    );
 }
 
 /// `implicit rk4: position 4.00, energy 4.01, off 3.98 (declared 4)`.

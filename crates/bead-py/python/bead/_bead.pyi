@@ -108,7 +108,8 @@ class Scene:
         dt/2, ..., against dopri5 at reference_rtol. study["runs"] is a dict of columns
         (method, integrator, dt, steps, evaluations, wall_seconds, position_error,
         energy_error, constraint_error and their orders per halving) for pandas.DataFrame;
-        study["floors"], study["reference"], study["failures"]."""
+        study["floors"], study["reference"], study["failures"] ("method integrator" to
+        {dt: why} for each step whose run failed; the finer steps still run)."""
     def simulation(
         self,
         *,
