@@ -108,6 +108,14 @@ fn rows<const L: usize>(soa: &[f64]) -> &[PerLane<L>] {
     rows
 }
 
+/// Whether any of the first `count` of `flags` is set: one pass without a branch per lane,
+/// which the compiler makes a few vector instructions (a scan that stops at the first set
+/// flag costs a compare and a branch per lane, and the lanes ask several times a step).
+#[inline(always)]
+pub(super) fn any_of<const L: usize>(flags: &[bool; L], count: usize) -> bool {
+    (0..L).fold(false, |any, l| any | (flags[l] & (l < count)))
+}
+
 /// Lane l's part of a structure-of-arrays buffer into `one`.
 pub(super) fn gather<const L: usize>(soa: &[f64], l: usize, one: &mut [f64]) {
     for (k, value) in one.iter_mut().enumerate() {
@@ -325,7 +333,7 @@ impl<const L: usize> LaneMonitor<L> {
         // lane whose every coordinate is within them needs no limits of its own time (a NaN
         // fails the comparison and takes the full test).
         let beyond_floor = beyond::<L>(x, xdot, &self.floor);
-        if beyond_floor[..count].iter().any(|&b| b) {
+        if any_of(&beyond_floor, count) {
             let mut reach = [[f64::INFINITY; L]; 2];
             for l in 0..count {
                 if beyond_floor[l] {

@@ -33,7 +33,7 @@
 
 use std::sync::Arc;
 
-use super::lane_monitor::{gather, LaneMonitor};
+use super::lane_monitor::{any_of, gather, LaneMonitor};
 use super::vector::{compiled_per_vector_set, VectorSet};
 use super::{RunOptions, Simulation, Stepper};
 use crate::expr::Tape;
@@ -329,7 +329,7 @@ fn run_lanes_body(
             &lanes.q_back,
         );
         // Lanes that pass every check and screen nothing stay, with no member touched.
-        let to_screen = if any_watch || failed.contains(&true) {
+        let to_screen = if any_watch || any_of(&failed, LANES) {
             0..count
         } else {
             0..0
@@ -362,7 +362,7 @@ fn run_lanes_body(
         }
         // The others' step ends are accepted: the monitor's reference and maxima move on.
         monitor.accept(out);
-        if !active[..count].iter().any(|&a| a) {
+        if !any_of(&active, count) {
             break;
         }
     }
@@ -456,7 +456,7 @@ fn leave_where_failed(
     active: &mut [bool; LANES],
     outcome: &mut [LaneOutcome],
 ) {
-    if !failed.contains(&true) {
+    if !any_of(failed, LANES) {
         return;
     }
     for l in 0..LANES {
