@@ -10,11 +10,12 @@
 //! The first evaluates one set of variables (the scalar evaluation, a single run's step); the
 //! second [`VECTOR_LANES`] members laid out as [`super::Tape::eval_lanes`] lays them out (slot
 //! k of lane l at `k * VECTOR_LANES + l`: a sweep's blocks), eight lanes per iteration as four
-//! independent chains of `f64x2` vectors (two lanes per iteration for a tape longer than
-//! [`MAX_CHAINED_INSTRUCTIONS`], see [`vector_width`]), each packed IEEE operation rounding
-//! each lane as the scalar one does, function calls made lane by lane. Both lane counts are fixed when compiling, so that every
-//! variable and output is addressed by an immediate offset (no address arithmetic per slot);
-//! other lane counts are interpreted (the same bits). The first is compiled with the tape
+//! independent chains of `f64x2` vectors (two lanes per iteration for a tape with function
+//! calls or longer than [`MAX_CHAINED_INSTRUCTIONS`], see [`vector_width`]), each packed IEEE
+//! operation rounding each lane as the scalar one does, function calls made lane by lane.
+//! Both lane counts are fixed when compiling, so that every variable and output is addressed
+//! by an immediate offset (no address arithmetic per slot); other lane counts are
+//! interpreted (the same bits). The first is compiled with the tape
 //! (its time is the tape's compile time); the second on its first use (a sweep's first
 //! block), so that a single run, which never evaluates lanes, does not pay for it. Each SSA
 //! instruction becomes one Cranelift value (kept in registers, spilled by the register
@@ -241,14 +242,40 @@ pub const VECTOR_LANES: usize = 16;
 const MAX_CHAINED_INSTRUCTIONS: usize = 4096;
 
 /// Lanes per iteration of a tape's vector function (see [`codegen::build`]'s `body`): eight,
-/// as four independent `f64x2` chains, for a tape of up to [`MAX_CHAINED_INSTRUCTIONS`]
-/// instructions; two for a longer one. A short tape is mostly one chain of dependent
-/// operations (an RK4 step's stages wait on each other, a division on its operands), whose
-/// latency the other chains fill: the parabola's fused step in the sweep lanes ran 8-18%
-/// faster than with one chain. A long tape has independent work of its own, and its
-/// compile time (about proportional to the operations emitted) would grow fourfold.
-fn vector_width(instructions: usize) -> i64 {
-    if instructions <= MAX_CHAINED_INSTRUCTIONS {
+/// as four independent `f64x2` chains, for a tape of arithmetic alone (no function calls)
+/// of up to [`MAX_CHAINED_INSTRUCTIONS`] instructions; else two. Such a tape is mostly one
+/// chain of dependent operations (an RK4 step's stages wait on each other, a division on its
+/// operands), whose latency the other chains fill: the article's fused step in the sweep
+/// lanes ran 8-18% faster than with one chain. A call (sin, pow, ...) costs more than the
+/// arithmetic around it and, clobbering every vector register, spills what the other chains
+/// hold: with calls, four chains measured 2-6% slower to 2% faster on the shipped scenes'
+/// sweeps, and compiled up to twice as long. A long tape has independent work of its own,
+/// and its compile time (about proportional to the operations emitted) would grow fourfold.
+fn vector_width(code: &[Instr]) -> i64 {
+    let calls = code.iter().any(|ins| {
+        use Instr::*;
+        matches!(
+            ins,
+            Powi(..)
+                | Powf(..)
+                | Pow(..)
+                | Sin(_)
+                | Cos(_)
+                | Tan(_)
+                | Asin(_)
+                | Acos(_)
+                | Atan(_)
+                | Sinh(_)
+                | Cosh(_)
+                | Tanh(_)
+                | Exp(_)
+                | Ln(_)
+                | Log10(_)
+                | Sign(_)
+                | Atan2(..)
+        )
+    });
+    if code.len() <= MAX_CHAINED_INSTRUCTIONS && !calls {
         8
     } else {
         2
@@ -287,9 +314,9 @@ impl Drop for Code {
 pub(super) struct Native {
     /// One lane
     scalar: Code,
-    /// [`VECTOR_LANES`] lanes in `f64x2` vectors ([`vector_width`]), compiled on first use (a sweep's
-    /// first block), so that a single run never pays for it; `None` if that compile failed
-    /// (the lanes are then interpreted, with the same bits).
+    /// [`VECTOR_LANES`] lanes in `f64x2` vectors ([`vector_width`]), compiled on first use
+    /// (a sweep's first block), so that a single run never pays for it; `None` if that
+    /// compile failed (the lanes are then interpreted, with the same bits).
     vector: OnceLock<Option<Code>>,
     /// What the vector function is compiled from.
     code: Box<[Instr]>,
@@ -353,7 +380,7 @@ impl Native {
     #[cold]
     #[inline(never)]
     fn compile_vector(&self) -> Option<Code> {
-        codegen::build(&self.code, &self.outputs, vector_width(self.code.len())).ok()
+        codegen::build(&self.code, &self.outputs, vector_width(&self.code)).ok()
     }
 
     /// Whether the vector function has been asked for (compiled or failed).
@@ -1034,6 +1061,22 @@ mod tests {
                 assert_same_bits(&got, &want, &format!("round {round}, width {width}"));
             }
         }
+    }
+
+    /// Four chains for a short tape of arithmetic alone (the article's step), one for a
+    /// tape with a call or a long one (see `vector_width`).
+    #[test]
+    fn chains_go_to_short_arithmetic_tapes() {
+        let x = Expr::var(0);
+        let width = |e: Expr| {
+            let t = with_jit(false, || Tape::compile(&[e]));
+            vector_width(t.parts().0)
+        };
+        let lambda = (x.clone() * x.clone() * 2.0 + 1e4).sqrt() / (x.clone() * 4.0 - 3.0);
+        assert_eq!(width(lambda.clone()), 8);
+        assert_eq!(width(lambda.clone() * x.clone().sin()), 2);
+        let long = (0..MAX_CHAINED_INSTRUCTIONS).fold(x.clone(), |e, k| e * (x.clone() + k as f64));
+        assert_eq!(width(long), 2);
     }
 
     #[test]
