@@ -125,7 +125,7 @@ fn text(scene: &Scene, file: &str, study: &Study, skipped: &[String]) -> String 
     );
     let _ = writeln!(
         out,
-        "Errors: position max |x - x_ref| ({units}) at the times of dt; energy max |E - E0| / E_scale (of E - W with work); off max |C_i| / |grad C_i| ({units}).\nOrders log2(e(h) / e(h/2)); `-` where an error is at its floor (position {:.1e}, energy {:.0e}, off {:.1e}).\n",
+        "Errors: position max |x - x_ref| ({units}) at the times of dt; energy max |E - E0| / E_scale (of E - W with work); off max |C_i| / |grad C_i| ({units}).\nOrders log2(e(h) / e(h/2)); `-` where an error is at its floor (position {:.1e}, energy {:.0e}, off {:.1e}) or the step before failed.\n",
         study.floors.position, study.floors.energy, study.floors.constraint
     );
     let _ = writeln!(

@@ -252,33 +252,22 @@ const MAX_CHAINED_INSTRUCTIONS: usize = 4096;
 /// sweeps, and compiled up to twice as long. A long tape has independent work of its own,
 /// and its compile time (about proportional to the operations emitted) would grow fourfold.
 fn vector_width(code: &[Instr]) -> i64 {
-    let calls = code.iter().any(|ins| {
-        use Instr::*;
-        matches!(
-            ins,
-            Powi(..)
-                | Powf(..)
-                | Pow(..)
-                | Sin(_)
-                | Cos(_)
-                | Tan(_)
-                | Asin(_)
-                | Acos(_)
-                | Atan(_)
-                | Sinh(_)
-                | Cosh(_)
-                | Tanh(_)
-                | Exp(_)
-                | Ln(_)
-                | Log10(_)
-                | Sign(_)
-                | Atan2(..)
-        )
-    });
-    if code.len() <= MAX_CHAINED_INSTRUCTIONS && !calls {
+    if code.len() <= MAX_CHAINED_INSTRUCTIONS && !code.iter().any(|&ins| is_call(ins)) {
         8
     } else {
         2
+    }
+}
+
+/// Whether the machine code computes `ins` by calling a function (see `codegen::body`).
+fn is_call(ins: Instr) -> bool {
+    use Instr::*;
+    match ins {
+        Powi(..) | Powf(..) | Pow(..) | Sin(_) | Cos(_) | Tan(_) | Asin(_) | Acos(_) | Atan(_)
+        | Sinh(_) | Cosh(_) | Tanh(_) | Exp(_) | Ln(_) | Log10(_) | Sign(_) | Atan2(..) => true,
+        Var(_) | Const(_) | Neg(_) | Add(..) | Sub(..) | Mul(..) | Div(..) | AddC(..)
+        | CSub(..) | MulC(..) | DivC(..) | CDiv(..) | Square(_) | Sqrt(_) | Abs(_) | MulAdd(..)
+        | MulSub(..) | SubMul(..) => false,
     }
 }
 
@@ -719,7 +708,7 @@ mod codegen {
         } else {
             super::VECTOR_LANES as i64
         };
-        if lanes % width != 0 {
+        if width < 1 || lanes % width != 0 {
             return Err(format!("{lanes} lanes are not whole iterations of {width}"));
         }
         // Bytes between consecutive slots of one lane, and the offset of slot k.
@@ -1030,9 +1019,9 @@ mod tests {
         }
     }
 
-    /// The vector function at every width it is built with (one, two and four chains of
-    /// `f64x2`: a long tape's and a short one's, see `vector_width`) agrees with the
-    /// interpreter bit for bit over 16 lanes, at points with zeros, infinities and NaN.
+    /// The vector function at every width `build` takes (one, two and four chains of
+    /// `f64x2`; `vector_width` picks one or four) agrees with the interpreter bit for bit
+    /// over 16 lanes, at points with zeros, infinities and NaN.
     #[test]
     fn every_vector_width_matches_the_interpreter() {
         let mut rng = Rng::new(77);

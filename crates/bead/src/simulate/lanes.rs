@@ -6,7 +6,7 @@
 //! acceleration (a small system; gravity and constant forces) the whole RK4 step is one tape
 //! built from it (`FusedStep`: the four stages and the update, `integrate::rk4`'s arithmetic),
 //! run once per step for all lanes ([`crate::expr::Tape::eval_lanes`], structure of arrays,
-//! compiled as four chains of lane pairs). Otherwise, per RK4 stage, the formulation's compiled tape runs
+//! compiled as up to four chains of lane pairs, see `expr::jit`). Otherwise, per RK4 stage, the formulation's compiled tape runs
 //! once for all lanes; with gravity as the only force the evaluation is finished across the
 //! lanes too
 //! ([`implicit_across_lanes`], [`Parametric::accelerate_across_lanes`]: the same operations in
