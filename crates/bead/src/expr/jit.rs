@@ -249,7 +249,7 @@ const MAX_CHAINED_INSTRUCTIONS: usize = 4096;
 /// lanes ran 8-18% faster than with one chain. A call (sin, pow, ...) costs more than the
 /// arithmetic around it and, clobbering every vector register, spills what the other chains
 /// hold: with calls, four chains measured 2-6% slower to 2% faster on the shipped scenes'
-/// sweeps, and compiled up to twice as long. A long tape has independent work of its own,
+/// sweeps, and compiled 2-3x as long. A long tape has independent work of its own,
 /// and its compile time (about proportional to the operations emitted) would grow fourfold.
 fn vector_width(code: &[Instr]) -> i64 {
     if code.len() <= MAX_CHAINED_INSTRUCTIONS && !code.iter().any(|&ins| is_call(ins)) {
