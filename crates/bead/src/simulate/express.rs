@@ -409,7 +409,7 @@ impl Simulation {
             Some((q_before, &lanes.before)),
             &lanes.longest,
             &lanes.searched,
-            lanes.maxima.map(|[m]| m),
+            lanes.maxima_of(0),
         );
         let (q, qdot, work) = super::split(&self.state, n);
         self.monitor

@@ -25,7 +25,7 @@
 #![allow(clippy::needless_range_loop)]
 
 use super::monitor::Monitor;
-use super::monitor::{off_branch_candidate, AHEAD_FRACTION, AHEAD_STEPS, VANISHED};
+use super::monitor::{AHEAD_FRACTION, AHEAD_STEPS, OFF_BRANCH, VANISHED};
 use crate::expr::Tape;
 use crate::formulation::Method;
 use crate::linalg::max_nan;
@@ -72,8 +72,13 @@ pub(super) struct LaneMonitor<const L: usize> {
     /// Each row's length when a search for a singular point last found none (infinite when
     /// none did: a lane member's start), as the regularity monitor keeps it
     pub(super) searched: Vec<f64>,
-    /// max |E - E0| / E_scale, max |E - W - E0| / E_scale, max |C|, max offset
-    pub(super) maxima: [PerLane<L>; 4],
+    /// max |E - E0| / E_scale, max |E - W - E0| / E_scale, max |C|, max offset, as loaded;
+    /// the first two also take in `change_max` (see [`Self::maxima_of`])
+    maxima: [PerLane<L>; 4],
+    /// max |E - E0| over the steps accepted since the load, and this step end's |E - E0|:
+    /// the energy maxima divided by E_scale once, when read, not at every step
+    change_max: PerLane<L>,
+    change: PerLane<L>,
     energy_initial: PerLane<L>,
     energy_scale: PerLane<L>,
     /// The limit of |E - E0| ([`Monitor`]'s energy watch; infinite where none)
@@ -114,6 +119,65 @@ fn rows<const L: usize>(soa: &[f64]) -> &[PerLane<L>] {
 #[inline(always)]
 pub(super) fn any_of<const L: usize>(flags: &[bool; L], count: usize) -> bool {
     (0..L).fold(false, |any, l| any | (flags[l] & (l < count)))
+}
+
+/// Below this, gg or offset^2 may have lost the relative precision that
+/// [`first_order_candidates`]' margin counts on: a lane whose test depends on one is flagged.
+/// (Far from the magnitudes of any scene: |g|^2 of 1e-280 is a gradient of length 1e-140.)
+const TINY: f64 = 1e-280;
+
+/// The margin of [`first_order_candidates`]' bounds: 1e-9, some 10^5 times what their
+/// rounding (a few units of 2^-53 each) moves them.
+const MARGIN: f64 = 1.0 - 1e-9;
+
+/// A superset of two first-order candidates of `Monitor::regularity` for a watched row
+/// (|g|^2 = gg at the step end, g . p = gp and |p|^2 = pp against the
+/// last step end's p, the state `offset` off the row's constraint, the step's squared
+/// length `step` in the row's variables), by products in place of the quotients and roots
+/// of `lookahead` and `off_branch_candidate`, with no branch, so that the lanes run in
+/// vector registers. With d = g - p (gd = g . d, dd = |d|^2 > 0) the monitor's tests are
+///
+/// ```text
+/// shrinking   s = -gd/dd > 0  and  gg - gd^2/dd < gg/4     ahead    shrinking and s <= 2
+/// drifted     shrinking, offset > 0 and offset |d| > 0.01 |g| sqrt(step)
+/// ```
+///
+/// and these are taken, each implied by the monitor's in floating point (the lanes err
+/// towards leaving, and a member that leaves meets the monitor's own tests):
+///
+/// ```text
+/// shrinking'  gd < 0  and  gd^2 >= (1 - 1e-9) (3/4) gg dd
+/// ahead'      shrinking' and -gd <= 2 dd        (exact: the quotient rounds above 2 otherwise)
+/// drifted'    shrinking', offset > 0 and offset^2 dd >= (1 - 1e-9) (0.01)^2 gg step
+/// ```
+///
+/// The monitor's tests, true, give the real inequalities with 3/4 and 1e-4 less a few
+/// units of 2^-53 where gg and offset^2 are normal (where they are below [`TINY`] the tests
+/// are taken as true); a product below the bound (the margin's 1e-9) then rounds to at most
+/// the float it is below, as rounding is monotone, whatever the products' magnitudes.
+#[inline(always)]
+pub(super) fn first_order_candidates(
+    gg: f64,
+    gp: f64,
+    pp: f64,
+    offset: f64,
+    step: f64,
+) -> (bool, bool) {
+    candidates_along(gg, gg - gp, gg - 2.0 * gp + pp, offset, step)
+}
+
+/// [`first_order_candidates`] from gg, gd and dd.
+#[inline(always)]
+fn candidates_along(gg: f64, gd: f64, dd: f64, offset: f64, step: f64) -> (bool, bool) {
+    let unsure = (gg < TINY) | gg.is_nan();
+    let shrinks = MARGIN * (1.0 - AHEAD_FRACTION * AHEAD_FRACTION) * gg * dd;
+    let shrinking = (dd > 0.0) & (gd < 0.0) & ((gd * gd >= shrinks) | unsure);
+    let ahead = shrinking & (-gd <= AHEAD_STEPS * dd);
+    let squared = offset * offset;
+    let bound = MARGIN * OFF_BRANCH * OFF_BRANCH * gg * step;
+    let drifted =
+        shrinking & (offset > 0.0) & ((squared * dd >= bound) | (squared < TINY) | unsure);
+    (ahead, drifted)
 }
 
 /// Lane l's part of a structure-of-arrays buffer into `one`.
@@ -166,6 +230,8 @@ impl<const L: usize> LaneMonitor<L> {
             longest: vec![0.0; rows * L],
             searched: vec![0.0; rows * L],
             maxima: [[0.0; L]; 4],
+            change_max: [0.0; L],
+            change: [0.0; L],
             energy_initial: [0.0; L],
             floor: [[0.0; L]; 2],
             energy_scale: [0.0; L],
@@ -215,6 +281,7 @@ impl<const L: usize> LaneMonitor<L> {
             per_lane(&|m| m.constraint_error_max),
             per_lane(&|m| m.constraint_distance_max),
         ];
+        self.change_max = [0.0; L];
         self.energy_initial = per_lane(&|m| m.energy_initial);
         self.energy_scale = per_lane(&|m| m.energy_scale);
         self.energy_limit = per_lane(&|m| m.energy_watch.map_or(f64::INFINITY, |w| w.limit));
@@ -234,8 +301,25 @@ impl<const L: usize> LaneMonitor<L> {
             one(&self.before),
             one(&self.longest),
             one(&self.searched),
-            self.maxima.map(|m| m[l]),
+            self.maxima_of(l),
         )
+    }
+
+    /// Lane l's maxima as its own monitor holds them: max |E - E0| / E_scale, max |E - W -
+    /// E0| / E_scale, max |C|, max offset. The energy's two are the loaded maxima and
+    /// max |E - E0| over the steps since, divided by E_scale once: a division by the same
+    /// positive E_scale is monotone, so fl(max a / s) = max fl(a / s), the maximum of the
+    /// quotients the monitor takes at each step, and W = 0 in the lanes, so E - W - E0 has
+    /// the bits of E - E0 (E - 0.0 is E, -0.0 included).
+    pub(super) fn maxima_of(&self, l: usize) -> [f64; 4] {
+        let [energy, balance, constraint, distance] = self.maxima.map(|m| m[l]);
+        let change = self.change_max[l] / self.energy_scale[l];
+        [
+            max_nan(energy, change),
+            max_nan(balance, change),
+            constraint,
+            distance,
+        ]
     }
 
     /// The particle positions and velocities of the observation tape's outputs `out` (the
@@ -349,6 +433,7 @@ impl<const L: usize> LaneMonitor<L> {
             failed[l] |= !self.energy[l].is_finite()
                 | !constraint_error[l].is_finite()
                 | (change > self.energy_limit[l]);
+            self.change[l] = change;
         }
         self.constraint_error = constraint_error;
         // Regularity candidates, row by row: the first-order tests of `Monitor::regularity`,
@@ -398,19 +483,7 @@ impl<const L: usize> LaneMonitor<L> {
             let (longest, searched) = (&longest[r], &searched[r]);
             for l in 0..L {
                 let (gg, gp, pp, length) = (gg[l], gp[l], pp[l], length[l]);
-                // `lookahead` without its branch (a lane whose d vanishes or is NaN is not
-                // shrinking), so that the lanes run in vector registers.
-                let gd = gg - gp;
-                let dd = gg - 2.0 * gp + pp;
-                let s = -gd / dd;
-                let shortest = (gg - gd * gd / dd).max(0.0);
-                let shrinking =
-                    (dd > 0.0) & (s > 0.0) & (shortest < AHEAD_FRACTION * AHEAD_FRACTION * gg);
-                let ahead = shrinking & (s <= AHEAD_STEPS);
-                let change = dd.max(0.0).sqrt();
-                let drifted = shrinking
-                    & (offset[l] > 0.0)
-                    & off_branch_candidate(offset[l], length, change, step[l].sqrt());
+                let (ahead, drifted) = first_order_candidates(gg, gp, pp, offset[l], step[l]);
                 // A candidate other than a reversal is searched only once the gradient has
                 // halved since a search found nothing.
                 let remembered = length > 0.5 * searched[l];
@@ -514,13 +587,9 @@ impl<const L: usize> LaneMonitor<L> {
                 }
             });
         }
-        let [energy_max, balance_max, constraint_max, distance_max] = &mut self.maxima;
+        let [_, _, constraint_max, distance_max] = &mut self.maxima;
         for l in 0..L {
-            let energy = self.energy[l];
-            let error = (energy - self.energy_initial[l]).abs() / self.energy_scale[l];
-            let balance = (energy - 0.0 - self.energy_initial[l]).abs() / self.energy_scale[l];
-            energy_max[l] = max_nan(energy_max[l], error);
-            balance_max[l] = max_nan(balance_max[l], balance);
+            self.change_max[l] = max_nan(self.change_max[l], self.change[l]);
             constraint_max[l] = max_nan(constraint_max[l], self.constraint_error[l]);
             distance_max[l] = max_nan(distance_max[l], distance[l]);
         }
@@ -559,6 +628,7 @@ impl<const L: usize> LaneMonitor<L> {
             }
         }
         self.maxima = one.maxima.map(|[m]| [m; L]);
+        self.change_max = [one.change_max[0]; L];
     }
 
     /// `one` (the run's monitor a batch was chained from, [`Self::chain_from`]) after
@@ -581,9 +651,11 @@ impl<const L: usize> LaneMonitor<L> {
             one.longest[r] = self.longest[r * L + j - 1];
             one.searched[r] = self.searched[r * L + j - 1];
         }
+        let prefix = |lanes: &PerLane<L>| lanes[..j].iter().copied().reduce(max_nan);
         for (kept, lanes) in one.maxima.iter_mut().zip(&self.maxima) {
-            kept[0] = lanes[..j].iter().copied().reduce(max_nan).expect("j >= 1");
+            kept[0] = prefix(lanes).expect("j >= 1");
         }
+        one.change_max[0] = prefix(&self.change_max).expect("j >= 1");
     }
 }
 
@@ -696,5 +768,177 @@ fn energy_across_lanes<const L: usize>(
     for l in 0..L {
         // The forces' potentials: an empty sum.
         energy[l] = kinetic[l] + (potential[l] + zero);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::monitor::{lookahead, off_branch_candidate, AHEAD_FRACTION};
+    use super::*;
+    use crate::expr::testutil::Rng;
+
+    /// `Monitor::regularity`'s shrinking, ahead and drifted tests, with its own functions.
+    fn monitor_candidates(gg: f64, gp: f64, pp: f64, offset: f64, step: f64) -> (bool, bool, bool) {
+        let (s, shortest) = lookahead(gg, gp, pp);
+        let shrinking = s > 0.0 && shortest < AHEAD_FRACTION * AHEAD_FRACTION * gg;
+        let ahead = shrinking && s <= AHEAD_STEPS;
+        let change = (gg - 2.0 * gp + pp).max(0.0).sqrt();
+        let drifted = shrinking
+            && offset > 0.0
+            && off_branch_candidate(offset, gg.sqrt(), change, step.sqrt());
+        (shrinking, ahead, drifted)
+    }
+
+    /// A value of random sign and magnitude 10^e, e uniform in `exponents`, or where they
+    /// reach the ends of f64 a special one (0, subnormal, near the largest).
+    fn value(rng: &mut Rng, exponents: (f64, f64)) -> f64 {
+        let specials = exponents.0 < -300.0;
+        match rng.below(40) {
+            0 => 0.0,
+            1 if specials => f64::MIN_POSITIVE * rng.uniform(0.0, 1.0),
+            2 if specials => f64::MAX * rng.uniform(0.5, 1.0),
+            _ => {
+                let sign = if rng.below(2) == 0 { -1.0 } else { 1.0 };
+                sign * rng.uniform(1.0, 10.0) * 10f64.powf(rng.uniform(exponents.0, exponents.1))
+            }
+        }
+    }
+
+    /// Gradient rows g and p (2-4 entries) summed as the lanes sum them, the offset and
+    /// the squared step: (gg, gp, pp, offset, step).
+    fn sample(rng: &mut Rng, exponents: (f64, f64)) -> (f64, f64, f64, f64, f64) {
+        let n = 2 + rng.below(3);
+        let g: Vec<f64> = (0..n).map(|_| value(rng, exponents)).collect();
+        // p: g moved by a change of random size and direction (or an independent row).
+        let scale = 10f64.powf(rng.uniform(-8.0, 1.0));
+        let p: Vec<f64> = if rng.below(8) == 0 {
+            (0..n).map(|_| value(rng, exponents)).collect()
+        } else {
+            g.iter()
+                .map(|&g| g + scale * g.abs().max(1e-300) * rng.uniform(-1.0, 1.0))
+                .collect()
+        };
+        let (mut gg, mut gp, mut pp) = (empty_sum(), empty_sum(), empty_sum());
+        for (g, p) in g.iter().zip(&p) {
+            gg += g * g;
+            gp += g * p;
+            pp += p * p;
+        }
+        let offset = value(rng, exponents).abs();
+        let step = value(rng, exponents).abs();
+        (gg, gp, pp, offset, step)
+    }
+
+    #[test]
+    fn the_lanes_flag_every_candidate_the_monitor_would_test() {
+        let mut rng = Rng::new(17);
+        let (mut shrinking, mut ahead, mut drifted, mut extra) = (0, 0, 0, 0);
+        let trials = 2_000_000;
+        for trial in 0..trials {
+            // Ordinary magnitudes, then the whole range of f64 with its specials.
+            let exponents = if trial % 2 == 0 {
+                (-6.0, 6.0)
+            } else {
+                (-330.0, 308.0)
+            };
+            let (gg, gp, pp, offset, step) = sample(&mut rng, exponents);
+            let (is_shrinking, is_ahead, is_drifted) = monitor_candidates(gg, gp, pp, offset, step);
+            let (lanes_ahead, lanes_drifted) = first_order_candidates(gg, gp, pp, offset, step);
+            let inputs = format!("gg {gg:e} gp {gp:e} pp {pp:e} offset {offset:e} step {step:e}");
+            assert!(!is_ahead || lanes_ahead, "ahead missed: {inputs}");
+            assert!(!is_drifted || lanes_drifted, "drifted missed: {inputs}");
+            shrinking += usize::from(is_shrinking);
+            ahead += usize::from(is_ahead);
+            drifted += usize::from(is_drifted);
+            if trial % 2 == 0 {
+                extra += usize::from((lanes_ahead && !is_ahead) || (lanes_drifted && !is_drifted));
+            }
+        }
+        // The samples reach the tests (else this proves nothing), and the superset is tight
+        // at ordinary magnitudes (else the lanes would hand members over for nothing): a
+        // lane flagged where the monitor's tests are false is within 1e-9 of their bound.
+        assert!(
+            ahead > 10_000 && drifted > 10_000,
+            "{ahead} ahead, {drifted} drifted"
+        );
+        assert!(shrinking > ahead, "{shrinking} shrinking");
+        assert!(extra <= 10, "{extra} flagged beyond the monitor's tests");
+    }
+
+    /// The monitor's shrinking, ahead and drifted tests from gg, gd and dd, as `lookahead`
+    /// and `regularity` take them.
+    fn monitor_along(gg: f64, gd: f64, dd: f64, offset: f64, step: f64) -> (bool, bool, bool) {
+        let (s, shortest) = if dd.is_nan() || dd <= 0.0 {
+            (f64::NAN, f64::NAN)
+        } else {
+            (-gd / dd, (gg - gd * gd / dd).max(0.0))
+        };
+        let shrinking = s > 0.0 && shortest < AHEAD_FRACTION * AHEAD_FRACTION * gg;
+        let change = dd.max(0.0).sqrt();
+        let drifted = shrinking
+            && offset > 0.0
+            && off_branch_candidate(offset, gg.sqrt(), change, step.sqrt());
+        (shrinking, shrinking && s <= AHEAD_STEPS, drifted)
+    }
+
+    #[test]
+    fn the_lanes_flag_every_candidate_at_the_edges_of_the_monitors_tests() {
+        // Rows at the edge of shrinking (gd^2 = 3/4 gg dd) and of drifting (offset^2 dd =
+        // 1e-4 gg step), at every scale (products and gg down in the subnormals, offsets
+        // whose squares are), each scanned over the floats around the edge: the lanes'
+        // bounds must not cut into either.
+        let mut checked = [0; 3];
+        let scales = [1.0_f64, 1e-40, 1e40, 1e-150, 1e-152, 1e-154, 1e150];
+        let mut rows: Vec<(f64, f64)> = scales
+            .iter()
+            .flat_map(|s| [1.0, 1e-8, 1e-16, 1e-20].map(|d| (s * s * 1.37, s * s * d * 0.61)))
+            .collect();
+        rows.extend([
+            (1e-320, 1e10),
+            (3e-318, 1e100),
+            (1e-310, 1e12),
+            (1e-300, 1e-5),
+        ]);
+        for (gg, dd) in rows {
+            let edge = -(0.75 * gg * dd).sqrt();
+            for step in [0.3, 1e-250, 1e200] {
+                let offset = (1e-4 * gg * step / dd).sqrt();
+                for k in -3000..=3000 {
+                    let gd = edge * (1.0 + k as f64 * 1e-16);
+                    for offset in [offset * (1.0 + k as f64 * 1e-16), 0.1 * offset] {
+                        let monitor = monitor_along(gg, gd, dd, offset, step);
+                        let lanes = candidates_along(gg, gd, dd, offset, step);
+                        let inputs = format!(
+                            "gg {gg:e} gd {gd:e} dd {dd:e} offset {offset:e} step {step:e}"
+                        );
+                        assert!(!monitor.1 || lanes.0, "ahead missed: {inputs}");
+                        assert!(!monitor.2 || lanes.1, "drifted missed: {inputs}");
+                        for (count, test) in
+                            checked.iter_mut().zip([monitor.0, monitor.1, monitor.2])
+                        {
+                            *count += usize::from(test);
+                        }
+                    }
+                }
+            }
+        }
+        // Both sides of each edge were met.
+        assert!(checked.iter().all(|&c| c > 1000), "{checked:?}");
+    }
+
+    #[test]
+    fn the_lookahead_bound_is_the_monitors_at_its_edge() {
+        // g = p / 1.5 in one variable, gg a power of 2: gd = -gg/2 and dd = gg/4 exactly, so
+        // s = -gd/dd = 2, the edge of `ahead` (and well within shrinking); |p|^2 a float
+        // less, and s is above 2. (Where gd^2 underflows the monitor's own test is off.)
+        for gg in [1.0_f64, 0.5f64.powi(20), 2f64.powi(500), 0.5f64.powi(400)] {
+            for (pp, expected) in [(2.25 * gg, true), ((2.25 * gg).next_down(), false)] {
+                let gp = 1.5 * gg;
+                let monitor = monitor_candidates(gg, gp, pp, 0.0, 1.0);
+                let lanes = first_order_candidates(gg, gp, pp, 0.0, 1.0);
+                assert_eq!(monitor.1, expected, "gg {gg:e} pp {pp:e}");
+                assert_eq!(lanes.0, expected, "gg {gg:e} pp {pp:e}");
+            }
+        }
     }
 }

@@ -392,7 +392,7 @@ fn run_lanes_body(
         member
             .monitor
             .observe(&mut *member.formulation, t, q, qdot, work);
-        let [energy, balance, constraint, distance] = monitor.maxima.map(|m| m[l]);
+        let [energy, balance, constraint, distance] = monitor.maxima_of(l);
         member.monitor.energy_rel_error_max = energy;
         member.monitor.balance_error_max = balance;
         member.monitor.constraint_error_max = constraint;
