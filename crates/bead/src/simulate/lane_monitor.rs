@@ -12,8 +12,10 @@
 //!               limit(t); |xdot_k| <= speed limit(t)
 //! regularity    a first-order candidate of `Monitor::regularity` for any row (see
 //!               [`super::lanes`]): g.p < 0, the shortest |g| ahead within 2 steps, |g| below
-//!               1e-2 of its longest, an off-branch drift, or |g| NaN
-//! maxima        |E - E0| / E_scale, max |C|, max offset
+//!               1e-2 of its longest, an off-branch drift, or |g| NaN (the lookahead and
+//!               the drift by products, a superset: [`first_order_candidates`])
+//! maxima        max |E - E0| (divided by E_scale when read: [`LaneMonitor::maxima_of`]),
+//!               max |C|, max offset
 //! ```
 //!
 //! A lane that fails a check is handed back to its own `Simulation` (see [`super::lanes`]).
