@@ -77,10 +77,9 @@ pub(super) struct LaneMonitor<const L: usize> {
     /// max |E - E0| / E_scale, max |E - W - E0| / E_scale, max |C|, max offset, as loaded;
     /// the first two also take in `change_max` (see [`Self::maxima_of`])
     maxima: [PerLane<L>; 4],
-    /// max |E - E0| over the steps accepted since the load, and this step end's |E - E0|:
-    /// the energy maxima divided by E_scale once, when read, not at every step
+    /// max |E - E0| over the steps accepted since the load: the energy maxima divided by
+    /// E_scale once, when read, not at every step
     change_max: PerLane<L>,
-    change: PerLane<L>,
     energy_initial: PerLane<L>,
     energy_scale: PerLane<L>,
     /// The limit of |E - E0| ([`Monitor`]'s energy watch; infinite where none)
@@ -233,7 +232,6 @@ impl<const L: usize> LaneMonitor<L> {
             searched: vec![0.0; rows * L],
             maxima: [[0.0; L]; 4],
             change_max: [0.0; L],
-            change: [0.0; L],
             energy_initial: [0.0; L],
             floor: [[0.0; L]; 2],
             energy_scale: [0.0; L],
@@ -435,7 +433,6 @@ impl<const L: usize> LaneMonitor<L> {
             failed[l] |= !self.energy[l].is_finite()
                 | !constraint_error[l].is_finite()
                 | (change > self.energy_limit[l]);
-            self.change[l] = change;
         }
         self.constraint_error = constraint_error;
         // Regularity candidates, row by row: the first-order tests of `Monitor::regularity`,
@@ -591,7 +588,8 @@ impl<const L: usize> LaneMonitor<L> {
         }
         let [_, _, constraint_max, distance_max] = &mut self.maxima;
         for l in 0..L {
-            self.change_max[l] = max_nan(self.change_max[l], self.change[l]);
+            let change = (self.energy[l] - self.energy_initial[l]).abs();
+            self.change_max[l] = max_nan(self.change_max[l], change);
             constraint_max[l] = max_nan(constraint_max[l], self.constraint_error[l]);
             distance_max[l] = max_nan(distance_max[l], distance[l]);
         }
@@ -775,20 +773,24 @@ fn energy_across_lanes<const L: usize>(
 
 #[cfg(test)]
 mod tests {
-    use super::super::monitor::{lookahead, off_branch_candidate, AHEAD_FRACTION};
+    use super::super::monitor::{lookahead_along, off_branch_candidate, AHEAD_FRACTION};
     use super::*;
     use crate::expr::testutil::Rng;
 
     /// `Monitor::regularity`'s shrinking, ahead and drifted tests, with its own functions.
     fn monitor_candidates(gg: f64, gp: f64, pp: f64, offset: f64, step: f64) -> (bool, bool, bool) {
-        let (s, shortest) = lookahead(gg, gp, pp);
+        monitor_along(gg, gg - gp, gg - 2.0 * gp + pp, offset, step)
+    }
+
+    /// [`monitor_candidates`] from gg, gd and dd.
+    fn monitor_along(gg: f64, gd: f64, dd: f64, offset: f64, step: f64) -> (bool, bool, bool) {
+        let (s, shortest) = lookahead_along(gg, gd, dd);
         let shrinking = s > 0.0 && shortest < AHEAD_FRACTION * AHEAD_FRACTION * gg;
-        let ahead = shrinking && s <= AHEAD_STEPS;
-        let change = (gg - 2.0 * gp + pp).max(0.0).sqrt();
+        let change = dd.max(0.0).sqrt();
         let drifted = shrinking
             && offset > 0.0
             && off_branch_candidate(offset, gg.sqrt(), change, step.sqrt());
-        (shrinking, ahead, drifted)
+        (shrinking, shrinking && s <= AHEAD_STEPS, drifted)
     }
 
     /// A value of random sign and magnitude 10^e, e uniform in `exponents`, or where they
@@ -865,22 +867,6 @@ mod tests {
         );
         assert!(shrinking > ahead, "{shrinking} shrinking");
         assert!(extra <= 10, "{extra} flagged beyond the monitor's tests");
-    }
-
-    /// The monitor's shrinking, ahead and drifted tests from gg, gd and dd, as `lookahead`
-    /// and `regularity` take them.
-    fn monitor_along(gg: f64, gd: f64, dd: f64, offset: f64, step: f64) -> (bool, bool, bool) {
-        let (s, shortest) = if dd.is_nan() || dd <= 0.0 {
-            (f64::NAN, f64::NAN)
-        } else {
-            (-gd / dd, (gg - gd * gd / dd).max(0.0))
-        };
-        let shrinking = s > 0.0 && shortest < AHEAD_FRACTION * AHEAD_FRACTION * gg;
-        let change = dd.max(0.0).sqrt();
-        let drifted = shrinking
-            && offset > 0.0
-            && off_branch_candidate(offset, gg.sqrt(), change, step.sqrt());
-        (shrinking, shrinking && s <= AHEAD_STEPS, drifted)
     }
 
     #[test]

@@ -994,8 +994,11 @@ fn steps_to_vanish(row: &[f64], previous: &[f64], fraction: f64) -> Option<f64> 
 /// From |g|^2, g . p and |p|^2: the step count s at which g + s (g - p) is shortest and its
 /// squared length there, |g|^2 - (g.d)^2 / |d|^2 with d = g - p; (NaN, NaN) when g = p.
 pub(super) fn lookahead(gg: f64, gp: f64, pp: f64) -> (f64, f64) {
-    let gd = gg - gp;
-    let dd = gg - 2.0 * gp + pp;
+    lookahead_along(gg, gg - gp, gg - 2.0 * gp + pp)
+}
+
+/// [`lookahead`] from |g|^2, g . d and |d|^2.
+pub(super) fn lookahead_along(gg: f64, gd: f64, dd: f64) -> (f64, f64) {
     if dd.is_nan() || dd <= 0.0 {
         return (f64::NAN, f64::NAN);
     }
