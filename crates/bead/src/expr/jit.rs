@@ -19,7 +19,9 @@
 //! (its time is the tape's compile time); the second on its first use (a sweep's first
 //! block), so that a single run, which never evaluates lanes, does not pay for it. Each SSA
 //! instruction becomes one Cranelift value (kept in registers, spilled by the register
-//! allocator when needed): no scratch array. The constants are not baked into the code but read
+//! allocator when needed): no scratch array; where the tape's order would hold more values
+//! than the registers, the instructions are emitted in one that holds fewer
+//! ([`emission_order`]). The constants are not baked into the code but read
 //! from `consts` (the tape's constants in instruction order, exact bits), so that tapes that
 //! differ only by their constants — a sweep's members, whose parameters are constants of the
 //! expressions — share their compiled functions (a process-wide cache of weak references keyed
@@ -257,6 +259,137 @@ fn vector_width(code: &[Instr]) -> i64 {
     } else {
         2
     }
+}
+
+/// Vector registers the machine code can keep values in (x86-64 has 16; a few go to the
+/// loads and splats of operands; aarch64 has 32).
+const VALUE_REGISTERS: usize = if cfg!(target_arch = "aarch64") {
+    28
+} else {
+    12
+};
+
+/// The order in which the machine code computes `code`'s instructions (every one but the
+/// `Var`s and `Const`s, which it loads where they are used) for `chains` interleaved chains
+/// of lanes. The tape's own order where its values fit in the registers; else a topological
+/// order that keeps fewer values live, so that fewer are spilled to the stack. Greedy list
+/// scheduling: of the instructions whose operands are computed, the one that is the last use
+/// of the most operands (it frees their registers) if any is, else the first in tape order;
+/// ties go to tape order. Each instruction keeps its operands and their order, so the order
+/// changes no bit. RK4's update `x0 + h/6 (k1 + 2 k2 + 2 k3 + k4)` is where it pays: each
+/// partial sum is taken as soon as its stage is, instead of every stage's slope waiting for
+/// the end (the article's implicit step: 16 values live at most in the tape's order, 9 in
+/// this one; four chains of lanes hold four times as many).
+pub(super) fn emission_order(code: &[Instr], chains: usize) -> Vec<usize> {
+    let n = code.len();
+    let tape_order: Vec<usize> = (0..n).filter(|&s| is_computed(code[s])).collect();
+    if most_live(code, &tape_order) * chains <= VALUE_REGISTERS {
+        return tape_order;
+    }
+    least_live_order(code)
+}
+
+/// The greedy order of [`emission_order`].
+fn least_live_order(code: &[Instr]) -> Vec<usize> {
+    let n = code.len();
+    let operands: Vec<Vec<usize>> = (0..n)
+        .map(|i| computed_operands(code, i).collect())
+        .collect();
+    let mut users: Vec<Vec<usize>> = vec![Vec::new(); n];
+    for (i, o) in operands.iter().enumerate() {
+        for &s in o {
+            users[s].push(i);
+        }
+    }
+    // Users of a slot not yet emitted; operands of an instruction not yet computed; operands
+    // of which it is the last user left.
+    let mut remaining: Vec<usize> = users.iter().map(Vec::len).collect();
+    let mut waiting: Vec<usize> = operands.iter().map(Vec::len).collect();
+    let mut frees = vec![0usize; n];
+    for users in &users {
+        if let [only] = users[..] {
+            frees[only] += 1;
+        }
+    }
+    // The ready instructions by how many operands they free (at most 3), in tape order.
+    let mut ready: [std::collections::BTreeSet<usize>; 4] = Default::default();
+    for i in (0..n).filter(|&i| is_computed(code[i]) && waiting[i] == 0) {
+        ready[frees[i]].insert(i);
+    }
+    let mut emitted = vec![false; n];
+    let mut order = Vec::with_capacity(n);
+    while let Some(bucket) = (0..4).rev().find(|&k| !ready[k].is_empty()) {
+        let i = ready[bucket].pop_first().expect("not empty");
+        emitted[i] = true;
+        order.push(i);
+        for &s in &operands[i] {
+            remaining[s] -= 1;
+            if remaining[s] == 1 {
+                // Its one user left now frees it.
+                let last = *users[s].iter().find(|&&u| !emitted[u]).expect("one left");
+                if waiting[last] == 0 && ready[frees[last]].remove(&last) {
+                    ready[frees[last] + 1].insert(last);
+                }
+                frees[last] += 1;
+            }
+        }
+        for &u in &users[i] {
+            waiting[u] -= 1;
+            if waiting[u] == 0 {
+                ready[frees[u]].insert(u);
+            }
+        }
+    }
+    order
+}
+
+/// Whether the machine code computes `ins` (rather than loading it where it is used: a
+/// `Var` or a `Const`).
+fn is_computed(ins: Instr) -> bool {
+    !matches!(ins, Instr::Var(_) | Instr::Const(_))
+}
+
+/// The distinct computed operands of instruction `i`.
+fn computed_operands(code: &[Instr], i: usize) -> impl Iterator<Item = usize> {
+    let mut distinct = [0; 3];
+    let mut count = 0;
+    for s in code[i].operands().into_iter().flatten().map(|s| s as usize) {
+        if is_computed(code[s]) && !distinct[..count].contains(&s) {
+            distinct[count] = s;
+            count += 1;
+        }
+    }
+    distinct.into_iter().take(count)
+}
+
+/// [`most_live`] in the tape's order and in the order of four chains (for tests).
+#[cfg(test)]
+pub(super) fn most_live_values(code: &[Instr]) -> (usize, usize) {
+    let tape_order: Vec<usize> = (0..code.len()).filter(|&s| is_computed(code[s])).collect();
+    let emitted = emission_order(code, 4);
+    (most_live(code, &tape_order), most_live(code, &emitted))
+}
+
+/// The most values the machine code holds at once (computed and still to be read) when
+/// it computes `code` in `order`.
+fn most_live(code: &[Instr], order: &[usize]) -> usize {
+    let distinct = |i: usize| computed_operands(code, i);
+    let mut reads = vec![0usize; code.len()];
+    for &i in order {
+        for s in distinct(i) {
+            reads[s] += 1;
+        }
+    }
+    let (mut live, mut most) = (0usize, 0usize);
+    for &i in order {
+        for s in distinct(i) {
+            reads[s] -= 1;
+            live -= usize::from(reads[s] == 0);
+        }
+        live += usize::from(reads[i] > 0);
+        most = most.max(live);
+    }
+    most
 }
 
 /// Whether the machine code computes `ins` by calling a function (see `codegen::body`).
@@ -732,9 +865,9 @@ mod codegen {
             MemFlagsData::new().with_notrap()
         };
         let mut n_const: i64 = 0;
-        // Slot values, one per chain; a variable or constant slot is loaded where it is first
-        // used, not at its place in the tape (which lists them first), so that it does not
-        // occupy a register, or a spill slot, from the top of the function.
+        // Slot values, one per chain, in the order of `emission_order`; a variable or
+        // constant slot is loaded where it is used, not at its place in the tape (which lists
+        // them first), so that it does not occupy a register, or a spill slot, from the top.
         let mut v: Vec<Option<Vec<Value>>> = Vec::with_capacity(code.len());
         let mut deferred: Vec<Option<Deferred>> = vec![None; code.len()];
         // The output indices of each slot: stored as soon as the slot is computed, so that a
@@ -766,6 +899,11 @@ mod codegen {
                     Deferred::Const(offset) => vec![load_const(b, offset, true); chains],
                 })
             };
+        // `v` itself, which instruction selection cannot fold into its user as a load.
+        let in_register = |b: &mut FunctionBuilder, v: Value| {
+            let ty = b.func.dfg.value_type(v);
+            b.ins().bitcast(ty, MemFlagsData::new(), v)
+        };
         let store = |b: &mut FunctionBuilder, value: &[Value], j: usize| -> Result<(), String> {
             let offset = offset_of(i64::try_from(j).map_err(|e| e.to_string())?)?;
             for (c, &value) in value.iter().enumerate() {
@@ -801,45 +939,81 @@ mod codegen {
             }
             result.expect("two lanes")
         };
+        // Constants' offsets in tape order (a `Const` slot's, an instruction's own).
+        let mut const_at: Vec<i32> = vec![0; code.len()];
         for (index, &ins) in code.iter().enumerate() {
             match ins {
-                Instr::Var(k) => {
-                    deferred[index] = Some(Deferred::Var(k));
-                    v.push(None);
-                    continue;
-                }
+                Instr::Var(k) => deferred[index] = Some(Deferred::Var(k)),
                 Instr::Const(_) => {
                     let offset = i32::try_from(n_const * 8)
                         .map_err(|_| "too many constants for one function".to_string())?;
                     n_const += 1;
                     deferred[index] = Some(Deferred::Const(offset));
-                    v.push(None);
-                    continue;
+                }
+                _ if ins.constant().is_some() => {
+                    const_at[index] = i32::try_from(n_const * 8)
+                        .map_err(|_| "too many constants for one function".to_string())?;
+                    n_const += 1;
                 }
                 _ => {}
             }
+            v.push(None);
+        }
+        for index in super::emission_order(code, chains) {
+            let ins = code[index];
+            // A variable or constant operand is loaded here: in the vector code for this
+            // instruction alone (a load costs what a spilled value's reload would, and keeps
+            // no register across the chains'), in the scalar code once (registers to spare).
+            // The left operand of `fadd` or `fmul` must not be a load: x64's instruction
+            // selection folds a load into the instruction, and for a load on the left it swaps
+            // the operands to do so, which changes which NaN comes out when both are NaN.
+            // A bitcast to the same type (no instruction) puts it in a register first.
+            let left = match ins {
+                Instr::Add(x, _)
+                | Instr::Mul(x, _)
+                | Instr::MulAdd(x, ..)
+                | Instr::MulSub(x, ..)
+                | Instr::SubMul(x, ..) => Some(x),
+                _ => None,
+            };
+            let mut loaded: Vec<(u32, Vec<Value>)> = Vec::new();
             for s in ins.operands().into_iter().flatten() {
-                let s = s as usize;
-                if v[s].is_none() {
-                    let what = deferred[s].expect("a slot is computed before it is read");
-                    v[s] = Some(load_deferred(&mut b, what)?);
+                if let Some(what) = deferred[s as usize] {
+                    if !loaded.iter().any(|(l, _)| *l == s) && v[s as usize].is_none() {
+                        let mut values = load_deferred(&mut b, what)?;
+                        if left == Some(s) {
+                            values = values.into_iter().map(|v| in_register(&mut b, v)).collect();
+                        }
+                        if width == 1 {
+                            v[s as usize] = Some(values);
+                        } else {
+                            loaded.push((s, values));
+                        }
+                    }
                 }
             }
             // The instruction's constant, read once for every chain: in every lane, or as
             // one scalar for the exponent of `powf` (the same in every lane).
             let konst = match ins.constant() {
                 Some(_) => {
-                    let offset = i32::try_from(n_const * 8)
-                        .map_err(|_| "too many constants for one function".to_string())?;
-                    n_const += 1;
-                    Some(load_const(&mut b, offset, !matches!(ins, Instr::Powf(..))))
+                    let k = load_const(&mut b, const_at[index], !matches!(ins, Instr::Powf(..)));
+                    // On the left of `fadd` and `fmul` (see `left`): a scalar is the load.
+                    let left = matches!(ins, Instr::AddC(..) | Instr::MulC(..));
+                    Some(if width == 1 && left {
+                        in_register(&mut b, k)
+                    } else {
+                        k
+                    })
                 }
                 None => None,
             };
             let k = || konst.expect("the instruction carries a constant");
             let mut val = Vec::with_capacity(chains);
             for c in 0..chains {
-                let get = |s: u32| v[s as usize].as_ref().expect("loaded above")[c];
+                let get = |s: u32| match loaded.iter().find(|(l, _)| *l == s) {
+                    Some((_, values)) => values[c],
+                    None => v[s as usize].as_ref().expect("computed before it is read")[c],
+                };
                 let unary = |b: &mut FunctionBuilder, f: extern "C" fn(f64) -> f64, a: u32| {
                     call(b, sig1, f as usize, &[get(a)])
                 };
@@ -911,7 +1085,7 @@ mod codegen {
             for &j in &stored_as[index] {
                 store(&mut b, &val, j)?;
             }
-            v.push(Some(val));
+            v[index] = Some(val);
         }
         // Outputs that are a variable or a constant slot themselves.
         for (j, &s) in outputs.iter().enumerate() {
@@ -1050,6 +1224,80 @@ mod tests {
                 assert_same_bits(&got, &want, &format!("round {round}, width {width}"));
             }
         }
+    }
+
+    /// Every computed instruction once, after its operands, on 2000 random tapes (so that
+    /// `body` finds every operand computed; the bits are the bit-for-bit tests').
+    #[test]
+    fn the_emission_order_computes_each_instruction_once_after_its_operands() {
+        let mut rng = Rng::new(5);
+        for round in 0..2000 {
+            let mut pool = Vec::new();
+            let outs: Vec<Expr> = (0..1 + round % 4)
+                .map(|_| random_expr(&mut rng, 3, 2 + round % 5, &mut pool))
+                .collect();
+            let t = with_jit(false, || Tape::compile(&outs));
+            let code = t.parts().0;
+            let order = least_live_order(code);
+            let mut at = vec![usize::MAX; code.len()];
+            for (k, &i) in order.iter().enumerate() {
+                assert_eq!(at[i], usize::MAX, "round {round}: {i} twice");
+                at[i] = k;
+            }
+            for (i, ins) in code.iter().enumerate() {
+                let computed = !matches!(ins, Instr::Var(_) | Instr::Const(_));
+                assert_eq!(at[i] != usize::MAX, computed, "round {round}: {ins:?}");
+                for s in ins.operands().into_iter().flatten().map(|s| s as usize) {
+                    if at[s] != usize::MAX {
+                        assert!(at[s] < at[i], "round {round}: {i} before its operand {s}");
+                    }
+                }
+            }
+        }
+    }
+
+    /// An RK4 step of the article's bead (the implicit form's acceleration written out):
+    /// the stages' slopes are summed as they come instead of all waiting for the update.
+    #[test]
+    fn the_emission_order_sums_rk4s_slopes_as_they_come() {
+        // (x, y, u, w) = (x, y, xdot, ydot); h/2, h and h/6 as variables, as the step's.
+        let [x, y, u, w, half, h, sixth] = [0, 1, 2, 3, 4, 5, 6].map(Expr::var);
+        let accel = |x: &Expr, u: &Expr| {
+            let lambda = (u.clone() * u.clone() * -2.0 - 5e4) / (x.clone() * x.clone() * 4.0 + 1e4);
+            (x.clone() * 2.0 * lambda.clone(), lambda * 100.0 + 500.0)
+        };
+        // The state a stage starts from: (x, u, w) + dt (v, a, b).
+        let stage = |dt: &Expr, v: &Expr, a: &Expr, b: &Expr| {
+            let ahead = |q: &Expr, rate: &Expr| q.clone() + dt.clone() * rate.clone();
+            (ahead(&x, v), ahead(&u, a), ahead(&w, b))
+        };
+        let (a1, b1) = accel(&x, &u);
+        let (x2, u2, w2) = stage(&half, &u, &a1, &b1);
+        let (a2, b2) = accel(&x2, &u2);
+        let (x3, u3, w3) = stage(&half, &u2, &a2, &b2);
+        let (a3, b3) = accel(&x3, &u3);
+        let (x4, u4, w4) = stage(&h, &u3, &a3, &b3);
+        let (a4, b4) = accel(&x4, &u4);
+        let update = |q: &Expr, k: [&Expr; 4]| {
+            q.clone()
+                + sixth.clone()
+                    * (k[0].clone() + k[1].clone() * 2.0 + k[2].clone() * 2.0 + k[3].clone())
+        };
+        // The stages first, then the update, in the tape as in a compiled step's.
+        let step = [
+            a4.clone(),
+            b4.clone(),
+            update(&x, [&u, &u2, &u3, &u4]),
+            update(&y, [&w, &w2, &w3, &w4]),
+            update(&u, [&a1, &a2, &a3, &a4]),
+            update(&w, [&b1, &b2, &b3, &b4]),
+        ];
+        let t = with_jit(false, || Tape::compile(&step));
+        let (tape_order, emitted) = t.most_live_values();
+        assert!(
+            emitted + 2 <= tape_order,
+            "{emitted} live at most, against {tape_order} in tape order"
+        );
     }
 
     /// Four chains for a short tape of arithmetic alone (the article's step), one for a

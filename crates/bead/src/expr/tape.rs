@@ -489,6 +489,13 @@ impl Tape {
         (&self.code, &self.outputs)
     }
 
+    /// The most values the machine code holds at once (computed, still to be read): in the
+    /// tape's order and in the order its vector code computes them in (for tests).
+    #[cfg(test)]
+    pub(crate) fn most_live_values(&self) -> (usize, usize) {
+        super::jit::most_live_values(&self.code)
+    }
+
     /// Number of instructions (for `bead check` and benchmarks).
     pub fn n_instructions(&self) -> usize {
         self.code.len()
