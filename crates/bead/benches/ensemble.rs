@@ -29,7 +29,9 @@
 //!
 //! `cargo bench -p bead --bench ensemble` (`-- --members N` for another ensemble size,
 //! `-- --setup-only` for the setup alone, `-- --restarted-only` for the restarted setup alone,
-//! `-- --lanes-only` for the sweep through the lanes alone: what to profile).
+//! `-- --lanes-only` for the sweep through the lanes alone: what to profile; with
+//! `-- --rounds N`, the best of N sweeps, which repeats within ~2% on a noisy machine where
+//! single sweeps spread over 20%: what to compare builds with).
 
 use std::hint::black_box;
 use std::time::Instant;
@@ -247,6 +249,7 @@ fn by_hand(method: Method, x0: &[f64], threads: usize) -> (f64, Vec<[f64; 2]>) {
 fn main() {
     let mut members = 10_000;
     let (mut setup_only, mut restarted_only, mut lanes_only) = (false, false, false);
+    let mut rounds = 1;
     let mut args = std::env::args().skip(1);
     while let Some(arg) = args.next() {
         if arg == "--setup-only" {
@@ -255,6 +258,12 @@ fn main() {
             (setup_only, restarted_only) = (true, true);
         } else if arg == "--lanes-only" {
             lanes_only = true;
+        } else if arg == "--rounds" {
+            rounds = args
+                .next()
+                .and_then(|n| n.parse().ok())
+                .filter(|&n| n > 0)
+                .expect("--rounds N");
         } else if arg == "--members" {
             members = args
                 .next()
@@ -277,7 +286,9 @@ fn main() {
             break;
         }
         if lanes_only {
-            let (seconds, _) = through_bead(method, &x0, threads, false);
+            let seconds = (0..rounds)
+                .map(|_| through_bead(method, &x0, threads, false).0)
+                .fold(f64::INFINITY, f64::min);
             println!("{:<11} {:>16.3e}", method.name(), work / seconds);
             continue;
         }
