@@ -263,6 +263,7 @@ fn vector_width(code: &[Instr]) -> i64 {
 
 /// Vector registers the machine code can keep values in (x86-64 has 16; a few go to the
 /// loads and splats of operands; aarch64 has 32).
+#[cfg(not(target_arch = "wasm32"))]
 const VALUE_REGISTERS: usize = if cfg!(target_arch = "aarch64") {
     28
 } else {
@@ -280,6 +281,7 @@ const VALUE_REGISTERS: usize = if cfg!(target_arch = "aarch64") {
 /// partial sum is taken as soon as its stage is, instead of every stage's slope waiting for
 /// the end (the article's implicit step: 16 values live at most in the tape's order, 9 in
 /// this one; four chains of lanes hold four times as many).
+#[cfg(not(target_arch = "wasm32"))]
 pub(super) fn emission_order(code: &[Instr], chains: usize) -> Vec<usize> {
     let n = code.len();
     let tape_order: Vec<usize> = (0..n).filter(|&s| is_computed(code[s])).collect();
@@ -290,6 +292,7 @@ pub(super) fn emission_order(code: &[Instr], chains: usize) -> Vec<usize> {
 }
 
 /// The greedy order of [`emission_order`].
+#[cfg(not(target_arch = "wasm32"))]
 fn least_live_order(code: &[Instr]) -> Vec<usize> {
     let n = code.len();
     let operands: Vec<Vec<usize>> = (0..n)
@@ -345,11 +348,13 @@ fn least_live_order(code: &[Instr]) -> Vec<usize> {
 
 /// Whether the machine code computes `ins` (rather than loading it where it is used: a
 /// `Var` or a `Const`).
+#[cfg(not(target_arch = "wasm32"))]
 fn is_computed(ins: Instr) -> bool {
     !matches!(ins, Instr::Var(_) | Instr::Const(_))
 }
 
 /// The distinct computed operands of instruction `i`.
+#[cfg(not(target_arch = "wasm32"))]
 fn computed_operands(code: &[Instr], i: usize) -> impl Iterator<Item = usize> {
     let mut distinct = [0; 3];
     let mut count = 0;
@@ -372,6 +377,7 @@ pub(super) fn most_live_values(code: &[Instr]) -> (usize, usize) {
 
 /// The most values the machine code holds at once (computed and still to be read) when
 /// it computes `code` in `order`.
+#[cfg(not(target_arch = "wasm32"))]
 fn most_live(code: &[Instr], order: &[usize]) -> usize {
     let distinct = |i: usize| computed_operands(code, i);
     let mut reads = vec![0usize; code.len()];
