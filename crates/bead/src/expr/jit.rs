@@ -17,9 +17,10 @@
 //! by an immediate offset (no address arithmetic per slot); other lane counts are
 //! interpreted (the same bits). The first is compiled with the tape
 //! (its time is the tape's compile time); the second on its first use (a sweep's first
-//! block), so that a single run, which never evaluates lanes, does not pay for it. Each SSA
-//! instruction becomes one Cranelift value (kept in registers, spilled by the register
-//! allocator when needed): no scratch array; where the tape's order would hold more values
+//! block), so that a single run, which never evaluates lanes, does not pay for it. Each
+//! computing SSA instruction becomes one Cranelift value (kept in registers, spilled by the
+//! register allocator when needed; variables and constants are loaded where they are used):
+//! no scratch array; where the tape's order would hold more values
 //! than the registers, the instructions are emitted in one that holds fewer
 //! ([`emission_order`]). The constants are not baked into the code but read
 //! from `consts` (the tape's constants in instruction order, exact bits), so that tapes that
@@ -667,7 +668,8 @@ mod codegen {
     use super::{Code, Instr, TapeFn};
     use crate::expr::ast::sign_f64;
 
-    /// A slot loaded where it is first used: variable k, or the constant at this byte offset.
+    /// A slot loaded where it is used (at each use in the vector code, at the first in the
+    /// scalar code): variable k, or the constant at this byte offset.
     #[derive(Clone, Copy)]
     enum Deferred {
         Var(u32),
@@ -1124,12 +1126,14 @@ mod tests {
     const L: usize = 16;
 
     /// Values that exercise the corners of every operation.
-    const SPECIAL: [f64; 14] = [
+    const SPECIAL: [f64; 16] = [
         0.0,
         -0.0,
         f64::INFINITY,
         f64::NEG_INFINITY,
         f64::NAN,
+        -f64::NAN,
+        f64::from_bits(0x7ff8_0000_dead_beef),
         1e300,
         -1e300,
         1e-300,

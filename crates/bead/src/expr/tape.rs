@@ -490,7 +490,7 @@ impl Tape {
     }
 
     /// The most values the machine code holds at once (computed, still to be read): in the
-    /// tape's order and in the order its vector code computes them in (for tests).
+    /// tape's order and in the order the four-chain vector code computes them in (for tests).
     #[cfg(test)]
     pub(crate) fn most_live_values(&self) -> (usize, usize) {
         super::jit::most_live_values(&self.code)

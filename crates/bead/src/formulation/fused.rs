@@ -1494,9 +1494,10 @@ b = ["sin(th) + 0.3*ph", "cos(ph)*th", "0.5 + 0.1*sin(th*ph)"]
         assert_eq!(format!("{:?}", lanes.tape), format!("{:?}", single.tape));
     }
 
-    /// The machine code computes the article's RK4 steps in an order that holds far fewer
-    /// values at once than the tapes' (`expr::jit::emission_order`: each stage's slopes
-    /// summed as they come): 16 -> 9 (implicit) and 8 -> 5 (parametric) when written.
+    /// The sweep lanes' four-chain machine code computes the article's RK4 steps in an order
+    /// that holds far fewer values at once than the tapes' (`expr::jit::emission_order`: each
+    /// stage's slopes summed as they come): 16 -> 9 (implicit) and 8 -> 5 (parametric) when
+    /// written. (The scalar code too for the implicit step; the parametric's 8 values fit.)
     #[test]
     fn the_articles_steps_are_emitted_holding_fewer_values() {
         let scene = parabola_scene();
